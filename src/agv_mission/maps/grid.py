@@ -1,0 +1,79 @@
+"""Occupancy grids in the ROS convention: row 0 is the bottom of the map (lowest y)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from agv_mission.geometry import Pose2D
+
+FREE = 0
+OCCUPIED = 100
+UNKNOWN = -1
+
+
+@dataclass
+class OccupancyGrid:
+    """A 2D occupancy grid like ``nav_msgs/OccupancyGrid``.
+
+    ``data[row, col]`` is ``FREE`` (0), ``OCCUPIED`` (100) or ``UNKNOWN`` (-1); row 0 is
+    the lowest y. ``origin`` is the map-frame pose of the lower-left corner of cell (0, 0).
+    """
+
+    data: np.ndarray  # int8, shape (height, width)
+    resolution: float
+    origin: Pose2D
+
+    @property
+    def height(self) -> int:
+        return int(self.data.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.data.shape[1])
+
+    @property
+    def extent(self) -> tuple[float, float, float, float]:
+        """(xmin, xmax, ymin, ymax) of the grid in the map frame (origin yaw ignored)."""
+        x0, y0 = self.origin.x, self.origin.y
+        return (x0, x0 + self.width * self.resolution, y0, y0 + self.height * self.resolution)
+
+    def world_to_cell(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, cols) of map-frame points ``xy`` of shape (..., 2); may be out of bounds."""
+        xy = np.asarray(xy, dtype=float)
+        px, py = xy[..., 0] - self.origin.x, xy[..., 1] - self.origin.y
+        if self.origin.yaw != 0.0:
+            c, s = np.cos(self.origin.yaw), np.sin(self.origin.yaw)
+            px, py = c * px + s * py, -s * px + c * py
+        cols = np.floor(px / self.resolution).astype(np.int64)
+        rows = np.floor(py / self.resolution).astype(np.int64)
+        return rows, cols
+
+    def cell_to_world(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Map-frame centres of cells, shape (..., 2)."""
+        px = (np.asarray(cols, dtype=float) + 0.5) * self.resolution
+        py = (np.asarray(rows, dtype=float) + 0.5) * self.resolution
+        if self.origin.yaw != 0.0:
+            c, s = np.cos(self.origin.yaw), np.sin(self.origin.yaw)
+            px, py = c * px - s * py, s * px + c * py
+        return np.stack([px + self.origin.x, py + self.origin.y], axis=-1)
+
+    def in_bounds(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        return (rows >= 0) & (rows < self.height) & (cols >= 0) & (cols < self.width)
+
+    def value_at(self, xy: np.ndarray) -> np.ndarray:
+        """Cell values at map-frame points; ``UNKNOWN`` outside the grid."""
+        rows, cols = self.world_to_cell(xy)
+        inside = self.in_bounds(rows, cols)
+        out = np.full(rows.shape, UNKNOWN, dtype=np.int8)
+        out[inside] = self.data[rows[inside], cols[inside]]
+        return out
+
+    def counts(self) -> dict[str, int]:
+        """Number of free, occupied and unknown cells."""
+        return {
+            "free": int(np.count_nonzero(self.data == FREE)),
+            "occupied": int(np.count_nonzero(self.data == OCCUPIED)),
+            "unknown": int(np.count_nonzero(self.data == UNKNOWN)),
+        }

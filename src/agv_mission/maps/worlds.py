@@ -1,0 +1,47 @@
+"""Worlds: the physical layout the simulator builds and the map the robot knows.
+
+A :class:`World` is pure data: wall boxes and cylinders (what MuJoCo simulates), the
+occupancy grid the robot is given (rasterised from the geometry, or a ROS map), a spawn
+pose and named rooms.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from agv_mission.geometry import Pose2D
+from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.maps.rooms import Room
+
+
+@dataclass(frozen=True)
+class Box:
+    """An axis-aligned-in-its-own-frame box: centre, half extents, yaw. Height is the world's."""
+
+    x: float
+    y: float
+    half_x: float
+    half_y: float
+    yaw: float = 0.0
+
+
+@dataclass(frozen=True)
+class Cylinder:
+    """A vertical cylinder (pillar)."""
+
+    x: float
+    y: float
+    radius: float
+
+
+@dataclass
+class World:
+    """Everything about the environment a mission needs."""
+
+    name: str
+    boxes: list[Box]
+    cylinders: list[Cylinder]
+    map: OccupancyGrid  # what the robot is told (static map)
+    spawn: Pose2D
+    rooms: dict[str, Room] = field(default_factory=dict)
+    wall_height: float = 0.5

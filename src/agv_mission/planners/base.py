@@ -1,0 +1,54 @@
+"""What every planner plugin speaks: paths, commands and their failures."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+
+class PluginConfig(BaseModel):
+    """Base of every plugin's configuration block: unknown keys are errors."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+class PlanningError(RuntimeError):
+    """The global planner found no path; the message says why."""
+
+
+@dataclass
+class Path:
+    """A global path in the map frame: (N, 2) waypoints from start to goal."""
+
+    points: np.ndarray
+    planning_time: float = 0.0  # wall seconds spent, for benchmarks only
+
+    @property
+    def length(self) -> float:
+        if len(self.points) < 2:
+            return 0.0
+        return float(np.sum(np.linalg.norm(np.diff(self.points, axis=0), axis=1)))
+
+
+@dataclass(frozen=True)
+class VelocityLimits:
+    """Bounds a local planner must keep (from the robot description)."""
+
+    max_v: float
+    max_w: float
+    max_acc_v: float
+    max_acc_w: float
+    min_v: float = 0.0  # reversing is not allowed unless a plugin says otherwise
+
+
+@dataclass
+class VelocityCommand:
+    """A ``cmd_vel``: linear and angular velocity, plus solver diagnostics."""
+
+    v: float
+    w: float
+    ok: bool = True
+    solve_time: float = 0.0  # wall seconds, for benchmarks only
+    predicted: np.ndarray | None = None  # (N, 2) predicted positions, for plots

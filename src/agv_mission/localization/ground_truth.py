@@ -1,0 +1,35 @@
+"""``ground_truth``: the simulator's pose, for testing everything above localisation."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+
+from agv_mission.geometry import Pose2D
+from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.messages import LaserScan
+from agv_mission.planners.base import PluginConfig
+from agv_mission.registry import register
+
+
+class GroundTruthConfig(PluginConfig):
+    """The estimate is the true pose."""
+
+    type: Literal["ground_truth"] = "ground_truth"
+
+
+@register("localization", "ground_truth")
+class GroundTruthLocalizer:
+    Config = GroundTruthConfig
+
+    def __init__(
+        self, config: GroundTruthConfig, grid: OccupancyGrid, rng: np.random.Generator
+    ) -> None:
+        self.config = config
+
+    def reset(self, pose: Pose2D, odom: Pose2D) -> None:
+        """Nothing to reset: the truth needs no initial guess."""
+
+    def update(self, odom: Pose2D, scan: LaserScan | None, truth: Pose2D, time: float) -> Pose2D:
+        return truth

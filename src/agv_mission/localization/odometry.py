@@ -1,0 +1,37 @@
+"""``odometry``: dead reckoning from wheel encoders, anchored at the initial pose."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+
+from agv_mission.geometry import Pose2D
+from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.messages import LaserScan
+from agv_mission.planners.base import PluginConfig
+from agv_mission.registry import register
+
+
+class OdometryConfig(PluginConfig):
+    """map -> odom is fixed at the start; the estimate drifts with the encoders."""
+
+    type: Literal["odometry"] = "odometry"
+
+
+@register("localization", "odometry")
+class OdometryLocalizer:
+    Config = OdometryConfig
+
+    def __init__(
+        self, config: OdometryConfig, grid: OccupancyGrid, rng: np.random.Generator
+    ) -> None:
+        self.config = config
+        self._start = Pose2D(0.0, 0.0, 0.0)
+        self._odom0 = Pose2D(0.0, 0.0, 0.0)
+
+    def reset(self, pose: Pose2D, odom: Pose2D) -> None:
+        self._start, self._odom0 = pose, odom
+
+    def update(self, odom: Pose2D, scan: LaserScan | None, truth: Pose2D, time: float) -> Pose2D:
+        return self._start.compose(odom.relative_to(self._odom0))

@@ -1,0 +1,314 @@
+"""Mission loading: YAML with line numbers, ``--set`` overrides, validation, resolution.
+
+Everything that can be wrong with the input is found here, before anything runs, and
+reported as :class:`MissionError` naming file, line and field.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from pydantic import ValidationError
+
+from agv_mission.geometry import Pose2D
+from agv_mission.maps.costmap import Costmap
+from agv_mission.maps.grid import UNKNOWN
+from agv_mission.maps.rooms import Room
+from agv_mission.maps.rooms_file import load_rooms
+from agv_mission.maps.world_loader import WorldError, load_world
+from agv_mission.maps.worlds import World
+from agv_mission.missions.errors import MissionError, Problem
+from agv_mission.missions.schema import Mission
+from agv_mission.missions.yaml_lines import FieldPath, line_of, load_with_lines
+from agv_mission.robots.description import RobotDescription, load_robot
+
+
+@dataclass
+class LoadedMission:
+    """A validated mission with everything it names loaded and resolved."""
+
+    mission: Mission
+    source: Path | None
+    name: str
+    world: World
+    robot: RobotDescription
+    rooms: dict[str, Room]
+    start: Pose2D
+    costmap: Costmap
+
+    def resolved(self) -> dict[str, Any]:
+        """The mission as it runs: defaults filled in and overrides applied."""
+        doc = self.mission.model_dump(mode="json")
+        doc["name"] = self.name
+        return doc
+
+
+def load_mission(
+    path: str | Path,
+    overrides: list[str] | None = None,
+    seed: int | None = None,
+    text: str | None = None,
+) -> LoadedMission:
+    """Read, override, validate and resolve a mission file."""
+    path = Path(path)
+    file = str(path)
+    if text is None:
+        try:
+            text = path.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise MissionError([Problem(file, None, "", f"cannot read: {exc.strerror}")]) from None
+        except UnicodeDecodeError:
+            raise MissionError([Problem(file, None, "", "not a UTF-8 text file")]) from None
+    try:
+        data, lines = load_with_lines(text)
+    except yaml.YAMLError as exc:
+        raise MissionError([_yaml_problem(file, exc)]) from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise MissionError(
+            [Problem(file, 1, "", f"expected a mapping of mission keys, got {_kind(data)}")]
+        )
+    data = copy.deepcopy(data)
+    override_paths: dict[FieldPath, str] = {}
+    for item in overrides or []:
+        field_path, value = _parse_override(file, item)
+        _apply(data, field_path, value, file, item)
+        override_paths[field_path] = item
+    if seed is not None:
+        data["seed"] = seed
+
+    try:
+        mission = Mission.model_validate(data)
+    except ValidationError as exc:
+        raise MissionError(_validation_problems(file, exc, data, lines, override_paths)) from None
+
+    base_dir = path.parent if path.name else Path.cwd()
+    loaded = _resolve(mission, file, base_dir, path.stem or "mission", lines, override_paths)
+    loaded.source = path
+    return loaded
+
+
+def _resolve(
+    mission: Mission,
+    file: str,
+    base_dir: Path,
+    stem: str,
+    lines: dict[FieldPath, int],
+    override_paths: dict[FieldPath, str],
+) -> LoadedMission:
+    problems: list[Problem] = []
+
+    def problem(field_path: FieldPath, message: str) -> None:
+        problems.append(_problem(file, field_path, message, lines, override_paths))
+
+    try:
+        world = load_world(mission.world, base_dir)
+    except WorldError as exc:
+        problem(("world",), str(exc))
+        raise MissionError(problems) from None
+    try:
+        robot = load_robot(mission.robot, base_dir)
+    except FileNotFoundError:
+        problem(("robot",), f"no built-in robot or robot file {mission.robot!r} "
+                "(built-in: burger, waffle, rosbots)")
+    except (OSError, yaml.YAMLError, ValidationError, TypeError) as exc:
+        problem(("robot",), f"invalid robot file {mission.robot!r}: {_first_line(exc)}")
+    rooms = dict(world.rooms)
+    if mission.rooms is not None:
+        try:
+            rooms.update(load_rooms(_resolve_path(mission.rooms, base_dir)))
+        except Exception as exc:  # the rooms loader names the file and the room
+            problem(("rooms",), str(exc))
+    if problems:
+        raise MissionError(problems)
+
+    costmap = Costmap.from_grid(world.map, robot.footprint_radius, mission.stack.costmap)
+
+    if mission.start is None:
+        start = world.spawn
+    elif isinstance(mission.start, str):
+        room = rooms.get(mission.start)
+        if room is None:
+            problem(("start",), f"unknown room {mission.start!r}; known rooms: "
+                    f"{', '.join(sorted(rooms)) or '(none)'}")
+            start = world.spawn
+        elif room.anchor is None:
+            x, y = room.centroid()
+            start = Pose2D(x, y, 0.0)
+        else:
+            start = room.anchor
+    else:
+        start = mission.start.to_pose2d()
+    _check_pose(start, costmap, ("start",), problem)
+    for i, task in enumerate(mission.tasks):
+        if task.type == "go_to":
+            _check_pose(task.pose.to_pose2d(), costmap, ("tasks", i, "pose"), problem)
+        elif task.type == "patrol":
+            for j, wp in enumerate(task.waypoints):
+                _check_pose(wp.to_pose2d(), costmap, ("tasks", i, "waypoints", j), problem)
+    if problems:
+        raise MissionError(problems)
+    return LoadedMission(
+        mission=mission,
+        source=None,
+        name=mission.name or stem,
+        world=world,
+        robot=robot,
+        rooms=rooms,
+        start=start,
+        costmap=costmap,
+    )
+
+
+def _check_pose(pose: Pose2D, costmap: Costmap, field_path: FieldPath, problem: Any) -> None:
+    xmin, xmax, ymin, ymax = costmap.grid.extent
+    xy = np.array([pose.x, pose.y])
+    if not (xmin <= pose.x < xmax and ymin <= pose.y < ymax):
+        problem(field_path, f"({pose.x:g}, {pose.y:g}) is outside the map "
+                f"(x {xmin:g}..{xmax:g}, y {ymin:g}..{ymax:g})")
+    elif costmap.grid.value_at(xy) == UNKNOWN:
+        problem(field_path, f"({pose.x:g}, {pose.y:g}) lies in unknown space of the map")
+    elif not costmap.is_free(xy):
+        clearance = float(costmap.clearance(xy))
+        problem(field_path, f"({pose.x:g}, {pose.y:g}) is inside or too close to an obstacle "
+                f"(clearance {clearance:.2f} m, robot radius {costmap.robot_radius:.3f} m)")
+
+
+def _resolve_path(spec: str, base_dir: Path) -> Path:
+    p = Path(spec).expanduser()
+    return p if p.is_absolute() else base_dir / p
+
+
+def _parse_override(file: str, item: str) -> tuple[FieldPath, Any]:
+    key, sep, raw = item.partition("=")
+    if not sep or not key.strip():
+        raise MissionError([Problem("--set", None, item, "expected KEY=VALUE, e.g. "
+                                    "stack.global_planner.planner=RRTstar")])
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else None
+    except yaml.YAMLError:
+        value = raw
+    parts: list[str | int] = [int(p) if p.isdigit() else p for p in key.strip().split(".")]
+    return tuple(parts), value
+
+
+def _apply(data: dict, field_path: FieldPath, value: Any, file: str, item: str) -> None:
+    node: Any = data
+    for i, part in enumerate(field_path):
+        last = i == len(field_path) - 1
+        if isinstance(node, list):
+            if not isinstance(part, int) or not -len(node) <= part < len(node):
+                raise MissionError([Problem("--set", None, item,
+                                            f"{part!r} is not an index of a list of {len(node)}")])
+            if last:
+                node[part] = value
+            else:
+                node = node[part]
+        elif isinstance(node, dict):
+            key: str | int = part
+            if isinstance(part, int) and part not in node and str(part) in node:
+                key = str(part)
+            if last:
+                node[key] = value
+            else:
+                if not isinstance(node.get(key), (dict, list)):
+                    node[key] = {}
+                node = node[key]
+        else:
+            raise MissionError([Problem("--set", None, item,
+                                        f"cannot set a key inside a {_kind(node)}")])
+
+
+def _validation_problems(
+    file: str,
+    exc: ValidationError,
+    data: Any,
+    lines: dict[FieldPath, int],
+    override_paths: dict[FieldPath, str],
+) -> list[Problem]:
+    problems: list[Problem] = []
+    seen: set[tuple[FieldPath, str]] = set()
+    for err in exc.errors(include_url=False):
+        field_path = _data_path(tuple(err["loc"]), data)
+        message = _message(err)
+        if (field_path, message) in seen:
+            continue
+        seen.add((field_path, message))
+        problems.append(_problem(file, field_path, message, lines, override_paths))
+    return problems
+
+
+def _data_path(loc: tuple, data: Any) -> FieldPath:
+    """Drop pydantic's union tags from an error location, keeping the document's own path."""
+    path: list[str | int] = []
+    node = data
+    for i, part in enumerate(loc):
+        last = i == len(loc) - 1
+        if isinstance(node, dict) and part in node:
+            path.append(part)
+            node = node[part]
+        elif isinstance(node, list) and isinstance(part, int) and 0 <= part < len(node):
+            path.append(part)
+            node = node[part]
+        elif last and isinstance(part, str) and not _is_tag(part):
+            path.append(part)  # a missing field: named, but not in the document
+        # otherwise a union tag such as 'go_to', 'Pose' or 'function-after[...]': skip
+    return tuple(path)
+
+
+def _is_tag(part: str) -> bool:
+    return part in {"str", "int", "float", "bool", "Pose"} or "[" in part
+
+
+def _message(err: dict) -> str:
+    kind = err["type"]
+    if kind == "missing":
+        return "required field is missing"
+    if kind == "extra_forbidden":
+        return "unknown key (not allowed here)"
+    msg = err["msg"]
+    if msg.startswith("Value error, "):
+        msg = msg[len("Value error, "):]
+    if "input" in err and kind not in ("union_tag_invalid",) and not isinstance(
+        err["input"], (dict, list)
+    ):
+        msg = f"{msg} (got {err['input']!r})"
+    return msg
+
+
+def _problem(
+    file: str,
+    field_path: FieldPath,
+    message: str,
+    lines: dict[FieldPath, int],
+    override_paths: dict[FieldPath, str],
+) -> Problem:
+    dotted = ".".join(str(p) for p in field_path)
+    for opath, item in override_paths.items():
+        if field_path[: len(opath)] == opath or opath[: len(field_path)] == field_path:
+            return Problem(file, None, dotted, f"{message} (from --set {item})")
+    return Problem(file, line_of(field_path, lines), dotted, message)
+
+
+def _yaml_problem(file: str, exc: yaml.YAMLError) -> Problem:
+    mark = getattr(exc, "problem_mark", None)
+    line = mark.line + 1 if mark is not None else None
+    problem = getattr(exc, "problem", None) or str(exc)
+    context = getattr(exc, "context", None)
+    text = f"YAML syntax error: {problem}" + (f" ({context})" if context else "")
+    return Problem(file, line, "", text)
+
+
+def _kind(value: Any) -> str:
+    return type(value).__name__ if value is not None else "nothing"
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__

@@ -1,0 +1,131 @@
+"""The run directory: result, trajectory, resolved mission, tree and plot, written atomically."""
+
+from __future__ import annotations
+
+import io
+import json
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from agv_mission.atomic import atomic_write_bytes, atomic_write_text
+from agv_mission.missions.loader import LoadedMission
+from agv_mission.missions.runner import TRAJECTORY_COLUMNS, RunRecord
+
+
+def make_run_dir(output_root: Path, name: str) -> Path:
+    """``OUTPUT/<name>-<UTC timestamp>/``, unique even for runs started in the same second."""
+    stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    output_root.mkdir(parents=True, exist_ok=True)
+    for n in range(1000):
+        path = output_root / (f"{name}-{stamp}" + (f"-{n}" if n else ""))
+        try:
+            path.mkdir()
+            return path
+        except FileExistsError:
+            continue
+    raise RuntimeError(f"cannot create a run directory under {output_root}")
+
+
+def result_document(loaded: LoadedMission, record: RunRecord, run_dir: Path) -> dict[str, Any]:
+    return {
+        "name": loaded.name,
+        "status": record.status,
+        "reason": record.reason,
+        "sim_time": record.sim_time,
+        "wall_time": record.wall_time,
+        "seed": loaded.mission.seed,
+        "world": loaded.world.name,
+        "robot": loaded.robot.name,
+        "tasks": record.tasks,
+        "metrics": record.metrics,
+        "events": record.events,
+        **record.extras,
+        "run_dir": str(run_dir),
+    }
+
+
+def write_mission(run_dir: Path, loaded: LoadedMission) -> None:
+    text = yaml.safe_dump(loaded.resolved(), sort_keys=False, default_flow_style=None)
+    atomic_write_text(run_dir / "mission.yaml", text)
+
+
+def write_run(run_dir: Path, loaded: LoadedMission, record: RunRecord) -> dict[str, Any]:
+    """Write every output of a finished run; returns the result document."""
+    write_trajectory(run_dir / "trajectory.csv", record.trajectory)
+    atomic_write_text(run_dir / "tree.txt", record.tree_text + "\n")
+    plot_run(run_dir / "run.png", loaded, record)
+    result = result_document(loaded, record, run_dir)
+    write_json(run_dir / "result.json", result)
+    return result
+
+
+def write_json(path: Path, doc: dict[str, Any]) -> None:
+    atomic_write_text(path, json.dumps(doc, indent=2, allow_nan=False, default=_json_default) + "\n")
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def write_trajectory(path: Path, trajectory: np.ndarray) -> None:
+    buf = io.StringIO()
+    buf.write(",".join(TRAJECTORY_COLUMNS) + "\n")
+    if trajectory.size:
+        np.savetxt(buf, trajectory, delimiter=",", fmt="%.6f")
+    atomic_write_text(path, buf.getvalue())
+
+
+def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
+    """The map with rooms, planned paths, the driven and estimated trajectory, and goals."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    grid = loaded.world.map
+    xmin, xmax, ymin, ymax = grid.extent
+    image = np.full(grid.data.shape, 0.75)
+    image[grid.data == 0] = 1.0
+    image[grid.data == 100] = 0.0
+    fig, ax = plt.subplots(figsize=(8, 8 * (ymax - ymin) / max(xmax - xmin, 1e-6) + 0.6), dpi=110)
+    ax.imshow(image, cmap="gray", vmin=0, vmax=1, origin="lower", extent=(xmin, xmax, ymin, ymax),
+              interpolation="nearest")
+    for room in loaded.rooms.values():
+        poly = np.asarray(room.polygon + (room.polygon[0],))
+        ax.plot(poly[:, 0], poly[:, 1], "--", lw=0.8, color="tab:purple", alpha=0.7)
+        cx, cy = room.centroid()
+        ax.text(cx, cy, room.label, color="tab:purple", ha="center", fontsize=8, alpha=0.8)
+    for i, p in enumerate(record.paths):
+        ax.plot(p[:, 0], p[:, 1], "-", lw=0.8, color="tab:orange", alpha=0.6,
+                label="planned paths" if i == 0 else None)
+    traj = record.trajectory
+    if traj.size:
+        ax.plot(traj[:, 1], traj[:, 2], "-", lw=1.4, color="tab:blue", label="driven (true)")
+        ax.plot(traj[:, 4], traj[:, 5], ":", lw=1.0, color="tab:green", label="estimated")
+        ax.plot(traj[0, 1], traj[0, 2], "o", color="tab:blue", label="start")
+    for e in record.events:
+        if e["event"] == "goal_reached":
+            ax.plot(e["x"], e["y"], "*", color="gold", markeredgecolor="k", ms=11)
+        elif e["event"] == "goal_failed":
+            ax.plot(e.get("x", np.nan), e.get("y", np.nan), "x", color="red", ms=10)
+    occupied = np.argwhere(grid.data == 0)
+    if occupied.size:
+        pts = grid.cell_to_world(occupied[:, 0], occupied[:, 1])
+        pad = 1.0
+        ax.set_xlim(pts[:, 0].min() - pad, pts[:, 0].max() + pad)
+        ax.set_ylim(pts[:, 1].min() - pad, pts[:, 1].max() + pad)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"{loaded.name}: {record.status}  (sim {record.sim_time:.1f} s)")
+    ax.legend(loc="upper right", fontsize=7)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", bbox_inches="tight")
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())

@@ -1,0 +1,177 @@
+"""The mission file, as pydantic models: the contract of ``mission-format.md`` in types.
+
+Plugin blocks (``stack.localization``, ``stack.global_planner``, ...) are unions of the
+``Config`` models of every plugin registered for that slot, told apart by ``type``; a
+new plugin extends the schema by registering itself.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Any, Literal, Union
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    field_validator,
+    model_validator,
+)
+
+from agv_mission.geometry import Pose2D, yaw_from_quaternion
+from agv_mission.maps.costmap import CostmapConfig
+from agv_mission.navigation.config import NavigationConfig
+from agv_mission.registry import registry
+from agv_mission.robots.simulation import SimConfig
+
+QUATERNION_TOLERANCE = 1e-3
+
+
+class StrictModel(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class Position(StrictModel):
+    x: float
+    y: float
+    z: float = 0.0
+
+
+class Orientation(StrictModel):
+    x: float = 0.0
+    y: float = 0.0
+    z: float
+    w: float
+
+
+class Pose(StrictModel):
+    """A planar pose: ``{x, y, yaw}`` or ROS style ``{position: {...}, orientation: {...}}``."""
+
+    x: float = Field(description="metres, map frame")
+    y: float = Field(description="metres, map frame")
+    yaw: float = Field(0.0, description="radians, counter-clockwise from +x")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _from_ros(cls, data: Any) -> Any:
+        if not isinstance(data, dict) or ("position" not in data and "orientation" not in data):
+            return data
+        extra = set(data) - {"position", "orientation"}
+        if extra:
+            raise ValueError(
+                f"a ROS-style pose has only 'position' and 'orientation', not {sorted(extra)}"
+            )
+        position = Position.model_validate(data.get("position", {"x": 0.0, "y": 0.0}))
+        if "orientation" not in data:
+            return {"x": position.x, "y": position.y, "yaw": 0.0}
+        q = Orientation.model_validate(data["orientation"])
+        norm = math.sqrt(q.x**2 + q.y**2 + q.z**2 + q.w**2)
+        if abs(norm - 1.0) > QUATERNION_TOLERANCE:
+            raise ValueError(
+                f"orientation quaternion has length {norm:.6f}; expected unit length (within 1e-3)"
+            )
+        if abs(q.x) > QUATERNION_TOLERANCE or abs(q.y) > QUATERNION_TOLERANCE:
+            raise ValueError(
+                "orientation tilts out of the plane (x and y must be 0 for a planar robot)"
+            )
+        return {"x": position.x, "y": position.y, "yaw": yaw_from_quaternion(q.x, q.y, q.z, q.w)}
+
+    def to_pose2d(self) -> Pose2D:
+        return Pose2D(self.x, self.y, self.yaw)
+
+
+def _plugin_union(slot: str) -> Any:
+    """A discriminated union of the config models of every plugin of ``slot``."""
+    configs = tuple(registry.configs(slot))
+    if len(configs) == 1:
+        return configs[0]
+    return Annotated[Union[configs], Field(discriminator="type")]  # noqa: UP007
+
+
+LocalizationConfig = _plugin_union("localization")
+GlobalPlannerConfig = _plugin_union("global_planner")
+LocalPlannerConfig = _plugin_union("local_planner")
+
+
+def _default(slot: str, name: str) -> Any:
+    return registry.get(slot, name).Config()
+
+
+class Stack(StrictModel):
+    """The navigation stack: one plugin per slot, chosen by ``type``."""
+
+    localization: LocalizationConfig = Field(  # type: ignore[valid-type]
+        default_factory=lambda: _default("localization", "ground_truth")
+    )
+    global_planner: GlobalPlannerConfig = Field(  # type: ignore[valid-type]
+        default_factory=lambda: _default("global_planner", "ompl")
+    )
+    local_planner: LocalPlannerConfig = Field(  # type: ignore[valid-type]
+        default_factory=lambda: _default("local_planner", "mpc")
+    )
+    costmap: CostmapConfig = Field(default_factory=CostmapConfig)
+    navigation: NavigationConfig = Field(default_factory=NavigationConfig)
+
+
+class GoToTask(StrictModel):
+    """Navigate to one pose."""
+
+    type: Literal["go_to"]
+    pose: Pose
+
+
+class PatrolTask(StrictModel):
+    """Visit the waypoints in order, ``loops`` times, waiting ``dwell`` seconds at each."""
+
+    type: Literal["patrol"]
+    waypoints: list[Pose] = Field(min_length=1)
+    loops: int = Field(1, ge=1)
+    dwell: float = Field(0.0, ge=0.0, description="simulated seconds at each waypoint")
+
+
+class WanderTask(StrictModel):
+    """Drive ahead while the range ahead exceeds ``min_range``, turn otherwise (seed ex. 7.3)."""
+
+    type: Literal["wander"]
+    duration: float = Field(gt=0.0, description="simulated seconds")
+    min_range: float = Field(0.8, gt=0.0, description="metres")
+    speed: float | None = Field(None, gt=0.0, description="m/s; default: the robot's maximum")
+    turn_rate: float = Field(0.4, gt=0.0, description="rad/s while turning")
+    sector: float = Field(
+        20.0, gt=0.0, le=180.0, description="half-width of the 'ahead' sector, degrees"
+    )
+
+
+Task = Annotated[Union[GoToTask, PatrolTask, WanderTask], Field(discriminator="type")]  # noqa: UP007
+
+
+class Limits(StrictModel):
+    time: float = Field(600.0, gt=0.0, description="simulated seconds for the whole mission")
+
+
+class Mission(StrictModel):
+    """A mission file."""
+
+    name: str | None = Field(None, description="default: the file's stem")
+    world: str = Field(
+        "turtlebot3_world",
+        description="a built-in world, a world file, or a ROS map_server YAML",
+    )
+    rooms: str | None = Field(None, description="rooms file; built-in worlds carry their own")
+    robot: str = Field("burger", description="burger, waffle, rosbots, or a robot file")
+    start: Pose | str | None = Field(
+        None, description="a pose or a room label; default: the world's spawn pose"
+    )
+    seed: int = Field(0, ge=0, description="every random draw of the run derives from it")
+    stack: Stack = Field(default_factory=Stack)
+    simulation: SimConfig = Field(default_factory=SimConfig)
+    tasks: list[Task] = Field(min_length=1)
+    limits: Limits = Field(default_factory=Limits)
+    output: str = Field("runs", description="root of run directories")
+
+    @field_validator("name")
+    @classmethod
+    def _name_is_a_path_component(cls, v: str | None) -> str | None:
+        if v is not None and (not v.strip() or "/" in v or "\\" in v):
+            raise ValueError("name must be a non-empty string without path separators")
+        return v

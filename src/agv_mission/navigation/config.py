@@ -1,0 +1,26 @@
+"""Navigation parameters: tolerances, replanning and progress checking."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class NavigationConfig(BaseModel):
+    """How a goal is pursued (the mission's ``stack.navigation`` block)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    xy_goal_tolerance: float = Field(0.05, gt=0, description="metres")
+    yaw_goal_tolerance: float = Field(0.05, gt=0, description="radians")
+    replan_distance: float = Field(
+        0.4, gt=0, description="replan when the robot strays this far from its path, m"
+    )
+    progress_distance: float = Field(0.1, gt=0, description="metres that count as progress")
+    progress_timeout: float = Field(
+        15.0, gt=0, description="simulated seconds without progress before replanning"
+    )
+    max_replans: int = Field(5, ge=0, description="replans per goal before the goal fails")
+    obstacle_range: float = Field(
+        1.5, gt=0, description="lidar points within this range go to the local planner, m"
+    )
+    rotate_gain: float = Field(2.0, gt=0, description="P gain of the final in-place rotation")

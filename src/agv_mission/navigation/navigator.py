@@ -1,0 +1,196 @@
+"""The navigator: pursue one goal by planning, following, checking progress and replanning.
+
+It plays move_base's part: a global plan on the costmap, a local planner that tracks it,
+an in-place rotation to the goal's yaw at the end, and replanning when the robot strays
+from its path or stops making progress. Time is the simulation clock in ``RobotState``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any
+
+import numpy as np
+
+from agv_mission.geometry import Pose2D, wrap_angle
+from agv_mission.maps.costmap import Costmap
+from agv_mission.navigation.config import NavigationConfig
+from agv_mission.navigation.state import RobotState
+from agv_mission.planners.base import Path, PlanningError, VelocityCommand, VelocityLimits
+
+
+class NavStatus(Enum):
+    IDLE = "idle"
+    RUNNING = "running"
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"
+
+
+class _Phase(Enum):
+    FOLLOW = "follow"
+    ROTATE = "rotate"
+
+
+@dataclass
+class NavigationStats:
+    """Counters and timings a run reports."""
+
+    plans: int = 0
+    replans: int = 0
+    planning_times: list[float] = field(default_factory=list)
+    solve_times: list[float] = field(default_factory=list)
+    solver_failures: int = 0
+    path_lengths: list[float] = field(default_factory=list)
+
+
+class Navigator:
+    """Drives the robot to one goal at a time."""
+
+    def __init__(
+        self,
+        costmap: Costmap,
+        global_planner: Any,
+        local_planner: Any,
+        limits: VelocityLimits,
+        config: NavigationConfig,
+        control_period: float,
+        seed: int = 0,
+    ) -> None:
+        self.costmap = costmap
+        self.global_planner = global_planner
+        self.local_planner = local_planner
+        self.limits = limits
+        self.config = config
+        self.control_period = control_period
+        self.seed = seed
+        self.status = NavStatus.IDLE
+        self.reason: str | None = None
+        self.goal: Pose2D | None = None
+        self.path: Path | None = None
+        self.paths: list[np.ndarray] = []  # every plan, for the run plot
+        self.stats = NavigationStats()
+        self._phase = _Phase.FOLLOW
+        self._replans_for_goal = 0
+        self._best_distance = math.inf
+        self._last_progress_time = 0.0
+
+    def start(self, goal: Pose2D, state: RobotState) -> None:
+        """Begin pursuing ``goal``: plan a path from the current estimate."""
+        self.goal = goal
+        self.status = NavStatus.RUNNING
+        self.reason = None
+        self._phase = _Phase.FOLLOW
+        self._replans_for_goal = 0
+        self._best_distance = state.estimate.distance_to(goal)
+        self._last_progress_time = state.time
+        self.local_planner.reset()
+        self._plan(state)
+
+    def cancel(self) -> None:
+        self.status = NavStatus.IDLE
+        self.goal = None
+        self.path = None
+
+    def update(self, state: RobotState) -> VelocityCommand:
+        """One control step towards the goal; read ``status`` afterwards."""
+        if self.status is not NavStatus.RUNNING or self.goal is None:
+            return VelocityCommand(0.0, 0.0)
+        pose, goal = state.estimate, self.goal
+        distance = pose.distance_to(goal)
+        if self._phase is _Phase.FOLLOW and distance <= self.config.xy_goal_tolerance:
+            self._phase = _Phase.ROTATE
+        elif self._phase is _Phase.ROTATE and distance > 3.0 * self.config.xy_goal_tolerance:
+            self._phase = _Phase.FOLLOW
+        if self._phase is _Phase.ROTATE:
+            return self._rotate(state)
+        return self._follow(state, distance)
+
+    def _follow(self, state: RobotState, distance: float) -> VelocityCommand:
+        assert self.goal is not None
+        if distance < self._best_distance - self.config.progress_distance:
+            self._best_distance = distance
+            self._last_progress_time = state.time
+        elif state.time - self._last_progress_time > self.config.progress_timeout:
+            if not self._replan(state, f"no progress for {self.config.progress_timeout:g} s"):
+                return VelocityCommand(0.0, 0.0)
+        if self.path is None or self._off_path(state.estimate) > self.config.replan_distance:
+            reason = "strayed from the path" if self.path is not None else "no path"
+            if not self._replan(state, reason):
+                return VelocityCommand(0.0, 0.0)
+        assert self.path is not None
+        near = state.obstacles
+        if len(near):
+            d = np.hypot(near[:, 0] - state.estimate.x, near[:, 1] - state.estimate.y)
+            near = near[d <= self.config.obstacle_range]
+        cmd = self.local_planner.compute(
+            state.estimate, state.velocity, self.path.points, self.goal, near
+        )
+        self.stats.solve_times.append(cmd.solve_time)
+        if not cmd.ok:
+            self.stats.solver_failures += 1
+        return cmd
+
+    def _rotate(self, state: RobotState) -> VelocityCommand:
+        assert self.goal is not None
+        error = wrap_angle(self.goal.yaw - state.estimate.yaw)
+        v0, w0 = state.velocity
+        dt = self.control_period
+        v = max(0.0, v0 - self.limits.max_acc_v * dt) if v0 > 0 else min(0.0, v0 + self.limits.max_acc_v * dt)
+        if abs(error) <= self.config.yaw_goal_tolerance and abs(v) < 1e-3:
+            self.status = NavStatus.SUCCEEDED
+            return VelocityCommand(0.0, 0.0)
+        # P control, capped so the robot can still stop within the remaining angle.
+        speed = min(
+            self.config.rotate_gain * abs(error),
+            math.sqrt(2.0 * self.limits.max_acc_w * abs(error)),
+            self.limits.max_w,
+        )
+        w = math.copysign(speed, error)
+        w = float(np.clip(w, w0 - self.limits.max_acc_w * dt, w0 + self.limits.max_acc_w * dt))
+        return VelocityCommand(v, w)
+
+    def _off_path(self, pose: Pose2D) -> float:
+        assert self.path is not None
+        pts = self.path.points
+        if len(pts) < 2:
+            return pose.distance_to(Pose2D(*pts[0])) if len(pts) else 0.0
+        a, b = pts[:-1], pts[1:]
+        ab = b - a
+        ap = np.array([pose.x, pose.y]) - a
+        denom = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12)
+        t = np.clip(np.einsum("ij,ij->i", ap, ab) / denom, 0.0, 1.0)
+        closest = a + ab * t[:, None]
+        return float(np.min(np.linalg.norm(closest - [pose.x, pose.y], axis=1)))
+
+    def _replan(self, state: RobotState, why: str) -> bool:
+        if self._replans_for_goal >= self.config.max_replans:
+            self._fail(f"goal ({self.goal.x:.2f}, {self.goal.y:.2f}) not reached: {why} "
+                       f"after {self._replans_for_goal} replans")
+            return False
+        self._replans_for_goal += 1
+        self.stats.replans += 1
+        self._best_distance = state.estimate.distance_to(self.goal)
+        self._last_progress_time = state.time
+        return self._plan(state)
+
+    def _plan(self, state: RobotState) -> bool:
+        assert self.goal is not None
+        seed = self.seed + self.stats.plans
+        self.stats.plans += 1
+        try:
+            path = self.global_planner.plan(self.costmap, state.estimate, self.goal, seed=seed)
+        except PlanningError as exc:
+            self._fail(f"no path to ({self.goal.x:.2f}, {self.goal.y:.2f}): {exc}")
+            return False
+        self.path = path
+        self.paths.append(path.points.copy())
+        self.stats.planning_times.append(path.planning_time)
+        self.stats.path_lengths.append(path.length)
+        return True
+
+    def _fail(self, reason: str) -> None:
+        self.status = NavStatus.FAILED
+        self.reason = reason
+        self.path = None

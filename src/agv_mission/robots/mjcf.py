@@ -1,0 +1,154 @@
+"""MJCF generation: one MuJoCo model holding a world's walls and a differential-drive robot.
+
+Layout of the generated model (names are part of the contract used by
+:mod:`agv_mission.robots.simulation` and :mod:`agv_mission.robots.sensors`):
+
+* ``floor``: a plane in geom group :data:`FLOOR_GROUP`.
+* ``wall_<i>`` / ``pillar_<i>``: static boxes / cylinders in the world body, geom group
+  :data:`WALL_GROUP` (the only group the lidar sees; rays need ``flg_static=1``).
+* body ``base`` on free joint ``base_free``: origin at the wheel axle midpoint (ROS
+  ``base_link``) at axle height; chassis cylinder ``chassis`` of radius ``footprint_radius``;
+  wheel bodies ``wheel_left`` / ``wheel_right`` on hinge joints of the same name with velocity
+  actuators ``motor_left`` / ``motor_right``; frictionless casters ``caster_front`` /
+  ``caster_back``; site ``lidar``. All robot geoms are in group :data:`ROBOT_GROUP`.
+
+Collision bits keep the contact search tiny even with hundreds of wall boxes: walls and
+floor never test against each other (same body, disjoint bits), wheels and casters only
+touch the floor, and only the chassis tests against walls.
+"""
+
+from __future__ import annotations
+
+import math
+
+from agv_mission.maps.worlds import World
+from agv_mission.robots.description import RobotDescription
+
+FLOOR_GROUP = 0
+WALL_GROUP = 1
+ROBOT_GROUP = 2
+
+# contype / conaffinity bits
+_FLOOR_BIT = 1
+_WALL_BIT = 2
+
+GRAVITY = 9.81
+WHEEL_FRICTION = 1.0
+
+
+def _f(x: float) -> str:
+    return f"{x:.6g}"
+
+
+def _vec(*xs: float) -> str:
+    return " ".join(_f(x) for x in xs)
+
+
+def _yaw_quat(yaw: float) -> str:
+    return _vec(math.cos(yaw / 2.0), 0.0, 0.0, math.sin(yaw / 2.0))
+
+
+def wheel_torque_limit(robot: RobotDescription) -> float:
+    """Per-wheel motor torque limit (N m).
+
+    Enough for about three times the robot's nominal linear acceleration, but capped well
+    below what the wheel's traction (about a quarter of the weight per wheel, friction 1)
+    can carry, so step commands neither spin the wheels nor lift the chassis.
+    """
+    accel = min(3.0 * robot.max_linear_acceleration, 0.4 * WHEEL_FRICTION * GRAVITY)
+    return 0.5 * robot.mass * accel * robot.wheel_radius
+
+
+def wheel_kv(robot: RobotDescription) -> float:
+    """Velocity-actuator gain (N m s / rad): ~10 ms time constant on the robot's inertia."""
+    reflected_inertia = 0.5 * robot.mass * robot.wheel_radius**2
+    return reflected_inertia / 0.01
+
+
+def build_mjcf(robot: RobotDescription, world: World, timestep: float = 0.002) -> str:
+    """The MJCF XML of ``world``'s walls plus ``robot`` (spawned at the origin; place it by
+    writing the free joint's ``qpos``)."""
+    r = robot.wheel_radius
+    rf = robot.footprint_radius
+    half_sep = robot.wheel_separation / 2.0
+    m = robot.mass
+    h_wall = world.wall_height
+
+    # Vertical layout in the base frame (origin at axle height, z = 0 is the axle).
+    floor_z = -r
+    clearance = 0.4 * r
+    chassis_top = max(robot.lidar.height - 0.01, clearance + 0.05) + floor_z
+    chassis_bottom = floor_z + clearance
+    chassis_half = (chassis_top - chassis_bottom) / 2.0
+    chassis_z = (chassis_top + chassis_bottom) / 2.0
+    caster_r = 0.5 * r
+    caster_x = max(rf - caster_r - 0.01, 0.5 * rf)
+
+    m_chassis, m_wheel, m_caster = 0.8 * m, 0.08 * m, 0.02 * m
+    armature = 0.05 * m * r * r
+    kv = wheel_kv(robot)
+    tau = wheel_torque_limit(robot)
+
+    walls = []
+    for i, b in enumerate(world.boxes):
+        walls.append(
+            f'    <geom name="wall_{i}" type="box" pos="{_vec(b.x, b.y, h_wall / 2)}" '
+            f'size="{_vec(b.half_x, b.half_y, h_wall / 2)}" quat="{_yaw_quat(b.yaw)}" '
+            f'class="wall"/>'
+        )
+    for i, c in enumerate(world.cylinders):
+        walls.append(
+            f'    <geom name="pillar_{i}" type="cylinder" pos="{_vec(c.x, c.y, h_wall / 2)}" '
+            f'size="{_vec(c.radius, h_wall / 2)}" class="wall"/>'
+        )
+    walls_xml = "\n".join(walls)
+
+    return f"""<mujoco model="{robot.name}_in_{world.name}">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="{_f(timestep)}" integrator="implicitfast" gravity="0 0 {_f(-GRAVITY)}"/>
+  <visual><global offwidth="800" offheight="600"/></visual>
+  <default>
+    <default class="wall">
+      <geom group="{WALL_GROUP}" contype="{_WALL_BIT}" conaffinity="{_WALL_BIT}"
+            friction="0.5 0.005 0.0001" rgba="0.7 0.7 0.75 1"/>
+    </default>
+    <default class="robot">
+      <geom group="{ROBOT_GROUP}" contype="{_FLOOR_BIT}" conaffinity="{_FLOOR_BIT}"/>
+    </default>
+  </default>
+  <worldbody>
+    <geom name="floor" type="plane" size="0 0 0.1" group="{FLOOR_GROUP}"
+          contype="{_FLOOR_BIT}" conaffinity="{_FLOOR_BIT}" friction="{_f(WHEEL_FRICTION)} 0.005 0.0001"
+          rgba="0.9 0.9 0.9 1"/>
+{walls_xml}
+    <body name="base" pos="0 0 {_f(r)}">
+      <freejoint name="base_free"/>
+      <geom name="chassis" class="robot" type="cylinder" size="{_vec(rf, chassis_half)}"
+            pos="0 0 {_f(chassis_z)}" mass="{_f(m_chassis)}"
+            contype="{_FLOOR_BIT | _WALL_BIT}" conaffinity="{_FLOOR_BIT | _WALL_BIT}"
+            friction="0.5 0.005 0.0001" rgba="0.2 0.2 0.25 1"/>
+      <geom name="caster_front" class="robot" type="sphere" size="{_f(caster_r)}"
+            pos="{_vec(caster_x, 0, floor_z + caster_r)}" mass="{_f(m_caster)}"
+            condim="1" priority="1" friction="0 0 0"/>
+      <geom name="caster_back" class="robot" type="sphere" size="{_f(caster_r)}"
+            pos="{_vec(-caster_x, 0, floor_z + caster_r)}" mass="{_f(m_caster)}"
+            condim="1" priority="1" friction="0 0 0"/>
+      <site name="lidar" pos="0 0 {_f(robot.lidar.height + floor_z)}" size="0.01"/>
+      <body name="wheel_left" pos="0 {_f(half_sep)} 0">
+        <joint name="wheel_left" type="hinge" axis="0 1 0" armature="{_f(armature)}"/>
+        <geom name="wheel_left" class="robot" type="sphere" size="{_f(r)}" mass="{_f(m_wheel)}"
+              condim="3" friction="{_f(WHEEL_FRICTION)} 0.005 0.0001" rgba="0.1 0.1 0.1 1"/>
+      </body>
+      <body name="wheel_right" pos="0 {_f(-half_sep)} 0">
+        <joint name="wheel_right" type="hinge" axis="0 1 0" armature="{_f(armature)}"/>
+        <geom name="wheel_right" class="robot" type="sphere" size="{_f(r)}" mass="{_f(m_wheel)}"
+              condim="3" friction="{_f(WHEEL_FRICTION)} 0.005 0.0001" rgba="0.1 0.1 0.1 1"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <velocity name="motor_left" joint="wheel_left" kv="{_f(kv)}" forcerange="{_vec(-tau, tau)}"/>
+    <velocity name="motor_right" joint="wheel_right" kv="{_f(kv)}" forcerange="{_vec(-tau, tau)}"/>
+  </actuator>
+</mujoco>
+"""

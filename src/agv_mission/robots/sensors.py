@@ -1,0 +1,146 @@
+"""Simulated sensors on a MuJoCo model built by :func:`agv_mission.robots.mjcf.build_mjcf`."""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+
+from agv_mission.messages import LaserScan
+from agv_mission.robots.description import LidarSpec
+from agv_mission.robots.mjcf import WALL_GROUP
+
+
+class Lidar:
+    """A planar 360-degree scanner: all beams in one ``mj_multiRay`` call.
+
+    Beam ``i`` points at ``i * 2 pi / beams`` counter-clockwise from the robot's +x (beam 0
+    straight ahead, like the TurtleBot3 LDS). Only geoms in :data:`WALL_GROUP` are seen, so
+    the robot's own body, wheels and casters (another group) and the floor are never hit.
+    Returns closer than ``range_min`` or beyond ``range_max`` read ``inf``.
+    """
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        data: mujoco.MjData,
+        spec: LidarSpec,
+        rng: np.random.Generator,
+        site: str = "lidar",
+        noise_std: float | None = None,
+    ) -> None:
+        self.model = model
+        self.data = data
+        self.spec = spec
+        self.rng = rng
+        self.noise_std = spec.noise_std if noise_std is None else float(noise_std)
+        self.site_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, site)
+        if self.site_id < 0:
+            raise ValueError(f"model has no site {site!r}")
+        n = spec.beams
+        self.angle_increment = 2.0 * math.pi / n
+        angles = self.angle_increment * np.arange(n)
+        # Beam directions in the sensor frame, (n, 3); rotated to the world each scan.
+        self._local = np.stack([np.cos(angles), np.sin(angles), np.zeros(n)], axis=1)
+        self._vec = np.zeros(3 * n)
+        self._dist = np.zeros(n)
+        self._geomid = np.zeros(n, dtype=np.int32)
+        self._groups = np.zeros(6, dtype=np.uint8)
+        self._groups[WALL_GROUP] = 1
+        # mj_multiRay's cutoff culls by bounding volume; exact clamping is done afterwards.
+        self._cutoff = spec.range_max + 1.0
+
+    def cast(self) -> np.ndarray:
+        """Noise-free hit distances (float64, -1 for no hit) from the current kinematics.
+
+        Call :func:`mujoco.mj_kinematics` (or a step) first so ``site_xpos`` is current.
+        """
+        d = self.data
+        origin = d.site_xpos[self.site_id].copy()
+        rot = d.site_xmat[self.site_id].reshape(3, 3)
+        np.matmul(self._local, rot.T, out=self._vec.reshape(-1, 3))
+        mujoco.mj_multiRay(
+            self.model,
+            d,
+            origin,
+            self._vec,
+            self._groups,
+            1,  # flg_static: walls live in the world body
+            -1,  # bodyexclude: robot excluded by geom group instead
+            self._geomid,
+            self._dist,
+            None,  # normal (new in MuJoCo 4.0)
+            self.spec.beams,
+            self._cutoff,
+        )
+        return self._dist
+
+    def scan(self, time: float) -> LaserScan:
+        """One scan at the current state, with Gaussian range noise from the rng."""
+        dist = self.cast().copy()
+        hit = dist >= 0.0
+        if self.noise_std > 0.0:
+            dist[hit] += self.rng.normal(0.0, self.noise_std, size=int(hit.sum()))
+        ok = hit & (dist >= self.spec.range_min) & (dist <= self.spec.range_max)
+        ranges = np.where(ok, dist, np.inf).astype(np.float32)
+        return LaserScan(
+            ranges=ranges,
+            angle_min=0.0,
+            angle_increment=self.angle_increment,
+            range_min=self.spec.range_min,
+            range_max=self.spec.range_max,
+            time=float(time),
+        )
+
+
+class WheelEncoders:
+    """Incremental encoders on the two wheel hinges, read as cumulative integer ticks.
+
+    Each :meth:`read` turns the wheel travel since the previous read (joint angle x radius x
+    ticks per metre) into ticks, scaled per wheel by ``1 + N(0, noise) + U(-slip, slip)``,
+    and accumulates them (sub-tick fractions are kept, so a noise-free encoder never
+    drifts). Draws come from ``rng`` only when noise/slip are non-zero.
+    """
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        data: mujoco.MjData,
+        wheel_radius: float,
+        ticks_per_meter: float,
+        rng: np.random.Generator,
+        noise: float = 0.0,
+        slip: float = 0.0,
+        joints: tuple[str, str] = ("wheel_left", "wheel_right"),
+    ) -> None:
+        self.data = data
+        self.rng = rng
+        self.noise = float(noise)
+        self.slip = float(slip)
+        self.ticks_per_rad = wheel_radius * ticks_per_meter
+        self._qadr = np.array(
+            [
+                model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j)]
+                for j in joints
+            ]
+        )
+        self._last_angle = data.qpos[self._qadr].copy()
+        self._acc = np.zeros(2)  # float ticks
+
+    def read(self) -> tuple[int, int]:
+        angle = self.data.qpos[self._qadr].copy()
+        delta = (angle - self._last_angle) * self.ticks_per_rad
+        self._last_angle = angle
+        scale = np.ones(2)
+        if self.noise > 0.0:
+            scale += self.rng.normal(0.0, self.noise, size=2)
+        if self.slip > 0.0:
+            scale += self.rng.uniform(-self.slip, self.slip, size=2)
+        self._acc += delta * scale
+        left, right = np.floor(self._acc)
+        return int(left), int(right)
+
+    def rebase(self) -> None:
+        """Forget wheel motion since the last read (after a teleport rewrote the joints)."""
+        self._last_angle = self.data.qpos[self._qadr].copy()

@@ -1,0 +1,190 @@
+"""The MuJoCo robot: tracking, encoders + odometry, lidar, contacts, determinism."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from agv_mission.geometry import Pose2D, wrap_angle
+from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.maps.worlds import Box, Cylinder, World
+from agv_mission.robots.description import BUILTIN_ROBOTS
+from agv_mission.robots.mjcf import build_mjcf
+from agv_mission.robots.odometry import DiffDriveOdometry
+from agv_mission.robots.simulation import DiffDriveSim, SimConfig
+
+BURGER = BUILTIN_ROBOTS["burger"]
+ORIGIN = Pose2D(0.0, 0.0, 0.0)
+
+
+def make_world(boxes: list[Box] | None = None, cylinders: list[Cylinder] | None = None) -> World:
+    grid = OccupancyGrid(np.zeros((20, 20), dtype=np.int8), 0.25, Pose2D(-2.5, -2.5))
+    return World("test", boxes or [], cylinders or [], grid, Pose2D(0.0, 0.0))
+
+
+def make_sim(world: World | None = None, start: Pose2D = ORIGIN, seed: int = 0, **cfg):
+    return DiffDriveSim(
+        BURGER, world or make_world(), start, SimConfig(**cfg), np.random.default_rng(seed)
+    )
+
+
+def test_mjcf_has_all_walls_and_robot_parts():
+    import mujoco
+
+    world = make_world([Box(1, 0, 0.05, 1, 0.3), Box(-1, 0, 0.05, 1)], [Cylinder(0, 2, 0.1)])
+    m = mujoco.MjModel.from_xml_string(build_mjcf(BURGER, world))
+    names = {m.geom(i).name for i in range(m.ngeom)}
+    assert {"wall_0", "wall_1", "pillar_0", "chassis", "wheel_left", "wheel_right"} <= names
+    assert m.nu == 2
+    assert m.opt.integrator == mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+
+
+def test_commanded_speed_is_tracked():
+    sim = make_sim()
+    sim.set_command(0.2, 0.0)
+    sim.advance(1.0)
+    v, w = sim.true_velocity()
+    assert v == pytest.approx(0.2, rel=0.02)
+    assert abs(w) < 1e-3
+    sim.set_command(0.0, 1.0)
+    sim.advance(1.0)
+    v, w = sim.true_velocity()
+    assert abs(v) < 0.005
+    assert w == pytest.approx(1.0, rel=0.03)
+
+
+def test_command_is_clipped_to_limits():
+    sim = make_sim()
+    sim.set_command(5.0, -50.0)
+    assert sim.command == (BURGER.max_linear_velocity, -BURGER.max_angular_velocity)
+
+
+def test_straight_drive_odometry_within_2_percent():
+    sim = make_sim(start=Pose2D(0.0, 0.0, 0.7))
+    odo = DiffDriveOdometry(
+        BURGER.encoder.ticks_per_meter, BURGER.wheel_separation, sim.true_pose()
+    )
+    odo.update(*sim.encoder_ticks())
+    start = sim.true_pose()
+    sim.set_command(0.2, 0.0)
+    for _ in range(100):  # 5 s at 0.2 m/s = 1 m, odometry at 20 Hz
+        sim.advance(0.05)
+        odo.update(*sim.encoder_ticks())
+    sim.set_command(0.0, 0.0)
+    sim.advance(0.3)
+    odo.update(*sim.encoder_ticks())
+    true_d = start.distance_to(sim.true_pose())
+    assert true_d == pytest.approx(1.0, rel=0.05)
+    assert start.distance_to(odo.pose) == pytest.approx(true_d, rel=0.02)
+    assert odo.pose.distance_to(sim.true_pose()) < 0.02
+    assert abs(wrap_angle(odo.pose.yaw - sim.true_pose().yaw)) < 0.01
+
+
+def test_turn_in_place_yaw_measured():
+    sim = make_sim()
+    odo = DiffDriveOdometry(BURGER.encoder.ticks_per_meter, BURGER.wheel_separation)
+    odo.update(*sim.encoder_ticks())
+    sim.set_command(0.0, 1.5)
+    true_total = odo_total = 0.0
+    prev = sim.true_pose().yaw
+    for _ in range(40):  # 2 s at 1.5 rad/s = 3 rad
+        sim.advance(0.05)
+        odo.update(*sim.encoder_ticks())
+        odo_total += odo.last_delta[1]
+        yaw = sim.true_pose().yaw
+        true_total += wrap_angle(yaw - prev)
+        prev = yaw
+    assert true_total == pytest.approx(3.0, rel=0.05)
+    assert odo_total == pytest.approx(true_total, rel=0.03)
+    assert sim.true_pose().distance_to(Pose2D(0, 0)) < 0.01
+
+
+def test_lidar_reads_wall_ahead():
+    # Wall face at x = 0.95; beam 0 points along +x.
+    world = make_world([Box(1.0, 0.0, 0.05, 1.0)])
+    sim = make_sim(world, lidar_noise=0.0)
+    scan = sim.scan()
+    assert len(scan.ranges) == BURGER.lidar.beams
+    assert scan.angle_min == 0.0
+    assert scan.angle_increment == pytest.approx(2 * math.pi / BURGER.lidar.beams)
+    assert scan.ranges[0] == pytest.approx(0.95, abs=1e-4)
+    # 30 degrees to the left: 0.95 / cos(30 deg), counter-clockwise indexing.
+    i30 = round(math.radians(30) / scan.angle_increment)
+    assert scan.ranges[i30] == pytest.approx(0.95 / math.cos(math.radians(30)), abs=1e-3)
+    # Nothing behind the robot within range_max: inf, never a hit on the robot itself.
+    assert np.isinf(scan.ranges[len(scan.ranges) // 2])
+    assert np.all(np.isinf(scan.ranges) | (scan.ranges > BURGER.footprint_radius))
+
+
+def test_lidar_noise_and_rotation():
+    world = make_world([Box(0.0, 1.0, 1.0, 0.05)])  # wall face at y = 0.95
+    sim = make_sim(world, start=Pose2D(0.0, 0.0, math.pi / 2))
+    ranges = np.array([sim.scan().ranges[0] for _ in range(50)])
+    std = BURGER.lidar.noise_std
+    assert abs(ranges.mean() - 0.95) < 3 * std / math.sqrt(50) + 1e-4
+    assert 0.5 * std < ranges.std() < 1.5 * std
+
+
+def test_empty_world_sees_nothing():
+    scan = make_sim().scan()
+    assert np.all(np.isinf(scan.ranges))
+
+
+def test_driving_into_wall_reports_contacts():
+    world = make_world([Box(0.5, 0.0, 0.05, 1.0)], [Cylinder(-2.0, 0.0, 0.1)])
+    sim = make_sim(world)
+    assert sim.contacts() == 0
+    assert sim.min_clearance() == pytest.approx(0.45 - BURGER.footprint_radius, abs=1e-3)
+    sim.set_command(0.2, 0.0)
+    sim.advance(2.5)
+    assert sim.contacts() > 0
+    assert sim.min_clearance() < 0.005
+    assert sim.true_pose().x < 0.45 - BURGER.footprint_radius + 0.01
+
+
+def test_same_seed_same_trajectory():
+    def run(seed: int):
+        world = make_world([Box(1.5, 0.0, 0.05, 2.0)])
+        sim = make_sim(world, seed=seed, encoder_noise=0.01, wheel_slip=0.02)
+        out = []
+        for k in range(20):
+            sim.set_command(0.2, 0.8 * math.sin(k / 3))
+            sim.advance(0.1)
+            out.append((sim.true_pose().as_array(), sim.encoder_ticks(), sim.scan().ranges))
+        return out
+
+    a, b, c = run(3), run(3), run(4)
+    for (pa, ta, ra), (pb, tb, rb) in zip(a, b, strict=True):
+        assert np.array_equal(pa, pb) and ta == tb and np.array_equal(ra, rb)
+    assert any(ta != tc for (_, ta, _), (_, tc, _) in zip(a, c, strict=True))
+
+
+def test_noisy_encoders_give_integer_ticks_near_truth():
+    sim = make_sim(encoder_noise=0.05)
+    ticks0 = sim.encoder_ticks()
+    sim.set_command(0.2, 0.0)
+    sim.advance(1.0)
+    ticks = sim.encoder_ticks()
+    assert all(isinstance(t, int) for t in ticks)
+    expected = 0.2 * BURGER.encoder.ticks_per_meter
+    for t0, t1 in zip(ticks0, ticks, strict=True):
+        assert t1 - t0 == pytest.approx(expected, rel=0.3)
+
+
+def test_teleport_moves_robot_without_encoder_jump():
+    sim = make_sim()
+    ticks = sim.encoder_ticks()
+    sim.set_command(0.2, 0.0)
+    sim.advance(0.5)
+    sim.set_command(0.0, 0.0)
+    sim.teleport(Pose2D(1.0, -1.0, 2.0))
+    p = sim.true_pose()
+    assert (p.x, p.y, p.yaw) == pytest.approx((1.0, -1.0, 2.0))
+    assert sim.true_velocity() == (0.0, 0.0)
+    moved = sim.encoder_ticks()
+    sim.advance(0.5)
+    assert sim.encoder_ticks() == moved != ticks
+    assert sim.true_pose().distance_to(Pose2D(1.0, -1.0)) < 1e-3
+    assert sim.time == pytest.approx(1.0)

@@ -1,0 +1,75 @@
+"""`make bench`: measure what the issues ask for; print a table, write benchmarks/results.json.
+
+Each ``bench_*.py`` module beside this file exposes ``run() -> dict[str, float]``. The
+machine's CPU speed can flip about 2x between runs: compare options within one run.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import platform
+import sys
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+MODULES = ["bench_sim", "bench_planners", "bench_mpc", "bench_mission"]
+
+# metric -> (comparison, target) from the issues
+TARGETS = {
+    "mpc.solve_ms.p50": ("<=", 5.0),
+    "mpc.solve_ms.p99": ("<=", 20.0),
+    "mission.patrol.real_time_factor": (">=", 10.0),
+}
+
+
+def main() -> int:
+    console = Console()
+    results: dict[str, float] = {}
+    only = set(sys.argv[1:])
+    for name in MODULES:
+        if only and name not in only:
+            continue
+        start = time.perf_counter()
+        console.print(f"[bold]{name}[/] ...")
+        module = importlib.import_module(name)
+        values = module.run()
+        results.update(values)
+        console.print(f"  done in {time.perf_counter() - start:.1f} s")
+    table = Table(title="agv-mission benchmarks", header_style="bold")
+    table.add_column("metric")
+    table.add_column("value", justify="right")
+    table.add_column("target")
+    for key in sorted(results):
+        target = TARGETS.get(key)
+        value = results[key]
+        mark = ""
+        if target is not None:
+            op, bound = target
+            ok = value <= bound if op == "<=" else value >= bound
+            mark = f"{op} {bound:g} " + ("[green]ok[/]" if ok else "[red]MISSED[/]")
+        if key.endswith("length_ratio") and isinstance(value, float):
+            ok = value <= 1.15
+            mark = "<= 1.15 " + ("[green]ok[/]" if ok else "[red]MISSED[/]")
+        table.add_row(key, f"{value:.4g}" if isinstance(value, float) else str(value), mark)
+    console.print(table)
+    doc = {
+        "when": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "machine": {"python": platform.python_version(), "cpu": platform.processor(),
+                    "cores": __import__("os").cpu_count()},
+        "results": results,
+    }
+    (HERE / "results.json").write_text(json.dumps(doc, indent=2) + "\n")
+    console.print(f"wrote {HERE / 'results.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

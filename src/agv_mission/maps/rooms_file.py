@@ -1,0 +1,159 @@
+"""The rooms file of the public contract::
+
+    rooms:
+      livingroom:
+        polygon: [[-2.3, -5.3], [4.6, -5.3], [4.6, 0.0], [-2.3, 0.0]]   # map frame, metres
+        anchor: {x: 3.0, y: -2.0, yaw: 0.0}    # optional
+
+A polygon needs at least three [x, y] points and a non-zero area; the anchor is
+optional (``yaw`` defaults to 0). Errors name the file, the line, the room and the
+field.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Annotated, Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from agv_mission.geometry import Pose2D
+from agv_mission.maps.rooms import Room
+
+Point = tuple[float, float]
+
+
+class RoomsFileError(ValueError):
+    """An invalid rooms file. ``problems`` holds (line or None, room or None, message)."""
+
+    def __init__(self, path: Path, problems: list[tuple[int | None, str | None, str]]):
+        self.path = Path(path)
+        self.problems = problems
+        lines = []
+        for line, room, msg in problems:
+            where = f"{self.path}:{line}" if line else f"{self.path}"
+            lines.append(f"{where}: room {room!r}: {msg}" if room else f"{where}: {msg}")
+        super().__init__("\n".join(lines))
+
+    @classmethod
+    def from_validation(
+        cls, path: Path, exc: ValidationError, text: str | None = None
+    ) -> RoomsFileError:
+        """Turn a pydantic error on a ``{"rooms": ...}`` document into file/line/room
+        messages (lines only when the YAML ``text`` is given)."""
+        root = _compose(text) if text is not None else None
+        problems = []
+        for err in exc.errors():
+            loc = tuple(err["loc"])
+            room = str(loc[1]) if len(loc) >= 2 and loc[0] == "rooms" else None
+            field = ".".join(str(p) for p in (loc[2:] if room else loc))
+            line = _line_of(root, loc) if root is not None else None
+            msg = "field required" if err["type"] == "missing" else err["msg"]
+            problems.append((line, room, f"{field}: {msg}" if field else msg))
+        return cls(path, problems)
+
+
+class AnchorModel(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    x: float = Field(..., allow_inf_nan=False)
+    y: float = Field(..., allow_inf_nan=False)
+    yaw: float = Field(0.0, allow_inf_nan=False)
+
+
+class RoomModel(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    polygon: Annotated[list[Point], Field(min_length=3)]
+    anchor: AnchorModel | None = None
+
+    @field_validator("polygon")
+    @classmethod
+    def _proper_polygon(cls, polygon: list[Point]) -> list[Point]:
+        if not all(math.isfinite(v) for p in polygon for v in p):
+            raise ValueError("polygon coordinates must be finite numbers")
+        area2 = sum(
+            x0 * y1 - x1 * y0
+            for (x0, y0), (x1, y1) in zip(polygon, polygon[1:] + polygon[:1], strict=True)
+        )
+        if abs(area2) < 1e-12:
+            raise ValueError("polygon has zero area")
+        return polygon
+
+
+class RoomsModel(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    rooms: dict[str, RoomModel]
+
+
+def rooms_from_model(model: RoomsModel) -> dict[str, Room]:
+    rooms = {}
+    for label, room in model.rooms.items():
+        anchor = room.anchor
+        pose = Pose2D(anchor.x, anchor.y, anchor.yaw) if anchor is not None else None
+        rooms[label] = Room(label, tuple((float(x), float(y)) for x, y in room.polygon), pose)
+    return rooms
+
+
+def load_rooms(path: str | os.PathLike[str]) -> dict[str, Room]:
+    """Read a rooms file into ``{label: Room}`` (in file order)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise RoomsFileError(path, [(None, None, "rooms file not found")]) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RoomsFileError(path, [(None, None, f"cannot read rooms file: {exc}")]) from exc
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = mark.line + 1 if mark is not None else None
+        raise RoomsFileError(path, [(line, None, f"invalid YAML: {exc}")]) from exc
+    if not isinstance(doc, dict) or "rooms" not in doc:
+        raise RoomsFileError(
+            path, [(None, None, "a rooms file is a mapping with a top-level 'rooms' key")]
+        )
+    try:
+        model = RoomsModel.model_validate(doc)
+    except ValidationError as exc:
+        raise RoomsFileError.from_validation(path, exc, text) from exc
+    return rooms_from_model(model)
+
+
+# --------------------------------------------------------------------------- line numbers
+
+
+def _compose(text: str) -> yaml.Node | None:
+    try:
+        return yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError:
+        return None
+
+
+def _line_of(node: Any, loc: Sequence[str | int]) -> int | None:
+    """1-based line of the deepest YAML node along ``loc`` (a mapping entry: its key)."""
+    line = node.start_mark.line + 1
+    for part in loc:
+        child = None
+        if isinstance(node, yaml.MappingNode):
+            for key, value in node.value:
+                if isinstance(key, yaml.ScalarNode) and key.value == str(part):
+                    child, line = value, key.start_mark.line + 1
+                    break
+        elif (
+            isinstance(node, yaml.SequenceNode)
+            and isinstance(part, int)
+            and 0 <= part < len(node.value)
+        ):
+            child = node.value[part]
+            line = child.start_mark.line + 1
+        if child is None:
+            break
+        node = child
+    return line

@@ -1,0 +1,338 @@
+"""Resolve a mission's ``world:`` value into a :class:`World`.
+
+``load_world(spec, base_dir)`` accepts, in this order:
+
+1. the name of a built-in world (``turtlebot3_world``, ``small_house``);
+2. a path (relative paths against ``base_dir``, the mission file's folder) to a ROS
+   ``map_server`` YAML (``image`` + ``resolution`` + ``origin``; a folder holding a
+   ``map.yaml`` works too). The loaded grid is the robot's map; every occupied cell
+   becomes part of a wall box (runs of a row merged, identical runs of consecutive
+   rows stacked; or the same by columns when that gives fewer boxes), so the
+   simulated world matches the map cell for cell. The spawn is
+   the free cell nearest the map-frame origin (0, 0) with at least
+   :data:`SPAWN_CLEARANCE` of free space around it (in the largest free region),
+   else (0, 0). No rooms: give a rooms file;
+3. a path to a world file in this module's own YAML format::
+
+       name: my_arena              # optional; default: the file's stem
+       resolution: 0.05            # optional, metres per map cell
+       bounds: {xmin: -3, xmax: 3, ymin: -3, ymax: 3}
+                                   # optional; default: the geometry's bounding box + 0.5 m
+       wall_height: 0.5            # optional, metres
+       spawn: {x: 0.0, y: 0.0, yaw: 0.0}                 # required
+       boxes:                      # optional; centre, half extents, yaw (rad)
+         - {x: 0.0, y: 2.55, half_x: 3.0, half_y: 0.05, yaw: 0.0}
+         - {x: 1.0, y: 1.0, size: [0.5, 0.3]}           # or full sizes instead of halves
+       cylinders:                  # optional
+         - {x: 1.1, y: 1.1, radius: 0.15}
+       rooms:                      # optional: the rooms file's mapping, or a path to one
+         kitchen:
+           polygon: [[0, 0], [2, 0], [2, 2], [0, 2]]
+           anchor: {x: 1.0, y: 1.0, yaw: 0.0}
+
+   The robot's map is rasterised from the geometry
+   (:func:`agv_mission.maps.rasterize.rasterize`): free where the spawn can reach.
+
+Anything else raises :class:`WorldError`, whose message lists the built-in names.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from scipy import ndimage
+
+from agv_mission.geometry import Pose2D
+from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
+from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
+from agv_mission.maps.rasterize import rasterize
+from agv_mission.maps.rooms import Room
+from agv_mission.maps.rooms_file import RoomsFileError, RoomsModel, load_rooms, rooms_from_model
+from agv_mission.maps.ros_map import MapLoadError, is_ros_map_yaml, load_ros_map
+from agv_mission.maps.worlds import Box, Cylinder, World
+
+SPAWN_CLEARANCE = 0.3  # metres of free space the spawn of a ROS map must have around it
+DEFAULT_RESOLUTION = 0.05
+DEFAULT_MARGIN = 0.5
+
+
+class WorldError(ValueError):
+    """A ``world:`` value that names no built-in world and no readable world/map file."""
+
+
+def builtin_names() -> list[str]:
+    return sorted(BUILTIN_WORLDS)
+
+
+def load_world(spec: str, base_dir: Path | str = ".") -> World:
+    """The world named by ``spec``: a built-in name, a ROS map YAML or a world file."""
+    spec = str(spec).strip()
+    if spec in BUILTIN_WORLDS:
+        return BUILTIN_WORLDS[spec]()
+    names = ", ".join(builtin_names())
+    if not spec:
+        raise WorldError(f"empty world name; built-in worlds are: {names}")
+    path = Path(spec).expanduser()
+    if not path.is_absolute():
+        path = Path(base_dir) / path
+    if path.is_dir() and (path / "map.yaml").is_file():
+        path = path / "map.yaml"
+    if not path.is_file():
+        raise WorldError(
+            f"unknown world {spec!r}: not a built-in world ({names}) and no such file {path}"
+        )
+    try:
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise WorldError(f"{path}: cannot read world file: {exc}") from exc
+    if is_ros_map_yaml(doc):
+        return world_from_ros_map(path)
+    if isinstance(doc, dict):
+        return world_from_file(path, doc)
+    raise WorldError(
+        f"{path}: neither a ROS map YAML (image, resolution, origin) nor a world file "
+        f"(spawn, boxes, cylinders, ...); built-in worlds are: {names}"
+    )
+
+
+# --------------------------------------------------------------------------- ROS maps
+
+
+def world_from_ros_map(yaml_path: Path | str, spawn_clearance: float = SPAWN_CLEARANCE) -> World:
+    """A world whose walls are the occupied cells of a ``map_server`` map."""
+    yaml_path = Path(yaml_path)
+    try:
+        grid = load_ros_map(yaml_path)
+    except MapLoadError as exc:
+        raise WorldError(str(exc)) from exc
+    name = (
+        yaml_path.parent.name
+        if yaml_path.stem == "map" and yaml_path.parent.name
+        else yaml_path.stem
+    )
+    return World(
+        name=name,
+        boxes=occupied_boxes(grid),
+        cylinders=[],
+        map=grid,
+        spawn=find_spawn(grid, spawn_clearance),
+        rooms={},
+    )
+
+
+def occupied_runs(occupied: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """Rectangles ``(row0, row1, col0, col1)`` (inclusive) covering the True cells exactly.
+
+    Each row's runs of True cells are found, then identical runs (same columns) in
+    consecutive rows are stacked into one rectangle. The rectangles are disjoint.
+    """
+    occupied = np.asarray(occupied, dtype=bool)
+    rects: list[tuple[int, int, int, int]] = []
+    active: dict[tuple[int, int], int] = {}  # (col0, col1) -> first row
+    padded = np.zeros(occupied.shape[1] + 2, dtype=np.int8)
+    for row in range(occupied.shape[0]):
+        padded[1:-1] = occupied[row]
+        edges = np.flatnonzero(np.diff(padded))
+        runs = {(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)}
+        for key in [k for k in active if k not in runs]:
+            rects.append((active.pop(key), row - 1, key[0], key[1]))
+        for key in runs:
+            active.setdefault(key, row)
+    for key, first in active.items():
+        rects.append((first, occupied.shape[0] - 1, key[0], key[1]))
+    rects.sort()
+    return rects
+
+
+def occupied_rectangles(occupied: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """:func:`occupied_runs` along rows or along columns, whichever gives fewer rectangles."""
+    by_rows = occupied_runs(occupied)
+    by_cols = [(r0, r1, c0, c1) for c0, c1, r0, r1 in occupied_runs(np.asarray(occupied).T)]
+    return by_cols if len(by_cols) < len(by_rows) else by_rows
+
+
+def occupied_boxes(grid: OccupancyGrid) -> list[Box]:
+    """Disjoint wall boxes covering exactly the grid's occupied cells."""
+    res = grid.resolution
+    c, s = math.cos(grid.origin.yaw), math.sin(grid.origin.yaw)
+    boxes = []
+    for r0, r1, c0, c1 in occupied_rectangles(grid.data == OCCUPIED):
+        px = (c0 + c1 + 1) * res / 2.0
+        py = (r0 + r1 + 1) * res / 2.0
+        boxes.append(
+            Box(
+                x=grid.origin.x + c * px - s * py,
+                y=grid.origin.y + s * px + c * py,
+                half_x=(c1 + 1 - c0) * res / 2.0,
+                half_y=(r1 + 1 - r0) * res / 2.0,
+                yaw=grid.origin.yaw,
+            )
+        )
+    return boxes
+
+
+def find_spawn(grid: OccupancyGrid, clearance: float = SPAWN_CLEARANCE) -> Pose2D:
+    """The free cell nearest (0, 0) whose centre is more than ``clearance`` from the
+    nearest non-free cell's edge, within the largest such free region; else (0, 0)."""
+    free = grid.data == FREE
+    if not free.any():
+        return Pose2D(0.0, 0.0, 0.0)
+    distance = (ndimage.distance_transform_edt(free) - 0.5) * grid.resolution
+    roomy = free & (distance > clearance)
+    labels, count = ndimage.label(roomy)
+    if count == 0:
+        return Pose2D(0.0, 0.0, 0.0)
+    sizes = np.bincount(labels.ravel())
+    sizes[0] = 0
+    rows, cols = np.nonzero(labels == int(np.argmax(sizes)))
+    centres = grid.cell_to_world(rows, cols)
+    best = int(np.argmin(np.hypot(centres[:, 0], centres[:, 1])))
+    return Pose2D(round(float(centres[best, 0]), 6), round(float(centres[best, 1]), 6), 0.0)
+
+
+# --------------------------------------------------------------------------- world files
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class _PoseModel(_Strict):
+    x: float
+    y: float
+    yaw: float = 0.0
+
+
+class _BoundsModel(_Strict):
+    xmin: float
+    xmax: float
+    ymin: float
+    ymax: float
+
+    @model_validator(mode="after")
+    def _non_empty(self) -> _BoundsModel:
+        if not (self.xmax > self.xmin and self.ymax > self.ymin):
+            raise ValueError("need xmax > xmin and ymax > ymin")
+        return self
+
+
+class _BoxModel(_Strict):
+    x: float
+    y: float
+    half_x: float | None = Field(None, gt=0)
+    half_y: float | None = Field(None, gt=0)
+    size: tuple[float, float] | None = None
+    yaw: float = 0.0
+
+    @model_validator(mode="after")
+    def _extent(self) -> _BoxModel:
+        halves = self.half_x is not None and self.half_y is not None
+        if halves == (self.size is not None):
+            raise ValueError("give either half_x and half_y, or size: [sx, sy]")
+        if self.size is not None and min(self.size) <= 0:
+            raise ValueError("size must be positive")
+        return self
+
+    def to_box(self) -> Box:
+        if self.size is not None:
+            hx, hy = self.size[0] / 2.0, self.size[1] / 2.0
+        else:
+            hx, hy = float(self.half_x), float(self.half_y)  # type: ignore[arg-type]
+        return Box(self.x, self.y, hx, hy, self.yaw)
+
+
+class _CylinderModel(_Strict):
+    x: float
+    y: float
+    radius: float = Field(..., gt=0)
+
+
+class WorldFileModel(_Strict):
+    """The world file format (see the module docstring)."""
+
+    name: str | None = None
+    resolution: float = Field(DEFAULT_RESOLUTION, gt=0)
+    bounds: _BoundsModel | None = None
+    wall_height: float = Field(0.5, gt=0)
+    spawn: _PoseModel
+    boxes: list[_BoxModel] = Field(default_factory=list)
+    cylinders: list[_CylinderModel] = Field(default_factory=list)
+    rooms: str | dict[str, Any] | None = None
+
+
+def world_from_file(path: Path, doc: dict[str, Any] | None = None) -> World:
+    """Build a world from a world file (already parsed as ``doc`` if given)."""
+    if doc is None:
+        try:
+            doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+            raise WorldError(f"{path}: cannot read world file: {exc}") from exc
+    try:
+        model = WorldFileModel.model_validate(doc)
+    except ValidationError as exc:
+        lines = [
+            f"  {'.'.join(str(p) for p in err['loc']) or '(top level)'}: "
+            + ("field required" if err["type"] == "missing" else err["msg"])
+            for err in exc.errors()
+        ]
+        raise WorldError(f"{path}: invalid world file:\n" + "\n".join(lines)) from exc
+
+    boxes = [b.to_box() for b in model.boxes]
+    cylinders = [Cylinder(c.x, c.y, c.radius) for c in model.cylinders]
+    spawn = Pose2D(model.spawn.x, model.spawn.y, model.spawn.yaw)
+    if model.bounds is not None:
+        b = model.bounds
+        bounds = (b.xmin, b.xmax, b.ymin, b.ymax)
+    else:
+        bounds = _geometry_bounds(boxes, cylinders, spawn, DEFAULT_MARGIN)
+    try:
+        grid = rasterize(boxes, cylinders, bounds, model.resolution, spawn)
+    except ValueError as exc:
+        raise WorldError(f"{path}: {exc}") from exc
+    return World(
+        name=model.name or path.stem,
+        boxes=boxes,
+        cylinders=cylinders,
+        map=grid,
+        spawn=spawn,
+        rooms=_rooms_of(path, model.rooms),
+        wall_height=model.wall_height,
+    )
+
+
+def _rooms_of(path: Path, rooms: str | dict[str, Any] | None) -> dict[str, Room]:
+    try:
+        if rooms is None:
+            return {}
+        if isinstance(rooms, str):
+            rooms_path = Path(rooms).expanduser()
+            if not rooms_path.is_absolute():
+                rooms_path = path.parent / rooms_path
+            return load_rooms(rooms_path)
+        try:
+            model = RoomsModel.model_validate({"rooms": rooms})
+        except ValidationError as exc:
+            raise RoomsFileError.from_validation(path, exc) from exc
+        return rooms_from_model(model)
+    except RoomsFileError as exc:
+        raise WorldError(str(exc)) from exc
+
+
+def _geometry_bounds(
+    boxes: list[Box], cylinders: list[Cylinder], spawn: Pose2D, margin: float
+) -> tuple[float, float, float, float]:
+    xs, ys = [spawn.x], [spawn.y]
+    for b in boxes:
+        c, s = abs(math.cos(b.yaw)), abs(math.sin(b.yaw))
+        ex, ey = c * b.half_x + s * b.half_y, s * b.half_x + c * b.half_y
+        xs += [b.x - ex, b.x + ex]
+        ys += [b.y - ey, b.y + ey]
+    for cyl in cylinders:
+        xs += [cyl.x - cyl.radius, cyl.x + cyl.radius]
+        ys += [cyl.y - cyl.radius, cyl.y + cyl.radius]
+    return (min(xs) - margin, max(xs) + margin, min(ys) - margin, max(ys) + margin)

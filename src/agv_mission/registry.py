@@ -67,17 +67,18 @@ class Registry:
         """Import the built-in plugins and those announced by entry points (once)."""
         if self._loaded:
             return
-        self._loaded = True
         for module in _BUILTIN_MODULES:
             import_module(module)
         for ep in entry_points(group=ENTRY_POINT_GROUP):
             slot, _, name = ep.name.partition(".")
             self.register(slot, name)(ep.load())
+        self._loaded = True
 
 
 _BUILTIN_MODULES = (
     "agv_mission.localization.ground_truth",
     "agv_mission.localization.odometry",
+    "agv_mission.localization.amcl",
     "agv_mission.planners.ompl_planner",
     "agv_mission.planners.grid_astar",
     "agv_mission.planners.mpc",

@@ -1,0 +1,202 @@
+"""``amcl``: adaptive Monte Carlo localisation on the mission's map, like ROS amcl.
+
+The filter (:mod:`agv_mission.localization.particle_filter`) runs on a scan only after
+``update_min_d`` metres or ``update_min_a`` radians of odometry motion since its last
+update (and once on the first scan). Between updates the estimate is the last filter pose
+composed with the odometry motion since then, i.e. amcl's ``map -> odom`` transform
+applied to the current odometry, so it moves smoothly at the control rate.
+
+For plots the plugin keeps ``snapshots`` (``(time, particles)`` every
+``snapshot_interval`` filter updates, thinned to at most ``max_snapshots``) and
+``particle_counts`` (``(time, count)`` per filter update).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from agv_mission.geometry import Pose2D
+from agv_mission.localization.particle_filter import MotionNoise, ParticleFilter, SensorParams
+from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.messages import LaserScan
+from agv_mission.planners.base import PluginConfig
+from agv_mission.registry import register
+
+
+class InitialPose(BaseModel):
+    """amcl's ``initial_pose_x / _y / _a``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    x: float
+    y: float
+    yaw: float = 0.0
+
+
+class AmclConfig(PluginConfig):
+    """ROS amcl's parameters, defaults from TurtleBot3's ``amcl.launch``."""
+
+    type: Literal["amcl"] = "amcl"
+
+    # Overall filter
+    min_particles: int = Field(500, ge=1)
+    max_particles: int = Field(3000, ge=1)
+    kld_err: float = Field(0.02, gt=0)
+    kld_z: float = Field(0.99, gt=0, description="used as the normal quantile, as amcl does")
+    update_min_d: float = Field(0.2, ge=0, description="metres of motion between updates")
+    update_min_a: float = Field(0.2, ge=0, description="radians of motion between updates")
+    resample_interval: int = Field(1, ge=1)
+    recovery_alpha_slow: float = Field(0.0, ge=0, le=1, description="0 disables; ROS: 0.001")
+    recovery_alpha_fast: float = Field(0.0, ge=0, le=1, description="0 disables; ROS: 0.1")
+
+    # Initial state
+    initial_pose: InitialPose | None = Field(
+        None, description="None: the mission's start pose (given to reset)"
+    )
+    initial_cov_xx: float = Field(0.25, ge=0, description="m^2")
+    initial_cov_yy: float = Field(0.25, ge=0, description="m^2")
+    initial_cov_aa: float = Field((math.pi / 12.0) ** 2, ge=0, description="rad^2")
+    global_localization: bool = Field(
+        False, description="start with max_particles spread over the free space"
+    )
+
+    # Laser model
+    laser_model_type: Literal["likelihood_field", "likelihood_field_prob"] = "likelihood_field"
+    laser_min_range: float = Field(-1.0, description="<= 0: the scan's range_min")
+    laser_max_range: float = Field(3.5, description="<= 0: the scan's range_max")
+    laser_max_beams: int = Field(180, ge=2)
+    laser_z_hit: float = Field(0.5, ge=0)
+    laser_z_rand: float = Field(0.5, ge=0)
+    laser_sigma_hit: float = Field(0.2, gt=0)
+    laser_likelihood_max_dist: float = Field(2.0, gt=0)
+
+    # Odometry model (diff drive)
+    odom_alpha1: float = Field(0.1, ge=0, description="rotation noise from rotation")
+    odom_alpha2: float = Field(0.1, ge=0, description="rotation noise from translation")
+    odom_alpha3: float = Field(0.1, ge=0, description="translation noise from translation")
+    odom_alpha4: float = Field(0.1, ge=0, description="translation noise from rotation")
+
+    # Plot support
+    snapshot_interval: int = Field(5, ge=1, description="filter updates between snapshots")
+    max_snapshots: int = Field(40, ge=2)
+
+
+@register("localization", "amcl")
+class AmclLocalizer:
+    """Adaptive Monte Carlo localisation; never looks at the true pose."""
+
+    Config = AmclConfig
+
+    def __init__(self, config: AmclConfig, grid: OccupancyGrid, rng: np.random.Generator) -> None:
+        if config.min_particles > config.max_particles:
+            raise ValueError("amcl: min_particles must not exceed max_particles")
+        self.config = config
+        c = config
+        self.filter = ParticleFilter(
+            grid,
+            rng,
+            min_particles=c.min_particles,
+            max_particles=c.max_particles,
+            kld_err=c.kld_err,
+            kld_z=c.kld_z,
+            motion=MotionNoise(c.odom_alpha1, c.odom_alpha2, c.odom_alpha3, c.odom_alpha4),
+            sensor=SensorParams(
+                z_hit=c.laser_z_hit,
+                z_rand=c.laser_z_rand,
+                sigma_hit=c.laser_sigma_hit,
+                max_beams=c.laser_max_beams,
+                max_range=c.laser_max_range,
+                min_range=c.laser_min_range,
+                likelihood_max_dist=c.laser_likelihood_max_dist,
+                model=c.laser_model_type,
+            ),
+            alpha_slow=c.recovery_alpha_slow,
+            alpha_fast=c.recovery_alpha_fast,
+        )
+        self.snapshots: list[tuple[float, np.ndarray]] = []
+        self.particle_counts: list[tuple[float, int]] = []
+        self.filter_updates = 0
+        self._snapshot_every = c.snapshot_interval
+        self._pose = Pose2D(0.0, 0.0, 0.0)  # filter pose at its last update
+        self._odom = Pose2D(0.0, 0.0, 0.0)  # odometry at the last filter update
+        self._initialised = False
+        self._resample_count = 0
+
+    # ------------------------------------------------------------------ runner API
+
+    @property
+    def particles(self) -> np.ndarray:
+        """(N, 3) particles [x, y, yaw] in the map frame."""
+        return self.filter.particles
+
+    @property
+    def weights(self) -> np.ndarray:
+        return self.filter.weights
+
+    @property
+    def particle_count(self) -> int:
+        return self.filter.count
+
+    @property
+    def map_to_odom(self) -> Pose2D:
+        """amcl's ``map -> odom`` transform."""
+        return self._pose.compose(Pose2D(0.0, 0.0, 0.0).relative_to(self._odom))
+
+    def reset(self, pose: Pose2D, odom: Pose2D) -> None:
+        c = self.config
+        start = (
+            pose
+            if c.initial_pose is None
+            else Pose2D(c.initial_pose.x, c.initial_pose.y, c.initial_pose.yaw)
+        )
+        if c.global_localization:
+            self.filter.init_uniform()
+        else:
+            cov = np.diag([c.initial_cov_xx, c.initial_cov_yy, c.initial_cov_aa])
+            self.filter.init_gaussian(start.as_array(), cov)
+        self._pose, self._odom = start, odom
+        self._initialised = False
+        self._resample_count = 0
+        self.snapshots.clear()
+        self.particle_counts.clear()
+        self.filter_updates = 0
+        self._snapshot_every = c.snapshot_interval
+
+    def update(self, odom: Pose2D, scan: LaserScan | None, truth: Pose2D, time: float) -> Pose2D:
+        if scan is not None:
+            delta = odom.relative_to(self._odom)
+            moved = (
+                math.hypot(delta.x, delta.y) >= self.config.update_min_d
+                or abs(delta.yaw) >= self.config.update_min_a
+            )
+            if moved or not self._initialised:
+                self._filter_update(odom, scan, time, moved)
+        return self._pose.compose(odom.relative_to(self._odom))
+
+    # ------------------------------------------------------------------ internals
+
+    def _filter_update(self, odom: Pose2D, scan: LaserScan, time: float, moved: bool) -> None:
+        pf = self.filter
+        if moved:
+            pf.motion_update(self._odom.as_array(), odom.as_array())
+        pf.sensor_update(
+            scan.ranges, scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max
+        )
+        self._resample_count += 1
+        if self._resample_count % self.config.resample_interval == 0:
+            pf.resample()
+        est, _ = pf.estimate()
+        self._pose = Pose2D(float(est[0]), float(est[1]), float(est[2]))
+        self._odom = odom
+        self._initialised = True
+        self.filter_updates += 1
+        self.particle_counts.append((float(time), pf.count))
+        if (self.filter_updates - 1) % self._snapshot_every == 0:
+            self.snapshots.append((float(time), pf.particles.astype(np.float32)))
+            if len(self.snapshots) > self.config.max_snapshots:
+                del self.snapshots[1::2]  # keep the first, thin evenly
+                self._snapshot_every *= 2

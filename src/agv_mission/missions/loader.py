@@ -215,6 +215,8 @@ def _apply(data: dict, field_path: FieldPath, value: Any, file: str, item: str) 
             if isinstance(part, int) and part not in node and str(part) in node:
                 key = str(part)
             if last:
+                if _swaps_plugin(field_path, node, value):
+                    node.clear()  # the old plugin's keys mean nothing to the new one
                 node[key] = value
             else:
                 if not isinstance(node.get(key), (dict, list)):
@@ -223,6 +225,16 @@ def _apply(data: dict, field_path: FieldPath, value: Any, file: str, item: str) 
         else:
             raise MissionError([Problem("--set", None, item,
                                         f"cannot set a key inside a {_kind(node)}")])
+
+
+def _swaps_plugin(field_path: FieldPath, block: dict, value: Any) -> bool:
+    """``--set stack.<slot>.type=<other>`` selects another plugin with its own defaults."""
+    return (
+        len(field_path) == 3
+        and field_path[0] == "stack"
+        and field_path[2] == "type"
+        and block.get("type", value) != value
+    )
 
 
 def _validation_problems(

@@ -13,7 +13,9 @@ from typing import Annotated, Any, Literal, Union
 from pydantic import (
     BaseModel,
     ConfigDict,
+    Discriminator,
     Field,
+    Tag,
     field_validator,
     model_validator,
 )
@@ -145,6 +147,12 @@ class WanderTask(StrictModel):
 Task = Annotated[Union[GoToTask, PatrolTask, WanderTask], Field(discriminator="type")]  # noqa: UP007
 
 
+StartSpec = Annotated[
+    Union[Annotated[Pose, Tag("Pose")], Annotated[str, Tag("str")]],  # noqa: UP007
+    Discriminator(lambda v: "str" if isinstance(v, str) else "Pose"),
+]
+
+
 class Limits(StrictModel):
     time: float = Field(600.0, gt=0.0, description="simulated seconds for the whole mission")
 
@@ -159,7 +167,7 @@ class Mission(StrictModel):
     )
     rooms: str | None = Field(None, description="rooms file; built-in worlds carry their own")
     robot: str = Field("burger", description="burger, waffle, rosbots, or a robot file")
-    start: Pose | str | None = Field(
+    start: StartSpec | None = Field(
         None, description="a pose or a room label; default: the world's spawn pose"
     )
     seed: int = Field(0, ge=0, description="every random draw of the run derives from it")

@@ -104,6 +104,15 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
     for i, p in enumerate(record.paths):
         ax.plot(p[:, 0], p[:, 1], "-", lw=0.8, color="tab:orange", alpha=0.6,
                 label="planned paths" if i == 0 else None)
+    snapshots = record.particle_snapshots
+    if snapshots:
+        picks = sorted({round(i) for i in np.linspace(0, len(snapshots) - 1, min(6, len(snapshots)))})
+        for k, i in enumerate(picks):
+            t, particles = snapshots[i]
+            ax.scatter(particles[:, 0], particles[:, 1], s=1.0, alpha=0.35, color="tab:red",
+                       linewidths=0, label="particles" if k == 0 else None)
+            ax.annotate(f"t={t:.0f}s", (float(np.mean(particles[:, 0])), float(np.mean(particles[:, 1]))),
+                        fontsize=6, color="tab:red", alpha=0.8)
     traj = record.trajectory
     if traj.size:
         ax.plot(traj[:, 1], traj[:, 2], "-", lw=1.4, color="tab:blue", label="driven (true)")

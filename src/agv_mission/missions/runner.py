@@ -49,7 +49,8 @@ class RunRecord:
     paths: list[np.ndarray]
     events: list[dict[str, Any]]
     tree_text: str
-    extras: dict[str, Any] = field(default_factory=dict)
+    extras: dict[str, Any] = field(default_factory=dict)  # more keys for result.json
+    particle_snapshots: list[tuple[float, np.ndarray]] = field(default_factory=list)
 
 
 class VelocitySmoother:
@@ -183,6 +184,14 @@ def run_mission(loaded: LoadedMission, progress: ProgressCallback | None = None)
                   if failed else "mission failed")
 
     metrics = _metrics(trajectory, navigator, collisions, min_clearance, sim_time, wall_time)
+    extras: dict[str, Any] = {}
+    counts = getattr(localizer, "particle_counts", None)
+    if counts:
+        c = np.asarray([n for _, n in counts])
+        metrics["localization"]["particles"] = {
+            "min": int(c.min()), "max": int(c.max()), "mean": round(float(c.mean()), 1)
+        }
+        extras["particle_counts"] = [[round(t, 3), int(n)] for t, n in counts]
     return RunRecord(
         status=status,
         reason=reason,
@@ -194,6 +203,8 @@ def run_mission(loaded: LoadedMission, progress: ProgressCallback | None = None)
         paths=navigator.paths,
         events=handle.events,
         tree_text=tree.render(),
+        extras=extras,
+        particle_snapshots=list(getattr(localizer, "snapshots", [])),
     )
 
 

@@ -1,0 +1,125 @@
+"""Local-planner timing: MPC solve time and success rate, pure-pursuit compute time.
+
+Closed loop with an exact unicycle integration at 0.1 s in an L-shaped corridor whose
+walls are given as lidar points (1 cm apart, 3.5 m range) plus a small round obstacle
+next to the path, so the MPC works with its full set of obstacle constraints
+(16 points by default). ``run()`` returns flat ``{"mpc.solve_ms.p50": ...}`` metrics.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from agv_mission.geometry import Pose2D
+from agv_mission.planners.base import VelocityLimits
+from agv_mission.planners.mpc import MpcConfig, MpcController
+from agv_mission.planners.pure_pursuit import PurePursuitConfig, PurePursuitController
+
+PERIOD = 0.1
+LIMITS = VelocityLimits(max_v=0.26, max_w=1.82, max_acc_v=1.0, max_acc_w=3.0)
+RADIUS = 0.22
+LIDAR_RANGE = 3.5
+
+
+def _segment(a, b, step=0.01) -> np.ndarray:
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    n = max(1, int(np.linalg.norm(b - a) / step))
+    return a + (b - a) * np.linspace(0.0, 1.0, n + 1)[:, None]
+
+
+def _world() -> tuple[list[np.ndarray], np.ndarray]:
+    """Paths (there and back) in an L corridor 0.9 m wide; wall and obstacle points."""
+    walls = np.vstack(
+        (
+            _segment((-0.6, -0.45), (3.45, -0.45)),
+            _segment((3.45, -0.45), (3.45, 3.2)),
+            _segment((-0.6, 0.45), (2.55, 0.45)),
+            _segment((2.55, 0.45), (2.55, 3.2)),
+            _segment((-0.6, -0.45), (-0.6, 0.45)),
+        )
+    )
+    angles = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+    post = np.column_stack((1.5 + 0.06 * np.cos(angles), 0.32 + 0.06 * np.sin(angles)))
+    there = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 2.8]])
+    return [there, there[::-1].copy()], np.vstack((walls, post))
+
+
+def _step(pose: Pose2D, v: float, w: float, dt: float) -> Pose2D:
+    if abs(w) < 1e-9:
+        return Pose2D(
+            pose.x + v * dt * math.cos(pose.yaw), pose.y + v * dt * math.sin(pose.yaw), pose.yaw
+        )
+    yaw = pose.yaw + w * dt
+    return Pose2D(
+        pose.x + v / w * (math.sin(yaw) - math.sin(pose.yaw)),
+        pose.y - v / w * (math.cos(yaw) - math.cos(pose.yaw)),
+        yaw,
+    )
+
+
+def _drive(controller, paths, points, max_steps=600) -> dict[str, list]:
+    out: dict[str, list] = {
+        "ms": [],
+        "ok": [],
+        "iters": [],
+        "solver_ms": [],
+        "goal_err": [],
+        "clear": [],
+    }
+    pose = Pose2D(0.0, 0.0, 0.0)
+    for path in paths:
+        goal = Pose2D(float(path[-1][0]), float(path[-1][1]))
+        controller.reset()
+        vel = (0.0, 0.0)
+        for _ in range(max_steps):
+            visible = points[np.hypot(*(points - [pose.x, pose.y]).T) < LIDAR_RANGE]
+            t0 = time.perf_counter()
+            cmd = controller.compute(pose, vel, path, goal, visible)
+            out["ms"].append((time.perf_counter() - t0) * 1e3)
+            out["ok"].append(cmd.ok)
+            stats = getattr(controller, "last_stats", {})
+            if "iter_count" in stats:
+                out["iters"].append(stats["iter_count"])
+                out["solver_ms"].append(stats.get("t_wall_solver_call", 0.0) * 1e3)
+            pose = _step(pose, cmd.v, cmd.w, PERIOD)
+            vel = (cmd.v, cmd.w)
+            out["clear"].append(float(np.min(np.hypot(*(points - [pose.x, pose.y]).T))))
+            if pose.distance_to(goal) < 0.05 and cmd.v == 0.0 and cmd.w == 0.0:
+                break
+        out["goal_err"].append(pose.distance_to(goal))
+        pose = Pose2D(pose.x, pose.y, pose.yaw + math.pi)  # the navigator turns it around
+    return out
+
+
+def run() -> dict[str, float]:
+    paths, points = _world()
+    t0 = time.perf_counter()
+    mpc = MpcController(MpcConfig(), LIMITS, RADIUS, PERIOD)
+    build_s = time.perf_counter() - t0
+    m = _drive(mpc, paths, points)
+    p = _drive(PurePursuitController(PurePursuitConfig(), LIMITS, RADIUS, PERIOD), paths, points)
+    ms, pms = np.array(m["ms"]), np.array(p["ms"])
+    return {
+        "mpc.solve_ms.p50": float(np.percentile(ms, 50)),
+        "mpc.solve_ms.p99": float(np.percentile(ms, 99)),
+        "mpc.solve_ms.max": float(ms.max()),
+        "mpc.success_rate": float(np.mean(m["ok"])),
+        "mpc.solver_call_ms.p50": float(np.percentile(m["solver_ms"], 50)),
+        "mpc.iterations.mean": float(np.mean(m["iters"])),
+        "mpc.iterations.max": float(np.max(m["iters"])),
+        "mpc.steps": float(len(ms)),
+        "mpc.goal_error_m.max": float(max(m["goal_err"])),
+        "mpc.clearance_m.min": float(min(m["clear"])),
+        "mpc.build_s": build_s,
+        "pure_pursuit.compute_ms.p50": float(np.percentile(pms, 50)),
+        "pure_pursuit.compute_ms.p99": float(np.percentile(pms, 99)),
+        "pure_pursuit.goal_error_m.max": float(max(p["goal_err"])),
+    }
+
+
+if __name__ == "__main__":
+    for key, value in run().items():
+        print(f"{key:32s} {value:10.4f}")

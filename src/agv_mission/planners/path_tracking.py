@@ -1,0 +1,218 @@
+"""Helpers shared by the local planners: projection on a polyline and reference sampling.
+
+All functions work on map-frame (N, 2) polylines and are pure numpy (no solver).
+The speed profile is the usual trapezoid-with-limits: a per-point speed cap (max speed,
+curvature, stop at the goal), a backward pass for braking and a forward pass for
+acceleration, then integrated in time to give one arclength per model step.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def clean_path(path: np.ndarray) -> np.ndarray:
+    """``path`` as a float (N, 2) array without consecutive duplicate points."""
+    pts = np.asarray(path, dtype=float).reshape(-1, 2)
+    if len(pts) < 2:
+        return pts
+    keep = np.ones(len(pts), dtype=bool)
+    keep[1:] = np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9
+    return pts[keep]
+
+
+def cumulative_length(path: np.ndarray) -> np.ndarray:
+    """Arclength at every vertex, starting at 0."""
+    if len(path) < 2:
+        return np.zeros(len(path))
+    return np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))))
+
+
+@dataclass(frozen=True)
+class Projection:
+    """The closest point of a polyline to a query point."""
+
+    s: float  # arclength of the closest point
+    point: np.ndarray  # (2,) closest point
+    segment: int  # index of the segment [segment, segment + 1]
+    distance: float
+
+
+def closest_point(
+    path: np.ndarray,
+    point: np.ndarray | tuple[float, float],
+    cumlen: np.ndarray | None = None,
+    s_min: float | None = None,
+    s_max: float | None = None,
+) -> Projection:
+    """Project ``point`` on the polyline, optionally only on the arclength window [s_min, s_max].
+
+    Ties go to the lowest arclength, so a path that comes back near itself is
+    followed in order when a window around the previous progress is given.
+    """
+    p = np.asarray(point, dtype=float)
+    if cumlen is None:
+        cumlen = cumulative_length(path)
+    if len(path) == 1:
+        return Projection(0.0, path[0].copy(), 0, float(np.linalg.norm(p - path[0])))
+    a = path[:-1]
+    d = np.diff(path, axis=0)
+    seg_len2 = np.einsum("ij,ij->i", d, d)
+    t = np.einsum("ij,ij->i", p - a, d) / np.maximum(seg_len2, 1e-18)
+    lo = np.zeros_like(t)
+    hi = np.ones_like(t)
+    seg_len = np.sqrt(seg_len2)
+    if s_min is not None:
+        lo = np.maximum(lo, (s_min - cumlen[:-1]) / np.maximum(seg_len, 1e-18))
+    if s_max is not None:
+        hi = np.minimum(hi, (s_max - cumlen[:-1]) / np.maximum(seg_len, 1e-18))
+    valid = lo <= hi
+    if not np.any(valid):  # empty window: fall back to the whole path
+        lo, hi, valid = np.zeros_like(t), np.ones_like(t), np.ones_like(t, dtype=bool)
+    t = np.clip(t, lo, hi)
+    proj = a + t[:, None] * d
+    dist2 = np.einsum("ij,ij->i", proj - p, proj - p)
+    dist2[~valid] = np.inf
+    i = int(np.argmin(dist2))
+    return Projection(
+        s=float(cumlen[i] + t[i] * seg_len[i]),
+        point=proj[i],
+        segment=i,
+        distance=float(math.sqrt(dist2[i])),
+    )
+
+
+def interpolate(
+    path: np.ndarray, cumlen: np.ndarray, s: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Points (K, 2) and tangent headings (K,) at arclengths ``s`` (clamped to the path)."""
+    s = np.clip(np.asarray(s, dtype=float), 0.0, cumlen[-1])
+    if len(path) < 2:
+        return np.repeat(path[:1], len(s), axis=0), np.zeros(len(s))
+    i = np.clip(np.searchsorted(cumlen, s, side="right") - 1, 0, len(path) - 2)
+    seg = path[i + 1] - path[i]
+    seg_len = cumlen[i + 1] - cumlen[i]
+    t = (s - cumlen[i]) / np.maximum(seg_len, 1e-18)
+    pts = path[i] + t[:, None] * seg
+    return pts, np.arctan2(seg[:, 1], seg[:, 0])
+
+
+def unwrap_from(angles: np.ndarray, start: float) -> np.ndarray:
+    """``angles`` made continuous, the first one within pi of ``start``."""
+    out = np.unwrap(np.asarray(angles, dtype=float))
+    if len(out):
+        out = out + 2.0 * math.pi * round((start - out[0]) / (2.0 * math.pi))
+    return out
+
+
+def curvature_speed_limit(
+    path: np.ndarray,
+    cumlen: np.ndarray,
+    s: np.ndarray,
+    max_v: float,
+    max_w: float,
+    window: float,
+    turn_fraction: float = 0.7,
+) -> np.ndarray:
+    """Speed cap at arclengths ``s`` so that turning the path there needs <= turn_fraction * max_w.
+
+    Curvature is the heading change over [s - window, s + window] divided by its length,
+    which smooths polyline corners into arcs of about the window's size.
+    """
+    _, h_back = interpolate(path, cumlen, s - window)
+    _, h_fwd = interpolate(path, cumlen, s + window)
+    dpsi = np.abs((h_fwd - h_back + np.pi) % (2.0 * np.pi) - np.pi)
+    kappa = dpsi / (2.0 * window)
+    with np.errstate(divide="ignore"):
+        cap = np.where(kappa > 1e-9, turn_fraction * max_w / np.maximum(kappa, 1e-9), max_v)
+    return np.minimum(cap, max_v)
+
+
+def speed_profile(
+    path: np.ndarray,
+    cumlen: np.ndarray,
+    s0: float,
+    v0: float,
+    steps: int,
+    dt: float,
+    max_v: float,
+    max_w: float,
+    acc: float,
+    dec: float,
+    curvature_window: float = 0.15,
+    turn_fraction: float = 0.7,
+    min_v: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Arclengths (steps + 1,) and speeds (steps + 1,) of a time-sampled reference from s0.
+
+    The speed ends at 0 at the end of the path, respects ``acc`` / ``dec`` and slows
+    for curvature. Sample 0 is at s0 with speed v0 (clipped to [min_v, max_v]).
+    """
+    total = float(cumlen[-1])
+    v0 = float(np.clip(v0, max(min_v, 0.0), max_v))
+    # A grid long enough to cover the horizon plus braking from max speed.
+    reach = max_v * steps * dt + max_v * max_v / (2.0 * dec) + 0.1
+    end = min(total, s0 + reach)
+    n_grid = max(2, int(math.ceil((end - s0) / 0.05)) + 1)
+    grid = np.linspace(s0, end, n_grid)
+    cap = curvature_speed_limit(path, cumlen, grid, max_v, max_w, curvature_window, turn_fraction)
+    if end >= total - 1e-9:
+        cap[-1] = 0.0
+    step = (end - s0) / (n_grid - 1)
+    # Backward pass on v^2 (braking); acceleration is limited by the time integration.
+    v2 = (cap * cap).tolist()
+    for i in range(n_grid - 2, -1, -1):
+        v2[i] = min(v2[i], v2[i + 1] + 2.0 * dec * step)
+    vg = [math.sqrt(max(x, 0.0)) for x in v2]
+    # Integrate in time, the speed cap looked up (linearly) where the step would end.
+    s_out = [s0]
+    v_out = [v0]
+    s_cur, v_cur = s0, v0
+    for _ in range(steps):
+        u = (s_cur + v_cur * dt - s0) / step if step > 0 else 0.0
+        i = min(max(int(u), 0), n_grid - 2)
+        t = min(max(u - i, 0.0), 1.0)
+        cap_here = vg[i] + t * (vg[i + 1] - vg[i])
+        v_new = min(v_cur + acc * dt, max(cap_here, v_cur - dec * dt))
+        s_cur = min(s_cur + 0.5 * (v_cur + v_new) * dt, end)
+        v_cur = 0.0 if s_cur >= total else v_new  # the reference waits at the goal
+        s_out.append(s_cur)
+        v_out.append(v_cur)
+    return np.array(s_out), np.array(v_out)
+
+
+class ProgressTracker:
+    """The robot's arclength on the path, kept monotone-ish from call to call.
+
+    While the path is unchanged, the projection is searched in a window around the
+    previous progress, so a path that passes near itself (out and back along a corridor)
+    is followed in order; a new path (any change) is searched whole.
+    """
+
+    def __init__(self, window_back: float = 0.3, window_ahead: float = 0.5) -> None:
+        self.window_back = window_back
+        self.window_ahead = window_ahead
+        self.reset()
+
+    def reset(self) -> None:
+        self.progress: float | None = None
+        self._key: int | None = None
+
+    def update(self, path: np.ndarray, cumlen: np.ndarray, xy: np.ndarray) -> float:
+        key = hash(path.tobytes())
+        if self.progress is not None and key == self._key:
+            proj = closest_point(
+                path,
+                xy,
+                cumlen,
+                s_min=self.progress - self.window_back,
+                s_max=self.progress + self.window_ahead,
+            )
+            s = max(proj.s, self.progress - 0.05)
+        else:
+            s = closest_point(path, xy, cumlen).s
+        self.progress, self._key = s, key
+        return s

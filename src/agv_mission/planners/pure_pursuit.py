@@ -1,0 +1,170 @@
+"""Pure-pursuit local planner: the baseline the MPC is compared with.
+
+Steers towards the path point one lookahead ahead of the robot's projection, turns in
+place when that point is far off the heading, follows the same braking speed profile
+as the MPC reference (stop at the end of the path, slow for curvature) and ramps every
+command within the acceleration limits. It ignores obstacles.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Literal
+
+import numpy as np
+from pydantic import Field
+
+from agv_mission.geometry import Pose2D, wrap_angle
+from agv_mission.planners.base import PluginConfig, VelocityCommand, VelocityLimits
+from agv_mission.planners.path_tracking import (
+    ProgressTracker,
+    clean_path,
+    cumulative_length,
+    interpolate,
+    speed_profile,
+)
+from agv_mission.registry import register
+
+
+class PurePursuitConfig(PluginConfig):
+    type: Literal["pure_pursuit"] = "pure_pursuit"
+    lookahead: float = Field(0.3, gt=0, description="lookahead distance along the path, m")
+    speed: float | None = Field(None, gt=0, description="cruise speed, m/s (None: max_v)")
+    goal_slowdown_distance: float = Field(
+        0.3, ge=0, description="speed scales down linearly over this distance to the goal, m"
+    )
+    min_speed: float = Field(0.03, gt=0, description="creep speed for the last centimetres, m/s")
+    decel_fraction: float = Field(0.5, gt=0, le=1, description="braking = this x max_acc_v")
+    turn_fraction: float = Field(0.7, gt=0, le=1, description="path turn rate <= this x max_w")
+    goal_tolerance: float = Field(0.01, gt=0, description="closer than this: brake, m")
+    overshoot_tolerance: float = Field(
+        0.02, ge=0, description="goal behind the robot and closer than this: stop, m"
+    )
+    rotate_threshold: float = Field(
+        0.9, gt=0, description="heading error (rad) to the lookahead point to turn in place"
+    )
+    rotate_exit: float = Field(0.25, gt=0, description="heading error to leave turn-in-place")
+    rotate_gain: float = Field(2.0, gt=0, description="w = gain x heading error when turning")
+
+
+def _ramp(target: float, current: float, max_step: float) -> float:
+    return min(max(target, current - max_step), current + max_step)
+
+
+@register("local_planner", "pure_pursuit")
+class PurePursuitController:
+    """Geometric path follower with a braking speed profile."""
+
+    Config = PurePursuitConfig
+
+    def __init__(
+        self,
+        config: PurePursuitConfig,
+        limits: VelocityLimits,
+        robot_radius: float,
+        control_period: float,
+    ) -> None:
+        self.config = config
+        self.limits = limits
+        self.robot_radius = robot_radius
+        self.control_period = control_period
+        self._tracker = ProgressTracker(window_ahead=limits.max_v * control_period * 3.0 + 0.3)
+        self.reset()
+
+    def reset(self) -> None:
+        self._rotating = False
+        self._tracker.reset()
+
+    def _command(
+        self, v_target: float, w_target: float, velocity: tuple[float, float]
+    ) -> tuple[float, float]:
+        lim, dt = self.limits, self.control_period
+        v = _ramp(v_target, velocity[0], lim.max_acc_v * dt)
+        w = _ramp(w_target, velocity[1], lim.max_acc_w * dt)
+        v = float(np.clip(v, max(lim.min_v, 0.0), lim.max_v))
+        w = float(np.clip(w, -lim.max_w, lim.max_w))
+        return v, w
+
+    def compute(
+        self,
+        pose: Pose2D,
+        velocity: tuple[float, float],
+        path: np.ndarray,
+        goal: Pose2D,
+        obstacles: np.ndarray,
+    ) -> VelocityCommand:
+        t0 = time.perf_counter()
+        cfg, lim, dt = self.config, self.limits, self.control_period
+        path = clean_path(path)
+        if len(path) == 0:
+            path = np.array([[goal.x, goal.y]])
+        if len(path) == 1:
+            path = np.vstack(([pose.x, pose.y], path))
+        cumlen = cumulative_length(path)
+        total = float(cumlen[-1])
+        xy = np.array([pose.x, pose.y])
+        s0 = self._tracker.update(path, cumlen, xy)
+        to_goal = path[-1] - xy
+        dist_goal = float(np.hypot(*to_goal))
+        goal_ahead = math.cos(pose.yaw) * to_goal[0] + math.sin(pose.yaw) * to_goal[1]
+
+        def done() -> VelocityCommand:
+            v, w = self._command(0.0, 0.0, velocity)
+            return VelocityCommand(v, w, solve_time=time.perf_counter() - t0)
+
+        # At the goal, or just past it: stop rather than turn back.
+        if dist_goal < cfg.goal_tolerance or (
+            goal_ahead <= 0.0 and dist_goal < cfg.overshoot_tolerance
+        ):
+            return done()
+
+        # Lookahead point; at the end of the path, the goal itself.
+        s_look = min(s0 + cfg.lookahead, total)
+        look, _ = interpolate(path, cumlen, np.array([s_look]))
+        target = path[-1] if s_look >= total else look[0]
+        d = target - xy
+        alpha = wrap_angle(math.atan2(d[1], d[0]) - pose.yaw)
+        if abs(alpha) > cfg.rotate_threshold:
+            self._rotating = True
+        elif abs(alpha) < cfg.rotate_exit:
+            self._rotating = False
+        if self._rotating:
+            # Turn in place, braking so the heading error is not overshot.
+            w_brake = math.sqrt(2.0 * 0.5 * lim.max_acc_w * abs(alpha))
+            w_t = math.copysign(min(cfg.rotate_gain * abs(alpha), w_brake, lim.max_w), alpha)
+            v, w = self._command(0.0, w_t, velocity)
+            return VelocityCommand(v, w, solve_time=time.perf_counter() - t0)
+
+        # Speed: braking/curvature profile, goal slow-down, never more than the distance left.
+        cruise = min(cfg.speed or lim.max_v, lim.max_v)
+        _, v_prof = speed_profile(
+            path,
+            cumlen,
+            s0,
+            velocity[0],
+            1,
+            dt,
+            cruise,
+            lim.max_w,
+            lim.max_acc_v,
+            cfg.decel_fraction * lim.max_acc_v,
+            turn_fraction=cfg.turn_fraction,
+        )
+        remaining = max(total - s0, goal_ahead) if s_look >= total else total - s0
+        v_t = float(v_prof[1])
+        if cfg.goal_slowdown_distance > 0:
+            v_t = min(v_t, cruise * remaining / cfg.goal_slowdown_distance)
+        v_t = max(v_t, min(cfg.min_speed, cruise))
+        v_t = min(v_t, max(remaining, 0.0) / dt)
+        if s_look >= total:
+            v_t = min(v_t, max(goal_ahead, 0.0) / dt)
+        # Pure pursuit curvature; slow down if the turn rate would exceed max_w.
+        ld2 = float(d @ d)
+        kappa = 2.0 * math.sin(alpha) / math.sqrt(ld2) if ld2 > 1e-12 else 0.0
+        if abs(kappa) * v_t > lim.max_w:
+            v_t = lim.max_w / abs(kappa)
+        v, _ = self._command(v_t, 0.0, velocity)
+        w_t = float(np.clip(kappa * v, -lim.max_w, lim.max_w))
+        v, w = self._command(v_t, w_t, velocity)
+        return VelocityCommand(v, w, solve_time=time.perf_counter() - t0)

@@ -1,0 +1,287 @@
+"""Global planning with OMPL's geometric planners (RRTConnect, BITstar, ... by name).
+
+The robot is planned as a point in the plane (positions only: a differential drive
+with a local MPC turns on the spot) against the costmap's distance field: a point is
+valid when its clearance exceeds ``robot_radius + clearance``. Edges are checked
+exactly by a vectorised :class:`ompl.base.MotionValidator` (every grid cell a segment
+passes through must be valid), so no edge cuts a corner between two checked states.
+Planning happens in the grid's own frame (see :class:`FreeSpace`); the callbacks
+capture numpy data only, and every OMPL object lives and dies inside one plan.
+
+What OMPL 2.0.1 (PyPI wheel, nanobind) does, as probed for this module:
+
+* Seeding. ``ou.RNG.setSeed(s)`` can be called again after sampling has started:
+  OMPL logs "Random number generation already started ..." (silenced here) but still
+  reseeds the generator that seeds every RNG created afterwards. Each plan builds a
+  fresh space, samplers, planner and simplifier right after reseeding, so a plan is a
+  function of (costmap, start, goal, config, seed) whenever the planner is
+  single-threaded and stops on its own rather than on the clock: RRTConnect, RRT,
+  KPIECE1, ... always; BITstar, RRTstar, ... when they stop on the cost threshold.
+  PRM / PRMstar grow their roadmap in a second thread and are not reproducible; nor
+  are plans run concurrently from several Python threads (the seed is process-global).
+* ``SimpleSetup.solve`` keeps the GIL: a Python callback called from a planner's
+  second thread (PRM's solution checker calls the termination condition) deadlocks.
+  PRM-like planners therefore only ever get C++ termination conditions here.
+* Optimising planners use the whole time budget unless something stops them. Here
+  they run in rounds (round k: ``round_iterations * 2**k`` iterations, counted in
+  Python so where a plan stops does not depend on the clock; PRM-like planners: rounds
+  of wall time) and stop once the simplified path is no longer than ``cost_threshold``
+  times a reference length: the any-angle-smoothed shortest grid path over the same
+  free cells (:func:`grid_astar.grid_path`, ~40 ms on a 500x500 map), which is within
+  a few percent of the optimum. The objective carries the same threshold so a planner
+  whose raw cost gets there stops inside a round.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from functools import lru_cache
+from typing import Literal
+
+import numpy as np
+from pydantic import Field, field_validator
+
+from agv_mission.geometry import Pose2D
+from agv_mission.maps.costmap import Costmap
+from agv_mission.planners.base import Path, PlanningError, PluginConfig
+from agv_mission.planners.grid_astar import FreeSpace, grid_path
+from agv_mission.registry import register
+
+# Anytime, asymptotically optimal planners: worth running past their first solution.
+OPTIMIZING_PLANNERS = frozenset(
+    {"RRTstar", "InformedRRTstar", "SORRTstar", "BITstar", "ABITstar", "AITstar", "EITstar"}
+    | {"PRMstar", "LazyPRMstar", "AORRTC", "RRTXstatic", "LBTRRT", "SPARS", "SPARStwo"}
+)
+# Planners that evaluate the termination condition from a second thread.
+THREADED_PLANNERS = frozenset({"PRM", "PRMstar", "LazyPRM", "LazyPRMstar", "SPARS", "SPARStwo"})
+
+
+@lru_cache(maxsize=1)
+def available_planners() -> tuple[str, ...]:
+    """Names of the geometric planner classes this OMPL build provides."""
+    from ompl import base as ob
+    from ompl import geometric as og
+
+    return tuple(
+        sorted(
+            name
+            for name in dir(og)
+            if isinstance(getattr(og, name), type) and issubclass(getattr(og, name), ob.Planner)
+        )
+    )
+
+
+class OmplPlannerConfig(PluginConfig):
+    """``global_planner`` block for OMPL (``type: ompl``)."""
+
+    type: Literal["ompl"] = "ompl"
+    planner: str = Field(
+        "RRTConnect", description="OMPL geometric planner class, e.g. RRTConnect, BITstar"
+    )
+    time_limit: float = Field(1.0, gt=0, description="wall-clock budget of one plan, seconds")
+    simplify: bool = Field(True, description="shortcut + smooth the solution (deterministic)")
+    clearance: float = Field(
+        0.05, ge=0, description="metres of margin beyond the robot radius a path must keep"
+    )
+    range: float | None = Field(
+        None, gt=0, description="longest edge (metres) for planners that have one; None: OMPL's"
+    )
+    goal_bias: float | None = Field(
+        None, ge=0, le=1, description="goal sampling probability where supported; None: OMPL's"
+    )
+    cost_threshold: float | None = Field(
+        1.05,
+        ge=1.0,
+        description="optimising planners stop once the path is no longer than this multiple "
+        "of the smoothed shortest grid path; None: always use the whole time_limit",
+    )
+    round_iterations: int = Field(
+        200, ge=1, description="optimising planners: iterations of the first round (doubling)"
+    )
+
+    @field_validator("planner")
+    @classmethod
+    def _known_planner(cls, name: str) -> str:
+        known = available_planners()
+        if name not in known:
+            raise ValueError(
+                f"unknown planner {name!r}; OMPL geometric planners are: {', '.join(known)}"
+            )
+        return name
+
+
+@register("global_planner", "ompl")
+class OmplPlanner:
+    """Any OMPL geometric planner over the costmap's free space."""
+
+    Config = OmplPlannerConfig
+
+    def __init__(self, config: OmplPlannerConfig) -> None:
+        self.config = config
+
+    def plan(self, costmap: Costmap, start: Pose2D, goal: Pose2D, seed: int = 0) -> Path:
+        t0 = time.perf_counter()
+        space = FreeSpace(costmap, self.config.clearance)
+        s = space.check_endpoint(start, "start")
+        g = space.check_endpoint(goal, "goal")
+        if space.segment_free(*s, *g):  # the straight line is free: nothing to plan
+            pts = np.array([s, g], dtype=float)
+        else:
+            pts = _solve(space, s, g, self.config, seed, t0)
+            if pts is None:
+                raise PlanningError(
+                    f"{self.config.planner} found no path from ({start.x:.2f}, {start.y:.2f}) "
+                    f"to ({goal.x:.2f}, {goal.y:.2f}) within {self.config.time_limit:.2f} s"
+                )
+        points = space.to_world(pts)
+        points[0], points[-1] = start.xy, goal.xy
+        return Path(points=points, planning_time=time.perf_counter() - t0)
+
+
+_QUIETED = [False]
+
+
+def _seed_ompl(seed: int) -> None:
+    """Reseed OMPL's process-wide seed generator (see the module docstring).
+
+    Also lowers OMPL's logging to warnings, once (its default prints Info lines for
+    every plan); a level set by the application afterwards is left alone.
+    """
+    from ompl import util as ou
+
+    if not _QUIETED[0]:
+        ou.setLogLevel(ou.LOG_WARN)
+        _QUIETED[0] = True
+    level = ou.getLogLevel()
+    ou.setLogLevel(ou.LOG_NONE)  # silences "Random number generation already started"
+    try:
+        ou.RNG.setSeed(int(seed) % 2_147_483_646 + 1)  # OMPL refuses 0
+    finally:
+        ou.setLogLevel(level)
+
+
+def _path_ok(space: FreeSpace, pts: np.ndarray) -> bool:
+    return all(space.segment_free(*pts[i], *pts[i + 1]) for i in range(len(pts) - 1))
+
+
+def _solve(
+    space: FreeSpace,
+    start: tuple[float, float],
+    goal: tuple[float, float],
+    cfg: OmplPlannerConfig,
+    seed: int,
+    t0: float,
+) -> np.ndarray | None:
+    """Local-frame waypoints from ``start`` to ``goal``, or None if none was found in time."""
+    from ompl import base as ob
+    from ompl import geometric as og
+
+    anytime = cfg.planner in OPTIMIZING_PLANNERS
+    threshold = -math.inf  # no threshold: nothing is short enough
+    if anytime and cfg.cost_threshold is not None:
+        ref = grid_path(space, start, goal, cost_weight=0.0, smooth=True)
+        if ref is None:
+            return None  # not connected: no sampling planner will do better
+        threshold = cfg.cost_threshold * float(np.sum(np.linalg.norm(np.diff(ref, axis=0), axis=1)))
+
+    _seed_ompl(seed)  # before any OMPL object (and so any RNG) is created
+    segment_free, point_free = space.segment_free, space.point_free
+
+    class _SegmentValidator(ob.MotionValidator):
+        def checkMotion(self, a, b) -> bool:  # noqa: N802 (OMPL's name)
+            return segment_free(a[0], a[1], b[0], b[1])
+
+    def is_valid(state) -> bool:
+        return point_free(state[0], state[1])
+
+    width, height = space.size
+    ompl_space = ob.RealVectorStateSpace(2)
+    bounds = ob.RealVectorBounds(2)
+    bounds.setLow(0.0)
+    bounds.setHigh(0, width)
+    bounds.setHigh(1, height)
+    ompl_space.setBounds(bounds)
+    ss = og.SimpleSetup(ompl_space)
+    ss.setStateValidityChecker(is_valid)
+    si = ss.getSpaceInformation()
+    validator = _SegmentValidator(si)
+    si.setMotionValidator(validator)
+    # Used for interpolation only (edges are checked exactly by the validator): ~ a cell.
+    si.setStateValidityCheckingResolution(min(1.0, space.res / ompl_space.getMaximumExtent()))
+    s_state, g_state = ompl_space.allocState(), ompl_space.allocState()
+    s_state[0], s_state[1] = start
+    g_state[0], g_state[1] = goal
+    ss.setStartAndGoalStates(s_state, g_state)
+    objective = ob.PathLengthOptimizationObjective(si)
+    if not anytime:  # any path satisfies (else PRM grows its roadmap until the timeout)
+        objective.setCostThreshold(ob.Cost(math.inf))
+    elif threshold > 0.0:
+        objective.setCostThreshold(ob.Cost(threshold))
+    ss.setOptimizationObjective(objective)
+    planner = getattr(og, cfg.planner)(si)
+    if cfg.range is not None and hasattr(planner, "setRange"):
+        planner.setRange(cfg.range)
+    if cfg.goal_bias is not None and hasattr(planner, "setGoalBias"):
+        planner.setGoalBias(cfg.goal_bias)
+    ss.setPlanner(planner)
+    ss.setup()  # only now: setup() without start and goal segfaults
+    pdef = ss.getProblemDefinition()
+    simplifier = og.PathSimplifier(si, pdef.getGoal(), objective) if cfg.simplify else None
+
+    def current() -> tuple[np.ndarray, float]:
+        """The planner's best solution, simplified on a copy: waypoints and length."""
+        path = og.PathGeometric(pdef.getSolutionPath())
+        raw = np.array([[st[0], st[1]] for st in path.getStates()], dtype=float)
+        if simplifier is not None:
+            simplifier.simplifyMax(path)  # bounded by work, not by time: deterministic
+            pts = np.array([[st[0], st[1]] for st in path.getStates()], dtype=float)
+            if not _path_ok(space, pts):  # never seen; the raw path is checked edge by edge
+                pts = raw
+        else:
+            pts = raw
+        del path
+        return pts, float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+
+    deadline = t0 + cfg.time_limit
+    try:
+        if anytime:
+            return _run_rounds(ob, ss, pdef, current, cfg, threshold, deadline)
+        ss.solve(max(deadline - time.perf_counter(), 1e-3))
+        return current()[0] if pdef.hasExactSolution() else None
+    finally:  # nothing of OMPL's may outlive the plan (nanobind reports leaks at exit)
+        simplifier = pdef = planner = objective = validator = si = ss = None
+        s_state = g_state = bounds = ompl_space = None
+
+
+def _run_rounds(ob, ss, pdef, current, cfg, threshold: float, deadline: float):
+    """Run an anytime planner in doubling rounds until the path meets ``threshold``."""
+    count, limit = [0], [cfg.round_iterations]
+
+    def round_over() -> bool:
+        count[0] += 1
+        return count[0] > limit[0] or time.perf_counter() >= deadline
+
+    threaded = cfg.planner in THREADED_PLANNERS
+    slice_s = cfg.time_limit / 32.0
+    best_pts, best_len, last_raw = None, math.inf, math.inf
+    while time.perf_counter() < deadline:
+        if threaded:
+            remaining = deadline - time.perf_counter()
+            ss.solve(ob.timedPlannerTerminationCondition(min(slice_s, remaining)))
+            slice_s *= 2.0
+        else:
+            count[0] = 0
+            ss.solve(ob.PlannerTerminationCondition(round_over))
+            limit[0] *= 2
+        if not pdef.hasExactSolution():
+            continue
+        raw = pdef.getSolutionPath().length()
+        if raw < last_raw:  # simplify only what changed
+            last_raw = raw
+            pts, length = current()
+            if length < best_len:
+                best_pts, best_len = pts, length
+        if best_len <= threshold:  # (never, without a threshold: use the whole budget)
+            break
+    return best_pts

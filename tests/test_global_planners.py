@@ -1,0 +1,409 @@
+"""Global planners (OMPL and grid) on synthetic rooms, the real ROS maps and built-in worlds."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+import time
+from pathlib import Path as FilePath
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from agv_mission.geometry import Pose2D
+from agv_mission.maps.costmap import Costmap, CostmapConfig
+from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
+from agv_mission.planners.base import Path, PlanningError
+from agv_mission.planners.grid_astar import FreeSpace, GridAstarConfig, GridAstarPlanner
+from agv_mission.planners.ompl_planner import OmplPlanner, OmplPlannerConfig
+from agv_mission.registry import registry
+
+ROS_MAPS = FilePath(__file__).resolve().parents[2] / "shared" / "data" / "ros_maps"
+
+RES = 0.05
+ROBOT_RADIUS = 0.105
+COSTMAP = CostmapConfig(inflation_radius=0.3)
+OPTIMISING = ["RRTstar", "PRMstar", "BITstar", "InformedRRTstar"]
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def room_with_door(door: tuple[float, float] | None = (2.8, 3.6), yaw: float = 0.0) -> Costmap:
+    """A 6 x 4 m room split by a wall at x = 3 with a door (y range) near the top."""
+    data = np.full((80, 120), FREE, dtype=np.int8)
+    data[:2, :] = data[-2:, :] = OCCUPIED
+    data[:, :2] = data[:, -2:] = OCCUPIED
+    data[:, 59:61] = OCCUPIED
+    if door is not None:
+        data[int(door[0] / RES) : int(door[1] / RES), 59:61] = FREE
+    grid = OccupancyGrid(data, RES, Pose2D(0.0, 0.0, yaw))
+    return Costmap.from_grid(grid, ROBOT_RADIUS, COSTMAP)
+
+
+def to_world(costmap: Costmap, x: float, y: float) -> Pose2D:
+    """Room coordinates (metres from the map corner, along the grid) to the map frame."""
+    o = costmap.grid.origin
+    c, s = math.cos(o.yaw), math.sin(o.yaw)
+    return Pose2D(o.x + c * x - s * y, o.y + s * x + c * y)
+
+
+START, GOAL = Pose2D(1.0, 1.0), Pose2D(5.0, 1.0)
+
+
+def assert_path_free(costmap: Costmap, path: Path, margin: float) -> None:
+    """Every waypoint and every segment, sampled at half a cell, keeps the clearance."""
+    pts = path.points
+    assert pts.ndim == 2 and pts.shape[1] == 2 and len(pts) >= 2
+    assert costmap.is_free(pts, margin).all(), "a waypoint is not free"
+    step = costmap.resolution / 2.0
+    for a, b in zip(pts[:-1], pts[1:], strict=True):
+        n = max(2, math.ceil(np.linalg.norm(b - a) / step) + 1)
+        samples = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
+        free = costmap.is_free(samples, margin)
+        assert free.all(), f"segment {a} -> {b} leaves free space at {samples[~free][0]}"
+
+
+def assert_joins(path: Path, start: Pose2D, goal: Pose2D) -> None:
+    np.testing.assert_allclose(path.points[0], start.xy, atol=1e-9)
+    np.testing.assert_allclose(path.points[-1], goal.xy, atol=1e-9)
+
+
+def reference_length(costmap: Costmap, start: Pose2D, goal: Pose2D) -> float:
+    """The shortest smoothed grid path: the length reference."""
+    return GridAstarPlanner(GridAstarConfig(cost_weight=0.0)).plan(costmap, start, goal).length
+
+
+@pytest.fixture(scope="module")
+def room() -> Costmap:
+    return room_with_door()
+
+
+# --------------------------------------------------------------------------- config
+
+
+def test_ompl_config_defaults_and_registry() -> None:
+    cfg = OmplPlannerConfig()
+    assert (cfg.type, cfg.planner, cfg.time_limit, cfg.simplify, cfg.clearance) == (
+        "ompl",
+        "RRTConnect",
+        1.0,
+        True,
+        0.05,
+    )
+    assert registry.get("global_planner", "ompl") is OmplPlanner
+    assert registry.get("global_planner", "grid_astar") is GridAstarPlanner
+    assert OmplPlanner.Config is OmplPlannerConfig and GridAstarPlanner.Config is GridAstarConfig
+    assert isinstance(registry.create("global_planner", GridAstarConfig()), GridAstarPlanner)
+    for name in [
+        "RRTConnect",
+        "RRT",
+        "RRTstar",
+        "PRMstar",
+        "BITstar",
+        "InformedRRTstar",
+        "KPIECE1",
+    ]:
+        assert OmplPlannerConfig(planner=name).planner == name
+
+
+def test_unknown_planner_is_a_validation_error_naming_it() -> None:
+    with pytest.raises(ValidationError) as err:
+        OmplPlannerConfig(planner="RRTfast")
+    text = str(err.value)
+    assert "RRTfast" in text and "unknown planner" in text
+    assert "RRTConnect" in text and "BITstar" in text  # lists valid names
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [{"time_limit": 0.0}, {"clearance": -0.1}, {"bogus": 1}, {"type": "grid_astar"}],
+)
+def test_ompl_config_rejects_bad_values(kwargs: dict) -> None:
+    with pytest.raises(ValidationError):
+        OmplPlannerConfig(**kwargs)
+
+
+def test_grid_config() -> None:
+    cfg = GridAstarConfig()
+    assert cfg.type == "grid_astar" and cfg.smooth and cfg.cost_weight > 0
+    with pytest.raises(ValidationError):
+        GridAstarConfig(cost_weight=-1.0)
+    with pytest.raises(ValidationError):
+        GridAstarConfig(connectivity=4)
+
+
+# --------------------------------------------------------------------------- the door room
+
+
+PLANNERS = [
+    pytest.param(lambda: OmplPlanner(OmplPlannerConfig()), 0.05, id="ompl-RRTConnect"),
+    pytest.param(lambda: GridAstarPlanner(GridAstarConfig()), 0.05, id="grid_astar"),
+    pytest.param(
+        lambda: GridAstarPlanner(GridAstarConfig(smooth=False, connectivity=8, cost_weight=0)),
+        0.05,
+        id="grid_astar-8-raw",
+    ),
+    pytest.param(
+        lambda: OmplPlanner(OmplPlannerConfig(clearance=0.15, simplify=False)),
+        0.15,
+        id="ompl-raw-wide",
+    ),
+]
+
+
+@pytest.mark.parametrize(("make", "margin"), PLANNERS)
+def test_path_through_the_door_is_free(room: Costmap, make, margin: float) -> None:
+    path = make().plan(room, START, GOAL, seed=3)
+    assert_joins(path, START, GOAL)
+    assert_path_free(room, path, margin)
+    assert path.length > 5.0  # went round through the door, not through the wall
+    assert path.planning_time > 0.0
+
+
+@pytest.mark.parametrize(("make", "margin"), PLANNERS)
+def test_straight_line_when_visible(room: Costmap, make, margin: float) -> None:
+    path = make().plan(room, Pose2D(0.5, 0.5), Pose2D(2.5, 3.5))
+    np.testing.assert_allclose(path.points, [[0.5, 0.5], [2.5, 3.5]])
+
+
+@pytest.mark.parametrize(
+    ("start", "goal", "message"),
+    [
+        (Pose2D(3.0, 1.0), GOAL, "start (3.00, 1.00) is not free"),  # in the wall
+        (START, Pose2D(3.0, 2.0), "goal (3.00, 2.00) is not free"),
+        (START, Pose2D(5.95, 1.0), "goal (5.95, 1.00) is not free"),  # inside the margin
+        (START, Pose2D(7.0, 1.0), "goal (7.00, 1.00) is outside the map"),
+        (Pose2D(-1.0, 1.0), GOAL, "start (-1.00, 1.00) is outside the map"),
+    ],
+)
+@pytest.mark.parametrize("kind", ["ompl", "grid"])
+def test_blocked_endpoints_raise(room: Costmap, start, goal, message: str, kind: str) -> None:
+    planner = (
+        OmplPlanner(OmplPlannerConfig()) if kind == "ompl" else GridAstarPlanner(GridAstarConfig())
+    )
+    with pytest.raises(PlanningError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        planner.plan(room, start, goal)
+
+
+@pytest.mark.parametrize(
+    "planner",
+    [
+        OmplPlanner(OmplPlannerConfig(time_limit=0.2)),
+        OmplPlanner(OmplPlannerConfig(planner="BITstar", time_limit=0.2)),
+        GridAstarPlanner(GridAstarConfig()),
+    ],
+    ids=["RRTConnect", "BITstar", "grid_astar"],
+)
+def test_no_door_no_path(planner) -> None:
+    closed = room_with_door(door=None)
+    t0 = time.perf_counter()
+    with pytest.raises(PlanningError, match="no path"):
+        planner.plan(closed, START, GOAL)
+    assert time.perf_counter() - t0 < 1.0  # gives up at the time limit (grid: at once)
+
+
+@pytest.mark.parametrize("name", OPTIMISING)
+def test_optimising_planners(room: Costmap, name: str) -> None:
+    planner = OmplPlanner(OmplPlannerConfig(planner=name, time_limit=1.0))
+    path = planner.plan(room, START, GOAL, seed=1)
+    assert_joins(path, START, GOAL)
+    assert_path_free(room, path, 0.05)
+    assert path.length <= 1.10 * reference_length(room, START, GOAL)
+    assert path.planning_time < 1.5  # stops on the cost threshold or at the time limit
+
+
+@pytest.mark.parametrize("name", ["RRT", "KPIECE1", "BKPIECE1", "FMT", "PRM", "AORRTC"])
+def test_other_planners(room: Costmap, name: str) -> None:
+    path = OmplPlanner(OmplPlannerConfig(planner=name, time_limit=1.0)).plan(room, START, GOAL)
+    assert_path_free(room, path, 0.05)
+
+
+def test_rrtconnect_length_close_to_grid(room: Costmap) -> None:
+    ref = GridAstarPlanner(GridAstarConfig()).plan(room, START, GOAL).length
+    planner = OmplPlanner(OmplPlannerConfig(planner="RRTConnect", simplify=True))
+    for seed in range(5):
+        assert planner.plan(room, START, GOAL, seed=seed).length <= 1.15 * ref
+
+
+@pytest.mark.parametrize(
+    "config",
+    [
+        OmplPlannerConfig(),
+        OmplPlannerConfig(simplify=False),
+        OmplPlannerConfig(planner="BITstar"),
+        OmplPlannerConfig(planner="RRTstar", time_limit=2.0),
+    ],
+    ids=["RRTConnect", "RRTConnect-raw", "BITstar", "RRTstar"],
+)
+def test_same_seed_same_path(room: Costmap, config: OmplPlannerConfig) -> None:
+    planner = OmplPlanner(config)
+    first = planner.plan(room, START, GOAL, seed=11)
+    planner.plan(room, GOAL, START, seed=5)  # unrelated sampling in between
+    again = OmplPlanner(config).plan(room, START, GOAL, seed=11)
+    np.testing.assert_array_equal(first.points, again.points)
+
+
+def test_seed_changes_the_samples(room: Costmap) -> None:
+    planner = OmplPlanner(OmplPlannerConfig(simplify=False))
+    paths = {planner.plan(room, START, GOAL, seed=s).points.tobytes() for s in range(4)}
+    assert len(paths) > 1
+
+
+def test_grid_astar_keeps_to_the_middle(room: Costmap) -> None:
+    """Inflation cost pushes the grid path away from the walls it would otherwise hug."""
+    hugging = GridAstarPlanner(GridAstarConfig(cost_weight=0.0)).plan(room, START, GOAL)
+    centred = GridAstarPlanner(GridAstarConfig(cost_weight=1.0)).plan(room, START, GOAL)
+    assert_path_free(room, centred, 0.05)
+
+    def min_clearance(path: Path) -> float:
+        pts = path.points
+        samples = np.concatenate(
+            [
+                a + np.linspace(0, 1, 50)[:, None] * (b - a)
+                for a, b in zip(pts[:-1], pts[1:], strict=True)
+            ]
+        )
+        return float(room.clearance(samples).min())
+
+    assert min_clearance(centred) > min_clearance(hugging) + 0.1
+    assert centred.length < 1.1 * hugging.length
+
+
+def test_grid_astar_400x400_is_fast() -> None:
+    data = np.full((400, 400), FREE, dtype=np.int8)
+    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = OCCUPIED
+    data[100:102, :300] = data[200:202, 100:] = data[300:302, :300] = OCCUPIED  # a zigzag
+    costmap = Costmap.from_grid(OccupancyGrid(data, RES, Pose2D(0, 0)), ROBOT_RADIUS, COSTMAP)
+    planner = GridAstarPlanner(GridAstarConfig())
+    times = []
+    for _ in range(3):
+        path = planner.plan(costmap, Pose2D(1.0, 1.0), Pose2D(19.0, 19.0))
+        times.append(path.planning_time)
+    assert_path_free(costmap, path, 0.05)
+    assert path.length > 40.0  # the zigzag: three 15 m crossings
+    assert min(times) < 0.5
+
+
+def test_rotated_map_origin() -> None:
+    """A map whose origin is rotated: planning happens in the grid frame."""
+    costmap = room_with_door(yaw=0.6)
+    start, goal = to_world(costmap, 1.0, 1.0), to_world(costmap, 5.0, 1.0)
+    for planner in (OmplPlanner(OmplPlannerConfig()), GridAstarPlanner(GridAstarConfig())):
+        path = planner.plan(costmap, start, goal)
+        assert_joins(path, start, goal)
+        assert_path_free(costmap, path, 0.05)
+
+
+def test_segment_traversal_covers_dense_samples() -> None:
+    """Every cell a densely sampled segment touches is among the cells checked."""
+    space = FreeSpace(room_with_door(), 0.0)
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        a, b = rng.uniform(0.1, [5.9, 3.9], size=(2, 2))
+        if rng.random() < 0.3:  # axis-aligned
+            k = rng.integers(2)
+            b[k] = a[k]
+        if rng.random() < 0.3:  # on grid lines and through cell corners
+            a, b = np.round(a / RES) * RES, np.round(b / RES) * RES
+        cells = set(space.segment_cells(*a, *b).tolist())
+        t = np.linspace(0.0, 1.0, 4000)[:, None]
+        pts = a + t * (b - a)
+        dense = np.floor(pts[:, 1] / RES).astype(int) * space.width + np.floor(
+            pts[:, 0] / RES
+        ).astype(int)
+        assert set(dense.tolist()) <= cells
+    assert space.segment_cells(-0.1, 1.0, 1.0, 1.0) is None
+
+
+def test_no_ompl_leaks_or_log_lines() -> None:
+    """OMPL objects die inside plan(): no nanobind leak report, no OMPL chatter."""
+    code = (
+        "from tests.test_global_planners import room_with_door, START, GOAL\n"
+        "from agv_mission.planners.ompl_planner import OmplPlanner, OmplPlannerConfig\n"
+        "room = room_with_door()\n"
+        "for name in ('RRTConnect', 'BITstar', 'PRMstar'):\n"
+        "    for seed in range(2):\n"
+        "        OmplPlanner(OmplPlannerConfig(planner=name, time_limit=0.3)).plan(room, START, GOAL, seed)\n"
+        "print('ok')\n"
+    )
+    root = FilePath(__file__).resolve().parents[1]
+    proc = subprocess.run(
+        [sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "ok"
+    assert "leak" not in proc.stderr and "Error" not in proc.stderr, proc.stderr
+    assert "Info" not in proc.stdout + proc.stderr
+
+
+# --------------------------------------------------------------------------- real maps, worlds
+
+
+def ros_costmap(name: str) -> Costmap:
+    from agv_mission.maps.ros_map import load_ros_map
+
+    yaml_path = ROS_MAPS / name / "map.yaml"
+    if not yaml_path.is_file():
+        pytest.skip(f"shared map {yaml_path} not available")
+    return Costmap.from_grid(load_ros_map(yaml_path), ROBOT_RADIUS, COSTMAP)
+
+
+def legs(waypoints: list[Pose2D]) -> list[tuple[Pose2D, Pose2D]]:
+    """Consecutive pairs of a closed tour."""
+    return list(zip(waypoints, waypoints[1:] + waypoints[:1], strict=True))
+
+
+def patrol(costmap: Costmap, waypoints: list[Pose2D], planner, seed: int = 0) -> list[Path]:
+    paths = []
+    for i, (a, b) in enumerate(legs(waypoints)):
+        path = planner.plan(costmap, a, b, seed=seed + i)
+        assert_joins(path, a, b)
+        assert_path_free(costmap, path, 0.05)
+        paths.append(path)
+    return paths
+
+
+TB3_PATROL = [Pose2D(-2.0, -0.5), Pose2D(1.13, -1.6), Pose2D(0.13, 1.93)]
+# Across the rooms of the real aws small house (living room spawn, bedroom, kitchen, ...).
+HOUSE_TOUR = [Pose2D(3.83, -1.23), Pose2D(-8.0, 0.0), Pose2D(7.0, -3.0), Pose2D(-6.0, -4.0),
+              Pose2D(4.0, 3.0), Pose2D(-8.5, -4.5), Pose2D(0.0, -4.0)]  # fmt: skip
+
+MAP_PLANNERS = [
+    pytest.param(lambda: OmplPlanner(OmplPlannerConfig()), id="RRTConnect"),
+    pytest.param(lambda: OmplPlanner(OmplPlannerConfig(planner="BITstar")), id="BITstar"),
+    pytest.param(lambda: GridAstarPlanner(GridAstarConfig()), id="grid_astar"),
+]
+
+
+@pytest.mark.parametrize("make", MAP_PLANNERS)
+def test_turtlebot3_world_ros_map_patrol(make) -> None:
+    costmap = ros_costmap("turtlebot3_world")
+    paths = patrol(costmap, TB3_PATROL, make())
+    for path, (a, b) in zip(paths, legs(TB3_PATROL), strict=True):
+        assert path.length >= a.distance_to(b) - 1e-9
+
+
+@pytest.mark.parametrize("make", MAP_PLANNERS)
+def test_aws_small_house_ros_map_tour(make) -> None:
+    costmap = ros_costmap("aws_small_house")
+    paths = patrol(costmap, HOUSE_TOUR, make())
+    ref = [reference_length(costmap, a, b) for a, b in legs(HOUSE_TOUR)]
+    ratios = np.array([p.length for p in paths]) / np.array(ref)
+    assert ratios.min() > 0.97  # the reference is (nearly) the shortest path
+    assert np.median(ratios) < 1.15
+
+
+@pytest.mark.parametrize("world_name", ["turtlebot3_world", "small_house"])
+@pytest.mark.parametrize("make", MAP_PLANNERS)
+def test_builtin_worlds_room_to_room(world_name: str, make) -> None:
+    from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
+
+    world = BUILTIN_WORLDS[world_name]()
+    costmap = Costmap.from_grid(world.map, ROBOT_RADIUS, COSTMAP)
+    anchors = [world.spawn] + [r.anchor for r in world.rooms.values() if r.anchor is not None]
+    anchors = [a for i, a in enumerate(anchors) if a not in anchors[:i]]
+    assert len(anchors) >= 3
+    patrol(costmap, anchors, make())

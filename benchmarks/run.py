@@ -62,8 +62,11 @@ def main() -> int:
     console.print(table)
     doc = {
         "when": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "machine": {"python": platform.python_version(), "cpu": platform.processor(),
-                    "cores": __import__("os").cpu_count()},
+        "machine": {
+            "python": platform.python_version(),
+            "cpu": platform.processor(),
+            "cores": __import__("os").cpu_count(),
+        },
         "results": results,
     }
     (HERE / "results.json").write_text(json.dumps(doc, indent=2) + "\n")

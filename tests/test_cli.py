@@ -32,7 +32,9 @@ def test_validate_invalid_exits_2_with_line_and_field(tmp_path: Path) -> None:
 def test_run_invalid_and_missing_file_exit_2(tmp_path: Path) -> None:
     r = cli("run", str(tmp_path / "nope.yaml"))
     assert r.returncode == 2 and "cannot read" in r.stderr and "Traceback" not in r.stderr
-    r = cli("run", str(REPO / "missions" / "patrol.yaml"), "--set", "stack.global_planner.planner=Nope")
+    r = cli(
+        "run", str(REPO / "missions" / "patrol.yaml"), "--set", "stack.global_planner.planner=Nope"
+    )
     assert r.returncode == 2 and "Nope" in r.stderr and "Traceback" not in r.stderr
 
 
@@ -40,7 +42,18 @@ def test_schema_is_json_with_the_contract_keys() -> None:
     r = cli("schema")
     assert r.returncode == 0
     schema = json.loads(r.stdout)
-    for key in ("name", "world", "rooms", "robot", "start", "seed", "stack", "tasks", "limits", "output"):
+    for key in (
+        "name",
+        "world",
+        "rooms",
+        "robot",
+        "start",
+        "seed",
+        "stack",
+        "tasks",
+        "limits",
+        "output",
+    ):
         assert key in schema["properties"]
 
 

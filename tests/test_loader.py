@@ -43,28 +43,39 @@ def test_packaged_demo_is_the_repository_demo() -> None:
 
 
 def test_unknown_key_names_line_and_field(tmp_path: Path) -> None:
-    path = write(tmp_path, "world: turtlebot3_world\ntasks:\n  - type: go_to\n    pose: {x: 0.5, y: -0.5}\n    speed: 3\n")
+    path = write(
+        tmp_path,
+        "world: turtlebot3_world\ntasks:\n  - type: go_to\n    pose: {x: 0.5, y: -0.5}\n    speed: 3\n",
+    )
     [p] = problems_of(path)
     assert (p.line, p.field) == (5, "tasks.0.speed")
     assert "unknown key" in p.message
 
 
 def test_wrong_type(tmp_path: Path) -> None:
-    path = write(tmp_path, "tasks:\n  - type: patrol\n    waypoints: [{x: 0.5, y: -0.5}]\n    loops: many\n")
+    path = write(
+        tmp_path, "tasks:\n  - type: patrol\n    waypoints: [{x: 0.5, y: -0.5}]\n    loops: many\n"
+    )
     [p] = problems_of(path)
     assert (p.line, p.field) == (4, "tasks.0.loops")
     assert "integer" in p.message and "'many'" in p.message
 
 
 def test_goal_inside_a_pillar(tmp_path: Path) -> None:
-    path = write(tmp_path, "tasks:\n  - {type: go_to, pose: {x: 0.5, y: -0.5}}\n  - {type: go_to, pose: {x: 1.1, y: 1.1}}\n")
+    path = write(
+        tmp_path,
+        "tasks:\n  - {type: go_to, pose: {x: 0.5, y: -0.5}}\n  - {type: go_to, pose: {x: 1.1, y: 1.1}}\n",
+    )
     [p] = problems_of(path)
     assert (p.line, p.field) == (3, "tasks.1.pose")
     assert "obstacle" in p.message
 
 
 def test_goal_outside_the_map(tmp_path: Path) -> None:
-    path = write(tmp_path, "tasks:\n  - type: patrol\n    waypoints:\n      - {x: 0.5, y: -0.5}\n      - {x: 40.0, y: 0.0}\n")
+    path = write(
+        tmp_path,
+        "tasks:\n  - type: patrol\n    waypoints:\n      - {x: 0.5, y: -0.5}\n      - {x: 40.0, y: 0.0}\n",
+    )
     [p] = problems_of(path)
     assert (p.line, p.field) == (5, "tasks.0.waypoints.1")
     assert "outside the map" in p.message
@@ -92,14 +103,20 @@ def test_tilted_quaternion(tmp_path: Path) -> None:
 
 
 def test_unknown_planner_name(tmp_path: Path) -> None:
-    path = write(tmp_path, "stack:\n  global_planner: {type: ompl, planner: RRTFast}\ntasks: [{type: go_to, pose: {x: 0.5, y: -0.5}}]\n")
+    path = write(
+        tmp_path,
+        "stack:\n  global_planner: {type: ompl, planner: RRTFast}\ntasks: [{type: go_to, pose: {x: 0.5, y: -0.5}}]\n",
+    )
     [p] = problems_of(path)
     assert (p.line, p.field) == (2, "stack.global_planner.planner")
     assert "RRTFast" in p.message
 
 
 def test_unknown_plugin_type_lists_known_types(tmp_path: Path) -> None:
-    path = write(tmp_path, "stack:\n  local_planner: {type: dwa}\ntasks: [{type: go_to, pose: {x: 0.5, y: -0.5}}]\n")
+    path = write(
+        tmp_path,
+        "stack:\n  local_planner: {type: dwa}\ntasks: [{type: go_to, pose: {x: 0.5, y: -0.5}}]\n",
+    )
     [p] = problems_of(path)
     assert p.line == 2 and p.field == "stack.local_planner"
     assert "mpc" in p.message and "pure_pursuit" in p.message
@@ -119,7 +136,9 @@ def test_empty_task_list(tmp_path: Path) -> None:
 
 def test_unknown_world_and_robot(tmp_path: Path) -> None:
     with pytest.raises(MissionError) as info:
-        load_mission(write(tmp_path, "world: moon_base\ntasks: [{type: go_to, pose: {x: 0, y: 0}}]\n"))
+        load_mission(
+            write(tmp_path, "world: moon_base\ntasks: [{type: go_to, pose: {x: 0, y: 0}}]\n")
+        )
     [p] = info.value.problems
     assert p.field == "world" and p.line == 1 and "turtlebot3_world" in p.message
     [p] = problems_of(write(tmp_path, "robot: r2d2\ntasks: [{type: wander, duration: 1}]\n"))
@@ -149,6 +168,9 @@ def test_relative_world_path_resolves_against_mission_dir(tmp_path: Path, shared
     sub.mkdir(parents=True)
     map_yaml = shared / "data" / "ros_maps" / "turtlebot3_world" / "map.yaml"
     rel = os.path.relpath(map_yaml, sub)
-    path = write(sub, f"world: {rel}\ntasks: [{{type: go_to, pose: {{x: 1.13, y: -1.6}}}}]\nstart: {{x: -2.0, y: -0.5}}\n")
+    path = write(
+        sub,
+        f"world: {rel}\ntasks: [{{type: go_to, pose: {{x: 1.13, y: -1.6}}}}]\nstart: {{x: -2.0, y: -0.5}}\n",
+    )
     loaded = load_mission(path)
     assert loaded.world.map.width == 384

@@ -21,7 +21,9 @@ def true_pose_at(record: RunRecord, t: float) -> np.ndarray:
     return row[1:4]
 
 
-def assert_patrol_reached(record: RunRecord, loaded, tol_xy: float = 0.10, tol_yaw: float = 0.2) -> None:
+def assert_patrol_reached(
+    record: RunRecord, loaded, tol_xy: float = 0.10, tol_yaw: float = 0.2
+) -> None:
     assert record.status == "succeeded", record.reason
     task = loaded.mission.tasks[0]
     wps = record.tasks[0]["waypoints"]
@@ -67,8 +69,12 @@ def test_patrol_on_the_real_turtlebot3_ros_map(tmp_path: Path, shared: Path) -> 
 
 
 def test_same_seed_same_trajectory() -> None:
-    a = run_mission(load_mission(DEMO, ["tasks.0.loops=1", "tasks.0.waypoints=[{x: 1.13, y: -1.6}]"]))
-    b = run_mission(load_mission(DEMO, ["tasks.0.loops=1", "tasks.0.waypoints=[{x: 1.13, y: -1.6}]"]))
+    a = run_mission(
+        load_mission(DEMO, ["tasks.0.loops=1", "tasks.0.waypoints=[{x: 1.13, y: -1.6}]"])
+    )
+    b = run_mission(
+        load_mission(DEMO, ["tasks.0.loops=1", "tasks.0.waypoints=[{x: 1.13, y: -1.6}]"])
+    )
     assert a.status == b.status == "succeeded"
     np.testing.assert_array_equal(a.trajectory, b.trajectory)
 
@@ -87,8 +93,12 @@ def test_wander_keeps_clear_of_obstacles() -> None:
 def test_go_to_in_small_house_across_rooms() -> None:
     loaded = load_mission(
         DEMO,
-        ["world=small_house", "start=null", "tasks=[{type: go_to, pose: {x: -3.0, y: 2.0, yaw: 1.57}}]",
-         "limits.time=200"],
+        [
+            "world=small_house",
+            "start=null",
+            "tasks=[{type: go_to, pose: {x: -3.0, y: 2.0, yaw: 1.57}}]",
+            "limits.time=200",
+        ],
     )
     record = run_mission(loaded)
     assert record.status == "succeeded", record.reason

@@ -28,18 +28,21 @@ DEMO_MISSION = "patrol.yaml"
 
 
 def _report_invalid(exc: MissionError) -> None:
-    err.print(f"[bold red]invalid input[/] ({len(exc.problems)} problem"
-              f"{'s' if len(exc.problems) != 1 else ''}):", highlight=False)
+    err.print(
+        f"[bold red]invalid input[/] ({len(exc.problems)} problem"
+        f"{'s' if len(exc.problems) != 1 else ''}):",
+        highlight=False,
+    )
     for problem in exc.problems:
         err.print(f"  {problem}", highlight=False, markup=False)
 
 
 @app.command()
 def run(
-    mission: Annotated[Optional[Path], typer.Argument(help="mission file; default: the demo")] = None,  # noqa: UP007
+    mission: Annotated[Path | None, typer.Argument(help="mission file; default: the demo")] = None,  # noqa: UP007
     set_: Annotated[list[str], typer.Option("--set", help="KEY=VALUE override (YAML value)")] = [],  # noqa: B006
-    output: Annotated[Optional[Path], typer.Option(help="root of run directories")] = None,  # noqa: UP007
-    seed: Annotated[Optional[int], typer.Option(help="override the mission's seed")] = None,  # noqa: UP007
+    output: Annotated[Path | None, typer.Option(help="root of run directories")] = None,  # noqa: UP007
+    seed: Annotated[int | None, typer.Option(help="override the mission's seed")] = None,  # noqa: UP007
 ) -> None:
     """Validate and run a mission in simulation; write a run directory."""
     from agv_mission.missions.loader import load_mission
@@ -59,8 +62,10 @@ def run(
     root = output if output is not None else Path(loaded.mission.output)
     run_dir = make_run_dir(root, loaded.name)
     write_mission(run_dir, loaded)
-    out.print(f"[bold]{loaded.name}[/]: {len(loaded.mission.tasks)} task(s) in "
-              f"{loaded.world.name} with {loaded.robot.name}, seed {loaded.mission.seed}")
+    out.print(
+        f"[bold]{loaded.name}[/]: {len(loaded.mission.tasks)} task(s) in "
+        f"{loaded.world.name} with {loaded.robot.name}, seed {loaded.mission.seed}"
+    )
     with Progress(
         TextColumn("[progress.description]{task.description}"),
         BarColumn(),
@@ -80,8 +85,10 @@ def run(
 def _summary(result: dict) -> None:
     ok = result["status"] == "succeeded"
     colour = "green" if ok else "red"
-    out.print(f"[bold {colour}]{result['status']}[/]"
-              + ("" if ok else f": {result['reason']}"), highlight=False)
+    out.print(
+        f"[bold {colour}]{result['status']}[/]" + ("" if ok else f": {result['reason']}"),
+        highlight=False,
+    )
     table = Table(show_header=True, header_style="bold", box=None)
     table.add_column("task")
     table.add_column("status")
@@ -129,6 +136,85 @@ def schema() -> None:
     from agv_mission.missions.schema import Mission
 
     sys.stdout.write(json.dumps(Mission.model_json_schema(), indent=2) + "\n")
+
+
+@app.command()
+def teleop(
+    mission: Annotated[
+        Optional[Path],
+        typer.Argument(help="mission file for world, robot, start and stack; default: small_house"),
+    ] = None,  # noqa: UP007, UP045
+    world: Annotated[
+        Optional[str], typer.Option(help="world (built-in name, world file or ROS map YAML)")
+    ] = None,  # noqa: UP007, UP045
+    robot: Annotated[
+        Optional[str], typer.Option(help="robot (burger, waffle, rosbots or a robot file)")
+    ] = None,  # noqa: UP007, UP045
+    set_: Annotated[list[str], typer.Option("--set", help="KEY=VALUE override (YAML value)")] = [],  # noqa: B006
+    output: Annotated[
+        Optional[Path], typer.Option(help="root of run directories (default: the mission's output)")
+    ] = None,  # noqa: UP007, UP045
+    recorder: Annotated[
+        Optional[Path], typer.Option(help="record straight into this file (appends if it exists)")
+    ] = None,  # noqa: UP007, UP045
+    append: Annotated[
+        Optional[Path], typer.Option(help="start from the entries of this recorder file")
+    ] = None,  # noqa: UP007, UP045
+    time_scale: Annotated[
+        float, typer.Option(min=0.1, max=100.0, help="simulated seconds per wall second")
+    ] = 1.0,
+    seed: Annotated[Optional[int], typer.Option(help="override the mission's seed")] = None,  # noqa: UP007, UP045
+) -> None:
+    """Drive the simulated robot by keyboard and record room poses (r + label)."""
+    from rich.markup import escape
+
+    from agv_mission.maps.recorder import RecorderFileError
+    from agv_mission.missions.outputs import make_run_dir
+    from agv_mission.missions.teleop import (
+        load_teleop_mission,
+        open_recorder,
+        run_teleop,
+        write_teleop_outputs,
+    )
+
+    if output is not None and recorder is not None:
+        err.print(
+            "[bold red]invalid input[/]: give --output or --recorder, not both", highlight=False
+        )
+        raise typer.Exit(2)
+    try:
+        loaded = load_teleop_mission(mission, world, robot, set_, seed)
+    except MissionError as exc:
+        _report_invalid(exc)
+        raise typer.Exit(2) from None
+    try:
+        if recorder is not None:
+            run_dir, rec = None, open_recorder(None, recorder, append)
+        else:
+            if append is not None:
+                open_recorder(Path("."), None, append)  # check it before making a directory
+            root = output if output is not None else Path(loaded.mission.output)
+            name = loaded.name if loaded.name == "teleop" else f"{loaded.name}-teleop"
+            run_dir = make_run_dir(root, name)
+            rec = open_recorder(run_dir, None, append)
+    except RecorderFileError as exc:
+        err.print(f"[bold red]invalid input[/]: {escape(str(exc))}", highlight=False)
+        raise typer.Exit(2) from None
+    result = run_teleop(loaded, rec, time_scale=time_scale)
+    if run_dir is not None:
+        write_teleop_outputs(run_dir, loaded, result)
+    out.print(f"teleop ended ({result.reason}) after {result.sim_time:.1f} sim s", highlight=False)
+    if len(rec) and rec.path.exists():
+        out.print(
+            f"recorder file: {rec.path} ({len(rec)} entries: {', '.join(rec.labels)})",
+            highlight=False,
+            markup=False,
+        )
+    else:
+        out.print("nothing recorded; no recorder file written", highlight=False)
+    if run_dir is not None:
+        out.print(f"run directory: {run_dir}", highlight=False, markup=False)
+    raise typer.Exit(result.exit_code)
 
 
 def main() -> None:

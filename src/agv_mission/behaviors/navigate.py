@@ -34,14 +34,21 @@ class NavigateToPose(py_trees.behaviour.Behaviour):
         if nav.status is NavStatus.SUCCEEDED:
             self.handle.stop()
             est = self.handle.state.estimate
-            self.handle.log("goal_reached", goal=self.name, x=round(est.x, 4), y=round(est.y, 4),
-                            yaw=round(est.yaw, 4), **self.log_details)
+            self.handle.log(
+                "goal_reached",
+                goal=self.name,
+                x=round(est.x, 4),
+                y=round(est.y, 4),
+                yaw=round(est.yaw, 4),
+                **self.log_details,
+            )
             return Status.SUCCESS
         if nav.status is NavStatus.FAILED:
             self.handle.stop()
             self.feedback_message = nav.reason or "navigation failed"
-            self.handle.log("goal_failed", goal=self.name, reason=self.feedback_message,
-                            **self.log_details)
+            self.handle.log(
+                "goal_failed", goal=self.name, reason=self.feedback_message, **self.log_details
+            )
             return Status.FAILURE
         return Status.RUNNING
 

@@ -115,8 +115,11 @@ def _resolve(
     try:
         robot = load_robot(mission.robot, base_dir)
     except FileNotFoundError:
-        problem(("robot",), f"no built-in robot or robot file {mission.robot!r} "
-                "(built-in: burger, waffle, rosbots)")
+        problem(
+            ("robot",),
+            f"no built-in robot or robot file {mission.robot!r} "
+            "(built-in: burger, waffle, rosbots)",
+        )
     except (OSError, yaml.YAMLError, ValidationError, TypeError) as exc:
         problem(("robot",), f"invalid robot file {mission.robot!r}: {_first_line(exc)}")
     rooms = dict(world.rooms)
@@ -135,8 +138,11 @@ def _resolve(
     elif isinstance(mission.start, str):
         room = rooms.get(mission.start)
         if room is None:
-            problem(("start",), f"unknown room {mission.start!r}; known rooms: "
-                    f"{', '.join(sorted(rooms)) or '(none)'}")
+            problem(
+                ("start",),
+                f"unknown room {mission.start!r}; known rooms: "
+                f"{', '.join(sorted(rooms)) or '(none)'}",
+            )
             start = world.spawn
         elif room.anchor is None:
             x, y = room.centroid()
@@ -170,14 +176,20 @@ def _check_pose(pose: Pose2D, costmap: Costmap, field_path: FieldPath, problem: 
     xmin, xmax, ymin, ymax = costmap.grid.extent
     xy = np.array([pose.x, pose.y])
     if not (xmin <= pose.x < xmax and ymin <= pose.y < ymax):
-        problem(field_path, f"({pose.x:g}, {pose.y:g}) is outside the map "
-                f"(x {xmin:g}..{xmax:g}, y {ymin:g}..{ymax:g})")
+        problem(
+            field_path,
+            f"({pose.x:g}, {pose.y:g}) is outside the map "
+            f"(x {xmin:g}..{xmax:g}, y {ymin:g}..{ymax:g})",
+        )
     elif costmap.grid.value_at(xy) == UNKNOWN:
         problem(field_path, f"({pose.x:g}, {pose.y:g}) lies in unknown space of the map")
     elif not costmap.is_free(xy):
         clearance = float(costmap.clearance(xy))
-        problem(field_path, f"({pose.x:g}, {pose.y:g}) is inside or too close to an obstacle "
-                f"(clearance {clearance:.2f} m, robot radius {costmap.robot_radius:.3f} m)")
+        problem(
+            field_path,
+            f"({pose.x:g}, {pose.y:g}) is inside or too close to an obstacle "
+            f"(clearance {clearance:.2f} m, robot radius {costmap.robot_radius:.3f} m)",
+        )
 
 
 def _resolve_path(spec: str, base_dir: Path) -> Path:
@@ -188,8 +200,16 @@ def _resolve_path(spec: str, base_dir: Path) -> Path:
 def _parse_override(file: str, item: str) -> tuple[FieldPath, Any]:
     key, sep, raw = item.partition("=")
     if not sep or not key.strip():
-        raise MissionError([Problem("--set", None, item, "expected KEY=VALUE, e.g. "
-                                    "stack.global_planner.planner=RRTstar")])
+        raise MissionError(
+            [
+                Problem(
+                    "--set",
+                    None,
+                    item,
+                    "expected KEY=VALUE, e.g. stack.global_planner.planner=RRTstar",
+                )
+            ]
+        )
     try:
         value = yaml.safe_load(raw) if raw.strip() else None
     except yaml.YAMLError:
@@ -204,8 +224,16 @@ def _apply(data: dict, field_path: FieldPath, value: Any, file: str, item: str) 
         last = i == len(field_path) - 1
         if isinstance(node, list):
             if not isinstance(part, int) or not -len(node) <= part < len(node):
-                raise MissionError([Problem("--set", None, item,
-                                            f"{part!r} is not an index of a list of {len(node)}")])
+                raise MissionError(
+                    [
+                        Problem(
+                            "--set",
+                            None,
+                            item,
+                            f"{part!r} is not an index of a list of {len(node)}",
+                        )
+                    ]
+                )
             if last:
                 node[part] = value
             else:
@@ -223,8 +251,9 @@ def _apply(data: dict, field_path: FieldPath, value: Any, file: str, item: str) 
                     node[key] = {}
                 node = node[key]
         else:
-            raise MissionError([Problem("--set", None, item,
-                                        f"cannot set a key inside a {_kind(node)}")])
+            raise MissionError(
+                [Problem("--set", None, item, f"cannot set a key inside a {_kind(node)}")]
+            )
 
 
 def _swaps_plugin(field_path: FieldPath, block: dict, value: Any) -> bool:
@@ -262,10 +291,13 @@ def _data_path(loc: tuple, data: Any) -> FieldPath:
     node = data
     for i, part in enumerate(loc):
         last = i == len(loc) - 1
-        if isinstance(node, dict) and part in node:
-            path.append(part)
-            node = node[part]
-        elif isinstance(node, list) and isinstance(part, int) and 0 <= part < len(node):
+        if (
+            isinstance(node, dict)
+            and part in node
+            or isinstance(node, list)
+            and isinstance(part, int)
+            and 0 <= part < len(node)
+        ):
             path.append(part)
             node = node[part]
         elif last and isinstance(part, str) and not _is_tag(part):
@@ -286,9 +318,11 @@ def _message(err: dict) -> str:
         return "unknown key (not allowed here)"
     msg = err["msg"]
     if msg.startswith("Value error, "):
-        msg = msg[len("Value error, "):]
-    if "input" in err and kind not in ("union_tag_invalid",) and not isinstance(
-        err["input"], (dict, list)
+        msg = msg[len("Value error, ") :]
+    if (
+        "input" in err
+        and kind not in ("union_tag_invalid",)
+        and not isinstance(err["input"], (dict, list))
     ):
         msg = f"{msg} (got {err['input']!r})"
     return msg

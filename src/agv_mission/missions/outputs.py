@@ -64,7 +64,9 @@ def write_run(run_dir: Path, loaded: LoadedMission, record: RunRecord) -> dict[s
 
 
 def write_json(path: Path, doc: dict[str, Any]) -> None:
-    atomic_write_text(path, json.dumps(doc, indent=2, allow_nan=False, default=_json_default) + "\n")
+    atomic_write_text(
+        path, json.dumps(doc, indent=2, allow_nan=False, default=_json_default) + "\n"
+    )
 
 
 def _json_default(value: Any) -> Any:
@@ -94,25 +96,53 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
     image[grid.data == 0] = 1.0
     image[grid.data == 100] = 0.0
     fig, ax = plt.subplots(figsize=(8, 8 * (ymax - ymin) / max(xmax - xmin, 1e-6) + 0.6), dpi=110)
-    ax.imshow(image, cmap="gray", vmin=0, vmax=1, origin="lower", extent=(xmin, xmax, ymin, ymax),
-              interpolation="nearest")
+    ax.imshow(
+        image,
+        cmap="gray",
+        vmin=0,
+        vmax=1,
+        origin="lower",
+        extent=(xmin, xmax, ymin, ymax),
+        interpolation="nearest",
+    )
     for room in loaded.rooms.values():
         poly = np.asarray(room.polygon + (room.polygon[0],))
         ax.plot(poly[:, 0], poly[:, 1], "--", lw=0.8, color="tab:purple", alpha=0.7)
         cx, cy = room.centroid()
         ax.text(cx, cy, room.label, color="tab:purple", ha="center", fontsize=8, alpha=0.8)
     for i, p in enumerate(record.paths):
-        ax.plot(p[:, 0], p[:, 1], "-", lw=0.8, color="tab:orange", alpha=0.6,
-                label="planned paths" if i == 0 else None)
+        ax.plot(
+            p[:, 0],
+            p[:, 1],
+            "-",
+            lw=0.8,
+            color="tab:orange",
+            alpha=0.6,
+            label="planned paths" if i == 0 else None,
+        )
     snapshots = record.particle_snapshots
     if snapshots:
-        picks = sorted({round(i) for i in np.linspace(0, len(snapshots) - 1, min(6, len(snapshots)))})
+        picks = sorted(
+            {round(i) for i in np.linspace(0, len(snapshots) - 1, min(6, len(snapshots)))}
+        )
         for k, i in enumerate(picks):
             t, particles = snapshots[i]
-            ax.scatter(particles[:, 0], particles[:, 1], s=1.0, alpha=0.35, color="tab:red",
-                       linewidths=0, label="particles" if k == 0 else None)
-            ax.annotate(f"t={t:.0f}s", (float(np.mean(particles[:, 0])), float(np.mean(particles[:, 1]))),
-                        fontsize=6, color="tab:red", alpha=0.8)
+            ax.scatter(
+                particles[:, 0],
+                particles[:, 1],
+                s=1.0,
+                alpha=0.35,
+                color="tab:red",
+                linewidths=0,
+                label="particles" if k == 0 else None,
+            )
+            ax.annotate(
+                f"t={t:.0f}s",
+                (float(np.mean(particles[:, 0])), float(np.mean(particles[:, 1]))),
+                fontsize=6,
+                color="tab:red",
+                alpha=0.8,
+            )
     traj = record.trajectory
     if traj.size:
         ax.plot(traj[:, 1], traj[:, 2], "-", lw=1.4, color="tab:blue", label="driven (true)")

@@ -150,7 +150,9 @@ def run_mission(loaded: LoadedMission, progress: ProgressCallback | None = None)
         if contacts and not in_contact:
             collisions += 1
         in_contact = contacts > 0
-        clearance = float(loaded.costmap.clearance(np.array([truth.x, truth.y]))) - robot.footprint_radius
+        clearance = (
+            float(loaded.costmap.clearance(np.array([truth.x, truth.y]))) - robot.footprint_radius
+        )
         min_clearance = min(min_clearance, clearance)
 
         if progress is not None:
@@ -171,7 +173,11 @@ def run_mission(loaded: LoadedMission, progress: ProgressCallback | None = None)
         status, reason = "succeeded", None
     elif timed_out:
         running = next((i for i, s in enumerate(task_status) if s == "running"), None)
-        where = f" during task {running + 1} ({mission.tasks[running].type})" if running is not None else ""
+        where = (
+            f" during task {running + 1} ({mission.tasks[running].type})"
+            if running is not None
+            else ""
+        )
         status, reason = "failed", f"time limit of {limit:g} s reached{where}"
         if running is not None:
             task_status[running] = "failed"
@@ -180,8 +186,11 @@ def run_mission(loaded: LoadedMission, progress: ProgressCallback | None = None)
     else:
         failed = next((t for t in tasks if t["status"] == "failed"), None)
         status = "failed"
-        reason = (f"task {failed['index']} ({failed['type']}) failed: {failed['reason']}"
-                  if failed else "mission failed")
+        reason = (
+            f"task {failed['index']} ({failed['type']}) failed: {failed['reason']}"
+            if failed
+            else "mission failed"
+        )
 
     metrics = _metrics(trajectory, navigator, collisions, min_clearance, sim_time, wall_time)
     extras: dict[str, Any] = {}
@@ -189,7 +198,9 @@ def run_mission(loaded: LoadedMission, progress: ProgressCallback | None = None)
     if counts:
         c = np.asarray([n for _, n in counts])
         metrics["localization"]["particles"] = {
-            "min": int(c.min()), "max": int(c.max()), "mean": round(float(c.mean()), 1)
+            "min": int(c.min()),
+            "max": int(c.max()),
+            "mean": round(float(c.mean()), 1),
         }
         extras["particle_counts"] = [[round(t, 3), int(n)] for t, n in counts]
     return RunRecord(
@@ -219,8 +230,12 @@ def _task_reports(
 ) -> list[dict[str, Any]]:
     reports = []
     for i, (task, subtree) in enumerate(zip(mission.tasks, tree.tasks, strict=True)):
-        report: dict[str, Any] = {"index": i + 1, "type": task.type, "status": task_status[i],
-                                  "reason": None}
+        report: dict[str, Any] = {
+            "index": i + 1,
+            "type": task.type,
+            "status": task_status[i],
+            "reason": None,
+        }
         if task_status[i] == "failed":
             report["reason"] = _failure_reason(subtree)
         if task.type == "patrol":
@@ -271,12 +286,12 @@ def _metrics(
             "planning_time_ms_mean": round(float(plan_ms.mean()), 3) if plan_ms.size else None,
             "path_length_total": round(float(np.sum(stats.path_lengths)), 4),
             "controller_solve_ms_p50": round(float(np.percentile(solve_ms, 50)), 3)
-            if solve_ms.size else None,
+            if solve_ms.size
+            else None,
             "controller_solve_ms_p99": round(float(np.percentile(solve_ms, 99)), 3)
-            if solve_ms.size else None,
+            if solve_ms.size
+            else None,
             "controller_failures": stats.solver_failures,
         },
         "real_time_factor": round(sim_time / wall_time, 2) if wall_time > 0 else None,
     }
-
-

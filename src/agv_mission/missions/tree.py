@@ -26,7 +26,7 @@ class MissionTree:
 
 def build_tree(mission: Mission, handle: RobotHandle, robot: RobotDescription) -> MissionTree:
     tasks = [_task_subtree(i, task, handle, robot) for i, task in enumerate(mission.tasks)]
-    root = py_trees.composites.Sequence(name=f"mission", memory=True, children=tasks)
+    root = py_trees.composites.Sequence(name="mission", memory=True, children=tasks)
     return MissionTree(root, tasks)
 
 
@@ -36,21 +36,35 @@ def _task_subtree(
     label = f"task {index + 1}: {task.type}"  # type: ignore[attr-defined]
     if isinstance(task, GoToTask):
         p = task.pose
-        return NavigateToPose(f"{label} ({p.x:g}, {p.y:g}, {p.yaw:.2f})", handle, p.to_pose2d(),
-                              task=index)
+        return NavigateToPose(
+            f"{label} ({p.x:g}, {p.y:g}, {p.yaw:.2f})", handle, p.to_pose2d(), task=index
+        )
     if isinstance(task, PatrolTask):
         legs: list[py_trees.behaviour.Behaviour] = []
         for loop in range(task.loops):
             for j, wp in enumerate(task.waypoints):
-                legs.append(NavigateToPose(
-                    f"loop {loop + 1} waypoint {j + 1} ({wp.x:g}, {wp.y:g})", handle,
-                    wp.to_pose2d(), task=index, loop=loop + 1, waypoint=j + 1,
-                ))
+                legs.append(
+                    NavigateToPose(
+                        f"loop {loop + 1} waypoint {j + 1} ({wp.x:g}, {wp.y:g})",
+                        handle,
+                        wp.to_pose2d(),
+                        task=index,
+                        loop=loop + 1,
+                        waypoint=j + 1,
+                    )
+                )
                 if task.dwell > 0:
                     legs.append(Dwell(f"dwell {task.dwell:g} s", handle, task.dwell))
         return py_trees.composites.Sequence(name=label, memory=True, children=legs)
     if isinstance(task, WanderTask):
         speed = task.speed if task.speed is not None else robot.max_linear_velocity
-        return Wander(label, handle, task.duration, task.min_range, min(speed, robot.max_linear_velocity),
-                      min(task.turn_rate, robot.max_angular_velocity), task.sector)
+        return Wander(
+            label,
+            handle,
+            task.duration,
+            task.min_range,
+            min(speed, robot.max_linear_velocity),
+            min(task.turn_rate, robot.max_angular_velocity),
+            task.sector,
+        )
     raise TypeError(f"no behaviour for task type {type(task).__name__}")

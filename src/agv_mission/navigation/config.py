@@ -23,4 +23,7 @@ class NavigationConfig(BaseModel):
     obstacle_range: float = Field(
         1.5, gt=0, description="lidar points within this range go to the local planner, m"
     )
+    escape_distance: float = Field(
+        0.3, gt=0, description="how far the robot may move to reach such a start, m"
+    )
     rotate_gain: float = Field(2.0, gt=0, description="P gain of the final in-place rotation")

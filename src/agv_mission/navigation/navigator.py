@@ -112,9 +112,10 @@ class Navigator:
         if distance < self._best_distance - self.config.progress_distance:
             self._best_distance = distance
             self._last_progress_time = state.time
-        elif state.time - self._last_progress_time > self.config.progress_timeout:
-            if not self._replan(state, f"no progress for {self.config.progress_timeout:g} s"):
-                return VelocityCommand(0.0, 0.0)
+        elif state.time - self._last_progress_time > self.config.progress_timeout and not (
+            self._replan(state, f"no progress for {self.config.progress_timeout:g} s")
+        ):
+            return VelocityCommand(0.0, 0.0)
         if self.path is None or self._off_path(state.estimate) > self.config.replan_distance:
             reason = "strayed from the path" if self.path is not None else "no path"
             if not self._replan(state, reason):
@@ -137,7 +138,11 @@ class Navigator:
         error = wrap_angle(self.goal.yaw - state.estimate.yaw)
         v0, w0 = state.velocity
         dt = self.control_period
-        v = max(0.0, v0 - self.limits.max_acc_v * dt) if v0 > 0 else min(0.0, v0 + self.limits.max_acc_v * dt)
+        v = (
+            max(0.0, v0 - self.limits.max_acc_v * dt)
+            if v0 > 0
+            else min(0.0, v0 + self.limits.max_acc_v * dt)
+        )
         if abs(error) <= self.config.yaw_goal_tolerance and abs(v) < 1e-3:
             self.status = NavStatus.SUCCEEDED
             return VelocityCommand(0.0, 0.0)
@@ -166,8 +171,10 @@ class Navigator:
 
     def _replan(self, state: RobotState, why: str) -> bool:
         if self._replans_for_goal >= self.config.max_replans:
-            self._fail(f"goal ({self.goal.x:.2f}, {self.goal.y:.2f}) not reached: {why} "
-                       f"after {self._replans_for_goal} replans")
+            self._fail(
+                f"goal ({self.goal.x:.2f}, {self.goal.y:.2f}) not reached: {why} "
+                f"after {self._replans_for_goal} replans"
+            )
             return False
         self._replans_for_goal += 1
         self.stats.replans += 1
@@ -179,16 +186,43 @@ class Navigator:
         assert self.goal is not None
         seed = self.seed + self.stats.plans
         self.stats.plans += 1
+        start = state.estimate
+        escape = self._escape_point(start)
         try:
-            path = self.global_planner.plan(self.costmap, state.estimate, self.goal, seed=seed)
+            path = self.global_planner.plan(self.costmap, escape or start, self.goal, seed=seed)
         except PlanningError as exc:
             self._fail(f"no path to ({self.goal.x:.2f}, {self.goal.y:.2f}): {exc}")
             return False
+        if escape is not None:  # leave the inflated margin the shortest way first
+            path = Path(np.vstack([[start.x, start.y], path.points]), path.planning_time)
         self.path = path
         self.paths.append(path.points.copy())
         self.stats.planning_times.append(path.planning_time)
         self.stats.path_lengths.append(path.length)
         return True
+
+    def _escape_point(self, pose: Pose2D) -> Pose2D | None:
+        """The nearest comfortably free point when the robot stands inside the margin the
+        planners require (it drifted close to a wall); ``None`` when it is free already."""
+        margin = float(getattr(self.global_planner.config, "clearance", 0.0)) + 0.01
+        here = np.array([pose.x, pose.y])
+        if bool(self.costmap.is_free(here, margin)):
+            return None
+        grid = self.costmap.grid
+        rows, cols = grid.world_to_cell(here)
+        reach = int(np.ceil(self.config.escape_distance / grid.resolution))
+        r0, r1 = max(int(rows) - reach, 0), min(int(rows) + reach + 1, grid.height)
+        c0, c1 = max(int(cols) - reach, 0), min(int(cols) + reach + 1, grid.width)
+        rr, cc = np.mgrid[r0:r1, c0:c1]
+        centres = grid.cell_to_world(rr.ravel(), cc.ravel())
+        ok = self.costmap.is_free(centres, margin)
+        if not ok.any():
+            return None
+        candidates = centres[ok]
+        nearest = candidates[np.argmin(np.linalg.norm(candidates - here, axis=1))]
+        if np.linalg.norm(nearest - here) > self.config.escape_distance:
+            return None
+        return Pose2D(float(nearest[0]), float(nearest[1]), pose.yaw)
 
     def _fail(self, reason: str) -> None:
         self.status = NavStatus.FAILED

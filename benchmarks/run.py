@@ -20,7 +20,7 @@ from rich.table import Table
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-MODULES = ["bench_sim", "bench_planners", "bench_mpc", "bench_mission"]
+MODULES = ["bench_sim", "bench_planners", "bench_mpc", "bench_amcl", "bench_mission"]
 
 # metric -> (comparison, target) from the issues
 TARGETS = {

@@ -24,7 +24,7 @@ app = typer.Typer(
 out = Console(soft_wrap=True)
 err = Console(stderr=True, soft_wrap=True)
 
-DEMO_MISSION = "patrol.yaml"
+DEMO_MISSION = "visit_rooms.yaml"
 
 
 def _report_invalid(exc: MissionError) -> None:
@@ -76,7 +76,9 @@ def run(
         disable=not err.is_terminal,
     ) as bar:
         job = bar.add_task("running", total=loaded.mission.limits.time)
-        record = run_mission(loaded, progress=lambda t, total: bar.update(job, completed=t))
+        record = run_mission(
+            loaded, run_dir, progress=lambda t, total: bar.update(job, completed=t)
+        )
     result = write_run(run_dir, loaded, record)
     _summary(result)
     raise typer.Exit(0 if record.status == "succeeded" else 1)
@@ -141,24 +143,24 @@ def schema() -> None:
 @app.command()
 def teleop(
     mission: Annotated[
-        Optional[Path],
+        Path | None,
         typer.Argument(help="mission file for world, robot, start and stack; default: small_house"),
     ] = None,  # noqa: UP007, UP045
     world: Annotated[
-        Optional[str], typer.Option(help="world (built-in name, world file or ROS map YAML)")
+        str | None, typer.Option(help="world (built-in name, world file or ROS map YAML)")
     ] = None,  # noqa: UP007, UP045
     robot: Annotated[
-        Optional[str], typer.Option(help="robot (burger, waffle, rosbots or a robot file)")
+        str | None, typer.Option(help="robot (burger, waffle, rosbots or a robot file)")
     ] = None,  # noqa: UP007, UP045
     set_: Annotated[list[str], typer.Option("--set", help="KEY=VALUE override (YAML value)")] = [],  # noqa: B006
     output: Annotated[
-        Optional[Path], typer.Option(help="root of run directories (default: the mission's output)")
+        Path | None, typer.Option(help="root of run directories (default: the mission's output)")
     ] = None,  # noqa: UP007, UP045
     recorder: Annotated[
-        Optional[Path], typer.Option(help="record straight into this file (appends if it exists)")
+        Path | None, typer.Option(help="record straight into this file (appends if it exists)")
     ] = None,  # noqa: UP007, UP045
     append: Annotated[
-        Optional[Path], typer.Option(help="start from the entries of this recorder file")
+        Path | None, typer.Option(help="start from the entries of this recorder file")
     ] = None,  # noqa: UP007, UP045
     time_scale: Annotated[
         float, typer.Option(min=0.1, max=100.0, help="simulated seconds per wall second")

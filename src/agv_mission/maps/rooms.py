@@ -5,8 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from matplotlib.path import Path as PolygonPath
+from scipy.ndimage import distance_transform_edt, label
 
 from agv_mission.geometry import Pose2D
+from agv_mission.maps.costmap import Costmap
 
 
 @dataclass(frozen=True)
@@ -30,3 +33,37 @@ class Room:
     def centroid(self) -> tuple[float, float]:
         poly = np.asarray(self.polygon, dtype=float)
         return float(poly[:, 0].mean()), float(poly[:, 1].mean())
+
+
+def reachable_cells(costmap: Costmap, start: Pose2D, margin: float = 0.0) -> np.ndarray:
+    """Cells where the robot fits (with ``margin``) and that connect to ``start``."""
+    free = costmap.distance > costmap.robot_radius + margin
+    labels, _ = label(free, structure=np.ones((3, 3), dtype=bool))
+    rows, cols = costmap.grid.world_to_cell(np.array([start.x, start.y]))
+    if not costmap.grid.in_bounds(rows, cols):
+        return np.zeros_like(free)
+    region = labels[int(rows), int(cols)]
+    return labels == region if region else np.zeros_like(free)
+
+
+def visit_point(room: Room, costmap: Costmap, allowed: np.ndarray) -> Pose2D | None:
+    """The allowed point of ``room`` farthest from both obstacles and the room's outline.
+
+    ``allowed`` (H, W) marks the cells the robot may stand on and reach (see
+    :func:`reachable_cells`). ``None`` when no allowed cell lies inside the polygon.
+    """
+    grid = costmap.grid
+    rows, cols = np.mgrid[0 : grid.height, 0 : grid.width]
+    centres = grid.cell_to_world(rows, cols)
+    inside = (
+        PolygonPath(np.asarray(room.polygon))
+        .contains_points(centres.reshape(-1, 2))
+        .reshape(grid.data.shape)
+    )
+    candidates = inside & allowed
+    if not candidates.any():
+        return None
+    to_outline = distance_transform_edt(inside) * grid.resolution
+    score = np.where(candidates, np.minimum(costmap.distance, to_outline), -np.inf)
+    r, c = np.unravel_index(int(np.argmax(score)), score.shape)
+    return Pose2D(float(centres[r, c, 0]), float(centres[r, c, 1]), 0.0)

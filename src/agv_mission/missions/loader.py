@@ -7,7 +7,7 @@ reported as :class:`MissionError` naming file, line and field.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +18,8 @@ from pydantic import ValidationError
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.grid import UNKNOWN
-from agv_mission.maps.rooms import Room
+from agv_mission.maps.recorder import RecorderFileError, load_entries
+from agv_mission.maps.rooms import Room, reachable_cells, visit_point
 from agv_mission.maps.rooms_file import load_rooms
 from agv_mission.maps.world_loader import WorldError, load_world
 from agv_mission.maps.worlds import World
@@ -40,6 +41,8 @@ class LoadedMission:
     rooms: dict[str, Room]
     start: Pose2D
     costmap: Costmap
+    room_goals: dict[str, Pose2D] = field(default_factory=dict)  # where each visit goes
+    recorder: Path | None = None  # an existing recorder file to append to
 
     def resolved(self) -> dict[str, Any]:
         """The mission as it runs: defaults filled in and overrides applied."""
@@ -158,6 +161,14 @@ def _resolve(
         elif task.type == "patrol":
             for j, wp in enumerate(task.waypoints):
                 _check_pose(wp.to_pose2d(), costmap, ("tasks", i, "waypoints", j), problem)
+    room_goals = _room_goals(mission, rooms, costmap, start, problem)
+    recorder = None
+    if mission.recorder is not None:
+        recorder = _resolve_path(mission.recorder, base_dir)
+        try:
+            load_entries(recorder)
+        except RecorderFileError as exc:
+            problem(("recorder",), str(exc))
     if problems:
         raise MissionError(problems)
     return LoadedMission(
@@ -169,7 +180,46 @@ def _resolve(
         rooms=rooms,
         start=start,
         costmap=costmap,
+        room_goals=room_goals,
+        recorder=recorder,
     )
+
+
+def _room_goals(
+    mission: Mission, rooms: dict[str, Room], costmap: Costmap, start: Pose2D, problem: Any
+) -> dict[str, Pose2D]:
+    """Where each visited room is entered: its anchor, or a reachable point well inside."""
+    goals: dict[str, Pose2D] = {}
+    allowed: np.ndarray | None = None
+    for i, task in enumerate(mission.tasks):
+        if task.type != "visit_rooms":
+            continue
+        for j, label in enumerate(task.rooms):
+            if label in goals:
+                continue
+            room = rooms.get(label)
+            if room is None:
+                problem(
+                    ("tasks", i, "rooms", j),
+                    f"unknown room {label!r}; known rooms: "
+                    f"{', '.join(sorted(rooms)) or '(none: give a rooms file)'}",
+                )
+                continue
+            if room.anchor is not None:
+                _check_pose(room.anchor, costmap, ("tasks", i, "rooms", j), problem)
+                goals[label] = room.anchor
+                continue
+            if allowed is None:
+                allowed = reachable_cells(costmap, start, margin=0.1)
+            point = visit_point(room, costmap, allowed)
+            if point is None:
+                problem(
+                    ("tasks", i, "rooms", j),
+                    f"room {label!r} has no free point the robot can reach",
+                )
+            else:
+                goals[label] = point
+    return goals
 
 
 def _check_pose(pose: Pose2D, costmap: Costmap, field_path: FieldPath, problem: Any) -> None:

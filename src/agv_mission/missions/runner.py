@@ -12,12 +12,14 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from py_trees.common import Status
 
 from agv_mission.geometry import wrap_angle
+from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder
 from agv_mission.missions.loader import LoadedMission
 from agv_mission.missions.tree import MissionTree, build_tree
 from agv_mission.navigation.handle import RobotHandle
@@ -69,8 +71,16 @@ class VelocitySmoother:
         return self.v, self.w
 
 
-def run_mission(loaded: LoadedMission, progress: ProgressCallback | None = None) -> RunRecord:
-    """Run ``loaded`` in simulation until its tree finishes or its time limit passes."""
+def run_mission(
+    loaded: LoadedMission,
+    run_dir: Path | None = None,
+    progress: ProgressCallback | None = None,
+) -> RunRecord:
+    """Run ``loaded`` in simulation until its tree finishes or its time limit passes.
+
+    With ``run_dir``, recorded room poses go to ``run_dir/location_recorder.yaml`` as they
+    are recorded (and to the mission's ``recorder`` file, when it names one).
+    """
     mission, robot = loaded.mission, loaded.robot
     seeds = np.random.SeedSequence(mission.seed).spawn(3)
     sim_rng, loc_rng, planner_rng = (np.random.default_rng(s) for s in seeds)
@@ -106,8 +116,13 @@ def run_mission(loaded: LoadedMission, progress: ProgressCallback | None = None)
     left, right = sim.encoder_ticks()
     odom_pose = odometry.update(left, right)
     localizer.reset(loaded.start, odom_pose)
-    handle = RobotHandle(RobotState(time=0.0, estimate=loaded.start), navigator)
-    tree = build_tree(mission, handle, robot)
+    handle = RobotHandle(
+        RobotState(time=0.0, estimate=loaded.start),
+        navigator,
+        rooms=loaded.rooms,
+        recorders=_recorders(loaded, run_dir),
+    )
+    tree = build_tree(mission, handle, robot, loaded.room_goals)
     smoother = VelocitySmoother(limits, CONTROL_PERIOD)
 
     scan_period = 1.0 / robot.lidar.rate
@@ -194,6 +209,11 @@ def run_mission(loaded: LoadedMission, progress: ProgressCallback | None = None)
 
     metrics = _metrics(trajectory, navigator, collisions, min_clearance, sim_time, wall_time)
     extras: dict[str, Any] = {}
+    if handle.recorded:
+        extras["rooms_recorded"] = {
+            label: {"x": round(p.x, 4), "y": round(p.y, 4), "yaw": round(p.yaw, 4)}
+            for label, p in handle.recorded.items()
+        }
     counts = getattr(localizer, "particle_counts", None)
     if counts:
         c = np.asarray([n for _, n in counts])
@@ -217,6 +237,15 @@ def run_mission(loaded: LoadedMission, progress: ProgressCallback | None = None)
         extras=extras,
         particle_snapshots=list(getattr(localizer, "snapshots", [])),
     )
+
+
+def _recorders(loaded: LoadedMission, run_dir: Path | None) -> list[LocationRecorder]:
+    recorders = []
+    if run_dir is not None:
+        recorders.append(LocationRecorder(run_dir / RECORDER_FILENAME, initial=loaded.recorder))
+    if loaded.recorder is not None:
+        recorders.append(LocationRecorder(loaded.recorder, initial=loaded.recorder))
+    return recorders
 
 
 def _status_name(status: Status) -> str:
@@ -244,6 +273,20 @@ def _task_reports(
                 | {"status": "reached" if e["event"] == "goal_reached" else "failed"}
                 for e in events
                 if e.get("task") == i and e["event"] in ("goal_reached", "goal_failed")
+            ]
+        if task.type == "visit_rooms":
+            mine = [e for e in events if e.get("task") == i]
+            report["rooms"] = [
+                {
+                    "room": room,
+                    "status": "reached"
+                    if any(e["event"] == "goal_reached" and e.get("room") == room for e in mine)
+                    else "not_reached",
+                    "recorded": any(
+                        e["event"] == "room_recorded" and e.get("room") == room for e in mine
+                    ),
+                }
+                for room in task.rooms
             ]
         reports.append(report)
     return reports

@@ -144,7 +144,25 @@ class WanderTask(StrictModel):
     )
 
 
-Task = Annotated[Union[GoToTask, PatrolTask, WanderTask], Field(discriminator="type")]  # noqa: UP007
+class VisitRoomsTask(StrictModel):
+    """Go into each room in order (its anchor, or a free point well inside it)."""
+
+    type: Literal["visit_rooms"]
+    rooms: list[str] = Field(min_length=1, description="room labels, visited in this order")
+    record: bool = Field(False, description="record the estimated pose in each room")
+
+
+class RecordRoomTask(StrictModel):
+    """Record the current estimated pose under a label (the seed's room_service call)."""
+
+    type: Literal["record_room"]
+    room: str = Field(min_length=1, description="the label to record under")
+
+
+Task = Annotated[
+    Union[GoToTask, PatrolTask, WanderTask, VisitRoomsTask, RecordRoomTask],  # noqa: UP007
+    Field(discriminator="type"),
+]
 
 
 StartSpec = Annotated[
@@ -175,6 +193,11 @@ class Mission(StrictModel):
     simulation: SimConfig = Field(default_factory=SimConfig)
     tasks: list[Task] = Field(min_length=1)
     limits: Limits = Field(default_factory=Limits)
+    recorder: str | None = Field(
+        None,
+        description="an existing location_recorder.yaml to append to (updated in place; "
+        "the run directory gets a copy)",
+    )
     output: str = Field("runs", description="root of run directories")
 
     @field_validator("name")

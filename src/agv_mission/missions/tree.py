@@ -8,7 +8,16 @@ import py_trees
 
 from agv_mission.behaviors.motion import Dwell, Wander
 from agv_mission.behaviors.navigate import NavigateToPose
-from agv_mission.missions.schema import GoToTask, Mission, PatrolTask, WanderTask
+from agv_mission.behaviors.rooms import InRoom, RecordRoom
+from agv_mission.geometry import Pose2D
+from agv_mission.missions.schema import (
+    GoToTask,
+    Mission,
+    PatrolTask,
+    RecordRoomTask,
+    VisitRoomsTask,
+    WanderTask,
+)
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.robots.description import RobotDescription
 
@@ -24,14 +33,25 @@ class MissionTree:
         return py_trees.display.unicode_tree(self.root, show_status=True)
 
 
-def build_tree(mission: Mission, handle: RobotHandle, robot: RobotDescription) -> MissionTree:
-    tasks = [_task_subtree(i, task, handle, robot) for i, task in enumerate(mission.tasks)]
+def build_tree(
+    mission: Mission,
+    handle: RobotHandle,
+    robot: RobotDescription,
+    room_goals: dict[str, Pose2D],
+) -> MissionTree:
+    tasks = [
+        _task_subtree(i, task, handle, robot, room_goals) for i, task in enumerate(mission.tasks)
+    ]
     root = py_trees.composites.Sequence(name="mission", memory=True, children=tasks)
     return MissionTree(root, tasks)
 
 
 def _task_subtree(
-    index: int, task: object, handle: RobotHandle, robot: RobotDescription
+    index: int,
+    task: object,
+    handle: RobotHandle,
+    robot: RobotDescription,
+    room_goals: dict[str, Pose2D],
 ) -> py_trees.behaviour.Behaviour:
     label = f"task {index + 1}: {task.type}"  # type: ignore[attr-defined]
     if isinstance(task, GoToTask):
@@ -67,4 +87,19 @@ def _task_subtree(
             min(task.turn_rate, robot.max_angular_velocity),
             task.sector,
         )
+    if isinstance(task, VisitRoomsTask):
+        visits: list[py_trees.behaviour.Behaviour] = []
+        for room in task.rooms:
+            steps: list[py_trees.behaviour.Behaviour] = [
+                NavigateToPose(f"enter {room}", handle, room_goals[room], task=index, room=room),
+                InRoom(f"in {room}?", handle, handle.rooms[room]),
+            ]
+            if task.record:
+                steps.append(RecordRoom(f"record {room}", handle, room, task=index))
+            visits.append(
+                py_trees.composites.Sequence(name=f"visit {room}", memory=True, children=steps)
+            )
+        return py_trees.composites.Sequence(name=label, memory=True, children=visits)
+    if isinstance(task, RecordRoomTask):
+        return RecordRoom(f"{label} {task.room}", handle, task.room, task=index)
     raise TypeError(f"no behaviour for task type {type(task).__name__}")

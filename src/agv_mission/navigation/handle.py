@@ -5,6 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from agv_mission.geometry import Pose2D
+from agv_mission.maps.recorder import LocationRecorder
+from agv_mission.maps.rooms import Room
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.navigation.state import RobotState
 
@@ -18,12 +21,27 @@ class RobotHandle:
     navigator: Navigator
     command: tuple[float, float] = (0.0, 0.0)
     events: list[dict[str, Any]] = field(default_factory=list)
+    rooms: dict[str, Room] = field(default_factory=dict)
+    recorders: list[LocationRecorder] = field(default_factory=list)
+    recorded: dict[str, Pose2D] = field(default_factory=dict)
 
     def drive(self, v: float, w: float) -> None:
         self.command = (float(v), float(w))
 
     def stop(self) -> None:
         self.command = (0.0, 0.0)
+
+    def room_at(self, pose: Pose2D) -> str | None:
+        """The label of the first room whose polygon holds ``pose``."""
+        return next((r.label for r in self.rooms.values() if r.contains(pose.x, pose.y)), None)
+
+    def record(self, label: str) -> Pose2D:
+        """Record the estimated pose under ``label`` in every recorder file, atomically."""
+        pose = self.state.estimate
+        for recorder in self.recorders:
+            recorder.record(label, pose)
+        self.recorded[label] = pose
+        return pose
 
     def log(self, kind: str, **details: Any) -> None:
         """Record something that happened, stamped with simulated time."""

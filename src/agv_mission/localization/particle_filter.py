@@ -14,10 +14,12 @@ Pure numpy, no plugin glue. It follows ROS amcl (``pf.c``, ``amcl_odom.cpp``,
 * :meth:`ParticleFilter.resample` is KLD sampling (Fox 2003) over amcl's histogram bins
   (0.5 m x 0.5 m x 10 deg) with ``kld_z`` used as the quantile like amcl does, a
   low-variance (systematic) draw of the chosen count, and random-pose injection with
-  probability ``max(0, 1 - w_fast / w_slow)``. Unlike amcl, ``w_slow`` / ``w_fast`` are
-  not reset after an injection (Probabilistic Robotics' Augmented MCL): amcl's reset
-  injects once and then waits for the average likelihood to fall again, which in tests
-  left a kidnapped robot lost.
+  probability ``max(0, 1 - w_fast / w_slow)``. Two changes from amcl, both because a
+  kidnapped robot stayed lost in tests: ``w_slow`` / ``w_fast`` are not reset after an
+  injection (Probabilistic Robotics' Augmented MCL; amcl's reset injects once, then waits
+  for the likelihood to fall further), and they are bias-corrected exponential averages
+  (amcl starts both at the first, still unconverged, likelihood, which keeps ``w_slow``
+  low for ~1 / recovery_alpha_slow updates).
 * :meth:`ParticleFilter.estimate` is amcl's: the weighted mean (circular for yaw) of the
   heaviest cluster of connected histogram bins.
 """
@@ -76,7 +78,7 @@ class SensorParams:
     min_range: float = -1.0  # <= 0: the scan's range_min
     likelihood_max_dist: float = 2.0
     model: LaserModel = "likelihood_field"
-    surface_only: bool = False  # distance to obstacle surfaces, not to any occupied cell
+    log_scale: float = 1.0  # likelihood_field_prob: each beam's log-likelihood times this
 
 
 class LikelihoodField:
@@ -95,30 +97,28 @@ class LikelihoodField:
         self.origin = grid.origin
         occupied = grid.data >= OCCUPIED_THRESHOLD
         res = self.resolution
-        if params.surface_only:
-            # Beams end on obstacle surfaces: the inside of a solid obstacle is unlikely.
-            inner = ndimage.binary_erosion(occupied, np.ones((3, 3), bool), border_value=1)
-            occupied = occupied & ~inner
         max_dist = float(params.likelihood_max_dist)
         if occupied.any():
-            dist = ndimage.distance_transform_edt(~occupied) * res
-            dist = np.minimum(dist, max_dist)
+            dist = ndimage.distance_transform_edt(~occupied).astype(np.float32) * res
+            dist = np.minimum(dist, np.float32(max_dist))
         else:
-            dist = np.full(occupied.shape, max_dist)
+            dist = np.full(occupied.shape, max_dist, dtype=np.float32)
         # Pad by the beam length so that every end point of a particle on the map indexes
         # the table; the pad reads as max_dist (amcl: off-map end points).
         self.pad = int(math.ceil(self.range_max / res)) + 2
         dist = np.pad(dist, self.pad, constant_values=max_dist)
         self.height, self.width = int(dist.shape[0]), int(dist.shape[1])
         self.map_height, self.map_width = occupied.shape
-        pz = params.z_hit * np.exp(-(dist**2) / (2.0 * params.sigma_hit**2))
+        d64 = dist.astype(np.float64)
+        pz = params.z_hit * np.exp(-(d64**2) / (2.0 * params.sigma_hit**2))
         pz += params.z_rand / self.range_max
         pz_far = params.z_hit * math.exp(-(max_dist**2) / (2.0 * params.sigma_hit**2))
         pz_far += params.z_rand / self.range_max
         if params.model == "likelihood_field":
             table, self.far = pz**3, pz_far**3
         else:
-            table, self.far = np.log(pz), math.log(pz_far)
+            k = params.log_scale
+            table, self.far = k * np.log(pz), k * math.log(pz_far)
         self.table = np.ascontiguousarray(table, dtype=np.float32).ravel()
         self.distance = dist  # padded distance field, metres (for plots and tests)
 
@@ -200,7 +200,7 @@ class ParticleFilter:
         self.motion = motion or MotionNoise()
         self.sensor = sensor or SensorParams()
         self.alpha_slow, self.alpha_fast = float(alpha_slow), float(alpha_fast)
-        self.w_slow = self.w_fast = 0.0
+        self._reset_averages()
         self._fields: dict[float, LikelihoodField] = {}
         free = np.flatnonzero(grid.data.ravel() == 0)
         if free.size == 0:
@@ -228,12 +228,12 @@ class ParticleFilter:
         p = self.rng.multivariate_normal(np.asarray(mean, float), np.asarray(cov, float), n)
         p[:, 2] = _wrap(p[:, 2])
         self._set(p)
-        self.w_slow = self.w_fast = 0.0
+        self._reset_averages()
 
     def init_uniform(self, n: int | None = None) -> None:
         """``n`` (default ``max_particles``) particles uniformly over the free cells."""
         self._set(self.random_poses(self.max_particles if n is None else int(n)))
-        self.w_slow = self.w_fast = 0.0
+        self._reset_averages()
 
     def random_poses(self, n: int) -> np.ndarray:
         """``n`` poses uniform over the free cells, yaw uniform."""
@@ -329,26 +329,40 @@ class ParticleFilter:
             total = float(w.sum())
             w_avg = total  # the prior weights sum to 1: sum(prior * p)
         else:
-            # Log-likelihoods: normalise in the log domain; w_avg per beam so that scans
-            # with different numbers of valid beams compare.
+            # Log-likelihoods: normalise in the log domain; w_avg per beam (and untempered)
+            # so that scans with different numbers of valid beams compare.
             log_w = np.log(np.maximum(self.weights, 1e-300)) + score
             top = float(log_w.max())
             w = np.exp(log_w - top)
             total = float(w.sum())
-            w_avg = math.exp((top + math.log(total)) / max(1, len(bx)))
+            scale = max(1, len(bx)) * self.sensor.log_scale
+            w_avg = math.exp((top + math.log(total)) / scale)
         if not total > 0.0 or not math.isfinite(total):
             self.weights = np.full(self.count, 1.0 / self.count)
             return 0.0
         self.weights = w / total
-        if self.w_slow == 0.0:
-            self.w_slow = w_avg
-        else:
-            self.w_slow += self.alpha_slow * (w_avg - self.w_slow)
-        if self.w_fast == 0.0:
-            self.w_fast = w_avg
-        else:
-            self.w_fast += self.alpha_fast * (w_avg - self.w_fast)
+        self._track_average(w_avg)
         return w_avg
+
+    def _track_average(self, w_avg: float) -> None:
+        """Exponential averages of ``w_avg``, bias-corrected (started at 0, divided by
+        ``1 - (1 - alpha)^t``), so that early updates of a still-spread cloud do not pin
+        ``w_slow`` low for ~1 / alpha_slow updates as amcl's "first value" start does."""
+        if self.alpha_slow <= 0.0 or self.alpha_fast <= 0.0:
+            return  # recovery disabled
+        self._avg_count += 1
+        self._slow_acc += self.alpha_slow * (w_avg - self._slow_acc)
+        self._fast_acc += self.alpha_fast * (w_avg - self._fast_acc)
+        t = self._avg_count
+        self.w_slow = self._slow_acc / (1.0 - (1.0 - self.alpha_slow) ** t)
+        self.w_fast = self._fast_acc / (1.0 - (1.0 - self.alpha_fast) ** t)
+
+    def _reset_averages(self) -> None:
+        self.w_slow = self.w_fast = 0.0
+        self._slow_acc = self._fast_acc = 0.0
+        self._avg_count = 0
+        self._slow_acc = self._fast_acc = 0.0
+        self._avg_count = 0
 
     # ------------------------------------------------------------------ resampling
 

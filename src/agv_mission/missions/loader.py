@@ -7,6 +7,7 @@ reported as :class:`MissionError` naming file, line and field.
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,12 +21,12 @@ from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.grid import UNKNOWN
 from agv_mission.maps.recorder import RecorderFileError, load_entries
 from agv_mission.maps.rooms import Room, reachable_cells, visit_point
-from agv_mission.maps.rooms_file import load_rooms
+from agv_mission.maps.rooms_file import RoomsFileError, load_rooms
 from agv_mission.maps.world_loader import WorldError, load_world
 from agv_mission.maps.worlds import World
 from agv_mission.missions.errors import MissionError, Problem
 from agv_mission.missions.schema import Mission
-from agv_mission.missions.yaml_lines import FieldPath, line_of, load_with_lines
+from agv_mission.missions.yaml_lines import DocumentError, FieldPath, line_of, load_with_lines
 from agv_mission.robots.description import RobotDescription, load_robot
 
 
@@ -61,16 +62,13 @@ def load_mission(
     path = Path(path)
     file = str(path)
     if text is None:
-        try:
-            text = path.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise MissionError([Problem(file, None, "", f"cannot read: {exc.strerror}")]) from None
-        except UnicodeDecodeError:
-            raise MissionError([Problem(file, None, "", "not a UTF-8 text file")]) from None
+        text = _read_text(path, file)
     try:
         data, lines = load_with_lines(text)
     except yaml.YAMLError as exc:
-        raise MissionError([_yaml_problem(file, exc)]) from None
+        raise MissionError([_yaml_problem(file, exc, text)]) from None
+    except RecursionError:
+        raise MissionError([Problem(file, None, "", "the document nests too deeply")]) from None
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -90,6 +88,10 @@ def load_mission(
         mission = Mission.model_validate(data)
     except ValidationError as exc:
         raise MissionError(_validation_problems(file, exc, data, lines, override_paths)) from None
+    except RecursionError:  # e.g. an alias that contains itself: a: &x [*x]
+        raise MissionError(
+            [Problem(file, None, "", "the document nests too deeply (or contains itself)")]
+        ) from None
 
     base_dir = path.parent if path.name else Path.cwd()
     loaded = _resolve(mission, file, base_dir, path.stem or "mission", lines, override_paths)
@@ -115,6 +117,9 @@ def _resolve(
     except WorldError as exc:
         problem(("world",), str(exc))
         raise MissionError(problems) from None
+    except (OSError, ValueError, RuntimeError) as exc:  # a path the OS refuses
+        problem(("world",), f"cannot read world {mission.world!r}: {_os_message(exc)}")
+        raise MissionError(problems) from None
     try:
         robot = load_robot(mission.robot, base_dir)
     except FileNotFoundError:
@@ -123,14 +128,25 @@ def _resolve(
             f"no built-in robot or robot file {mission.robot!r} "
             "(built-in: burger, waffle, rosbots)",
         )
-    except (OSError, yaml.YAMLError, ValidationError, TypeError) as exc:
+    except ValidationError as exc:
+        problem(("robot",), f"invalid robot file {mission.robot!r}: {_first_error(exc)}")
+    except yaml.YAMLError as exc:
         problem(("robot",), f"invalid robot file {mission.robot!r}: {_first_line(exc)}")
+    except (OSError, ValueError, RuntimeError) as exc:
+        problem(("robot",), f"cannot read robot file {mission.robot!r}: {_os_message(exc)}")
+    except (AttributeError, TypeError):  # YAML, but not a mapping
+        problem(
+            ("robot",),
+            f"invalid robot file {mission.robot!r}: expected a mapping of robot parameters",
+        )
     rooms = dict(world.rooms)
     if mission.rooms is not None:
         try:
             rooms.update(load_rooms(_resolve_path(mission.rooms, base_dir)))
-        except Exception as exc:  # the rooms loader names the file and the room
+        except RoomsFileError as exc:  # names the file, the line and the room
             problem(("rooms",), str(exc))
+        except Exception as exc:
+            problem(("rooms",), f"cannot read rooms file {mission.rooms!r}: {_os_message(exc)}")
     if problems:
         raise MissionError(problems)
 
@@ -164,11 +180,16 @@ def _resolve(
     room_goals = _room_goals(mission, rooms, costmap, start, problem)
     recorder = None
     if mission.recorder is not None:
-        recorder = _resolve_path(mission.recorder, base_dir)
         try:
+            recorder = _resolve_path(mission.recorder, base_dir)
             load_entries(recorder)
         except RecorderFileError as exc:
             problem(("recorder",), str(exc))
+        except (OSError, ValueError, RuntimeError) as exc:
+            problem(
+                ("recorder",),
+                f"cannot read recorder file {mission.recorder!r}: {_os_message(exc)}",
+            )
     if problems:
         raise MissionError(problems)
     return LoadedMission(
@@ -225,7 +246,12 @@ def _room_goals(
 def _check_pose(pose: Pose2D, costmap: Costmap, field_path: FieldPath, problem: Any) -> None:
     xmin, xmax, ymin, ymax = costmap.grid.extent
     xy = np.array([pose.x, pose.y])
-    if not (xmin <= pose.x < xmax and ymin <= pose.y < ymax):
+    if not all(math.isfinite(v) for v in (pose.x, pose.y, pose.yaw)):
+        problem(
+            field_path,
+            f"(x {pose.x:g}, y {pose.y:g}, yaw {pose.yaw:g}) is not a finite pose",
+        )
+    elif not (xmin <= pose.x < xmax and ymin <= pose.y < ymax):
         problem(
             field_path,
             f"({pose.x:g}, {pose.y:g}) is outside the map "
@@ -392,13 +418,54 @@ def _problem(
     return Problem(file, line_of(field_path, lines), dotted, message)
 
 
-def _yaml_problem(file: str, exc: yaml.YAMLError) -> Problem:
+def _read_text(path: Path, file: str) -> str:
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise MissionError([Problem(file, None, "", f"cannot read: {_os_message(exc)}")]) from None
+    except ValueError as exc:  # e.g. an embedded null byte in the path
+        raise MissionError([Problem(file, None, "", f"cannot read: {exc}")]) from None
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
+        message = f"not a UTF-8 text file (byte 0x{raw[exc.start]:02x} at column {column})"
+        raise MissionError([Problem(file, line, "", message)]) from None
+
+
+def _yaml_problem(file: str, exc: yaml.YAMLError, source: str) -> Problem:
+    if isinstance(exc, DocumentError):
+        line = exc.problem_mark.line + 1 if exc.problem_mark is not None else None
+        dotted = ".".join(str(p) for p in exc.field_path)
+        return Problem(file, line, dotted, f"invalid YAML: {exc.problem}")
+    if isinstance(exc, yaml.reader.ReaderError):  # a character YAML does not allow
+        line = source[: exc.position].count("\n") + 1
+        char = exc.character if isinstance(exc.character, int) else ord(exc.character)
+        return Problem(
+            file, line, "", f"YAML syntax error: unacceptable character #x{char:04x} ({exc.reason})"
+        )
     mark = getattr(exc, "problem_mark", None)
     line = mark.line + 1 if mark is not None else None
     problem = getattr(exc, "problem", None) or str(exc)
     context = getattr(exc, "context", None)
     text = f"YAML syntax error: {problem}" + (f" ({context})" if context else "")
     return Problem(file, line, "", text)
+
+
+def _os_message(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror
+    return _first_line(exc)
+
+
+def _first_error(exc: ValidationError) -> str:
+    errors = exc.errors(include_url=False)
+    err = errors[0]
+    where = ".".join(str(p) for p in err["loc"])
+    msg = "field required" if err["type"] == "missing" else err["msg"]
+    more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+    return (f"{where}: {msg}" if where else msg) + more
 
 
 def _kind(value: Any) -> str:

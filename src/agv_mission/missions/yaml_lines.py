@@ -9,37 +9,95 @@ import yaml
 FieldPath = tuple[str | int, ...]
 
 
+class DocumentError(yaml.MarkedYAMLError):
+    """Well-formed YAML that is still not a usable document (a duplicate key, a lone
+    surrogate); ``field_path`` names where, as far as known."""
+
+    def __init__(self, problem: str, mark: Any, field_path: FieldPath = ()) -> None:
+        super().__init__(problem=problem, problem_mark=mark)
+        self.field_path = field_path
+
+
 def load_with_lines(text: str) -> tuple[Any, dict[FieldPath, int]]:
     """Parse ``text`` (safe YAML) and map each field path to its 1-based line.
 
-    Raises ``yaml.YAMLError`` (with a ``problem_mark``) on syntax errors.
+    Raises ``yaml.YAMLError`` (with a ``problem_mark``) on syntax errors, and
+    :class:`DocumentError` on a key given twice in one mapping or a string that is
+    not valid Unicode (a lone surrogate from a ``\\ud800`` escape).
     """
     data = yaml.safe_load(text)
     node = yaml.compose(text, Loader=yaml.SafeLoader)
     lines: dict[FieldPath, int] = {}
     if node is not None:
-        _walk(node, (), lines)
+        _walk(node, (), lines, set())
     return data, lines
 
 
-def _walk(node: yaml.Node, path: FieldPath, lines: dict[FieldPath, int]) -> None:
-    if isinstance(node, yaml.MappingNode):
+def _walk(node: yaml.Node, path: FieldPath, lines: dict[FieldPath, int], seen: set[int]) -> None:
+    # Each node once: an alias shares its anchor's node (and may even contain itself).
+    if id(node) in seen:
+        return
+    seen.add(id(node))
+    if isinstance(node, yaml.ScalarNode):
+        _check_text(node, path)
+    elif isinstance(node, yaml.MappingNode):
+        first: dict[tuple[str, str], int] = {}
         for key, value in node.value:
             if not isinstance(key, yaml.ScalarNode):
                 continue
+            _check_text(key, path)
             child = (*path, key.value)
-            lines[child] = key.start_mark.line + 1
-            _walk(value, child, lines)
+            line = key.start_mark.line + 1
+            tagged = (key.tag, key.value)
+            if tagged in first and key.tag != "tag:yaml.org,2002:merge":
+                raise DocumentError(
+                    f"duplicate key {key.value!r} (first given on line {first[tagged]})",
+                    key.start_mark,
+                    child,
+                )
+            first[tagged] = line
+            lines[child] = line
+            _walk(value, child, lines, seen)
     elif isinstance(node, yaml.SequenceNode):
         for i, item in enumerate(node.value):
             child = (*path, i)
             lines[child] = item.start_mark.line + 1
-            _walk(item, child, lines)
+            _walk(item, child, lines, seen)
+
+
+def _check_text(node: yaml.ScalarNode, path: FieldPath) -> None:
+    try:
+        node.value.encode("utf-8")
+    except UnicodeEncodeError:
+        raise DocumentError(
+            f"{node.value!r} is not valid Unicode text (a lone surrogate escape)",
+            node.start_mark,
+            path,
+        ) from None
 
 
 def line_of(path: FieldPath, lines: dict[FieldPath, int]) -> int | None:
-    """Line of the deepest prefix of ``path`` that the document holds."""
+    """Line of the deepest prefix of ``path`` that the document holds.
+
+    A key the YAML parser turned into a number, bool or null (``1:``, ``true:``) is
+    matched by its spelling.
+    """
     for n in range(len(path), 0, -1):
         if path[:n] in lines:
             return lines[path[:n]]
+    spelled = {_spelling(p): line for p, line in lines.items()}
+    for n in range(len(path), 0, -1):
+        line = spelled.get(_spelling(path[:n]))
+        if line is not None:
+            return line
     return None
+
+
+def _spelling(path: FieldPath) -> tuple[str, ...]:
+    out = []
+    for part in path:
+        if part is None or part in ("~", "null", "Null", "NULL", ""):
+            out.append("null")
+        else:
+            out.append(str(part).lower())
+    return tuple(out)

@@ -46,9 +46,6 @@ class NavigateToPose(py_trees.behaviour.Behaviour):
         if nav.status is NavStatus.FAILED:
             self.handle.stop()
             self.feedback_message = nav.reason or "navigation failed"
-            self.handle.log(
-                "goal_failed", goal=self.name, reason=self.feedback_message, **self.log_details
-            )
             return Status.FAILURE
         return Status.RUNNING
 

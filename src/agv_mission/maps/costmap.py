@@ -21,6 +21,19 @@ LETHAL = 254
 INSCRIBED = 253
 
 
+class ObstacleLayerConfig(BaseModel):
+    """Marking and clearing (the mission's ``stack.costmap.obstacles`` block)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    enabled: bool = True
+    max_range: float = Field(2.5, gt=0, description="returns farther than this do not mark, m")
+    raytrace_range: float = Field(3.0, gt=0, description="beams clear up to this range, m")
+    map_tolerance: float = Field(
+        0.15, ge=0, description="returns this close to a mapped obstacle are the map's, m"
+    )
+
+
 class CostmapConfig(BaseModel):
     """Costmap parameters (the mission's ``stack.costmap`` block)."""
 
@@ -32,6 +45,10 @@ class CostmapConfig(BaseModel):
     inflation_radius: float = Field(0.3, ge=0, description="metres beyond the footprint")
     cost_scaling_factor: float = Field(5.0, gt=0, description="exponential decay of cost")
     unknown_is_obstacle: bool = True
+    obstacles: ObstacleLayerConfig = Field(
+        default_factory=ObstacleLayerConfig,
+        description="the lidar's obstacle layer over the static map",
+    )
 
 
 @dataclass
@@ -69,6 +86,28 @@ class Costmap:
     def is_free(self, xy: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """True where the robot's footprint (plus ``margin``) fits at map-frame points."""
         return self.clearance(xy) > self.robot_radius + margin
+
+    def with_obstacles(self, marks: np.ndarray) -> Costmap:
+        """This costmap with the cells of ``marks`` (H, W bool) added as obstacles.
+
+        Only a window around the marks is recomputed: beyond the footprint plus inflation
+        an obstacle changes nothing a planner looks at.
+        """
+        if not marks.any():
+            return self
+        rows, cols = np.nonzero(marks)
+        pad = int(
+            np.ceil((self.robot_radius + self.config.inflation_radius + 0.5) / self.resolution)
+        )
+        r0, r1 = max(rows.min() - pad, 0), min(rows.max() + pad + 1, marks.shape[0])
+        c0, c1 = max(cols.min() - pad, 0), min(cols.max() + pad + 1, marks.shape[1])
+        window = (slice(r0, r1), slice(c0, c1))
+        near = (distance_transform_edt(~marks[window]) * self.resolution).astype(np.float32)
+        distance = self.distance.copy()
+        distance[window] = np.minimum(distance[window], near)
+        cost = self.cost.copy()
+        cost[window] = _inflation_cost(distance[window], self.robot_radius, self.config)
+        return Costmap(self.grid, self.robot_radius, self.config, distance, cost)
 
     def cost_at(self, xy: np.ndarray) -> np.ndarray:
         rows, cols = self.grid.world_to_cell(xy)

@@ -7,6 +7,7 @@ reported as :class:`MissionError` naming file, line and field.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +24,7 @@ from agv_mission.maps.recorder import RecorderFileError, load_entries
 from agv_mission.maps.rooms import Room, reachable_cells, visit_point
 from agv_mission.maps.rooms_file import RoomsFileError, load_rooms
 from agv_mission.maps.world_loader import WorldError, load_world
-from agv_mission.maps.worlds import World
+from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.missions.errors import MissionError, Problem
 from agv_mission.missions.schema import Mission
 from agv_mission.missions.yaml_lines import DocumentError, FieldPath, line_of, load_with_lines
@@ -73,7 +74,14 @@ def load_mission(
         data = {}
     if not isinstance(data, dict):
         raise MissionError(
-            [Problem(file, 1, "", f"expected a mapping of mission keys, got {_kind(data)}")]
+            [
+                Problem(
+                    file,
+                    lines.get((), 1),
+                    "",
+                    f"expected a mapping of mission keys, got {_kind(data)}",
+                )
+            ]
         )
     data = copy.deepcopy(data)
     override_paths: dict[FieldPath, str] = {}
@@ -177,6 +185,19 @@ def _resolve(
         elif task.type == "patrol":
             for j, wp in enumerate(task.waypoints):
                 _check_pose(wp.to_pose2d(), costmap, ("tasks", i, "waypoints", j), problem)
+    for i, fault in enumerate(mission.faults):
+        if fault.type == "kidnap":
+            _check_pose(fault.pose.to_pose2d(), costmap, ("faults", i, "pose"), problem)
+    if mission.obstacles:
+        world = _with_obstacles(world, mission.obstacles)
+        for i, obstacle in enumerate(mission.obstacles):
+            gap = _distance_to_obstacle(obstacle, start.x, start.y)
+            if gap < robot.footprint_radius:
+                problem(
+                    ("obstacles", i),
+                    f"the robot's start ({start.x:g}, {start.y:g}) "
+                    f"lies within {robot.footprint_radius:g} m of this obstacle",
+                )
     room_goals = _room_goals(mission, rooms, costmap, start, problem)
     recorder = None
     if mission.recorder is not None:
@@ -204,6 +225,27 @@ def _resolve(
         room_goals=room_goals,
         recorder=recorder,
     )
+
+
+def _with_obstacles(world: World, obstacles: list[Any]) -> World:
+    """The world with unmapped obstacles added to its geometry (its map stays as it was)."""
+    boxes = list(world.boxes)
+    cylinders = list(world.cylinders)
+    for o in obstacles:
+        if o.type == "box":
+            boxes.append(Box(o.x, o.y, o.size_x / 2.0, o.size_y / 2.0, o.yaw))
+        else:
+            cylinders.append(Cylinder(o.x, o.y, o.radius))
+    return dataclasses.replace(world, boxes=boxes, cylinders=cylinders)
+
+
+def _distance_to_obstacle(o: Any, x: float, y: float) -> float:
+    if o.type == "cylinder":
+        return math.hypot(x - o.x, y - o.y) - o.radius
+    c, s = math.cos(o.yaw), math.sin(o.yaw)
+    lx, ly = c * (x - o.x) + s * (y - o.y), -s * (x - o.x) + c * (y - o.y)
+    dx, dy = max(abs(lx) - o.size_x / 2.0, 0.0), max(abs(ly) - o.size_y / 2.0, 0.0)
+    return math.hypot(dx, dy)
 
 
 def _room_goals(
@@ -449,6 +491,9 @@ def _yaml_problem(file: str, exc: yaml.YAMLError, source: str) -> Problem:
     line = mark.line + 1 if mark is not None else None
     problem = getattr(exc, "problem", None) or str(exc)
     context = getattr(exc, "context", None)
+    start = getattr(exc, "context_mark", None)
+    if context and start is not None and start.line + 1 != line:
+        context += f" started on line {start.line + 1}"  # e.g. the unclosed '{' or '"'
     text = f"YAML syntax error: {problem}" + (f" ({context})" if context else "")
     return Problem(file, line, "", text)
 

@@ -18,8 +18,11 @@ from typing import Any
 import numpy as np
 from py_trees.common import Status
 
-from agv_mission.geometry import wrap_angle
+from agv_mission.behaviors.outcome import failure_reason
+from agv_mission.geometry import Pose2D, wrap_angle
+from agv_mission.maps.obstacle_layer import ObstacleLayer
 from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder
+from agv_mission.missions.faults import FaultInjector
 from agv_mission.missions.loader import LoadedMission
 from agv_mission.missions.tree import MissionTree, build_tree
 from agv_mission.navigation.handle import RobotHandle
@@ -79,164 +82,207 @@ def run_mission(
     """Run ``loaded`` in simulation until its tree finishes or its time limit passes.
 
     With ``run_dir``, recorded room poses go to ``run_dir/location_recorder.yaml`` as they
-    are recorded (and to the mission's ``recorder`` file, when it names one).
+    are recorded (and to the mission's ``recorder`` file, when it names one). Ctrl-C ends
+    the run with status ``aborted``; an exception inside it with status ``error``: either
+    way a record of what happened so far comes back.
     """
-    mission, robot = loaded.mission, loaded.robot
-    seeds = np.random.SeedSequence(mission.seed).spawn(3)
-    sim_rng, loc_rng, planner_rng = (np.random.default_rng(s) for s in seeds)
+    run = MissionRun(loaded, run_dir)
+    try:
+        while run.step():
+            if progress is not None:
+                progress(run.sim.time, loaded.mission.limits.time)
+    except KeyboardInterrupt:
+        run.end("aborted", "interrupted by the user (Ctrl-C)")
+    except Exception as exc:  # the run directory must still say what happened
+        run.end("error", f"{type(exc).__name__}: {exc}")
+    return run.record()
 
-    sim = DiffDriveSim(robot, loaded.world, loaded.start, mission.simulation, sim_rng)
-    odometry = DiffDriveOdometry(robot.encoder.ticks_per_meter, robot.wheel_separation)
-    localizer = registry.create(
-        "localization", mission.stack.localization, grid=loaded.world.map, rng=loc_rng
-    )
-    limits = VelocityLimits(
-        max_v=robot.max_linear_velocity,
-        max_w=robot.max_angular_velocity,
-        max_acc_v=robot.max_linear_acceleration,
-        max_acc_w=robot.max_angular_acceleration,
-    )
-    global_planner = registry.create("global_planner", mission.stack.global_planner)
-    local_planner = registry.create(
-        "local_planner",
-        mission.stack.local_planner,
-        limits=limits,
-        robot_radius=robot.footprint_radius,
-        control_period=CONTROL_PERIOD,
-    )
-    navigator = Navigator(
-        loaded.costmap,
-        global_planner,
-        local_planner,
-        limits,
-        mission.stack.navigation,
-        CONTROL_PERIOD,
-        seed=int(planner_rng.integers(0, 2**31 - 1)),
-    )
-    left, right = sim.encoder_ticks()
-    odom_pose = odometry.update(left, right)
-    localizer.reset(loaded.start, odom_pose)
-    handle = RobotHandle(
-        RobotState(time=0.0, estimate=loaded.start),
-        navigator,
-        rooms=loaded.rooms,
-        recorders=_recorders(loaded, run_dir),
-    )
-    tree = build_tree(mission, handle, robot, loaded.room_goals)
-    smoother = VelocitySmoother(limits, CONTROL_PERIOD)
 
-    scan_period = 1.0 / robot.lidar.rate
-    next_scan = 0.0
-    rows: list[tuple[float, ...]] = []
-    task_status = ["not_run"] * len(tree.tasks)
-    collisions = 0
-    in_contact = False
-    min_clearance = math.inf
-    limit = mission.limits.time
-    wall_start = time.perf_counter()
-    timed_out = False
+class MissionRun:
+    """One mission in simulation: the components, the control loop's state, the outcome."""
 
-    while True:
+    def __init__(self, loaded: LoadedMission, run_dir: Path | None) -> None:
+        self.loaded = loaded
+        mission, robot = loaded.mission, loaded.robot
+        self.mission, self.robot = mission, robot
+        seeds = np.random.SeedSequence(mission.seed).spawn(4)
+        sim_rng, loc_rng, planner_rng, fault_rng = (np.random.default_rng(s) for s in seeds)
+        self.sim = DiffDriveSim(robot, loaded.world, loaded.start, mission.simulation, sim_rng)
+        self.odometry = DiffDriveOdometry(robot.encoder.ticks_per_meter, robot.wheel_separation)
+        self.localizer = registry.create(
+            "localization", mission.stack.localization, grid=loaded.world.map, rng=loc_rng
+        )
+        self.limits = VelocityLimits(
+            max_v=robot.max_linear_velocity,
+            max_w=robot.max_angular_velocity,
+            max_acc_v=robot.max_linear_acceleration,
+            max_acc_w=robot.max_angular_acceleration,
+        )
+        local_planner = registry.create(
+            "local_planner",
+            mission.stack.local_planner,
+            limits=self.limits,
+            robot_radius=robot.footprint_radius,
+            control_period=CONTROL_PERIOD,
+        )
+        self.navigator = Navigator(
+            ObstacleLayer(loaded.costmap, mission.stack.costmap.obstacles),
+            registry.create("global_planner", mission.stack.global_planner),
+            local_planner,
+            self.limits,
+            mission.stack.navigation,
+            CONTROL_PERIOD,
+            seed=int(planner_rng.integers(0, 2**31 - 1)),
+        )
+        self.localizer.reset(loaded.start, self.odometry.update(*self.sim.encoder_ticks()))
+        self.handle = RobotHandle(
+            RobotState(time=0.0, estimate=loaded.start),
+            self.navigator,
+            rooms=loaded.rooms,
+            recorders=_recorders(loaded, run_dir),
+        )
+        self.tree = build_tree(mission, self.handle, robot, loaded.room_goals)
+        self.smoother = VelocitySmoother(self.limits, CONTROL_PERIOD)
+        self.faults = FaultInjector(mission.faults, self.sim, fault_rng)
+        self.scan_period = 1.0 / robot.lidar.rate
+        self.next_scan = 0.0
+        self.rows: list[tuple[float, ...]] = []
+        self.task_status = ["not_run"] * len(self.tree.tasks)
+        self.collisions: list[dict[str, float]] = []
+        self.in_contact = False
+        self.min_clearance = math.inf
+        self.wall_start = time.perf_counter()
+        self.status: str | None = None
+        self.reason: str | None = None
+
+    def step(self) -> bool:
+        """One control step; False once the mission has ended."""
+        sim, handle, state = self.sim, self.handle, self.handle.state
         now = sim.time
-        odom_pose = odometry.update(*sim.encoder_ticks())
+        self.faults.apply(now, handle)
+        odom_pose = self.odometry.update(*sim.encoder_ticks())
         scan = None
-        if now >= next_scan - 1e-9:
-            scan = sim.scan()
-            next_scan += scan_period
+        if now >= self.next_scan - 1e-9:
+            self.next_scan += self.scan_period
+            scan = self.faults.filter_scan(now, sim.scan(), handle)
         truth = sim.true_pose()
-        estimate = localizer.update(odom_pose, scan, truth, now)
-        state = handle.state
+        estimate = self.localizer.update(odom_pose, scan, truth, now)
         state.time, state.estimate = now, estimate
-        state.velocity = (smoother.v, smoother.w)
+        state.velocity = (self.smoother.v, self.smoother.w)
         if scan is not None:
             state.scan = scan
             state.obstacles = scan.points(estimate)
+            self.navigator.observe(estimate, scan)
 
         handle.stop()
-        tree.root.tick_once()
-        for i, subtree in enumerate(tree.tasks):
+        self.tree.root.tick_once()
+        for i, subtree in enumerate(self.tree.tasks):
             if subtree.status is not Status.INVALID:
-                task_status[i] = _status_name(subtree.status)
-
-        v, w = smoother(*handle.command)
-        rows.append((now, truth.x, truth.y, truth.yaw, estimate.x, estimate.y, estimate.yaw, v, w))
-
-        contacts = sim.contacts()
-        if contacts and not in_contact:
-            collisions += 1
-        in_contact = contacts > 0
-        clearance = (
-            float(loaded.costmap.clearance(np.array([truth.x, truth.y]))) - robot.footprint_radius
+                self.task_status[i] = _status_name(subtree.status)
+        v, w = self.smoother(*handle.command)
+        self.rows.append(
+            (now, truth.x, truth.y, truth.yaw, estimate.x, estimate.y, estimate.yaw, v, w)
         )
-        min_clearance = min(min_clearance, clearance)
+        self._watch_safety(now, truth)
 
-        if progress is not None:
-            progress(now, limit)
-        if tree.root.status in (Status.SUCCESS, Status.FAILURE):
-            break
-        if now >= limit - 1e-9:
-            timed_out = True
-            break
+        if self.status is not None:
+            return False
+        if self.tree.root.status is Status.SUCCESS:
+            return self.end("succeeded", None)
+        if self.tree.root.status is Status.FAILURE:
+            return self.end("failed", self._failure())
+        if now >= self.mission.limits.time - 1e-9:
+            return self.end("failed", self._timeout())
         sim.set_command(v, w)
         sim.advance(CONTROL_PERIOD)
+        return True
 
-    wall_time = time.perf_counter() - wall_start
-    sim_time = sim.time
-    trajectory = np.asarray(rows, dtype=float)
-    tasks = _task_reports(mission, tree, task_status, handle.events)
-    if tree.root.status is Status.SUCCESS:
-        status, reason = "succeeded", None
-    elif timed_out:
-        running = next((i for i, s in enumerate(task_status) if s == "running"), None)
-        where = (
-            f" during task {running + 1} ({mission.tasks[running].type})"
-            if running is not None
-            else ""
-        )
-        status, reason = "failed", f"time limit of {limit:g} s reached{where}"
-        if running is not None:
-            task_status[running] = "failed"
-            tasks[running]["status"] = "failed"
-            tasks[running]["reason"] = "time limit reached"
-    else:
-        failed = next((t for t in tasks if t["status"] == "failed"), None)
-        status = "failed"
-        reason = (
-            f"task {failed['index']} ({failed['type']}) failed: {failed['reason']}"
-            if failed
-            else "mission failed"
+    def end(self, status: str, reason: str | None) -> bool:
+        if self.status is None:
+            self.status, self.reason = status, reason
+            self.sim.set_command(0.0, 0.0)
+        return False
+
+    def _watch_safety(self, now: float, truth: Pose2D) -> None:
+        contacts = self.sim.contacts()
+        if contacts and not self.in_contact:
+            self.collisions.append(
+                {"t": round(now, 3), "x": round(truth.x, 3), "y": round(truth.y, 3)}
+            )
+            if len(self.collisions) > self.mission.limits.collisions:
+                self.end(
+                    "failed", f"collision at t={now:.1f} s near ({truth.x:.2f}, {truth.y:.2f})"
+                )
+        self.in_contact = contacts > 0
+        self.min_clearance = min(self.min_clearance, self.sim.min_clearance())
+
+    def _failure(self) -> str:
+        i = next((i for i, s in enumerate(self.task_status) if s == "failed"), None)
+        if i is None:
+            return "mission failed"
+        return (
+            f"task {i + 1} ({self.mission.tasks[i].type}) failed: "
+            f"{failure_reason(self.tree.tasks[i])}"
         )
 
-    metrics = _metrics(trajectory, navigator, collisions, min_clearance, sim_time, wall_time)
-    extras: dict[str, Any] = {}
-    if handle.recorded:
-        extras["rooms_recorded"] = {
-            label: {"x": round(p.x, 4), "y": round(p.y, 4), "yaw": round(p.yaw, 4)}
-            for label, p in handle.recorded.items()
-        }
-    counts = getattr(localizer, "particle_counts", None)
-    if counts:
-        c = np.asarray([n for _, n in counts])
-        metrics["localization"]["particles"] = {
-            "min": int(c.min()),
-            "max": int(c.max()),
-            "mean": round(float(c.mean()), 1),
-        }
-        extras["particle_counts"] = [[round(t, 3), int(n)] for t, n in counts]
-    return RunRecord(
-        status=status,
-        reason=reason,
-        sim_time=round(sim_time, 6),
-        wall_time=round(wall_time, 3),
-        tasks=tasks,
-        metrics=metrics,
-        trajectory=trajectory,
-        paths=navigator.paths,
-        events=handle.events,
-        tree_text=tree.render(),
-        extras=extras,
-        particle_snapshots=list(getattr(localizer, "snapshots", [])),
-    )
+    def _timeout(self) -> str:
+        i = next((i for i, s in enumerate(self.task_status) if s == "running"), None)
+        limit = self.mission.limits.time
+        if i is None:
+            return f"time limit of {limit:g} s reached"
+        self.task_status[i] = "failed"
+        self.tree.tasks[i].feedback_message = "time limit reached"
+        return (
+            f"time limit of {limit:g} s reached during task {i + 1} ({self.mission.tasks[i].type})"
+        )
+
+    def record(self) -> RunRecord:
+        """The outcome so far, as the run directory will hold it."""
+        if self.status is None:
+            self.end("error", "the run ended without an outcome")
+        wall_time = time.perf_counter() - self.wall_start
+        sim_time = self.sim.time
+        trajectory = np.asarray(self.rows, dtype=float).reshape(-1, len(TRAJECTORY_COLUMNS))
+        if self.status in ("aborted", "error"):
+            self.task_status = ["aborted" if s == "running" else s for s in self.task_status]
+        tasks = _task_reports(self.mission, self.tree, self.task_status, self.handle.events)
+        metrics = _metrics(
+            trajectory,
+            self.navigator,
+            len(self.collisions),
+            self.min_clearance,
+            sim_time,
+            wall_time,
+        )
+        extras: dict[str, Any] = {"collisions": self.collisions, "faults": self.faults.report()}
+        if self.handle.recorded:
+            extras["rooms_recorded"] = {
+                label: {"x": round(p.x, 4), "y": round(p.y, 4), "yaw": round(p.yaw, 4)}
+                for label, p in self.handle.recorded.items()
+            }
+        counts = getattr(self.localizer, "particle_counts", None)
+        if counts:
+            c = np.asarray([n for _, n in counts])
+            metrics["localization"]["particles"] = {
+                "min": int(c.min()),
+                "max": int(c.max()),
+                "mean": round(float(c.mean()), 1),
+            }
+            extras["particle_counts"] = [[round(t, 3), int(n)] for t, n in counts]
+        return RunRecord(
+            status=self.status or "error",
+            reason=self.reason,
+            sim_time=round(sim_time, 6),
+            wall_time=round(wall_time, 3),
+            tasks=tasks,
+            metrics=metrics,
+            trajectory=trajectory,
+            paths=self.navigator.paths,
+            events=self.handle.events,
+            tree_text=self.tree.render(),
+            extras=extras,
+            particle_snapshots=list(getattr(self.localizer, "snapshots", [])),
+        )
 
 
 def _recorders(loaded: LoadedMission, run_dir: Path | None) -> list[LocationRecorder]:
@@ -254,49 +300,61 @@ def _status_name(status: Status) -> str:
     )
 
 
+_OUTCOMES = {"goal_reached": "reached", "goal_failed": "failed", "goal_skipped": "skipped"}
+
+
 def _task_reports(
     mission: Any, tree: MissionTree, task_status: list[str], events: list[dict[str, Any]]
 ) -> list[dict[str, Any]]:
+    """Per-task status and reason, with per-waypoint and per-room outcomes."""
     reports = []
     for i, (task, subtree) in enumerate(zip(mission.tasks, tree.tasks, strict=True)):
+        mine = [e for e in events if e.get("task") == i]
+        status = task_status[i]
+        skips = [e for e in mine if e["event"] == "goal_skipped"]
+        if status == "succeeded" and skips:
+            status = "skipped" if task.type == "go_to" else "partial"
         report: dict[str, Any] = {
             "index": i + 1,
             "type": task.type,
-            "status": task_status[i],
+            "status": status,
             "reason": None,
         }
-        if task_status[i] == "failed":
-            report["reason"] = _failure_reason(subtree)
+        if status == "failed":
+            report["reason"] = failure_reason(subtree)
+        elif skips:
+            report["reason"] = "; ".join(sorted({e["reason"] for e in skips}))
         if task.type == "patrol":
             report["waypoints"] = [
                 {k: e[k] for k in ("loop", "waypoint", "t", "x", "y", "yaw", "reason") if k in e}
-                | {"status": "reached" if e["event"] == "goal_reached" else "failed"}
-                for e in events
-                if e.get("task") == i and e["event"] in ("goal_reached", "goal_failed")
+                | {"status": _OUTCOMES[e["event"]]}
+                for e in mine
+                if e["event"] in _OUTCOMES
             ]
         if task.type == "visit_rooms":
-            mine = [e for e in events if e.get("task") == i]
-            report["rooms"] = [
-                {
-                    "room": room,
-                    "status": "reached"
-                    if any(e["event"] == "goal_reached" and e.get("room") == room for e in mine)
-                    else "not_reached",
-                    "recorded": any(
-                        e["event"] == "room_recorded" and e.get("room") == room for e in mine
-                    ),
-                }
-                for room in task.rooms
-            ]
+            report["rooms"] = [_room_report(room, mine) for room in task.rooms]
         reports.append(report)
     return reports
 
 
-def _failure_reason(subtree: Any) -> str:
-    for node in subtree.iterate():
-        if node.status is Status.FAILURE and not node.children and node.feedback_message:
-            return node.feedback_message
-    return subtree.feedback_message or "failed"
+def _room_report(room: str, events: list[dict[str, Any]]) -> dict[str, Any]:
+    outcome = next(
+        (
+            e
+            for e in events
+            if e.get("room") == room and e["event"] in ("goal_failed", "goal_skipped")
+        ),
+        None,
+    )
+    reached = any(e["event"] == "goal_reached" and e.get("room") == room for e in events)
+    report: dict[str, Any] = {
+        "room": room,
+        "status": _OUTCOMES[outcome["event"]] if outcome else ("reached" if reached else "not_run"),
+        "recorded": any(e["event"] == "room_recorded" and e.get("room") == room for e in events),
+    }
+    if outcome:
+        report["reason"] = outcome["reason"]
+    return report
 
 
 def _metrics(

@@ -1,4 +1,9 @@
-"""Mission -> py_trees behaviour tree: one sequence of task subtrees."""
+"""Mission -> py_trees behaviour tree: one sequence of task subtrees.
+
+Every goal is a leg: ``NavigateToPose`` inside a :class:`RecoveryNode` (the configured
+recoveries, one per failed attempt), optionally retried, and wrapped in a
+:class:`LegOutcome` that logs how it ended and applies the task's ``on_failure``.
+"""
 
 from __future__ import annotations
 
@@ -8,9 +13,12 @@ import py_trees
 
 from agv_mission.behaviors.motion import Dwell, Wander
 from agv_mission.behaviors.navigate import NavigateToPose
+from agv_mission.behaviors.outcome import LegOutcome
+from agv_mission.behaviors.recoveries import BackUp, ClearCostmap, RecoveryNode, Spin, Wait
 from agv_mission.behaviors.rooms import InRoom, RecordRoom
 from agv_mission.geometry import Pose2D
 from agv_mission.missions.schema import (
+    FailurePolicy,
     GoToTask,
     Mission,
     PatrolTask,
@@ -18,16 +26,19 @@ from agv_mission.missions.schema import (
     VisitRoomsTask,
     WanderTask,
 )
+from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.robots.description import RobotDescription
+
+Behaviour = py_trees.behaviour.Behaviour
 
 
 @dataclass
 class MissionTree:
     """The root and, in mission order, the subtree of each task."""
 
-    root: py_trees.behaviour.Behaviour
-    tasks: list[py_trees.behaviour.Behaviour]
+    root: Behaviour
+    tasks: list[Behaviour]
 
     def render(self) -> str:
         return py_trees.display.unicode_tree(self.root, show_status=True)
@@ -39,67 +50,91 @@ def build_tree(
     robot: RobotDescription,
     room_goals: dict[str, Pose2D],
 ) -> MissionTree:
-    tasks = [
-        _task_subtree(i, task, handle, robot, room_goals) for i, task in enumerate(mission.tasks)
-    ]
+    builder = _Builder(handle, robot, room_goals, mission.stack.navigation)
+    tasks = [builder.task(i, task) for i, task in enumerate(mission.tasks)]
     root = py_trees.composites.Sequence(name="mission", memory=True, children=tasks)
     return MissionTree(root, tasks)
 
 
-def _task_subtree(
-    index: int,
-    task: object,
-    handle: RobotHandle,
-    robot: RobotDescription,
-    room_goals: dict[str, Pose2D],
-) -> py_trees.behaviour.Behaviour:
-    label = f"task {index + 1}: {task.type}"  # type: ignore[attr-defined]
-    if isinstance(task, GoToTask):
-        p = task.pose
-        return NavigateToPose(
-            f"{label} ({p.x:g}, {p.y:g}, {p.yaw:.2f})", handle, p.to_pose2d(), task=index
-        )
-    if isinstance(task, PatrolTask):
-        legs: list[py_trees.behaviour.Behaviour] = []
-        for loop in range(task.loops):
-            for j, wp in enumerate(task.waypoints):
-                legs.append(
-                    NavigateToPose(
-                        f"loop {loop + 1} waypoint {j + 1} ({wp.x:g}, {wp.y:g})",
-                        handle,
-                        wp.to_pose2d(),
-                        task=index,
-                        loop=loop + 1,
-                        waypoint=j + 1,
-                    )
-                )
-                if task.dwell > 0:
-                    legs.append(Dwell(f"dwell {task.dwell:g} s", handle, task.dwell))
-        return py_trees.composites.Sequence(name=label, memory=True, children=legs)
-    if isinstance(task, WanderTask):
-        speed = task.speed if task.speed is not None else robot.max_linear_velocity
-        return Wander(
-            label,
-            handle,
-            task.duration,
-            task.min_range,
-            min(speed, robot.max_linear_velocity),
-            min(task.turn_rate, robot.max_angular_velocity),
-            task.sector,
-        )
-    if isinstance(task, VisitRoomsTask):
-        visits: list[py_trees.behaviour.Behaviour] = []
-        for room in task.rooms:
-            steps: list[py_trees.behaviour.Behaviour] = [
-                NavigateToPose(f"enter {room}", handle, room_goals[room], task=index, room=room),
-                InRoom(f"in {room}?", handle, handle.rooms[room]),
-            ]
-            if task.record:
-                steps.append(RecordRoom(f"record {room}", handle, room, task=index))
-            visits.append(
-                py_trees.composites.Sequence(name=f"visit {room}", memory=True, children=steps)
+@dataclass
+class _Builder:
+    handle: RobotHandle
+    robot: RobotDescription
+    room_goals: dict[str, Pose2D]
+    nav: NavigationConfig
+
+    def task(self, index: int, task: object) -> Behaviour:
+        label = f"task {index + 1}: {task.type}"  # type: ignore[attr-defined]
+        if isinstance(task, GoToTask):
+            p = task.pose
+            return self.leg(
+                f"{label} ({p.x:g}, {p.y:g}, {p.yaw:.2f})",
+                self.goal("go", p.to_pose2d(), task=index),
+                task,
+                task=index,
             )
-        return py_trees.composites.Sequence(name=label, memory=True, children=visits)
-    if isinstance(task, RecordRoomTask):
-        return RecordRoom(f"{label} {task.room}", handle, task.room, task=index)
-    raise TypeError(f"no behaviour for task type {type(task).__name__}")
+        if isinstance(task, PatrolTask):
+            legs: list[Behaviour] = []
+            for loop in range(task.loops):
+                for j, wp in enumerate(task.waypoints):
+                    details = {"task": index, "loop": loop + 1, "waypoint": j + 1}
+                    name = f"loop {loop + 1} waypoint {j + 1} ({wp.x:g}, {wp.y:g})"
+                    legs.append(
+                        self.leg(name, self.goal("go", wp.to_pose2d(), **details), task, **details)
+                    )
+                    if task.dwell > 0:
+                        legs.append(Dwell(f"dwell {task.dwell:g} s", self.handle, task.dwell))
+            return py_trees.composites.Sequence(name=label, memory=True, children=legs)
+        if isinstance(task, VisitRoomsTask):
+            visits: list[Behaviour] = []
+            for room in task.rooms:
+                steps: list[Behaviour] = [
+                    self.goal(f"enter {room}", self.room_goals[room], task=index, room=room),
+                    InRoom(f"in {room}?", self.handle, self.handle.rooms[room]),
+                ]
+                if task.record:
+                    steps.append(RecordRoom(f"record {room}", self.handle, room, task=index))
+                visit = py_trees.composites.Sequence(
+                    name=f"visit {room}", memory=True, children=steps
+                )
+                visits.append(self.leg(f"{room}", visit, task, task=index, room=room))
+            return py_trees.composites.Sequence(name=label, memory=True, children=visits)
+        if isinstance(task, WanderTask):
+            speed = min(
+                task.speed or self.robot.max_linear_velocity, self.robot.max_linear_velocity
+            )
+            turn = min(task.turn_rate, self.robot.max_angular_velocity)
+            return Wander(
+                label, self.handle, task.duration, task.min_range, speed, turn, task.sector
+            )
+        if isinstance(task, RecordRoomTask):
+            return RecordRoom(f"{label} {task.room}", self.handle, task.room, task=index)
+        raise TypeError(f"no behaviour for task type {type(task).__name__}")
+
+    def goal(self, name: str, pose: Pose2D, **details: object) -> Behaviour:
+        """Navigate to ``pose``, with the configured recoveries between attempts."""
+        navigate = NavigateToPose(name, self.handle, pose, **details)
+        recoveries = [self.recovery(kind) for kind in self.nav.recoveries]
+        if not recoveries:
+            return navigate
+        return RecoveryNode(f"{name} (with recoveries)", navigate, recoveries)
+
+    def recovery(self, kind: str) -> Behaviour:
+        nav, handle = self.nav, self.handle
+        if kind == "clear_costmap":
+            return ClearCostmap("clear costmap", handle)
+        if kind == "spin":
+            return Spin(
+                "spin", handle, nav.spin_angle, min(nav.spin_rate, self.robot.max_angular_velocity)
+            )
+        if kind == "wait":
+            return Wait(f"wait {nav.wait_time:g} s", handle, nav.wait_time)
+        return BackUp("back up", handle, nav.backup_distance, nav.backup_speed)
+
+    def leg(
+        self, name: str, child: Behaviour, policy: FailurePolicy, **details: object
+    ) -> Behaviour:
+        """Apply the task's failure policy to one leg and log how it ends."""
+        if policy.on_failure == "retry":
+            child = py_trees.decorators.Retry(f"retry x{policy.retries}", child, policy.retries + 1)
+        return LegOutcome(name, child, self.handle, skip=policy.on_failure == "skip", **details)

@@ -16,6 +16,8 @@ import numpy as np
 
 from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.maps.costmap import Costmap
+from agv_mission.maps.obstacle_layer import ObstacleLayer
+from agv_mission.messages import LaserScan
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.state import RobotState
 from agv_mission.planners.base import Path, PlanningError, VelocityCommand, VelocityLimits
@@ -50,7 +52,7 @@ class Navigator:
 
     def __init__(
         self,
-        costmap: Costmap,
+        layer: ObstacleLayer,
         global_planner: Any,
         local_planner: Any,
         limits: VelocityLimits,
@@ -58,7 +60,7 @@ class Navigator:
         control_period: float,
         seed: int = 0,
     ) -> None:
-        self.costmap = costmap
+        self.layer = layer
         self.global_planner = global_planner
         self.local_planner = local_planner
         self.limits = limits
@@ -75,6 +77,18 @@ class Navigator:
         self._replans_for_goal = 0
         self._best_distance = math.inf
         self._last_progress_time = 0.0
+
+    @property
+    def costmap(self) -> Costmap:
+        """The static map with the obstacles the lidar marked."""
+        return self.layer.costmap
+
+    def observe(self, pose: Pose2D, scan: LaserScan) -> None:
+        """Mark and clear unmapped obstacles from a new scan."""
+        self.layer.update(pose, scan)
+
+    def clear_costmap(self) -> None:
+        self.layer.clear()
 
     def start(self, goal: Pose2D, state: RobotState) -> None:
         """Begin pursuing ``goal``: plan a path from the current estimate."""
@@ -121,6 +135,8 @@ class Navigator:
             if not self._replan(state, reason):
                 return VelocityCommand(0.0, 0.0)
         assert self.path is not None
+        if self._path_blocked(state.estimate) and not self._replan(state, "path blocked"):
+            return VelocityCommand(0.0, 0.0)
         near = state.obstacles
         if len(near):
             d = np.hypot(near[:, 0] - state.estimate.x, near[:, 1] - state.estimate.y)
@@ -156,18 +172,40 @@ class Navigator:
         w = float(np.clip(w, w0 - self.limits.max_acc_w * dt, w0 + self.limits.max_acc_w * dt))
         return VelocityCommand(v, w)
 
-    def _off_path(self, pose: Pose2D) -> float:
+    def _closest(self, pose: Pose2D) -> tuple[int, float, np.ndarray]:
+        """(segment index, distance, closest point) of the path to ``pose``."""
         assert self.path is not None
         pts = self.path.points
         if len(pts) < 2:
-            return pose.distance_to(Pose2D(*pts[0])) if len(pts) else 0.0
+            p = pts[0] if len(pts) else np.array([pose.x, pose.y])
+            return 0, float(np.hypot(p[0] - pose.x, p[1] - pose.y)), p
         a, b = pts[:-1], pts[1:]
         ab = b - a
         ap = np.array([pose.x, pose.y]) - a
         denom = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12)
         t = np.clip(np.einsum("ij,ij->i", ap, ab) / denom, 0.0, 1.0)
         closest = a + ab * t[:, None]
-        return float(np.min(np.linalg.norm(closest - [pose.x, pose.y], axis=1)))
+        d = np.linalg.norm(closest - [pose.x, pose.y], axis=1)
+        i = int(np.argmin(d))
+        return i, float(d[i]), closest[i]
+
+    def _off_path(self, pose: Pose2D) -> float:
+        return self._closest(pose)[1]
+
+    def _path_blocked(self, pose: Pose2D) -> bool:
+        """Whether a marked obstacle stands on the path within ``lookahead`` of the robot."""
+        if not self.layer.marks.any() or self.path is None or len(self.path.points) < 2:
+            return False
+        i, _, here = self._closest(pose)
+        ahead = np.vstack([here, self.path.points[i + 1 :]])
+        seg = np.diff(ahead, axis=0)
+        lengths = np.linalg.norm(seg, axis=1)
+        cum = np.concatenate([[0.0], np.cumsum(lengths)])
+        s = np.arange(0.0, min(cum[-1], self.config.blocked_lookahead), self.costmap.resolution)
+        if s.size == 0:
+            return False
+        xy = np.stack([np.interp(s, cum, ahead[:, 0]), np.interp(s, cum, ahead[:, 1])], axis=1)
+        return bool(np.any(self.costmap.clearance(xy) <= self.costmap.robot_radius))
 
     def _replan(self, state: RobotState, why: str) -> bool:
         if self._replans_for_goal >= self.config.max_replans:

@@ -219,6 +219,108 @@ def teleop(
     raise typer.Exit(result.exit_code)
 
 
+@app.command()
+def regress(
+    paths: Annotated[
+        list[Path], typer.Argument(metavar="PATHS...", help="scenario files or directories")
+    ],
+    workers: Annotated[
+        int | None,  # noqa: UP007, UP045
+        typer.Option("--workers", "-j", min=1, help="parallel runs; default: the CPU count"),
+    ] = None,
+    junit: Annotated[Path | None, typer.Option(help="write JUnit XML here")] = None,  # noqa: UP007, UP045
+    json_: Annotated[
+        Path | None,  # noqa: UP007, UP045
+        typer.Option("--json", help="write the JSON summary here"),
+    ] = None,
+    sweep: Annotated[
+        list[str],
+        typer.Option(help="KEY=V1,V2,... run every value (repeatable: cartesian product)"),
+    ] = [],  # noqa: B006
+    seeds: Annotated[
+        int, typer.Option(min=1, help="run seeds S..S+N-1 (S: the mission's seed)")
+    ] = 1,
+    backend: Annotated[str, typer.Option(help="local (process pool) or ray")] = "local",
+    address: Annotated[
+        str | None,  # noqa: UP007, UP045
+        typer.Option(help="Ray cluster address (ray backend); default: a local Ray instance"),
+    ] = None,
+    output: Annotated[
+        Path | None,  # noqa: UP007, UP045
+        typer.Option(help="root of the run directories; default: runs/regress-<UTC time>"),
+    ] = None,
+) -> None:
+    """Run scenarios (missions with an expect: block) in parallel and check them."""
+    import os
+    import time
+
+    from rich.markup import escape
+
+    from agv_mission.missions import regress as rg
+
+    if backend not in ("local", "ray"):
+        err.print(f"[bold red]invalid input[/]: --backend {escape(backend)}: local or ray")
+        raise typer.Exit(2)
+    try:
+        plan = rg.plan_jobs(paths, sweep, seeds, output)
+    except rg.RegressError as exc:
+        err.print(f"[bold red]invalid input[/]: {escape(str(exc))}", highlight=False)
+        raise typer.Exit(2) from None
+    if plan.problems:
+        _report_invalid(MissionError(plan.problems))
+        rg.write_reports([], plan, 0.0, backend, workers, junit, json_)
+        raise typer.Exit(2)
+    n_workers = workers or os.cpu_count() or 1
+    out.print(
+        f"{len(plan.jobs)} run(s): {len(plan.scenarios)} scenario(s) x {len(plan.variants)} "
+        f"variant(s) x {seeds} seed(s) on {backend} "
+        + (f"({n_workers} workers)" if backend == "local" else f"({address or 'local Ray'})"),
+        highlight=False,
+    )
+    started = time.perf_counter()
+    with Progress(
+        TextColumn("[progress.description]{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:.0f}/{task.total:.0f} runs"),
+        TimeElapsedColumn(),
+        console=err,
+        transient=True,
+        disable=not err.is_terminal,
+    ) as bar:
+        job = bar.add_task("regress", total=len(plan.jobs))
+
+        def progress(result: dict, done: int, total: int) -> None:
+            mark = "[green]ok[/]" if result["passed"] else "[red]FAIL[/]"
+            bar.console.print(
+                f"{mark} {escape(rg.run_label(result, len(plan.variants), seeds))}",
+                highlight=False,
+            )
+            bar.update(job, completed=done)
+
+        try:
+            results = rg.run_jobs(plan.jobs, backend, n_workers, address, progress)
+        except rg.RegressError as exc:
+            err.print(f"[bold red]invalid input[/]: {escape(str(exc))}", highlight=False)
+            raise typer.Exit(2) from None
+    elapsed = time.perf_counter() - started
+    width = None if out.is_terminal else 240  # CI logs: do not squeeze the tables to 80
+    out.print(rg.results_table(results, len(plan.variants), seeds), width=width)
+    if len(plan.variants) > 1 or seeds > 1:
+        out.print(rg.comparison_table(rg.compare(results)), width=width)
+    rg.write_reports(results, plan, elapsed, backend, n_workers, junit, json_)
+    failed = [r for r in results if not r["passed"]]
+    colour = "red" if failed else "green"
+    out.print(
+        f"[bold {colour}]{len(results) - len(failed)}/{len(results)} passed[/] in "
+        f"{elapsed:.1f} s; run directories under {escape(str(plan.output_root))}",
+        highlight=False,
+    )
+    for path, what in ((junit, "JUnit XML"), (json_, "JSON summary")):
+        if path is not None:
+            out.print(f"{what}: {escape(str(path))}", highlight=False)
+    raise typer.Exit(1 if failed else 0)
+
+
 def main() -> None:
     app()
 

@@ -22,6 +22,7 @@ from pydantic import (
 
 from agv_mission.geometry import Pose2D, yaw_from_quaternion
 from agv_mission.maps.costmap import CostmapConfig
+from agv_mission.missions.expectations import Expectations
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.registry import registry
 from agv_mission.robots.simulation import SimConfig
@@ -199,6 +200,12 @@ class Mission(StrictModel):
         "the run directory gets a copy)",
     )
     output: str = Field("runs", description="root of run directories")
+    expect: Expectations | None = Field(
+        None,
+        description="what `agv-mission regress` checks of the run (ignored by `run`): final "
+        "and per-task status, time, collisions, clearance, localisation, map IoU, rooms, "
+        "waypoints",
+    )
 
     @field_validator("name")
     @classmethod

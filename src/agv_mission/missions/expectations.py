@@ -1,0 +1,214 @@
+"""What a scenario expects of its run: the ``expect:`` block of a mission file.
+
+``agv-mission run`` ignores the block; ``agv-mission regress`` runs the mission and calls
+:func:`check` on the result document (the content of ``result.json``). Every key is
+optional; a scenario without ``expect:`` is expected to succeed (see
+:data:`DEFAULT_EXPECTATIONS`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+RunStatus = Literal["succeeded", "failed"]
+TaskStatus = Literal["succeeded", "failed", "not_run", "running"]
+
+
+class Expectations(BaseModel):
+    """Bounds on one run's result; every key optional, unknown keys are invalid."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    status: RunStatus | None = Field(None, description="final status of the mission")
+    reason_contains: str | None = Field(
+        None, description="text the failure reason must contain (for expected failures)"
+    )
+    tasks: list[TaskStatus | None] | dict[int, TaskStatus] | None = Field(
+        None,
+        description="per-task status: a list in task order (null skips a task) or a mapping "
+        "from the 1-based task index to its status",
+    )
+    sim_time_max: float | None = Field(None, ge=0.0, description="simulated seconds, at most")
+    collisions_max: int | None = Field(None, ge=0, description="collisions, at most")
+    min_clearance_min: float | None = Field(
+        None, description="metres between the robot's footprint and obstacles, at least"
+    )
+    distance_driven_max: float | None = Field(None, ge=0.0, description="metres, at most")
+    localization_rmse_max: float | None = Field(
+        None, ge=0.0, description="position RMSE of the estimate against ground truth, metres"
+    )
+    map_iou_min: float | None = Field(
+        None,
+        ge=0.0,
+        le=1.0,
+        description="intersection over union of a built map with the true map, at least "
+        "(every map the run reports)",
+    )
+    rooms_recorded: list[str] | None = Field(
+        None, description="room labels that must have been recorded"
+    )
+    waypoints_reached: int | None = Field(
+        None, ge=0, description="patrol waypoints reached over all patrol tasks and loops, at least"
+    )
+
+
+DEFAULT_EXPECTATIONS = Expectations(status="succeeded")
+
+
+@dataclass(frozen=True)
+class Failure:
+    """One expectation a run did not meet."""
+
+    metric: str  # the expect key, or ``tasks.<i>`` for a per-task status
+    expected: Any
+    actual: Any
+    by: float | None = None  # how far past the bound a numeric metric is (always >= 0)
+
+    def __str__(self) -> str:
+        text = f"{self.metric}: expected {_show(self.expected)}, got {_show(self.actual)}"
+        if self.by is not None:
+            text += f" (off by {_num(self.by)})"
+        return text
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["message"] = str(self)
+        return d
+
+
+def check(expect: Expectations | None, result: dict[str, Any]) -> list[Failure]:
+    """Every expectation of ``expect`` that the result document ``result`` does not meet."""
+    e = expect if expect is not None else DEFAULT_EXPECTATIONS
+    failures: list[Failure] = []
+    metrics = result.get("metrics") or {}
+
+    if e.status is not None and result.get("status") != e.status:
+        actual = result.get("status")
+        if result.get("reason"):
+            actual = f"{actual} ({result['reason']})"
+        failures.append(Failure("status", e.status, actual))
+    if e.reason_contains is not None and e.reason_contains not in (result.get("reason") or ""):
+        failures.append(
+            Failure(
+                "reason_contains", f"reason containing {e.reason_contains!r}", result.get("reason")
+            )
+        )
+    if e.tasks is not None:
+        failures += _check_tasks(e.tasks, result.get("tasks") or [])
+
+    def at_most(key: str, bound: float | None, actual: Any) -> None:
+        if bound is None:
+            return
+        if not _is_number(actual):
+            failures.append(Failure(key, f"<= {_num(bound)}", actual))
+        elif actual > bound:
+            failures.append(Failure(key, f"<= {_num(bound)}", actual, actual - bound))
+
+    def at_least(key: str, bound: float | None, actual: Any) -> None:
+        if bound is None:
+            return
+        if not _is_number(actual):
+            failures.append(Failure(key, f">= {_num(bound)}", actual))
+        elif actual < bound:
+            failures.append(Failure(key, f">= {_num(bound)}", actual, bound - actual))
+
+    at_most("sim_time_max", e.sim_time_max, result.get("sim_time"))
+    at_most("collisions_max", e.collisions_max, metrics.get("collisions"))
+    at_least("min_clearance_min", e.min_clearance_min, metrics.get("min_clearance"))
+    at_most("distance_driven_max", e.distance_driven_max, metrics.get("distance_driven"))
+    at_most(
+        "localization_rmse_max",
+        e.localization_rmse_max,
+        (metrics.get("localization") or {}).get("position_rmse"),
+    )
+    if e.map_iou_min is not None:
+        ious = map_ious(result)
+        if not ious:
+            failures.append(Failure("map_iou_min", f">= {_num(e.map_iou_min)}", "no map reported"))
+        for iou in ious:
+            at_least("map_iou_min", e.map_iou_min, iou)
+    if e.rooms_recorded is not None:
+        recorded = set(result.get("rooms_recorded") or {})
+        missing = [r for r in e.rooms_recorded if r not in recorded]
+        if missing:
+            failures.append(
+                Failure(
+                    "rooms_recorded",
+                    e.rooms_recorded,
+                    f"{sorted(recorded)} (missing {missing})",
+                    float(len(missing)),
+                )
+            )
+    if e.waypoints_reached is not None:
+        reached = waypoints_reached(result)
+        if reached < e.waypoints_reached:
+            failures.append(
+                Failure(
+                    "waypoints_reached",
+                    f">= {e.waypoints_reached}",
+                    reached,
+                    float(e.waypoints_reached - reached),
+                )
+            )
+    return failures
+
+
+def waypoints_reached(result: dict[str, Any]) -> int:
+    """Patrol waypoints reached over every patrol task and loop."""
+    return sum(
+        w.get("status") == "reached"
+        for task in result.get("tasks") or []
+        for w in task.get("waypoints") or []
+    )
+
+
+def map_ious(result: dict[str, Any]) -> list[float]:
+    """Every map IoU the result reports: ``metrics.map.iou``, ``metrics.map_iou`` or a
+    task's ``iou`` / ``map.iou`` (the map_area task's report)."""
+    metrics = result.get("metrics") or {}
+    found = [
+        (metrics.get("map") or {}).get("iou") if isinstance(metrics.get("map"), dict) else None,
+        metrics.get("map_iou"),
+    ]
+    for task in result.get("tasks") or []:
+        found.append(task.get("iou"))
+        if isinstance(task.get("map"), dict):
+            found.append(task["map"].get("iou"))
+    return [float(v) for v in found if _is_number(v)]
+
+
+def _check_tasks(
+    spec: list[TaskStatus | None] | dict[int, TaskStatus], tasks: list[dict[str, Any]]
+) -> list[Failure]:
+    wanted = dict(enumerate(spec, start=1)) if isinstance(spec, list) else dict(spec)
+    failures = []
+    if isinstance(spec, list) and len(spec) != len(tasks):
+        failures.append(Failure("tasks", f"{len(spec)} task(s)", f"{len(tasks)} task(s)"))
+    for index, status in sorted(wanted.items()):
+        if status is None:
+            continue
+        task = tasks[index - 1] if 1 <= index <= len(tasks) else None
+        if task is None:
+            failures.append(Failure(f"tasks.{index}", status, "no such task"))
+        elif task.get("status") != status:
+            actual = task.get("status")
+            if task.get("reason"):
+                actual = f"{actual} ({task['reason']})"
+            failures.append(Failure(f"tasks.{index}", status, actual))
+    return failures
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _num(v: float) -> str:
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
+def _show(v: Any) -> str:
+    return _num(v) if _is_number(v) else str(v)

@@ -123,7 +123,7 @@ def _resolve(
     try:
         world = load_world(mission.world, base_dir)
     except WorldError as exc:
-        problem(("world",), str(exc))
+        problem(("world",), _one_line(str(exc)))
         raise MissionError(problems) from None
     except (OSError, ValueError, RuntimeError) as exc:  # a path the OS refuses
         problem(("world",), f"cannot read world {mission.world!r}: {_os_message(exc)}")
@@ -152,7 +152,7 @@ def _resolve(
         try:
             rooms.update(load_rooms(_resolve_path(mission.rooms, base_dir)))
         except RoomsFileError as exc:  # names the file, the line and the room
-            problem(("rooms",), str(exc))
+            problem(("rooms",), _one_line(str(exc)))
         except Exception as exc:
             problem(("rooms",), f"cannot read rooms file {mission.rooms!r}: {_os_message(exc)}")
     if problems:
@@ -395,7 +395,7 @@ def _validation_problems(
     seen: set[tuple[FieldPath, str]] = set()
     for err in exc.errors(include_url=False):
         field_path = _data_path(tuple(err["loc"]), data)
-        message = _message(err)
+        message = _message(err, data)
         if (field_path, message) in seen:
             continue
         seen.add((field_path, message))
@@ -428,13 +428,23 @@ def _is_tag(part: str) -> bool:
     return part in {"str", "int", "float", "bool", "Pose"} or "[" in part
 
 
-def _message(err: dict) -> str:
+def _message(err: dict, data: Any = None) -> str:
     kind = err["type"]
     if kind == "missing":
         return "required field is missing"
     if kind == "extra_forbidden":
         return "unknown key (not allowed here)"
+    if kind == "union_tag_invalid":
+        ctx = err.get("ctx", {})
+        return f"unknown type {ctx.get('tag')!r}; expected one of {ctx.get('expected_tags')}"
+    if kind == "union_tag_not_found":
+        tags = _expected_tags(tuple(err["loc"]), data)
+        return "missing 'type'" + (f"; expected one of {tags}" if tags else "")
     msg = err["msg"]
+    if kind in ("model_type", "model_attributes_type", "dict_type"):
+        msg = "expected a mapping"
+    if kind.endswith("_type") and isinstance(err.get("input"), (dict, list)):
+        msg += " (got a list)" if isinstance(err["input"], list) else " (got a mapping)"
     if msg.startswith("Value error, "):
         msg = msg[len("Value error, ") :]
     if (
@@ -444,6 +454,35 @@ def _message(err: dict) -> str:
     ):
         msg = f"{msg} (got {err['input']!r})"
     return msg
+
+
+def _expected_tags(loc: tuple, data: Any) -> str | None:
+    """The ``type`` values a block without one could have: ask the schema with a bad one."""
+    field_path = _data_path(loc, data)
+    try:
+        probe = copy.deepcopy(data)
+        node = probe
+        for part in field_path:
+            node = node[part]
+        if not isinstance(node, dict):
+            return None
+        node["type"] = "\x00"
+        Mission.model_validate(probe)
+    except ValidationError as exc:
+        for err in exc.errors(include_url=False):
+            if err["type"] == "union_tag_invalid" and _data_path(err["loc"], probe) == field_path:
+                return err.get("ctx", {}).get("expected_tags")
+    except Exception:  # the message just lists no types
+        return None
+    return None
+
+
+def _one_line(message: str) -> str:
+    """A multi-line message from a file loader as one line."""
+    lines = [line.strip() for line in message.splitlines() if line.strip()]
+    if len(lines) > 1 and lines[0].endswith(":"):
+        return f"{lines[0]} " + "; ".join(lines[1:])
+    return "; ".join(lines)
 
 
 def _problem(

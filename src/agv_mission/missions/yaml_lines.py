@@ -29,6 +29,7 @@ def load_with_lines(text: str) -> tuple[Any, dict[FieldPath, int]]:
     node = yaml.compose(text, Loader=yaml.SafeLoader)
     lines: dict[FieldPath, int] = {}
     if node is not None:
+        lines[()] = node.start_mark.line + 1  # where the document itself starts
         _walk(node, (), lines, set())
     return data, lines
 

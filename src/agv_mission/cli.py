@@ -173,8 +173,9 @@ def teleop(
     from agv_mission.maps.recorder import RecorderFileError
     from agv_mission.missions.outputs import make_run_dir
     from agv_mission.missions.teleop import (
+        check_recorder_file,
         load_teleop_mission,
-        open_recorder,
+        open_recorders,
         run_teleop,
         write_teleop_outputs,
     )
@@ -191,28 +192,30 @@ def teleop(
         raise typer.Exit(2) from None
     try:
         if recorder is not None:
-            run_dir, rec = None, open_recorder(None, recorder, append)
+            run_dir, recs = None, open_recorders(loaded, None, recorder, append)
         else:
             if append is not None:
-                open_recorder(Path("."), None, append)  # check it before making a directory
+                check_recorder_file(append)  # before making a directory
             root = output if output is not None else Path(loaded.mission.output)
             name = loaded.name if loaded.name == "teleop" else f"{loaded.name}-teleop"
             run_dir = make_run_dir(root, name)
-            rec = open_recorder(run_dir, None, append)
+            recs = open_recorders(loaded, run_dir, None, append)
     except RecorderFileError as exc:
         err.print(f"[bold red]invalid input[/]: {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from None
-    result = run_teleop(loaded, rec, time_scale=time_scale)
+    result = run_teleop(loaded, recs, time_scale=time_scale)
     if run_dir is not None:
         write_teleop_outputs(run_dir, loaded, result)
     out.print(f"teleop ended ({result.reason}) after {result.sim_time:.1f} sim s", highlight=False)
-    if len(rec) and rec.path.exists():
+    saved = [r for r in recs if len(r) and r.path.exists()]
+    for rec in saved:
+        n = len(rec)
         out.print(
-            f"recorder file: {rec.path} ({len(rec)} entries: {', '.join(rec.labels)})",
+            f"recorder file: {rec.path} ({n} entr{'y' if n == 1 else 'ies'}: {', '.join(rec.labels)})",
             highlight=False,
             markup=False,
         )
-    else:
+    if not saved:
         out.print("nothing recorded; no recorder file written", highlight=False)
     if run_dir is not None:
         out.print(f"run directory: {run_dir}", highlight=False, markup=False)

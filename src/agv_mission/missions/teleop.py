@@ -40,7 +40,7 @@ import sys
 import termios
 import time
 import tty
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -50,7 +50,12 @@ import yaml
 
 from agv_mission.atomic import atomic_write_text
 from agv_mission.geometry import Pose2D
-from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder, RecorderFileError
+from agv_mission.maps.recorder import (
+    RECORDER_FILENAME,
+    LocationRecorder,
+    RecorderFileError,
+    load_entries,
+)
 from agv_mission.maps.rooms import Room
 from agv_mission.missions.loader import LoadedMission, load_mission
 from agv_mission.missions.runner import CONTROL_PERIOD, VelocitySmoother
@@ -275,14 +280,19 @@ class TeleopRobot:
 
 
 def status_line(robot: TeleopRobot, keys: TeleopKeys) -> str:
-    """The live line: sim time, estimated pose, twist, target and room."""
+    """The live line, most important first (an 80-column terminal cuts the end):
+    room, estimated pose, driven twist, contact flag, commanded twist, sim time."""
     e = robot.estimate
     v, w = robot.velocity
-    line = (
-        f"t={robot.time:6.1f} x={e.x:+7.3f} y={e.y:+7.3f} yaw={e.yaw:+6.3f} "
-        f"v={v:+.3f} w={w:+.3f} cmd={keys.v:+.3f}/{keys.w:+.3f} room={robot.room() or '-'}"
+    contact = " CONTACT" if robot.contact else ""
+    return (
+        f"room={robot.room() or '-'} x={_f(e.x)} y={_f(e.y)} yaw={_f(e.yaw)} "
+        f"v={_f(v)} w={_f(w)}{contact} cmd={_f(keys.v)}/{_f(keys.w)} t={robot.time:.1f}"
     )
-    return line + (" CONTACT" if robot.contact else "")
+
+
+def _f(value: float) -> str:
+    return f"{round(value, 3) + 0.0:+.3f}"  # no "-0.000"
 
 
 # --------------------------------------------------------------------------- the terminal
@@ -356,10 +366,14 @@ class KeyInput:
 
 @contextlib.contextmanager
 def _termination_signals() -> Iterator[None]:
-    """SIGTERM / SIGHUP raise :class:`Terminated` (main thread only)."""
+    """SIGTERM / SIGHUP raise :class:`Terminated` (main thread only), once: a second
+    signal does not interrupt the cleanup the first one started."""
+    fired: list[int] = []
 
     def handler(signum: int, frame: Any) -> None:
-        raise Terminated(signum)
+        if not fired:
+            fired.append(signum)
+            raise Terminated(signum)
 
     saved = {}
     for sig in (signal.SIGTERM, signal.SIGHUP):
@@ -409,7 +423,11 @@ class Screen:
             self._write("\r\x1b[K" + self._status + "\r\n")
 
     def _fit(self, text: str) -> str:
-        width = shutil.get_terminal_size((120, 24)).columns
+        """Cut to the terminal's width (one line: the next ``\\r`` must overwrite it all)."""
+        try:
+            width = os.get_terminal_size(self.out.fileno()).columns
+        except (OSError, ValueError, AttributeError):
+            width = shutil.get_terminal_size((80, 24)).columns
         return text[: max(width - 1, 10)]
 
 
@@ -434,90 +452,148 @@ class TeleopResult:
 
 def run_teleop(
     loaded: LoadedMission,
-    recorder: LocationRecorder,
+    recorders: LocationRecorder | Sequence[LocationRecorder],
     *,
     time_scale: float = 1.0,
     stdin_fd: int | None = None,
     out: TextIO | None = None,
     wall_limit: float | None = None,
 ) -> TeleopResult:
-    """Drive ``loaded``'s robot from the keyboard until quit; record into ``recorder``."""
+    """Drive ``loaded``'s robot from the keyboard until quit; record into ``recorders``
+    (every pose into each; the first is the one shown, see :func:`open_recorders`).
+
+    ``time_scale``: simulated seconds per wall second. ``wall_limit``: end the session
+    after that many wall seconds (for scripts). Never leaves the terminal in raw mode.
+    """
     if time_scale <= 0:
         raise ValueError("time_scale must be positive")
+    if isinstance(recorders, LocationRecorder):
+        recorders = [recorders]
     fd = sys.stdin.fileno() if stdin_fd is None else stdin_fd
     screen = Screen(out if out is not None else sys.stdout)
     robot = TeleopRobot(loaded)
-    keys = TeleopKeys.for_limits(robot.limits)
-    recorded: list[str] = []
     reason, signum = "quit", None
     wall_start = time.monotonic()
 
     screen.message(
         f"{HELP}\n{loaded.robot.name} in {loaded.world.name}, localization "
-        f"{loaded.mission.stack.localization.type}, recorder file {recorder.path}"
+        f"{loaded.mission.stack.localization.type}, recorder file "
+        + ", ".join(str(r.path) for r in recorders)
     )
     with _termination_signals(), KeyInput(fd) as term:
+        session = _Session(term, screen, robot, list(recorders))
         try:
-            reason = _loop(term, screen, robot, keys, recorder, recorded, time_scale, wall_limit)
+            reason = session.loop(time_scale, wall_limit)
         except KeyboardInterrupt:
             reason = "interrupted"
         except Terminated as exc:
             reason, signum = "terminated", exc.signum
         finally:
+            robot.sim.set_command(0.0, 0.0)
             term.restore()
             screen.close()
-            if len(recorder) and not recorder.path.exists():
-                recorder.save()  # appended-to entries, nothing new recorded
+            for recorder in recorders:
+                if len(recorder) and not recorder.path.exists():
+                    recorder.save()  # appended-to entries, nothing new recorded
     return TeleopResult(
         reason=reason,
         sim_time=round(robot.time, 6),
         wall_time=round(time.monotonic() - wall_start, 3),
-        recorded=recorded,
+        recorded=session.recorded,
         trajectory=robot.trajectory(),
         signum=signum,
     )
 
 
-def _loop(
-    term: KeyInput,
-    screen: Screen,
-    robot: TeleopRobot,
-    keys: TeleopKeys,
-    recorder: LocationRecorder,
-    recorded: list[str],
-    time_scale: float,
-    wall_limit: float | None,
-) -> str:
-    period = CONTROL_PERIOD / time_scale
-    start = next_tick = time.monotonic()
-    buf = bytearray()
-    screen.status(status_line(robot, keys), robot.time)
-    while True:
-        data = term.read(next_tick - time.monotonic())
-        if data is None:
-            return "end_of_input"
-        buf += data
-        for key in split_keys(buf):
-            action = keys.press(key)
-            if action == "quit":
+class _Session:
+    """The real-time loop: keys in, one control step per tick, the live line out."""
+
+    def __init__(
+        self,
+        term: KeyInput,
+        screen: Screen,
+        robot: TeleopRobot,
+        recorders: list[LocationRecorder],
+    ) -> None:
+        self.term, self.screen, self.robot, self.recorders = term, screen, robot, recorders
+        self.keys = TeleopKeys.for_limits(robot.limits)
+        self.recorded: list[str] = []
+        self.buf = bytearray()
+        self.paused = False
+
+    def loop(self, time_scale: float, wall_limit: float | None) -> str:
+        period = CONTROL_PERIOD / time_scale
+        start = next_tick = time.monotonic()
+        self._show()
+        while True:
+            data = self.term.read(next_tick - time.monotonic())
+            if data:
+                self.buf += data
+            if self._handle_keys():
                 return "quit"
-            if action == "help":
-                screen.message(HELP)
-            elif action == "record":
-                pose = robot.estimate
-                label = _read_label(term, screen, buf)
-                _record(screen, robot, recorder, recorded, label, pose)
-                next_tick = time.monotonic()  # the sim paused: no catch-up burst
-                break  # ``buf`` may have changed under the iterator
-        now = time.monotonic()
-        if now >= next_tick:
-            robot.step(keys.v, keys.w)
-            screen.status(status_line(robot, keys), robot.time)
-            next_tick += period
-            if now - next_tick > period:  # fell behind: drop the backlog
-                next_tick = now
-        if wall_limit is not None and now - start >= wall_limit:
-            return "time_limit"
+            if data is None:
+                return "end_of_input"
+            now = time.monotonic()
+            if self.paused:  # the sim stood still during the label prompt: no catch-up
+                self.paused, next_tick = False, now
+            if now >= next_tick:
+                self.robot.step(self.keys.v, self.keys.w)
+                self._show()
+                next_tick += period
+                if now - next_tick > period:  # fell behind: drop the backlog
+                    next_tick = now
+            if wall_limit is not None and now - start >= wall_limit:
+                return "time_limit"
+
+    def _show(self) -> None:
+        self.screen.status(status_line(self.robot, self.keys), self.robot.time)
+
+    def _handle_keys(self) -> bool:
+        """Act on every whole key in the buffer; True when one of them quits."""
+        while True:
+            for key in split_keys(self.buf):
+                action = self.keys.press(key)
+                if action == "quit":
+                    return True
+                if action == "help":
+                    self.screen.message(HELP)
+                elif action == "record":
+                    pose = self.robot.estimate
+                    self._record(_read_label(self.term, self.screen, self.buf), pose)
+                    self.paused = True
+                    break  # the buffer changed under the iterator: start over
+            else:
+                return False
+
+    def _record(self, label: str | None, pose: Pose2D) -> None:
+        screen = self.screen
+        if not label:
+            screen.message("nothing recorded (no label)")
+            return
+        written, failed = [], []
+        for recorder in self.recorders:
+            try:
+                recorder.record(label, pose)
+                n = len(recorder)
+                written.append(f"{recorder.path} ({n} {'entry' if n == 1 else 'entries'})")
+            except (OSError, ValueError) as exc:
+                failed.append(f"NOT recorded {label!r} in {recorder.path}: {exc}")
+        if written:
+            self.recorded.append(label)
+        text = "\n".join(failed)
+        if not written:
+            screen.message(text)
+            return
+        text = (
+            f"recorded {label!r} at x={pose.x:.3f} y={pose.y:.3f} yaw={pose.yaw:.3f} "
+            f"in {', '.join(written)}" + (f"\n{text}" if text else "")
+        )
+        rooms = self.robot.loaded.rooms
+        room = rooms.get(label)
+        if room is not None and not room.contains(pose.x, pose.y):
+            here = room_at(rooms, pose.x, pose.y)
+            text += f"\nwarning: the robot is not in {label!r} (it is in {here or 'no room'})"
+        screen.message(text)
 
 
 def _read_label(term: KeyInput, screen: Screen, buf: bytearray) -> str | None:
@@ -555,49 +631,25 @@ def _edit(raw: bytes) -> str:
     return "".join(out)
 
 
-def _record(
-    screen: Screen,
-    robot: TeleopRobot,
-    recorder: LocationRecorder,
-    recorded: list[str],
-    label: str | None,
-    pose: Pose2D,
-) -> None:
-    if not label:
-        screen.message("nothing recorded (no label)")
-        return
-    try:
-        path = recorder.record(label, pose)
-    except (OSError, ValueError) as exc:
-        screen.message(f"NOT recorded {label!r}: {exc}")
-        return
-    recorded.append(label)
-    text = (
-        f"recorded {label!r} at x={pose.x:.3f} y={pose.y:.3f} yaw={pose.yaw:.3f} "
-        f"in {path} ({len(recorder)} {'entry' if len(recorder) == 1 else 'entries'})"
-    )
-    room = robot.loaded.rooms.get(label)
-    if room is not None and not room.contains(pose.x, pose.y):
-        here = room_at(robot.loaded.rooms, pose.x, pose.y)
-        text += f"\nwarning: the robot is not in {label!r} (it is in {here or 'no room'})"
-    screen.message(text)
-
-
 # --------------------------------------------------------------------------- outputs
 
 
-def open_recorder(
+def open_recorders(
+    loaded: LoadedMission,
     run_dir: Path | None,
     recorder_file: Path | None = None,
     append: Path | None = None,
-) -> LocationRecorder:
-    """The session's recorder.
+) -> list[LocationRecorder]:
+    """The session's recorders, the one to show first.
 
-    ``recorder_file``: record straight into it, appending to its entries when it exists
-    (as the seed's service does); else ``run_dir/location_recorder.yaml``. ``append``:
-    start from that file's entries instead. Raises
-    :class:`~agv_mission.maps.recorder.RecorderFileError` for a file that is not a recorder
-    file, and for ``append`` naming another file than an existing ``recorder_file``.
+    * ``recorder_file``: record straight into it, appending to its entries when it exists
+      (as the seed's service does); ``append`` may only name that same file.
+    * else ``run_dir/location_recorder.yaml``, starting from ``append``'s entries, or from
+      those of the mission's ``recorder`` file, which is then also updated in place (as
+      ``agv-mission run`` does).
+
+    Raises :class:`~agv_mission.maps.recorder.RecorderFileError` for a file that is not a
+    recorder file or a clash of ``recorder_file`` and ``append``.
     """
     if recorder_file is not None:
         exists = recorder_file.exists()
@@ -608,10 +660,22 @@ def open_recorder(
                 "--recorder appends to an existing file by itself",
             )
         initial = append if append is not None else (recorder_file if exists else None)
-        return LocationRecorder(recorder_file, initial)
+        return [LocationRecorder(recorder_file, initial)]
     if run_dir is None:
-        raise ValueError("open_recorder needs a run directory or a recorder file")
-    return LocationRecorder(run_dir / RECORDER_FILENAME, append)
+        raise ValueError("open_recorders needs a run directory or a recorder file")
+    mission_file = getattr(loaded, "recorder", None)
+    if append is not None:
+        return [LocationRecorder(run_dir / RECORDER_FILENAME, append)]
+    recorders = [LocationRecorder(run_dir / RECORDER_FILENAME, mission_file)]
+    if mission_file is not None:
+        recorders.append(LocationRecorder(mission_file, mission_file))
+    return recorders
+
+
+def check_recorder_file(path: Path) -> None:
+    """Raise :class:`~agv_mission.maps.recorder.RecorderFileError` unless ``path`` is a
+    readable recorder file (before anything is created)."""
+    load_entries(path)
 
 
 def write_teleop_outputs(run_dir: Path, loaded: LoadedMission, result: TeleopResult) -> None:

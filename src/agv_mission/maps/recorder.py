@@ -1,0 +1,221 @@
+"""The location recorder: ``location_recorder.yaml``, one ROS-style pose per room label.
+
+The layout is the contract's (``mission-format.md``, "room record layout"), i.e. what the
+seed's ``rosservice call room_service "kitchen"`` appends from ``amcl_pose``::
+
+    kitchen:
+      position:
+        x: 7.0123
+        y: -2.0051
+        z: 0.0
+      orientation:
+        x: 0.0
+        y: 0.0
+        z: 0.012345
+        w: 0.999924
+
+Every :meth:`LocationRecorder.record` rewrites the whole file atomically (temporary file,
+fsync, rename), so a crash or ``kill -9`` at any moment leaves either the previous file
+or the new one, never a partial one. Recording a label again replaces its entry in place;
+the other entries keep their order.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from agv_mission.atomic import atomic_write_text
+from agv_mission.geometry import Pose2D, quaternion_from_yaw, yaw_from_quaternion
+
+RECORDER_FILENAME = "location_recorder.yaml"
+
+POSITION_DECIMALS = 4  # 0.1 mm
+ORIENTATION_DECIMALS = 6  # yaw to about 2e-6 rad
+QUATERNION_TOLERANCE = 1e-3  # as for mission poses
+
+POSITION_KEYS = ("x", "y", "z")
+ORIENTATION_KEYS = ("x", "y", "z", "w")
+
+# libyaml's emitter when present (same text, several times faster than pure Python)
+_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+
+Entry = dict[str, dict[str, float]]  # {"position": {x, y, z}, "orientation": {x, y, z, w}}
+
+
+class RecorderFileError(ValueError):
+    """A recorder file that cannot be read or is not in the contract's layout."""
+
+    def __init__(self, path: str | os.PathLike[str], message: str) -> None:
+        self.path = Path(path)
+        self.message = message
+        super().__init__(f"{self.path}: {message}")
+
+
+def _round(value: float, decimals: int) -> float:
+    return round(float(value), decimals) + 0.0  # + 0.0 turns -0.0 into 0.0
+
+
+def pose_entry(pose: Pose2D) -> Entry:
+    """The contract's layout of a planar pose (z = 0, rotation about +z only)."""
+    qx, qy, qz, qw = quaternion_from_yaw(pose.yaw)
+    if qw < 0.0:  # one of the two equal quaternions, w >= 0 as tf gives it
+        qz, qw = -qz, -qw
+    return {
+        "position": {
+            "x": _round(pose.x, POSITION_DECIMALS),
+            "y": _round(pose.y, POSITION_DECIMALS),
+            "z": 0.0,
+        },
+        "orientation": {
+            "x": _round(qx, ORIENTATION_DECIMALS),
+            "y": _round(qy, ORIENTATION_DECIMALS),
+            "z": _round(qz, ORIENTATION_DECIMALS),
+            "w": _round(qw, ORIENTATION_DECIMALS),
+        },
+    }
+
+
+def entry_pose(entry: Entry) -> Pose2D:
+    """The planar pose of an entry (its yaw about +z)."""
+    p, q = entry["position"], entry["orientation"]
+    return Pose2D(p["x"], p["y"], yaw_from_quaternion(q["x"], q["y"], q["z"], q["w"]))
+
+
+def dump_entries(entries: dict[str, Entry]) -> str:
+    """YAML text of ``entries`` in the contract's layout and key order."""
+    if not entries:
+        return "{}\n"
+    doc = {
+        label: {
+            "position": {k: float(e["position"][k]) for k in POSITION_KEYS},
+            "orientation": {k: float(e["orientation"][k]) for k in ORIENTATION_KEYS},
+        }
+        for label, e in entries.items()
+    }
+    return yaml.dump(
+        doc, Dumper=_DUMPER, sort_keys=False, default_flow_style=False, allow_unicode=True
+    )
+
+
+def parse_entries(text: str, path: str | os.PathLike[str] = "<text>") -> dict[str, Entry]:
+    """Entries of a recorder file's text; :class:`RecorderFileError` names what is wrong."""
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}: " if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise RecorderFileError(path, f"{where}invalid YAML: {problem}") from None
+    if doc is None:
+        return {}
+    if not isinstance(doc, dict):
+        raise RecorderFileError(
+            path,
+            f"expected a mapping of room labels to poses, got {type(doc).__name__}",
+        )
+    entries: dict[str, Entry] = {}
+    for label, value in doc.items():
+        if not isinstance(label, str) or not label:
+            raise RecorderFileError(
+                path, f"label {label!r} is not a non-empty string (quote it in the file)"
+            )
+        entries[label] = _parse_entry(path, label, value)
+    return entries
+
+
+def _parse_entry(path: str | os.PathLike[str], label: str, value: Any) -> Entry:
+    def bad(message: str) -> RecorderFileError:
+        return RecorderFileError(path, f"{label}: {message}")
+
+    if not isinstance(value, dict) or set(value) != {"position", "orientation"}:
+        got = sorted(map(str, value)) if isinstance(value, dict) else type(value).__name__
+        raise bad(f"expected exactly the keys position and orientation, got {got}")
+    entry: Entry = {}
+    for part, keys in (("position", POSITION_KEYS), ("orientation", ORIENTATION_KEYS)):
+        block = value[part]
+        if not isinstance(block, dict) or set(block) != set(keys):
+            got = sorted(map(str, block)) if isinstance(block, dict) else type(block).__name__
+            raise bad(f"{part}: expected exactly the keys {', '.join(keys)}, got {got}")
+        numbers = {}
+        for k in keys:
+            v = block[k]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise bad(f"{part}.{k}: expected a finite number, got {v!r}")
+            numbers[k] = float(v)
+        entry[part] = numbers
+    q = entry["orientation"]
+    norm = math.sqrt(sum(v * v for v in q.values()))
+    if abs(norm - 1.0) > QUATERNION_TOLERANCE:
+        raise bad(f"orientation: quaternion has length {norm:.6f}; expected unit length")
+    return entry
+
+
+def load_entries(path: str | os.PathLike[str]) -> dict[str, Entry]:
+    """Read a recorder file (see :func:`parse_entries`)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise RecorderFileError(path, "recorder file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RecorderFileError(path, f"cannot read recorder file: {exc}") from None
+    return parse_entries(text, path)
+
+
+class LocationRecorder:
+    """Records poses under room labels into ``path``.
+
+    ``initial``: an existing recorder file whose entries are kept and appended to (it may
+    be ``path`` itself, as the seed's service appends to its own file). Loading checks the
+    layout and raises :class:`RecorderFileError` naming the file, the label and the field.
+    Nothing is written until the first :meth:`record` (or :meth:`save`).
+    """
+
+    def __init__(
+        self, path: str | os.PathLike[str], initial: str | os.PathLike[str] | None = None
+    ) -> None:
+        self.path = Path(path)
+        self._entries: dict[str, Entry] = load_entries(initial) if initial is not None else {}
+
+    @property
+    def entries(self) -> dict[str, Pose2D]:
+        """``{label: pose}`` in file order (a copy)."""
+        return {label: entry_pose(e) for label, e in self._entries.items()}
+
+    @property
+    def labels(self) -> list[str]:
+        return list(self._entries)
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def __contains__(self, label: object) -> bool:
+        return label in self._entries
+
+    def record(self, label: str, pose: Pose2D) -> Path:
+        """Store ``pose`` under ``label`` and rewrite the file atomically; returns the path.
+
+        A new label is appended; a known one is replaced where it stands.
+        """
+        if not isinstance(label, str) or not label.strip():
+            raise ValueError("a room label must be a non-empty string")
+        if not all(math.isfinite(v) for v in (pose.x, pose.y, pose.yaw)):
+            raise ValueError(f"cannot record a non-finite pose {pose}")
+        entries = dict(self._entries)
+        entries[label] = pose_entry(pose)
+        atomic_write_text(self.path, dump_entries(entries))
+        self._entries = entries  # only once the file holds it
+        return self.path
+
+    def save(self) -> Path:
+        """Write the current entries (e.g. those appended to) atomically."""
+        atomic_write_text(self.path, dump_entries(self._entries))
+        return self.path
+
+    def to_yaml(self) -> str:
+        return dump_entries(self._entries)

@@ -25,6 +25,7 @@ out = Console(soft_wrap=True)
 err = Console(stderr=True, soft_wrap=True)
 
 DEMO_MISSION = "visit_rooms.yaml"
+EXIT_CODES = {"succeeded": 0, "failed": 1, "error": 1, "aborted": 130}
 
 
 def _report_invalid(exc: MissionError) -> None:
@@ -81,7 +82,7 @@ def run(
         )
     result = write_run(run_dir, loaded, record)
     _summary(result)
-    raise typer.Exit(0 if record.status == "succeeded" else 1)
+    raise typer.Exit(EXIT_CODES.get(record.status, 1))
 
 
 def _summary(result: dict) -> None:
@@ -306,10 +307,11 @@ def regress(
             err.print(f"[bold red]invalid input[/]: {escape(str(exc))}", highlight=False)
             raise typer.Exit(2) from None
     elapsed = time.perf_counter() - started
-    width = None if out.is_terminal else 240  # CI logs: do not squeeze the tables to 80
-    out.print(rg.results_table(results, len(plan.variants), seeds), width=width)
+    # Not a terminal (CI logs, pipes): do not squeeze the tables into 80 columns.
+    tables = out if out.is_terminal else Console(soft_wrap=True, width=240)
+    tables.print(rg.results_table(results, len(plan.variants), seeds))
     if len(plan.variants) > 1 or seeds > 1:
-        out.print(rg.comparison_table(rg.compare(results)), width=width)
+        tables.print(rg.comparison_table(rg.compare(results)))
     rg.write_reports(results, plan, elapsed, backend, n_workers, junit, json_)
     failed = [r for r in results if not r["passed"]]
     colour = "red" if failed else "green"

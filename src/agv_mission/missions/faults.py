@@ -62,6 +62,14 @@ class FaultInjector:
                 return None
         return scan
 
+    def describe_fired(self) -> str:
+        """``"kidnap at 30 s, lidar_dropout from 0 s"``: the faults that fired, for reasons."""
+        return ", ".join(
+            f"{log['type']} {'at' if log['type'] == 'kidnap' else 'from'} {log['first']:g} s"
+            for log in self.fired
+            if log["fired"]
+        )
+
     def report(self) -> list[dict[str, Any]]:
         """Each fault of the mission: whether it fired, when first, and how often."""
         return [dict(log) for log in self.fired]

@@ -89,6 +89,7 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Circle, Polygon
 
     grid = loaded.world.map
     xmin, xmax, ymin, ymax = grid.extent
@@ -120,6 +121,15 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
             alpha=0.6,
             label="planned paths" if i == 0 else None,
         )
+    for i, o in enumerate(loaded.mission.obstacles):
+        label = "unmapped obstacles" if i == 0 else None
+        if o.type == "cylinder":
+            ax.add_patch(Circle((o.x, o.y), o.radius, color="tab:red", alpha=0.6, label=label))
+        else:
+            c, s = np.cos(o.yaw), np.sin(o.yaw)
+            corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * [o.size_x / 2, o.size_y / 2]
+            xy = corners @ np.array([[c, s], [-s, c]]) + [o.x, o.y]
+            ax.add_patch(Polygon(xy, closed=True, color="tab:red", alpha=0.6, label=label))
     snapshots = record.particle_snapshots
     if snapshots:
         picks = sorted(

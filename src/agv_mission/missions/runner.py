@@ -159,6 +159,7 @@ class MissionRun:
         """One control step; False once the mission has ended."""
         sim, handle, state = self.sim, self.handle, self.handle.state
         now = sim.time
+        state.time = now
         self.faults.apply(now, handle)
         odom_pose = self.odometry.update(*sim.encoder_ticks())
         scan = None
@@ -199,6 +200,9 @@ class MissionRun:
 
     def end(self, status: str, reason: str | None) -> bool:
         if self.status is None:
+            fired = self.faults.describe_fired()
+            if status == "failed" and fired:
+                reason = f"{reason} (faults fired: {fired})"
             self.status, self.reason = status, reason
             self.sim.set_command(0.0, 0.0)
         return False
@@ -246,6 +250,7 @@ class MissionRun:
         if self.status in ("aborted", "error"):
             self.task_status = ["aborted" if s == "running" else s for s in self.task_status]
         tasks = _task_reports(self.mission, self.tree, self.task_status, self.handle.events)
+        _add_true_errors(tasks, trajectory)
         metrics = _metrics(
             trajectory,
             self.navigator,
@@ -254,6 +259,11 @@ class MissionRun:
             sim_time,
             wall_time,
         )
+        recoveries: dict[str, int] = {}
+        for e in self.handle.events:
+            if e["event"] == "recovery":
+                recoveries[e["kind"]] = recoveries.get(e["kind"], 0) + 1
+        metrics["navigation"]["recoveries"] = recoveries
         extras: dict[str, Any] = {"collisions": self.collisions, "faults": self.faults.report()}
         if self.handle.recorded:
             extras["rooms_recorded"] = {
@@ -335,6 +345,19 @@ def _task_reports(
             report["rooms"] = [_room_report(room, mine) for room in task.rooms]
         reports.append(report)
     return reports
+
+
+def _add_true_errors(tasks: list[dict[str, Any]], trajectory: np.ndarray) -> None:
+    """Where the robot truly was when it believed a waypoint reached (simulation only)."""
+    if not len(trajectory):
+        return
+    for task in tasks:
+        for wp in task.get("waypoints", []):
+            if wp["status"] != "reached":
+                continue
+            row = trajectory[int(np.argmin(np.abs(trajectory[:, 0] - wp["t"])))]
+            wp["true_x"], wp["true_y"] = round(float(row[1]), 4), round(float(row[2]), 4)
+            wp["estimate_error"] = round(float(np.hypot(row[1] - wp["x"], row[2] - wp["y"])), 4)
 
 
 def _room_report(room: str, events: list[dict[str, Any]]) -> dict[str, Any]:

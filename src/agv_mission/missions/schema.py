@@ -116,14 +116,25 @@ class Stack(StrictModel):
     navigation: NavigationConfig = Field(default_factory=NavigationConfig)
 
 
-class GoToTask(StrictModel):
+class FailurePolicy(StrictModel):
+    """What a failed goal does to its task (patrol: to each waypoint; visit_rooms: each room)."""
+
+    on_failure: Literal["abort", "skip", "retry"] = Field(
+        "abort",
+        description="abort: the mission fails; skip: record the failure and go on; "
+        "retry: try again `retries` times, then abort",
+    )
+    retries: int = Field(1, ge=1, description="extra attempts with on_failure: retry")
+
+
+class GoToTask(FailurePolicy):
     """Navigate to one pose."""
 
     type: Literal["go_to"]
     pose: Pose
 
 
-class PatrolTask(StrictModel):
+class PatrolTask(FailurePolicy):
     """Visit the waypoints in order, ``loops`` times, waiting ``dwell`` seconds at each."""
 
     type: Literal["patrol"]
@@ -145,7 +156,7 @@ class WanderTask(StrictModel):
     )
 
 
-class VisitRoomsTask(StrictModel):
+class VisitRoomsTask(FailurePolicy):
     """Go into each room in order (its anchor, or a free point well inside it)."""
 
     type: Literal["visit_rooms"]
@@ -174,6 +185,76 @@ StartSpec = Annotated[
 
 class Limits(StrictModel):
     time: float = Field(600.0, gt=0.0, description="simulated seconds for the whole mission")
+    collisions: int = Field(0, ge=0, description="collisions allowed before the mission fails")
+
+
+class BoxObstacle(StrictModel):
+    """An unmapped box: present in the simulation, absent from the robot's map."""
+
+    type: Literal["box"]
+    x: float
+    y: float
+    size_x: float = Field(gt=0, description="full length along its own x, m")
+    size_y: float = Field(gt=0, description="full width along its own y, m")
+    yaw: float = 0.0
+
+
+class CylinderObstacle(StrictModel):
+    """An unmapped cylinder (a person, a bin): in the simulation, not on the map."""
+
+    type: Literal["cylinder"]
+    x: float
+    y: float
+    radius: float = Field(gt=0)
+
+
+Obstacle = Annotated[Union[BoxObstacle, CylinderObstacle], Field(discriminator="type")]  # noqa: UP007
+
+
+class Window(StrictModel):
+    start: float = Field(0.0, ge=0.0, description="simulated seconds")
+    end: float | None = Field(None, gt=0.0, description="simulated seconds; None: to the end")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Window:
+        if self.end is not None and self.end <= self.start:
+            raise ValueError(f"end ({self.end:g}) must come after start ({self.start:g})")
+        return self
+
+
+class LidarDropoutFault(Window):
+    """Scans are lost with probability ``rate`` inside the window."""
+
+    type: Literal["lidar_dropout"]
+    rate: float = Field(1.0, gt=0.0, le=1.0)
+
+
+class WheelSlipFault(Window):
+    """The wheels slip: each encoder read is off by up to ``factor`` of the travel."""
+
+    type: Literal["wheel_slip"]
+    factor: float = Field(gt=0.0, le=1.0)
+
+
+class OdometryNoiseFault(Window):
+    """Encoder noise multiplied by ``scale`` (added as ``0.01 * scale`` when it is off)."""
+
+    type: Literal["odometry_noise"]
+    scale: float = Field(gt=0.0)
+
+
+class KidnapFault(StrictModel):
+    """The robot is carried to ``pose`` at ``time`` (the localiser is not told)."""
+
+    type: Literal["kidnap"]
+    time: float = Field(gt=0.0, description="simulated seconds")
+    pose: Pose
+
+
+Fault = Annotated[
+    Union[LidarDropoutFault, WheelSlipFault, OdometryNoiseFault, KidnapFault],  # noqa: UP007
+    Field(discriminator="type"),
+]
 
 
 class Mission(StrictModel):
@@ -194,6 +275,10 @@ class Mission(StrictModel):
     simulation: SimConfig = Field(default_factory=SimConfig)
     tasks: list[Task] = Field(min_length=1)
     limits: Limits = Field(default_factory=Limits)
+    obstacles: list[Obstacle] = Field(
+        default_factory=list, description="unmapped obstacles, in the simulation only"
+    )
+    faults: list[Fault] = Field(default_factory=list, description="faults to inject")
     recorder: str | None = Field(
         None,
         description="an existing location_recorder.yaml to append to (updated in place; "

@@ -43,6 +43,6 @@ class RobotHandle:
         self.recorded[label] = pose
         return pose
 
-    def log(self, kind: str, **details: Any) -> None:
+    def log(self, event: str, **details: Any) -> None:
         """Record something that happened, stamped with simulated time."""
-        self.events.append({"t": round(self.state.time, 3), "event": kind, **details})
+        self.events.append({"t": round(self.state.time, 3), "event": event, **details})

@@ -17,6 +17,7 @@ import numpy as np
 from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.obstacle_layer import ObstacleLayer
+from agv_mission.maps.rooms import reachable_cells
 from agv_mission.messages import LaserScan
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.state import RobotState
@@ -226,6 +227,12 @@ class Navigator:
         self.stats.plans += 1
         start = state.estimate
         escape = self._escape_point(start)
+        if not self._connected(escape or start, self.goal):
+            self._fail(
+                f"goal ({self.goal.x:.2f}, {self.goal.y:.2f}) is unreachable: no free corridor "
+                f"leads there from ({start.x:.2f}, {start.y:.2f}) on the map and the obstacles seen"
+            )
+            return False
         try:
             path = self.global_planner.plan(self.costmap, escape or start, self.goal, seed=seed)
         except PlanningError as exc:
@@ -238,6 +245,18 @@ class Navigator:
         self.stats.planning_times.append(path.planning_time)
         self.stats.path_lengths.append(path.length)
         return True
+
+    def _connected(self, start: Pose2D, goal: Pose2D) -> bool:
+        """Whether free space (with the planners' margin) joins start and goal: a cheap
+        check that spares a sampling planner its whole time budget on a hopeless query."""
+        margin = float(getattr(self.global_planner.config, "clearance", 0.0))
+        cells = reachable_cells(self.costmap, start, margin)
+        rows, cols = self.costmap.grid.world_to_cell(np.array([goal.x, goal.y]))
+        if not self.costmap.grid.in_bounds(rows, cols) or not cells.any():
+            return True  # let the planner report what is wrong with start or goal
+        return bool(cells[int(rows), int(cols)]) or not bool(
+            self.costmap.is_free(np.array([goal.x, goal.y]), margin)
+        )
 
     def _escape_point(self, pose: Pose2D) -> Pose2D | None:
         """The nearest comfortably free point when the robot stands inside the margin the

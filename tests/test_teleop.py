@@ -8,8 +8,8 @@ import shlex
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
-import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -163,8 +163,8 @@ TMUX = shutil.which("tmux")
 class Tmux:
     """One detached tmux session on a private server, read with capture-pane."""
 
-    def __init__(self, socket: str, session: str) -> None:
-        self.base = [TMUX or "tmux", "-L", socket, "-f", "/dev/null"]
+    def __init__(self, socket: Path, session: str) -> None:
+        self.base = [TMUX or "tmux", "-S", str(socket), "-f", "/dev/null"]
         self.session = session
 
     def run(self, *args: str) -> str:
@@ -202,9 +202,13 @@ class Tmux:
 def tmux(tmp_path: Path) -> Iterator[Tmux]:
     if TMUX is None:
         pytest.skip("tmux is not installed (apt-get install -y tmux): the terminal test needs it")
-    t = Tmux(f"agv-test-{uuid.uuid4().hex[:8]}", "teleop")
-    yield t
-    t.run("kill-server")
+    sockets = Path(tempfile.mkdtemp(prefix="agv-tmux-"))  # short: a socket path has a limit
+    t = Tmux(sockets / "socket", "teleop")
+    try:
+        yield t
+    finally:
+        t.run("kill-server")
+        shutil.rmtree(sockets, ignore_errors=True)
 
 
 def _start(tmux: Tmux, tmp_path: Path, *args: str) -> None:

@@ -22,6 +22,10 @@ test: $(STAMP)
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 -m slow
 
+regress: $(STAMP)
+	$(BIN)/agv-mission regress tests/scenarios --output runs/regress \
+		--junit runs/regress/junit.xml --json runs/regress/summary.json
+
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run.py
 

@@ -1,0 +1,391 @@
+"""Scenario regression: expectations, sweeps, the process-pool and Ray backends, reports.
+
+The fast scenarios (``tests/scenarios/*.yaml``) run here through the regress machinery;
+the long ones (``tests/scenarios/slow/``) run under ``-m slow`` and ``make regress``.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+from pydantic import ValidationError
+
+from agv_mission.missions import regress as rg
+from agv_mission.missions.expectations import Expectations, Failure, check
+
+REPO = Path(__file__).resolve().parents[1]
+SCENARIOS = REPO / "tests" / "scenarios"
+FAST = sorted(SCENARIOS.glob("*.yaml"))
+SLOW = SCENARIOS / "slow"
+EXE = [sys.executable, "-m", "agv_mission.cli"]
+
+# Short scenarios for the backend comparisons: one per localiser / controller kind.
+SHORT = [SCENARIOS / "go_to_tb3.yaml", SCENARIOS / "wander_tb3_odometry.yaml"]
+
+
+def result_doc(**over) -> dict:
+    doc = {
+        "status": "succeeded",
+        "reason": None,
+        "sim_time": 20.0,
+        "tasks": [
+            {
+                "index": 1,
+                "type": "patrol",
+                "status": "succeeded",
+                "reason": None,
+                "waypoints": [{"status": "reached"}, {"status": "reached"}],
+            },
+            {"index": 2, "type": "record_room", "status": "succeeded", "reason": None},
+        ],
+        "metrics": {
+            "distance_driven": 5.0,
+            "collisions": 0,
+            "min_clearance": 0.1,
+            "localization": {"position_rmse": 0.05},
+        },
+        "rooms_recorded": {"kitchen": {"x": 1.0, "y": 2.0, "yaw": 0.0}},
+    }
+    doc.update(over)
+    return doc
+
+
+# ------------------------------------------------------------------------ expectations
+
+
+def test_expectations_met() -> None:
+    e = Expectations(
+        status="succeeded",
+        tasks=["succeeded", None],
+        sim_time_max=30,
+        collisions_max=0,
+        min_clearance_min=0.05,
+        distance_driven_max=10,
+        localization_rmse_max=0.1,
+        rooms_recorded=["kitchen"],
+        waypoints_reached=2,
+    )
+    assert check(e, result_doc()) == []
+    assert check(Expectations(tasks={2: "succeeded"}), result_doc()) == []
+
+
+def test_no_expect_block_means_succeeded() -> None:
+    assert check(None, result_doc()) == []
+    (f,) = check(None, result_doc(status="failed", reason="task 1 (go_to) failed: blocked"))
+    assert f.metric == "status" and "blocked" in str(f.actual)
+
+
+def test_failures_name_the_metric_and_by_how_much() -> None:
+    doc = result_doc(sim_time=42.5)
+    doc["metrics"]["collisions"] = 3
+    doc["metrics"]["localization"]["position_rmse"] = 0.25
+    e = Expectations(
+        sim_time_max=30,
+        collisions_max=1,
+        localization_rmse_max=0.1,
+        min_clearance_min=0.2,
+        waypoints_reached=4,
+        rooms_recorded=["kitchen", "bedroom"],
+        tasks=["succeeded", "failed"],
+    )
+    by = {f.metric: f for f in check(e, doc)}
+    assert set(by) == {
+        "sim_time_max",
+        "collisions_max",
+        "localization_rmse_max",
+        "min_clearance_min",
+        "waypoints_reached",
+        "rooms_recorded",
+        "tasks.2",
+    }
+    assert by["sim_time_max"].by == pytest.approx(12.5)
+    assert by["collisions_max"].by == 2
+    assert by["localization_rmse_max"].by == pytest.approx(0.15)
+    assert by["min_clearance_min"].by == pytest.approx(0.1)
+    assert by["waypoints_reached"].by == 2
+    assert "bedroom" in str(by["rooms_recorded"].actual)
+    text = str(by["sim_time_max"])
+    assert "sim_time_max" in text and "42.5" in text and "<= 30" in text and "12.5" in text
+    assert by["tasks.2"].to_dict()["message"].startswith("tasks.2:")
+
+
+def test_expected_failure_and_reason() -> None:
+    doc = result_doc(status="failed", reason="time limit of 5 s reached during task 1 (patrol)")
+    assert check(Expectations(status="failed", reason_contains="time limit"), doc) == []
+    (f,) = check(Expectations(status="failed", reason_contains="collision"), doc)
+    assert f.metric == "reason_contains"
+
+
+def test_map_iou_and_missing_metrics() -> None:
+    e = Expectations(map_iou_min=0.8)
+    assert check(e, result_doc()) == [Failure("map_iou_min", ">= 0.8", "no map reported")]
+    doc = result_doc()
+    doc["metrics"]["map"] = {"iou": 0.9}
+    assert check(e, doc) == []
+    doc["tasks"][1]["iou"] = 0.7
+    (f,) = check(e, doc)
+    assert f.by == pytest.approx(0.1)
+    doc = result_doc()
+    doc["metrics"]["min_clearance"] = None
+    (f,) = check(Expectations(min_clearance_min=0.0), doc)
+    assert f.actual is None and f.by is None
+    (f,) = check(Expectations(tasks=["succeeded"]), result_doc())
+    assert f.metric == "tasks" and f.actual == "2 task(s)"
+
+
+def test_expectations_are_strict() -> None:
+    with pytest.raises(ValidationError):
+        Expectations.model_validate({"sim_time": 3})
+    with pytest.raises(ValidationError):
+        Expectations.model_validate({"status": "maybe"})
+
+
+# ------------------------------------------------------------------ discovery, variants
+
+
+def test_discovery_skips_non_missions_and_recurses(tmp_path: Path) -> None:
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "rooms.yaml").write_text("rooms: {}\n")
+    (tmp_path / "a.yaml").write_text("tasks: []\n")
+    (tmp_path / "sub" / "b.yaml").write_text("tasks: []\n")
+    (tmp_path / "notes.txt").write_text("tasks: []\n")
+    found = rg.discover([tmp_path])
+    assert [p.name for p in found] == ["a.yaml", "b.yaml"]
+    assert rg.discover([tmp_path / "rooms.yaml"]) == [(tmp_path / "rooms.yaml").resolve()]
+    with pytest.raises(rg.RegressError, match="no such file"):
+        rg.discover([tmp_path / "nope"])
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(rg.RegressError, match="no scenario files"):
+        rg.discover([tmp_path / "empty"])
+
+
+def test_scenario_suite_is_valid_and_covers_the_stack() -> None:
+    from agv_mission.missions.loader import load_mission
+
+    suite = rg.discover([SCENARIOS])
+    loaded = [load_mission(p) for p in suite]
+    missions = [x.mission for x in loaded]
+    assert all(m.expect is not None for m in missions)
+    tasks = {t.type for m in missions for t in m.tasks}
+    assert {"go_to", "patrol", "wander", "visit_rooms", "record_room"} <= tasks
+    worlds = {Path(m.world).parent.name or m.world for m in missions}
+    assert {"turtlebot3_world", "small_house", "aws_small_house"} <= worlds
+    assert sum("ros_maps" in m.world for m in missions) >= 2
+    assert {m.stack.localization.type for m in missions} >= {"ground_truth", "odometry", "amcl"}
+    assert {m.stack.local_planner.type for m in missions} == {"mpc", "pure_pursuit"}
+    assert {m.stack.global_planner.type for m in missions} == {"ompl", "grid_astar"}
+    planners = {
+        m.stack.global_planner.planner for m in missions if m.stack.global_planner.type == "ompl"
+    }
+    assert len(planners) >= 4
+    assert any(m.expect.status == "failed" for m in missions)  # a fault case
+    assert len(FAST) >= 6 and all(
+        m.limits.time <= 60 for m, p in zip(missions, suite, strict=True) if p in FAST
+    )
+
+
+def test_sweeps_are_cartesian_and_yaml_aware() -> None:
+    assert rg.expand_variants([]) == [rg.Variant("")]
+    vs = rg.expand_variants(
+        [
+            "stack.global_planner.planner=RRTConnect,RRTstar,BITstar",
+            "stack.local_planner.type=mpc,pure_pursuit",
+        ]
+    )
+    assert len(vs) == 6
+    assert vs[0] == rg.Variant(
+        "planner=RRTConnect type=mpc",
+        ("stack.global_planner.planner=RRTConnect", "stack.local_planner.type=mpc"),
+    )
+    key, values = rg.parse_sweep("tasks.0.pose={x: 1, y: 2},{x: 3, y: 4}, 'a,b'")
+    assert key == "tasks.0.pose" and values == ["{x: 1, y: 2}", "{x: 3, y: 4}", "'a,b'"]
+    same_leaf = rg.expand_variants(["a.type=x", "b.type=y"])
+    assert same_leaf[0].label == "a.type=x b.type=y"
+    for bad in (["nokey"], ["=1,2"], ["a=1,,2"], ["a=1", "a=2"]):
+        with pytest.raises(rg.RegressError):
+            rg.expand_variants(bad)
+
+
+def test_plan_seeds_follow_the_mission_seed(tmp_path: Path) -> None:
+    plan = rg.plan_jobs(
+        [SCENARIOS / "go_to_tb3.yaml"],
+        ["stack.local_planner.type=mpc,pure_pursuit"],
+        seeds=3,
+        output_root=tmp_path,
+    )
+    assert len(plan.jobs) == 6 and not plan.problems
+    assert sorted({j["seed"] for j in plan.jobs}) == [1, 2, 3]  # the scenario's seed is 1
+    assert all(Path(j["output_root"]) == tmp_path.resolve() for j in plan.jobs)
+    swept = rg.plan_jobs([SCENARIOS / "go_to_tb3.yaml"], ["seed=10"], seeds=2, output_root=tmp_path)
+    assert [j["seed"] for j in swept.jobs] == [10, 11]
+    bad = rg.plan_jobs(
+        [SCENARIOS / "go_to_tb3.yaml"], ["stack.global_planner.planner=Nope"], output_root=tmp_path
+    )
+    assert not bad.jobs and "Nope" in str(bad.problems[0])
+
+
+# --------------------------------------------------------------------- running suites
+
+
+def _plain(results: list[dict]) -> list[dict]:
+    return [rg.deterministic_view(r) for r in results]
+
+
+def test_fast_scenarios_pass(tmp_path: Path) -> None:
+    """The fast half of tests/scenarios, through the regress machinery, 2 workers."""
+    plan = rg.plan_jobs(FAST, output_root=tmp_path / "runs")
+    assert not plan.problems
+    seen: list[int] = []
+    results = rg.run_jobs(plan.jobs, "local", 2, on_result=lambda r, done, total: seen.append(done))
+    assert seen == list(range(1, len(plan.jobs) + 1))
+    failed = {r["name"]: rg.failure_text(r) or r["error"] for r in results if not r["passed"]}
+    assert not failed, failed
+    for r in results:
+        assert (Path(r["run_dir"]) / "result.json").is_file()
+        assert Path(r["run_dir"]).parent == tmp_path / "runs"
+    rg.write_reports(results, plan, 1.0, "local", 2, tmp_path / "j.xml", tmp_path / "s.json")
+    suite = ET.parse(tmp_path / "j.xml").getroot()
+    assert suite.get("tests") == str(len(FAST)) and suite.get("failures") == "0"
+    doc = json.loads((tmp_path / "s.json").read_text())
+    assert doc["passed"] and doc["counts"]["runs"] == len(FAST)
+
+
+@pytest.mark.slow
+def test_slow_scenarios_pass(tmp_path: Path) -> None:
+    plan = rg.plan_jobs([SLOW], output_root=tmp_path)
+    results = rg.run_jobs(plan.jobs, "local", 2)
+    failed = {r["name"]: rg.failure_text(r) or r["error"] for r in results if not r["passed"]}
+    assert not failed, failed
+
+
+def test_parallel_runs_equal_serial_runs(tmp_path: Path) -> None:
+    """Process-pool workers reproduce the in-process runs (wall-clock keys aside)."""
+    plan = rg.plan_jobs(SHORT, ["stack.local_planner.type=mpc,pure_pursuit"], 1, tmp_path)
+    serial = rg.run_jobs(plan.jobs, "local", 1)
+    parallel = rg.run_jobs(plan.jobs, "local", 2)
+    assert [r["status"] for r in serial] == [r["status"] for r in parallel]
+    assert _plain(serial) == _plain(parallel)
+    assert {r["variant"] for r in serial} == {"type=mpc", "type=pure_pursuit"}
+
+
+def test_sweep_comparison(tmp_path: Path) -> None:
+    plan = rg.plan_jobs(
+        [SCENARIOS / "go_to_tb3.yaml"],
+        ["stack.global_planner.planner=RRTConnect,BITstar"],
+        seeds=2,
+        output_root=tmp_path,
+    )
+    results = rg.run_jobs(plan.jobs, "local", 2)
+    rows = rg.compare(results)
+    assert [r["variant"] for r in rows] == ["planner=RRTConnect", "planner=BITstar"]
+    for row in rows:
+        assert row["runs"] == 2 and row["success_rate"] == 1.0
+        assert row["sim_time_mean"] > 0 and row["sim_time_p95"] >= row["sim_time_mean"] - 1e-9
+        assert row["path_length_mean"] > 0 and row["min_clearance_min"] is not None
+        assert row["solve_ms_p50_mean"] is not None
+    from rich.console import Console
+
+    console = Console(width=200, record=True)
+    console.print(rg.comparison_table(rows))
+    text = console.export_text()
+    assert "planner=BITstar" in text and "100%" in text
+
+
+def test_ray_backend_matches_local(tmp_path: Path) -> None:
+    ray = pytest.importorskip("ray", reason="ray not installed (pip install 'agv-mission[ray]')")
+    plan = rg.plan_jobs(SHORT, seeds=2, output_root=tmp_path)
+    local = rg.run_jobs(plan.jobs, "local", 1)
+    ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING")
+    try:
+        remote = rg.run_jobs(plan.jobs, "ray", 2)
+    finally:
+        ray.shutdown()
+    assert all(r["error"] is None for r in remote), [r["error"] for r in remote]
+    assert _plain(local) == _plain(remote)
+
+
+def test_ray_backend_missing_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
+    with pytest.raises(rg.RegressError, match=r"pip install 'agv-mission\[ray\]'"):
+        rg.run_jobs([{"id": 0}], "ray", 1)
+
+
+def test_worker_errors_become_error_results(tmp_path: Path) -> None:
+    (job,) = rg.plan_jobs([SCENARIOS / "go_to_tb3.yaml"], output_root=tmp_path).jobs
+    result = rg.run_job({**job, "scenario": str(tmp_path / "gone.yaml")})
+    assert result["status"] == "error" and not result["passed"] and "cannot read" in result["error"]
+    xml = rg.junit_xml([result], rg.Plan([], [], [rg.Variant("")], 1, tmp_path), 0.5)
+    case = ET.fromstring(xml).find(".//testcase")
+    assert case is not None and case.find("error") is not None
+
+
+# ------------------------------------------------------------------------------- CLI
+
+
+def cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([*EXE, *args], capture_output=True, text=True, timeout=600)
+
+
+def test_cli_broken_expectation_exits_1_naming_the_metric(tmp_path: Path) -> None:
+    text = (SCENARIOS / "go_to_tb3.yaml").read_text()
+    broken = tmp_path / "broken.yaml"
+    broken.write_text(text.replace("sim_time_max: 15.0", "sim_time_max: 2.0"))
+    assert broken.read_text() != text
+    junit, summary = tmp_path / "out.xml", tmp_path / "sum.json"
+    r = cli(
+        "regress",
+        str(broken),
+        str(SCENARIOS / "record_room_house.yaml"),
+        "--junit",
+        str(junit),
+        "--json",
+        str(summary),
+        "--output",
+        str(tmp_path / "runs"),
+        "--workers",
+        "2",
+    )
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert "sim_time_max" in r.stdout and "1/2 passed" in r.stdout
+    assert "Traceback" not in r.stdout + r.stderr
+    root = ET.parse(junit).getroot()
+    assert root.get("tests") == "2" and root.get("failures") == "1"
+    failure = root.find(".//testcase/failure")
+    assert failure is not None and "sim_time_max" in failure.get("message", "")
+    assert "off by" in failure.get("message", "")
+    doc = json.loads(summary.read_text())
+    assert not doc["passed"] and doc["counts"] == {
+        "runs": 2,
+        "passed": 1,
+        "failed": 1,
+        "errors": 0,
+        "invalid": 0,
+    }
+    (bad,) = [run for run in doc["runs"] if not run["passed"]]
+    assert bad["failures"][0]["metric"] == "sim_time_max" and bad["failures"][0]["by"] > 0
+
+
+def test_cli_invalid_input_exits_2(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("tasks:\n  - {type: wander, duration: 1}\nexpect:\n  sim_time: 3\n")
+    r = cli("regress", str(bad), "--output", str(tmp_path))
+    assert r.returncode == 2 and "expect.sim_time" in r.stderr and "Traceback" not in r.stderr
+    r = cli("regress", str(tmp_path / "nope"))
+    assert r.returncode == 2 and "no such file" in r.stderr
+    r = cli("regress", str(SCENARIOS / "go_to_tb3.yaml"), "--sweep", "seed")
+    assert r.returncode == 2 and "KEY=V1,V2" in r.stderr
+    r = cli("regress", str(SCENARIOS / "go_to_tb3.yaml"), "--backend", "slurm")
+    assert r.returncode == 2
+
+
+def test_run_ignores_expect(tmp_path: Path) -> None:
+    text = (SCENARIOS / "record_room_house.yaml").read_text()
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(text.replace("sim_time_max: 20.0", "sim_time_max: 0.0"))
+    r = cli("run", str(scenario), "--output", str(tmp_path / "runs"))
+    assert r.returncode == 0, r.stdout + r.stderr

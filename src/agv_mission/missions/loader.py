@@ -91,6 +91,20 @@ def load_mission(
         override_paths[field_path] = item
     if seed is not None:
         data["seed"] = seed
+    bad_keys = _non_string_keys(data)
+    if bad_keys:
+        raise MissionError(
+            [
+                _problem(
+                    file,
+                    p,
+                    f"keys must be strings, got {p[-1]!r} (quote it)",
+                    lines,
+                    override_paths,
+                )
+                for p in bad_keys
+            ]
+        )
 
     try:
         mission = Mission.model_validate(data)
@@ -332,7 +346,9 @@ def _parse_override(file: str, item: str) -> tuple[FieldPath, Any]:
         value = yaml.safe_load(raw) if raw.strip() else None
     except yaml.YAMLError:
         value = raw
-    parts: list[str | int] = [int(p) if p.isdigit() else p for p in key.strip().split(".")]
+    parts: list[str | int] = [
+        int(p) if p.isascii() and p.isdigit() else p for p in key.strip().split(".")
+    ]  # not int("²"): str.isdigit() takes superscripts
     return tuple(parts), value
 
 
@@ -358,7 +374,7 @@ def _apply(data: dict, field_path: FieldPath, value: Any, file: str, item: str) 
                 node = node[part]
         elif isinstance(node, dict):
             key: str | int = part
-            if isinstance(part, int) and part not in node and str(part) in node:
+            if isinstance(part, int) and part not in node:  # a mapping's keys are strings
                 key = str(part)
             if last:
                 if _swaps_plugin(field_path, node, value):
@@ -401,6 +417,26 @@ def _validation_problems(
         seen.add((field_path, message))
         problems.append(_problem(file, field_path, message, lines, override_paths))
     return problems
+
+
+def _non_string_keys(data: Any, limit: int = 10) -> list[tuple[Any, ...]]:
+    """Paths of mapping keys that YAML read as numbers, booleans, null or dates."""
+    found: list[tuple[Any, ...]] = []
+    seen: set[int] = set()
+    stack: list[tuple[Any, tuple[Any, ...]]] = [(data, ())]
+    while stack and len(found) < limit:
+        node, path = stack.pop()
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
+        if isinstance(node, dict):
+            for key, value in node.items():
+                if not isinstance(key, str):
+                    found.append((*path, key))
+                stack.append((value, (*path, key)))
+        elif isinstance(node, list):
+            stack.extend((item, (*path, i)) for i, item in enumerate(node))
+    return sorted(found[:limit], key=str)
 
 
 def _data_path(loc: tuple, data: Any) -> FieldPath:
@@ -485,6 +521,13 @@ def _one_line(message: str) -> str:
     return "; ".join(lines)
 
 
+def _spell(part: Any) -> str:
+    """A path part as YAML spells it (true, not True)."""
+    if isinstance(part, bool) or part is None:
+        return yaml.safe_dump(part).splitlines()[0]
+    return str(part)
+
+
 def _problem(
     file: str,
     field_path: FieldPath,
@@ -492,9 +535,11 @@ def _problem(
     lines: dict[FieldPath, int],
     override_paths: dict[FieldPath, str],
 ) -> Problem:
-    dotted = ".".join(str(p) for p in field_path)
+    dotted = ".".join(_spell(p) for p in field_path)
+    spelled = tuple(map(str, field_path))  # --set tasks.0=... and stack.5=... alike
     for opath, item in override_paths.items():
-        if field_path[: len(opath)] == opath or opath[: len(field_path)] == field_path:
+        o = tuple(map(str, opath))
+        if spelled[: len(o)] == o or o[: len(spelled)] == spelled:
             return Problem(file, None, dotted, f"{message} (from --set {item})")
     return Problem(file, line_of(field_path, lines), dotted, message)
 

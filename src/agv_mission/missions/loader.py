@@ -142,6 +142,13 @@ def _resolve(
     except (OSError, ValueError, RuntimeError) as exc:  # a path the OS refuses
         problem(("world",), f"cannot read world {mission.world!r}: {_os_message(exc)}")
         raise MissionError(problems) from None
+    except MemoryError:
+        problem(
+            ("world",),
+            f"world {mission.world!r} needs a map too large for memory "
+            "(is its resolution too fine for its bounds?)",
+        )
+        raise MissionError(problems) from None
     try:
         robot = load_robot(mission.robot, base_dir)
     except FileNotFoundError:

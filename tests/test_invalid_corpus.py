@@ -139,3 +139,11 @@ def test_bad_set_is_blamed_on_the_override(item: str, field: str, message: str) 
         str(p) for p in problems
     ]
     assert all(p.line is None for p in problems)  # an override has no line in the file
+
+
+def test_bad_seed_option_is_blamed_on_the_option() -> None:
+    with pytest.raises(MissionError) as info:
+        load_mission(DEMO, seed=-3)
+    [p] = info.value.problems
+    assert (p.line, p.field) == (None, "seed")
+    assert p.message.endswith("(from --seed -3)")

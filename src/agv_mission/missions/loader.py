@@ -88,9 +88,10 @@ def load_mission(
     for item in overrides or []:
         field_path, value = _parse_override(file, item)
         _apply(data, field_path, value, file, item)
-        override_paths[field_path] = item
+        override_paths[field_path] = f"--set {item}"
     if seed is not None:
         data["seed"] = seed
+        override_paths[("seed",)] = f"--seed {seed}"
     bad_keys = _non_string_keys(data)
     if bad_keys:
         raise MissionError(
@@ -547,7 +548,7 @@ def _problem(
     for opath, item in override_paths.items():
         o = tuple(map(str, opath))
         if spelled[: len(o)] == o or o[: len(spelled)] == spelled:
-            return Problem(file, None, dotted, f"{message} (from --set {item})")
+            return Problem(file, None, dotted, f"{message} (from {item})")
     return Problem(file, line_of(field_path, lines), dotted, message)
 
 

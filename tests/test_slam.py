@@ -1,0 +1,421 @@
+"""grid SLAM on real MuJoCo scans: scan matching, mapping, drift against odometry,
+frontiers and map quality."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from agv_mission.geometry import Pose2D, wrap_angle, wrap_angles
+from agv_mission.localization.scan_matching import (
+    CorrelativeMatcher,
+    LikelihoodField,
+    sliding_max,
+)
+from agv_mission.localization.slam import GridSlam, GridSlamConfig, trajectory_rmse
+from agv_mission.maps.builtin_worlds import small_house, turtlebot3_world
+from agv_mission.maps.costmap import Costmap
+from agv_mission.maps.frontiers import find_frontiers, frontier_mask, map_quality
+from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
+from agv_mission.maps.worlds import World
+from agv_mission.registry import registry
+from agv_mission.robots.description import BUILTIN_ROBOTS
+from agv_mission.robots.odometry import DiffDriveOdometry
+from agv_mission.robots.simulation import DiffDriveSim, SimConfig
+
+BURGER = BUILTIN_ROBOTS["burger"]
+TB3_BOUNDS = (-3.0, 3.0, -3.0, 3.0)
+# A loop through the pillar field of turtlebot3_world, and back to the first corner.
+TB3_LOOP = ((1.9, -0.55), (1.9, 0.55), (-1.9, 0.55), (-1.9, -0.55), (1.9, -0.55))
+# Odometry noise and slip that make dead reckoning drift by decimetres within a minute.
+NOISY = SimConfig(encoder_noise=0.05, wheel_slip=0.1)
+GARBAGE = Pose2D(-99.0, 99.0, 0.0)  # passed as the "true pose": SLAM must not use it
+
+
+@pytest.fixture(scope="module")
+def tb3() -> World:
+    return turtlebot3_world()
+
+
+@dataclass
+class Drive:
+    slam: GridSlam
+    truth: np.ndarray  # (steps, 3)
+    estimate: np.ndarray  # (steps, 3)
+    odometry: np.ndarray  # (steps, 3), dead reckoning anchored at the start
+
+
+def drive(
+    world: World,
+    waypoints,
+    config: SimConfig,
+    slam_config: GridSlamConfig | None = None,
+    bounds=TB3_BOUNDS,
+    seed: int = 0,
+) -> Drive:
+    """Follow ``waypoints`` (steering on the true pose, as a scripted test driver), feeding
+    encoder odometry and 5 Hz scans to the SLAM plugin every 0.1 s like the runner does."""
+    sim = DiffDriveSim(BURGER, world, world.spawn, config, np.random.default_rng(seed))
+    odometry = DiffDriveOdometry(BURGER.encoder.ticks_per_meter, BURGER.wheel_separation)
+    odom0 = odometry.update(*sim.encoder_ticks())
+    slam = GridSlam(slam_config or GridSlamConfig(), bounds=bounds)
+    slam.reset(world.spawn, odom0)
+    truth, est, dead = [], [], []
+    target, step = 0, 0
+    while target < len(waypoints) and step < 5000:
+        odom = odometry.update(*sim.encoder_ticks())
+        scan = sim.scan() if step % 2 == 0 else None
+        pose = sim.true_pose()
+        estimate = slam.update(odom, scan, GARBAGE, sim.time)
+        truth.append(pose.as_array())
+        est.append(estimate.as_array())
+        dead.append(world.spawn.compose(odom.relative_to(odom0)).as_array())
+        tx, ty = waypoints[target]
+        dist = math.hypot(tx - pose.x, ty - pose.y)
+        if dist < 0.05:
+            target += 1
+            continue
+        err = wrap_angle(math.atan2(ty - pose.y, tx - pose.x) - pose.yaw)
+        v = min(0.2, 0.5 * dist + 0.02) if abs(err) < 0.3 else 0.0
+        sim.set_command(v, max(-1.5, min(1.5, 3.0 * err)))
+        sim.advance(0.1)
+        step += 1
+    return Drive(slam, np.array(truth), np.array(est), np.array(dead))
+
+
+@pytest.fixture(scope="module")
+def noisy_loop(tb3: World) -> Drive:
+    return drive(tb3, TB3_LOOP, NOISY)
+
+
+def scans_at(world: World, pose: Pose2D, n: int = 1, noise: float | None = None):
+    sim = DiffDriveSim(BURGER, world, pose, SimConfig(lidar_noise=noise), np.random.default_rng(3))
+    return [sim.scan() for _ in range(n)]
+
+
+def static_map(world: World, pose: Pose2D, scans: int = 4, **config) -> GridSlam:
+    """A SLAM map built from a few scans taken standing at ``pose``."""
+    slam = GridSlam(GridSlamConfig(**config), bounds=TB3_BOUNDS)
+    slam.reset(pose, Pose2D(0.0, 0.0, 0.0))
+    for k, scan in enumerate(scans_at(world, pose, scans)):
+        if k == 0:
+            slam.update(Pose2D(0.0, 0.0, 0.0), scan, GARBAGE, 0.0)
+        else:
+            slam._integrate(scan, pose)  # same pose again: no motion, no match
+    return slam
+
+
+# --------------------------------------------------------------------------- plugin
+
+
+def test_registered_with_defaults() -> None:
+    cls = registry.get("slam", "grid")
+    assert cls is GridSlam
+    config = cls.Config()
+    assert config.type == "grid" and config.resolution == 0.05
+    assert registry.names("slam") == ["grid"]
+    slam = registry.create("slam", config, bounds=TB3_BOUNDS, rng=np.random.default_rng(0))
+    assert isinstance(slam, GridSlam)
+    with pytest.raises(ValueError):
+        GridSlamConfig(unknown_key=1)
+    with pytest.raises(ValueError):
+        GridSlam(GridSlamConfig(), bounds=(1.0, 0.0, 0.0, 1.0))
+
+
+def test_map_is_allocated_on_the_lattice_around_the_bounds() -> None:
+    slam = GridSlam(GridSlamConfig(map_margin=0.5), bounds=(-2.02, 3.0, -1.0, 1.0))
+    grid = slam.occupancy_grid()
+    assert grid.resolution == 0.05
+    assert grid.origin.x == pytest.approx(-2.55) and grid.origin.y == pytest.approx(-1.5)
+    xmin, xmax, ymin, ymax = grid.extent
+    assert xmax >= 3.5 - 1e-9 and ymax >= 1.5 - 1e-9
+    assert (grid.data == UNKNOWN).all()
+
+
+def test_log_odds_integration_and_trinary_thresholds(tb3: World) -> None:
+    pose = Pose2D(-2.0, -0.5, 0.3)
+    slam = GridSlam(GridSlamConfig(), bounds=TB3_BOUNDS)
+    slam.reset(pose, Pose2D(0.0, 0.0, 0.0))
+    scan = scans_at(tb3, pose)[0]
+    slam._integrate(scan, pose)
+    grid = slam.occupancy_grid()
+    # One hit makes a cell occupied (p 0.7 > 0.65); one pass-through is not yet free.
+    ends = scan.points(pose)
+    assert (grid.value_at(ends) == OCCUPIED).mean() > 0.95
+    assert grid.counts()["free"] == 0
+    slam._integrate(scan, pose)
+    slam._integrate(scan, pose)  # three misses: p < 0.25
+    grid = slam.occupancy_grid()
+    mid = np.array([pose.x, pose.y]) + 0.5 * (ends - np.array([pose.x, pose.y]))
+    assert (grid.value_at(mid) == FREE).mean() > 0.99  # (half-cell steps may skip a corner)
+    assert grid.value_at(np.array([pose.x, pose.y])) == FREE
+    # Log-odds stay clamped however often a cell is seen.
+    for _ in range(20):
+        slam._integrate(scan, pose)
+    c = slam.config
+    assert slam.log_odds.min() >= c.log_odds_min and slam.log_odds.max() <= c.log_odds_max
+
+
+def test_map_grows_past_its_initial_extent(tb3: World) -> None:
+    pose = tb3.spawn
+    slam = GridSlam(GridSlamConfig(initial_size=2.0, grow_step=1.0))
+    slam.reset(pose, Pose2D(0.0, 0.0, 0.0))
+    before = slam.occupancy_grid().extent
+    slam.update(Pose2D(0.0, 0.0, 0.0), scans_at(tb3, pose)[0], GARBAGE, 0.0)
+    grid = slam.occupancy_grid()
+    xmin, xmax, ymin, ymax = grid.extent
+    assert xmax - xmin > before[1] - before[0] + 2.0
+    ox, oy = grid.origin.x / 0.05, grid.origin.y / 0.05
+    assert ox == pytest.approx(round(ox)) and oy == pytest.approx(round(oy))
+    # The arena's far wall (x ~ 2.9 at y ~ -0.5, 4.9 m away) is beyond the lidar; the
+    # near west wall (2.5 m / cos 30 = 2.89 m from the centre) is mapped where it is.
+    hits = scans_at(tb3, pose)[0].points(pose)
+    assert (grid.value_at(hits) == OCCUPIED).mean() > 0.95
+
+
+def test_reset_starts_a_new_map(tb3: World) -> None:
+    slam = static_map(tb3, tb3.spawn)
+    assert slam.occupancy_grid().counts()["occupied"] > 100
+    slam.reset(Pose2D(0.55, 0.55, 0.0), Pose2D(0.0, 0.0, 0.0))
+    assert slam.occupancy_grid().counts()["occupied"] == 0
+    assert slam.trajectory == [] and slam.integrations == 0
+
+
+# --------------------------------------------------------------------------- matching
+
+
+def test_sliding_max_bounds_every_cell_of_its_block() -> None:
+    rng = np.random.default_rng(0)
+    values = rng.random((23, 17)).astype(np.float32)
+    out = sliding_max(values, 4)
+    for r in range(23):
+        for c in range(17):
+            assert out[r, c] == values[r : r + 4, c : c + 4].max()
+    with pytest.raises(ValueError):
+        sliding_max(values, 3)
+
+
+@pytest.mark.parametrize("refinement", ["icp", "field"])
+def test_matcher_recovers_a_large_offset_on_a_real_scan(tb3: World, refinement: str) -> None:
+    """From 0.15 m and 7 degrees off, the branch-and-bound search finds the right basin
+    and the refinement lands within a few millimetres / milliradians."""
+    pose = Pose2D(-1.5, -0.55, 0.4)
+    slam = static_map(tb3, pose, refinement=refinement)
+    field = slam.likelihood_field()
+    matcher = slam.matcher
+    scan = scans_at(tb3, pose, 5)[-1]
+    points = slam._scan_points(scan)
+    for dx, dy, dyaw in ((0.15, -0.1, 0.12), (-0.12, 0.15, -0.1), (0.0, 0.0, 0.0)):
+        guess = pose.as_array() + [dx, dy, dyaw]
+        result = matcher.match(field, points, guess)
+        assert result.refined
+        assert np.hypot(*(result.pose[:2] - pose.as_array()[:2])) < 0.01
+        assert abs(wrap_angle(result.pose[2] - pose.yaw)) < 0.005
+        assert result.score > 0.7
+        # The search itself: within one cell and one angular step of the truth.
+        assert np.abs(result.coarse_pose[:2] - pose.as_array()[:2]).max() <= 0.05 + 1e-9
+
+
+def test_matcher_search_equals_exhaustive_search(tb3: World) -> None:
+    """Branch and bound returns the same cell-level optimum as scoring every candidate."""
+    pose = Pose2D(0.55, -0.55, -0.7)
+    slam = static_map(tb3, pose)
+    field = LikelihoodField(slam._field, 0.05, slam.origin)
+    points = slam._scan_points(scans_at(tb3, pose, 2)[-1])
+    guess = pose.as_array() + [0.08, -0.06, 0.05]
+    fast = CorrelativeMatcher(refinement="none", angular_step=0.02)
+    result = fast.match(field, points, guess)
+    best, best_pose = -1.0, None
+    for a in np.arange(-9, 10) * 0.02:
+        for dy in np.arange(-4, 5) * 0.05:
+            for dx in np.arange(-4, 5) * 0.05:
+                cand = guess + [dx, dy, a]
+                s = fast.score(field, points, cand) * fast._penalty(np.hypot(dx, dy), a)
+                if s > best + 1e-12:
+                    best, best_pose = s, cand
+    found = fast.score(field, points, result.coarse_pose) * fast._penalty(
+        np.hypot(*(result.coarse_pose[:2] - guess[:2])), result.coarse_pose[2] - guess[2]
+    )
+    assert found == pytest.approx(best, abs=1e-6)
+    assert np.abs(result.coarse_pose - best_pose).max() < 0.06
+    assert result.candidates < 19 * 81  # it did not have to score them all
+
+
+def test_matcher_keeps_the_prediction_along_a_featureless_wall() -> None:
+    """Along one straight wall the scan says nothing about the along-wall position: the
+    odometry prior keeps it instead of a noisy cell jump."""
+    res = 0.05
+    occ = np.zeros((80, 120), bool)
+    occ[60, :] = True  # a wall along x at y = 3.025
+    field = LikelihoodField.from_occupied(occ, res, (0.0, 0.0), 0.05)
+    rng = np.random.default_rng(1)
+    xs = np.linspace(-2.0, 2.0, 120)
+    pose = np.array([3.0, 1.0, 0.0])
+    pts = np.stack([xs, np.full_like(xs, 2.025) + rng.normal(0, 0.01, xs.size)], 1)
+    matcher = CorrelativeMatcher()
+    prior = np.diag([0.01, 0.01, 0.01]) ** 2
+    guess = pose + [0.013, 0.03, 0.0]
+    result = matcher.match(field, pts, guess, prior)
+    assert abs(result.pose[1] - pose[1]) < 0.01  # across the wall: corrected
+    assert abs(result.pose[0] - guess[0]) < 0.01  # along it: the prediction stands
+
+
+# --------------------------------------------------------------------------- SLAM runs
+
+
+def test_slam_corrects_odometry_drift_with_noisy_encoders(noisy_loop: Drive) -> None:
+    run = noisy_loop
+    slam_rmse = trajectory_rmse(run.estimate, run.truth)
+    odom_rmse = trajectory_rmse(run.odometry, run.truth)
+    final_odom = float(np.hypot(*(run.odometry[-1, :2] - run.truth[-1, :2])))
+    yaw_err = np.abs(wrap_angles(run.estimate[:, 2] - run.truth[:, 2]))
+    assert len(run.truth) > 600  # the loop was driven (about 80 s)
+    assert slam_rmse <= 0.05
+    assert odom_rmse >= 0.1 and odom_rmse >= 5.0 * slam_rmse
+    assert final_odom > 0.2
+    assert yaw_err.max() < 0.05
+    assert run.slam.matches > 300 and run.slam.rejected_matches == 0
+    # The plugin's own trajectory is the corrected pose at each processed scan.
+    traj = np.array(run.slam.trajectory)
+    assert traj.shape[1] == 4 and len(traj) == run.slam.matches + 1
+
+
+def test_built_map_matches_the_world(noisy_loop: Drive, tb3: World) -> None:
+    grid = noisy_loop.slam.occupancy_grid()
+    q = map_quality(grid, tb3.map, TB3_BOUNDS, tb3.spawn.xy)
+    assert q["free_iou"] >= 0.9
+    assert q["coverage"] >= 0.9
+    # Hits mark the wall faces the robot saw; the truth fills whole walls and pillars.
+    assert q["occupied_iou"] > 0.25
+    # No free cell inside an obstacle: only cells on its boundary (the truth marks a cell
+    # occupied when any sliver of it is, the scan sees the face crossing it) may differ.
+    face = ndimage.binary_dilation(tb3.map.data == FREE, structure=np.ones((3, 3), bool))
+    deep = np.argwhere((tb3.map.data == OCCUPIED) & ~face)
+    xy = tb3.map.cell_to_world(deep[:, 0], deep[:, 1])
+    assert len(deep) > 300
+    assert (grid.value_at(xy) == FREE).mean() < 0.005
+
+
+def test_slam_map_feeds_a_costmap(noisy_loop: Drive) -> None:
+    grid = noisy_loop.slam.occupancy_grid()
+    costmap = Costmap.from_grid(grid, BURGER.footprint_radius)
+    assert costmap.is_free(np.array([[-1.9, -0.55], [0.55, 0.55]])).all()
+    assert not costmap.is_free(np.array([[-1.1, 0.0]])).any()  # a pillar
+
+
+def test_noise_free_run_stays_exact(tb3: World) -> None:
+    run = drive(tb3, TB3_LOOP[:2], SimConfig())
+    assert trajectory_rmse(run.estimate, run.truth) < 0.01
+
+
+@pytest.mark.slow
+def test_small_house_tour_with_noisy_encoders() -> None:
+    world = small_house()
+    route = (
+        (3.0, -0.45), (-1.5, -0.45), (-1.5, -1.7), (-3.5, -1.7), (-5.5, -1.5), (-5.5, -3.5),
+        (-8.0, -3.0), (-8.0, 0.0), (-4.0, 0.5), (-3.5, -1.7), (-1.5, -1.7), (-1.5, -0.45),
+        (2.6, -0.45), (2.6, 1.6), (-1.0, 1.6), (-1.0, 4.6), (3.5, 4.6), (3.8, 1.6),
+        (6.0, 1.6), (6.0, -0.5), (8.0, -1.0), (8.0, -3.5), (6.0, -2.8), (3.5, -2.8),
+    )  # fmt: skip
+    run = drive(world, route, NOISY, bounds=(-9.5, 9.5, -5.5, 5.5))
+    slam_rmse = trajectory_rmse(run.estimate, run.truth)
+    assert slam_rmse <= 0.05
+    assert trajectory_rmse(run.odometry, run.truth) > 10 * slam_rmse
+    q = map_quality(run.slam.occupancy_grid(), world.map, (-9.5, 9.5, -5.5, 5.5))
+    assert q["free_iou"] >= 0.9
+
+
+# --------------------------------------------------------------------------- frontiers
+
+
+def test_frontiers_on_a_partial_map(tb3: World) -> None:
+    slam = static_map(tb3, tb3.spawn)
+    grid = slam.occupancy_grid()
+    frontiers = find_frontiers(grid, TB3_BOUNDS, robot=tb3.spawn.xy)
+    assert len(frontiers) >= 2
+    costmap = Costmap.from_grid(grid, BURGER.footprint_radius)
+    dists = [f.distance for f in frontiers]
+    assert dists == sorted(dists) and all(np.isfinite(dists))
+    for f in frontiers:
+        assert f.size >= 5 and f.goal is not None
+        # Each goal: known free space where the footprint fits, near its frontier.
+        assert costmap.is_free(np.array([f.goal]), margin=0.04).all()
+        assert np.min(np.hypot(*(f.cells - np.array(f.goal)).T)) <= 1.0 + 1e-9
+        assert f.distance >= math.dist(f.goal, tb3.spawn.xy) - 0.1
+        # Frontier cells are free cells next to unknown space.
+        assert (grid.value_at(f.cells) == FREE).all()
+    # Bounds filter: nothing outside them.
+    small = (-2.5, -1.5, -1.0, 0.0)
+    for f in find_frontiers(grid, small, robot=tb3.spawn.xy, reachable_only=False):
+        assert (f.cells[:, 0] >= -2.5).all() and (f.cells[:, 0] <= -1.5).all()
+        assert (f.cells[:, 1] >= -1.0).all() and (f.cells[:, 1] <= 0.0).all()
+    # A blacklisted goal removes its frontier.
+    first = frontiers[0]
+    rest = find_frontiers(grid, TB3_BOUNDS, robot=tb3.spawn.xy, blacklist=[first.goal])
+    assert all(f.goal != first.goal for f in rest)
+
+
+def test_frontiers_vanish_when_the_map_is_complete(tb3: World, noisy_loop: Drive) -> None:
+    assert find_frontiers(tb3.map, robot=tb3.spawn.xy) == []
+    assert not frontier_mask(tb3.map).any()
+    house = small_house()
+    assert find_frontiers(house.map, robot=house.spawn.xy) == []
+    # After the loop only small leftovers (behind pillars) remain, if any.
+    grid = noisy_loop.slam.occupancy_grid()
+    partial = static_map(tb3, tb3.spawn).occupancy_grid()
+    after = find_frontiers(grid, TB3_BOUNDS, robot=tuple(noisy_loop.estimate[-1, :2]))
+    before = find_frontiers(partial, TB3_BOUNDS, robot=tb3.spawn.xy)
+    assert sum(f.size for f in after) < 0.2 * sum(f.size for f in before)
+
+
+def test_unknown_pockets_are_not_frontiers() -> None:
+    data = np.zeros((40, 40), np.int8)
+    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = OCCUPIED
+    data[18:23, 18:23] = OCCUPIED
+    data[19:22, 19:22] = UNKNOWN  # the inside of a pillar
+    grid = OccupancyGrid(data, 0.05, Pose2D(0.0, 0.0, 0.0))
+    assert find_frontiers(grid, robot=(0.5, 0.5)) == []
+    data[19:22, 22] = FREE  # a gap in the ring: the pocket borders free space
+    assert frontier_mask(grid).any()
+    assert find_frontiers(grid, robot=(0.5, 0.5), min_size=1) == []  # still a pocket
+    assert find_frontiers(grid, robot=(0.5, 0.5), min_size=1, min_unknown=0)
+
+
+def test_unreachable_frontier_has_no_goal() -> None:
+    data = np.full((60, 60), UNKNOWN, np.int8)
+    data[5:25, 5:25] = FREE  # the robot's room
+    data[40:55, 40:55] = FREE  # a separate, unreachable patch
+    grid = OccupancyGrid(data, 0.05, Pose2D(0.0, 0.0, 0.0))
+    reachable = find_frontiers(grid, robot=(0.75, 0.75))
+    everything = find_frontiers(grid, robot=(0.75, 0.75), reachable_only=False)
+    assert len(reachable) == 1 and len(everything) == 2
+    lost = [f for f in everything if f.goal is None]
+    assert len(lost) == 1 and lost[0].centroid[0] > 2.0 and math.isinf(lost[0].distance)
+
+
+# --------------------------------------------------------------------------- quality
+
+
+def test_map_quality_of_the_truth_is_perfect(tb3: World) -> None:
+    for world in (tb3, small_house()):
+        q = map_quality(world.map, world.map, None, world.spawn.xy)
+        assert q["occupied_iou"] == 1.0 and q["free_iou"] == 1.0 and q["coverage"] == 1.0
+
+
+def test_map_quality_counts_errors_and_resamples(tb3: World) -> None:
+    truth = tb3.map
+    worse = OccupancyGrid(truth.data.copy(), truth.resolution, truth.origin)
+    free = np.argwhere(worse.data == FREE)
+    worse.data[tuple(free[: len(free) // 4].T)] = UNKNOWN
+    q = map_quality(worse, truth, TB3_BOUNDS, tb3.spawn.xy)
+    assert q["coverage"] == pytest.approx(0.75, abs=0.01)
+    assert q["free_iou"] == pytest.approx(0.75, abs=0.01)
+    assert q["occupied_iou"] == 1.0
+    # The same map at 2.5 cm (each cell split in four) compares equal after resampling.
+    fine = OccupancyGrid(np.kron(truth.data, np.ones((2, 2), np.int8)), 0.025, truth.origin)
+    q = map_quality(fine, truth, TB3_BOUNDS, tb3.spawn.xy)
+    assert q["free_iou"] == 1.0 and q["occupied_iou"] == 1.0

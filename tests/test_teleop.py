@@ -78,7 +78,7 @@ def test_default_mission_is_small_house_from_the_livingroom(tmp_path: Path) -> N
     assert loaded.start == HOUSE_SPAWN
     assert room_at(loaded.rooms, loaded.start.x, loaded.start.y) == "livingroom"
     assert room_at(loaded.rooms, 4.7, -2.8) is None  # in the kitchen doorway
-    assert loaded.mission.stack.localization.type == "ground_truth"
+    assert loaded.mission.stack.localization.type == "amcl"  # the seed records amcl_pose
     # a mission file without tasks is fine for teleop; --world/--robot override it
     mission = tmp_path / "m.yaml"
     mission.write_text("world: small_house\nstart: kitchen\nstack: {localization: {type: amcl}}\n")

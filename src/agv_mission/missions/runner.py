@@ -20,12 +20,17 @@ from py_trees.common import Status
 
 from agv_mission.behaviors.outcome import failure_reason
 from agv_mission.geometry import Pose2D, wrap_angle
+from agv_mission.maps.costmap import Costmap
+from agv_mission.maps.frontiers import map_quality
+from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.obstacle_layer import ObstacleLayer
 from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder
+from agv_mission.maps.ros_map import load_ros_map, save_ros_map
 from agv_mission.missions.faults import FaultInjector
 from agv_mission.missions.loader import LoadedMission
 from agv_mission.missions.tree import MissionTree, build_tree
 from agv_mission.navigation.handle import RobotHandle
+from agv_mission.navigation.mapping import MappingSession
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.navigation.state import RobotState
 from agv_mission.planners.base import VelocityLimits
@@ -56,6 +61,7 @@ class RunRecord:
     tree_text: str
     extras: dict[str, Any] = field(default_factory=dict)  # more keys for result.json
     particle_snapshots: list[tuple[float, np.ndarray]] = field(default_factory=list)
+    built_map: OccupancyGrid | None = None  # the last map a map_area task saved
 
 
 class VelocitySmoother:
@@ -134,13 +140,20 @@ class MissionRun:
             CONTROL_PERIOD,
             seed=int(planner_rng.integers(0, 2**31 - 1)),
         )
-        self.localizer.reset(loaded.start, self.odometry.update(*self.sim.encoder_ticks()))
+        self._odom = self.odometry.update(*self.sim.encoder_ticks())
+        self.localizer.reset(loaded.start, self._odom)
         self.handle = RobotHandle(
             RobotState(time=0.0, estimate=loaded.start),
             self.navigator,
             rooms=loaded.rooms,
             recorders=_recorders(loaded, run_dir),
         )
+        self.handle.begin_mapping = self._begin_mapping
+        self.handle.end_mapping = self._end_mapping
+        self.run_dir = run_dir
+        self.loc_rng = loc_rng
+        self.maps: list[dict[str, Any]] = []
+        self.built_map: OccupancyGrid | None = None
         self.tree = build_tree(mission, self.handle, robot, loaded.room_goals)
         self.smoother = VelocitySmoother(self.limits, CONTROL_PERIOD)
         self.faults = FaultInjector(mission.faults, self.sim, fault_rng)
@@ -167,7 +180,15 @@ class MissionRun:
             self.next_scan += self.scan_period
             scan = self.faults.filter_scan(now, sim.scan(), handle)
         truth = sim.true_pose()
-        estimate = self.localizer.update(odom_pose, scan, truth, now)
+        self._odom = odom_pose
+        mapping = handle.mapping
+        if mapping is not None:
+            estimate = mapping.update(odom_pose, scan, truth, now)
+            costmap = mapping.refreshed_costmap(now)
+            if costmap is not None:
+                self.navigator.layer = ObstacleLayer(costmap, costmap.config.obstacles)
+        else:
+            estimate = self.localizer.update(odom_pose, scan, truth, now)
         state.time, state.estimate = now, estimate
         state.velocity = (self.smoother.v, self.smoother.w)
         if scan is not None:
@@ -197,6 +218,56 @@ class MissionRun:
         sim.set_command(v, w)
         sim.advance(CONTROL_PERIOD)
         return True
+
+    def _begin_mapping(self, bounds: tuple[float, float, float, float] | None) -> MappingSession:
+        """SLAM takes over pose and map, starting from the current estimate."""
+        bounds = bounds or self.loaded.world.map.extent
+        slam = registry.create("slam", self.mission.stack.slam, bounds=bounds, rng=self.loc_rng)
+        session = MappingSession(
+            slam, bounds, self.robot.footprint_radius, self.mission.stack.costmap
+        )
+        session.start(self.handle.state.estimate, self._odom)
+        self.handle.mapping = session
+        return session
+
+    def _end_mapping(self, stem: str) -> dict[str, Any]:
+        """Save the map, judge it against the world, and navigate on it from now on."""
+        session = self.handle.mapping
+        assert session is not None
+        grid = session.grid
+        summary: dict[str, Any] = {"map": stem}
+        if self.run_dir is not None:
+            save_ros_map(grid, self.run_dir / stem)
+            grid = load_ros_map(self.run_dir / f"{stem}.yaml")  # navigate on what was saved
+        quality = map_quality(
+            grid,
+            self.loaded.world.map,
+            session.bounds,
+            start=(self.loaded.start.x, self.loaded.start.y),
+        )
+        summary.update({k: round(v, 4) for k, v in quality.items()})
+        summary["slam_rmse"] = round(self._slam_rmse(session), 4)
+        summary["known_fraction"] = round(session.known_fraction(), 4)
+        self.maps.append(summary)
+        self.built_map = grid
+        static = Costmap.from_grid(grid, self.robot.footprint_radius, self.mission.stack.costmap)
+        self.navigator.layer = ObstacleLayer(static, self.mission.stack.costmap.obstacles)
+        self.localizer = registry.create(
+            "localization", self.mission.stack.localization, grid=grid, rng=self.loc_rng
+        )
+        self.localizer.reset(session.slam.pose, self._odom)
+        self.handle.mapping = None
+        return summary
+
+    def _slam_rmse(self, session: MappingSession) -> float:
+        """SLAM trajectory error against the true trajectory at the same times."""
+        est = np.asarray(session.slam.trajectory, dtype=float).reshape(-1, 4)
+        if not len(est) or not self.rows:
+            return float("nan")
+        rows = np.asarray(self.rows)
+        idx = np.clip(np.searchsorted(rows[:, 0], est[:, 0] - 1e-9), 0, len(rows) - 1)
+        err = np.hypot(est[:, 1] - rows[idx, 1], est[:, 2] - rows[idx, 2])
+        return float(np.sqrt(np.mean(err**2)))
 
     def end(self, status: str, reason: str | None) -> bool:
         if self.status is None:
@@ -265,6 +336,8 @@ class MissionRun:
                 recoveries[e["kind"]] = recoveries.get(e["kind"], 0) + 1
         metrics["navigation"]["recoveries"] = recoveries
         extras: dict[str, Any] = {"collisions": self.collisions, "faults": self.faults.report()}
+        if self.maps:
+            extras["maps"] = self.maps
         if self.handle.recorded:
             extras["rooms_recorded"] = {
                 label: {"x": round(p.x, 4), "y": round(p.y, 4), "yaw": round(p.yaw, 4)}
@@ -292,6 +365,7 @@ class MissionRun:
             tree_text=self.tree.render(),
             extras=extras,
             particle_snapshots=list(getattr(self.localizer, "snapshots", [])),
+            built_map=self.built_map,
         )
 
 

@@ -31,7 +31,7 @@ QUATERNION_TOLERANCE = 1e-3
 
 
 class StrictModel(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class Position(StrictModel):
@@ -94,6 +94,7 @@ def _plugin_union(slot: str) -> Any:
 LocalizationConfig = _plugin_union("localization")
 GlobalPlannerConfig = _plugin_union("global_planner")
 LocalPlannerConfig = _plugin_union("local_planner")
+SlamConfig = _plugin_union("slam")
 
 
 def _default(slot: str, name: str) -> Any:
@@ -104,13 +105,17 @@ class Stack(StrictModel):
     """The navigation stack: one plugin per slot, chosen by ``type``."""
 
     localization: LocalizationConfig = Field(  # type: ignore[valid-type]
-        default_factory=lambda: _default("localization", "ground_truth")
+        default_factory=lambda: _default("localization", "amcl")
     )
     global_planner: GlobalPlannerConfig = Field(  # type: ignore[valid-type]
         default_factory=lambda: _default("global_planner", "ompl")
     )
     local_planner: LocalPlannerConfig = Field(  # type: ignore[valid-type]
         default_factory=lambda: _default("local_planner", "mpc")
+    )
+    slam: SlamConfig = Field(  # type: ignore[valid-type]
+        default_factory=lambda: _default("slam", "grid"),
+        description="used while a map_area task maps",
     )
     costmap: CostmapConfig = Field(default_factory=CostmapConfig)
     navigation: NavigationConfig = Field(default_factory=NavigationConfig)
@@ -171,8 +176,49 @@ class RecordRoomTask(StrictModel):
     room: str = Field(min_length=1, description="the label to record under")
 
 
+class Bounds(StrictModel):
+    """An axis-aligned rectangle of the map frame, metres."""
+
+    xmin: float
+    xmax: float
+    ymin: float
+    ymax: float
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Bounds:
+        if self.xmax <= self.xmin or self.ymax <= self.ymin:
+            raise ValueError("bounds need xmin < xmax and ymin < ymax")
+        return self
+
+    def as_tuple(self) -> tuple[float, float, float, float]:
+        return (self.xmin, self.xmax, self.ymin, self.ymax)
+
+
+class MapAreaTask(StrictModel):
+    """Explore ``bounds`` by frontiers while SLAM builds the map; save it map_saver-style.
+
+    Later tasks of the mission navigate (and localise) on the saved map.
+    """
+
+    type: Literal["map_area"]
+    bounds: Bounds | None = Field(None, description="default: the whole world map")
+    save_map: str = Field("map", description="writes <save_map>.pgm + .yaml in the run directory")
+    coverage: float | None = Field(
+        None, gt=0.0, le=1.0, description="stop once this share of the bounds is known"
+    )
+    time_limit: float | None = Field(None, gt=0.0, description="stop after this many seconds")
+    min_frontier_size: int = Field(8, ge=1, description="smallest frontier worth a visit, cells")
+
+    @field_validator("save_map")
+    @classmethod
+    def _stem(cls, v: str) -> str:
+        if not v.strip() or "/" in v or "\\" in v or v in (".", ".."):
+            raise ValueError("save_map is a file name stem without path separators")
+        return v
+
+
 Task = Annotated[
-    Union[GoToTask, PatrolTask, WanderTask, VisitRoomsTask, RecordRoomTask],  # noqa: UP007
+    Union[GoToTask, PatrolTask, WanderTask, VisitRoomsTask, RecordRoomTask, MapAreaTask],  # noqa: UP007
     Field(discriminator="type"),
 ]
 

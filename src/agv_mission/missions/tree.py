@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import py_trees
 
+from agv_mission.behaviors.explore import MapArea
 from agv_mission.behaviors.motion import Dwell, Wander
 from agv_mission.behaviors.navigate import NavigateToPose
 from agv_mission.behaviors.outcome import LegOutcome
@@ -20,6 +21,7 @@ from agv_mission.geometry import Pose2D
 from agv_mission.missions.schema import (
     FailurePolicy,
     GoToTask,
+    MapAreaTask,
     Mission,
     PatrolTask,
     RecordRoomTask,
@@ -50,7 +52,9 @@ def build_tree(
     robot: RobotDescription,
     room_goals: dict[str, Pose2D],
 ) -> MissionTree:
-    builder = _Builder(handle, robot, room_goals, mission.stack.navigation)
+    builder = _Builder(
+        handle, robot, room_goals, mission.stack.navigation, mission.stack.global_planner
+    )
     tasks = [builder.task(i, task) for i, task in enumerate(mission.tasks)]
     root = py_trees.composites.Sequence(name="mission", memory=True, children=tasks)
     return MissionTree(root, tasks)
@@ -62,6 +66,7 @@ class _Builder:
     robot: RobotDescription
     room_goals: dict[str, Pose2D]
     nav: NavigationConfig
+    planner_config: object
 
     def task(self, index: int, task: object) -> Behaviour:
         label = f"task {index + 1}: {task.type}"  # type: ignore[attr-defined]
@@ -106,6 +111,17 @@ class _Builder:
             turn = min(task.turn_rate, self.robot.max_angular_velocity)
             return Wander(
                 label, self.handle, task.duration, task.min_range, speed, turn, task.sector
+            )
+        if isinstance(task, MapAreaTask):
+            return MapArea(
+                label,
+                self.handle,
+                task.bounds.as_tuple() if task.bounds else None,
+                task.save_map,
+                task.coverage,
+                task.time_limit,
+                task.min_frontier_size,
+                clearance=float(getattr(self.planner_config, "clearance", 0.05)),
             )
         if isinstance(task, RecordRoomTask):
             return RecordRoom(f"{label} {task.room}", self.handle, task.room, task=index)

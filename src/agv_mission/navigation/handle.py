@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.recorder import LocationRecorder
 from agv_mission.maps.rooms import Room
+from agv_mission.navigation.mapping import MappingSession
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.navigation.state import RobotState
 
@@ -24,6 +26,11 @@ class RobotHandle:
     rooms: dict[str, Room] = field(default_factory=dict)
     recorders: list[LocationRecorder] = field(default_factory=list)
     recorded: dict[str, Pose2D] = field(default_factory=dict)
+    mapping: MappingSession | None = None  # set while a map_area task maps
+    begin_mapping: Callable[[tuple[float, float, float, float] | None], MappingSession] | None = (
+        None
+    )
+    end_mapping: Callable[[str], dict[str, Any]] | None = None
 
     def drive(self, v: float, w: float) -> None:
         self.command = (float(v), float(w))

@@ -75,6 +75,8 @@ class Navigator:
         self.paths: list[np.ndarray] = []  # every plan, for the run plot
         self.stats = NavigationStats()
         self._phase = _Phase.FOLLOW
+        self._xy_tol = config.xy_goal_tolerance
+        self._yaw_tol = config.yaw_goal_tolerance
         self._replans_for_goal = 0
         self._best_distance = math.inf
         self._last_progress_time = 0.0
@@ -91,9 +93,20 @@ class Navigator:
     def clear_costmap(self) -> None:
         self.layer.clear()
 
-    def start(self, goal: Pose2D, state: RobotState) -> None:
-        """Begin pursuing ``goal``: plan a path from the current estimate."""
+    def start(
+        self,
+        goal: Pose2D,
+        state: RobotState,
+        xy_tolerance: float | None = None,
+        yaw_tolerance: float | None = None,
+    ) -> None:
+        """Begin pursuing ``goal``: plan a path from the current estimate.
+
+        Tolerances default to the configuration's; exploration passes looser ones.
+        """
         self.goal = goal
+        self._xy_tol = xy_tolerance or self.config.xy_goal_tolerance
+        self._yaw_tol = yaw_tolerance or self.config.yaw_goal_tolerance
         self.status = NavStatus.RUNNING
         self.reason = None
         self._phase = _Phase.FOLLOW
@@ -114,9 +127,9 @@ class Navigator:
             return VelocityCommand(0.0, 0.0)
         pose, goal = state.estimate, self.goal
         distance = pose.distance_to(goal)
-        if self._phase is _Phase.FOLLOW and distance <= self.config.xy_goal_tolerance:
+        if self._phase is _Phase.FOLLOW and distance <= self._xy_tol:
             self._phase = _Phase.ROTATE
-        elif self._phase is _Phase.ROTATE and distance > 3.0 * self.config.xy_goal_tolerance:
+        elif self._phase is _Phase.ROTATE and distance > 3.0 * self._xy_tol:
             self._phase = _Phase.FOLLOW
         if self._phase is _Phase.ROTATE:
             return self._rotate(state)
@@ -160,7 +173,7 @@ class Navigator:
             if v0 > 0
             else min(0.0, v0 + self.limits.max_acc_v * dt)
         )
-        if abs(error) <= self.config.yaw_goal_tolerance and abs(v) < 1e-3:
+        if abs(error) <= self._yaw_tol and abs(v) < 1e-3:
             self.status = NavStatus.SUCCEEDED
             return VelocityCommand(0.0, 0.0)
         # P control, capped so the robot can still stop within the remaining angle.

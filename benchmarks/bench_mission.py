@@ -1,4 +1,8 @@
-"""The demo patrol's real-time factor (simulated seconds per wall second), end to end."""
+"""Whole missions end to end: real-time factor (simulated seconds per wall second).
+
+The demo patrol (amcl localisation, OMPL, MPC) and a map_area of small_house (grid SLAM,
+frontier exploration), each once: the numbers include everything the runner does.
+"""
 
 from __future__ import annotations
 
@@ -7,18 +11,28 @@ from pathlib import Path
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.runner import run_mission
 
-DEMO = Path(__file__).resolve().parents[1] / "missions" / "patrol.yaml"
+REPO = Path(__file__).resolve().parents[1]
+DEMO = REPO / "missions" / "patrol.yaml"
+MAP_HOUSE = REPO / "missions" / "map_house.yaml"
+
+
+def _mission(key: str, path: Path, results: dict[str, float]) -> dict:
+    record = run_mission(load_mission(path))
+    results[f"mission.{key}.real_time_factor"] = round(record.sim_time / record.wall_time, 2)
+    results[f"mission.{key}.sim_time_s"] = record.sim_time
+    results[f"mission.{key}.succeeded"] = float(record.status == "succeeded")
+    nav = record.metrics["navigation"]
+    if nav["controller_solve_ms_p50"] is not None:
+        results[f"mission.{key}.controller_ms.p50"] = nav["controller_solve_ms_p50"]
+        results[f"mission.{key}.controller_ms.p99"] = nav["controller_solve_ms_p99"]
+    return record.extras
 
 
 def run() -> dict[str, float]:
     results: dict[str, float] = {}
-    loaded = load_mission(DEMO)
-    record = run_mission(loaded)
-    results["mission.patrol.real_time_factor"] = round(record.sim_time / record.wall_time, 2)
-    results["mission.patrol.sim_time_s"] = record.sim_time
-    results["mission.patrol.succeeded"] = float(record.status == "succeeded")
-    nav = record.metrics["navigation"]
-    if nav["controller_solve_ms_p50"] is not None:
-        results["mission.patrol.controller_ms.p50"] = nav["controller_solve_ms_p50"]
-        results["mission.patrol.controller_ms.p99"] = nav["controller_solve_ms_p99"]
+    _mission("patrol", DEMO, results)
+    extras = _mission("map_area_small_house", MAP_HOUSE, results)
+    for m in extras.get("maps", []):
+        for k in ("coverage", "free_iou", "slam_rmse"):
+            results[f"mission.map_area_small_house.{k}"] = m[k]
     return results

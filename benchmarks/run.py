@@ -20,13 +20,15 @@ from rich.table import Table
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-MODULES = ["bench_sim", "bench_planners", "bench_mpc", "bench_amcl", "bench_mission"]
+MODULES = ["bench_sim", "bench_planners", "bench_mpc", "bench_amcl", "bench_slam", "bench_mission"]
 
 # metric -> (comparison, target) from the issues
 TARGETS = {
     "mpc.solve_ms.p50": ("<=", 5.0),
     "mpc.solve_ms.p99": ("<=", 20.0),
     "mission.patrol.real_time_factor": (">=", 10.0),
+    "amcl.update_ms.p50.1000x60": ("<=", 2.0),
+    "mission.map_area_small_house.real_time_factor": (">=", 5.0),
 }
 
 

@@ -127,6 +127,8 @@ def test_map_iou_and_missing_metrics() -> None:
     doc = result_doc()
     doc["metrics"]["map"] = {"iou": 0.9}
     assert check(e, doc) == []
+    doc["maps"] = [{"map": "house", "iou": 0.95}]
+    assert check(e, doc) == []
     doc["tasks"][1]["iou"] = 0.7
     (f,) = check(e, doc)
     assert f.by == pytest.approx(0.1)
@@ -184,6 +186,10 @@ def test_scenario_suite_is_valid_and_covers_the_stack() -> None:
     }
     assert len(planners) >= 4
     assert any(m.expect.status == "failed" for m in missions)  # a fault case
+    faults = {f.type for m in missions for f in m.faults}
+    assert {"lidar_dropout", "wheel_slip", "kidnap"} <= faults
+    assert any(m.obstacles for m in missions)
+    assert any(getattr(t, "on_failure", "abort") == "skip" for m in missions for t in m.tasks)
     assert len(FAST) >= 6 and all(
         m.limits.time <= 60 for m, p in zip(missions, suite, strict=True) if p in FAST
     )

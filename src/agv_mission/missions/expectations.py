@@ -14,8 +14,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-RunStatus = Literal["succeeded", "failed"]
-TaskStatus = Literal["succeeded", "failed", "not_run", "running"]
+RunStatus = Literal["succeeded", "failed", "aborted", "error"]
+TaskStatus = Literal["succeeded", "partial", "skipped", "failed", "aborted", "not_run", "running"]
 
 
 class Expectations(BaseModel):
@@ -167,13 +167,16 @@ def waypoints_reached(result: dict[str, Any]) -> int:
 
 
 def map_ious(result: dict[str, Any]) -> list[float]:
-    """Every map IoU the result reports: ``metrics.map.iou``, ``metrics.map_iou`` or a
-    task's ``iou`` / ``map.iou`` (the map_area task's report)."""
+    """Every map IoU the result reports: each saved map's ``maps[i].iou``,
+    ``metrics.map.iou``, ``metrics.map_iou``, or a task's ``iou`` / ``map.iou``."""
     metrics = result.get("metrics") or {}
     found = [
         (metrics.get("map") or {}).get("iou") if isinstance(metrics.get("map"), dict) else None,
         metrics.get("map_iou"),
     ]
+    for entry in result.get("maps") or []:
+        if isinstance(entry, dict):
+            found.append(entry.get("iou"))
     for task in result.get("tasks") or []:
         found.append(task.get("iou"))
         if isinstance(task.get("map"), dict):

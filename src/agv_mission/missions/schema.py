@@ -62,7 +62,7 @@ class Pose(StrictModel):
         extra = set(data) - {"position", "orientation"}
         if extra:
             raise ValueError(
-                f"a ROS-style pose has only 'position' and 'orientation', not {sorted(extra)}"
+                f"a ROS-style pose has only 'position' and 'orientation', not {sorted(extra, key=str)}"
             )
         position = Position.model_validate(data.get("position", {"x": 0.0, "y": 0.0}))
         if "orientation" not in data:

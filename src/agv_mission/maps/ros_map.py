@@ -27,13 +27,13 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import yaml
 from PIL import Image, UnidentifiedImageError
 
+from agv_mission.atomic import atomic_write_bytes
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import OccupancyGrid
 
@@ -102,7 +102,7 @@ def save_ros_map(grid: OccupancyGrid, stem_path: str | os.PathLike[str]) -> tupl
         f"P5\n# CREATOR: agv_mission ros_map.py {grid.resolution:.3f} m/pix\n"
         f"{grid.width} {grid.height}\n255\n"
     ).encode("ascii")
-    _write_atomic(pgm_path, header + pixels.tobytes())
+    atomic_write_bytes(pgm_path, header + pixels.tobytes())
 
     o = grid.origin
     text = (
@@ -113,7 +113,7 @@ def save_ros_map(grid: OccupancyGrid, stem_path: str | os.PathLike[str]) -> tupl
         f"occupied_thresh: {DEFAULT_OCCUPIED_THRESH}\n"
         f"free_thresh: {DEFAULT_FREE_THRESH}\n\n"
     )
-    _write_atomic(yaml_path, text.encode("utf-8"))
+    atomic_write_bytes(yaml_path, text.encode("utf-8"))
     return pgm_path, yaml_path
 
 
@@ -129,19 +129,6 @@ def _fmt(value: float) -> str:
     """``%f`` like map_saver, unless that would lose precision."""
     text = f"{value:.6f}"
     return text if float(text) == value else repr(float(value))
-
-
-def _write_atomic(path: Path, payload: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(payload)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _read_yaml(yaml_path: Path) -> dict:

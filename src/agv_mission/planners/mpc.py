@@ -28,9 +28,8 @@ from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.planners.base import PluginConfig, VelocityCommand, VelocityLimits
 from agv_mission.planners.path_tracking import (
     ProgressTracker,
-    clean_path,
-    cumulative_length,
     interpolate,
+    prepare_path,
     speed_profile,
     unwrap_from,
 )
@@ -381,13 +380,7 @@ class MpcController:
     ) -> VelocityCommand:
         t0 = time.perf_counter()
         cfg, lim, pb = self.config, self.limits, self._problem
-        path = clean_path(path)
-        if len(path) == 0:
-            path = np.array([[goal.x, goal.y]])
-        if len(path) == 1:
-            path = np.vstack(([pose.x, pose.y], path))
-        cumlen = cumulative_length(path)
-        total = float(cumlen[-1])
+        path, cumlen, total = prepare_path(path, pose, goal)
         xy = np.array([pose.x, pose.y])
         v0 = min(max(float(velocity[0]), lim.min_v), lim.max_v)
         w0 = min(max(float(velocity[1]), -lim.max_w), lim.max_w)

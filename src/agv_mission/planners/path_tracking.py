@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from agv_mission.geometry import Pose2D
+
 
 def clean_path(path: np.ndarray) -> np.ndarray:
     """``path`` as a float (N, 2) array without consecutive duplicate points."""
@@ -216,3 +218,17 @@ class ProgressTracker:
             s = closest_point(path, xy, cumlen).s
         self.progress, self._key = s, key
         return s
+
+
+def prepare_path(
+    path: np.ndarray, pose: Pose2D, goal: Pose2D
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """A usable polyline of at least two points (the goal alone becomes pose -> goal),
+    with its cumulative length and total length."""
+    path = clean_path(path)
+    if len(path) == 0:
+        path = np.array([[goal.x, goal.y]])
+    if len(path) == 1:
+        path = np.vstack(([pose.x, pose.y], path))
+    cumlen = cumulative_length(path)
+    return path, cumlen, float(cumlen[-1])

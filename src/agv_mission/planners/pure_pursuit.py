@@ -19,9 +19,8 @@ from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.planners.base import PluginConfig, VelocityCommand, VelocityLimits
 from agv_mission.planners.path_tracking import (
     ProgressTracker,
-    clean_path,
-    cumulative_length,
     interpolate,
+    prepare_path,
     speed_profile,
 )
 from agv_mission.registry import register
@@ -96,13 +95,7 @@ class PurePursuitController:
     ) -> VelocityCommand:
         t0 = time.perf_counter()
         cfg, lim, dt = self.config, self.limits, self.control_period
-        path = clean_path(path)
-        if len(path) == 0:
-            path = np.array([[goal.x, goal.y]])
-        if len(path) == 1:
-            path = np.vstack(([pose.x, pose.y], path))
-        cumlen = cumulative_length(path)
-        total = float(cumlen[-1])
+        path, cumlen, total = prepare_path(path, pose, goal)
         xy = np.array([pose.x, pose.y])
         s0 = self._tracker.update(path, cumlen, xy)
         to_goal = path[-1] - xy

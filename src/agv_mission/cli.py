@@ -265,6 +265,7 @@ def regress(
     if backend not in ("local", "ray"):
         err.print(f"[bold red]invalid input[/]: --backend {escape(backend)}: local or ray")
         raise typer.Exit(2)
+    rg.warm_up(backend, workers)  # the pool's fork server imports while we plan
     try:
         plan = rg.plan_jobs(paths, sweep, seeds, output)
     except rg.RegressError as exc:

@@ -316,6 +316,22 @@ WORKER_PRELOAD = [
 ]
 
 
+def _pool_context() -> Any:
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(WORKER_PRELOAD)
+    return ctx
+
+
+def warm_up(backend: str = "local", workers: int | None = None) -> None:
+    """Start the local pool's fork server now, so that it imports the stack while this
+    process plans (call before :func:`plan_jobs`; harmless otherwise)."""
+    if backend == "local" and (workers or os.cpu_count() or 1) > 1:
+        from multiprocessing import forkserver
+
+        _pool_context()
+        forkserver.ensure_running()
+
+
 def run_jobs(
     jobs: Sequence[dict[str, Any]],
     backend: str = "local",
@@ -347,9 +363,9 @@ def _run_local(jobs: Sequence[dict[str, Any]], workers: int, collect: Callable) 
         for job in jobs:
             collect(run_job(job))
         return
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(WORKER_PRELOAD)
-    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as pool:
+    with ProcessPoolExecutor(
+        max_workers=min(workers, len(jobs)), mp_context=_pool_context()
+    ) as pool:
         futures = {pool.submit(run_job, job): job for job in jobs}
         for future in as_completed(futures):
             try:

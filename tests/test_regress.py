@@ -125,13 +125,15 @@ def test_map_iou_and_missing_metrics() -> None:
     e = Expectations(map_iou_min=0.8)
     assert check(e, result_doc()) == [Failure("map_iou_min", ">= 0.8", "no map reported")]
     doc = result_doc()
-    doc["metrics"]["map"] = {"iou": 0.9}
+    doc["maps"] = [{"map": "house", "free_iou": 0.95, "occupied_iou": 0.3, "coverage": 0.97}]
     assert check(e, doc) == []
-    doc["maps"] = [{"map": "house", "iou": 0.95}]
-    assert check(e, doc) == []
-    doc["tasks"][1]["iou"] = 0.7
+    assert check(Expectations(map_occupied_iou_min=0.3, map_coverage_min=0.9), doc) == []
+    doc["maps"].append({"map": "second", "free_iou": 0.7, "occupied_iou": 0.2, "coverage": 0.5})
     (f,) = check(e, doc)
-    assert f.by == pytest.approx(0.1)
+    assert f.metric == "map_iou_min" and f.by == pytest.approx(0.1)
+    by = {f.metric: f for f in check(Expectations(map_occupied_iou_min=0.25), doc)}
+    assert by["map_occupied_iou_min"].by == pytest.approx(0.05)
+    assert check(e, result_doc(metrics={"map": {"iou": 0.9}})) == []
     doc = result_doc()
     doc["metrics"]["min_clearance"] = None
     (f,) = check(Expectations(min_clearance_min=0.0), doc)
@@ -174,7 +176,7 @@ def test_scenario_suite_is_valid_and_covers_the_stack() -> None:
     missions = [x.mission for x in loaded]
     assert all(m.expect is not None for m in missions)
     tasks = {t.type for m in missions for t in m.tasks}
-    assert {"go_to", "patrol", "wander", "visit_rooms", "record_room"} <= tasks
+    assert {"go_to", "patrol", "wander", "visit_rooms", "record_room", "map_area"} <= tasks
     worlds = {Path(m.world).parent.name or m.world for m in missions}
     assert {"turtlebot3_world", "small_house", "aws_small_house"} <= worlds
     assert sum("ros_maps" in m.world for m in missions) >= 2
@@ -191,7 +193,7 @@ def test_scenario_suite_is_valid_and_covers_the_stack() -> None:
     assert any(m.obstacles for m in missions)
     assert any(getattr(t, "on_failure", "abort") == "skip" for m in missions for t in m.tasks)
     assert len(FAST) >= 6 and all(
-        m.limits.time <= 75 for m, p in zip(missions, suite, strict=True) if p in FAST
+        m.limits.time <= 100 for m, p in zip(missions, suite, strict=True) if p in FAST
     )
 
 

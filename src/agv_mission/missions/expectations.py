@@ -45,8 +45,14 @@ class Expectations(BaseModel):
         None,
         ge=0.0,
         le=1.0,
-        description="intersection over union of a built map with the true map, at least "
-        "(every map the run reports)",
+        description="free-space intersection over union of every built map with the true "
+        "map (result.json maps[i].free_iou), at least",
+    )
+    map_occupied_iou_min: float | None = Field(
+        None, ge=0.0, le=1.0, description="occupied-cell IoU of every built map, at least"
+    )
+    map_coverage_min: float | None = Field(
+        None, ge=0.0, le=1.0, description="share of the reachable free space mapped, at least"
     )
     rooms_recorded: list[str] | None = Field(
         None, description="room labels that must have been recorded"
@@ -125,12 +131,18 @@ def check(expect: Expectations | None, result: dict[str, Any]) -> list[Failure]:
         e.localization_rmse_max,
         (metrics.get("localization") or {}).get("position_rmse"),
     )
-    if e.map_iou_min is not None:
-        ious = map_ious(result)
-        if not ious:
-            failures.append(Failure("map_iou_min", f">= {_num(e.map_iou_min)}", "no map reported"))
-        for iou in ious:
-            at_least("map_iou_min", e.map_iou_min, iou)
+    for key, bound in (
+        ("map_iou_min", e.map_iou_min),
+        ("map_occupied_iou_min", e.map_occupied_iou_min),
+        ("map_coverage_min", e.map_coverage_min),
+    ):
+        if bound is None:
+            continue
+        values = map_values(result, MAP_KEYS[key])
+        if not values:
+            failures.append(Failure(key, f">= {_num(bound)}", "no map reported"))
+        for value in values:
+            at_least(key, bound, value)
     if e.rooms_recorded is not None:
         recorded = set(result.get("rooms_recorded") or {})
         missing = [r for r in e.rooms_recorded if r not in recorded]
@@ -166,22 +178,25 @@ def waypoints_reached(result: dict[str, Any]) -> int:
     )
 
 
-def map_ious(result: dict[str, Any]) -> list[float]:
-    """Every map IoU the result reports: each saved map's ``maps[i].iou``,
-    ``metrics.map.iou``, ``metrics.map_iou``, or a task's ``iou`` / ``map.iou``."""
-    metrics = result.get("metrics") or {}
-    found = [
-        (metrics.get("map") or {}).get("iou") if isinstance(metrics.get("map"), dict) else None,
-        metrics.get("map_iou"),
-    ]
-    for entry in result.get("maps") or []:
-        if isinstance(entry, dict):
-            found.append(entry.get("iou"))
-    for task in result.get("tasks") or []:
-        found.append(task.get("iou"))
-        if isinstance(task.get("map"), dict):
-            found.append(task["map"].get("iou"))
-    return [float(v) for v in found if _is_number(v)]
+# Where each map expectation looks in a map's report (first key present wins).
+MAP_KEYS = {
+    "map_iou_min": ("free_iou", "iou"),
+    "map_occupied_iou_min": ("occupied_iou",),
+    "map_coverage_min": ("coverage",),
+}
+
+
+def map_values(result: dict[str, Any], keys: tuple[str, ...]) -> list[float]:
+    """One value per map the result reports (``maps[i]``, else ``metrics.map``)."""
+    reports = [m for m in result.get("maps") or [] if isinstance(m, dict)]
+    if not reports and isinstance((result.get("metrics") or {}).get("map"), dict):
+        reports = [result["metrics"]["map"]]
+    values = []
+    for report in reports:
+        value = next((report[k] for k in keys if k in report), None)
+        if _is_number(value):
+            values.append(float(value))
+    return values
 
 
 def _check_tasks(

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import py_trees
 from py_trees.common import Status
 
 from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.maps.frontiers import find_frontiers
+from agv_mission.maps.grid import UNKNOWN, OccupancyGrid
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import NavStatus
 
@@ -19,13 +21,27 @@ class MapArea(py_trees.behaviour.Behaviour):
     """Drive to the nearest reachable frontier until none is left, then save the map.
 
     Stops early at a ``coverage`` share of known cells in the bounds or after
-    ``time_limit`` simulated seconds. A frontier the navigator fails to reach is
-    blacklisted, so exploration never loops on an unreachable one.
+    ``time_limit`` simulated seconds.
+
+    Goals are chosen on the grid of the costmap the navigator plans on (the mapping
+    session's last one), not on the newer SLAM map: a goal that is free on the newer map
+    may still be unknown, i.e. an obstacle, on the planner's, and fail at once. After a
+    goal ends, the next one waits for a fresh costmap.
+
+    A goal the navigator fails to reach, or reaches while its frontier remains (it cannot
+    be mapped from there), is blacklisted: its frontier is skipped until the map has grown
+    by ``RETRY_GROWTH`` known cells since (the map it failed on may have been missing
+    the way there), and for good after ``MAX_ATTEMPTS`` tries, so exploration never
+    loops on an unreachable frontier and still ends.
     """
 
     RESELECT_PERIOD = 5.0  # s: re-check that the frontier being approached still exists
     GOAL_TOLERANCE = 0.25  # m: a frontier is seen from near its goal point
+    GOAL_MARGIN = 0.1  # m: clearance beyond the planner's a goal gets where there is room
     SPIN_RATE = 0.8  # rad/s of the first look around
+    BLACKLIST_RADIUS = 0.3  # m: a frontier whose goal lies this near a blacklisted goal
+    MAX_ATTEMPTS = 3  # tries of one goal (within BLACKLIST_RADIUS) before it is given up
+    RETRY_GROWTH = 800  # known cells the map must gain before a blacklisted goal is retried
 
     def __init__(
         self,
@@ -47,7 +63,8 @@ class MapArea(py_trees.behaviour.Behaviour):
         self.min_frontier_size = min_frontier_size
         self.clearance = clearance
         self.goal: Pose2D | None = None
-        self.blacklist: list[tuple[float, float]] = []
+        #: Goals given up on (for now): [x, y, attempts, known cells at the last attempt].
+        self.attempts: list[list[float]] = []
         self._deadline = math.inf
         self._reselect_at = 0.0
         self.frontiers_visited = 0
@@ -56,7 +73,7 @@ class MapArea(py_trees.behaviour.Behaviour):
         assert self.handle.begin_mapping is not None, "the runner provides mapping"
         self.handle.begin_mapping(self.bounds)
         self.goal = None
-        self.blacklist = []
+        self.attempts = []
         self.frontiers_visited = 0
         now = self.handle.state.time
         self._deadline = now + self.time_limit if self.time_limit else math.inf
@@ -74,16 +91,21 @@ class MapArea(py_trees.behaviour.Behaviour):
             handle.drive(0.0, self.SPIN_RATE)
             return Status.RUNNING
         nav = handle.navigator
-        if nav.status is NavStatus.FAILED and self.goal is not None:
-            self.blacklist.append((self.goal.x, self.goal.y))
+        if self.goal is not None and nav.status in (NavStatus.FAILED, NavStatus.SUCCEEDED):
+            # Failed, or reached: seen from there already, so if its frontier is still
+            # there it cannot be mapped from there.
+            if nav.status is NavStatus.SUCCEEDED:
+                self.frontiers_visited += 1
+            self._give_up(self.goal)
             self.goal = None
-        elif nav.status is NavStatus.SUCCEEDED and self.goal is not None:
-            # seen from here already: if its frontier is still there, it cannot be mapped
-            self.frontiers_visited += 1
-            self.blacklist.append((self.goal.x, self.goal.y))
-            self.goal = None
+            # choose the next goal on a costmap that holds what was seen from here
+            mapping.request_refresh()
+            self._reselect_at = state.time + 1e-6
         done = self._done(state.time)
-        if done is None and (self.goal is None or state.time >= self._reselect_at):
+        if done is None and mapping.costmap is None:
+            handle.drive(0.0, self.SPIN_RATE)  # no map to plan on yet: keep looking
+            return Status.RUNNING
+        if done is None and state.time >= self._reselect_at:
             self._reselect_at = state.time + self.RESELECT_PERIOD
             done = self._next_goal()
         if done is not None:
@@ -108,16 +130,19 @@ class MapArea(py_trees.behaviour.Behaviour):
     def _next_goal(self) -> str | None:
         """Aim at the nearest frontier; ``"no reachable frontier left"`` when done."""
         handle, state = self.handle, self.handle.state
-        costmap = handle.navigator.costmap
+        costmap = handle.mapping.costmap
+        assert costmap is not None
         est = state.estimate
         frontiers = find_frontiers(
-            handle.mapping.grid,
+            costmap.grid,
             bounds=self.bounds,
             robot=(est.x, est.y),
             robot_radius=costmap.robot_radius,
             clearance=self.clearance,
             min_size=self.min_frontier_size,
-            blacklist=self.blacklist,
+            goal_margin=self.GOAL_MARGIN,
+            blacklist=self._blacklist(costmap.grid),
+            blacklist_radius=self.BLACKLIST_RADIUS,
         )
         if not frontiers:
             return "no reachable frontier left"
@@ -136,3 +161,29 @@ class MapArea(py_trees.behaviour.Behaviour):
             self.goal, state, xy_tolerance=self.GOAL_TOLERANCE, yaw_tolerance=math.pi
         )
         return None
+
+    def _give_up(self, goal: Pose2D) -> None:
+        """Blacklist ``goal`` (one more attempt at the spot, if it was tried before)."""
+        mapping = self.handle.mapping
+        grid = mapping.costmap.grid if mapping.costmap is not None else mapping.grid
+        known = float(np.count_nonzero(grid.data != UNKNOWN))
+        for entry in self.attempts:
+            if math.hypot(entry[0] - goal.x, entry[1] - goal.y) <= self.BLACKLIST_RADIUS:
+                entry[2] += 1
+                entry[3] = known
+                return
+        self.attempts.append([goal.x, goal.y, 1.0, known])
+
+    def _blacklist(self, grid: OccupancyGrid) -> list[tuple[float, float]]:
+        """The goals to skip now: tried too often, or the map has not grown much since."""
+        known = float(np.count_nonzero(grid.data != UNKNOWN))
+        return [
+            (x, y)
+            for x, y, tries, then in self.attempts
+            if tries >= self.MAX_ATTEMPTS or known < then + self.RETRY_GROWTH
+        ]
+
+    @property
+    def blacklist(self) -> list[tuple[float, float]]:
+        """Every goal given up on so far (for now or for good)."""
+        return [(x, y) for x, y, _, _ in self.attempts]

@@ -50,19 +50,34 @@ class Frontier:
         return int(len(self.cells))
 
 
-def frontier_mask(grid: OccupancyGrid, min_unknown: int = 0) -> np.ndarray:
+def frontier_mask(
+    grid: OccupancyGrid, min_unknown: int = 0, open_share: float = 0.8
+) -> np.ndarray:
     """Boolean (H, W): ``FREE`` cells with an ``UNKNOWN`` 4-neighbour (or on the edge).
 
     Unknown pockets of fewer than ``min_unknown`` cells (4-connected, not touching the
     grid's edge) do not count: the inside of a pillar or a piece of furniture ringed by
-    scan hits stays unknown however long the robot looks at it.
+    scan hits stays unknown however long the robot looks at it. Unless at least
+    ``open_share`` of the cells around the pocket (8-neighbours) are ``FREE``: that is no
+    object's inside but a shadow that a look from elsewhere fills (a strip behind a
+    pillar), and left unknown it would block a costmap that treats unknown as an
+    obstacle.
     """
     unknown = grid.data == UNKNOWN
     if min_unknown > 0:
-        labels, _ = ndimage.label(unknown)
-        sizes = np.bincount(labels.ravel())
+        labels, count = ndimage.label(unknown)
+        sizes = np.bincount(labels.ravel(), minlength=count + 1)
         border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
         big = sizes >= min_unknown
+        small = np.flatnonzero(~big)
+        small = small[small > 0]
+        if len(small) and open_share <= 1.0:
+            # FREE share of each small pocket's ring (cells next to it, not in it)
+            grown = ndimage.grey_dilation(np.where(np.isin(labels, small), labels, 0), size=3)
+            ring = (grown > 0) & (labels == 0)
+            total = np.bincount(grown[ring], minlength=count + 1)
+            free = np.bincount(grown[ring & (grid.data == FREE)], minlength=count + 1)
+            big |= free >= open_share * np.maximum(total, 1)
         big[border] = True
         big[0] = False
         unknown = big[labels]
@@ -90,6 +105,7 @@ def find_frontiers(
     min_size: int = 5,
     min_unknown: int = 100,
     goal_reach: float = 1.0,
+    goal_margin: float = 0.0,
     reachable_only: bool = True,
     blacklist: Sequence[tuple[float, float]] = (),
     blacklist_radius: float = 0.3,
@@ -98,7 +114,10 @@ def find_frontiers(
 
     ``min_size``: fewest cells of a cluster; ``min_unknown``: see :func:`frontier_mask`;
     ``robot_radius`` + ``clearance``: the clearance a goal needs; ``goal_reach`` (m): how
-    far from its frontier a goal may be.
+    far from its frontier a goal may be; ``goal_margin`` (m): more clearance a goal gets
+    when its frontier has such a point within ``goal_reach`` (a goal on the very edge of
+    the traversable space turns untraversable as soon as the map gains a cell of wall
+    next to it, and the navigator then gives up on it).
 
     ``robot`` (map-frame x, y) enables reachability and distances; without it every
     frontier with a traversable cell within ``goal_reach`` gets that cell as its goal and
@@ -139,7 +158,8 @@ def find_frontiers(
     goal_of: dict[int, tuple[int, int]] = {}
     if len(cr):
         lab = labels[fr[cr, cc], fc[cr, cc]]
-        order = np.lexsort((d_front[cr, cc], lab))  # by label, then distance
+        tight = distance[cr, cc] <= robot_radius + clearance + goal_margin
+        order = np.lexsort((d_front[cr, cc], tight, lab))  # by label, margin, distance
         lab_sorted = lab[order]
         first = np.ones(len(order), dtype=bool)
         first[1:] = lab_sorted[1:] != lab_sorted[:-1]

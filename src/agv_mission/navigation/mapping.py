@@ -58,6 +58,20 @@ class MappingSession:
         self._costmap = Costmap.from_grid(self.grid, self.robot_radius, self.costmap_config)
         return self._costmap
 
+    @property
+    def costmap(self) -> Costmap | None:
+        """The last costmap handed out (what the navigator plans on), ``None`` before one.
+
+        An explorer must pick its goals on this map's grid, not on the newer
+        :attr:`grid`: a goal that is free on the newer map may still be unknown (an
+        obstacle) on the planner's, and fail at once.
+        """
+        return self._costmap
+
+    def request_refresh(self) -> None:
+        """Make the next :meth:`refreshed_costmap` call build a new costmap."""
+        self._next_refresh = 0.0
+
     def known_fraction(self) -> float:
         """The share of the bounds' cells that the map knows (free or occupied)."""
         grid = self.grid

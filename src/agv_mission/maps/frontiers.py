@@ -50,9 +50,7 @@ class Frontier:
         return int(len(self.cells))
 
 
-def frontier_mask(
-    grid: OccupancyGrid, min_unknown: int = 0, open_share: float = 0.8
-) -> np.ndarray:
+def frontier_mask(grid: OccupancyGrid, min_unknown: int = 0, open_share: float = 0.8) -> np.ndarray:
     """Boolean (H, W): ``FREE`` cells with an ``UNKNOWN`` 4-neighbour (or on the edge).
 
     Unknown pockets of fewer than ``min_unknown`` cells (4-connected, not touching the

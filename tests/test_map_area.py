@@ -1,0 +1,192 @@
+"""map_area end to end through the real runner: frontier exploration on grid SLAM with
+noisy odometry, the saved map (ROS loader and Pillow), and amcl on it afterwards."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from agv_mission.geometry import Pose2D
+from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN
+from agv_mission.maps.ros_map import load_ros_map
+from agv_mission.missions.loader import LoadedMission, load_mission
+from agv_mission.missions.runner import MissionRun, RunRecord, run_mission
+
+# Issue 4's done-when.
+MIN_COVERAGE = 0.95
+MIN_FREE_IOU = 0.9
+MAX_SLAM_RMSE = 0.05  # m
+MIN_REAL_TIME_FACTOR = 5.0
+
+# Odometry noise on: dead reckoning drifts by decimetres, scan matching has to correct it.
+NOISE = "simulation: {encoder_noise: 0.02, wheel_slip: 0.02}"
+
+TB3_MAP_THEN_PATROL = f"""
+name: tb3-map-then-patrol
+world: turtlebot3_world
+start: {{x: -2.0, y: -0.5, yaw: 0.0}}
+seed: 2
+{NOISE}
+stack:
+  localization: {{type: amcl}}
+tasks:
+  - {{type: map_area, save_map: tb3_map}}
+  - type: patrol
+    waypoints:
+      - {{x: 0.55, y: -1.95, yaw: 0.0}}
+      - {{x: 1.9, y: 0.55, yaw: 1.57}}
+      - {{x: -2.0, y: -0.5, yaw: 3.14}}
+limits: {{time: 300}}
+"""
+
+TB3_MAP = f"""
+name: tb3-map
+world: turtlebot3_world
+start: {{x: -2.0, y: -0.5, yaw: 0.0}}
+seed: 1
+{NOISE}
+tasks:
+  - {{type: map_area, save_map: tb3_map}}
+limits: {{time: 300}}
+"""
+
+HOUSE_MAP = f"""
+name: house-map
+world: small_house
+start: livingroom
+seed: 1
+{NOISE}
+tasks:
+  - {{type: map_area, save_map: house_map}}
+limits: {{time: 1500}}
+"""
+
+
+def load(tmp_path: Path, text: str) -> LoadedMission:
+    path = tmp_path / "mission.yaml"
+    path.write_text(text)
+    return load_mission(path)
+
+
+def map_report(record: RunRecord) -> dict:
+    (report,) = record.extras["maps"]
+    return report
+
+
+def map_saved_event(record: RunRecord) -> dict:
+    (event,) = [e for e in record.events if e["event"] == "map_saved"]
+    return event
+
+
+def assert_mapped_by_itself(record: RunRecord) -> dict:
+    """The exploration ended because no frontier was left, and the map is good."""
+    assert record.status == "succeeded", record.reason
+    assert record.tasks[0]["status"] == "succeeded"
+    event = map_saved_event(record)
+    assert event["reason"] == "no reachable frontier left", event
+    report = map_report(record)
+    assert report["coverage"] >= MIN_COVERAGE, report
+    assert report["free_iou"] >= MIN_FREE_IOU, report
+    assert record.metrics["collisions"] == 0
+    return report
+
+
+@pytest.fixture(scope="module")
+def tb3_run(tmp_path_factory) -> tuple[LoadedMission, RunRecord, Path]:
+    run_dir = tmp_path_factory.mktemp("tb3_map_then_patrol")
+    loaded = load(run_dir, TB3_MAP_THEN_PATROL)
+    return loaded, run_mission(loaded, run_dir), run_dir
+
+
+def test_tb3_map_area_ends_by_itself_with_a_good_map(tb3_run) -> None:
+    _, record, _ = tb3_run
+    report = assert_mapped_by_itself(record)
+    assert report["slam_rmse"] <= MAX_SLAM_RMSE, report
+
+
+def test_tb3_patrol_with_amcl_on_the_just_saved_map(tb3_run) -> None:
+    loaded, record, _ = tb3_run
+    assert loaded.mission.stack.localization.type == "amcl"
+    patrol = record.tasks[1]
+    assert patrol["status"] == "succeeded", record.reason
+    waypoints = loaded.mission.tasks[1].waypoints
+    assert [w["status"] for w in patrol["waypoints"]] == ["reached"] * len(waypoints)
+    for report in patrol["waypoints"]:
+        goal = waypoints[report["waypoint"] - 1]
+        # where the robot truly stood: the saved map is aligned with the world
+        assert math.hypot(report["true_x"] - goal.x, report["true_y"] - goal.y) <= 0.15, report
+        assert report["estimate_error"] <= 0.1, report
+    # the navigator ran on the saved map from then on
+    assert record.built_map is not None
+
+
+def test_saved_map_loads_through_the_ros_loader_and_pillow(tb3_run) -> None:
+    _, record, run_dir = tb3_run
+    pgm, yaml_file = run_dir / "tb3_map.pgm", run_dir / "tb3_map.yaml"
+    assert pgm.is_file() and yaml_file.is_file()
+
+    grid = load_ros_map(yaml_file)
+    assert grid.resolution == pytest.approx(0.05)
+    assert np.array_equal(grid.data, record.built_map.data)
+    assert {FREE, OCCUPIED, UNKNOWN} == set(np.unique(grid.data).tolist())
+
+    with Image.open(pgm) as image:
+        assert image.format == "PPM"  # Pillow's reader of the netpbm family, PGM included
+        assert image.mode == "L"
+        assert image.size == (grid.width, grid.height)
+        pixels = np.asarray(image)
+    # map_saver's trinary colours; row 0 of the image is the top (highest y) of the map
+    assert set(np.unique(pixels).tolist()) <= {0, 205, 254}
+    assert np.array_equal(pixels[::-1] == 254, grid.data == FREE)
+    assert np.array_equal(pixels[::-1] == 0, grid.data == OCCUPIED)
+
+
+def test_scan_matching_beats_dead_reckoning_during_map_area(tmp_path: Path) -> None:
+    """The same map_area run: SLAM's pose against the encoders' dead reckoning from the
+    same starting pose, both against the truth."""
+    run = MissionRun(load(tmp_path, TB3_MAP), tmp_path)
+    anchor = None
+    slam_err, odom_err = [], []
+    while run.step():
+        if run.handle.mapping is None:
+            assert anchor is None, "mapping ended but the mission goes on"
+            continue
+        t, x, y, _, ex, ey, eyaw = run.rows[-1][:7]
+        odom = run.odometry.pose
+        if anchor is None:
+            anchor = (Pose2D(ex, ey, eyaw), odom)
+        dead = anchor[0].compose(odom.relative_to(anchor[1]))
+        slam_err.append(math.hypot(ex - x, ey - y))
+        odom_err.append(math.hypot(dead.x - x, dead.y - y))
+    record = run.record()
+    report = assert_mapped_by_itself(record)
+    slam_err, odom_err = np.asarray(slam_err), np.asarray(odom_err)
+    odom_rmse = float(np.sqrt(np.mean(odom_err**2)))
+    slam_rmse = float(np.sqrt(np.mean(slam_err**2)))
+    assert report["slam_rmse"] <= MAX_SLAM_RMSE, report
+    # odometry alone would have drifted much further, past the done-when's bound
+    assert odom_err.max() > MAX_SLAM_RMSE
+    assert odom_err.max() > 2.0 * slam_err.max(), (odom_err.max(), slam_err.max())
+    assert odom_rmse > 2.0 * slam_rmse, (odom_rmse, slam_rmse)
+
+
+@pytest.fixture(scope="module")
+def house_run(tmp_path_factory) -> RunRecord:
+    run_dir = tmp_path_factory.mktemp("house_map")
+    return run_mission(load(run_dir, HOUSE_MAP), run_dir)
+
+
+@pytest.mark.slow
+def test_small_house_map_area_ends_by_itself_with_a_good_map(house_run: RunRecord) -> None:
+    assert_mapped_by_itself(house_run)
+    assert house_run.metrics["real_time_factor"] >= MIN_REAL_TIME_FACTOR
+
+
+@pytest.mark.slow
+def test_small_house_slam_trajectory_error(house_run: RunRecord) -> None:
+    report = map_report(house_run)
+    assert report["slam_rmse"] <= MAX_SLAM_RMSE, report

@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from PIL import Image
 
+from agv_mission.behaviors.explore import MapArea
 from agv_mission.geometry import Pose2D
-from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN
+from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.maps.ros_map import load_ros_map
 from agv_mission.missions.loader import LoadedMission, load_mission
 from agv_mission.missions.runner import MissionRun, RunRecord, run_mission
@@ -93,6 +95,28 @@ def assert_mapped_by_itself(record: RunRecord) -> dict:
     assert report["free_iou"] >= MIN_FREE_IOU, report
     assert record.metrics["collisions"] == 0
     return report
+
+
+def test_blacklisted_goals_are_retried_once_the_map_grew() -> None:
+    data = np.full((100, 100), UNKNOWN, np.int8)
+    grid = OccupancyGrid(data, 0.05, Pose2D(0.0, 0.0, 0.0))
+    mapping = SimpleNamespace(grid=grid, costmap=SimpleNamespace(grid=grid))
+    explore = MapArea("map", SimpleNamespace(mapping=mapping), None, "m", None, None, 8, 0.05)
+    here, there = Pose2D(1.0, 1.0, 0.0), Pose2D(3.0, 1.0, 0.0)
+    explore._give_up(here)
+    assert explore._blacklist(grid) == [(1.0, 1.0)]
+    data[:20, :] = FREE  # the map grows (more than RETRY_GROWTH cells): worth a new try
+    assert MapArea.RETRY_GROWTH <= 20 * 100
+    assert explore._blacklist(grid) == []
+    explore._give_up(Pose2D(1.1, 1.0, 0.0))  # the same spot failed again
+    explore._give_up(there)
+    assert explore._blacklist(grid) == [(1.0, 1.0), (3.0, 1.0)]
+    data[20:40, :] = FREE
+    assert explore._blacklist(grid) == []
+    explore._give_up(here)  # third failure at the spot: given up for good
+    data[40:60, :] = FREE
+    assert explore._blacklist(grid) == [(1.0, 1.0)]
+    assert explore.blacklist == [(1.0, 1.0), (3.0, 1.0)]
 
 
 @pytest.fixture(scope="module")

@@ -385,6 +385,36 @@ def test_unknown_pockets_are_not_frontiers() -> None:
     assert find_frontiers(grid, robot=(0.5, 0.5), min_size=1, min_unknown=0)
 
 
+def test_shadow_pockets_are_frontiers() -> None:
+    """A small unknown pocket ringed by free cells is a lidar shadow, not an object's
+    inside: it stays a frontier (left unknown, it blocks the costmap)."""
+    data = np.zeros((60, 60), np.int8)
+    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = OCCUPIED
+    data[18:23, 18:23] = OCCUPIED
+    data[19:22, 19:22] = UNKNOWN  # the inside of a pillar
+    data[40:43, 10:30] = UNKNOWN  # a 60-cell shadow in open space
+    grid = OccupancyGrid(data, 0.05, Pose2D(0.0, 0.0, 0.0))
+    (shadow,) = find_frontiers(grid, robot=(0.5, 0.5))
+    assert 39 <= shadow.centroid[1] / 0.05 <= 44 and shadow.goal is not None
+    # ... unless open pockets are ignored too
+    assert find_frontiers(grid, robot=(0.5, 0.5), open_share=1.1) == []
+
+
+def test_goals_keep_a_margin_where_there_is_room() -> None:
+    data = np.full((60, 60), UNKNOWN, np.int8)
+    data[10:50, 5:40] = FREE  # a room whose east side is unexplored
+    data[9, 4:40] = data[50, 4:40] = data[9:51, 4] = OCCUPIED
+    grid = OccupancyGrid(data, 0.05, Pose2D(0.0, 0.0, 0.0))
+    costmap = Costmap.from_grid(grid, BURGER.footprint_radius)
+    need = BURGER.footprint_radius + 0.05
+    robot = (0.75, 1.5)
+    (tight,) = find_frontiers(grid, robot=robot)
+    (roomy,) = find_frontiers(grid, robot=robot, goal_margin=0.1)
+    assert need < costmap.clearance(np.array(tight.goal)) <= need + 0.1
+    assert costmap.clearance(np.array(roomy.goal)) > need + 0.1
+    assert np.min(np.hypot(*(roomy.cells - np.array(roomy.goal)).T)) <= 1.0 + 1e-9
+
+
 def test_unreachable_frontier_has_no_goal() -> None:
     data = np.full((60, 60), UNKNOWN, np.int8)
     data[5:25, 5:25] = FREE  # the robot's room

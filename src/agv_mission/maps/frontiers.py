@@ -102,6 +102,7 @@ def find_frontiers(
     clearance: float = 0.05,
     min_size: int = 5,
     min_unknown: int = 100,
+    open_share: float = 0.8,
     goal_reach: float = 1.0,
     goal_margin: float = 0.0,
     reachable_only: bool = True,
@@ -110,7 +111,8 @@ def find_frontiers(
 ) -> list[Frontier]:
     """Frontier clusters of ``grid`` inside ``bounds``, nearest (by driving) first.
 
-    ``min_size``: fewest cells of a cluster; ``min_unknown``: see :func:`frontier_mask`;
+    ``min_size``: fewest cells of a cluster; ``min_unknown``, ``open_share``: see
+    :func:`frontier_mask`;
     ``robot_radius`` + ``clearance``: the clearance a goal needs; ``goal_reach`` (m): how
     far from its frontier a goal may be; ``goal_margin`` (m): more clearance a goal gets
     when its frontier has such a point within ``goal_reach`` (a goal on the very edge of
@@ -124,7 +126,7 @@ def find_frontiers(
     point (goals that failed before) are left out too.
     """
     res = grid.resolution
-    mask = frontier_mask(grid, min_unknown) & bounds_mask(grid, bounds)
+    mask = frontier_mask(grid, min_unknown, open_share) & bounds_mask(grid, bounds)
     labels, count = ndimage.label(mask, structure=_EIGHT)
     if count == 0:
         return []

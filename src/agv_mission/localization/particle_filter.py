@@ -14,12 +14,14 @@ Pure numpy, no plugin glue. It follows ROS amcl (``pf.c``, ``amcl_odom.cpp``,
 * :meth:`ParticleFilter.resample` is KLD sampling (Fox 2003) over amcl's histogram bins
   (0.5 m x 0.5 m x 10 deg) with ``kld_z`` used as the quantile like amcl does, a
   low-variance (systematic) draw of the chosen count, and random-pose injection with
-  probability ``max(0, 1 - w_fast / w_slow)``. Two changes from amcl, both because a
+  probability ``max(0, 1 - w_fast / w_slow)``. Three changes from amcl, all because a
   kidnapped robot stayed lost in tests: ``w_slow`` / ``w_fast`` are not reset after an
   injection (Probabilistic Robotics' Augmented MCL; amcl's reset injects once, then waits
-  for the likelihood to fall further), and they are bias-corrected exponential averages
+  for the likelihood to fall further); they are bias-corrected exponential averages
   (amcl starts both at the first, still unconverged, likelihood, which keeps ``w_slow``
-  low for ~1 / recovery_alpha_slow updates).
+  low for ~1 / recovery_alpha_slow updates); and with ``inject_candidates`` > 1 the
+  injected poses are drawn from the last scan's likelihood, not uniformly (see
+  :meth:`ParticleFilter.injection_poses`).
 * :meth:`ParticleFilter.estimate` is amcl's: the weighted mean (circular for yaw) of the
   heaviest cluster of connected histogram bins.
 """
@@ -27,7 +29,7 @@ Pure numpy, no plugin glue. It follows ROS amcl (``pf.c``, ``amcl_odom.cpp``,
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -46,6 +48,13 @@ _YAW_BINS = 36
 OCCUPIED_THRESHOLD = 65
 #: Beam end points scored per block (see LikelihoodField.score).
 _BLOCK_ELEMENTS = 32768
+#: Scan-guided injection (ParticleFilter.injection_poses): the proposal's per-beam
+#: log-likelihood scale, the broad field's sigma_hit (m), and the refinement jitter
+#: (x/y sd in m, yaw sd in rad), halved in each refinement round.
+PROPOSAL_LOG_SCALE = 0.2
+PROPOSAL_BROAD_SIGMA = 0.5
+PROPOSAL_JITTER = (0.25, 0.15)
+PROPOSAL_ROUNDS = 2
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
@@ -190,6 +199,7 @@ class ParticleFilter:
         sensor: SensorParams | None = None,
         alpha_slow: float = 0.0,
         alpha_fast: float = 0.0,
+        inject_candidates: int = 1,
     ) -> None:
         if not 1 <= min_particles <= max_particles:
             raise ValueError("need 1 <= min_particles <= max_particles")
@@ -200,8 +210,12 @@ class ParticleFilter:
         self.motion = motion or MotionNoise()
         self.sensor = sensor or SensorParams()
         self.alpha_slow, self.alpha_fast = float(alpha_slow), float(alpha_fast)
+        if inject_candidates < 1:
+            raise ValueError("need inject_candidates >= 1")
+        self.inject_candidates = int(inject_candidates)
         self._reset_averages()
         self._fields: dict[float, LikelihoodField] = {}
+        self._proposal: dict[float, tuple[LikelihoodField, LikelihoodField]] = {}
         free = np.flatnonzero(grid.data.ravel() == 0)
         if free.size == 0:
             raise ValueError("the map has no free cell to put particles on")
@@ -209,6 +223,9 @@ class ParticleFilter:
         self.particles = np.zeros((0, 3))
         self.weights = np.zeros(0)
         self.last_w_diff = 0.0
+        self.last_injected = 0
+        # The last scan's field and beam end points (for scan-guided injection).
+        self._last_beams: tuple[LikelihoodField, np.ndarray, np.ndarray] | None = None
         if self.sensor.max_range > 0.0:
             self.field(self.sensor.max_range)  # the likelihood field, once, up front
 
@@ -341,6 +358,7 @@ class ParticleFilter:
             self.weights = np.full(self.count, 1.0 / self.count)
             return 0.0
         self.weights = w / total
+        self._last_beams = (f, bx, by)
         self._track_average(w_avg)
         return w_avg
 
@@ -359,8 +377,6 @@ class ParticleFilter:
 
     def _reset_averages(self) -> None:
         self.w_slow = self.w_fast = 0.0
-        self._slow_acc = self._fast_acc = 0.0
-        self._avg_count = 0
         self._slow_acc = self._fast_acc = 0.0
         self._avg_count = 0
 
@@ -386,10 +402,60 @@ class ParticleFilter:
 
     def systematic(self, n: int) -> np.ndarray:
         """Indices of a low-variance (systematic) draw of ``n`` from the weights."""
-        cum = np.cumsum(self.weights)
-        cum[-1] = 1.0
-        u = (self.rng.random() + np.arange(n)) / n
-        return np.minimum(np.searchsorted(cum, u, side="right"), self.count - 1)
+        return _systematic(self.weights, n, self.rng)
+
+    def injection_poses(self, n: int) -> np.ndarray:
+        """``n`` poses to inject: uniform over the free space, or drawn from the last scan.
+
+        With ``inject_candidates`` = c > 1 (and a scan seen) this is a coarse draw from the
+        measurement model (Thrun et al.'s Mixture MCL), by annealed importance sampling:
+        ``m = min(c n, max_particles)`` uniform poses are scored on every other beam against
+        a broad field (``sigma_hit`` 0.5 m, so a pose 0.5 m off still scores), ``m / 10``
+        are resampled by that score, then twice jittered (0.25 m / 0.15 rad, then half),
+        rescored with the filter's field and resampled; ``n`` come out. Weights use a
+        per-beam log-likelihood scale of 0.2, whatever the filter's tempering.
+
+        Why: the likelihood peak of a 360-beam scan is ~0.15 m / 0.1 rad wide, so uniform
+        injection (amcl's) or a one-stage draw from 20000 uniform poses rarely lands a pose
+        on a kidnapped robot in a 150 m^2 house, and the first look-alike place found
+        (small_house's living and recreation rooms are near 180-degree twins) collects the
+        mass. This draw puts most of the injected poses at the few places that fit the scan
+        (measured: >= 25 % within 0.2 m / 0.1 rad of the truth for every probe pose).
+        """
+        if self.inject_candidates <= 1 or self._last_beams is None or n <= 0:
+            return self.random_poses(n)
+        rng = self.rng
+        f, bx, by = self._last_beams
+        broad, sharp = self._proposal_fields(f.range_max)
+        m = max(n, min(n * self.inject_candidates, self.max_particles))
+        keep = max(n, m // 10)
+        poses = self.random_poses(m)
+        score = broad.score(poses, bx[::2], by[::2])
+        poses = poses[_systematic(_softmax(score), keep, rng)]
+        sd = np.array([PROPOSAL_JITTER[0], PROPOSAL_JITTER[0], PROPOSAL_JITTER[1]])
+        for r in range(PROPOSAL_ROUNDS):
+            poses = poses + rng.standard_normal(poses.shape) * (sd * 0.5**r)
+            score = sharp.score(poses, bx, by)
+            poses = poses[
+                _systematic(_softmax(score), n if r == PROPOSAL_ROUNDS - 1 else keep, rng)
+            ]
+        poses[:, 2] = _wrap(poses[:, 2])
+        return poses
+
+    def _proposal_fields(self, range_max: float) -> tuple[LikelihoodField, LikelihoodField]:
+        """The injection proposal's (broad, sharp) fields: likelihood_field_prob models."""
+        key = round(float(range_max), 6)
+        pair = self._proposal.get(key)
+        if pair is None:
+            sharp = replace(
+                self.sensor, model="likelihood_field_prob", log_scale=PROPOSAL_LOG_SCALE
+            )
+            broad = replace(sharp, sigma_hit=max(PROPOSAL_BROAD_SIGMA, sharp.sigma_hit))
+            pair = self._proposal[key] = (
+                LikelihoodField(self.grid, broad, key),
+                LikelihoodField(self.grid, sharp, key),
+            )
+        return pair
 
     def resample(self) -> int:
         """KLD-sampling resample with random injection; returns the new particle count."""
@@ -397,6 +463,7 @@ class ParticleFilter:
         if self.w_slow > 0.0:
             w_diff = max(0.0, 1.0 - self.w_fast / self.w_slow)
         self.last_w_diff = w_diff
+        self.last_injected = 0
         m = self.max_particles
         # What amcl does one sample at a time: draw from the weighted set (here a shuffled
         # systematic draw, so every prefix is representative), injecting random poses with
@@ -407,7 +474,7 @@ class ParticleFilter:
             inject = self.rng.random(m) < w_diff
             k = int(inject.sum())
             if k:
-                candidates[inject] = self.random_poses(k)
+                candidates[inject] = self.injection_poses(k)
         if self.min_particles == m:
             n = m
         else:
@@ -418,7 +485,7 @@ class ParticleFilter:
             bins = np.cumsum(is_first)
             over = np.flatnonzero(np.arange(1, m + 1) > self.kld_limit(bins))
             n = int(over[0]) + 1 if over.size else m
-        n_rand = int(inject[:n].sum())
+        n_rand = self.last_injected = int(inject[:n].sum())
         out = np.empty((n, 3))
         if n_rand:
             out[:n_rand] = candidates[:n][inject[:n]]
@@ -457,6 +524,19 @@ class ParticleFilter:
         best = int(np.argmax(totals))
         sel = lab == best
         return _weighted_pose(p[sel], w[sel]), float(totals[best])
+
+
+def _systematic(weights: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Indices of a low-variance (systematic) draw of ``n`` from normalised ``weights``."""
+    cum = np.cumsum(weights)
+    cum[-1] = 1.0
+    u = (rng.random() + np.arange(n)) / n
+    return np.minimum(np.searchsorted(cum, u, side="right"), len(weights) - 1)
+
+
+def _softmax(log_w: np.ndarray) -> np.ndarray:
+    w = np.exp(log_w - log_w.max())
+    return w / w.sum()
 
 
 def _weighted_pose(p: np.ndarray, w: np.ndarray) -> np.ndarray:

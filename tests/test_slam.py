@@ -245,6 +245,24 @@ def test_matcher_search_equals_exhaustive_search(tb3: World) -> None:
     assert result.candidates < 19 * 81  # it did not have to score them all
 
 
+def test_the_far_face_of_a_thin_wall_is_no_partner() -> None:
+    """The livingroom face of the 10 cm bedroom wall is mapped; from the bedroom the
+    robot sees the wall's other face for the first time. Paired with the mapped face, the
+    match would move the robot a wall's thickness east; the faces' sides tell them apart."""
+    world = small_house()
+    slam = static_map(world, Pose2D(-1.5, -1.7, 0.0))
+    prior = np.diag([0.05**2, 0.05**2, 0.05**2])
+    for truth in (Pose2D(-3.2, -1.7, 0.3), Pose2D(-3.0, -2.0, 0.0), Pose2D(-3.5, -1.5, -0.2)):
+        points = slam._scan_points(scans_at(world, truth)[0])
+        field = slam.likelihood_field()
+        result = slam.matcher.match(field, points, truth.as_array(), prior)
+        assert result.refined
+        assert math.hypot(result.pose[0] - truth.x, result.pose[1] - truth.y) < 0.015
+        field.view = None  # blind to sides: pulled towards the mapped face
+        blind = slam.matcher.match(field, points, truth.as_array(), prior)
+        assert blind.pose[0] - truth.x > 0.03
+
+
 def test_matcher_keeps_the_prediction_along_a_featureless_wall() -> None:
     """Along one straight wall the scan says nothing about the along-wall position: the
     odometry prior keeps it instead of a noisy cell jump."""

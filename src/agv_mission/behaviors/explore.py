@@ -85,6 +85,12 @@ class MapArea(py_trees.behaviour.Behaviour):
         handle, state = self.handle, self.handle.state
         mapping = handle.mapping
         assert mapping is not None
+        if mapping.slam.integrations == 0:
+            # Stand still until SLAM has its first scan: the map is anchored where the
+            # robot was at the start, not at a pose dead reckoning guessed after a turn.
+            handle.stop()
+            self._last_yaw = state.estimate.yaw
+            return Status.RUNNING
         if self._turned < 2.0 * math.pi:  # look all around before choosing a frontier
             self._turned += abs(wrap_angle(state.estimate.yaw - self._last_yaw))
             self._last_yaw = state.estimate.yaw

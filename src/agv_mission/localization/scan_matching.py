@@ -18,7 +18,8 @@ followed by the ``CeresScanMatcher2D``):
    * ``"icp"`` (default): point-to-line Gauss-Newton. Each scan point's partner is the
      closest *anchor* (the mean of the scan end points that fell in a cell) among the
      occupied cells around it (its 3 x 3 neighbourhood and its nearest occupied cell,
-     so a point on one face of a thin wall is not paired with the other face), and its
+     so a point on one face of a thin wall is not paired with the other face) that were
+     seen from the same side as the point (when the field has ``view``), and its
      residual is measured along the scan's local normal (PCA over neighbouring beams),
      with Huber weights. Walls constrain only across themselves, so sliding along a
      wall is left to the odometry prior instead of to the ripples of a discretised
@@ -55,7 +56,10 @@ class LikelihoodField:
     ``nearest`` (rows, cols; int32, -1 where none lies within the field's cutoff) names
     each cell's nearest occupied cell and ``anchor`` (x, y offsets from a cell's centre,
     metres) where in an occupied cell its obstacle lies; both are needed by the ``"icp"``
-    refinement only.
+    refinement only. ``view`` (x, y arrays, optional): the sum of the unit vectors from
+    the scan end points that fell in each cell towards the scanner, i.e. which side the
+    cell's surface was seen from; with it the ``"icp"`` refinement never pairs a point
+    with a surface seen from the other side (the far face of a thin wall).
     """
 
     values: np.ndarray  # float32 (H, W)
@@ -63,6 +67,7 @@ class LikelihoodField:
     origin: tuple[float, float]
     nearest: tuple[np.ndarray, np.ndarray] | None = None
     anchor: tuple[np.ndarray, np.ndarray] | None = None
+    view: tuple[np.ndarray, np.ndarray] | None = None
 
     @classmethod
     def from_occupied(
@@ -413,6 +418,9 @@ class CorrelativeMatcher:
         if ok.sum() < 10:
             return None, None
         p, nrm = points[ok], normals[ok]
+        # Normals point back at the scanner (the robot frame's origin): the side of the
+        # surface the point was seen from.
+        nrm = np.where(((nrm * p).sum(axis=1) > 0.0)[:, None], -nrm, nrm)
         info = np.zeros((3, 3)) if prior_info is None else prior_info
         x = start.astype(np.float64).copy()
         hess = None
@@ -420,7 +428,8 @@ class CorrelativeMatcher:
             c, s = math.cos(x[2]), math.sin(x[2])
             wx = x[0] + c * p[:, 0] - s * p[:, 1]
             wy = x[1] + s * p[:, 0] + c * p[:, 1]
-            qx, qy, has = _partners(field, wx, wy)
+            side = (c * nrm[:, 0] - s * nrm[:, 1], s * nrm[:, 0] + c * nrm[:, 1])
+            qx, qy, has = _partners(field, wx, wy, side)
             if has.sum() < 10:
                 return None, None
             ex, ey = wx[has] - qx[has], wy[has] - qy[has]
@@ -518,12 +527,21 @@ _NEIGHBOURS = np.array([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)])
 
 
 def _partners(
-    field: LikelihoodField, wx: np.ndarray, wy: np.ndarray
+    field: LikelihoodField,
+    wx: np.ndarray,
+    wy: np.ndarray,
+    side: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The map obstacle point (anchor) closest to each map-frame point among the
     occupied cells of its 3 x 3 neighbourhood and its nearest occupied cell, and whether
     one exists. Looking at the neighbourhood matters at thin walls: the nearest cell by
-    centre distance may hold the far face of the wall."""
+    centre distance may hold the far face of the wall.
+
+    With ``side`` (map-frame normals of the points, facing the scanner) and the field's
+    ``view``, cells whose surface was seen from the other side are no partners: the
+    first time a thin wall is seen from its second side only its first face is in the
+    map, a wall's thickness away, and pairing with it would shift the pose by that
+    much (and the map with it)."""
     assert field.nearest is not None and field.anchor is not None
     near_r, near_c = field.nearest
     ax, ay = field.anchor
@@ -540,6 +558,9 @@ def _partners(
     cr = np.concatenate([cr, np.maximum(nr, 0)], axis=1)  # (N, 10)
     cc = np.concatenate([cc, np.maximum(nc, 0)], axis=1)
     occ = np.concatenate([occ, nr >= 0], axis=1) & inside[:, None]
+    if side is not None and field.view is not None:
+        facing = field.view[0][cr, cc] * side[0][:, None] + field.view[1][cr, cc] * side[1][:, None]
+        occ &= facing >= 0.0
     qx = ox + (cc + 0.5) * res + ax[cr, cc]
     qy = oy + (cr + 0.5) * res + ay[cr, cc]
     d2 = np.where(occ, (qx - wx[:, None]) ** 2 + (qy - wy[:, None]) ** 2, np.inf)

@@ -17,7 +17,10 @@ one beam of a scan is not also cleared by that scan), clamped to
 two cells when ``clear_no_return`` is set. Each cell also keeps the mean of the end
 points that fell in it (the last ``hit_memory`` weigh most), its *anchor*: the matcher
 measures distances to anchors, not to cell centres, which keeps sub-cell detail (a wall
-face on a cell boundary is at the face, not somewhere on a two-cell plateau).
+face on a cell boundary is at the face, not somewhere on a two-cell plateau), and the sum
+of the directions from its end points back to the scanner, the side it was seen from: the
+matcher never pairs a point with a surface seen from the other side (a 10 cm wall is two
+cells; seen from its second side for the first time, only the first face is mapped).
 
 :meth:`GridSlam.occupancy_grid` gives the map in map_saver's trinary convention:
 ``OCCUPIED`` above ``occupied_threshold`` (probability), ``FREE`` below
@@ -295,6 +298,7 @@ class GridSlam:
             (self._ox, self._oy),
             nearest=(self._near_r, self._near_c),
             anchor=(self._ax, self._ay),
+            view=(self._vx, self._vy),
         )
 
     # ------------------------------------------------------------------ matching
@@ -381,6 +385,8 @@ class GridSlam:
         self._hx = np.zeros(shape, np.float32)  # sums of end point offsets from the centre
         self._hy = np.zeros(shape, np.float32)
         self._hn = np.zeros(shape, np.float32)  # their (capped) count
+        self._vx = np.zeros(shape, np.float32)  # sums of unit vectors end point -> sensor
+        self._vy = np.zeros(shape, np.float32)
         self._ax = np.zeros(shape, np.float32)  # anchors: mean offsets
         self._ay = np.zeros(shape, np.float32)
         self._grid_cache = None
@@ -402,7 +408,7 @@ class GridSlam:
         if not (left or right or down or up):
             return
         pad = ((down, up), (left, right))
-        for name in ("_logodds", "_field", "_hx", "_hy", "_hn", "_ax", "_ay"):
+        for name in ("_logodds", "_field", "_hx", "_hy", "_hn", "_ax", "_ay", "_vx", "_vy"):
             setattr(self, name, np.pad(getattr(self, name), pad))
         for name, shift in (("_near_r", down), ("_near_c", left)):
             arr = getattr(self, name)
@@ -476,11 +482,17 @@ class GridSlam:
             hx += np.bincount(hit_idx, offx, n).reshape(wh, ww).astype(np.float32)
             hy += np.bincount(hit_idx, offy, n).reshape(wh, ww).astype(np.float32)
             hn += np.bincount(hit_idx, None, n).reshape(wh, ww).astype(np.float32)
+            # Which side the cell was seen from (a thin wall has two faces).
+            vx, vy = self._vx[r0:r1, c0:c1], self._vy[r0:r1, c0:c1]
+            vx -= np.bincount(hit_idx, ca[hit], n).reshape(wh, ww).astype(np.float32)
+            vy -= np.bincount(hit_idx, sa[hit], n).reshape(wh, ww).astype(np.float32)
             over = hn > c.hit_memory
             if over.any():
                 scale = c.hit_memory / hn[over]
                 hx[over] *= scale
                 hy[over] *= scale
+                vx[over] *= scale
+                vy[over] *= scale
                 hn[over] = c.hit_memory
             seen = hn > 0
             self._ax[r0:r1, c0:c1][seen] = hx[seen] / hn[seen]

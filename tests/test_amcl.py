@@ -335,6 +335,28 @@ def test_no_filter_update_until_update_min_d_or_a():
     assert loc.filter_updates == 3
 
 
+def test_nomotion_update_uses_the_next_scan_and_tightens_a_still_robot():
+    """amcl's request_nomotion_update: a standing robot's spread cloud closes in on it."""
+    loc = make(**PROB)
+    odom = Pose2D(0.0, 0.0, 0.0)
+    loc.reset(Pose2D(START.x + 0.15, START.y - 0.1, 0.05), odom)
+    scan = cast(ROOM, START)
+    loc.update(odom, scan, START, 0.0)
+    first = loc.filter_updates
+    loc.update(odom, scan, START, 0.2)
+    assert loc.filter_updates == first  # no motion, no request: nothing
+    loc.request_nomotion_update()
+    loc.update(odom, None, START, 0.3)
+    assert loc.filter_updates == first  # the request waits for a scan
+    spread = np.hypot(*(loc.particles[:, :2] - [START.x, START.y]).T).mean()
+    for k in range(10):
+        loc.request_nomotion_update()
+        est = loc.update(odom, cast(ROOM, START, np.random.default_rng(k)), START, 0.4 + 0.2 * k)
+    assert loc.filter_updates == first + 10
+    assert np.hypot(*(loc.particles[:, :2] - [START.x, START.y]).T).mean() < 0.5 * spread
+    assert math.hypot(est.x - START.x, est.y - START.y) < 0.05
+
+
 def test_estimate_follows_odometry_between_filter_updates():
     loc = make()
     loc.reset(START, Pose2D(1.0, 1.0, 0.0))

@@ -81,6 +81,33 @@ def test_visit_rooms_demo_records_every_room_inside_and_accurately(tmp_path: Pat
         assert math.hypot(row[1] - x, row[2] - y) <= 0.1
 
 
+def record_with_settle(tmp_path: Path, settle: float) -> float:
+    path = tmp_path / f"settle{settle}.yaml"
+    path.write_text(
+        "world: small_house\nstart: livingroom\nseed: 4\n"
+        "stack:\n  localization: {type: amcl, profile: recovery, initial_cov_xx: 0.01,"
+        " initial_cov_yy: 0.01, initial_pose: {x: 3.1, y: -1.9, yaw: 0.05}}\n"
+        f"tasks: [{{type: record_room, room: livingroom, settle: {settle}}}]\n"
+    )
+    loaded = load_mission(path)
+    record = run_mission(loaded)
+    assert record.status == "succeeded", record.reason
+    assert np.abs(record.trajectory[:, 7:9]).max() == 0.0  # it never moved
+    [event] = [e for e in record.events if e["event"] == "room_recorded"]
+    assert event["t"] >= settle
+    truth = loaded.start
+    return math.hypot(event["x"] - truth.x, event["y"] - truth.y)
+
+
+def test_record_room_settles_the_filter_before_recording(tmp_path: Path) -> None:
+    """Standing still, amcl updates only on request (no-motion updates): ``settle`` lets a
+    start guess 0.14 m off close in before the pose is recorded."""
+    settled = record_with_settle(tmp_path, 2.0)
+    unsettled = record_with_settle(tmp_path, 0.0)
+    assert settled < 0.05
+    assert settled < 0.5 * unsettled
+
+
 def test_recorder_key_appends_to_an_existing_file(tmp_path: Path) -> None:
     existing = tmp_path / "location_recorder.yaml"
     existing.write_text(

@@ -191,6 +191,7 @@ class AmclLocalizer:
         self._odom = Pose2D(0.0, 0.0, 0.0)  # odometry at the last filter update
         self._initialised = False
         self._resample_count = 0
+        self._force_update = False
 
     # ------------------------------------------------------------------ runner API
 
@@ -227,6 +228,7 @@ class AmclLocalizer:
         self._pose, self._odom = start, odom
         self._initialised = False
         self._resample_count = 0
+        self._force_update = False
         self.snapshots.clear()
         self.particle_counts.clear()
         self.filter_updates = 0
@@ -241,9 +243,18 @@ class AmclLocalizer:
                 math.hypot(delta.x, delta.y) >= self.config.update_min_d
                 or abs(delta.yaw) >= self.config.update_min_a
             )
-            if moved or not self._initialised:
-                self._filter_update(odom, scan, time, moved)
+            if moved or self._force_update or not self._initialised:
+                self._filter_update(odom, scan, time, moved or self._force_update)
+                self._force_update = False
         return self._pose.compose(odom.relative_to(self._odom))
+
+    def request_nomotion_update(self) -> None:
+        """Update the filter with the next scan although the robot has not moved far enough.
+
+        amcl's ``request_nomotion_update`` service: a robot standing still gets no filter
+        updates, so the cloud a turn in place spread out stays spread until it drives.
+        """
+        self._force_update = True
 
     # ------------------------------------------------------------------ internals
 

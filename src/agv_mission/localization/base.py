@@ -22,3 +22,6 @@ class Localizer(Protocol):
     def update(
         self, odom: Pose2D, scan: LaserScan | None, truth: Pose2D, time: float
     ) -> Pose2D: ...
+
+    def request_nomotion_update(self) -> None:
+        """Refine the estimate with the next scan even though the robot stands still."""

@@ -33,3 +33,6 @@ class GroundTruthLocalizer:
 
     def update(self, odom: Pose2D, scan: LaserScan | None, truth: Pose2D, time: float) -> Pose2D:
         return truth
+
+    def request_nomotion_update(self) -> None:
+        """Nothing to refine without a filter."""

@@ -35,3 +35,6 @@ class OdometryLocalizer:
 
     def update(self, odom: Pose2D, scan: LaserScan | None, truth: Pose2D, time: float) -> Pose2D:
         return self._start.compose(odom.relative_to(self._odom0))
+
+    def request_nomotion_update(self) -> None:
+        """Nothing to refine without a filter."""

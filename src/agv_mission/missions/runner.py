@@ -141,6 +141,7 @@ class MissionRun:
             seed=int(planner_rng.integers(0, 2**31 - 1)),
         )
         self._odom = self.odometry.update(*self.sim.encoder_ticks())
+        self._odom_start = self._odom
         self.localizer.reset(loaded.start, self._odom)
         self.handle = RobotHandle(
             RobotState(time=0.0, estimate=loaded.start),
@@ -188,6 +189,11 @@ class MissionRun:
             if costmap is not None:
                 self.navigator.layer = ObstacleLayer(costmap, costmap.config.obstacles)
         else:
+            if handle.nomotion_update and scan is not None:
+                request = getattr(self.localizer, "request_nomotion_update", None)
+                if request is not None:  # optional for third-party localisers
+                    request()
+                handle.nomotion_update = False
             estimate = self.localizer.update(odom_pose, scan, truth, now)
         state.time, state.estimate = now, estimate
         state.velocity = (self.smoother.v, self.smoother.w)
@@ -226,9 +232,20 @@ class MissionRun:
         session = MappingSession(
             slam, bounds, self.robot.footprint_radius, self.mission.stack.costmap
         )
-        session.start(self.handle.state.estimate, self._odom)
+        session.start(self._mapping_anchor(), self._odom)
         self.handle.mapping = session
         return session
+
+    def _mapping_anchor(self) -> Pose2D:
+        """The pose the new map is anchored at.
+
+        A robot that has not moved since the start is where the mission said it is; a
+        filter estimate there only adds its initial spread to every cell of the map.
+        """
+        moved = self._odom.relative_to(self._odom_start)
+        if math.hypot(moved.x, moved.y) < 1e-3 and abs(moved.yaw) < 1e-3:
+            return self.loaded.start
+        return self.handle.state.estimate
 
     def _end_mapping(self, stem: str) -> dict[str, Any]:
         """Save the map, judge it against the world, and navigate on it from now on."""

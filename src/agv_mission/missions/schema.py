@@ -167,6 +167,12 @@ class VisitRoomsTask(FailurePolicy):
     type: Literal["visit_rooms"]
     rooms: list[str] = Field(min_length=1, description="room labels, visited in this order")
     record: bool = Field(False, description="record the estimated pose in each room")
+    settle: float = Field(
+        1.0,
+        ge=0.0,
+        description="seconds standing still before recording, localisation updating on "
+        "every scan (amcl's request_nomotion_update)",
+    )
 
 
 class RecordRoomTask(StrictModel):
@@ -174,6 +180,12 @@ class RecordRoomTask(StrictModel):
 
     type: Literal["record_room"]
     room: str = Field(min_length=1, description="the label to record under")
+    settle: float = Field(
+        1.0,
+        ge=0.0,
+        description="seconds standing still before recording, localisation updating on "
+        "every scan (amcl's request_nomotion_update)",
+    )
 
 
 class Bounds(StrictModel):

@@ -16,7 +16,7 @@ from agv_mission.behaviors.motion import Dwell, Wander
 from agv_mission.behaviors.navigate import NavigateToPose
 from agv_mission.behaviors.outcome import LegOutcome
 from agv_mission.behaviors.recoveries import BackUp, ClearCostmap, RecoveryNode, Spin, Wait
-from agv_mission.behaviors.rooms import InRoom, RecordRoom
+from agv_mission.behaviors.rooms import InRoom, RecordRoom, SettleLocalization
 from agv_mission.geometry import Pose2D
 from agv_mission.missions.schema import (
     FailurePolicy,
@@ -94,9 +94,11 @@ class _Builder:
             visits: list[Behaviour] = []
             for room in task.rooms:
                 steps: list[Behaviour] = [
-                    self.goal(f"enter {room}", self.room_goals[room], task=index, room=room),
-                    InRoom(f"in {room}?", self.handle, self.handle.rooms[room]),
+                    self.goal(f"enter {room}", self.room_goals[room], task=index, room=room)
                 ]
+                if task.record and task.settle > 0:
+                    steps.append(self.settle(task.settle))
+                steps.append(InRoom(f"in {room}?", self.handle, self.handle.rooms[room]))
                 if task.record:
                     steps.append(RecordRoom(f"record {room}", self.handle, room, task=index))
                 visit = py_trees.composites.Sequence(
@@ -124,8 +126,16 @@ class _Builder:
                 clearance=float(getattr(self.planner_config, "clearance", 0.05)),
             )
         if isinstance(task, RecordRoomTask):
-            return RecordRoom(f"{label} {task.room}", self.handle, task.room, task=index)
+            record = RecordRoom(f"{label} {task.room}", self.handle, task.room, task=index)
+            if task.settle <= 0:
+                return record
+            return py_trees.composites.Sequence(
+                name=label, memory=True, children=[self.settle(task.settle), record]
+            )
         raise TypeError(f"no behaviour for task type {type(task).__name__}")
+
+    def settle(self, duration: float) -> Behaviour:
+        return SettleLocalization(f"settle {duration:g} s", self.handle, duration)
 
     def goal(self, name: str, pose: Pose2D, **details: object) -> Behaviour:
         """Navigate to ``pose``, with the configured recoveries between attempts."""

@@ -31,6 +31,7 @@ class RobotHandle:
         None
     )
     end_mapping: Callable[[str], dict[str, Any]] | None = None
+    nomotion_update: bool = False  # ask the localiser to update with the next scan
 
     def drive(self, v: float, w: float) -> None:
         self.command = (float(v), float(w))

@@ -14,6 +14,7 @@ import numpy as np
 import py_trees
 from py_trees.common import Status
 
+from agv_mission.behaviors.motion import Dwell
 from agv_mission.geometry import wrap_angle
 from agv_mission.navigation.handle import RobotHandle
 
@@ -108,22 +109,12 @@ class Spin(py_trees.behaviour.Behaviour):
         return Status.RUNNING
 
 
-class Wait(py_trees.behaviour.Behaviour):
+class Wait(Dwell):
     """Stand still for ``duration`` simulated seconds (a person may step aside)."""
 
-    def __init__(self, name: str, handle: RobotHandle, duration: float):
-        super().__init__(name)
-        self.handle = handle
-        self.duration = duration
-        self._until = 0.0
-
     def initialise(self) -> None:
-        self._until = self.handle.state.time + self.duration
+        super().initialise()
         self.handle.log("recovery", kind="wait")
-
-    def update(self) -> Status:
-        self.handle.stop()
-        return Status.SUCCESS if self.handle.state.time >= self._until - 1e-9 else Status.RUNNING
 
 
 class BackUp(py_trees.behaviour.Behaviour):

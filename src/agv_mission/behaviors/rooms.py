@@ -5,6 +5,7 @@ from __future__ import annotations
 import py_trees
 from py_trees.common import Status
 
+from agv_mission.behaviors.motion import Dwell
 from agv_mission.maps.rooms import Room
 from agv_mission.navigation.handle import RobotHandle
 
@@ -53,25 +54,15 @@ class RecordRoom(py_trees.behaviour.Behaviour):
         return Status.SUCCESS
 
 
-class SettleLocalization(py_trees.behaviour.Behaviour):
+class SettleLocalization(Dwell):
     """Stand still for ``duration`` simulated seconds, the localiser updating on every scan.
 
     Before a pose is recorded: a filter that only updates after motion keeps whatever
     spread the last turn in place gave it (amcl's ``request_nomotion_update``).
     """
 
-    def __init__(self, name: str, handle: RobotHandle, duration: float):
-        super().__init__(name)
-        self.handle = handle
-        self.duration = duration
-        self._until = 0.0
-
-    def initialise(self) -> None:
-        self._until = self.handle.state.time + self.duration
-
     def update(self) -> Status:
-        self.handle.stop()
-        if self.handle.state.time >= self._until - 1e-9:
-            return Status.SUCCESS
-        self.handle.nomotion_update = True
-        return Status.RUNNING
+        status = super().update()
+        if status is Status.RUNNING:
+            self.handle.nomotion_update = True
+        return status

@@ -17,7 +17,7 @@ from agv_mission.maps.builtin_worlds import (
     small_house,
     turtlebot3_world,
 )
-from agv_mission.maps.costmap import INSCRIBED, Costmap
+from agv_mission.maps.costmap import INSCRIBED, Costmap, CostmapConfig
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN
 from agv_mission.maps.rasterize import occupancy_mask, rasterize
 from agv_mission.maps.rooms_file import RoomsFileError, load_rooms
@@ -396,3 +396,26 @@ def test_rooms_file_other_errors(tmp_path: Path, text: str | None, expected: str
     with pytest.raises(RoomsFileError) as info:
         load_rooms(path)
     assert str(path) in str(info.value) and expected in str(info.value)
+
+
+def test_costmap_resolution_resamples_the_map_without_opening_walls() -> None:
+    """``stack.costmap.resolution`` coarsens conservatively: every wall cell of the map
+    stays under an occupied costmap cell, and the free interior stays free."""
+    grid = turtlebot3_world().map
+    coarse = Costmap.from_grid(grid, 0.105, CostmapConfig(resolution=0.1))
+    assert coarse.resolution == 0.1
+    assert (coarse.grid.width, coarse.grid.height) == (
+        math.ceil(grid.width / 2),
+        math.ceil(grid.height / 2),
+    )
+    rows, cols = np.nonzero(grid.data == OCCUPIED)
+    walls = grid.cell_to_world(rows, cols)
+    assert np.all(coarse.grid.value_at(walls) == OCCUPIED)
+    # A cell is free only where all four fine cells are free.
+    fine_free = (grid.data == FREE)[: grid.height // 2 * 2, : grid.width // 2 * 2]
+    blocks = fine_free.reshape(grid.height // 2, 2, grid.width // 2, 2).all(axis=(1, 3))
+    assert np.array_equal(coarse.grid.data[: blocks.shape[0], : blocks.shape[1]] == FREE, blocks)
+    # A finer costmap keeps every cell's value.
+    fine = Costmap.from_grid(grid, 0.105, CostmapConfig(resolution=0.025))
+    centres = fine.grid.cell_to_world(*np.indices(fine.grid.data.shape))
+    assert np.array_equal(fine.grid.data, grid.value_at(centres))

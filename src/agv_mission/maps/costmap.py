@@ -40,7 +40,10 @@ class CostmapConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     resolution: float | None = Field(
-        None, gt=0, description="metres per cell; default: the map's own resolution"
+        None,
+        gt=0,
+        description="metres per cell; default: the map's own. The map is resampled, each "
+        "cell taking the worst of the map cells it covers (occupied > unknown > free)",
     )
     inflation_radius: float = Field(0.3, ge=0, description="metres beyond the footprint")
     cost_scaling_factor: float = Field(5.0, gt=0, description="exponential decay of cost")
@@ -66,6 +69,8 @@ class Costmap:
         cls, grid: OccupancyGrid, robot_radius: float, config: CostmapConfig | None = None
     ) -> Costmap:
         config = config or CostmapConfig()
+        if config.resolution is not None:
+            grid = grid.resampled(config.resolution)
         blocked = grid.data != FREE if config.unknown_is_obstacle else grid.data > 50
         distance = (distance_transform_edt(~blocked) * grid.resolution).astype(np.float32)
         cost = _inflation_cost(distance, robot_radius, config)

@@ -11,6 +11,7 @@ from agv_mission.geometry import Pose2D
 FREE = 0
 OCCUPIED = 100
 UNKNOWN = -1
+_UNKNOWN_RANK = 50.5  # worse than any free-ish value (<= 50), better than occupied (> 50)
 
 
 @dataclass
@@ -69,6 +70,29 @@ class OccupancyGrid:
         out = np.full(rows.shape, UNKNOWN, dtype=np.int8)
         out[inside] = self.data[rows[inside], cols[inside]]
         return out
+
+    def resampled(self, resolution: float) -> OccupancyGrid:
+        """The grid at another cell size over (at least) the same extent, conservatively.
+
+        A new cell takes the worst of the old cells it overlaps: occupied (> 50) over
+        unknown over free, so that a coarser costmap never opens a gap in a wall.
+        """
+        if resolution == self.resolution:
+            return self
+        ratio = self.resolution / resolution
+        height = max(1, int(np.ceil(self.height * ratio - 1e-9)))
+        width = max(1, int(np.ceil(self.width * ratio - 1e-9)))
+        rank = self.data.astype(np.float32)
+        rank[self.data < 0] = _UNKNOWN_RANK
+        row_starts = np.minimum(
+            (np.arange(height) / ratio + 1e-9).astype(np.int64), self.height - 1
+        )
+        col_starts = np.minimum((np.arange(width) / ratio + 1e-9).astype(np.int64), self.width - 1)
+        worst = np.maximum.reduceat(
+            np.maximum.reduceat(rank, row_starts, axis=0), col_starts, axis=1
+        )
+        data = np.where(worst == _UNKNOWN_RANK, UNKNOWN, worst).astype(np.int8)
+        return OccupancyGrid(data=data, resolution=float(resolution), origin=self.origin)
 
     def counts(self) -> dict[str, int]:
         """Number of free, occupied and unknown cells."""

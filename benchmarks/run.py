@@ -20,7 +20,15 @@ from rich.table import Table
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-MODULES = ["bench_sim", "bench_planners", "bench_mpc", "bench_amcl", "bench_slam", "bench_mission"]
+MODULES = [
+    "bench_sim",
+    "bench_planners",
+    "bench_mpc",
+    "bench_amcl",
+    "bench_slam",
+    "bench_mission",
+    "bench_regress",
+]
 
 # metric -> (comparison, target) from the issues
 TARGETS = {
@@ -29,13 +37,22 @@ TARGETS = {
     "mission.patrol.real_time_factor": (">=", 10.0),
     "amcl.update_ms.p50.1000x60": ("<=", 2.0),
     "mission.map_area_small_house.real_time_factor": (">=", 5.0),
+    "regress.speedup_ratio": ("<=", 0.6),
 }
+
+
+def _previous() -> dict[str, float]:
+    try:
+        return dict(json.loads((HERE / "results.json").read_text())["results"])
+    except (OSError, ValueError, KeyError):
+        return {}
 
 
 def main() -> int:
     console = Console()
-    results: dict[str, float] = {}
     only = set(sys.argv[1:])
+    # A partial run (``run.py bench_mpc``) refreshes its own keys and keeps the others.
+    results: dict[str, float] = _previous() if only else {}
     for name in MODULES:
         if only and name not in only:
             continue

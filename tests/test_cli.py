@@ -87,3 +87,14 @@ def test_failed_mission_exits_1_with_reason(tmp_path: Path) -> None:
     [run_dir] = (tmp_path / "out").iterdir()
     result = json.loads((run_dir / "result.json").read_text())
     assert result["status"] == "failed" and "time limit" in result["reason"]
+
+
+def test_summary_counts_rooms_and_recordings(tmp_path: Path) -> None:
+    mission = tmp_path / "rooms.yaml"
+    mission.write_text(
+        "world: small_house\nstart: livingroom\nstack: {localization: {type: ground_truth}}\n"
+        "tasks: [{type: visit_rooms, rooms: [livingroom], record: true, settle: 0}]\n"
+    )
+    r = cli("run", str(mission), "--output", str(tmp_path / "out"))
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "1/1 rooms reached, 1 recorded" in r.stdout

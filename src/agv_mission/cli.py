@@ -101,6 +101,10 @@ def _summary(result: dict) -> None:
         if "waypoints" in task:
             reached = sum(w["status"] == "reached" for w in task["waypoints"])
             detail = f"{reached}/{len(task['waypoints'])} waypoints reached " + detail
+        if "rooms" in task:
+            reached = sum(r["status"] == "reached" for r in task["rooms"])
+            recorded = sum(bool(r.get("recorded")) for r in task["rooms"])
+            detail = f"{reached}/{len(task['rooms'])} rooms reached, {recorded} recorded " + detail
         table.add_row(f"{task['index']}. {task['type']}", task["status"], detail)
     out.print(table)
     m = result["metrics"]

@@ -15,6 +15,15 @@ def cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
     return subprocess.run([*EXE, *args], capture_output=True, text=True, cwd=cwd, timeout=600)
 
 
+def run_text(tmp_path: Path, name: str, text: str) -> tuple[subprocess.CompletedProcess, Path]:
+    """``agv-mission run`` on a mission written from ``text``; the process and the output
+    root (``tmp_path / "out"``)."""
+    mission = tmp_path / f"{name}.yaml"
+    mission.write_text(text)
+    out = tmp_path / "out"
+    return cli("run", str(mission), "--output", str(out)), out
+
+
 def test_validate_demo_ok() -> None:
     r = cli("validate", str(REPO / "missions" / "patrol.yaml"))
     assert r.returncode == 0, r.stderr
@@ -58,14 +67,14 @@ def test_schema_is_json_with_the_contract_keys() -> None:
 
 
 def test_run_writes_a_complete_run_directory(tmp_path: Path) -> None:
-    mission = tmp_path / "short.yaml"
-    mission.write_text(
+    r, out = run_text(
+        tmp_path,
+        "short",
         "name: short\nworld: turtlebot3_world\nstart: {x: -2.0, y: -0.5, yaw: 0}\n"
-        "tasks: [{type: go_to, pose: {x: -1.6, y: -0.5, yaw: 0.5}}]\nlimits: {time: 60}\n"
+        "tasks: [{type: go_to, pose: {x: -1.6, y: -0.5, yaw: 0.5}}]\nlimits: {time: 60}\n",
     )
-    r = cli("run", str(mission), "--output", str(tmp_path / "out"))
     assert r.returncode == 0, r.stdout + r.stderr
-    [run_dir] = (tmp_path / "out").iterdir()
+    [run_dir] = out.iterdir()
     assert run_dir.name.startswith("short-")
     for name in ("result.json", "trajectory.csv", "mission.yaml", "run.png", "tree.txt"):
         assert (run_dir / name).stat().st_size > 0, name
@@ -77,24 +86,24 @@ def test_run_writes_a_complete_run_directory(tmp_path: Path) -> None:
 
 
 def test_failed_mission_exits_1_with_reason(tmp_path: Path) -> None:
-    mission = tmp_path / "late.yaml"
-    mission.write_text(
+    r, out = run_text(
+        tmp_path,
+        "late",
         "world: turtlebot3_world\nstart: {x: -2.0, y: -0.5, yaw: 0}\n"
-        "tasks: [{type: go_to, pose: {x: 1.13, y: -1.6}}]\nlimits: {time: 3}\n"
+        "tasks: [{type: go_to, pose: {x: 1.13, y: -1.6}}]\nlimits: {time: 3}\n",
     )
-    r = cli("run", str(mission), "--output", str(tmp_path / "out"))
     assert r.returncode == 1
-    [run_dir] = (tmp_path / "out").iterdir()
+    [run_dir] = out.iterdir()
     result = json.loads((run_dir / "result.json").read_text())
     assert result["status"] == "failed" and "time limit" in result["reason"]
 
 
 def test_summary_counts_rooms_and_recordings(tmp_path: Path) -> None:
-    mission = tmp_path / "rooms.yaml"
-    mission.write_text(
+    r, _ = run_text(
+        tmp_path,
+        "rooms",
         "world: small_house\nstart: livingroom\nstack: {localization: {type: ground_truth}}\n"
-        "tasks: [{type: visit_rooms, rooms: [livingroom], record: true, settle: 0}]\n"
+        "tasks: [{type: visit_rooms, rooms: [livingroom], record: true, settle: 0}]\n",
     )
-    r = cli("run", str(mission), "--output", str(tmp_path / "out"))
     assert r.returncode == 0, r.stdout + r.stderr
     assert "1/1 rooms reached, 1 recorded" in r.stdout

@@ -189,10 +189,8 @@ class MissionRun:
             if costmap is not None:
                 self.navigator.layer = ObstacleLayer(costmap, costmap.config.obstacles)
         else:
-            if handle.nomotion_update and scan is not None:
-                request = getattr(self.localizer, "request_nomotion_update", None)
-                if request is not None:  # optional for third-party localisers
-                    request()
+            if handle.nomotion_update:  # the localiser holds it until a scan comes
+                self.localizer.request_nomotion_update()
                 handle.nomotion_update = False
             estimate = self.localizer.update(odom_pose, scan, truth, now)
         state.time, state.estimate = now, estimate

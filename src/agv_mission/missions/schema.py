@@ -161,31 +161,30 @@ class WanderTask(StrictModel):
     )
 
 
-class VisitRoomsTask(FailurePolicy):
+class SettleBeforeRecording(StrictModel):
+    """Tasks that record a pose let the localiser settle first."""
+
+    settle: float = Field(
+        1.0,
+        ge=0.0,
+        description="seconds standing still before recording, localisation updating on "
+        "every scan (amcl's request_nomotion_update)",
+    )
+
+
+class VisitRoomsTask(FailurePolicy, SettleBeforeRecording):
     """Go into each room in order (its anchor, or a free point well inside it)."""
 
     type: Literal["visit_rooms"]
     rooms: list[str] = Field(min_length=1, description="room labels, visited in this order")
     record: bool = Field(False, description="record the estimated pose in each room")
-    settle: float = Field(
-        1.0,
-        ge=0.0,
-        description="seconds standing still before recording, localisation updating on "
-        "every scan (amcl's request_nomotion_update)",
-    )
 
 
-class RecordRoomTask(StrictModel):
+class RecordRoomTask(SettleBeforeRecording):
     """Record the current estimated pose under a label (the seed's room_service call)."""
 
     type: Literal["record_room"]
     room: str = Field(min_length=1, description="the label to record under")
-    settle: float = Field(
-        1.0,
-        ge=0.0,
-        description="seconds standing still before recording, localisation updating on "
-        "every scan (amcl's request_nomotion_update)",
-    )
 
 
 class Bounds(StrictModel):

@@ -96,7 +96,7 @@ class _Builder:
                 steps: list[Behaviour] = [
                     self.goal(f"enter {room}", self.room_goals[room], task=index, room=room)
                 ]
-                if task.record and task.settle > 0:
+                if task.record:
                     steps.append(self.settle(task.settle))
                 steps.append(InRoom(f"in {room}?", self.handle, self.handle.rooms[room]))
                 if task.record:
@@ -126,15 +126,14 @@ class _Builder:
                 clearance=float(getattr(self.planner_config, "clearance", 0.05)),
             )
         if isinstance(task, RecordRoomTask):
-            record = RecordRoom(f"{label} {task.room}", self.handle, task.room, task=index)
-            if task.settle <= 0:
-                return record
+            record = RecordRoom(f"record {task.room}", self.handle, task.room, task=index)
             return py_trees.composites.Sequence(
                 name=label, memory=True, children=[self.settle(task.settle), record]
             )
         raise TypeError(f"no behaviour for task type {type(task).__name__}")
 
     def settle(self, duration: float) -> Behaviour:
+        """Stand still while the localiser updates (0 s: succeeds in the same tick)."""
         return SettleLocalization(f"settle {duration:g} s", self.handle, duration)
 
     def goal(self, name: str, pose: Pose2D, **details: object) -> Behaviour:

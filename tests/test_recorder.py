@@ -223,3 +223,93 @@ def test_sigkill_while_writing_leaves_the_previous_or_the_new_file(tmp_path: Pat
         assert counter in (float(last), float(last + 1)), (counter, done[-3:])
         assert LocationRecorder(path, initial=path).labels == list(doc)
     assert rounds_with_records >= 2  # the kills did land among writes
+
+
+def test_comments_and_other_entries_keep_their_bytes(tmp_path: Path) -> None:
+    path = tmp_path / RECORDER_FILENAME
+    header = "# rooms of the lab, recorded by hand\n\n"
+    kitchen = "kitchen:  # by the fridge\n" + textwrap.indent(
+        CONTRACT_EXAMPLE.split("\n", 1)[1], ""
+    )
+    path.write_text(header + CONTRACT_EXAMPLE + "\n# the kitchen\n" + kitchen + "# end\n")
+    rec = LocationRecorder(path, initial=path)
+    rec.record("livingroom", Pose2D(1.0, 2.0, 0.0))
+    rec.record("bedroom", Pose2D(3.0, 4.0, 0.0))
+    text = path.read_text()
+    assert text.startswith(header + "livingroom:\n  position:\n    x: 1.0\n    y: 2.0\n")
+    assert "\n# the kitchen\nkitchen:  # by the fridge\n" in text
+    assert "# end\nbedroom:\n" in text
+    doc = yaml.safe_load(text)
+    assert list(doc) == ["livingroom", "kitchen", "bedroom"]
+    assert doc["livingroom"]["position"]["x"] == 1.0 and doc["kitchen"]["position"]["x"] == 3.8314
+
+
+def test_a_flow_style_or_empty_file_is_appended_to(tmp_path: Path) -> None:
+    path = tmp_path / RECORDER_FILENAME
+    path.write_text("# nothing yet\n{}\n")
+    LocationRecorder(path, initial=path).record("kitchen", Pose2D(1.0, 0.0, 0.0))
+    assert path.read_text().startswith("# nothing yet\nkitchen:\n")
+    path.write_text("# only a comment")
+    LocationRecorder(path, initial=path).record("kitchen", Pose2D(1.0, 0.0, 0.0))
+    assert path.read_text().startswith("# only a comment\nkitchen:\n")
+    assert list(yaml.safe_load(path.read_text())) == ["kitchen"]
+
+
+def test_a_symlinked_recorder_file_gets_the_entry_through_the_link(tmp_path: Path) -> None:
+    target = tmp_path / "shared" / RECORDER_FILENAME
+    target.parent.mkdir()
+    target.write_text(CONTRACT_EXAMPLE)
+    target.chmod(0o644)
+    link = tmp_path / "link.yaml"
+    link.symlink_to(target)
+    LocationRecorder(link, initial=link).record("kitchen", Pose2D(1.0, 0.0, 0.0))
+    assert link.is_symlink()
+    assert list(yaml.safe_load(target.read_text())) == ["livingroom", "kitchen"]
+    assert target.stat().st_mode & 0o777 == 0o644
+
+
+# Writers that each record their own labels into one shared file, as fast as they can.
+CONCURRENT_WRITER = """
+import sys
+from pathlib import Path
+from agv_mission.geometry import Pose2D
+from agv_mission.maps.recorder import LocationRecorder
+
+path, who, n = Path(sys.argv[1]), sys.argv[2], int(sys.argv[3])
+rec = LocationRecorder(path, initial=path if path.exists() else None)
+print("ready", flush=True)
+sys.stdin.readline()  # all start together
+for i in range(n):
+    rec.record(f"{who}_{i}", Pose2D(float(i), 0.0, 0.0))
+"""
+
+
+def test_concurrent_writers_lose_no_entry(tmp_path: Path) -> None:
+    path = tmp_path / RECORDER_FILENAME
+    path.write_text("# shared by several runs\n" + CONTRACT_EXAMPLE)
+    script = tmp_path / "writer.py"
+    script.write_text(CONCURRENT_WRITER)
+    writers = ["a", "b", "c", "d"]
+    procs = [
+        subprocess.Popen(
+            [sys.executable, str(script), str(path), who, "60"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        for who in writers
+    ]
+    for p in procs:
+        assert p.stdout is not None and p.stdout.readline().strip() == "ready"
+    for p in procs:
+        assert p.stdin is not None
+        p.stdin.write("go\n")
+        p.stdin.flush()
+    for p in procs:
+        assert p.wait(timeout=120) == 0
+    text = path.read_text()
+    assert text.startswith("# shared by several runs\nlivingroom:\n")
+    doc = yaml.safe_load(text)
+    for who in writers:
+        assert [k for k in doc if k.startswith(f"{who}_")] == [f"{who}_{i}" for i in range(60)]
+    assert len(doc) == 1 + 60 * len(writers)

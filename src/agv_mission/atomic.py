@@ -1,21 +1,45 @@
-"""Atomic file writes: a reader sees the old file or the new one, never half of one."""
+"""Atomic file writes: a reader sees the old file or the new one, never half of one.
+
+The write goes to a temporary file beside the target, which is fsynced and renamed over
+it. What a user expects of an ordinary write is kept: a symlink is followed (its target
+gets the new content, the link stays a link), an existing file keeps its permission bits,
+and a new file gets the mode the umask gives (``0666 & ~umask``), not ``mkstemp``'s 0600.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
-import tempfile
+import secrets
+import stat
 from pathlib import Path
+
+NEW_FILE_MODE = 0o666  # the kernel applies the umask, as open(path, "w") does
+
+
+def write_target(path: str | os.PathLike) -> Path:
+    """The file a write to ``path`` changes: the end of its symlink chain, if it is one."""
+    path = Path(path)
+    if path.is_symlink():
+        return Path(os.path.realpath(path))
+    return path
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
     """Write ``data`` to a temporary file beside ``path``, fsync it, rename it over ``path``,
-    and fsync the directory so that the rename survives a power cut too."""
-    path = Path(path)
+    and fsync the directory so that the rename survives a power cut too. Returns the path
+    written (a symlink's target)."""
+    path = write_target(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        mode: int | None = stat.S_IMODE(path.stat().st_mode)
+    except FileNotFoundError:
+        mode = None
+    fd, tmp = _create_temporary(path)
     try:
         with os.fdopen(fd, "wb") as f:
+            if mode is not None:
+                os.fchmod(f.fileno(), mode)
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
@@ -25,6 +49,17 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
         raise
     _fsync_directory(path.parent)
     return path
+
+
+def _create_temporary(path: Path) -> tuple[int, Path]:
+    """A new file beside ``path``, created with the umask's mode (``O_EXCL``: never shared)."""
+    for _ in range(100):
+        tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
+        try:
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, NEW_FILE_MODE), tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"cannot create a temporary file beside {path}")
 
 
 def _fsync_directory(directory: Path) -> None:

@@ -14,10 +14,15 @@ seed's ``rosservice call room_service "kitchen"`` appends from ``amcl_pose``::
         z: 0.012345
         w: 0.999924
 
-Every :meth:`LocationRecorder.record` rewrites the whole file atomically (temporary file,
+Every :meth:`LocationRecorder.record` rewrites the file atomically (temporary file,
 fsync, rename), so a crash or ``kill -9`` at any moment leaves either the previous file
 or the new one, never a partial one. Recording a label again replaces its entry in place;
-the other entries keep their order.
+the other entries keep their order, and the rest of the file's text (comments, blank
+lines, the spelling of the other entries) is kept byte for byte.
+
+Several processes may record into one file at once (two runs whose missions name the same
+``recorder:`` file, a teleop session beside a run): each write holds a lock file beside
+the recorder file (``.<name>.lock``) and re-reads the file under it, so no entry is lost.
 """
 
 from __future__ import annotations
@@ -28,8 +33,9 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from filelock import FileLock, Timeout
 
-from agv_mission.atomic import atomic_write_text
+from agv_mission.atomic import atomic_write_text, write_target
 from agv_mission.geometry import Pose2D, quaternion_from_yaw, yaw_from_quaternion
 
 RECORDER_FILENAME = "location_recorder.yaml"
@@ -37,12 +43,15 @@ RECORDER_FILENAME = "location_recorder.yaml"
 POSITION_DECIMALS = 4  # 0.1 mm
 ORIENTATION_DECIMALS = 6  # yaw to about 2e-6 rad
 QUATERNION_TOLERANCE = 1e-3  # as for mission poses
+LOCK_TIMEOUT = 30.0  # seconds to wait for another writer of the same file
+_STR_TAG = "tag:yaml.org,2002:str"
 
 POSITION_KEYS = ("x", "y", "z")
 ORIENTATION_KEYS = ("x", "y", "z", "w")
 
 # libyaml's emitter when present (same text, several times faster than pure Python)
 _DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 Entry = dict[str, dict[str, float]]  # {"position": {x, y, z}, "orientation": {x, y, z, w}}
 
@@ -105,7 +114,7 @@ def dump_entries(entries: dict[str, Entry]) -> str:
 def parse_entries(text: str, path: str | os.PathLike[str] = "<text>") -> dict[str, Entry]:
     """Entries of a recorder file's text; :class:`RecorderFileError` names what is wrong."""
     try:
-        doc = yaml.safe_load(text)
+        doc = yaml.load(text, Loader=_LOADER)  # noqa: S506 (a safe loader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}: " if mark is not None else ""
@@ -155,16 +164,55 @@ def _parse_entry(path: str | os.PathLike[str], label: str, value: Any) -> Entry:
     return entry
 
 
-def load_entries(path: str | os.PathLike[str]) -> dict[str, Entry]:
-    """Read a recorder file (see :func:`parse_entries`)."""
+def read_text(path: str | os.PathLike[str]) -> str:
+    """The text of a recorder file; :class:`RecorderFileError` when it cannot be read."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise RecorderFileError(path, "recorder file not found") from None
+    except IsADirectoryError:
+        raise RecorderFileError(path, "is a directory, not a recorder file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise RecorderFileError(path, f"cannot read recorder file: {exc}") from None
-    return parse_entries(text, path)
+
+
+def load_entries(path: str | os.PathLike[str]) -> dict[str, Entry]:
+    """Read a recorder file (see :func:`parse_entries`)."""
+    return parse_entries(read_text(path), path)
+
+
+def upsert_text(text: str, label: str, entry: Entry) -> str:
+    """``text`` with ``label``'s entry replaced where it stands, or appended at the end.
+
+    Only the entry's own lines change: comments, blank lines and the other entries keep
+    their bytes. A file whose top level is not a block mapping (``{}``, flow style) is
+    rewritten from its entries, keeping any text around the mapping.
+    """
+    block = dump_entries({label: entry})
+    root = yaml.compose(text, Loader=_LOADER) if text.strip() else None
+    if root is None:  # empty, or comments only
+        return text + ("\n" if text and not text.endswith("\n") else "") + block
+    if isinstance(root, yaml.MappingNode) and not root.flow_style:
+        for key, value in root.value:
+            if key.tag == _STR_TAG and key.value == label and key.start_mark.column == 0:
+                end = _last_end(value)
+                return text[: key.start_mark.index] + block.rstrip("\n") + text[end:]
+        if all(key.start_mark.column == 0 for key, _ in root.value):
+            return text + ("" if text.endswith("\n") else "\n") + block
+    entries = parse_entries(text)
+    entries[label] = entry
+    start, end = root.start_mark.index, root.end_mark.index
+    return text[:start] + dump_entries(entries).rstrip("\n") + text[end:]
+
+
+def _last_end(node: yaml.Node) -> int:
+    """Where the text of ``node`` ends (a block collection: where its last scalar ends)."""
+    if isinstance(node, yaml.MappingNode) and not node.flow_style and node.value:
+        return _last_end(node.value[-1][1])
+    if isinstance(node, yaml.SequenceNode) and not node.flow_style and node.value:
+        return _last_end(node.value[-1])
+    return node.end_mark.index
 
 
 class LocationRecorder:
@@ -173,14 +221,18 @@ class LocationRecorder:
     ``initial``: an existing recorder file whose entries are kept and appended to (it may
     be ``path`` itself, as the seed's service appends to its own file). Loading checks the
     layout and raises :class:`RecorderFileError` naming the file, the label and the field.
-    Nothing is written until the first :meth:`record` (or :meth:`save`).
+    Nothing is written until the first :meth:`record` (or :meth:`save`). A ``path`` that
+    is a symlink is followed: its target is the file written.
     """
 
     def __init__(
         self, path: str | os.PathLike[str], initial: str | os.PathLike[str] | None = None
     ) -> None:
         self.path = Path(path)
-        self._entries: dict[str, Entry] = load_entries(initial) if initial is not None else {}
+        self._initial_text = read_text(initial) if initial is not None else "{}\n"
+        self._entries: dict[str, Entry] = parse_entries(
+            self._initial_text, initial if initial is not None else "<empty>"
+        )
 
     @property
     def entries(self) -> dict[str, Pose2D]:
@@ -200,22 +252,71 @@ class LocationRecorder:
     def record(self, label: str, pose: Pose2D) -> Path:
         """Store ``pose`` under ``label`` and rewrite the file atomically; returns the path.
 
-        A new label is appended; a known one is replaced where it stands.
+        A new label is appended; a known one is replaced where it stands. Under the file's
+        lock the file is read again first, so entries other processes recorded meanwhile
+        are kept.
         """
         if not isinstance(label, str) or not label.strip():
             raise ValueError("a room label must be a non-empty string")
         if not all(math.isfinite(v) for v in (pose.x, pose.y, pose.yaw)):
             raise ValueError(f"cannot record a non-finite pose {pose}")
-        entries = dict(self._entries)
-        entries[label] = pose_entry(pose)
-        atomic_write_text(self.path, dump_entries(entries))
+        entry = pose_entry(pose)
+        with self._locked():
+            text = self._current_text()
+            new_text = upsert_text(text, label, entry)
+            entries = parse_entries(new_text, self.path)  # what the file will hold
+            atomic_write_text(self.path, new_text)
         self._entries = entries  # only once the file holds it
         return self.path
 
     def save(self) -> Path:
-        """Write the current entries (e.g. those appended to) atomically."""
-        atomic_write_text(self.path, dump_entries(self._entries))
+        """Write the current entries (e.g. those appended to) atomically, keeping entries
+        another process wrote to the file meanwhile."""
+        with self._locked():
+            text = self._current_text()
+            for label, entry in self._entries.items():
+                if label not in parse_entries(text, self.path):
+                    text = upsert_text(text, label, entry)
+            entries = parse_entries(text, self.path)
+            atomic_write_text(self.path, text)
+        self._entries = entries
         return self.path
 
     def to_yaml(self) -> str:
         return dump_entries(self._entries)
+
+    def _current_text(self) -> str:
+        """The file's text now, or the initial one while the file does not exist."""
+        target = write_target(self.path)
+        if not target.exists():
+            return self._initial_text
+        text = read_text(target)
+        parse_entries(text, self.path)  # refuse to build on a file that is not a recorder's
+        return text
+
+    def _locked(self) -> FileLock:
+        target = write_target(self.path)
+        lock = _Lock(str(target.parent / f".{target.name}.lock"), timeout=LOCK_TIMEOUT)
+        lock.recorder_path = self.path
+        return lock
+
+
+class _Lock(FileLock):
+    """The recorder file's lock; a timeout is a :class:`RecorderFileError` naming the file."""
+
+    recorder_path: Path
+
+    def __enter__(self) -> _Lock:
+        try:
+            self.acquire()
+        except Timeout:
+            raise RecorderFileError(
+                self.recorder_path,
+                f"another process has held its lock ({self.lock_file}) for "
+                f"{LOCK_TIMEOUT:g} s; not recorded",
+            ) from None
+        except OSError as exc:
+            raise RecorderFileError(
+                self.recorder_path, f"cannot create the lock file {self.lock_file}: {exc}"
+            ) from None
+        return self

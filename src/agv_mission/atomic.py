@@ -1,4 +1,6 @@
-"""Atomic file writes: a reader sees the old file or the new one, never half of one.
+"""Safe file I/O: atomic writes, and reads of input files that refuse what is not one.
+
+Atomic writes: a reader sees the old file or the new one, never half of one.
 
 The write goes to a temporary file beside the target, which is fsynced and renamed over
 it. What a user expects of an ordinary write is kept: a symlink is followed (its target
@@ -15,6 +17,60 @@ import stat
 from pathlib import Path
 
 NEW_FILE_MODE = 0o666  # the kernel applies the umask, as open(path, "w") does
+MAX_INPUT_BYTES = 4 * 1024 * 1024  # a mission, world, rooms, robot or recorder file
+
+
+class InputFileError(OSError):
+    """An input file that cannot be read as one: missing, a directory, a FIFO or a device,
+    too large. ``str()`` is a sentence without the path (callers name the file)."""
+
+    def __init__(self, message: str, missing: bool = False) -> None:
+        super().__init__(message)
+        self.message = message
+        self.missing = missing
+
+    def __str__(self) -> str:
+        return self.message
+
+
+def read_input_bytes(path: str | os.PathLike, limit: int = MAX_INPUT_BYTES) -> bytes:
+    """The bytes of a regular file of at most ``limit`` bytes, checked before reading.
+
+    A directory, a FIFO or a device (``/dev/zero``) is refused without opening it, so
+    nothing blocks or reads forever.
+    """
+    try:
+        st = os.stat(path)
+    except FileNotFoundError as exc:
+        raise InputFileError(f"cannot read: {exc.strerror}", missing=True) from None
+    except (OSError, ValueError) as exc:
+        raise InputFileError(f"cannot read: {getattr(exc, 'strerror', None) or exc}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise InputFileError("cannot read: Is a directory")
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a FIFO" if stat.S_ISFIFO(st.st_mode) else "a device or socket"
+        raise InputFileError(f"cannot read: {kind}, not a regular file")
+    if st.st_size > limit:
+        raise InputFileError(
+            f"too large: {st.st_size} bytes; input files are limited to {_size(limit)}"
+        )
+    try:
+        with open(path, "rb") as f:
+            data = f.read(limit + 1)
+    except OSError as exc:
+        raise InputFileError(f"cannot read: {exc.strerror or exc}") from None
+    if len(data) > limit:  # grew since the stat
+        raise InputFileError(f"too large: input files are limited to {_size(limit)}")
+    return data
+
+
+def read_input_text(path: str | os.PathLike, limit: int = MAX_INPUT_BYTES) -> str:
+    """:func:`read_input_bytes` decoded as UTF-8 (``UnicodeDecodeError`` if it is not)."""
+    return read_input_bytes(path, limit).decode("utf-8")
+
+
+def _size(n: int) -> str:
+    return f"{n / 1024 / 1024:g} MB" if n >= 1024 * 1024 else f"{n} bytes"
 
 
 def write_target(path: str | os.PathLike) -> Path:

@@ -61,8 +61,17 @@ def run(
         raise typer.Exit(2) from None
 
     root = output if output is not None else Path(loaded.mission.output)
-    run_dir = make_run_dir(root, loaded.name)
-    write_mission(run_dir, loaded)
+    try:
+        run_dir = make_run_dir(root, loaded.name)
+        write_mission(run_dir, loaded)
+    except (OSError, ValueError) as exc:
+        where = "--output" if output is not None else f"{loaded.source}: output"
+        err.print(
+            f"[bold red]invalid input[/]: {where} {str(root)!r}: cannot create a run "
+            f"directory there: {getattr(exc, 'strerror', None) or exc}",
+            highlight=False,
+        )
+        raise typer.Exit(2) from None
     out.print(
         f"[bold]{loaded.name}[/]: {len(loaded.mission.tasks)} task(s) in "
         f"{loaded.world.name} with {loaded.robot.name}, seed {loaded.mission.seed}"
@@ -100,7 +109,8 @@ def _summary(result: dict) -> None:
         detail = task.get("reason") or ""
         if "waypoints" in task:
             reached = sum(w["status"] == "reached" for w in task["waypoints"])
-            detail = f"{reached}/{len(task['waypoints'])} waypoints reached " + detail
+            planned = task.get("waypoints_planned", len(task["waypoints"]))
+            detail = f"{reached}/{planned} waypoints reached " + detail
         if "rooms" in task:
             reached = sum(r["status"] == "reached" for r in task["rooms"])
             recorded = sum(bool(r.get("recorded")) for r in task["rooms"])

@@ -35,7 +35,7 @@ from typing import Any
 import yaml
 from filelock import FileLock, Timeout
 
-from agv_mission.atomic import atomic_write_text, write_target
+from agv_mission.atomic import InputFileError, atomic_write_text, read_input_text, write_target
 from agv_mission.geometry import Pose2D, quaternion_from_yaw, yaw_from_quaternion
 
 RECORDER_FILENAME = "location_recorder.yaml"
@@ -168,11 +168,10 @@ def read_text(path: str | os.PathLike[str]) -> str:
     """The text of a recorder file; :class:`RecorderFileError` when it cannot be read."""
     path = Path(path)
     try:
-        return path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise RecorderFileError(path, "recorder file not found") from None
-    except IsADirectoryError:
-        raise RecorderFileError(path, "is a directory, not a recorder file") from None
+        return read_input_text(path)
+    except InputFileError as exc:
+        message = "recorder file not found" if exc.missing else str(exc)
+        raise RecorderFileError(path, message) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise RecorderFileError(path, f"cannot read recorder file: {exc}") from None
 

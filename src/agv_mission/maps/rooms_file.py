@@ -21,6 +21,7 @@ from typing import Annotated, Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from agv_mission.atomic import InputFileError, read_input_text
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.rooms import Room
 
@@ -104,9 +105,10 @@ def load_rooms(path: str | os.PathLike[str]) -> dict[str, Room]:
     """Read a rooms file into ``{label: Room}`` (in file order)."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise RoomsFileError(path, [(None, None, "rooms file not found")]) from None
+        text = read_input_text(path)
+    except InputFileError as exc:
+        message = "rooms file not found" if exc.missing else f"rooms file: {exc}"
+        raise RoomsFileError(path, [(None, None, message)]) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise RoomsFileError(path, [(None, None, f"cannot read rooms file: {exc}")]) from exc
     try:

@@ -47,6 +47,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from scipy import ndimage
 
+from agv_mission.atomic import InputFileError, read_input_text
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
@@ -82,12 +83,14 @@ def load_world(spec: str, base_dir: Path | str = ".") -> World:
         path = Path(base_dir) / path
     if path.is_dir() and (path / "map.yaml").is_file():
         path = path / "map.yaml"
-    if not path.is_file():
+    if not path.exists():
         raise WorldError(
             f"unknown world {spec!r}: not a built-in world ({names}) and no such file {path}"
         )
     try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+        doc = yaml.safe_load(read_input_text(path))
+    except InputFileError as exc:
+        raise WorldError(f"{path}: world file: {exc}") from None
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise WorldError(f"{path}: cannot read world file: {exc}") from exc
     if is_ros_map_yaml(doc):

@@ -17,6 +17,7 @@ import numpy as np
 import yaml
 from pydantic import ValidationError
 
+from agv_mission.atomic import InputFileError, read_input_bytes
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.grid import UNKNOWN
@@ -26,9 +27,11 @@ from agv_mission.maps.rooms_file import RoomsFileError, load_rooms
 from agv_mission.maps.world_loader import WorldError, load_world
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.schema import Mission
+from agv_mission.missions.schema import MAX_NAME_LENGTH, Mission
 from agv_mission.missions.yaml_lines import DocumentError, FieldPath, line_of, load_with_lines
-from agv_mission.robots.description import RobotDescription, load_robot
+from agv_mission.robots.description import RobotDescription, RobotFileError, load_robot
+
+MAX_GRID_CELLS = 16_000_000  # a costmap or SLAM grid: 16 M cells (e.g. 200 m x 200 m at 5 cm)
 
 
 @dataclass
@@ -107,6 +110,21 @@ def load_mission(
             ]
         )
 
+    non_finite = _non_finite_numbers(data)
+    if non_finite:
+        raise MissionError(
+            [
+                _problem(
+                    file,
+                    p,
+                    f"expected a finite number, got {yaml.safe_dump(value).splitlines()[0]}",
+                    lines,
+                    override_paths,
+                )
+                for p, value in non_finite
+            ]
+        )
+
     try:
         mission = Mission.model_validate(data)
     except ValidationError as exc:
@@ -158,17 +176,10 @@ def _resolve(
             f"no built-in robot or robot file {mission.robot!r} "
             "(built-in: burger, waffle, rosbots)",
         )
-    except ValidationError as exc:
-        problem(("robot",), f"invalid robot file {mission.robot!r}: {_first_error(exc)}")
-    except yaml.YAMLError as exc:
-        problem(("robot",), f"invalid robot file {mission.robot!r}: {_first_line(exc)}")
+    except RobotFileError as exc:
+        problem(("robot",), f"invalid robot file {mission.robot!r}: {exc}")
     except (OSError, ValueError, RuntimeError) as exc:
         problem(("robot",), f"cannot read robot file {mission.robot!r}: {_os_message(exc)}")
-    except (AttributeError, TypeError):  # YAML, but not a mapping
-        problem(
-            ("robot",),
-            f"invalid robot file {mission.robot!r}: expected a mapping of robot parameters",
-        )
     rooms = dict(world.rooms)
     if mission.rooms is not None:
         try:
@@ -180,6 +191,16 @@ def _resolve(
     if problems:
         raise MissionError(problems)
 
+    resolution = mission.stack.costmap.resolution
+    if resolution is not None:
+        cells = grid_cells(world.map.extent, resolution)
+        if cells > MAX_GRID_CELLS:
+            problem(
+                ("stack", "costmap", "resolution"),
+                f"{resolution:g} m cells make a costmap of {cells:.3g} cells for this world; "
+                f"at most {MAX_GRID_CELLS:.3g} (use a coarser resolution)",
+            )
+            raise MissionError(problems)
     costmap = Costmap.from_grid(world.map, robot.footprint_radius, mission.stack.costmap)
 
     if mission.start is None:
@@ -238,7 +259,7 @@ def _resolve(
     return LoadedMission(
         mission=mission,
         source=None,
-        name=mission.name or stem,
+        name=mission.name or stem[:MAX_NAME_LENGTH],
         world=world,
         robot=robot,
         rooms=rooms,
@@ -427,6 +448,34 @@ def _validation_problems(
     return problems
 
 
+def grid_cells(extent: tuple[float, float, float, float], resolution: float) -> float:
+    """Cells of a grid covering ``extent`` at ``resolution`` (a float: it may be huge)."""
+    xmin, xmax, ymin, ymax = extent
+    return math.ceil((xmax - xmin) / resolution) * math.ceil((ymax - ymin) / resolution)
+
+
+def _non_finite_numbers(data: Any, limit: int = 10) -> list[tuple[FieldPath, float]]:
+    """Paths of ``.inf``/``.nan`` values anywhere in the document (every block, plugin
+    configs included: no number of a mission may be infinite)."""
+    found: list[tuple[FieldPath, float]] = []
+    seen: set[int] = set()
+    stack: list[tuple[Any, FieldPath]] = [(data, ())]
+    while stack and len(found) < limit:
+        node, path = stack.pop()
+        if isinstance(node, float):
+            if not math.isfinite(node):
+                found.append((path, node))
+            continue
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
+        if isinstance(node, dict):
+            stack.extend((value, (*path, key)) for key, value in node.items())
+        elif isinstance(node, list):
+            stack.extend((item, (*path, i)) for i, item in enumerate(node))
+    return sorted(found, key=lambda item: tuple(map(str, item[0])))
+
+
 def _non_string_keys(data: Any, limit: int = 10) -> list[tuple[Any, ...]]:
     """Paths of mapping keys that YAML read as numbers, booleans, null or dates."""
     found: list[tuple[Any, ...]] = []
@@ -554,11 +603,9 @@ def _problem(
 
 def _read_text(path: Path, file: str) -> str:
     try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise MissionError([Problem(file, None, "", f"cannot read: {_os_message(exc)}")]) from None
-    except ValueError as exc:  # e.g. an embedded null byte in the path
-        raise MissionError([Problem(file, None, "", f"cannot read: {exc}")]) from None
+        raw = read_input_bytes(path)
+    except InputFileError as exc:
+        raise MissionError([Problem(file, None, "", str(exc))]) from None
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -424,6 +424,7 @@ def _task_reports(
         elif skips:
             report["reason"] = "; ".join(sorted({e["reason"] for e in skips}))
         if task.type == "patrol":
+            report["waypoints_planned"] = task.loops * len(task.waypoints)
             report["waypoints"] = [
                 {k: e[k] for k in ("loop", "waypoint", "t", "x", "y", "yaw", "reason") if k in e}
                 | {"status": _OUTCOMES[e["event"]]}

@@ -29,6 +29,16 @@ from agv_mission.robots.simulation import SimConfig
 
 QUATERNION_TOLERANCE = 1e-3
 
+# Bounds on what scales memory or time (a mission over them is refused, not run).
+MAX_TASKS = 1000
+MAX_WAYPOINTS = 10_000
+MAX_LOOPS = 1_000_000
+MAX_ROOMS = 1000
+MAX_OBSTACLES = 1000
+MAX_FAULTS = 100
+MAX_SIM_SECONDS = 86_400.0  # one simulated day
+MAX_NAME_LENGTH = 100  # a path component of the run directory, with a timestamp after it
+
 
 class StrictModel(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -143,16 +153,18 @@ class PatrolTask(FailurePolicy):
     """Visit the waypoints in order, ``loops`` times, waiting ``dwell`` seconds at each."""
 
     type: Literal["patrol"]
-    waypoints: list[Pose] = Field(min_length=1)
-    loops: int = Field(1, ge=1)
-    dwell: float = Field(0.0, ge=0.0, description="simulated seconds at each waypoint")
+    waypoints: list[Pose] = Field(min_length=1, max_length=MAX_WAYPOINTS)
+    loops: int = Field(1, ge=1, le=MAX_LOOPS, description="rounds; each is built when it starts")
+    dwell: float = Field(
+        0.0, ge=0.0, le=MAX_SIM_SECONDS, description="simulated seconds at each waypoint"
+    )
 
 
 class WanderTask(StrictModel):
     """Drive ahead while the range ahead exceeds ``min_range``, turn otherwise (seed ex. 7.3)."""
 
     type: Literal["wander"]
-    duration: float = Field(gt=0.0, description="simulated seconds")
+    duration: float = Field(gt=0.0, le=MAX_SIM_SECONDS, description="simulated seconds")
     min_range: float = Field(0.8, gt=0.0, description="metres")
     speed: float | None = Field(None, gt=0.0, description="m/s; default: the robot's maximum")
     turn_rate: float = Field(0.4, gt=0.0, description="rad/s while turning")
@@ -176,7 +188,9 @@ class VisitRoomsTask(FailurePolicy, SettleBeforeRecording):
     """Go into each room in order (its anchor, or a free point well inside it)."""
 
     type: Literal["visit_rooms"]
-    rooms: list[str] = Field(min_length=1, description="room labels, visited in this order")
+    rooms: list[str] = Field(
+        min_length=1, max_length=MAX_ROOMS, description="room labels, visited in this order"
+    )
     record: bool = Field(False, description="record the estimated pose in each room")
 
 
@@ -217,7 +231,9 @@ class MapAreaTask(StrictModel):
     coverage: float | None = Field(
         None, gt=0.0, le=1.0, description="stop once this share of the bounds is known"
     )
-    time_limit: float | None = Field(None, gt=0.0, description="stop after this many seconds")
+    time_limit: float | None = Field(
+        None, gt=0.0, le=MAX_SIM_SECONDS, description="stop after this many seconds"
+    )
     min_frontier_size: int = Field(8, ge=1, description="smallest frontier worth a visit, cells")
 
     @field_validator("save_map")
@@ -241,7 +257,9 @@ StartSpec = Annotated[
 
 
 class Limits(StrictModel):
-    time: float = Field(600.0, gt=0.0, description="simulated seconds for the whole mission")
+    time: float = Field(
+        600.0, gt=0.0, le=MAX_SIM_SECONDS, description="simulated seconds for the whole mission"
+    )
     collisions: int = Field(0, ge=0, description="collisions allowed before the mission fails")
 
 
@@ -317,7 +335,9 @@ Fault = Annotated[
 class Mission(StrictModel):
     """A mission file."""
 
-    name: str | None = Field(None, description="default: the file's stem")
+    name: str | None = Field(
+        None, max_length=MAX_NAME_LENGTH, description="default: the file's stem"
+    )
     world: str = Field(
         "turtlebot3_world",
         description="a built-in world, a world file, or a ROS map_server YAML",
@@ -330,12 +350,16 @@ class Mission(StrictModel):
     seed: int = Field(0, ge=0, description="every random draw of the run derives from it")
     stack: Stack = Field(default_factory=Stack)
     simulation: SimConfig = Field(default_factory=SimConfig)
-    tasks: list[Task] = Field(min_length=1)
+    tasks: list[Task] = Field(min_length=1, max_length=MAX_TASKS)
     limits: Limits = Field(default_factory=Limits)
     obstacles: list[Obstacle] = Field(
-        default_factory=list, description="unmapped obstacles, in the simulation only"
+        default_factory=list,
+        max_length=MAX_OBSTACLES,
+        description="unmapped obstacles, in the simulation only",
     )
-    faults: list[Fault] = Field(default_factory=list, description="faults to inject")
+    faults: list[Fault] = Field(
+        default_factory=list, max_length=MAX_FAULTS, description="faults to inject"
+    )
     recorder: str | None = Field(
         None,
         description="an existing location_recorder.yaml to append to (updated in place; "

@@ -15,6 +15,7 @@ from agv_mission.behaviors.explore import MapArea
 from agv_mission.behaviors.motion import Dwell, Wander
 from agv_mission.behaviors.navigate import NavigateToPose
 from agv_mission.behaviors.outcome import LegOutcome
+from agv_mission.behaviors.patrol import PatrolLoops
 from agv_mission.behaviors.recoveries import BackUp, ClearCostmap, RecoveryNode, Spin, Wait
 from agv_mission.behaviors.rooms import InRoom, RecordRoom, SettleLocalization
 from agv_mission.geometry import Pose2D
@@ -80,16 +81,16 @@ class _Builder:
             )
         if isinstance(task, PatrolTask):
             legs: list[Behaviour] = []
-            for loop in range(task.loops):
-                for j, wp in enumerate(task.waypoints):
-                    details = {"task": index, "loop": loop + 1, "waypoint": j + 1}
-                    name = f"loop {loop + 1} waypoint {j + 1} ({wp.x:g}, {wp.y:g})"
-                    legs.append(
-                        self.leg(name, self.goal("go", wp.to_pose2d(), **details), task, **details)
-                    )
-                    if task.dwell > 0:
-                        legs.append(Dwell(f"dwell {task.dwell:g} s", self.handle, task.dwell))
-            return py_trees.composites.Sequence(name=label, memory=True, children=legs)
+            for j, wp in enumerate(task.waypoints):
+                details = {"task": index, "loop": 1, "waypoint": j + 1}
+                name = f"waypoint {j + 1} ({wp.x:g}, {wp.y:g})"
+                legs.append(
+                    self.leg(name, self.goal("go", wp.to_pose2d(), **details), task, **details)
+                )
+                if task.dwell > 0:
+                    legs.append(Dwell(f"dwell {task.dwell:g} s", self.handle, task.dwell))
+            one_round = py_trees.composites.Sequence(name="round", memory=True, children=legs)
+            return PatrolLoops(label, one_round, task.loops)
         if isinstance(task, VisitRoomsTask):
             visits: list[Behaviour] = []
             for room in task.rooms:

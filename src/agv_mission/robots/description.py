@@ -3,20 +3,27 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from agv_mission.atomic import InputFileError, read_input_text
+
+MAX_BEAMS = 8192  # more than any planar lidar sold; each beam is a ray cast per scan
 
 
 class LidarSpec(BaseModel):
     """A planar 360-degree laser scanner (``sensor_msgs/LaserScan`` conventions)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    beams: int = Field(360, ge=4, description="beams per scan, evenly spread over 360 degrees")
+    beams: int = Field(
+        360, ge=4, le=MAX_BEAMS, description="beams per scan, evenly spread over 360 degrees"
+    )
     range_min: float = Field(0.12, gt=0, description="metres; closer returns read as invalid")
-    range_max: float = Field(3.5, gt=0, description="metres; no return beyond this")
-    rate: float = Field(5.0, gt=0, description="scans per second")
+    range_max: float = Field(3.5, gt=0, le=1000.0, description="metres; no return beyond this")
+    rate: float = Field(5.0, gt=0, le=100.0, description="scans per second")
     noise_std: float = Field(0.01, ge=0, description="Gaussian range noise, metres")
     height: float = Field(0.17, gt=0, description="height of the scan plane above the floor")
 
@@ -24,7 +31,7 @@ class LidarSpec(BaseModel):
 class EncoderSpec(BaseModel):
     """Incremental wheel encoders, read as integer ticks."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     ticks_per_meter: float = Field(
         ..., gt=0, description="ticks per metre of wheel travel (diff_tf's ticks_meter)"
@@ -34,7 +41,7 @@ class EncoderSpec(BaseModel):
 class RobotDescription(BaseModel):
     """A differential-drive robot: geometry, limits and sensors."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     name: str
     wheel_radius: float = Field(..., gt=0, description="metres")
@@ -100,14 +107,76 @@ BUILTIN_ROBOTS: dict[str, RobotDescription] = {
 }
 
 
+class RobotFileError(ValueError):
+    """A robot file that cannot be used; names the file, the line and the field."""
+
+    def __init__(self, path: Path, line: int | None, field: str, message: str) -> None:
+        self.path, self.line, self.field, self.message = path, line, field, message
+        where = f"line {line}: " if line is not None else ""
+        super().__init__(f"{where}{field + ': ' if field else ''}{message}")
+
+
 def load_robot(spec: str, base_dir: Path | None = None) -> RobotDescription:
-    """A built-in robot by name, or a robot YAML file (a :class:`RobotDescription` document)."""
+    """A built-in robot by name, or a robot YAML file (a :class:`RobotDescription` document).
+
+    Raises ``FileNotFoundError`` for a name that is neither, and :class:`RobotFileError`
+    (file, line, field) for a file that is not a valid robot description.
+    """
     if spec in BUILTIN_ROBOTS:
         return BUILTIN_ROBOTS[spec]
     path = Path(spec)
     if base_dir is not None and not path.is_absolute():
         path = base_dir / path
-    with open(path, encoding="utf-8") as f:
-        doc = yaml.safe_load(f) or {}
+    try:
+        text = read_input_text(path)
+    except InputFileError as exc:
+        if exc.missing:
+            raise FileNotFoundError(str(path)) from None
+        raise RobotFileError(path, None, "", str(exc)) from None
+    except UnicodeDecodeError:
+        raise RobotFileError(path, None, "", "not a UTF-8 text file") from None
+    try:
+        doc = yaml.safe_load(text)
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise RobotFileError(
+            path, mark.line + 1 if mark else None, "", f"invalid YAML: {problem}"
+        ) from None
+    if doc is None:
+        doc = {}
+    if not isinstance(doc, dict):
+        raise RobotFileError(path, 1, "", "expected a mapping of robot parameters")
     doc.setdefault("name", path.stem)
-    return RobotDescription.model_validate(doc)
+    try:
+        return RobotDescription.model_validate(doc)
+    except ValidationError as exc:
+        errors = exc.errors(include_url=False)
+        err = errors[0]
+        loc = tuple(err["loc"])
+        msg = "field required" if err["type"] == "missing" else err["msg"]
+        if "input" in err and not isinstance(err["input"], (dict, list)):
+            msg = f"{msg} (got {err['input']!r})"
+        more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+        field = ".".join(map(str, loc))
+        raise RobotFileError(path, _line_of(root, loc), field, msg + more) from None
+
+
+def _line_of(node: Any, loc: tuple[Any, ...]) -> int | None:
+    """1-based line of the deepest part of ``loc`` the document holds."""
+    line = node.start_mark.line + 1 if node is not None else None
+    for part in loc:
+        if isinstance(node, yaml.MappingNode):
+            hit = next(((k, v) for k, v in node.value if k.value == str(part)), None)
+            if hit is None:
+                return line
+            line, node = hit[0].start_mark.line + 1, hit[1]
+        elif isinstance(node, yaml.SequenceNode) and isinstance(part, int):
+            if not 0 <= part < len(node.value):
+                return line
+            node = node.value[part]
+            line = node.start_mark.line + 1
+        else:
+            return line
+    return line

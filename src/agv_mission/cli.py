@@ -177,10 +177,10 @@ def teleop(
 
     from agv_mission.maps.recorder import RecorderFileError
     from agv_mission.missions.outputs import make_run_dir
+    from agv_mission.missions.stack import open_recorders
     from agv_mission.missions.teleop import (
         check_recorder_file,
         load_teleop_mission,
-        open_recorders,
         run_teleop,
         write_teleop_outputs,
     )

@@ -58,7 +58,7 @@ def test_an_observer_sees_every_step_of_a_run(tmp_path: Path) -> None:
 
     [start] = seen.starts
     assert start.start == loaded.start and start.world_map is loaded.world.map
-    assert start.tree_nodes[0].depth == 0 and start.tree_nodes[0].status == "not_run"
+    assert start.tree_nodes[0].depth == 0 and start.tree_nodes[0].status == "INVALID"
     assert len(start.tree_nodes) > 3
     assert seen.records == [record]  # on_end once, with the record returned
 
@@ -102,7 +102,7 @@ def test_an_observer_sees_every_step_of_a_run(tmp_path: Path) -> None:
     assert {s.task_type for s in samples} >= {"go_to", "record_room"}
     changes = [s.tree_nodes for s in samples if s.tree_nodes is not None]
     assert 2 <= len(changes) < len(samples)
-    assert changes[-1][0].status == "succeeded"
+    assert changes[-1][0].status == "SUCCESS"
 
 
 class CancelAt:

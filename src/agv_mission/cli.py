@@ -178,7 +178,7 @@ def teleop(
     from agv_mission.maps.recorder import RecorderFileError
     from agv_mission.missions.outputs import make_run_dir
     from agv_mission.missions.stack import open_recorders
-    from agv_mission.missions.teleop import (
+    from agv_mission.teleop.session import (
         check_recorder_file,
         load_teleop_mission,
         run_teleop,
@@ -264,7 +264,7 @@ def regress(
 
     from rich.markup import escape
 
-    from agv_mission.missions import regress as rg
+    from agv_mission.regress import report as rg
 
     if backend not in ("local", "ray"):
         err.print(f"[bold red]invalid input[/]: --backend {escape(backend)}: local or ray")

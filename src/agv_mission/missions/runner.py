@@ -21,8 +21,9 @@ from py_trees.common import Status
 from agv_mission.behaviors.outcome import failure_reason
 from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.localization.base import Localizer
+from agv_mission.mapping.frontiers import map_quality
+from agv_mission.mapping.session import MappingSession
 from agv_mission.maps.costmap import Costmap
-from agv_mission.maps.frontiers import map_quality
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.obstacle_layer import ObstacleLayer
 from agv_mission.maps.ros_map import load_ros_map, save_ros_map
@@ -46,7 +47,6 @@ from agv_mission.missions.stack import (
 )
 from agv_mission.missions.tree import MissionTree, build_tree
 from agv_mission.navigation.handle import RobotHandle
-from agv_mission.navigation.mapping import MappingSession
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.navigation.state import RobotState
 

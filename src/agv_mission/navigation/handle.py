@@ -7,9 +7,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from agv_mission.geometry import Pose2D
+from agv_mission.mapping.session import MappingSession
 from agv_mission.maps.recorder import LocationRecorder
 from agv_mission.maps.rooms import Room
-from agv_mission.navigation.mapping import MappingSession
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.navigation.state import RobotState
 

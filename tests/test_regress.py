@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from agv_mission.missions import regress as rg
 from agv_mission.missions.expectations import Expectations, Failure, check
+from agv_mission.regress import report as rg
 
 REPO = Path(__file__).resolve().parents[1]
 SCENARIOS = REPO / "tests" / "scenarios"

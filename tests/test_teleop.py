@@ -19,15 +19,15 @@ import yaml
 from agv_mission.geometry import wrap_angle
 from agv_mission.maps.builtin_worlds import HOUSE_SPAWN
 from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder
-from agv_mission.missions.teleop import (
+from agv_mission.maps.rooms import room_at
+from agv_mission.missions.stack import open_recorders
+from agv_mission.planners.base import VelocityLimits
+from agv_mission.teleop.session import (
     TeleopKeys,
     TeleopRobot,
     load_teleop_mission,
-    open_recorders,
-    room_at,
     split_keys,
 )
-from agv_mission.planners.base import VelocityLimits
 
 CLI = [sys.executable, "-m", "agv_mission.cli"]
 STATUS = re.compile(

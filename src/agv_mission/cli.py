@@ -187,10 +187,10 @@ def teleop(
 
     from agv_mission.maps.recorder import RecorderFileError
     from agv_mission.missions.outputs import make_run_dir
-    from agv_mission.missions.teleop import (
+    from agv_mission.missions.stack import open_recorders
+    from agv_mission.teleop.session import (
         check_recorder_file,
         load_teleop_mission,
-        open_recorders,
         run_teleop,
         write_teleop_outputs,
     )
@@ -274,7 +274,7 @@ def regress(
 
     from rich.markup import escape
 
-    from agv_mission.missions import regress as rg
+    from agv_mission.regress import report as rg
 
     if backend not in ("local", "ray"):
         err.print(f"[bold red]invalid input[/]: --backend {escape(backend)}: local or ray")

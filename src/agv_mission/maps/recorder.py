@@ -232,6 +232,9 @@ class LocationRecorder:
         self._entries: dict[str, Entry] = parse_entries(
             self._initial_text, initial if initial is not None else "<empty>"
         )
+        self._written: tuple[tuple[int, int, int], str] | None = None  # (signature, text)
+        if initial is not None and _same_file(initial, self.path):
+            self._written = _unchanged_since_read(Path(initial), self._initial_text)
 
     @property
     def entries(self) -> dict[str, Pose2D]:
@@ -261,10 +264,10 @@ class LocationRecorder:
             raise ValueError(f"cannot record a non-finite pose {pose}")
         entry = pose_entry(pose)
         with self._locked():
-            text = self._current_text()
+            text, entries = self._current()
             new_text = upsert_text(text, label, entry)
-            entries = parse_entries(new_text, self.path)  # what the file will hold
-            atomic_write_text(self.path, new_text)
+            entries[label] = entry
+            self._write(new_text)
         self._entries = entries  # only once the file holds it
         return self.path
 
@@ -272,32 +275,66 @@ class LocationRecorder:
         """Write the current entries (e.g. those appended to) atomically, keeping entries
         another process wrote to the file meanwhile."""
         with self._locked():
-            text = self._current_text()
+            text, entries = self._current()
             for label, entry in self._entries.items():
-                if label not in parse_entries(text, self.path):
+                if label not in entries:
                     text = upsert_text(text, label, entry)
-            entries = parse_entries(text, self.path)
-            atomic_write_text(self.path, text)
+                    entries[label] = entry
+            self._write(text)
         self._entries = entries
         return self.path
 
     def to_yaml(self) -> str:
         return dump_entries(self._entries)
 
-    def _current_text(self) -> str:
-        """The file's text now, or the initial one while the file does not exist."""
+    def _current(self) -> tuple[str, dict[str, Entry]]:
+        """The file's text and entries now (the initial ones while it does not exist).
+
+        A file unchanged since this recorder wrote it (same inode, size and mtime) is not
+        parsed again: it holds what was written.
+        """
         target = write_target(self.path)
-        if not target.exists():
-            return self._initial_text
+        try:
+            st = target.stat()
+        except FileNotFoundError:
+            return self._initial_text, dict(self._entries)
+        if self._written is not None and _signature(st) == self._written[0]:
+            return self._written[1], dict(self._entries)
         text = read_text(target)
-        parse_entries(text, self.path)  # refuse to build on a file that is not a recorder's
-        return text
+        return text, parse_entries(text, self.path)  # refuses a file that is not a recorder's
+
+    def _write(self, text: str) -> None:
+        target = atomic_write_text(self.path, text)
+        self._written = (_signature(target.stat()), text)
 
     def _locked(self) -> FileLock:
         target = write_target(self.path)
         lock = _Lock(str(target.parent / f".{target.name}.lock"), timeout=LOCK_TIMEOUT)
         lock.recorder_path = self.path
         return lock
+
+
+def _signature(st: os.stat_result) -> tuple[int, int, int]:
+    return (st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+def _same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _unchanged_since_read(path: Path, text: str) -> tuple[tuple[int, int, int], str] | None:
+    """The signature of ``path`` if the file holds ``text``: taken before reading it, so a
+    change after the signature makes the next check fail, never the other way round."""
+    try:
+        with open(path, "rb") as f:
+            st = os.fstat(f.fileno())
+            same = f.read(len(text.encode("utf-8")) + 1) == text.encode("utf-8")
+    except OSError:
+        return None
+    return (_signature(st), text) if same else None
 
 
 class _Lock(FileLock):

@@ -332,8 +332,11 @@ Fault = Annotated[
 ]
 
 
-class Mission(StrictModel):
-    """A mission file."""
+class Setup(StrictModel):
+    """Where and with what a robot drives: world, robot, start, stack and simulation.
+
+    The part of a mission that does not say what to do; ``teleop`` drives in one of these.
+    """
 
     name: str | None = Field(
         None, max_length=MAX_NAME_LENGTH, description="default: the file's stem"
@@ -350,7 +353,6 @@ class Mission(StrictModel):
     seed: int = Field(0, ge=0, description="every random draw of the run derives from it")
     stack: Stack = Field(default_factory=Stack)
     simulation: SimConfig = Field(default_factory=SimConfig)
-    tasks: list[Task] = Field(min_length=1, max_length=MAX_TASKS)
     limits: Limits = Field(default_factory=Limits)
     obstacles: list[Obstacle] = Field(
         default_factory=list,
@@ -366,12 +368,6 @@ class Mission(StrictModel):
         "the run directory gets a copy)",
     )
     output: str = Field("runs", description="root of run directories")
-    expect: Expectations | None = Field(
-        None,
-        description="what `agv-mission regress` checks of the run (ignored by `run`): final "
-        "and per-task status, time, collisions, clearance, localisation, map IoU, rooms, "
-        "waypoints",
-    )
 
     @field_validator("name")
     @classmethod
@@ -379,3 +375,35 @@ class Mission(StrictModel):
         if v is not None and (not v.strip() or "/" in v or "\\" in v):
             raise ValueError("name must be a non-empty string without path separators")
         return v
+
+
+class Mission(Setup):
+    """A mission file: a setup and the tasks to carry out in it."""
+
+    tasks: list[Task] = Field(min_length=1, max_length=MAX_TASKS)
+    expect: Expectations | None = Field(
+        None,
+        description="what `agv-mission regress` checks of the run (ignored by `run`): final "
+        "and per-task status, time, collisions, clearance, localisation, map IoU, rooms, "
+        "waypoints",
+    )
+
+
+# The order a resolved mission is written in (mission.yaml): what to do after the stack.
+FIELD_ORDER = (
+    "name",
+    "world",
+    "rooms",
+    "robot",
+    "start",
+    "seed",
+    "stack",
+    "simulation",
+    "tasks",
+    "limits",
+    "obstacles",
+    "faults",
+    "recorder",
+    "output",
+    "expect",
+)

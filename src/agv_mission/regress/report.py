@@ -308,7 +308,7 @@ def _json_default(value: Any) -> Any:
 
 
 WORKER_PRELOAD = [
-    "agv_mission.missions.regress",
+    "agv_mission.regress.report",
     "agv_mission.missions.loader",
     "agv_mission.missions.runner",
     "agv_mission.missions.outputs",

@@ -51,24 +51,17 @@ import yaml
 from agv_mission.atomic import atomic_write_text
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.recorder import (
-    RECORDER_FILENAME,
     LocationRecorder,
-    RecorderFileError,
     load_entries,
 )
-from agv_mission.maps.rooms import Room
+from agv_mission.maps.rooms import room_at
 from agv_mission.missions.loader import LoadedMission, load_mission
-from agv_mission.missions.runner import CONTROL_PERIOD, VelocitySmoother
+from agv_mission.missions.stack import CONTROL_PERIOD, RobotStack
 from agv_mission.planners.base import VelocityLimits
-from agv_mission.registry import registry
-from agv_mission.robots.odometry import DiffDriveOdometry
-from agv_mission.robots.simulation import DiffDriveSim
 
 DEFAULT_WORLD = "small_house"
 LINEAR_STEPS = 10  # key presses from standstill to full speed
 ANGULAR_STEPS = 10
-# The schema wants at least one task; teleop runs none.
-_PLACEHOLDER_TASKS = [{"type": "wander", "duration": 1.0}]
 
 HELP = """\
 agv-mission teleop: drive the robot, record rooms
@@ -109,25 +102,13 @@ def load_teleop_mission(
         doc: dict[str, Any] = {"name": "teleop", "world": world or DEFAULT_WORLD}
         if robot is not None:
             doc["robot"] = robot
-        doc["tasks"] = _PLACEHOLDER_TASKS
         text = yaml.safe_dump(doc, sort_keys=False)
-        return load_mission(Path("teleop.yaml"), sets, seed, text=text)
+        return load_mission(Path("teleop.yaml"), sets, seed, text=text, tasks_required=False)
     if robot is not None:
         sets.insert(0, f"robot={json.dumps(robot)}")
     if world is not None:
         sets.insert(0, f"world={json.dumps(world)}")
-    try:
-        raw = yaml.safe_load(Path(mission).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
-        raw = None  # load_mission reports it
-    if isinstance(raw, dict) and not raw.get("tasks"):
-        sets.insert(0, f"tasks={json.dumps(_PLACEHOLDER_TASKS)}")
-    return load_mission(mission, sets, seed)
-
-
-def room_at(rooms: dict[str, Room], x: float, y: float) -> str | None:
-    """The label of the first room whose polygon holds (x, y), if any."""
-    return next((label for label, room in rooms.items() if room.contains(x, y)), None)
+    return load_mission(mission, sets, seed, tasks_required=False)
 
 
 # --------------------------------------------------------------------------- keys -> twist
@@ -208,36 +189,12 @@ def _utf8_length(first: int) -> int:
 
 
 class TeleopRobot:
-    """The simulated robot and its estimator, advanced one control step at a time.
-
-    The same wiring as the mission runner: MuJoCo sim, encoder odometry (diff_tf), lidar at
-    its rate, the mission's localisation plugin, and an acceleration-limited smoother.
-    """
+    """The mission's robot and localiser (see :class:`RobotStack`), one step at a time."""
 
     def __init__(self, loaded: LoadedMission) -> None:
-        mission, robot = loaded.mission, loaded.robot
-        sim_seed, loc_seed, _ = np.random.SeedSequence(mission.seed).spawn(3)
         self.loaded = loaded
-        self.sim = DiffDriveSim(
-            robot, loaded.world, loaded.start, mission.simulation, np.random.default_rng(sim_seed)
-        )
-        self.odometry = DiffDriveOdometry(robot.encoder.ticks_per_meter, robot.wheel_separation)
-        self.localizer = registry.create(
-            "localization",
-            mission.stack.localization,
-            grid=loaded.world.map,
-            rng=np.random.default_rng(loc_seed),
-        )
-        self.limits = VelocityLimits(
-            max_v=robot.max_linear_velocity,
-            max_w=robot.max_angular_velocity,
-            max_acc_v=robot.max_linear_acceleration,
-            max_acc_w=robot.max_angular_acceleration,
-        )
-        self.smoother = VelocitySmoother(self.limits, CONTROL_PERIOD)
-        self._scan_period = 1.0 / robot.lidar.rate
-        self._next_scan = 0.0
-        self.localizer.reset(loaded.start, self.odometry.update(*self.sim.encoder_ticks()))
+        self.stack = RobotStack(loaded)
+        self.sim, self.limits = self.stack.sim, self.stack.limits
         self.rows: list[tuple[float, ...]] = []
         self.contact = False
         self._sense()
@@ -249,30 +206,26 @@ class TeleopRobot:
     @property
     def velocity(self) -> tuple[float, float]:
         """The commanded (smoothed) twist being driven."""
-        return self.smoother.v, self.smoother.w
+        return self.stack.smoother.v, self.stack.smoother.w
 
     def room(self) -> str | None:
         """The room the estimated pose lies in."""
         return room_at(self.loaded.rooms, self.estimate.x, self.estimate.y)
 
     def _sense(self) -> None:
-        now = self.sim.time
-        odom = self.odometry.update(*self.sim.encoder_ticks())
-        scan = None
-        if now >= self._next_scan - 1e-9:
-            scan = self.sim.scan()
-            self._next_scan += self._scan_period
-        self.truth = self.sim.true_pose()
-        self.estimate: Pose2D = self.localizer.update(odom, scan, self.truth, now)
+        sensing = self.stack.sense()
+        self.truth = sensing.truth
+        self.estimate: Pose2D = self.stack.localizer.update(
+            sensing.odom, sensing.scan, sensing.truth, sensing.time
+        )
         self.contact = self.sim.contacts() > 0
 
     def step(self, v: float, w: float) -> None:
         """Drive towards the twist (v, w) for one control period, then sense."""
-        v, w = self.smoother(v, w)
-        t, e = self.truth, self.estimate
-        self.rows.append((self.sim.time, t.x, t.y, t.yaw, e.x, e.y, e.yaw, v, w))
-        self.sim.set_command(v, w)
-        self.sim.advance(CONTROL_PERIOD)
+        t, e, now = self.truth, self.estimate, self.sim.time
+        v, w = self.stack.drive(v, w)
+        self.rows.append((now, t.x, t.y, t.yaw, e.x, e.y, e.yaw, v, w))
+        self.stack.advance()
         self._sense()
 
     def trajectory(self) -> np.ndarray:
@@ -632,44 +585,6 @@ def _edit(raw: bytes) -> str:
 
 
 # --------------------------------------------------------------------------- outputs
-
-
-def open_recorders(
-    loaded: LoadedMission,
-    run_dir: Path | None,
-    recorder_file: Path | None = None,
-    append: Path | None = None,
-) -> list[LocationRecorder]:
-    """The session's recorders, the one to show first.
-
-    * ``recorder_file``: record straight into it, appending to its entries when it exists
-      (as the seed's service does); ``append`` may only name that same file.
-    * else ``run_dir/location_recorder.yaml``, starting from ``append``'s entries, or from
-      those of the mission's ``recorder`` file, which is then also updated in place (as
-      ``agv-mission run`` does).
-
-    Raises :class:`~agv_mission.maps.recorder.RecorderFileError` for a file that is not a
-    recorder file or a clash of ``recorder_file`` and ``append``.
-    """
-    if recorder_file is not None:
-        exists = recorder_file.exists()
-        if append is not None and exists and append.resolve() != recorder_file.resolve():
-            raise RecorderFileError(
-                recorder_file,
-                f"exists and would be replaced by the entries of {append}; "
-                "--recorder appends to an existing file by itself",
-            )
-        initial = append if append is not None else (recorder_file if exists else None)
-        return [LocationRecorder(recorder_file, initial)]
-    if run_dir is None:
-        raise ValueError("open_recorders needs a run directory or a recorder file")
-    mission_file = getattr(loaded, "recorder", None)
-    if append is not None:
-        return [LocationRecorder(run_dir / RECORDER_FILENAME, append)]
-    recorders = [LocationRecorder(run_dir / RECORDER_FILENAME, mission_file)]
-    if mission_file is not None:
-        recorders.append(LocationRecorder(mission_file, mission_file))
-    return recorders
 
 
 def check_recorder_file(path: Path) -> None:

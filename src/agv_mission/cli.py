@@ -3,17 +3,31 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
 import sys
+import time
 from importlib.resources import as_file, files
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Any, Optional
 
-import typer
-from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-from rich.table import Table
 
-from agv_mission.missions.errors import MissionError
+def _exit_quietly(signum: int, _frame: object) -> None:
+    """Ctrl-C while the program is still starting: exit 130, no traceback."""
+    os._exit(128 + signum)
+
+
+# Run as the program (not imported by a test or a service): quiet until a command sets
+# its own handlers. The imports below take a while.
+if __name__ == "__main__" or Path(sys.argv[0]).name in ("agv-mission", "cli.py"):
+    signal.signal(signal.SIGINT, _exit_quietly)
+
+import typer  # noqa: E402
+from rich.console import Console  # noqa: E402
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: E402
+from rich.table import Table  # noqa: E402
+
+from agv_mission.missions.errors import MissionError  # noqa: E402
 
 app = typer.Typer(
     add_completion=False,
@@ -21,11 +35,60 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     help="Run YAML missions on a simulated differential-drive robot.",
 )
-out = Console(soft_wrap=True)
+
+
+class _PipeSafeStdout:
+    """``sys.stdout`` that survives a reader going away (``agv-mission run ... | head -1``):
+    once the pipe is closed, output goes to /dev/null and the exit code stays the run's."""
+
+    def write(self, text: str) -> int:
+        try:
+            return sys.stdout.write(text)
+        except BrokenPipeError:
+            _silence_stdout()
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            sys.stdout.flush()
+        except BrokenPipeError:
+            _silence_stdout()
+
+    def isatty(self) -> bool:
+        return sys.stdout.isatty()
+
+    def fileno(self) -> int:
+        return sys.stdout.fileno()
+
+    @property
+    def encoding(self) -> str:
+        return getattr(sys.stdout, "encoding", None) or "utf-8"
+
+
+def _silence_stdout() -> None:
+    """Point file descriptor 1 at /dev/null, so the interpreter's last flush cannot fail."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+    finally:
+        os.close(devnull)
+
+
+@app.callback()
+def _started() -> None:
+    """Started: Ctrl-C is Python's KeyboardInterrupt again (each command handles it)."""
+    if signal.getsignal(signal.SIGINT) is _exit_quietly:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+out = Console(file=_PipeSafeStdout(), soft_wrap=True)  # type: ignore[arg-type]
 err = Console(stderr=True, soft_wrap=True)
 
 DEMO_MISSION = "visit_rooms.yaml"
-EXIT_CODES = {"succeeded": 0, "failed": 1, "error": 1, "aborted": 130}
+EXIT_CODES = {"succeeded": 0, "failed": 1, "error": 3, "aborted": 130}
+SIGNAL_EXIT_CODES = {signal.SIGINT: 130, signal.SIGTERM: 143}
 
 
 def _report_invalid(exc: MissionError) -> None:
@@ -48,17 +111,24 @@ def run(
     """Validate and run a mission in simulation; write a run directory."""
     from agv_mission.missions.loader import load_mission
     from agv_mission.missions.outputs import make_run_dir, write_mission, write_run
-    from agv_mission.missions.runner import run_mission
+    from agv_mission.missions.runner import RunStopped, run_mission
 
+    stopper = _SignalStop()
+    for sig in SIGNAL_EXIT_CODES:
+        signal.signal(sig, stopper.handle)
     try:
         if mission is None:
             with as_file(files("agv_mission") / "data" / "missions" / DEMO_MISSION) as demo:
                 loaded = load_mission(demo, set_, seed)
         else:
             loaded = load_mission(mission, set_, seed)
+        stopper.phase = "running"  # from here a signal ends the run, with a result
     except MissionError as exc:
         _report_invalid(exc)
         raise typer.Exit(2) from None
+    except (KeyboardInterrupt, RunStopped):  # before anything was written
+        err.print("stopped before the run started", highlight=False)
+        raise typer.Exit(stopper.exit_code or 130) from None
 
     root = output if output is not None else Path(loaded.mission.output)
     try:
@@ -72,6 +142,7 @@ def run(
             highlight=False,
         )
         raise typer.Exit(2) from None
+    # From here on the run directory must end with a result.json, whatever happens.
     out.print(
         f"[bold]{loaded.name}[/]: {len(loaded.mission.tasks)} task(s) in "
         f"{loaded.world.name} with {loaded.robot.name}, seed {loaded.mission.seed}"
@@ -87,11 +158,60 @@ def run(
     ) as bar:
         job = bar.add_task("running", total=loaded.mission.limits.time)
         record = run_mission(
-            loaded, run_dir, progress=lambda t, total: bar.update(job, completed=t)
+            loaded,
+            run_dir,
+            progress=lambda t, total: bar.update(job, completed=t),
+            control=stopper,
         )
-    result = write_run(run_dir, loaded, record)
+    stopper.phase = "writing"  # a signal now is too late to stop anything: outputs first
+    try:
+        result = write_run(run_dir, loaded, record)
+    except Exception as exc:  # noqa: BLE001 (result.json itself could not be written)
+        err.print(
+            f"[bold red]internal error[/]: cannot write {run_dir / 'result.json'}: {exc}",
+            highlight=False,
+        )
+        raise typer.Exit(3) from None
     _summary(result)
-    raise typer.Exit(EXIT_CODES.get(record.status, 1))
+    for problem in result.get("output_errors", []):
+        err.print(f"[yellow]warning[/]: not written: {problem}", highlight=False, markup=False)
+    code = EXIT_CODES.get(record.status, 3)
+    if record.status == "aborted" and stopper.exit_code:
+        code = stopper.exit_code
+    raise typer.Exit(code)
+
+
+class _SignalStop:
+    """SIGINT and SIGTERM for ``run``: while the mission loads they stop it at once; once
+    it runs they only ask, and the run's control hook ends the run ``aborted`` before the
+    next step. (Raising inside the loop is not enough: casadi, for one, catches the
+    KeyboardInterrupt a solve is interrupted with, prints it and goes on.)"""
+
+    def __init__(self) -> None:
+        self.phase = "loading"
+        self.received: list[int] = []
+
+    def handle(self, signum: int, _frame: object) -> None:
+        from agv_mission.missions.runner import RunStopped
+
+        self.received.append(signum)
+        if self.phase == "loading" and len(self.received) == 1:
+            if signum == signal.SIGINT:
+                raise KeyboardInterrupt
+            raise RunStopped(f"stopped by {signal.Signals(signum).name}", signum)
+
+    @property
+    def exit_code(self) -> int | None:
+        return SIGNAL_EXIT_CODES[self.received[0]] if self.received else None
+
+    def before_step(self, run: Any) -> None:
+        if self.received and self.phase == "running":
+            first = self.received[0]
+            run.cancel(
+                "interrupted by the user (Ctrl-C)"
+                if first == signal.SIGINT
+                else f"stopped by {signal.Signals(first).name}"
+            )
 
 
 def _summary(result: dict) -> None:
@@ -123,7 +243,8 @@ def _summary(result: dict) -> None:
         f"sim {result['sim_time']:.1f} s in {result['wall_time']:.1f} s wall "
         f"({m['real_time_factor']}x real time), driven {m['distance_driven']:.2f} m, "
         f"collisions {m['collisions']}, min clearance {m['min_clearance']} m, "
-        f"position RMSE {loc['position_rmse']:.3f} m",
+        "position RMSE "
+        + (f"{loc['position_rmse']:.3f} m" if loc["position_rmse"] is not None else "n/a"),
         highlight=False,
     )
     out.print(f"run directory: {result['run_dir']}", highlight=False)
@@ -152,7 +273,7 @@ def schema() -> None:
     """Print the JSON Schema of the mission file."""
     from agv_mission.missions.schema import Mission
 
-    sys.stdout.write(json.dumps(Mission.model_json_schema(), indent=2) + "\n")
+    _PipeSafeStdout().write(json.dumps(Mission.model_json_schema(), indent=2) + "\n")
 
 
 @app.command()
@@ -270,7 +391,6 @@ def regress(
 ) -> None:
     """Run scenarios (missions with an expect: block) in parallel and check them."""
     import os
-    import time
 
     from rich.markup import escape
 

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
+import re
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -54,13 +56,36 @@ def write_mission(run_dir: Path, loaded: LoadedMission) -> None:
 
 
 def write_run(run_dir: Path, loaded: LoadedMission, record: RunRecord) -> dict[str, Any]:
-    """Write every output of a finished run; returns the result document."""
-    write_trajectory(run_dir / "trajectory.csv", record.trajectory)
-    atomic_write_text(run_dir / "tree.txt", record.tree_text + "\n")
-    plot_run(run_dir / "run.png", loaded, record)
+    """Write every output of a finished run; returns the result document.
+
+    ``result.json`` comes first: whatever fails after it (a full disk, a plotting error)
+    leaves the result in place, and is added to it under ``output_errors``.
+    """
     result = result_document(loaded, record, run_dir)
     write_json(run_dir / "result.json", result)
+    errors: list[str] = []
+    for name, write in (
+        ("trajectory.csv", lambda p: write_trajectory(p, record.trajectory)),
+        ("tree.txt", lambda p: atomic_write_text(p, strip_ansi(record.tree_text) + "\n")),
+        ("run.png", lambda p: plot_run(p, loaded, record)),
+    ):
+        try:
+            write(run_dir / name)
+        except Exception as exc:  # noqa: BLE001 (any failure of one output is reported)
+            errors.append(f"{name}: {type(exc).__name__}: {exc}")
+    if errors:
+        result["output_errors"] = errors
+        with contextlib.suppress(OSError):
+            write_json(run_dir / "result.json", result)
     return result
+
+
+_ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
+
+
+def strip_ansi(text: str) -> str:
+    """``text`` without terminal colour codes (py_trees colours its tree on a terminal)."""
+    return _ANSI.sub("", text)
 
 
 def write_json(path: Path, doc: dict[str, Any]) -> None:

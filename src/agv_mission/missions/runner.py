@@ -47,7 +47,6 @@ from agv_mission.missions.stack import (
 )
 from agv_mission.missions.tree import MissionTree, build_tree
 from agv_mission.navigation.handle import RobotHandle
-from agv_mission.navigation.navigator import Navigator
 from agv_mission.navigation.state import RobotState
 
 __all__ = ["CONTROL_PERIOD", "VelocitySmoother", "MissionRun", "RunRecord", "run_mission"]
@@ -55,6 +54,16 @@ __all__ = ["CONTROL_PERIOD", "VelocitySmoother", "MissionRun", "RunRecord", "run
 TRAJECTORY_COLUMNS = ("t", "x", "y", "yaw", "est_x", "est_y", "est_yaw", "v", "w")
 
 ProgressCallback = Callable[[float, float], None]
+
+
+class RunStopped(BaseException):
+    """Raised (by a signal handler of the front door) to stop a run from outside, e.g. on
+    SIGTERM. Not an ``Exception``: no ``except Exception`` on the way swallows it."""
+
+    def __init__(self, reason: str, signum: int | None = None) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.signum = signum
 
 
 @dataclass
@@ -92,8 +101,11 @@ def run_mission(
     with status ``error``: either way a record of what happened so far comes back.
     ``observers`` see the start, every control step and the record (once).
     """
-    run = MissionRun(loaded, run_dir, observers)
+    wall_start = time.perf_counter()
+    run: MissionRun | None = None
+    ended: tuple[str, str] | None = None
     try:
+        run = MissionRun(loaded, run_dir, observers)
         run.notify_start()
         while True:
             if control is not None:
@@ -103,10 +115,27 @@ def run_mission(
             if progress is not None:
                 progress(run.sim.time, loaded.mission.limits.time)
     except KeyboardInterrupt:
-        run.end("aborted", "interrupted by the user (Ctrl-C)")
+        ended = ("aborted", "interrupted by the user (Ctrl-C)")
+    except RunStopped as exc:
+        ended = ("aborted", exc.reason)
     except Exception as exc:  # the run directory must still say what happened
-        run.end("error", f"{type(exc).__name__}: {exc}")
-    record = run.record()
+        ended = ("error", f"{type(exc).__name__}: {exc}")
+    if run is None:  # the set-up itself failed or was stopped
+        status, reason = ended or ("error", "the run could not be set up")
+        record = bare_record(loaded, status, reason, time.perf_counter() - wall_start)
+    else:
+        if ended is not None:
+            run.end(*ended)
+        try:
+            record = run.record()
+        except Exception as exc:  # still a result, without the metrics
+            record = bare_record(
+                loaded,
+                "error",
+                f"{type(exc).__name__} while summarising the run: {exc}",
+                time.perf_counter() - wall_start,
+                sim_time=run.sim.time,
+            )
     for observer in observers:
         observer.on_end(record)
     return record
@@ -344,11 +373,16 @@ class MissionRun:
         trajectory = np.asarray(self.rows, dtype=float).reshape(-1, len(TRAJECTORY_COLUMNS))
         if self.status in ("aborted", "error"):
             self.task_status = ["aborted" if s == "running" else s for s in self.task_status]
+        elif self.status == "failed":  # e.g. a collision ended the run during this task
+            for i, s in enumerate(self.task_status):
+                if s == "running":
+                    self.task_status[i] = "failed"
+                    self.tree.tasks[i].feedback_message = self.reason or "mission failed"
         tasks = _task_reports(self.mission, self.tree, self.task_status, self.handle.events)
         _add_true_errors(tasks, trajectory)
         metrics = _metrics(
             trajectory,
-            self.navigator,
+            self.navigator.stats,
             len(self.collisions),
             self.min_clearance,
             sim_time,
@@ -528,42 +562,70 @@ def _room_report(room: str, events: list[dict[str, Any]]) -> dict[str, Any]:
     return report
 
 
+def bare_record(
+    loaded: LoadedMission, status: str, reason: str, wall_time: float, sim_time: float = 0.0
+) -> RunRecord:
+    """The record of a run that ended before (or without) its loop: every task not run,
+    no trajectory, the metrics' keys with nothing measured."""
+    tasks = [
+        {"index": i + 1, "type": task.type, "status": "not_run", "reason": None}
+        for i, task in enumerate(loaded.mission.tasks)
+    ]
+    trajectory = np.zeros((0, len(TRAJECTORY_COLUMNS)))
+    metrics = _metrics(trajectory, None, 0, math.inf, sim_time, wall_time)
+    metrics["navigation"]["recoveries"] = {}
+    return RunRecord(
+        status=status,
+        reason=reason,
+        sim_time=round(sim_time, 6),
+        wall_time=round(wall_time, 3),
+        tasks=tasks,
+        metrics=metrics,
+        trajectory=trajectory,
+        paths=[],
+        events=[],
+        tree_text="",
+        extras={"collisions": [], "faults": []},
+    )
+
+
 def _metrics(
     traj: np.ndarray,
-    navigator: Navigator,
+    stats: Any,
     collisions: int,
     min_clearance: float,
     sim_time: float,
     wall_time: float,
 ) -> dict[str, Any]:
+    """Distance, safety, localisation error and navigation statistics (``stats``: the
+    navigator's, or None before there was one); None where nothing was measured."""
     xy = traj[:, 1:3]
     distance = float(np.sum(np.linalg.norm(np.diff(xy, axis=0), axis=1))) if len(xy) > 1 else 0.0
     err = np.linalg.norm(traj[:, 4:6] - xy, axis=1)
     yaw_err = np.array([wrap_angle(a) for a in traj[:, 6] - traj[:, 3]])
-    stats = navigator.stats
-    solve_ms = np.asarray(stats.solve_times) * 1e3
-    plan_ms = np.asarray(stats.planning_times) * 1e3
+    solve_ms = np.asarray(stats.solve_times if stats else []) * 1e3
+    plan_ms = np.asarray(stats.planning_times if stats else []) * 1e3
     return {
         "distance_driven": round(distance, 4),
         "collisions": collisions,
         "min_clearance": round(min_clearance, 4) if math.isfinite(min_clearance) else None,
         "localization": {
-            "position_rmse": round(float(np.sqrt(np.mean(err**2))), 5),
-            "position_max_error": round(float(err.max()), 5),
-            "yaw_rmse": round(float(np.sqrt(np.mean(yaw_err**2))), 5),
+            "position_rmse": round(float(np.sqrt(np.mean(err**2))), 5) if err.size else None,
+            "position_max_error": round(float(err.max()), 5) if err.size else None,
+            "yaw_rmse": round(float(np.sqrt(np.mean(yaw_err**2))), 5) if err.size else None,
         },
         "navigation": {
-            "plans": stats.plans,
-            "replans": stats.replans,
+            "plans": stats.plans if stats else 0,
+            "replans": stats.replans if stats else 0,
             "planning_time_ms_mean": round(float(plan_ms.mean()), 3) if plan_ms.size else None,
-            "path_length_total": round(float(np.sum(stats.path_lengths)), 4),
+            "path_length_total": round(float(np.sum(stats.path_lengths)), 4) if stats else 0.0,
             "controller_solve_ms_p50": round(float(np.percentile(solve_ms, 50)), 3)
             if solve_ms.size
             else None,
             "controller_solve_ms_p99": round(float(np.percentile(solve_ms, 99)), 3)
             if solve_ms.size
             else None,
-            "controller_failures": stats.solver_failures,
+            "controller_failures": stats.solver_failures if stats else 0,
         },
         "real_time_factor": round(sim_time / wall_time, 2) if wall_time > 0 else None,
     }

@@ -1,0 +1,230 @@
+"""Every run directory ends with a result.json: signals, exceptions, broken pipes, failed
+plots. Real processes and real signals."""
+
+from __future__ import annotations
+
+import json
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from agv_mission.missions.loader import load_mission
+from agv_mission.missions.outputs import make_run_dir, write_run
+from agv_mission.missions.runner import run_mission
+
+EXE = [sys.executable, "-m", "agv_mission.cli"]
+
+# Long enough to be stopped mid-way (a million rounds; the time limit ends it).
+LONG = """\
+world: turtlebot3_world
+robot: burger
+start: {x: -2.0, y: -0.5, yaw: 0.0}
+stack: {localization: {type: ground_truth}}
+tasks:
+  - type: patrol
+    waypoints: [{x: -1.6, y: -0.5, yaw: 0.0}, {x: -2.0, y: -0.5, yaw: 3.14}]
+    loops: 1000000
+limits: {time: 600.0}
+"""
+
+# Drives into the wall ahead: a collision ends it (about 20 simulated seconds).
+CRASH = """\
+world: turtlebot3_world
+robot: burger
+start: {x: -2.0, y: -0.5, yaw: 0.0}
+stack: {localization: {type: ground_truth}}
+tasks:
+  - {type: wander, duration: 60.0, min_range: 0.01, sector: 5}
+limits: {time: 60.0}
+"""
+
+SHORT = """\
+world: turtlebot3_world
+robot: burger
+start: {x: -2.0, y: -0.5, yaw: 0.0}
+stack: {localization: {type: ground_truth}}
+tasks:
+  - {type: go_to, pose: {x: -1.7, y: -0.5, yaw: 0.0}}
+limits: {time: 30.0}
+"""
+
+
+def mission_file(tmp_path: Path, text: str, name: str = "m") -> Path:
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(text)
+    return path
+
+
+def start_run(mission: Path, out: Path) -> subprocess.Popen:
+    return subprocess.Popen(
+        [*EXE, "run", str(mission), "--output", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def only_result(out: Path) -> dict:
+    [run_dir] = list(out.iterdir())
+    return json.loads((run_dir / "result.json").read_text())
+
+
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_a_signal_mid_run_ends_it_aborted_with_a_result(
+    tmp_path: Path, sig: signal.Signals, code: int
+) -> None:
+    out = tmp_path / "out"
+    proc = start_run(mission_file(tmp_path, LONG), out)
+    assert proc.stdout is not None
+    assert "task(s) in" in proc.stdout.readline()  # the run has started
+    time.sleep(1.5)
+    proc.send_signal(sig)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == code, stderr
+    assert "Traceback" not in stderr
+    result = only_result(out)
+    assert result["status"] == "aborted" and sig.name in result["reason"] or sig == signal.SIGINT
+    assert result["tasks"][0]["status"] == "aborted"
+    assert result["sim_time"] > 0
+    [run_dir] = list(out.iterdir())
+    assert {"result.json", "trajectory.csv", "mission.yaml", "run.png"} <= {
+        p.name for p in run_dir.iterdir()
+    }
+
+
+def test_signals_at_random_moments_never_leave_a_run_directory_without_a_result(
+    tmp_path: Path,
+) -> None:
+    rng = random.Random(11)
+    mission = mission_file(tmp_path, SHORT)
+    for i in range(6):
+        out = tmp_path / f"out{i}"
+        sig = rng.choice([signal.SIGTERM, signal.SIGINT])
+        proc = start_run(mission, out)
+        time.sleep(rng.uniform(0.0, 5.0))
+        proc.send_signal(sig)
+        _, stderr = proc.communicate(timeout=120)
+        assert "Traceback" not in stderr
+        dirs = list(out.iterdir()) if out.exists() else []
+        if not dirs:  # stopped before a run directory was made
+            assert proc.returncode in (-sig, 130, 143, 0), (proc.returncode, stderr)
+            continue
+        result = json.loads((dirs[0] / "result.json").read_text())
+        expected = {"succeeded": {0}, "failed": {1}, "aborted": {130, 143}}[result["status"]]
+        assert proc.returncode in expected, (proc.returncode, result["status"], stderr)
+
+
+def test_a_closed_stdout_keeps_the_exit_code(tmp_path: Path) -> None:
+    """``agv-mission run ... | head -1``: the reader goes away, the exit code stays."""
+    out = tmp_path / "out"
+    proc = start_run(mission_file(tmp_path, SHORT), out)
+    assert proc.stdout is not None
+    proc.stdout.readline()
+    proc.stdout.close()
+    assert proc.wait(timeout=300) == 0
+    assert proc.stderr is not None and "Traceback" not in proc.stderr.read()
+    assert only_result(out)["status"] == "succeeded"
+
+
+def test_after_a_collision_the_task_is_failed_not_running(tmp_path: Path) -> None:
+    record = run_mission(load_mission(mission_file(tmp_path, CRASH)))
+    assert record.status == "failed" and "collision" in (record.reason or "")
+    assert record.tasks[0]["status"] == "failed"
+    assert "collision" in record.tasks[0]["reason"]
+
+
+class _FailAtStart:
+    """An observer whose start fails: the run fails before its first trajectory row."""
+
+    def on_start(self, start: object) -> None:
+        raise RuntimeError("observer broke")
+
+    def on_step(self, sample: object) -> None: ...
+
+    def on_end(self, record: object) -> None: ...
+
+
+def test_an_exception_before_the_first_row_still_gives_a_result(tmp_path: Path) -> None:
+    loaded = load_mission(mission_file(tmp_path, SHORT))
+    run_dir = make_run_dir(tmp_path / "out", loaded.name)
+    record = run_mission(loaded, run_dir, observers=[_FailAtStart()])
+    assert record.status == "error" and "observer broke" in (record.reason or "")
+    assert record.trajectory.shape == (0, 9)
+    result = write_run(run_dir, loaded, record)
+    assert json.loads((run_dir / "result.json").read_text())["status"] == "error"
+    assert result["metrics"]["localization"]["position_rmse"] is None
+
+
+def test_a_failing_set_up_still_gives_a_result(tmp_path: Path) -> None:
+    """The recorder file vanishes between validation and the run: the set-up fails."""
+    recorder = tmp_path / "rec.yaml"
+    recorder.write_text("{}\n")
+    loaded = load_mission(mission_file(tmp_path, SHORT + "recorder: rec.yaml\n"))
+    recorder.unlink()
+    record = run_mission(loaded, make_run_dir(tmp_path / "out", loaded.name))
+    assert record.status == "error" and "recorder file not found" in (record.reason or "")
+    assert [t["status"] for t in record.tasks] == ["not_run"]
+
+
+def test_a_plot_that_cannot_be_written_keeps_the_result(tmp_path: Path) -> None:
+    loaded = load_mission(mission_file(tmp_path, SHORT))
+    record = run_mission(loaded)
+    run_dir = make_run_dir(tmp_path / "out", loaded.name)
+    (run_dir / "run.png").mkdir()  # the plot's rename fails, as on a full disk
+    result = write_run(run_dir, loaded, record)
+    written = json.loads((run_dir / "result.json").read_text())
+    assert written["status"] == "succeeded"
+    assert written["output_errors"] and written["output_errors"][0].startswith("run.png")
+    assert result["output_errors"] == written["output_errors"]
+    assert (run_dir / "trajectory.csv").is_file()
+
+
+# The run loop fails inside a real process: an internal error, exit 3, status error.
+INTERNAL_ERROR = """
+import sys
+from agv_mission import cli
+from agv_mission.missions import runner
+
+def broken_step(self):
+    raise ZeroDivisionError("a bug in the loop")
+
+runner.MissionRun.step = broken_step
+sys.argv = ["agv-mission", "run", sys.argv[1], "--output", sys.argv[2]]
+cli.main()
+"""
+
+
+def test_an_internal_error_exits_3_with_status_error(tmp_path: Path) -> None:
+    script = tmp_path / "broken.py"
+    script.write_text(INTERNAL_ERROR)
+    out = tmp_path / "out"
+    r = subprocess.run(
+        [sys.executable, str(script), str(mission_file(tmp_path, SHORT)), str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 3, r.stderr
+    assert "Traceback" not in r.stderr
+    result = only_result(out)
+    assert result["status"] == "error" and "ZeroDivisionError" in result["reason"]
+
+
+def test_tree_txt_has_no_terminal_colour_codes(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    r = subprocess.run(
+        [*EXE, "run", str(mission_file(tmp_path, SHORT)), "--output", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**__import__("os").environ, "FORCE_COLOR": "1", "TERM": "xterm-256color"},
+    )
+    assert r.returncode == 0, r.stderr
+    [run_dir] = list(out.iterdir())
+    text = (run_dir / "tree.txt").read_text()
+    assert "mission" in text and "\x1b[" not in text

@@ -269,11 +269,19 @@ def validate(
 
 
 @app.command()
-def schema() -> None:
-    """Print the JSON Schema of the mission file."""
-    from agv_mission.missions.schema import Mission
+def schema(
+    robot: Annotated[bool, typer.Option("--robot", help="the robot file's schema instead")] = False,
+) -> None:
+    """Print the JSON Schema of the mission file (or, with --robot, of a robot file)."""
+    if robot:
+        from agv_mission.robots.description import robot_json_schema
 
-    _PipeSafeStdout().write(json.dumps(Mission.model_json_schema(), indent=2) + "\n")
+        doc = robot_json_schema()
+    else:
+        from agv_mission.missions.schema import mission_json_schema
+
+        doc = mission_json_schema()
+    _PipeSafeStdout().write(json.dumps(doc, indent=2) + "\n")
 
 
 @app.command()

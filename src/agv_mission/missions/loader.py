@@ -27,7 +27,13 @@ from agv_mission.maps.rooms_file import RoomsFileError, load_rooms
 from agv_mission.maps.world_loader import WorldError, load_world
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.schema import FIELD_ORDER, MAX_NAME_LENGTH, Mission, Setup
+from agv_mission.missions.schema import (
+    FIELD_ORDER,
+    MAX_NAME_LENGTH,
+    Mission,
+    Setup,
+    with_default_plugin_types,
+)
 from agv_mission.missions.yaml_lines import DocumentError, FieldPath, line_of, load_with_lines
 from agv_mission.robots.description import RobotDescription, RobotFileError, load_robot
 
@@ -116,6 +122,7 @@ def load_mission(
             ]
         )
 
+    with_default_plugin_types(data)
     non_finite = _non_finite_numbers(data)
     if non_finite:
         raise MissionError(
@@ -133,7 +140,7 @@ def load_mission(
 
     model: type[Setup] = Mission if tasks_required or "tasks" in data else Setup
     try:
-        mission = model.model_validate(data)
+        mission = model.model_validate(data, strict=True)
     except ValidationError as exc:
         raise MissionError(
             _validation_problems(file, exc, data, lines, override_paths, model)

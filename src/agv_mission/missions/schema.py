@@ -15,10 +15,13 @@ from pydantic import (
     ConfigDict,
     Discriminator,
     Field,
+    GetJsonSchemaHandler,
     Tag,
     field_validator,
     model_validator,
 )
+from pydantic.json_schema import JsonSchemaValue
+from pydantic_core import CoreSchema
 
 from agv_mission.geometry import Pose2D, yaw_from_quaternion
 from agv_mission.maps.costmap import CostmapConfig
@@ -74,10 +77,10 @@ class Pose(StrictModel):
             raise ValueError(
                 f"a ROS-style pose has only 'position' and 'orientation', not {sorted(extra, key=str)}"
             )
-        position = Position.model_validate(data.get("position", {"x": 0.0, "y": 0.0}))
+        position = Position.model_validate(data.get("position", {"x": 0.0, "y": 0.0}), strict=True)
         if "orientation" not in data:
             return {"x": position.x, "y": position.y, "yaw": 0.0}
-        q = Orientation.model_validate(data["orientation"])
+        q = Orientation.model_validate(data["orientation"], strict=True)
         norm = math.sqrt(q.x**2 + q.y**2 + q.z**2 + q.w**2)
         if abs(norm - 1.0) > QUATERNION_TOLERANCE:
             raise ValueError(
@@ -91,6 +94,43 @@ class Pose(StrictModel):
 
     def to_pose2d(self) -> Pose2D:
         return Pose2D(self.x, self.y, self.yaw)
+
+    @classmethod
+    def __get_pydantic_json_schema__(
+        cls, core_schema: CoreSchema, handler: GetJsonSchemaHandler
+    ) -> JsonSchemaValue:
+        """Either spelling, as the validator takes them (the quaternion's unit length and
+        planarity are checks the schema cannot express)."""
+        schema = handler.resolve_ref_schema(handler(core_schema))
+        planar = {
+            k: schema.pop(k)
+            for k in ("type", "properties", "required", "additionalProperties")
+            if k in schema
+        }
+        schema["anyOf"] = [planar, ROS_POSE_SCHEMA]
+        return schema
+
+
+def _number_object(required: list[str], optional: list[str]) -> dict[str, Any]:
+    return {
+        "type": "object",
+        "properties": {k: {"type": "number"} for k in required + optional},
+        "required": required,
+        "additionalProperties": False,
+    }
+
+
+ROS_POSE_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "title": "ROS-style pose",
+    "description": "geometry_msgs/Pose: position (z ignored) and a unit quaternion about +z",
+    "properties": {
+        "position": _number_object(["x", "y"], ["z"]),
+        "orientation": _number_object(["z", "w"], ["x", "y"]),
+    },
+    "minProperties": 1,
+    "additionalProperties": False,
+}
 
 
 def _plugin_union(slot: str) -> Any:
@@ -107,6 +147,27 @@ LocalPlannerConfig = _plugin_union("local_planner")
 SlamConfig = _plugin_union("slam")
 
 
+# The plugin a stack block without ``type`` (or no block at all) selects.
+DEFAULT_PLUGINS = {
+    "localization": "amcl",
+    "global_planner": "ompl",
+    "local_planner": "mpc",
+    "slam": "grid",
+}
+
+
+def with_default_plugin_types(data: Any) -> Any:
+    """``data`` with ``type`` filled in for every stack block that leaves it out (in place),
+    so ``--set stack.global_planner.planner=RRTstar`` works without a block in the file."""
+    stack = data.get("stack") if isinstance(data, dict) else None
+    if isinstance(stack, dict):
+        for slot, name in DEFAULT_PLUGINS.items():
+            block = stack.get(slot)
+            if isinstance(block, dict) and "type" not in block:
+                block["type"] = name
+    return data
+
+
 def _default(slot: str, name: str) -> Any:
     return registry.get(slot, name).Config()
 
@@ -115,16 +176,16 @@ class Stack(StrictModel):
     """The navigation stack: one plugin per slot, chosen by ``type``."""
 
     localization: LocalizationConfig = Field(  # type: ignore[valid-type]
-        default_factory=lambda: _default("localization", "amcl")
+        default_factory=lambda: _default("localization", DEFAULT_PLUGINS["localization"])
     )
     global_planner: GlobalPlannerConfig = Field(  # type: ignore[valid-type]
-        default_factory=lambda: _default("global_planner", "ompl")
+        default_factory=lambda: _default("global_planner", DEFAULT_PLUGINS["global_planner"])
     )
     local_planner: LocalPlannerConfig = Field(  # type: ignore[valid-type]
-        default_factory=lambda: _default("local_planner", "mpc")
+        default_factory=lambda: _default("local_planner", DEFAULT_PLUGINS["local_planner"])
     )
     slam: SlamConfig = Field(  # type: ignore[valid-type]
-        default_factory=lambda: _default("slam", "grid"),
+        default_factory=lambda: _default("slam", DEFAULT_PLUGINS["slam"]),
         description="used while a map_area task maps",
     )
     costmap: CostmapConfig = Field(default_factory=CostmapConfig)
@@ -339,7 +400,10 @@ class Setup(StrictModel):
     """
 
     name: str | None = Field(
-        None, max_length=MAX_NAME_LENGTH, description="default: the file's stem"
+        None,
+        max_length=MAX_NAME_LENGTH,
+        description="default: the file's stem",
+        json_schema_extra={"pattern": r"^[^/\\]*[^/\\\s][^/\\]*$"},
     )
     world: str = Field(
         "turtlebot3_world",
@@ -407,3 +471,28 @@ FIELD_ORDER = (
     "output",
     "expect",
 )
+
+
+JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
+
+
+def mission_json_schema() -> dict[str, Any]:
+    """The JSON Schema of a mission file (what ``agv-mission schema`` prints).
+
+    A stack block without ``type`` is the slot's default plugin, as the loader reads it.
+    """
+    schema = Mission.model_json_schema()
+    slots = schema["$defs"]["Stack"]["properties"]
+    for slot, name in DEFAULT_PLUGINS.items():
+        union = slots[slot]
+        mapping = union.get("discriminator", {}).get("mapping", {})
+        if name not in mapping:
+            continue
+        slots[slot] = {
+            "title": union.get("title", slot),
+            "description": f"a plugin chosen by `type`; without one: {name}",
+            "if": {"type": "object", "not": {"required": ["type"]}},
+            "then": {"$ref": mapping[name]},
+            "else": {k: v for k, v in union.items() if k != "title"},
+        }
+    return {"$schema": JSON_SCHEMA_DIALECT, **schema}

@@ -180,3 +180,11 @@ def _line_of(node: Any, loc: tuple[Any, ...]) -> int | None:
         else:
             return line
     return line
+
+
+def robot_json_schema() -> dict[str, Any]:
+    """The JSON Schema of a robot file (``name`` may be left out: the file's stem)."""
+    schema = RobotDescription.model_json_schema()
+    schema["required"] = [k for k in schema.get("required", []) if k != "name"]
+    schema["properties"]["name"]["description"] = "default: the file's stem"
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema", **schema}

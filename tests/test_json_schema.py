@@ -1,0 +1,159 @@
+"""The JSON Schema accepts exactly what the tool accepts (up to checks it cannot express)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import jsonschema
+import pytest
+import yaml
+
+from agv_mission.missions.schema import mission_json_schema
+from agv_mission.robots.description import BUILTIN_ROBOTS, robot_json_schema
+
+REPO = Path(__file__).resolve().parents[1]
+MISSIONS = sorted(
+    [
+        *(REPO / "missions").glob("*.yaml"),
+        *(REPO / "tests" / "scenarios").rglob("*.yaml"),
+        *(REPO / "src" / "agv_mission" / "data" / "missions").glob("*.yaml"),
+    ]
+)
+INVALID = sorted((REPO / "tests" / "invalid").glob("*.yaml"))
+
+# Invalid files the schema cannot tell from valid ones, by the kind of check they need.
+BEYOND_THE_SCHEMA = {
+    # the world's geometry and files: where obstacles, unknown space and the map are
+    "pose_in_unknown_space": "geometry",
+    "pose_in_unknown_space_builtin": "geometry",
+    "pose_inside_custom_pillar": "geometry",
+    "pose_inside_pillar": "geometry",
+    "pose_inside_wall": "geometry",
+    "pose_outside_map": "geometry",
+    "start_inside_obstacle": "geometry",
+    "start_outside_map": "geometry",
+    "start_unknown_room": "rooms of the world",
+    "visit_unknown_room": "rooms of the world",
+    "unknown_robot": "built-in robots and robot files",
+    "unknown_world": "built-in worlds and world files",
+    "world_file_too_fine": "another file",
+    "unknown_planner_name": "the planners the installed OMPL has",
+    "costmap_resolution_too_fine": "cells of the world's map",
+    # files named by the mission
+    "malformed_recorder_file": "another file",
+    "malformed_robot_file": "another file",
+    "malformed_rooms_file": "another file",
+    "malformed_world_file": "another file",
+    "missing_recorder_file": "another file",
+    "missing_robot_file": "another file",
+    "missing_rooms_file": "another file",
+    "missing_world_file": "another file",
+    "ros_map_missing_image": "another file",
+    "robot_file_not_a_mapping": "another file",
+    "robot_lidar_beams_too_many": "another file",
+    "robot_non_finite": "another file",
+    "world_is_a_directory": "another file",
+    "world_is_dev_zero": "another file",
+    "rooms_is_a_directory": "another file",
+    # arithmetic on values: quaternion length, non-finite numbers (JSON has none), order
+    "quaternion_not_unit": "arithmetic",
+    "quaternion_tilted": "arithmetic",
+    "quaternion_zero": "arithmetic",
+    "pose_non_finite_yaw": "non-finite number",
+    "plugin_time_limit_infinite": "non-finite number",
+    "plugin_option_nan": "non-finite number",
+    # YAML itself: duplicate keys and lone surrogates are gone once parsed
+    "yaml_duplicate_key": "YAML",
+    "yaml_duplicate_nested_key": "YAML",
+    "yaml_lone_surrogate": "YAML",
+}
+
+
+def _parsed(path: Path) -> object:
+    return yaml.safe_load(path.read_text(encoding="utf-8"))
+
+
+@pytest.mark.parametrize("path", MISSIONS, ids=[p.stem for p in MISSIONS])
+def test_every_shipped_mission_validates_against_the_schema(path: Path) -> None:
+    jsonschema.validate(_parsed(path), mission_json_schema())
+
+
+def _schema_accepts(path: Path) -> bool:
+    try:
+        doc = _parsed(path)
+    except (yaml.YAMLError, UnicodeDecodeError, RecursionError):
+        return False  # not even YAML: the schema never sees it
+    validator = jsonschema.Draft202012Validator(mission_json_schema())
+    try:
+        return validator.is_valid(doc)
+    except RecursionError:
+        return False
+
+
+def test_every_invalid_file_fails_the_schema_unless_listed() -> None:
+    accepted = {p.stem for p in INVALID if _schema_accepts(p)}
+    unexplained = accepted - set(BEYOND_THE_SCHEMA)
+    assert not unexplained, f"the schema accepts these invalid files: {sorted(unexplained)}"
+    stale = {s for s in BEYOND_THE_SCHEMA if (REPO / "tests" / "invalid" / f"{s}.yaml").exists()}
+    assert stale - accepted == set(), f"listed but rejected by the schema: {stale - accepted}"
+
+
+def test_the_schema_declares_its_dialect_and_is_itself_valid() -> None:
+    for schema in (mission_json_schema(), robot_json_schema()):
+        assert schema["$schema"] == "https://json-schema.org/draft/2020-12/schema"
+        jsonschema.Draft202012Validator.check_schema(schema)
+
+
+def test_ros_style_poses_and_their_mistakes() -> None:
+    schema = mission_json_schema()
+    ros = {
+        "position": {"x": 0.13, "y": 1.93, "z": 0.0},
+        "orientation": {"x": 0.0, "y": 0.0, "z": -0.64003024, "w": -0.76812292098},
+    }
+    ok = {"tasks": [{"type": "go_to", "pose": ros}]}
+    jsonschema.validate(ok, schema)
+    for bad_pose in (
+        {**ros, "yaw": 1.0},  # mixes the spellings
+        {"position": {"x": 1.0}},  # no y
+        {"orientation": {"z": 0.0, "w": 1.0, "roll": 0.0}},
+        {},
+    ):
+        assert not jsonschema.Draft202012Validator(schema).is_valid(
+            {"tasks": [{"type": "go_to", "pose": bad_pose}]}
+        ), bad_pose
+
+
+def test_booleans_and_strings_are_not_numbers_to_either() -> None:
+    schema = mission_json_schema()
+    for doc in (
+        {"seed": True, "tasks": [{"type": "wander", "duration": 5}]},
+        {"tasks": [{"type": "wander", "duration": "5"}]},
+        {"tasks": [{"type": "patrol", "waypoints": [{"x": 0, "y": 0}], "loops": True}]},
+    ):
+        assert not jsonschema.Draft202012Validator(schema).is_valid(doc), doc
+
+
+def test_builtin_robots_validate_against_the_robot_schema() -> None:
+    schema = robot_json_schema()
+    for robot in BUILTIN_ROBOTS.values():
+        doc = robot.model_dump(mode="json")
+        doc.pop("name")  # optional in a file
+        jsonschema.validate(doc, schema)
+    assert not jsonschema.Draft202012Validator(schema).is_valid(
+        {**BUILTIN_ROBOTS["burger"].model_dump(mode="json"), "lidar": {"beams": 10**9}}
+    )
+
+
+def test_schema_command_prints_both_schemas() -> None:
+    for args, title in ((["schema"], "Mission"), (["schema", "--robot"], "RobotDescription")):
+        r = subprocess.run(
+            [sys.executable, "-m", "agv_mission.cli", *args],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert r.returncode == 0, r.stderr
+        assert json.loads(r.stdout)["title"] == title

@@ -58,6 +58,12 @@ BEYOND_THE_SCHEMA = {
     "world_is_a_directory": "another file",
     "world_is_dev_zero": "another file",
     "rooms_is_a_directory": "another file",
+    "rooms_anchor_outside": "another file",
+    "rooms_bowtie": "another file",
+    "rooms_duplicate_label": "another file",
+    "goal_within_planner_clearance": "geometry",
+    "map_area_bounds_outside_map": "geometry",
+    "map_area_bounds_too_large": "cells of a SLAM map",
     # arithmetic on values: quaternion length, non-finite numbers (JSON has none), order
     "quaternion_not_unit": "arithmetic",
     "quaternion_tilted": "arithmetic",

@@ -9,7 +9,8 @@ import py_trees
 from py_trees.common import Status
 
 from agv_mission.geometry import Pose2D, wrap_angle
-from agv_mission.mapping.frontiers import find_frontiers
+from agv_mission.mapping.frontiers import Frontier, find_frontiers
+from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.grid import UNKNOWN, OccupancyGrid
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import NavStatus
@@ -42,6 +43,7 @@ class MapArea(py_trees.behaviour.Behaviour):
     BLACKLIST_RADIUS = 0.3  # m: a frontier whose goal lies this near a blacklisted goal
     MAX_ATTEMPTS = 3  # tries of one goal (within BLACKLIST_RADIUS) before it is given up
     RETRY_GROWTH = 800  # known cells the map must gain before a blacklisted goal is retried
+    UNSEEN = 0.05  # bounds known below this share have not been seen: drive towards them
 
     def __init__(
         self,
@@ -66,6 +68,7 @@ class MapArea(py_trees.behaviour.Behaviour):
         #: Goals given up on (for now): [x, y, attempts, known cells at the last attempt].
         self.attempts: list[list[float]] = []
         self._deadline = math.inf
+        self._failure: str | None = None
         self._reselect_at = 0.0
         self.frontiers_visited = 0
 
@@ -77,6 +80,7 @@ class MapArea(py_trees.behaviour.Behaviour):
         self.frontiers_visited = 0
         now = self.handle.state.time
         self._deadline = now + self.time_limit if self.time_limit else math.inf
+        self._failure = None
         self._reselect_at = now
         self._turned = 0.0
         self._last_yaw = self.handle.state.estimate.yaw
@@ -117,11 +121,20 @@ class MapArea(py_trees.behaviour.Behaviour):
         if done is not None:
             nav.cancel()
             handle.stop()
+            known = mapping.known_fraction()
+            failure = self._failure
+            if failure is None and self.coverage is not None and known < self.coverage:
+                failure = (
+                    f"coverage {known:.3f} of the bounds is below the {self.coverage:g} the "
+                    f"task asks ({done})"
+                )
             assert handle.end_mapping is not None
             summary = handle.end_mapping(self.save_map)
-            handle.log("map_saved", reason=done, frontiers=self.frontiers_visited, **summary)
-            self.feedback_message = done
-            return Status.SUCCESS
+            handle.log(
+                "map_saved", reason=failure or done, frontiers=self.frontiers_visited, **summary
+            )
+            self.feedback_message = failure or done
+            return Status.FAILURE if failure else Status.SUCCESS
         cmd = nav.update(state)
         handle.drive(cmd.v, cmd.w)
         return Status.RUNNING
@@ -150,6 +163,17 @@ class MapArea(py_trees.behaviour.Behaviour):
             blacklist=self._blacklist(costmap.grid),
             blacklist_radius=self.BLACKLIST_RADIUS,
         )
+        unseen = self.bounds is not None and handle.mapping.known_fraction() < self.UNSEEN
+        if not frontiers and unseen:
+            towards = self._frontier_towards_bounds(costmap, est)
+            if towards is None:
+                xmin, xmax, ymin, ymax = self.bounds or (0.0, 0.0, 0.0, 0.0)
+                self._failure = (
+                    f"the bounds (x {xmin:g}..{xmax:g}, y {ymin:g}..{ymax:g}) cannot be "
+                    "reached: they are not in sight and no reachable frontier leads there"
+                )
+                return self._failure
+            frontiers = [towards]
         if not frontiers:
             return "no reachable frontier left"
         if self.goal is not None and any(
@@ -167,6 +191,29 @@ class MapArea(py_trees.behaviour.Behaviour):
             self.goal, state, xy_tolerance=self.GOAL_TOLERANCE, yaw_tolerance=math.pi
         )
         return None
+
+    def _frontier_towards_bounds(self, costmap: Costmap, est: Pose2D) -> Frontier | None:
+        """The reachable frontier (anywhere) nearest to bounds not seen yet: driving there
+        brings them into sight."""
+        assert self.bounds is not None
+        xmin, xmax, ymin, ymax = self.bounds
+        everywhere = find_frontiers(
+            costmap.grid,
+            bounds=None,
+            robot=(est.x, est.y),
+            robot_radius=costmap.robot_radius,
+            clearance=self.clearance,
+            min_size=self.min_frontier_size,
+            goal_margin=self.GOAL_MARGIN,
+            blacklist=self._blacklist(costmap.grid),
+            blacklist_radius=self.BLACKLIST_RADIUS,
+        )
+
+        def gap(f: Frontier) -> float:
+            cx, cy = f.centroid
+            return math.hypot(max(xmin - cx, 0.0, cx - xmax), max(ymin - cy, 0.0, cy - ymax))
+
+        return min(everywhere, key=gap, default=None)
 
     def _give_up(self, goal: Pose2D) -> None:
         """Blacklist ``goal`` (one more attempt at the spot, if it was tried before)."""

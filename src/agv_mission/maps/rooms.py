@@ -30,9 +30,51 @@ class Room:
             x_at = (xj - xs) * (y - ys) / (yj - ys) + xs
         return bool(np.count_nonzero(crosses & (x < x_at)) % 2)
 
+    def self_intersection(self) -> tuple[int, int] | None:
+        """The first pair of edges (indices) that cross, or None for a simple polygon.
+
+        Edge ``i`` runs from vertex ``i`` to vertex ``i + 1``; neighbouring edges share a
+        vertex and are not compared.
+        """
+        pts = [tuple(map(float, p)) for p in self.polygon]
+        n = len(pts)
+        for i in range(n):
+            a, b = pts[i], pts[(i + 1) % n]
+            for j in range(i + 1, n):
+                if j == i or (j + 1) % n == i or j == (i + 1) % n:
+                    continue
+                if _segments_intersect(a, b, pts[j], pts[(j + 1) % n]):
+                    return i, j
+        return None
+
     def centroid(self) -> tuple[float, float]:
         poly = np.asarray(self.polygon, dtype=float)
         return float(poly[:, 0].mean()), float(poly[:, 1].mean())
+
+
+def _segments_intersect(
+    p1: tuple[float, ...], p2: tuple[float, ...], q1: tuple[float, ...], q2: tuple[float, ...]
+) -> bool:
+    """Whether the closed segments p1-p2 and q1-q2 share a point."""
+
+    def orient(a: tuple[float, ...], b: tuple[float, ...], c: tuple[float, ...]) -> float:
+        return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+
+    def on_segment(a: tuple[float, ...], b: tuple[float, ...], c: tuple[float, ...]) -> bool:
+        return min(a[0], b[0]) <= c[0] <= max(a[0], b[0]) and min(a[1], b[1]) <= c[1] <= max(
+            a[1], b[1]
+        )
+
+    d1, d2 = orient(q1, q2, p1), orient(q1, q2, p2)
+    d3, d4 = orient(p1, p2, q1), orient(p1, p2, q2)
+    if ((d1 > 0) != (d2 > 0)) and ((d3 > 0) != (d4 > 0)) and d1 and d2 and d3 and d4:
+        return True
+    return (
+        (d1 == 0 and on_segment(q1, q2, p1))
+        or (d2 == 0 and on_segment(q1, q2, p2))
+        or (d3 == 0 and on_segment(p1, p2, q1))
+        or (d4 == 0 and on_segment(p1, p2, q2))
+    )
 
 
 def room_at(rooms: dict[str, Room], x: float, y: float) -> str | None:

@@ -19,7 +19,14 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from agv_mission.atomic import InputFileError, read_input_text
 from agv_mission.geometry import Pose2D
@@ -54,6 +61,7 @@ class RoomsFileError(ValueError):
             field = ".".join(str(p) for p in (loc[2:] if room else loc))
             line = _line_of(root, loc) if root is not None else None
             msg = "field required" if err["type"] == "missing" else err["msg"]
+            msg = msg.removeprefix("Value error, ")
             problems.append((line, room, f"{field}: {msg}" if field else msg))
         return cls(path, problems)
 
@@ -66,11 +74,32 @@ class AnchorModel(BaseModel):
     yaw: float = Field(0.0, allow_inf_nan=False)
 
 
+MAX_POLYGON_POINTS = 1000
+
+
 class RoomModel(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    polygon: Annotated[list[Point], Field(min_length=3)]
+    polygon: Annotated[list[Point], Field(min_length=3, max_length=MAX_POLYGON_POINTS)]
     anchor: AnchorModel | None = None
+
+    @model_validator(mode="after")
+    def _simple_and_anchored_inside(self) -> RoomModel:
+        """The rules a visit relies on: one inside (no edges crossing), and the anchor in
+        it (a visit ends by checking that the robot is in the polygon)."""
+        room = Room("", tuple(self.polygon))
+        crossing = room.self_intersection()
+        if crossing is not None:
+            i, j = crossing
+            raise ValueError(
+                f"polygon is not simple: edge {i} ({_point(self.polygon[i])} -> "
+                f"{_point(self.polygon[(i + 1) % len(self.polygon)])}) crosses edge {j}"
+            )
+        if self.anchor is not None and not room.contains(self.anchor.x, self.anchor.y):
+            raise ValueError(
+                f"anchor ({self.anchor.x:g}, {self.anchor.y:g}) lies outside the room's polygon"
+            )
+        return self
 
     @field_validator("polygon")
     @classmethod
@@ -90,6 +119,10 @@ class RoomsModel(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     rooms: dict[str, RoomModel]
+
+
+def _point(p: Point) -> str:
+    return f"({p[0]:g}, {p[1]:g})"
 
 
 def rooms_from_model(model: RoomsModel) -> dict[str, Room]:
@@ -117,6 +150,9 @@ def load_rooms(path: str | os.PathLike[str]) -> dict[str, Room]:
         mark = getattr(exc, "problem_mark", None)
         line = mark.line + 1 if mark is not None else None
         raise RoomsFileError(path, [(line, None, f"invalid YAML: {exc}")]) from exc
+    duplicate = _duplicate_label(text)
+    if duplicate is not None:
+        raise RoomsFileError(path, [duplicate])
     if not isinstance(doc, dict) or "rooms" not in doc:
         raise RoomsFileError(
             path, [(None, None, "a rooms file is a mapping with a top-level 'rooms' key")]
@@ -129,6 +165,25 @@ def load_rooms(path: str | os.PathLike[str]) -> dict[str, Room]:
 
 
 # --------------------------------------------------------------------------- line numbers
+
+
+def _duplicate_label(text: str) -> tuple[int, str, str] | None:
+    """A room label given twice under ``rooms`` (YAML would keep the last silently)."""
+    root = _compose(text)
+    if not isinstance(root, yaml.MappingNode):
+        return None
+    rooms = next((v for k, v in root.value if getattr(k, "value", None) == "rooms"), None)
+    if not isinstance(rooms, yaml.MappingNode):
+        return None
+    first: dict[str, int] = {}
+    for key, _ in rooms.value:
+        if not isinstance(key, yaml.ScalarNode):
+            continue
+        line = key.start_mark.line + 1
+        if key.value in first:
+            return (line, key.value, f"room label given twice (first on line {first[key.value]})")
+        first[key.value] = line
+    return None
 
 
 def _compose(text: str) -> yaml.Node | None:

@@ -35,6 +35,7 @@ from agv_mission.missions.schema import (
     with_default_plugin_types,
 )
 from agv_mission.missions.yaml_lines import DocumentError, FieldPath, line_of, load_with_lines
+from agv_mission.navigation.navigator import goal_margin
 from agv_mission.robots.description import RobotDescription, RobotFileError, load_robot
 
 MAX_GRID_CELLS = 16_000_000  # a costmap or SLAM grid: 16 M cells (e.g. 200 m x 200 m at 5 cm)
@@ -238,12 +239,13 @@ def _resolve(
     else:
         start = mission.start.to_pose2d()
     _check_pose(start, costmap, ("start",), problem)
+    margin = goal_margin(mission.stack.global_planner)  # goals: as the navigator plans
     for i, task in enumerate(_tasks(mission)):
         if task.type == "go_to":
-            _check_pose(task.pose.to_pose2d(), costmap, ("tasks", i, "pose"), problem)
+            _check_pose(task.pose.to_pose2d(), costmap, ("tasks", i, "pose"), problem, margin)
         elif task.type == "patrol":
             for j, wp in enumerate(task.waypoints):
-                _check_pose(wp.to_pose2d(), costmap, ("tasks", i, "waypoints", j), problem)
+                _check_pose(wp.to_pose2d(), costmap, ("tasks", i, "waypoints", j), problem, margin)
     for i, fault in enumerate(mission.faults):
         if fault.type == "kidnap":
             _check_pose(fault.pose.to_pose2d(), costmap, ("faults", i, "pose"), problem)
@@ -257,6 +259,7 @@ def _resolve(
                     f"the robot's start ({start.x:g}, {start.y:g}) "
                     f"lies within {robot.footprint_radius:g} m of this obstacle",
                 )
+    _check_map_areas(mission, world.map.extent, problem)
     room_goals = _room_goals(mission, rooms, costmap, start, problem)
     recorder = None
     if mission.recorder is not None:
@@ -332,7 +335,8 @@ def _room_goals(
                 )
                 continue
             if room.anchor is not None:
-                _check_pose(room.anchor, costmap, ("tasks", i, "rooms", j), problem)
+                margin = goal_margin(mission.stack.global_planner)
+                _check_pose(room.anchor, costmap, ("tasks", i, "rooms", j), problem, margin)
                 goals[label] = room.anchor
                 continue
             if allowed is None:
@@ -348,7 +352,38 @@ def _room_goals(
     return goals
 
 
-def _check_pose(pose: Pose2D, costmap: Costmap, field_path: FieldPath, problem: Any) -> None:
+def _check_map_areas(
+    mission: Mission, extent: tuple[float, float, float, float], problem: Any
+) -> None:
+    """``map_area`` bounds overlap the world's map, and SLAM's grid over them fits."""
+    xmin, xmax, ymin, ymax = extent
+    resolution = float(getattr(mission.stack.slam, "resolution", 0.05))
+    for i, task in enumerate(mission.tasks):
+        if task.type != "map_area":
+            continue
+        bounds = task.bounds.as_tuple() if task.bounds is not None else extent
+        bx0, bx1, by0, by1 = bounds
+        if bx1 <= xmin or bx0 >= xmax or by1 <= ymin or by0 >= ymax:
+            problem(
+                ("tasks", i, "bounds"),
+                f"(x {bx0:g}..{bx1:g}, y {by0:g}..{by1:g}) do not overlap the map "
+                f"(x {xmin:g}..{xmax:g}, y {ymin:g}..{ymax:g})",
+            )
+            continue
+        cells = grid_cells(bounds, resolution)
+        if cells > MAX_GRID_CELLS:
+            problem(
+                ("tasks", i, "bounds"),
+                f"a SLAM map of these bounds at {resolution:g} m has {cells:.3g} cells; at "
+                f"most {MAX_GRID_CELLS:.3g} (smaller bounds or a coarser stack.slam.resolution)",
+            )
+
+
+def _check_pose(
+    pose: Pose2D, costmap: Costmap, field_path: FieldPath, problem: Any, margin: float = 0.0
+) -> None:
+    """A pose on the map, in known free space, with the robot's radius (and, for a goal,
+    the planner's ``margin``) clear of obstacles."""
     xmin, xmax, ymin, ymax = costmap.grid.extent
     xy = np.array([pose.x, pose.y])
     if not all(math.isfinite(v) for v in (pose.x, pose.y, pose.yaw)):
@@ -364,12 +399,15 @@ def _check_pose(pose: Pose2D, costmap: Costmap, field_path: FieldPath, problem: 
         )
     elif costmap.grid.value_at(xy) == UNKNOWN:
         problem(field_path, f"({pose.x:g}, {pose.y:g}) lies in unknown space of the map")
-    elif not costmap.is_free(xy):
+    elif not costmap.is_free(xy, margin):
         clearance = float(costmap.clearance(xy))
+        needs = f"robot radius {costmap.robot_radius:.3f} m"
+        if margin > 0:
+            needs += f" + the planner's clearance {margin:.3f} m"
         problem(
             field_path,
             f"({pose.x:g}, {pose.y:g}) is inside or too close to an obstacle "
-            f"(clearance {clearance:.2f} m, robot radius {costmap.robot_radius:.3f} m)",
+            f"(clearance {clearance:.3f} m; needs more than {needs})",
         )
 
 

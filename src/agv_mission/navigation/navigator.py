@@ -48,6 +48,13 @@ class NavigationStats:
     path_lengths: list[float] = field(default_factory=list)
 
 
+def goal_margin(planner_config: Any) -> float:
+    """Metres beyond the robot's radius that a goal (and every path) must keep from
+    obstacles: the global planner's ``clearance``. ``validate`` checks goals with the same
+    margin the navigator plans with, so a goal that passes validation can be planned to."""
+    return float(getattr(planner_config, "clearance", 0.0))
+
+
 class Navigator:
     """Drives the robot to one goal at a time."""
 
@@ -265,7 +272,7 @@ class Navigator:
     def _connected(self, start: Pose2D, goal: Pose2D) -> bool:
         """Whether free space (with the planners' margin) joins start and goal: a cheap
         check that spares a sampling planner its whole time budget on a hopeless query."""
-        margin = float(getattr(self.global_planner.config, "clearance", 0.0))
+        margin = goal_margin(self.global_planner.config)
         cells = reachable_cells(self.costmap, start, margin)
         rows, cols = self.costmap.grid.world_to_cell(np.array([goal.x, goal.y]))
         if not self.costmap.grid.in_bounds(rows, cols) or not cells.any():
@@ -277,7 +284,7 @@ class Navigator:
     def _escape_point(self, pose: Pose2D) -> Pose2D | None:
         """The nearest comfortably free point when the robot stands inside the margin the
         planners require (it drifted close to a wall); ``None`` when it is free already."""
-        margin = float(getattr(self.global_planner.config, "clearance", 0.0)) + 0.01
+        margin = goal_margin(self.global_planner.config) + 0.01
         here = np.array([pose.x, pose.y])
         if bool(self.costmap.is_free(here, margin)):
             return None

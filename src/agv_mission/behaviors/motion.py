@@ -28,10 +28,16 @@ class Dwell(py_trees.behaviour.Behaviour):
 
 
 class Wander(py_trees.behaviour.Behaviour):
-    """Drive forward while the range ahead exceeds ``min_range``; otherwise turn in place.
+    """Drive forward while the way ahead is clear; otherwise turn in place.
 
-    Succeeds after ``duration`` simulated seconds, like ``wander.py`` of the course.
+    Clear: the range within ``sector`` of straight ahead exceeds ``min_range`` (the
+    course's ``wander.py``), and no scan point lies in the corridor the robot's footprint
+    (``robot_radius`` + ``SIDE_MARGIN``) would sweep over ``min_range``, so a robot as wide
+    as the waffle does not scrape a wall it drives along. Succeeds after ``duration``
+    simulated seconds.
     """
+
+    SIDE_MARGIN = 0.05  # m of room kept on each side of the footprint
 
     def __init__(
         self,
@@ -42,8 +48,10 @@ class Wander(py_trees.behaviour.Behaviour):
         speed: float,
         turn_rate: float,
         sector: float,
+        robot_radius: float = 0.0,
     ):
         super().__init__(name)
+        self.robot_radius = robot_radius
         self.handle = handle
         self.duration = duration
         self.min_range = min_range
@@ -59,7 +67,11 @@ class Wander(py_trees.behaviour.Behaviour):
         if self.handle.state.time >= self._until - 1e-9:
             self.handle.stop()
             return Status.SUCCESS
-        if self.handle.state.range_ahead(self.half_width) > self.min_range:
+        state = self.handle.state
+        clear = state.range_ahead(self.half_width) > self.min_range and not (
+            state.path_ahead_blocked(self.min_range, self.robot_radius, self.SIDE_MARGIN)
+        )
+        if clear:
             self.handle.drive(self.speed, 0.0)
             self.feedback_message = "drive"
         else:

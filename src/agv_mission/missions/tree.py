@@ -113,7 +113,14 @@ class _Builder:
             )
             turn = min(task.turn_rate, self.robot.max_angular_velocity)
             return Wander(
-                label, self.handle, task.duration, task.min_range, speed, turn, task.sector
+                label,
+                self.handle,
+                task.duration,
+                task.min_range,
+                speed,
+                turn,
+                task.sector,
+                robot_radius=self.robot.footprint_radius,
             )
         if isinstance(task, MapAreaTask):
             return MapArea(

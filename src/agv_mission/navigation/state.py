@@ -20,6 +20,19 @@ class RobotState:
     scan: LaserScan | None = None  # the newest scan
     obstacles: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # map-frame points
 
+    def path_ahead_blocked(self, length: float, half_width: float, margin: float) -> bool:
+        """Whether a scan point lies in the corridor the robot would sweep driving
+        ``length`` metres straight on: ``|y| <= half_width + margin`` (the robot's half
+        width and a safety margin), ``0 < x <= length + half_width``, robot frame."""
+        if self.scan is None:
+            return False
+        ok = np.isfinite(self.scan.ranges)
+        r = self.scan.ranges[ok].astype(float)
+        a = self.scan.angles[ok]
+        x, y = r * np.cos(a), r * np.sin(a)
+        inside = (x > 0.0) & (x <= length + half_width) & (np.abs(y) <= half_width + margin)
+        return bool(np.any(inside))
+
     def range_ahead(self, half_width: float) -> float:
         """Smallest valid range within +-``half_width`` radians of straight ahead."""
         if self.scan is None:

@@ -40,7 +40,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from agv_mission.geometry import Pose2D
+from agv_mission.geometry import Pose2D, wrap_angles
 from agv_mission.localization.base import LocalizerDiagnostics
 from agv_mission.localization.particle_filter import MotionNoise, ParticleFilter, SensorParams
 from agv_mission.maps.grid import OccupancyGrid
@@ -253,7 +253,7 @@ class AmclLocalizer:
         p, w = self.filter.particles, self.filter.weights
         mean = self._pose.as_array()
         d = p - mean
-        d[:, 2] = (d[:, 2] + math.pi) % (2.0 * math.pi) - math.pi
+        d[:, 2] = wrap_angles(d[:, 2])
         total = float(w.sum()) or 1.0
         cov = (d * (w / total)[:, None]).T @ d
         return LocalizerDiagnostics(

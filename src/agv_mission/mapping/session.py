@@ -6,12 +6,10 @@ from typing import Any
 
 import numpy as np
 
-from agv_mission.geometry import Pose2D
+from agv_mission.geometry import Bounds, Pose2D
 from agv_mission.maps.costmap import Costmap, CostmapConfig
 from agv_mission.maps.grid import UNKNOWN, OccupancyGrid
 from agv_mission.messages import LaserScan
-
-Bounds = tuple[float, float, float, float]
 
 
 class MappingSession:

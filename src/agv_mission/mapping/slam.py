@@ -52,7 +52,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from agv_mission.geometry import Pose2D
+from agv_mission.geometry import Bounds, Pose2D
 from agv_mission.mapping.scan_matching import (
     CorrelativeMatcher,
     LikelihoodField,
@@ -63,8 +63,6 @@ from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.messages import LaserScan
 from agv_mission.planners.base import PluginConfig
 from agv_mission.registry import register
-
-Bounds = tuple[float, float, float, float]  # (xmin, xmax, ymin, ymax)
 
 _TINY_COV = np.diag([1e-6, 1e-6, 1e-6])
 

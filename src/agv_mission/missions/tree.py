@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import py_trees
 
-from agv_mission.behaviors.explore import MapArea
+from agv_mission.behaviors.explore import MapArea, Mapper
 from agv_mission.behaviors.motion import Dwell, Wander
 from agv_mission.behaviors.navigate import NavigateToPose
 from agv_mission.behaviors.outcome import LegOutcome
@@ -51,9 +51,11 @@ def build_tree(
     handle: RobotHandle,
     robot: RobotDescription,
     room_goals: dict[str, Pose2D],
+    mapper: Mapper | None = None,
 ) -> MissionTree:
+    """The tree of ``mission``; ``mapper`` serves its map_area tasks."""
     builder = _Builder(
-        handle, robot, room_goals, mission.stack.navigation, mission.stack.global_planner
+        handle, robot, room_goals, mission.stack.navigation, mission.stack.global_planner, mapper
     )
     tasks = [builder.task(i, task) for i, task in enumerate(mission.tasks)]
     root = py_trees.composites.Sequence(name="mission", memory=True, children=tasks)
@@ -67,6 +69,7 @@ class _Builder:
     room_goals: dict[str, Pose2D]
     nav: NavigationConfig
     planner_config: object
+    mapper: Mapper | None
 
     def task(self, index: int, task: object) -> Behaviour:
         label = f"task {index + 1}: {task.type}"  # type: ignore[attr-defined]
@@ -115,9 +118,12 @@ class _Builder:
                 label, self.handle, task.duration, task.min_range, speed, turn, task.sector
             )
         if isinstance(task, MapAreaTask):
+            if self.mapper is None:
+                raise ValueError("a map_area task needs a mapper")
             return MapArea(
                 label,
                 self.handle,
+                self.mapper,
                 task.bounds.as_tuple() if task.bounds else None,
                 task.save_map,
                 task.coverage,

@@ -14,10 +14,18 @@ from importlib import import_module
 from importlib.metadata import entry_points
 from typing import Any, TypeVar
 
+from pydantic import BaseModel, ConfigDict
+
 SLOTS = ("localization", "slam", "global_planner", "local_planner")
 ENTRY_POINT_GROUP = "agv_mission.plugins"
 
 T = TypeVar("T", bound=type)
+
+
+class PluginConfig(BaseModel):
+    """Base of every plugin's configuration block: unknown keys are errors."""
+
+    model_config = ConfigDict(extra="forbid")
 
 
 class UnknownPluginError(KeyError):

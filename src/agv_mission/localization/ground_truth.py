@@ -10,8 +10,7 @@ from agv_mission.geometry import Pose2D
 from agv_mission.localization.base import LocalizerDiagnostics
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
-from agv_mission.planners.base import PluginConfig
-from agv_mission.registry import register
+from agv_mission.registry import PluginConfig, register
 
 
 class GroundTruthConfig(PluginConfig):

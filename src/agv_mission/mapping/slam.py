@@ -61,8 +61,7 @@ from agv_mission.mapping.scan_matching import (
 )
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.messages import LaserScan
-from agv_mission.planners.base import PluginConfig
-from agv_mission.registry import register
+from agv_mission.registry import PluginConfig, register
 
 _TINY_COV = np.diag([1e-6, 1e-6, 1e-6])
 

@@ -21,7 +21,7 @@ from agv_mission.maps.rooms import reachable_cells
 from agv_mission.messages import LaserScan
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.state import RobotState
-from agv_mission.planners.base import Path, PlanningError, VelocityCommand, VelocityLimits
+from agv_mission.planners.base import PlannedPath, PlanningError, VelocityCommand, VelocityLimits
 
 
 class NavStatus(Enum):
@@ -71,7 +71,7 @@ class Navigator:
         self.status = NavStatus.IDLE
         self.reason: str | None = None
         self.goal: Pose2D | None = None
-        self.path: Path | None = None
+        self.path: PlannedPath | None = None
         self.paths: list[np.ndarray] = []  # every plan, for the run plot
         self.horizon: np.ndarray | None = None  # the local planner's last predicted path
         self.stats = NavigationStats()
@@ -255,7 +255,7 @@ class Navigator:
             self._fail(f"no path to ({self.goal.x:.2f}, {self.goal.y:.2f}): {exc}")
             return False
         if escape is not None:  # leave the inflated margin the shortest way first
-            path = Path(np.vstack([[start.x, start.y], path.points]), path.planning_time)
+            path = PlannedPath(np.vstack([[start.x, start.y], path.points]), path.planning_time)
         self.path = path
         self.paths.append(path.points.copy())
         self.stats.planning_times.append(path.planning_time)

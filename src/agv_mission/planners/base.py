@@ -5,13 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
-
-
-class PluginConfig(BaseModel):
-    """Base of every plugin's configuration block: unknown keys are errors."""
-
-    model_config = ConfigDict(extra="forbid")
 
 
 class PlanningError(RuntimeError):
@@ -19,7 +12,7 @@ class PlanningError(RuntimeError):
 
 
 @dataclass
-class Path:
+class PlannedPath:
     """A global path in the map frame: (N, 2) waypoints from start to goal."""
 
     points: np.ndarray

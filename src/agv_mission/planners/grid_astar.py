@@ -28,8 +28,8 @@ from scipy.sparse.csgraph import dijkstra
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
-from agv_mission.planners.base import Path, PlanningError, PluginConfig
-from agv_mission.registry import register
+from agv_mission.planners.base import PlannedPath, PlanningError
+from agv_mission.registry import PluginConfig, register
 
 SQRT2, SQRT5 = math.sqrt(2.0), math.sqrt(5.0)
 EDGE_EPS = 1e-6  # cells: points this close to a cell edge count for both cells
@@ -316,7 +316,7 @@ class GridAstarPlanner:
     def __init__(self, config: GridAstarConfig) -> None:
         self.config = config
 
-    def plan(self, costmap: Costmap, start: Pose2D, goal: Pose2D, seed: int = 0) -> Path:
+    def plan(self, costmap: Costmap, start: Pose2D, goal: Pose2D, seed: int = 0) -> PlannedPath:
         """Plan from ``start`` to ``goal`` (``seed`` is unused: the search is deterministic)."""
         t0 = time.perf_counter()
         cfg = self.config
@@ -331,4 +331,4 @@ class GridAstarPlanner:
             )
         points = space.to_world(pts)
         points[0], points[-1] = start.xy, goal.xy
-        return Path(points=points, planning_time=time.perf_counter() - t0)
+        return PlannedPath(points=points, planning_time=time.perf_counter() - t0)

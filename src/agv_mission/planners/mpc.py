@@ -25,7 +25,7 @@ import numpy as np
 from pydantic import Field
 
 from agv_mission.geometry import Pose2D, wrap_angle
-from agv_mission.planners.base import PluginConfig, VelocityCommand, VelocityLimits
+from agv_mission.planners.base import VelocityCommand, VelocityLimits
 from agv_mission.planners.path_tracking import (
     ProgressTracker,
     interpolate,
@@ -33,7 +33,7 @@ from agv_mission.planners.path_tracking import (
     speed_profile,
     unwrap_from,
 )
-from agv_mission.registry import register
+from agv_mission.registry import PluginConfig, register
 
 _NX = 5  # x, y, theta, v, w
 _NU = 3  # a, alpha, slack

@@ -44,9 +44,9 @@ from pydantic import Field, field_validator
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
-from agv_mission.planners.base import Path, PlanningError, PluginConfig
+from agv_mission.planners.base import PlannedPath, PlanningError
 from agv_mission.planners.grid_astar import FreeSpace, grid_path
-from agv_mission.registry import register
+from agv_mission.registry import PluginConfig, register
 
 # Anytime, asymptotically optimal planners: worth running past their first solution.
 OPTIMIZING_PLANNERS = frozenset(
@@ -120,7 +120,7 @@ class OmplPlanner:
     def __init__(self, config: OmplPlannerConfig) -> None:
         self.config = config
 
-    def plan(self, costmap: Costmap, start: Pose2D, goal: Pose2D, seed: int = 0) -> Path:
+    def plan(self, costmap: Costmap, start: Pose2D, goal: Pose2D, seed: int = 0) -> PlannedPath:
         t0 = time.perf_counter()
         space = FreeSpace(costmap, self.config.clearance)
         s = space.check_endpoint(start, "start")
@@ -136,7 +136,7 @@ class OmplPlanner:
                 )
         points = space.to_world(pts)
         points[0], points[-1] = start.xy, goal.xy
-        return Path(points=points, planning_time=time.perf_counter() - t0)
+        return PlannedPath(points=points, planning_time=time.perf_counter() - t0)
 
 
 _QUIETED = [False]

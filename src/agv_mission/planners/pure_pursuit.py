@@ -16,14 +16,14 @@ import numpy as np
 from pydantic import Field
 
 from agv_mission.geometry import Pose2D, wrap_angle
-from agv_mission.planners.base import PluginConfig, VelocityCommand, VelocityLimits
+from agv_mission.planners.base import VelocityCommand, VelocityLimits
 from agv_mission.planners.path_tracking import (
     ProgressTracker,
     interpolate,
     prepare_path,
     speed_profile,
 )
-from agv_mission.registry import register
+from agv_mission.registry import PluginConfig, register
 
 
 class PurePursuitConfig(PluginConfig):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
-from pathlib import PlannedPath as FilePath
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,7 +19,7 @@ from agv_mission.planners.grid_astar import FreeSpace, GridAstarConfig, GridAsta
 from agv_mission.planners.ompl_planner import OmplPlanner, OmplPlannerConfig
 from agv_mission.registry import registry
 
-ROS_MAPS = FilePath(__file__).resolve().parents[2] / "shared" / "data" / "ros_maps"
+ROS_MAPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "ros_maps"
 
 RES = 0.05
 ROBOT_RADIUS = 0.105
@@ -322,7 +322,7 @@ def test_no_ompl_leaks_or_log_lines() -> None:
         "        OmplPlanner(OmplPlannerConfig(planner=name, time_limit=0.3)).plan(room, START, GOAL, seed)\n"
         "print('ok')\n"
     )
-    root = FilePath(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[1]
     proc = subprocess.run(
         [sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120
     )

@@ -25,7 +25,7 @@ from agv_mission.maps.costmap import CostmapConfig
 from agv_mission.missions.expectations import Expectations
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.registry import registry
-from agv_mission.robots.simulation import SimConfig
+from agv_mission.robots.sim_config import SimConfig
 
 QUATERNION_TOLERANCE = 1e-3
 
@@ -98,7 +98,7 @@ SlamConfig = _plugin_union("slam")
 
 
 def _default(slot: str, name: str) -> Any:
-    return registry.get(slot, name).Config()
+    return registry.config(slot, name)()
 
 
 class Stack(StrictModel):

@@ -54,9 +54,7 @@ def build_tree(
     mapper: Mapper | None = None,
 ) -> MissionTree:
     """The tree of ``mission``; ``mapper`` serves its map_area tasks."""
-    builder = _Builder(
-        handle, robot, room_goals, mission.stack.navigation, mission.stack.global_planner, mapper
-    )
+    builder = _Builder(handle, robot, room_goals, mission.stack.navigation, mapper)
     tasks = [builder.task(i, task) for i, task in enumerate(mission.tasks)]
     root = py_trees.composites.Sequence(name="mission", memory=True, children=tasks)
     return MissionTree(root, tasks)
@@ -68,7 +66,6 @@ class _Builder:
     robot: RobotDescription
     room_goals: dict[str, Pose2D]
     nav: NavigationConfig
-    planner_config: object
     mapper: Mapper | None
 
     def task(self, index: int, task: object) -> Behaviour:
@@ -129,7 +126,7 @@ class _Builder:
                 task.coverage,
                 task.time_limit,
                 task.min_frontier_size,
-                clearance=float(getattr(self.planner_config, "clearance", 0.05)),
+                clearance=self.handle.navigator.global_planner.clearance,
             )
         if isinstance(task, RecordRoomTask):
             record = RecordRoom(f"record {task.room}", self.handle, task.room, task=index)

@@ -19,16 +19,13 @@ import numpy as np
 from py_trees.common import Status
 
 from agv_mission.behaviors.outcome import failure_reason
-from agv_mission.geometry import Pose2D, wrap_angle
+from agv_mission.geometry import Pose2D
 from agv_mission.localization.base import Localizer
-from agv_mission.mapping.frontiers import map_quality
-from agv_mission.mapping.session import MappingSession
-from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.obstacle_layer import ObstacleLayer
-from agv_mission.maps.ros_map import load_ros_map, save_ros_map
 from agv_mission.missions.faults import FaultInjector
 from agv_mission.missions.loader import LoadedMission
+from agv_mission.missions.map_building import MapBuilder
 from agv_mission.missions.observe import (
     RunControl,
     RunObserver,
@@ -38,6 +35,7 @@ from agv_mission.missions.observe import (
     status_name,
     tree_nodes,
 )
+from agv_mission.missions.run_report import add_true_errors, run_metrics, task_reports
 from agv_mission.missions.stack import (
     CONTROL_PERIOD,
     RobotStack,
@@ -45,7 +43,7 @@ from agv_mission.missions.stack import (
     VelocitySmoother,
     open_recorders,
 )
-from agv_mission.missions.tree import MissionTree, build_tree
+from agv_mission.missions.tree import build_tree
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.state import RobotState
 
@@ -162,14 +160,11 @@ class MissionRun:
             rooms=loaded.rooms,
             recorders=open_recorders(loaded, run_dir),
         )
-        self.handle.begin_mapping = self._begin_mapping
-        self.handle.end_mapping = self._end_mapping
         self.run_dir = run_dir
-        self.maps: list[dict[str, Any]] = []
-        self.built_map: OccupancyGrid | None = None
-        self.tree = build_tree(mission, self.handle, robot, loaded.room_goals)
-        self.faults = FaultInjector(mission.faults, self.sim, stack.fault_rng)
         self.rows: list[tuple[float, ...]] = []
+        self.mapper = MapBuilder(stack, self.navigator, self.handle, run_dir, self.rows)
+        self.tree = build_tree(mission, self.handle, robot, loaded.room_goals, self.mapper)
+        self.faults = FaultInjector(mission.faults, self.sim, stack.fault_rng)
         self.task_status = ["not_run"] * len(self.tree.tasks)
         self.collisions: list[dict[str, float]] = []
         self.in_contact = False
@@ -215,7 +210,7 @@ class MissionRun:
         self.faults.apply(now, handle)
         sensing = self.stack.sense(lambda t, scan: self.faults.filter_scan(t, scan, handle))
         odom_pose, scan, truth = sensing.odom, sensing.scan, sensing.truth
-        mapping = handle.mapping
+        mapping = self.mapper.session
         if mapping is not None:
             estimate = mapping.update(odom_pose, scan, truth, now)
             costmap = mapping.refreshed_costmap(now)
@@ -240,7 +235,7 @@ class MissionRun:
         self.tree.root.tick_once()
         for i, subtree in enumerate(self.tree.tasks):
             if subtree.status is not Status.INVALID:
-                self.task_status[i] = _status_name(subtree.status)
+                self.task_status[i] = status_name(subtree.status)
         v, w = smoother(*handle.command)
         self.rows.append(
             (now, truth.x, truth.y, truth.yaw, estimate.x, estimate.y, estimate.yaw, v, w)
@@ -263,64 +258,6 @@ class MissionRun:
         sim.set_command(v, w)
         sim.advance(CONTROL_PERIOD)
         return True
-
-    def _begin_mapping(self, bounds: tuple[float, float, float, float] | None) -> MappingSession:
-        """SLAM takes over pose and map, starting from the current estimate."""
-        bounds = bounds or self.loaded.world.map.extent
-        slam = self.stack.new_slam(bounds)
-        session = MappingSession(
-            slam, bounds, self.robot.footprint_radius, self.mission.stack.costmap
-        )
-        session.start(self._mapping_anchor(), self.stack.odom)
-        self.handle.mapping = session
-        return session
-
-    def _mapping_anchor(self) -> Pose2D:
-        """The pose the new map is anchored at.
-
-        A robot that has not moved since the start is where the mission said it is; a
-        filter estimate there only adds its initial spread to every cell of the map.
-        """
-        if not self.stack.has_moved():
-            return self.loaded.start
-        return self.handle.state.estimate
-
-    def _end_mapping(self, stem: str) -> dict[str, Any]:
-        """Save the map, judge it against the world, and navigate on it from now on."""
-        session = self.handle.mapping
-        assert session is not None
-        grid = session.grid
-        summary: dict[str, Any] = {"map": stem}
-        if self.run_dir is not None:
-            save_ros_map(grid, self.run_dir / stem)
-            grid = load_ros_map(self.run_dir / f"{stem}.yaml")  # navigate on what was saved
-        quality = map_quality(
-            grid,
-            self.loaded.world.map,
-            session.bounds,
-            start=(self.loaded.start.x, self.loaded.start.y),
-        )
-        summary.update({k: round(v, 4) for k, v in quality.items()})
-        summary["slam_rmse"] = round(self._slam_rmse(session), 4)
-        summary["known_fraction"] = round(session.known_fraction(), 4)
-        self.maps.append(summary)
-        self.built_map = grid
-        static = Costmap.from_grid(grid, self.robot.footprint_radius, self.mission.stack.costmap)
-        self.navigator.layer = ObstacleLayer(static, self.mission.stack.costmap.obstacles)
-        self.stack.localizer = self.stack.new_localizer(grid)
-        self.stack.localizer.reset(session.slam.pose, self.stack.odom)
-        self.handle.mapping = None
-        return summary
-
-    def _slam_rmse(self, session: MappingSession) -> float:
-        """SLAM trajectory error against the true trajectory at the same times."""
-        est = np.asarray(session.slam.trajectory, dtype=float).reshape(-1, 4)
-        if not len(est) or not self.rows:
-            return float("nan")
-        rows = np.asarray(self.rows)
-        idx = np.clip(np.searchsorted(rows[:, 0], est[:, 0] - 1e-9), 0, len(rows) - 1)
-        err = np.hypot(est[:, 1] - rows[idx, 1], est[:, 2] - rows[idx, 2])
-        return float(np.sqrt(np.mean(err**2)))
 
     def end(self, status: str, reason: str | None) -> bool:
         if self.status is None:
@@ -378,11 +315,11 @@ class MissionRun:
                 if s == "running":
                     self.task_status[i] = "failed"
                     self.tree.tasks[i].feedback_message = self.reason or "mission failed"
-        tasks = _task_reports(self.mission, self.tree, self.task_status, self.handle.events)
-        _add_true_errors(tasks, trajectory)
-        metrics = _metrics(
+        tasks = task_reports(self.mission, self.tree, self.task_status, self.handle.events)
+        add_true_errors(tasks, trajectory)
+        metrics = run_metrics(
             trajectory,
-            self.navigator.stats,
+            self.navigator,
             len(self.collisions),
             self.min_clearance,
             sim_time,
@@ -394,8 +331,8 @@ class MissionRun:
                 recoveries[e["kind"]] = recoveries.get(e["kind"], 0) + 1
         metrics["navigation"]["recoveries"] = recoveries
         extras: dict[str, Any] = {"collisions": self.collisions, "faults": self.faults.report()}
-        if self.maps:
-            extras["maps"] = self.maps
+        if self.mapper.maps:
+            extras["maps"] = self.mapper.maps
         if self.handle.recorded:
             extras["rooms_recorded"] = {
                 label: {"x": round(p.x, 4), "y": round(p.y, 4), "yaw": round(p.yaw, 4)}
@@ -424,7 +361,7 @@ class MissionRun:
             tree_text=self.tree.render(),
             extras=extras,
             particle_snapshots=list(diagnostics.snapshots),
-            built_map=self.built_map,
+            built_map=self.mapper.built_map,
         )
 
 
@@ -449,7 +386,7 @@ class _Sampler:
             self.plans = len(navigator.paths)
             plan = navigator.paths[-1]
         covariance = particles = grid = None
-        mapping = handle.mapping
+        mapping = run.mapper.session
         if mapping is not None:
             covariance = mapping.slam.covariance
             if mapping.slam.integrations != self.map_integrations:
@@ -461,8 +398,8 @@ class _Sampler:
             if diagnostics.filter_updates != self.filter_updates:
                 self.filter_updates = diagnostics.filter_updates
                 particles = diagnostics.particles
-        if run.built_map is not self.built_map:
-            self.built_map = grid = run.built_map
+        if run.mapper.built_map is not self.built_map:
+            self.built_map = grid = run.mapper.built_map
         nodes = tree_nodes(run.tree.root)
         changed = nodes != self.nodes
         self.nodes = nodes
@@ -488,80 +425,6 @@ class _Sampler:
         )
 
 
-_status_name = status_name
-
-
-_OUTCOMES = {"goal_reached": "reached", "goal_failed": "failed", "goal_skipped": "skipped"}
-
-
-def _task_reports(
-    mission: Any, tree: MissionTree, task_status: list[str], events: list[dict[str, Any]]
-) -> list[dict[str, Any]]:
-    """Per-task status and reason, with per-waypoint and per-room outcomes."""
-    reports = []
-    for i, (task, subtree) in enumerate(zip(mission.tasks, tree.tasks, strict=True)):
-        mine = [e for e in events if e.get("task") == i]
-        status = task_status[i]
-        skips = [e for e in mine if e["event"] == "goal_skipped"]
-        if status == "succeeded" and skips:
-            status = "skipped" if task.type == "go_to" else "partial"
-        report: dict[str, Any] = {
-            "index": i + 1,
-            "type": task.type,
-            "status": status,
-            "reason": None,
-        }
-        if status == "failed":
-            report["reason"] = failure_reason(subtree)
-        elif skips:
-            report["reason"] = "; ".join(sorted({e["reason"] for e in skips}))
-        if task.type == "patrol":
-            report["waypoints_planned"] = task.loops * len(task.waypoints)
-            report["waypoints"] = [
-                {k: e[k] for k in ("loop", "waypoint", "t", "x", "y", "yaw", "reason") if k in e}
-                | {"status": _OUTCOMES[e["event"]]}
-                for e in mine
-                if e["event"] in _OUTCOMES
-            ]
-        if task.type == "visit_rooms":
-            report["rooms"] = [_room_report(room, mine) for room in task.rooms]
-        reports.append(report)
-    return reports
-
-
-def _add_true_errors(tasks: list[dict[str, Any]], trajectory: np.ndarray) -> None:
-    """Where the robot truly was when it believed a waypoint reached (simulation only)."""
-    if not len(trajectory):
-        return
-    for task in tasks:
-        for wp in task.get("waypoints", []):
-            if wp["status"] != "reached":
-                continue
-            row = trajectory[int(np.argmin(np.abs(trajectory[:, 0] - wp["t"])))]
-            wp["true_x"], wp["true_y"] = round(float(row[1]), 4), round(float(row[2]), 4)
-            wp["estimate_error"] = round(float(np.hypot(row[1] - wp["x"], row[2] - wp["y"])), 4)
-
-
-def _room_report(room: str, events: list[dict[str, Any]]) -> dict[str, Any]:
-    outcome = next(
-        (
-            e
-            for e in events
-            if e.get("room") == room and e["event"] in ("goal_failed", "goal_skipped")
-        ),
-        None,
-    )
-    reached = any(e["event"] == "goal_reached" and e.get("room") == room for e in events)
-    report: dict[str, Any] = {
-        "room": room,
-        "status": _OUTCOMES[outcome["event"]] if outcome else ("reached" if reached else "not_run"),
-        "recorded": any(e["event"] == "room_recorded" and e.get("room") == room for e in events),
-    }
-    if outcome:
-        report["reason"] = outcome["reason"]
-    return report
-
-
 def bare_record(
     loaded: LoadedMission, status: str, reason: str, wall_time: float, sim_time: float = 0.0
 ) -> RunRecord:
@@ -572,7 +435,7 @@ def bare_record(
         for i, task in enumerate(loaded.mission.tasks)
     ]
     trajectory = np.zeros((0, len(TRAJECTORY_COLUMNS)))
-    metrics = _metrics(trajectory, None, 0, math.inf, sim_time, wall_time)
+    metrics = run_metrics(trajectory, None, 0, math.inf, sim_time, wall_time)
     metrics["navigation"]["recoveries"] = {}
     return RunRecord(
         status=status,
@@ -587,45 +450,3 @@ def bare_record(
         tree_text="",
         extras={"collisions": [], "faults": []},
     )
-
-
-def _metrics(
-    traj: np.ndarray,
-    stats: Any,
-    collisions: int,
-    min_clearance: float,
-    sim_time: float,
-    wall_time: float,
-) -> dict[str, Any]:
-    """Distance, safety, localisation error and navigation statistics (``stats``: the
-    navigator's, or None before there was one); None where nothing was measured."""
-    xy = traj[:, 1:3]
-    distance = float(np.sum(np.linalg.norm(np.diff(xy, axis=0), axis=1))) if len(xy) > 1 else 0.0
-    err = np.linalg.norm(traj[:, 4:6] - xy, axis=1)
-    yaw_err = np.array([wrap_angle(a) for a in traj[:, 6] - traj[:, 3]])
-    solve_ms = np.asarray(stats.solve_times if stats else []) * 1e3
-    plan_ms = np.asarray(stats.planning_times if stats else []) * 1e3
-    return {
-        "distance_driven": round(distance, 4),
-        "collisions": collisions,
-        "min_clearance": round(min_clearance, 4) if math.isfinite(min_clearance) else None,
-        "localization": {
-            "position_rmse": round(float(np.sqrt(np.mean(err**2))), 5) if err.size else None,
-            "position_max_error": round(float(err.max()), 5) if err.size else None,
-            "yaw_rmse": round(float(np.sqrt(np.mean(yaw_err**2))), 5) if err.size else None,
-        },
-        "navigation": {
-            "plans": stats.plans if stats else 0,
-            "replans": stats.replans if stats else 0,
-            "planning_time_ms_mean": round(float(plan_ms.mean()), 3) if plan_ms.size else None,
-            "path_length_total": round(float(np.sum(stats.path_lengths)), 4) if stats else 0.0,
-            "controller_solve_ms_p50": round(float(np.percentile(solve_ms, 50)), 3)
-            if solve_ms.size
-            else None,
-            "controller_solve_ms_p99": round(float(np.percentile(solve_ms, 99)), 3)
-            if solve_ms.size
-            else None,
-            "controller_failures": stats.solver_failures if stats else 0,
-        },
-        "real_time_factor": round(sim_time / wall_time, 2) if wall_time > 0 else None,
-    }

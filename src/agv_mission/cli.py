@@ -445,11 +445,14 @@ def regress(
             )
             bar.update(job, completed=done)
 
+        interrupted = False
         try:
             results = backends.run_jobs(plan.jobs, backend, n_workers, address, progress)
         except planning.RegressError as exc:
             err.print(f"[bold red]invalid input[/]: {escape(str(exc))}", highlight=False)
             raise typer.Exit(2) from None
+        except backends.Interrupted as exc:  # Ctrl-C: report what ran
+            results, interrupted = exc.results, True
     elapsed = time.perf_counter() - started
     # Not a terminal (CI logs, pipes): do not squeeze the tables into 80 columns.
     tables = out if out.is_terminal else Console(soft_wrap=True, width=240)
@@ -467,6 +470,13 @@ def regress(
     for path, what in ((junit, "JUnit XML"), (json_, "JSON summary")):
         if path is not None:
             out.print(f"{what}: {escape(str(path))}", highlight=False)
+    if interrupted:
+        err.print(
+            f"interrupted: {len(results)} of {len(plan.jobs)} run(s) ran (the running ones "
+            "ended aborted); the queued ones were cancelled",
+            highlight=False,
+        )
+        raise typer.Exit(130)
     raise typer.Exit(1 if failed else 0)
 
 

@@ -3,13 +3,19 @@ or on Ray, and one job in this process."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import multiprocessing
 import os
+import shutil
+import signal
+import tarfile
+import tempfile
 import time
 import traceback
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 from typing import Any
 
@@ -17,23 +23,59 @@ from agv_mission.missions.errors import MissionError
 from agv_mission.regress.plan import RegressError, ResultCallback
 from agv_mission.regress.report import json_default
 
+# Signals this process was asked to stop with (Ctrl-C, SIGTERM): a run in progress ends
+# ``aborted`` before its next step, a job not started yet is not started.
+_STOP: list[int] = []
 
-def run_job(job: dict[str, Any]) -> dict[str, Any]:
+
+def _request_stop(signum: int, _frame: object) -> None:
+    _STOP.append(signum)
+
+
+def _stop_on_signals() -> None:
+    """Pool worker start: SIGINT/SIGTERM ask the running job to stop (see ``_STOP``)."""
+    signal.signal(signal.SIGINT, _request_stop)
+    signal.signal(signal.SIGTERM, _request_stop)
+
+
+class _StopControl:
+    """The run-control hook that ends a run ``aborted`` once a stop was requested."""
+
+    def before_step(self, run: Any) -> None:
+        if _STOP:
+            run.cancel("regress stopped (Ctrl-C)")
+
+
+class Interrupted(Exception):
+    """``run_jobs`` was stopped: ``results`` holds the jobs that ran (the running ones
+    ended ``aborted``); queued jobs were cancelled."""
+
+    def __init__(self, results: list[dict[str, Any]]) -> None:
+        super().__init__(f"interrupted after {len(results)} run(s)")
+        self.results = results
+
+
+def run_job(job: dict[str, Any]) -> dict[str, Any] | None:
     """Run one job (load, run, write the run directory, check); a plain dict back.
 
-    Never raises: an exception becomes a result with status ``error``.
+    Never raises: an exception becomes a result with status ``error``. None: a stop was
+    requested before the job began, so it did not run.
     """
+    if _STOP:
+        return None
     from agv_mission.missions.expectations import check
     from agv_mission.missions.loader import load_mission
     from agv_mission.missions.outputs import make_run_dir, write_mission, write_run
     from agv_mission.missions.runner import run_mission
 
     t0 = time.perf_counter()
+    shipped = bool(job.get("ship_back"))  # on a remote worker: the run directory comes back
+    output_root = Path(tempfile.mkdtemp(prefix="agv-regress-")) if shipped else None
     try:
         loaded = load_mission(job["scenario"], job["overrides"], job["seed"])
-        run_dir = make_run_dir(Path(job["output_root"]), job["run_name"])
+        run_dir = make_run_dir(output_root or Path(job["output_root"]), job["run_name"])
         write_mission(run_dir, loaded)
-        record = run_mission(loaded, run_dir)
+        record = run_mission(loaded, run_dir, control=_StopControl())
         doc = write_run(run_dir, loaded, record)
         doc = json.loads(json.dumps(doc, default=json_default))  # plain types only
         failures = [f.to_dict() for f in check(loaded.mission.expect, doc)]
@@ -41,7 +83,7 @@ def run_job(job: dict[str, Any]) -> dict[str, Any]:
         return error_result(job, "invalid input:\n" + "\n".join(map(str, exc.problems)))
     except Exception:
         return error_result(job, traceback.format_exc())
-    return {
+    result = {
         **_job_keys(job),
         "status": doc["status"],
         "reason": doc["reason"],
@@ -55,6 +97,58 @@ def run_job(job: dict[str, Any]) -> dict[str, Any]:
         "passed": not failures,
         "error": None,
     }
+    if shipped:
+        result["archive"] = _pack(run_dir)
+        shutil.rmtree(output_root, ignore_errors=True)
+    return result
+
+
+def _pack(run_dir: Path) -> bytes:
+    """The run directory as a gzipped tar (its name as the top folder)."""
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w:gz") as tar:
+        tar.add(run_dir, arcname=run_dir.name)
+    return buf.getvalue()
+
+
+def _unpack(result: dict[str, Any], output_root: Path) -> dict[str, Any]:
+    """Extract a shipped run directory under ``output_root``; the result points there."""
+    archive = result.pop("archive", None)
+    if archive is None:
+        return result
+    output_root.mkdir(parents=True, exist_ok=True)
+    with tarfile.open(fileobj=io.BytesIO(archive), mode="r:gz") as tar:
+        names = tar.getnames()
+        tar.extractall(output_root, filter="data")
+    top = names[0].split("/")[0] if names else None
+    if top is not None:
+        result["run_dir"] = str(output_root / top)
+    return result
+
+
+def _ship(jobs: Sequence[dict[str, Any]]) -> tuple[str, list[dict[str, Any]]]:
+    """The folder to send to remote workers (Ray's ``working_dir``: every scenario and the
+    files next to it that it names) and the jobs rewritten to paths inside it."""
+    folders = [str(Path(j["scenario"]).resolve().parent) for j in jobs]
+    root = Path(os.path.commonpath(folders))
+    size = sum(p.stat().st_size for p in root.rglob("*") if p.is_file())
+    if root == Path(root.anchor) or size > SHIP_LIMIT:
+        raise RegressError(
+            f"the scenarios share the folder {root} ({size / 1e6:.0f} MB): to send them to a "
+            f"Ray cluster, put them under one folder of at most {SHIP_LIMIT / 1e6:.0f} MB"
+        )
+    shipped = [
+        {
+            **j,
+            "scenario": str(Path(j["scenario"]).resolve().relative_to(root)),
+            "ship_back": True,
+        }
+        for j in jobs
+    ]
+    return str(root), shipped
+
+
+SHIP_LIMIT = 50_000_000  # bytes of scenario folder sent to a Ray cluster
 
 
 def error_result(job: dict[str, Any], error: str) -> dict[str, Any]:
@@ -120,35 +214,64 @@ def run_jobs(
     workers = max(1, workers or os.cpu_count() or 1)
     results: list[dict[str, Any]] = []
 
-    def collect(result: dict[str, Any]) -> None:
+    def collect(result: dict[str, Any] | None) -> None:
+        if result is None:  # cancelled before it began
+            return
         results.append(result)
         if on_result is not None:
             on_result(result, len(results), len(jobs))
 
-    if backend == "local":
-        _run_local(jobs, workers, collect)
-    elif backend == "ray":
-        _run_ray(jobs, workers, address, collect)
-    else:
-        raise RegressError(f"unknown backend {backend!r} (local or ray)")
-    return sorted(results, key=lambda r: tuple(r["order"]))
+    _STOP.clear()
+    previous = signal.signal(signal.SIGINT, _request_stop)
+    try:
+        if backend == "local":
+            _run_local(jobs, workers, collect)
+        elif backend == "ray":
+            _run_ray(jobs, workers, address, collect)
+        else:
+            raise RegressError(f"unknown backend {backend!r} (local or ray)")
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    ordered = sorted(results, key=lambda r: tuple(r["order"]))
+    if _STOP:
+        raise Interrupted(ordered)
+    return ordered
 
 
 def _run_local(jobs: Sequence[dict[str, Any]], workers: int, collect: Callable) -> None:
+    """In this process (one worker) or a process pool. A stop request (``_STOP``, set by
+    the SIGINT handler) cancels the queued jobs and asks the workers to end theirs."""
     if workers == 1 or len(jobs) <= 1:
         for job in jobs:
+            if _STOP:
+                break
             collect(run_job(job))
         return
     with ProcessPoolExecutor(
-        max_workers=min(workers, len(jobs)), mp_context=_pool_context()
+        max_workers=min(workers, len(jobs)),
+        mp_context=_pool_context(),
+        initializer=_stop_on_signals,
     ) as pool:
         futures = {pool.submit(run_job, job): job for job in jobs}
-        for future in as_completed(futures):
-            try:
-                result = future.result()
-            except Exception as exc:  # a worker died (killed, out of memory, ...)
-                result = error_result(futures[future], f"worker process failed: {exc!r}")
-            collect(result)
+        pending = set(futures)
+        stopping = False
+        while pending:
+            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            for future in done:
+                if future.cancelled():
+                    continue
+                try:
+                    result = future.result()
+                except Exception as exc:  # a worker died (killed, out of memory, ...)
+                    result = error_result(futures[future], f"worker process failed: {exc!r}")
+                collect(result)
+            if _STOP and not stopping:
+                stopping = True
+                for future in pending:
+                    future.cancel()
+                for process in list(getattr(pool, "_processes", {}).values()):
+                    with contextlib.suppress(OSError):
+                        os.kill(process.pid, signal.SIGINT)  # the worker ends its run
 
 
 def _run_ray(
@@ -161,10 +284,19 @@ def _run_ray(
             "the ray backend needs Ray, which is not installed: pip install 'agv-mission[ray]'"
         ) from None
     started = False
+    if address:  # a cluster: its workers see none of our files, so send them
+        working_dir, jobs = _ship(jobs)
+        output_root = Path(jobs[0]["output_root"]) if jobs else Path(".")
+        inner = collect
+
+        def collect(result: dict[str, Any] | None) -> None:
+            inner(_unpack(result, output_root) if result is not None else None)
+
     if not ray.is_initialized():
         options: dict[str, Any] = {"include_dashboard": False, "logging_level": "WARNING"}
         if address:
             options["address"] = address
+            options["runtime_env"] = {"working_dir": working_dir}
         else:
             options["num_cpus"] = workers
         try:
@@ -175,12 +307,19 @@ def _run_ray(
     try:
         task = ray.remote(num_cpus=1, max_retries=0)(run_job)
         pending = {task.remote(job): job for job in jobs}
+        cancelled = False
         while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
+            if _STOP and not cancelled:
+                cancelled = True
+                for ref in pending:
+                    ray.cancel(ref)  # queued: never starts; running: interrupted (aborted)
+            done, _ = ray.wait(list(pending), num_returns=1, timeout=0.5)
             for ref in done:
                 job = pending.pop(ref)
                 try:
                     result = ray.get(ref)
+                except ray.exceptions.TaskCancelledError:
+                    result = None  # cancelled by a stop request: did not run
                 except Exception as exc:
                     result = error_result(job, f"ray task failed: {exc!r}")
                 collect(result)

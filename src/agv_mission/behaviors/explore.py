@@ -136,14 +136,15 @@ class MapArea(py_trees.behaviour.Behaviour):
             nav.cancel()
             handle.stop()
             known = mapping.known_fraction()
-            failure = self._failure
-            if failure is None and self.coverage is not None and known < self.coverage:
-                failure = (
-                    f"coverage {known:.3f} of the bounds is below the {self.coverage:g} the "
-                    f"task asks ({done})"
-                )
             summary = self.mapper.end(self.save_map)
             self.mapping = None
+            failure = self._failure
+            # coverage as result.json reports it: of the free space the robot can reach
+            covered = float(summary.get("coverage", known))
+            if failure is None and self.coverage is not None and covered < self.coverage:
+                failure = (
+                    f"coverage {covered:.3f} is below the {self.coverage:g} the task asks ({done})"
+                )
             handle.log(
                 "map_saved", reason=failure or done, frontiers=self.frontiers_visited, **summary
             )

@@ -297,7 +297,8 @@ def _run_ray(
         if address:
             options["address"] = address
             options["runtime_env"] = {"working_dir": working_dir}
-        else:
+        else:  # a new local instance, never a cluster that happens to run here
+            options["address"] = "local"
             options["num_cpus"] = workers
         try:
             ray.init(**options)

@@ -82,6 +82,7 @@ _BUILTIN_MODULES = (
     "agv_mission.localization.slam",
     "agv_mission.planners.ompl_planner",
     "agv_mission.planners.grid_astar",
+    "agv_mission.planners.cost_grid",
     "agv_mission.planners.mpc",
     "agv_mission.planners.pure_pursuit",
 )

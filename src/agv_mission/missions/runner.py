@@ -31,7 +31,7 @@ from agv_mission.missions.loader import LoadedMission
 from agv_mission.missions.tree import MissionTree, build_tree
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.mapping import MappingSession
-from agv_mission.navigation.navigator import Navigator
+from agv_mission.navigation.navigator import Navigator, leg_report
 from agv_mission.navigation.state import RobotState
 from agv_mission.planners.base import VelocityLimits
 from agv_mission.registry import registry
@@ -505,6 +505,7 @@ def _metrics(
             if solve_ms.size
             else None,
             "controller_failures": stats.solver_failures,
+            **leg_report(stats.legs, traj[:, 0], xy, traj[:, 7], sim_time),
         },
         "real_time_factor": round(sim_time / wall_time, 2) if wall_time > 0 else None,
     }

@@ -108,7 +108,7 @@ class Stack(StrictModel):
         default_factory=lambda: _default("localization", "amcl")
     )
     global_planner: GlobalPlannerConfig = Field(  # type: ignore[valid-type]
-        default_factory=lambda: _default("global_planner", "ompl")
+        default_factory=lambda: _default("global_planner", "cost_grid")
     )
     local_planner: LocalPlannerConfig = Field(  # type: ignore[valid-type]
         default_factory=lambda: _default("local_planner", "mpc")

@@ -368,10 +368,8 @@ class CostGridPlanner:
         cfg = self.config
         costmap = space.costmap
         comfort = costmap.robot_radius + costmap.config.inflation_radius
-        if space.segment_free(*start, *goal):
-            line = space.segment_cells(*start, *goal)
-            if cfg.cost_weight == 0.0 or space.distance_flat[line].min() >= comfort - 1e-6:
-                return np.array([start, goal], dtype=float)
+        if self._straight_is_best(space, start, goal, comfort):
+            return np.array([start, goal], dtype=float)
         w = space.width
         s_cell = int(start[1] / space.res) * w + int(start[0] / space.res)
         g_cell = int(goal[1] / space.res) * w + int(goal[0] / space.res)
@@ -401,6 +399,19 @@ class CostGridPlanner:
         kept_pts = self.smooth(space, start, goal, kept, comfort)
         return pts if _length(pts) < cfg.keep_prior * _length(kept_pts) else kept_pts
 
+    def _straight_is_best(
+        self,
+        space: FreeSpace,
+        start: tuple[float, float],
+        goal: tuple[float, float],
+        comfort: float,
+    ) -> bool:
+        """The straight line is free and (with a cost weight) outside the inflation zone."""
+        line = space.segment_cells(*start, *goal)
+        if line is None or not space.free_flat[line].all():
+            return False
+        return self.config.cost_weight == 0.0 or space.distance_flat[line].min() >= comfort - 1e-6
+
     def _coarse_graph(self, space: FreeSpace, k: int) -> StepGraph:
         """The coarse graph of ``space``'s costmap, reused while the costmap is the same."""
         key = (space.required, k)
@@ -425,6 +436,28 @@ class CostGridPlanner:
         corridor.ravel()[blocks] = True
         return corridor_path(space, corridor, k, self.config.band, factor, s_cell, g_cell)
 
+    def refine(
+        self,
+        space: FreeSpace,
+        start: tuple[float, float],
+        goal: tuple[float, float],
+        path: np.ndarray,
+    ) -> np.ndarray | None:
+        """``path`` (local frame, e.g. a sampling planner's) made cost-aware and smooth:
+        the cheapest path within ``band`` blocks of it, then shortcuts and fillets. None
+        when the band holds no path."""
+        costmap = space.costmap
+        comfort = costmap.robot_radius + costmap.config.inflation_radius
+        if len(path) == 2 and self._straight_is_best(space, start, goal, comfort):
+            return np.array([start, goal], dtype=float)
+        w = space.width
+        s_cell = int(start[1] / space.res) * w + int(start[0] / space.res)
+        g_cell = int(goal[1] / space.res) * w + int(goal[0] / space.res)
+        factor = 1.0 + self.config.cost_weight * costmap.cost.astype(np.float64) / MAX_COST
+        k = max(1, round(self.config.coarse_resolution / space.res))
+        cells = self._along_prior(space, path, k, factor, s_cell, g_cell, local=True)
+        return None if cells is None else self.smooth(space, start, goal, cells, comfort)
+
     def _along_prior(
         self,
         space: FreeSpace,
@@ -433,19 +466,23 @@ class CostGridPlanner:
         factor: np.ndarray,
         s_cell: int,
         g_cell: int,
+        local: bool = False,
     ) -> np.ndarray | None:
-        """The cheapest path within ``band`` blocks of the previous path (None: blocked)."""
+        """The cheapest path within ``band`` blocks of ``prior`` (map frame unless
+        ``local``); None when the band holds none (the way is blocked)."""
         h, w = space.free.shape
         wc = -(-w // k)
-        local = np.array([space.to_local(float(x), float(y)) for x, y in prior[:, :2]])
-        d = np.diff(local, axis=0)
+        if not local:
+            prior = np.array([space.to_local(float(x), float(y)) for x, y in prior[:, :2]])
+        local_pts = np.asarray(prior, dtype=float)[:, :2]
+        d = np.diff(local_pts, axis=0)
         n = np.maximum(np.ceil(np.linalg.norm(d, axis=1) / (0.5 * k * space.res)), 1).astype(int)
         samples = np.concatenate(
             [
                 a + np.outer(np.arange(m) / m, b - a)
-                for a, b, m in zip(local, local[1:], n, strict=False)
+                for a, b, m in zip(local_pts, local_pts[1:], n, strict=False)
             ]
-            + [local[-1:]]
+            + [local_pts[-1:]]
         )
         cols = np.clip((samples[:, 0] / space.res).astype(int) // k, 0, wc - 1)
         rows = np.clip((samples[:, 1] / space.res).astype(int) // k, 0, -(-h // k) - 1)

@@ -301,20 +301,23 @@ def fillet(
     return np.concatenate(out, axis=0)
 
 
-def max_curvature(points: np.ndarray) -> float:
-    """Largest turning per metre of a polyline: the turn at a vertex over the mean length of
-    its two segments (a sampled arc of radius r gives ~1/r; a sharp corner a large value)."""
-    if len(points) < 3:
+def max_curvature(points: np.ndarray, window: float = 0.2) -> float:
+    """Largest heading change per metre over any ``window`` of arclength of a polyline:
+    about 1/r on an arc of radius r > window, and (turn angle) / window at a corner."""
+    pts = np.asarray(points, dtype=float)
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    pts = pts[np.concatenate([[True], seg > 1e-9])]
+    if len(pts) < 3:
         return 0.0
-    d = np.diff(points, axis=0)
-    lengths = np.linalg.norm(d, axis=1)
-    keep = lengths > 1e-9
-    d, lengths = d[keep], lengths[keep]
-    if len(d) < 2:
-        return 0.0
-    heading = np.arctan2(d[:, 1], d[:, 0])
-    turn = np.abs((np.diff(heading) + np.pi) % (2.0 * np.pi) - np.pi)
-    return float(np.max(turn / (0.5 * (lengths[:-1] + lengths[1:]))))
+    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    step = window / 10.0
+    s = np.arange(0.0, cum[-1], step)
+    xy = np.stack([np.interp(s, cum, pts[:, 0]), np.interp(s, cum, pts[:, 1])], axis=1)
+    d = np.diff(xy, axis=0)
+    heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    if len(heading) <= 10:
+        return float(abs(heading[-1] - heading[0]) / max(cum[-1], window))
+    return float(np.max(np.abs(heading[10:] - heading[:-10])) / window)
 
 
 # --------------------------------------------------------------------------- the plugin

@@ -219,3 +219,28 @@ def test_leg_report_and_expectations() -> None:
     assert not check(Expectations(driven_vs_planned_max=1.08, stops_max=1), result)
     failures = check(Expectations(driven_vs_shortest_max=1.05, stops_max=0), result)
     assert {f.metric for f in failures} == {"driven_vs_shortest_max", "stops_max"}
+
+
+@pytest.mark.slow
+def test_ompl_run_is_byte_identical_under_cpu_load(tmp_path) -> None:
+    """Issue 11: the same OMPL mission, alone and beside busy processes, drives the same."""
+    from pathlib import Path as FilePath
+
+    mission = FilePath(__file__).parent / "scenarios" / "go_to_tb3.yaml"
+    cli = FilePath(sys.executable).parent / "agv-mission"
+
+    def trajectory(out: FilePath) -> bytes:
+        subprocess.run([str(cli), "run", str(mission), "--output", str(out)], check=True,
+                       capture_output=True)  # fmt: skip
+        (run_dir,) = out.iterdir()
+        return (run_dir / "trajectory.csv").read_bytes()
+
+    quiet = trajectory(tmp_path / "quiet")
+    hogs = [subprocess.Popen([sys.executable, "-c", _BUSY]) for _ in range(2)]
+    try:
+        loaded = trajectory(tmp_path / "loaded")
+    finally:
+        for hog in hogs:
+            hog.kill()
+            hog.wait()
+    assert len(quiet) > 1000 and loaded == quiet

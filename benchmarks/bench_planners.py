@@ -35,7 +35,8 @@ from agv_mission.maps.builtin_worlds import depot, turtlebot3_world, warehouse
 from agv_mission.maps.costmap import Costmap, CostmapConfig
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.planners.base import PlanningError
-from agv_mission.planners.cost_grid import CostGridConfig, CostGridPlanner
+from agv_mission.planners.configs import CostGridConfig
+from agv_mission.planners.cost_grid import CostGridPlanner
 from agv_mission.planners.grid_astar import GridAstarConfig, GridAstarPlanner
 from agv_mission.planners.ompl_planner import OmplPlanner, OmplPlannerConfig
 

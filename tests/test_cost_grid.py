@@ -16,8 +16,9 @@ from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
 from agv_mission.missions.expectations import Expectations, check
 from agv_mission.missions.schema import Stack
 from agv_mission.navigation.navigator import Leg, leg_report
-from agv_mission.planners.base import Path
-from agv_mission.planners.cost_grid import CostGridConfig, CostGridPlanner, max_curvature
+from agv_mission.planners.base import PlannedPath as Path
+from agv_mission.planners.configs import CostGridConfig
+from agv_mission.planners.cost_grid import CostGridPlanner, max_curvature
 from agv_mission.planners.grid_astar import GridAstarConfig, GridAstarPlanner
 from agv_mission.planners.ompl_planner import OmplPlanner, OmplPlannerConfig
 

@@ -34,57 +34,19 @@ import math
 import time
 import weakref
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
-from pydantic import Field
 from scipy.ndimage import binary_dilation
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
-from agv_mission.planners.base import Path, PlanningError, PluginConfig
+from agv_mission.planners.base import PlannedPath, PlanningError
+from agv_mission.planners.configs import CostGridConfig
 from agv_mission.planners.grid_astar import _MOVES_8, _MOVES_16, FreeSpace
-from agv_mission.registry import register
 
 MAX_COST = 252.0
-
-
-class CostGridConfig(PluginConfig):
-    """``global_planner`` block of the default planner (``type: cost_grid``)."""
-
-    type: Literal["cost_grid"] = "cost_grid"
-    clearance: float = Field(
-        0.05, ge=0, le=5.0, description="metres of margin beyond the robot radius a path must keep"
-    )
-    cost_weight: float = Field(
-        1.0,
-        ge=0,
-        le=100.0,
-        description="how much the inflation cost adds to a step (0: shortest path; 1: a "
-        "step at the inscribed radius costs 2x, one outside the inflation zone 1x)",
-    )
-    coarse_resolution: float = Field(
-        0.2, gt=0, le=2.0, description="block size of the coarse search, metres"
-    )
-    band: int = Field(
-        2, ge=1, le=20, description="blocks either side of the coarse path the fine search may use"
-    )
-    max_turn_radius: float = Field(
-        0.8, ge=0, le=10.0, description="largest fillet radius at a corner, metres (0: no fillets)"
-    )
-    min_turn_radius: float = Field(
-        0.1, gt=0, le=10.0, description="corners that cannot take a fillet this large stay sharp"
-    )
-    keep_prior: float = Field(
-        0.85,
-        gt=0,
-        le=1.0,
-        description="replanning: the way of the previous path is kept (searched within "
-        "``band`` blocks of it) unless it is blocked or another way is shorter than this "
-        "share of it",
-    )
 
 
 # --------------------------------------------------------------------------- searches
@@ -323,7 +285,6 @@ def max_curvature(points: np.ndarray, window: float = 0.2) -> float:
 # --------------------------------------------------------------------------- the plugin
 
 
-@register("global_planner", "cost_grid")
 class CostGridPlanner:
     """Cost-aware coarse-to-fine grid search, any-angle shortcuts and corner fillets."""
 
@@ -334,6 +295,13 @@ class CostGridPlanner:
         # The coarse graph of the last costmap seen: (costmap ref, (clearance, k), graph).
         self._coarse: tuple[weakref.ref, tuple[float, int], StepGraph] | None = None
 
+    @property
+    def clearance(self) -> float:
+        return self.config.clearance
+
+    def diagnostics(self) -> dict[str, float]:
+        return {}
+
     def plan(
         self,
         costmap: Costmap,
@@ -341,7 +309,7 @@ class CostGridPlanner:
         goal: Pose2D,
         seed: int = 0,
         prior: np.ndarray | None = None,
-    ) -> Path:
+    ) -> PlannedPath:
         """Plan from ``start`` to ``goal``. With ``prior`` (the previous path, map frame)
         the new path keeps its way round obstacles unless that way is blocked or another is
         clearly shorter. ``seed`` is unused: the search is deterministic."""
@@ -358,7 +326,7 @@ class CostGridPlanner:
             )
         points = space.to_world(pts)
         points[0], points[-1] = start.xy, goal.xy
-        return Path(points=points, planning_time=time.perf_counter() - t0)
+        return PlannedPath(points=points, planning_time=time.perf_counter() - t0)
 
     def local_path(
         self,

@@ -46,18 +46,15 @@ from __future__ import annotations
 
 import math
 import time
-from functools import lru_cache
-from typing import Literal
 
 import numpy as np
-from pydantic import Field, field_validator
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
-from agv_mission.planners.base import Path, PlanningError, PluginConfig
-from agv_mission.planners.cost_grid import CostGridConfig, CostGridPlanner
+from agv_mission.planners.base import PlannedPath, PlanningError
+from agv_mission.planners.configs import CostGridConfig, OmplPlannerConfig
+from agv_mission.planners.cost_grid import CostGridPlanner
 from agv_mission.planners.grid_astar import FreeSpace
-from agv_mission.registry import register
 
 # Anytime, asymptotically optimal planners: worth running past their first solution.
 OPTIMIZING_PLANNERS = frozenset(
@@ -68,91 +65,6 @@ OPTIMIZING_PLANNERS = frozenset(
 THREADED_PLANNERS = frozenset({"PRM", "PRMstar", "LazyPRM", "LazyPRMstar", "SPARS", "SPARStwo"})
 
 
-@lru_cache(maxsize=1)
-def available_planners() -> tuple[str, ...]:
-    """Names of the geometric planner classes this OMPL build provides."""
-    from ompl import base as ob
-    from ompl import geometric as og
-
-    return tuple(
-        sorted(
-            name
-            for name in dir(og)
-            if isinstance(getattr(og, name), type) and issubclass(getattr(og, name), ob.Planner)
-        )
-    )
-
-
-class OmplPlannerConfig(PluginConfig):
-    """``global_planner`` block for OMPL (``type: ompl``)."""
-
-    type: Literal["ompl"] = "ompl"
-    planner: str = Field(
-        "RRTConnect", description="OMPL geometric planner class, e.g. RRTConnect, BITstar"
-    )
-    iterations: int = Field(
-        20000,
-        ge=1,
-        le=10_000_000,
-        description="the budget of one plan: planner iterations (termination checks), "
-        "counted, never timed, so a plan is the same under any CPU load",
-    )
-    time_limit: float = Field(
-        5.0,
-        gt=0,
-        le=600.0,
-        description="wall-clock watchdog of one plan, seconds: a plan still running then "
-        "fails (and that run is not reproducible); PRM-family planners (which grow their "
-        "roadmap in a second thread) run on this clock",
-    )
-    simplify: bool = Field(True, description="shortcut + smooth the solution (deterministic)")
-    refine: bool = Field(
-        True,
-        description="make the solution cost-aware: the cheapest path over the costmap's "
-        "inflation cost within a band around it, shortcut and filleted (as cost_grid does); "
-        "without it the inflation cost plays no part in OMPL's plans",
-    )
-    cost_weight: float = Field(
-        1.0, ge=0, le=100.0, description="refinement: weight of the inflation cost (see cost_grid)"
-    )
-    clearance: float = Field(
-        0.05, ge=0, le=5.0, description="metres of margin beyond the robot radius a path must keep"
-    )
-    range: float | None = Field(
-        None,
-        gt=0,
-        le=1000.0,
-        description="longest edge (metres) for planners that have one; None: OMPL's",
-    )
-    goal_bias: float | None = Field(
-        None, ge=0, le=1, description="goal sampling probability where supported; None: OMPL's"
-    )
-    cost_threshold: float | None = Field(
-        1.05,
-        ge=1.0,
-        le=100.0,
-        description="optimising planners stop once the path is no longer than this multiple "
-        "of the smoothed shortest grid path; None: always use the whole iteration budget",
-    )
-    round_iterations: int = Field(
-        200,
-        ge=1,
-        le=1_000_000,
-        description="optimising planners: iterations of the first round (doubling)",
-    )
-
-    @field_validator("planner")
-    @classmethod
-    def _known_planner(cls, name: str) -> str:
-        known = available_planners()
-        if name not in known:
-            raise ValueError(
-                f"unknown planner {name!r}; OMPL geometric planners are: {', '.join(known)}"
-            )
-        return name
-
-
-@register("global_planner", "ompl")
 class OmplPlanner:
     """Any OMPL geometric planner over the costmap's free space."""
 
@@ -161,7 +73,14 @@ class OmplPlanner:
     def __init__(self, config: OmplPlannerConfig) -> None:
         self.config = config
 
-    def plan(self, costmap: Costmap, start: Pose2D, goal: Pose2D, seed: int = 0) -> Path:
+    @property
+    def clearance(self) -> float:
+        return self.config.clearance
+
+    def diagnostics(self) -> dict[str, float]:
+        return {}
+
+    def plan(self, costmap: Costmap, start: Pose2D, goal: Pose2D, seed: int = 0) -> PlannedPath:
         t0 = time.perf_counter()
         cfg = self.config
         space = FreeSpace(costmap, cfg.clearance)
@@ -190,7 +109,7 @@ class OmplPlanner:
                 pts = refined
         points = space.to_world(pts)
         points[0], points[-1] = start.xy, goal.xy
-        return Path(points=points, planning_time=time.perf_counter() - t0)
+        return PlannedPath(points=points, planning_time=time.perf_counter() - t0)
 
 
 _QUIETED = [False]

@@ -245,3 +245,23 @@ def test_ompl_run_is_byte_identical_under_cpu_load(tmp_path) -> None:
             hog.kill()
             hog.wait()
     assert len(quiet) > 1000 and loaded == quiet
+
+
+def test_detour_bound_between_pillars() -> None:
+    """turtlebot3_world's pillars stand 0.8 m apart: all of the gap between them is inflated,
+    and the full inflation cost would go round them (1.10x the shortest path). The plan is
+    searched again with less cost until it is within ``max_detour`` of the shortest."""
+    from agv_mission.maps.builtin_worlds import turtlebot3_world
+
+    costmap = Costmap.from_grid(turtlebot3_world().map, 0.105, CostmapConfig(inflation_radius=0.3))
+    tour = [Pose2D(-2.0, -0.5), Pose2D(1.13, -1.6), Pose2D(0.13, 1.93), Pose2D(2.0, 0.0)]
+    free_hand = CostGridPlanner(CostGridConfig(max_detour=None))
+    bounded = CostGridPlanner(CostGridConfig())
+    ratios = []
+    for a, b in zip(tour, tour[1:], strict=False):
+        ref = shortest(costmap, a, b)
+        ratios.append(free_hand.plan(costmap, a, b).length / ref)
+        path = bounded.plan(costmap, a, b)
+        assert path.length <= 1.05 * ref
+        assert costmap.is_free(sampled(path), MARGIN).all()
+    assert max(ratios) > 1.05  # the bound did something

@@ -130,6 +130,13 @@ class CostGridConfig(PluginConfig):
     min_turn_radius: float = Field(
         0.1, gt=0, le=10.0, description="corners that cannot take a fillet this large stay sharp"
     )
+    max_detour: float | None = Field(
+        1.05,
+        ge=1.0,
+        le=10.0,
+        description="a plan longer than this multiple of the shortest path at the same "
+        "clearance is searched again with less inflation cost; None: never",
+    )
     keep_prior: float = Field(
         0.85,
         gt=0,

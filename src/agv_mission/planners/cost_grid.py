@@ -293,7 +293,8 @@ class CostGridPlanner:
     def __init__(self, config: CostGridConfig) -> None:
         self.config = config
         # The coarse graph of the last costmap seen: (costmap ref, (clearance, k), graph).
-        self._coarse: tuple[weakref.ref, tuple[float, int], StepGraph] | None = None
+        # The coarse graphs of the last costmap seen, by (clearance, block, cost weight).
+        self._coarse: tuple[weakref.ref, dict[tuple[float, int, float], StepGraph]] | None = None
 
     @property
     def clearance(self) -> float:
@@ -335,20 +336,52 @@ class CostGridPlanner:
         goal: tuple[float, float],
         prior: np.ndarray | None = None,
     ) -> np.ndarray | None:
-        """The smoothed path in the grid's frame, or None when start and goal are not joined."""
+        """The smoothed path in the grid's frame, or None when start and goal are not joined.
+
+        A fresh plan longer than ``max_detour`` times the shortest path at the same
+        clearance (the inflation cost took it round, say, a row of pillars rather than
+        between them) is searched again with a quarter of the cost weight, down to none.
+        """
+        cfg = self.config
+        comfort = space.costmap.robot_radius + space.costmap.config.inflation_radius
+        if self._straight_is_best(space, start, goal, comfort):
+            return np.array([start, goal], dtype=float)
+        weight = cfg.cost_weight
+        pts = self._search(space, start, goal, weight, prior)
+        if pts is None or prior is not None or weight == 0.0 or cfg.max_detour is None:
+            return pts
+        if _length(pts) <= cfg.max_detour * math.dist(start, goal):
+            return pts
+        shortest = self._search(space, start, goal, 0.0, None, fillets=False)
+        bound = cfg.max_detour * _length(shortest) if shortest is not None else math.inf
+        while _length(pts) > bound and weight > 0.0:
+            weight = weight / 4.0 if weight > cfg.cost_weight / 60.0 else 0.0
+            pts = self._search(space, start, goal, weight, None)
+            if pts is None:
+                return shortest
+        return pts
+
+    def _search(
+        self,
+        space: FreeSpace,
+        start: tuple[float, float],
+        goal: tuple[float, float],
+        weight: float,
+        prior: np.ndarray | None,
+        fillets: bool = True,
+    ) -> np.ndarray | None:
+        """Coarse-to-fine search with inflation cost ``weight``, then smoothing."""
         cfg = self.config
         costmap = space.costmap
         comfort = costmap.robot_radius + costmap.config.inflation_radius
-        if self._straight_is_best(space, start, goal, comfort):
-            return np.array([start, goal], dtype=float)
         w = space.width
         s_cell = int(start[1] / space.res) * w + int(start[0] / space.res)
         g_cell = int(goal[1] / space.res) * w + int(goal[0] / space.res)
-        factor = 1.0 + cfg.cost_weight * costmap.cost.astype(np.float64) / MAX_COST
+        factor = 1.0 + weight * costmap.cost.astype(np.float64) / MAX_COST
         k = max(1, round(cfg.coarse_resolution / space.res))
         cells = None
         if k > 1:
-            coarse = self._coarse_graph(space, k)
+            coarse = self._coarse_graph(space, k, weight)
             wc = -(-w // k)
             blocks = coarse.cheapest(
                 (s_cell // w // k) * wc + (s_cell % w) // k,
@@ -361,13 +394,13 @@ class CostGridPlanner:
             cells = step_graph(space.free, space.free, factor).cheapest(s_cell, g_cell)
         if cells is None:
             return None
-        pts = self.smooth(space, start, goal, cells, comfort)
+        pts = self.smooth(space, start, goal, cells, comfort, weight, fillets)
         if prior is None or len(prior) < 2 or k == 1:
             return pts
         kept = self._along_prior(space, prior, k, factor, s_cell, g_cell)
         if kept is None:
             return pts
-        kept_pts = self.smooth(space, start, goal, kept, comfort)
+        kept_pts = self.smooth(space, start, goal, kept, comfort, weight, fillets)
         return pts if _length(pts) < cfg.keep_prior * _length(kept_pts) else kept_pts
 
     def _straight_is_best(
@@ -383,15 +416,16 @@ class CostGridPlanner:
             return False
         return self.config.cost_weight == 0.0 or space.distance_flat[line].min() >= comfort - 1e-6
 
-    def _coarse_graph(self, space: FreeSpace, k: int) -> StepGraph:
+    def _coarse_graph(self, space: FreeSpace, k: int, weight: float) -> StepGraph:
         """The coarse graph of ``space``'s costmap, reused while the costmap is the same."""
-        key = (space.required, k)
-        cached = self._coarse
-        if cached is not None and cached[0]() is space.costmap and cached[1] == key:
-            return cached[2]
-        graph = coarse_graph(space, self.config.cost_weight, k)
-        self._coarse = (weakref.ref(space.costmap), key, graph)
-        return graph
+        ref, graphs = self._coarse if self._coarse is not None else (None, {})
+        if ref is None or ref() is not space.costmap:
+            ref, graphs = weakref.ref(space.costmap), {}
+            self._coarse = (ref, graphs)
+        key = (space.required, k, weight)
+        if key not in graphs:
+            graphs[key] = coarse_graph(space, weight, k)
+        return graphs[key]
 
     def _in_corridor(
         self,
@@ -427,7 +461,9 @@ class CostGridPlanner:
         factor = 1.0 + self.config.cost_weight * costmap.cost.astype(np.float64) / MAX_COST
         k = max(1, round(self.config.coarse_resolution / space.res))
         cells = self._along_prior(space, path, k, factor, s_cell, g_cell, local=True)
-        return None if cells is None else self.smooth(space, start, goal, cells, comfort)
+        if cells is None:
+            return None
+        return self.smooth(space, start, goal, cells, comfort, self.config.cost_weight)
 
     def _along_prior(
         self,
@@ -466,6 +502,8 @@ class CostGridPlanner:
         goal: tuple[float, float],
         cells: np.ndarray,
         comfort: float,
+        weight: float,
+        fillets: bool = True,
     ) -> np.ndarray:
         """Cell path -> any-angle polyline -> filleted polyline (local frame)."""
         cfg = self.config
@@ -484,9 +522,11 @@ class CostGridPlanner:
         if not space.segment_free(*pts[-2], *pts[-1]):
             pts = np.vstack([pts[:-1], centres[-1:], [goal]])
             seg_floor = np.concatenate([seg_floor, [dist[-1]]])
-        floor_cap = comfort if cfg.cost_weight > 0.0 else space.required
+        floor_cap = comfort if weight > 0.0 else space.required
         pts = any_angle(space, pts, seg_floor, floor_cap)
-        pts = fillet(space, pts, floor_cap, cfg.max_turn_radius, cfg.min_turn_radius, space.res)
+        if fillets:
+            radius = cfg.max_turn_radius
+            pts = fillet(space, pts, floor_cap, radius, cfg.min_turn_radius, space.res)
         keep = np.ones(len(pts), dtype=bool)
         keep[1:] = np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9
         return pts[keep]

@@ -1,102 +1,206 @@
-"""Global planners: planning time and path length on the real aws small house map.
+"""Global planners per map: path length against the shortest, planning time, driven vs planned.
 
-A tour of seven legs across the rooms of the ``aws_small_house`` ROS map (the
-synthetic built-in ``small_house`` world when the shared map is missing), robot radius
-0.105 m, inflation 0.3 m, default planner configs (time_limit 1 s, clearance 0.05 m).
-Each OMPL planner plans every leg with seeds 0..4.
+Maps: the built-in ``turtlebot3_world``, ``warehouse`` (30 x 50 m) and ``depot``
+(30 x 15 m), and the real ``map_saver`` maps ``shared/data/ros_maps/{turtlebot3_world,
+aws_small_house}`` (skipped when missing). Each map has a tour; every planner plans
+every leg (OMPL planners with seeds 0..2, the deterministic ones three times). Robot
+radius 0.22 m (waffle) on the large worlds, 0.105 m (burger) elsewhere; inflation 0.3 m.
 
-* ``<planner>.time_ms``: median wall time of one plan (all legs and seeds).
-* ``<planner>.length_ratio``: median over plans of length / reference length, the
-  reference being the shortest smoothed grid path (``grid_astar`` with
-  ``cost_weight: 0``); ``grid_astar.length_ratio`` is the default, cost-aware
-  grid_astar (it keeps away from walls, so it is a little longer).
-* ``<planner>.length_ratio_p90``: 90th percentile of the same ratio.
-* ``<planner>.failures``: plans that raised PlanningError (failures are left out of
-  the medians).
+Keys ``planners.<map>.<planner>.<metric>``:
+
+* ``ratio_p50`` / ``ratio_max``: global path length / the shortest path at the same
+  clearance (``grid_astar`` with ``cost_weight: 0`` over every cell, any-angle smoothed).
+* ``time_ms.p50`` / ``time_ms.p90``: wall time of one plan. cost_grid reuses its coarse
+  graph while the costmap is unchanged (as in a run); ``cold`` is a fresh planner each time.
+* ``failures``: plans that raised PlanningError.
+* ``driven_vs_planned_max``, ``driven_vs_shortest_max``, ``stops``: a patrol of the tour
+  in simulation (ground-truth localisation, MPC), worst leg.
+
+``planners.warehouse_50m.cost_grid.time_ms.p50``: the 50 m leg dock -> back of the
+warehouse (target < 50 ms).
 """
 
 from __future__ import annotations
 
+import tempfile
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from agv_mission.geometry import Pose2D
+from agv_mission.maps.builtin_worlds import depot, turtlebot3_world, warehouse
 from agv_mission.maps.costmap import Costmap, CostmapConfig
+from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.planners.base import PlanningError
+from agv_mission.planners.configs import CostGridConfig
+from agv_mission.planners.cost_grid import CostGridPlanner
 from agv_mission.planners.grid_astar import GridAstarConfig, GridAstarPlanner
 from agv_mission.planners.ompl_planner import OmplPlanner, OmplPlannerConfig
 
-ROS_MAP = Path(__file__).resolve().parents[2] / "shared/data/ros_maps/aws_small_house/map.yaml"
-PLANNERS = ("RRTConnect", "RRTstar", "PRMstar", "BITstar", "InformedRRTstar")
-SEEDS = range(5)
-# Living room (spawn) -> bedroom -> kitchen -> bedroom corner -> recreation room -> ...
-TOUR = [
-    (3.83, -1.23),
-    (-8.0, 0.0),
-    (7.0, -3.0),
-    (-6.0, -4.0),
-    (4.0, 3.0),
-    (-8.5, -4.5),
-    (0.0, -4.0),
-]
-SYNTHETIC_TOUR = [(3.83, -1.23), (-5.5, -1.5), (7.0, -2.0), (-0.5, 1.8), (-8.5, 2.0), (8.5, 2.0)]
+ROS_MAPS = Path(__file__).resolve().parents[2] / "shared/data/ros_maps"
+OMPL_PLANNERS = ("RRTConnect", "RRTstar", "BITstar")
+SEEDS = range(3)
+INFLATION = 0.3
 
 
-def _setting() -> tuple[Costmap, list[tuple[Pose2D, Pose2D]]]:
-    if ROS_MAP.is_file():
+def _ros(name: str) -> Callable[[], OccupancyGrid] | None:
+    path = ROS_MAPS / name / "map.yaml"
+    if not path.is_file():
+        return None
+
+    def load() -> OccupancyGrid:
         from agv_mission.maps.ros_map import load_ros_map
 
-        grid, tour = load_ros_map(ROS_MAP), TOUR
-    else:
-        from agv_mission.maps.builtin_worlds import small_house
+        return load_ros_map(path)
 
-        grid, tour = small_house().map, SYNTHETIC_TOUR
-    costmap = Costmap.from_grid(grid, 0.105, CostmapConfig(inflation_radius=0.3))
-    poses = [Pose2D(x, y) for x, y in tour]
-    return costmap, list(zip(poses, poses[1:] + poses[:1], strict=True))
+    return load
 
 
-def _summary(prefix: str, times: list[float], ratios: list[float], failures: int) -> dict:
-    return {
-        f"{prefix}.time_ms": float(np.median(times) * 1e3) if times else float("nan"),
-        f"{prefix}.length_ratio": float(np.median(ratios)) if ratios else float("nan"),
-        f"{prefix}.length_ratio_p90": float(np.percentile(ratios, 90)) if ratios else float("nan"),
-        f"{prefix}.failures": float(failures),
-    }
+# name -> (world spec for a mission, map loader, robot, tour)
+MAPS: dict[str, tuple[str, Callable[[], OccupancyGrid] | None, str, list[tuple[float, float]]]] = {
+    "turtlebot3_world": (
+        "turtlebot3_world",
+        lambda: turtlebot3_world().map,
+        "burger",
+        [(-2.0, -0.5), (1.13, -1.6), (0.13, 1.93), (2.0, 0.0)],
+    ),
+    "tb3_real": (
+        str(ROS_MAPS / "turtlebot3_world/map.yaml"),
+        _ros("turtlebot3_world"),
+        "burger",
+        [(-2.0, -0.5), (1.13, -1.6), (0.13, 1.93), (-0.55, -0.55)],
+    ),
+    "aws_small_house": (
+        str(ROS_MAPS / "aws_small_house/map.yaml"),
+        _ros("aws_small_house"),
+        "burger",
+        [(3.83, -1.23), (-8.0, 0.0), (7.0, -3.0), (-6.0, -4.0), (4.0, 3.0), (0.0, -4.0)],
+    ),
+    "warehouse": (
+        "warehouse",
+        lambda: warehouse().map,
+        "waffle",
+        [(0.0, -22.0), (-9.0, -10.0), (5.4, 10.0), (13.2, -20.0), (-1.8, 17.0)],
+    ),
+    "depot": (
+        "depot",
+        lambda: depot().map,
+        "waffle",
+        [(-12.0, 0.0), (12.0, -4.5), (0.0, 4.0), (-12.0, -5.0)],
+    ),
+}
+RADIUS = {"burger": 0.105, "waffle": 0.22}
 
 
-def run() -> dict[str, float]:
-    costmap, legs = _setting()
-    shortest = GridAstarPlanner(GridAstarConfig(cost_weight=0.0))
-    reference = [shortest.plan(costmap, a, b).length for a, b in legs]
+def _stats(prefix: str, times: list[float], ratios: list[float], failures: int) -> dict:
+    out = {f"{prefix}.failures": float(failures)}
+    if times:
+        out[f"{prefix}.time_ms.p50"] = float(np.percentile(times, 50) * 1e3)
+        out[f"{prefix}.time_ms.p90"] = float(np.percentile(times, 90) * 1e3)
+    if ratios:
+        out[f"{prefix}.ratio_p50"] = float(np.median(ratios))
+        out[f"{prefix}.ratio_max"] = float(np.max(ratios))
+    return out
 
+
+def _plans(costmap: Costmap, legs: list, reference: list[float]) -> dict[str, float]:
     out: dict[str, float] = {}
-    grid = GridAstarPlanner(GridAstarConfig())
-    times, ratios = [], []
-    for _ in range(3):
-        for (a, b), ref in zip(legs, reference, strict=True):
-            path = grid.plan(costmap, a, b)
-            times.append(path.planning_time)
-            ratios.append(path.length / ref)
-    out.update(_summary("grid_astar", times, ratios, 0))
-
-    for name in PLANNERS:
-        planner = OmplPlanner(OmplPlannerConfig(planner=name))
+    planners: dict[str, tuple[Callable[[], object], range]] = {
+        "cost_grid": (lambda: CostGridPlanner(CostGridConfig()), range(3)),
+        "grid_astar": (lambda: GridAstarPlanner(GridAstarConfig()), range(1)),
+    }
+    for name in OMPL_PLANNERS:
+        planners[f"ompl_{name}"] = (
+            lambda name=name: OmplPlanner(OmplPlannerConfig(planner=name)),
+            SEEDS,
+        )
+    for key, (make, seeds) in planners.items():
+        planner = make()
         times, ratios, failures = [], [], 0
-        for seed in SEEDS:
+        for seed in seeds:
             for (a, b), ref in zip(legs, reference, strict=True):
                 try:
-                    path = planner.plan(costmap, a, b, seed=seed)
+                    path = planner.plan(costmap, a, b, seed=seed)  # type: ignore[attr-defined]
                 except PlanningError:
                     failures += 1
                     continue
                 times.append(path.planning_time)
                 ratios.append(path.length / ref)
-        out.update(_summary(f"ompl.{name}", times, ratios, failures))
+        out.update(_stats(key, times, ratios, failures))
+    cold = []
+    for a, b in legs:
+        t0 = time.perf_counter()
+        CostGridPlanner(CostGridConfig()).plan(costmap, a, b)
+        cold.append(time.perf_counter() - t0)
+    out["cost_grid.cold_time_ms.p50"] = float(np.median(cold) * 1e3)
+    return out
+
+
+def _drive(world: str, robot: str, tour: list, planner: dict) -> dict[str, float]:
+    """Patrol the tour in simulation; the worst leg's ratios and the stops."""
+    from agv_mission.missions.loader import load_mission
+    from agv_mission.missions.runner import run_mission
+
+    mission = {
+        "name": "bench-drive",
+        "world": world,
+        "robot": robot,
+        "start": {"x": tour[0][0], "y": tour[0][1], "yaw": 0.0},
+        "seed": 1,
+        "stack": {"localization": {"type": "ground_truth"}, "global_planner": planner},
+        "tasks": [
+            {
+                "type": "patrol",
+                "waypoints": [{"x": x, "y": y, "yaw": 0.0} for x, y in tour[1:]],
+                "loops": 1,
+            }
+        ],
+        "limits": {"time": 1500.0},
+    }
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "mission.yaml"
+        path.write_text(yaml.safe_dump(mission))
+        record = run_mission(load_mission(path))
+    nav = record.metrics["navigation"]
+    out = {"succeeded": float(record.status == "succeeded"), "stops": float(nav["stops"])}
+    for key in ("driven_vs_planned_max", "driven_vs_shortest_max"):
+        if nav.get(key) is not None:
+            out[key] = float(nav[key])
+    return out
+
+
+def run() -> dict[str, float]:
+    out: dict[str, float] = {}
+    for name, (world, load, robot, tour) in MAPS.items():
+        if load is None:
+            continue
+        costmap = Costmap.from_grid(
+            load(), RADIUS[robot], CostmapConfig(inflation_radius=INFLATION)
+        )
+        poses = [Pose2D(x, y) for x, y in tour]
+        legs = list(zip(poses, poses[1:], strict=False))
+        shortest = GridAstarPlanner(GridAstarConfig(cost_weight=0.0))
+        reference = [shortest.plan(costmap, a, b).length for a, b in legs]
+        out.update({f"planners.{name}.{k}": v for k, v in _plans(costmap, legs, reference).items()})
+        for key, planner in (
+            ("cost_grid", {"type": "cost_grid"}),
+            ("ompl_RRTConnect", {"type": "ompl", "planner": "RRTConnect"}),
+        ):
+            for k, v in _drive(world, robot, tour, planner).items():
+                out[f"planners.{name}.{key}.{k}"] = v
+    # the 50 m leg on the 30 x 50 m warehouse
+    costmap = Costmap.from_grid(warehouse().map, 0.22, CostmapConfig(inflation_radius=INFLATION))
+    planner = CostGridPlanner(CostGridConfig())
+    a, b = Pose2D(0.0, -22.0), Pose2D(5.4, 22.0)
+    times = [planner.plan(costmap, a, b).planning_time for _ in range(15)]
+    out["planners.warehouse_50m.cost_grid.time_ms.p50"] = float(np.median(times) * 1e3)
+    out["planners.warehouse_50m.cost_grid.length_m"] = planner.plan(costmap, a, b).length
     return out
 
 
 if __name__ == "__main__":
     for key, value in run().items():
-        print(f"{key:36s} {value:10.3f}")
+        print(f"{key:60s} {value:10.4f}")

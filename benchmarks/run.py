@@ -38,6 +38,13 @@ TARGETS = {
     "amcl.update_ms.p50.1000x60": ("<=", 2.0),
     "mission.map_area_small_house.real_time_factor": (">=", 5.0),
     "regress.speedup_ratio": ("<=", 0.6),
+    "planners.warehouse_50m.cost_grid.time_ms.p50": ("<=", 50.0),
+}
+# metric name suffix -> (comparison, target), for keys of every map (issue 15)
+SUFFIX_TARGETS = {
+    ".cost_grid.ratio_max": ("<=", 1.05),
+    ".driven_vs_planned_max": ("<=", 1.08),
+    ".driven_vs_shortest_max": ("<=", 1.10),
 }
 
 
@@ -67,7 +74,9 @@ def main() -> int:
     table.add_column("value", justify="right")
     table.add_column("target")
     for key in sorted(results):
-        target = TARGETS.get(key)
+        target = TARGETS.get(key) or next(
+            (t for suffix, t in SUFFIX_TARGETS.items() if key.endswith(suffix)), None
+        )
         value = results[key]
         mark = ""
         if target is not None:

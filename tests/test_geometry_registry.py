@@ -29,9 +29,9 @@ def test_compose_and_relative_are_inverse() -> None:
 
 def test_registry_serves_every_builtin_slot() -> None:
     assert {"ground_truth", "odometry"} <= set(registry.names("localization"))
-    assert {"ompl", "grid_astar"} <= set(registry.names("global_planner"))
+    assert {"cost_grid", "ompl", "grid_astar"} <= set(registry.names("global_planner"))
     assert {"mpc", "pure_pursuit"} <= set(registry.names("local_planner"))
-    with pytest.raises(UnknownPluginError, match="known: grid_astar, ompl"):
+    with pytest.raises(UnknownPluginError, match="known: cost_grid, grid_astar, ompl"):
         registry.get("global_planner", "dijkstra")
 
 

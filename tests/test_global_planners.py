@@ -15,6 +15,8 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap, CostmapConfig
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
 from agv_mission.planners.base import PlannedPath, PlanningError
+from agv_mission.planners.configs import CostGridConfig
+from agv_mission.planners.cost_grid import CostGridPlanner
 from agv_mission.planners.grid_astar import FreeSpace, GridAstarConfig, GridAstarPlanner
 from agv_mission.planners.ompl_planner import OmplPlanner, OmplPlannerConfig
 from agv_mission.registry import registry
@@ -85,13 +87,14 @@ def room() -> Costmap:
 
 def test_ompl_config_defaults_and_registry() -> None:
     cfg = OmplPlannerConfig()
-    assert (cfg.type, cfg.planner, cfg.time_limit, cfg.simplify, cfg.clearance) == (
+    assert (cfg.type, cfg.planner, cfg.iterations, cfg.simplify, cfg.clearance) == (
         "ompl",
         "RRTConnect",
-        1.0,
+        20000,
         True,
         0.05,
     )
+    assert cfg.refine and cfg.time_limit == 5.0
     assert registry.get("global_planner", "ompl") is OmplPlanner
     assert registry.get("global_planner", "grid_astar") is GridAstarPlanner
     assert OmplPlanner.Config is OmplPlannerConfig and GridAstarPlanner.Config is GridAstarConfig
@@ -138,6 +141,7 @@ def test_grid_config() -> None:
 
 
 PLANNERS = [
+    pytest.param(lambda: CostGridPlanner(CostGridConfig()), 0.05, id="cost_grid"),
     pytest.param(lambda: OmplPlanner(OmplPlannerConfig()), 0.05, id="ompl-RRTConnect"),
     pytest.param(lambda: GridAstarPlanner(GridAstarConfig()), 0.05, id="grid_astar"),
     pytest.param(
@@ -146,7 +150,7 @@ PLANNERS = [
         id="grid_astar-8-raw",
     ),
     pytest.param(
-        lambda: OmplPlanner(OmplPlannerConfig(clearance=0.15, simplify=False)),
+        lambda: OmplPlanner(OmplPlannerConfig(clearance=0.15, simplify=False, refine=False)),
         0.15,
         id="ompl-raw-wide",
     ),
@@ -178,11 +182,13 @@ def test_straight_line_when_visible(room: Costmap, make, margin: float) -> None:
         (Pose2D(-1.0, 1.0), GOAL, "start (-1.00, 1.00) is outside the map"),
     ],
 )
-@pytest.mark.parametrize("kind", ["ompl", "grid"])
+@pytest.mark.parametrize("kind", ["ompl", "grid", "cost_grid"])
 def test_blocked_endpoints_raise(room: Costmap, start, goal, message: str, kind: str) -> None:
-    planner = (
-        OmplPlanner(OmplPlannerConfig()) if kind == "ompl" else GridAstarPlanner(GridAstarConfig())
-    )
+    planner = {
+        "ompl": lambda: OmplPlanner(OmplPlannerConfig()),
+        "grid": lambda: GridAstarPlanner(GridAstarConfig()),
+        "cost_grid": lambda: CostGridPlanner(CostGridConfig()),
+    }[kind]()
     with pytest.raises(PlanningError, match=message.replace("(", r"\(").replace(")", r"\)")):
         planner.plan(room, start, goal)
 
@@ -193,8 +199,9 @@ def test_blocked_endpoints_raise(room: Costmap, start, goal, message: str, kind:
         OmplPlanner(OmplPlannerConfig(time_limit=0.2)),
         OmplPlanner(OmplPlannerConfig(planner="BITstar", time_limit=0.2)),
         GridAstarPlanner(GridAstarConfig()),
+        CostGridPlanner(CostGridConfig()),
     ],
-    ids=["RRTConnect", "BITstar", "grid_astar"],
+    ids=["RRTConnect", "BITstar", "grid_astar", "cost_grid"],
 )
 def test_no_door_no_path(planner) -> None:
     closed = room_with_door(door=None)
@@ -229,7 +236,7 @@ def test_rrtconnect_length_close_to_grid(room: Costmap) -> None:
     "config",
     [
         OmplPlannerConfig(),
-        OmplPlannerConfig(simplify=False),
+        OmplPlannerConfig(simplify=False, refine=False),
         OmplPlannerConfig(planner="BITstar"),
         OmplPlannerConfig(planner="RRTstar", time_limit=2.0),
     ],
@@ -244,7 +251,7 @@ def test_same_seed_same_path(room: Costmap, config: OmplPlannerConfig) -> None:
 
 
 def test_seed_changes_the_samples(room: Costmap) -> None:
-    planner = OmplPlanner(OmplPlannerConfig(simplify=False))
+    planner = OmplPlanner(OmplPlannerConfig(simplify=False, refine=False))
     paths = {planner.plan(room, START, GOAL, seed=s).points.tobytes() for s in range(4)}
     assert len(paths) > 1
 
@@ -284,7 +291,11 @@ def test_rotated_map_origin() -> None:
     """A map whose origin is rotated: planning happens in the grid frame."""
     costmap = room_with_door(yaw=0.6)
     start, goal = to_world(costmap, 1.0, 1.0), to_world(costmap, 5.0, 1.0)
-    for planner in (OmplPlanner(OmplPlannerConfig()), GridAstarPlanner(GridAstarConfig())):
+    for planner in (
+        OmplPlanner(OmplPlannerConfig()),
+        GridAstarPlanner(GridAstarConfig()),
+        CostGridPlanner(CostGridConfig()),
+    ):
         path = planner.plan(costmap, start, goal)
         assert_joins(path, start, goal)
         assert_path_free(costmap, path, 0.05)
@@ -365,6 +376,7 @@ HOUSE_TOUR = [Pose2D(3.83, -1.23), Pose2D(-8.0, 0.0), Pose2D(7.0, -3.0), Pose2D(
               Pose2D(4.0, 3.0), Pose2D(-8.5, -4.5), Pose2D(0.0, -4.0)]  # fmt: skip
 
 MAP_PLANNERS = [
+    pytest.param(lambda: CostGridPlanner(CostGridConfig()), id="cost_grid"),
     pytest.param(lambda: OmplPlanner(OmplPlannerConfig()), id="RRTConnect"),
     pytest.param(lambda: OmplPlanner(OmplPlannerConfig(planner="BITstar")), id="BITstar"),
     pytest.param(lambda: GridAstarPlanner(GridAstarConfig()), id="grid_astar"),

@@ -37,6 +37,7 @@ def test_the_builtins_are_entry_points() -> None:
         "slam.grid",
         "global_planner.ompl",
         "global_planner.grid_astar",
+        "global_planner.cost_grid",
         "local_planner.mpc",
         "local_planner.pure_pursuit",
     }

@@ -183,7 +183,8 @@ def test_scenario_suite_is_valid_and_covers_the_stack() -> None:
     assert sum("ros_maps" in m.world for m in missions) >= 2
     assert {m.stack.localization.type for m in missions} >= {"ground_truth", "odometry", "amcl"}
     assert {m.stack.local_planner.type for m in missions} == {"mpc", "pure_pursuit"}
-    assert {m.stack.global_planner.type for m in missions} == {"ompl", "grid_astar"}
+    assert {m.stack.global_planner.type for m in missions} == {"cost_grid", "ompl", "grid_astar"}
+    assert {"warehouse", "depot"} <= worlds
     planners = {
         m.stack.global_planner.planner for m in missions if m.stack.global_planner.type == "ompl"
     }

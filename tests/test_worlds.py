@@ -12,7 +12,9 @@ from scipy import ndimage
 from agv_mission.geometry import Pose2D, yaw_from_quaternion
 from agv_mission.maps.builtin_worlds import (
     BUILTIN_WORLDS,
+    DEPOT_COLUMNS,
     HOUSE_DOORS,
+    RACK_XS,
     TB3_INNER_APOTHEM,
     small_house,
     turtlebot3_world,
@@ -89,7 +91,7 @@ def test_rasterize_rejects_a_bad_spawn() -> None:
 
 
 def test_builtin_world_names_and_maps(worlds) -> None:
-    assert set(worlds) == {"turtlebot3_world", "small_house"}
+    assert set(worlds) == {"turtlebot3_world", "small_house", "warehouse", "depot"}
     for name, world in worlds.items():
         assert world.name == name
         assert world.map.resolution == 0.05
@@ -123,6 +125,31 @@ def test_spawn_and_anchors_are_free_and_inside_their_rooms(worlds, name: str) ->
     for room in world.rooms.values():
         cell = tuple(np.array(world.map.world_to_cell(np.array(room.anchor.xy))))
         assert labels[cell] == spawn_label, room.label
+
+
+def test_warehouse_aisles_are_long_and_wide_enough(worlds) -> None:
+    """Every aisle between two racks is free for a waffle (with inflation to spare) over
+    the whole 16 m of its block, and the cross aisle joins them all."""
+    world = worlds["warehouse"]
+    assert world.map.width * world.map.resolution >= 30.0
+    assert world.map.height * world.map.resolution >= 50.0
+    costmap = Costmap.from_grid(world.map, 0.22)
+    for left, right in zip(RACK_XS, RACK_XS[1:], strict=False):
+        x = (left + right) / 2.0
+        ys = np.arange(-17.5, -2.5, 0.1)
+        line = np.stack([np.full_like(ys, x), ys], axis=1)
+        assert costmap.is_free(line, margin=0.2).all(), x
+        rack = np.array([[left, -10.0], [right, 10.0]])
+        assert not costmap.is_free(rack).any()
+
+
+def test_depot_is_open_with_columns(worlds) -> None:
+    world = worlds["depot"]
+    costmap = Costmap.from_grid(world.map, 0.22)
+    free = costmap.distance > 0.22 + 0.3
+    assert free.mean() > 0.6  # mostly open floor
+    for x, y in DEPOT_COLUMNS:
+        assert not costmap.is_free(np.array([x, y]))
 
 
 def test_turtlebot3_world_geometry() -> None:

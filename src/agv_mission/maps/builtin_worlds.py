@@ -21,6 +21,20 @@ world agree exactly. Walls are thin boxes (0.1 m).
     east. Four 1.2 m doorways: bedroom-livingroom, livingroom-recreationroom,
     livingroom-kitchen, recreationroom-kitchen. Spawn (3.83, -1.23, 0) in the living
     room, as in the AWS launch files.
+
+``warehouse``
+    A 30 x 50 m warehouse hall (x in [-15, 15], y in [-25, 25]): a dock zone in the
+    south with pallets and building columns, two blocks of seven pallet racks (1.2 m
+    deep, 16 m long) with 2.4 m aisles between them, a 4 m cross aisle in the middle,
+    3.6 m side aisles along the walls and a back aisle in the north. Each rack is a
+    solid pallet row with uprights standing 0.1 m proud of both faces every 2.7 m
+    (one bay), which is what a lidar at wheel height sees of a real rack. Spawn
+    (0, -22, pi/2) at the dock.
+
+``depot``
+    An open 30 x 15 m depot hall (x in [-15, 15], y in [-7.5, 7.5]) with eight 0.4 m
+    building columns on a 6 x 5 m grid, a parked container and pallet stacks along the
+    walls: long stretches of open floor. Spawn (-12, 0, 0) at the west gate.
 """
 
 from __future__ import annotations
@@ -233,7 +247,113 @@ def small_house() -> World:
     )
 
 
+# --------------------------------------------------------------------------- warehouse
+
+WAREHOUSE_SPAWN = Pose2D(0.0, -22.0, math.pi / 2.0)
+WAREHOUSE_BOUNDS = (-15.5, 15.5, -25.5, 25.5)
+_WH_X, _WH_Y = 15.0, 25.0  # inner faces of the outer walls
+RACK_DEPTH = 1.2
+RACK_PITCH = 3.6  # rack + aisle
+RACK_XS = tuple(RACK_PITCH * k for k in range(-3, 4))  # seven rack rows
+RACK_BLOCKS = ((-18.0, -2.0), (2.0, 18.0))  # y extents of the south and north blocks
+BAY = 2.7  # metres between rack uprights
+UPRIGHT = 0.1  # upright section, and how far it stands proud of the pallet face
+WAREHOUSE_COLUMNS = tuple((x, y) for x in (-7.5, 7.5) for y in (-21.0,))
+WAREHOUSE_PALLETS = {  # dock zone: staged pallets (xmin, xmax, ymin, ymax)
+    "staging_west": (-12.5, -10.1, -24.9, -23.7),
+    "staging_east": (10.1, 12.5, -24.9, -23.7),
+    "pallet_1": (-5.0, -3.8, -24.9, -23.9),
+    "pallet_2": (3.8, 5.0, -24.9, -23.9),
+    "wrapper": (13.6, 14.9, -20.0, -18.8),
+    "charger": (-14.9, -14.4, -21.0, -20.0),
+}
+WAREHOUSE_ROOMS = {
+    "dock": (((-14.9, -24.9), (14.9, -24.9), (14.9, -18.1), (-14.9, -18.1)), Pose2D(0, -22, 0)),
+    "cross_aisle": (((-14.9, -1.9), (14.9, -1.9), (14.9, 1.9), (-14.9, 1.9)), Pose2D(0, 0, 0)),
+    "back_aisle": (((-14.9, 18.1), (14.9, 18.1), (14.9, 24.9), (-14.9, 24.9)), Pose2D(0, 22, 0)),
+    "west_aisle": (
+        ((-14.9, -18.0), (-11.5, -18.0), (-11.5, 18.0), (-14.9, 18.0)),
+        Pose2D(-13.2, 10.0, math.pi / 2),
+    ),
+    "east_aisle": (
+        ((11.5, -18.0), (14.9, -18.0), (14.9, 18.0), (11.5, 18.0)),
+        Pose2D(13.2, -10.0, math.pi / 2),
+    ),
+}
+
+
+def _outer_walls(half_x: float, half_y: float) -> list[Box]:
+    """Four walls whose inner faces are at |x| = half_x and |y| = half_y."""
+    t = WALL_THICKNESS
+    return [
+        Box(0.0, half_y + t / 2, half_x + t, t / 2),
+        Box(0.0, -half_y - t / 2, half_x + t, t / 2),
+        Box(half_x + t / 2, 0.0, t / 2, half_y + t),
+        Box(-half_x - t / 2, 0.0, t / 2, half_y + t),
+    ]
+
+
+def rack_boxes(x: float, y0: float, y1: float) -> list[Box]:
+    """One pallet rack along y: the pallet row plus uprights proud of both faces."""
+    core = RACK_DEPTH / 2.0 - UPRIGHT
+    boxes = [Box(x, (y0 + y1) / 2.0, core, (y1 - y0) / 2.0)]
+    bays = max(1, round((y1 - y0) / BAY))
+    for k in range(bays + 1):
+        y = y0 + UPRIGHT / 2 + k * (y1 - y0 - UPRIGHT) / bays
+        for side in (-1.0, 1.0):
+            boxes.append(Box(x + side * (core + UPRIGHT / 2), y, UPRIGHT / 2, UPRIGHT / 2))
+    return boxes
+
+
+def warehouse() -> World:
+    """A 30 x 50 m warehouse: dock, two rack blocks with long aisles, cross aisle."""
+    boxes = _outer_walls(_WH_X, _WH_Y)
+    for y0, y1 in RACK_BLOCKS:
+        for x in RACK_XS:
+            boxes.extend(rack_boxes(x, y0, y1))
+    boxes.extend(_rect(*extent) for extent in WAREHOUSE_PALLETS.values())
+    boxes.extend(Box(x, y, 0.2, 0.2) for x, y in WAREHOUSE_COLUMNS)
+    grid = rasterize(boxes, [], WAREHOUSE_BOUNDS, RESOLUTION, WAREHOUSE_SPAWN)
+    rooms = {
+        label: Room(label, polygon, anchor) for label, (polygon, anchor) in WAREHOUSE_ROOMS.items()
+    }
+    return World("warehouse", boxes, [], grid, WAREHOUSE_SPAWN, rooms)
+
+
+# --------------------------------------------------------------------------- depot
+
+DEPOT_SPAWN = Pose2D(-12.0, 0.0, 0.0)
+DEPOT_BOUNDS = (-15.5, 15.5, -8.0, 8.0)
+_DEPOT_X, _DEPOT_Y = 15.0, 7.5
+DEPOT_COLUMNS = tuple((x, y) for x in (-9.0, -3.0, 3.0, 9.0) for y in (-2.5, 2.5))
+DEPOT_OBJECTS = {  # (xmin, xmax, ymin, ymax)
+    "container": (4.0, 10.0, 5.0, 7.5),
+    "pallets_sw": (-11.0, -8.6, -7.5, -6.3),
+    "pallets_se": (7.0, 9.4, -7.5, -6.3),
+    "shelf_east": (14.4, 15.0, -4.0, 0.5),
+    "bin": (-1.0, -0.2, 6.7, 7.5),
+}
+DEPOT_ROOMS = {
+    "west": (((-14.9, -7.4), (0.0, -7.4), (0.0, 7.4), (-14.9, 7.4)), Pose2D(-6.0, 0.0, 0.0)),
+    "east": (((0.0, -7.4), (14.9, -7.4), (14.9, 4.9), (0.0, 4.9)), Pose2D(12.0, -4.5, 0.0)),
+}
+
+
+def depot() -> World:
+    """An open 30 x 15 m depot with eight columns, a container and pallet stacks."""
+    boxes = _outer_walls(_DEPOT_X, _DEPOT_Y)
+    boxes.extend(Box(x, y, 0.2, 0.2) for x, y in DEPOT_COLUMNS)
+    boxes.extend(_rect(*extent) for extent in DEPOT_OBJECTS.values())
+    grid = rasterize(boxes, [], DEPOT_BOUNDS, RESOLUTION, DEPOT_SPAWN)
+    rooms = {
+        label: Room(label, polygon, anchor) for label, (polygon, anchor) in DEPOT_ROOMS.items()
+    }
+    return World("depot", boxes, [], grid, DEPOT_SPAWN, rooms)
+
+
 BUILTIN_WORLDS: dict[str, Callable[[], World]] = {
     "turtlebot3_world": turtlebot3_world,
     "small_house": small_house,
+    "warehouse": warehouse,
+    "depot": depot,
 }

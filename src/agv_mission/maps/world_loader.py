@@ -2,7 +2,8 @@
 
 ``load_world(spec, base_dir)`` accepts, in this order:
 
-1. the name of a built-in world (``turtlebot3_world``, ``small_house``);
+1. the name of a built-in world (``turtlebot3_world``, ``small_house``, ``warehouse``,
+   ``depot``);
 2. a path (relative paths against ``base_dir``, the mission file's folder) to a ROS
    ``map_server`` YAML (``image`` + ``resolution`` + ``origin``; a folder holding a
    ``map.yaml`` works too). The loaded grid is the robot's map; every occupied cell

@@ -38,6 +38,23 @@ class Expectations(BaseModel):
         None, description="metres between the robot's footprint and obstacles, at least"
     )
     distance_driven_max: float | None = Field(None, ge=0.0, description="metres, at most")
+    driven_vs_shortest_max: float | None = Field(
+        None,
+        ge=1.0,
+        description="on every leg that succeeded, distance driven / the shortest path between "
+        "its start and goal at the planner's clearance (metrics.navigation.legs), at most",
+    )
+    driven_vs_planned_max: float | None = Field(
+        None, ge=0.0, description="on every leg that succeeded, driven / first plan's length"
+    )
+    planned_vs_shortest_max: float | None = Field(
+        None, ge=1.0, description="on every leg that succeeded, first plan's length / shortest"
+    )
+    stops_max: int | None = Field(
+        None,
+        ge=0,
+        description="stop-and-go events (moving, standing, moving again) within legs, at most",
+    )
     localization_rmse_max: float | None = Field(
         None, ge=0.0, description="position RMSE of the estimate against ground truth, metres"
     )
@@ -126,6 +143,14 @@ def check(expect: Expectations | None, result: dict[str, Any]) -> list[Failure]:
     at_most("collisions_max", e.collisions_max, metrics.get("collisions"))
     at_least("min_clearance_min", e.min_clearance_min, metrics.get("min_clearance"))
     at_most("distance_driven_max", e.distance_driven_max, metrics.get("distance_driven"))
+    navigation = metrics.get("navigation") or {}
+    for key, bound in (
+        ("driven_vs_shortest_max", e.driven_vs_shortest_max),
+        ("driven_vs_planned_max", e.driven_vs_planned_max),
+        ("planned_vs_shortest_max", e.planned_vs_shortest_max),
+    ):
+        at_most(key, bound, navigation.get(key))
+    at_most("stops_max", e.stops_max, navigation.get("stops"))
     at_most(
         "localization_rmse_max",
         e.localization_rmse_max,

@@ -10,7 +10,7 @@ import numpy as np
 from agv_mission.behaviors.outcome import failure_reason
 from agv_mission.geometry import wrap_angle
 from agv_mission.missions.tree import MissionTree
-from agv_mission.navigation.navigator import Navigator
+from agv_mission.navigation.navigator import Navigator, leg_report
 
 _OUTCOMES = {"goal_reached": "reached", "goal_failed": "failed", "goal_skipped": "skipped"}
 
@@ -121,6 +121,7 @@ def run_metrics(
             if solve_ms.size
             else None,
             "controller_failures": stats.solver_failures if stats else 0,
+            **(leg_report(stats.legs, traj[:, 0], xy, traj[:, 7], sim_time) if stats else {}),
         },
         "real_time_factor": round(sim_time / wall_time, 2) if wall_time > 0 else None,
     }

@@ -150,7 +150,7 @@ SlamConfig = _plugin_union("slam")
 # The plugin a stack block without ``type`` (or no block at all) selects.
 DEFAULT_PLUGINS = {
     "localization": "amcl",
-    "global_planner": "ompl",
+    "global_planner": "cost_grid",
     "local_planner": "mpc",
     "slam": "grid",
 }

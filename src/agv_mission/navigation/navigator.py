@@ -7,6 +7,7 @@ from its path or stops making progress. Time is the simulation clock in ``RobotS
 
 from __future__ import annotations
 
+import inspect
 import math
 from dataclasses import dataclass, field
 from enum import Enum
@@ -29,6 +30,8 @@ from agv_mission.planners.base import (
     VelocityCommand,
     VelocityLimits,
 )
+from agv_mission.planners.configs import CostGridConfig
+from agv_mission.planners.cost_grid import CostGridPlanner
 
 
 class NavStatus(Enum):
@@ -44,6 +47,25 @@ class _Phase(Enum):
 
 
 @dataclass
+class Leg:
+    """One goal pursued: what was planned, what was shortest, when it began and ended.
+
+    ``planned`` is the length of the leg's first plan; ``shortest`` the length of the
+    shortest path at the planner's clearance between the same points, on the same costmap
+    (no inflation cost, no fillets). The driven distance comes from the trajectory.
+    """
+
+    goal: Pose2D
+    t_start: float
+    start: Pose2D
+    planned: float | None = None
+    shortest: float | None = None
+    t_end: float | None = None
+    status: str = "running"
+    replans: int = 0
+
+
+@dataclass
 class NavigationStats:
     """Counters and timings a run reports."""
 
@@ -53,6 +75,7 @@ class NavigationStats:
     solve_times: list[float] = field(default_factory=list)
     solver_failures: int = 0
     path_lengths: list[float] = field(default_factory=list)
+    legs: list[Leg] = field(default_factory=list)
 
 
 def goal_margin(planner_config: Any) -> float:
@@ -95,6 +118,12 @@ class Navigator:
         self._replans_for_goal = 0
         self._best_distance = math.inf
         self._last_progress_time = 0.0
+        self._now = 0.0
+        self._takes_prior = "prior" in inspect.signature(global_planner.plan).parameters
+        margin = float(global_planner.clearance)
+        self._shortest = CostGridPlanner(
+            CostGridConfig(clearance=margin, cost_weight=0.0, max_turn_radius=0.0)
+        )
 
     @property
     def costmap(self) -> Costmap:
@@ -129,15 +158,35 @@ class Navigator:
         self._best_distance = state.estimate.distance_to(goal)
         self._last_progress_time = state.time
         self.local_planner.reset()
-        self._plan(state)
+        self._now = state.time
+        self._end_leg("cancelled")
+        self.stats.legs.append(Leg(goal, state.time, state.estimate))
+        self.path = None
+        if self._plan(state):
+            leg = self.stats.legs[-1]
+            leg.planned = self.path.length if self.path is not None else None
+            leg.shortest = self._shortest_length(state.estimate, goal)
+
+    def _shortest_length(self, start: Pose2D, goal: Pose2D) -> float | None:
+        """The shortest path's length at the planner's clearance (None if there is none)."""
+        try:
+            return self._shortest.plan(self.costmap, start, goal).length
+        except PlanningError:
+            return None
+
+    def _end_leg(self, status: str) -> None:
+        if self.stats.legs and self.stats.legs[-1].t_end is None:
+            self.stats.legs[-1].status, self.stats.legs[-1].t_end = status, self._now
 
     def cancel(self) -> None:
+        self._end_leg("cancelled")
         self.status = NavStatus.IDLE
         self.goal = None
         self.path = None
 
     def update(self, state: RobotState) -> VelocityCommand:
         """One control step towards the goal; read ``status`` afterwards."""
+        self._now = state.time
         self.horizon = None
         if self.status is not NavStatus.RUNNING or self.goal is None:
             return VelocityCommand(0.0, 0.0)
@@ -192,6 +241,7 @@ class Navigator:
         )
         if abs(error) <= self._yaw_tol and abs(v) < 1e-3:
             self.status = NavStatus.SUCCEEDED
+            self._end_leg("succeeded")
             return VelocityCommand(0.0, 0.0)
         # P control, capped so the robot can still stop within the remaining angle.
         speed = min(
@@ -247,11 +297,15 @@ class Navigator:
             return False
         self._replans_for_goal += 1
         self.stats.replans += 1
+        if self.stats.legs:
+            self.stats.legs[-1].replans += 1
         self._best_distance = state.estimate.distance_to(self.goal)
         self._last_progress_time = state.time
         return self._plan(state)
 
     def _plan(self, state: RobotState) -> bool:
+        """Plan from the current estimate; a replan hands the planner the old path, so
+        planners that can (``cost_grid``) keep its way round obstacles unless blocked."""
         assert self.goal is not None
         seed = self.seed + self.stats.plans
         self.stats.plans += 1
@@ -263,8 +317,13 @@ class Navigator:
                 f"leads there from ({start.x:.2f}, {start.y:.2f}) on the map and the obstacles seen"
             )
             return False
+        extra: dict[str, Any] = {}
+        if self._takes_prior and self.path is not None:
+            extra["prior"] = self.path.points
         try:
-            path = self.global_planner.plan(self.costmap, escape or start, self.goal, seed=seed)
+            path = self.global_planner.plan(
+                self.costmap, escape or start, self.goal, seed=seed, **extra
+            )
         except PlanningError as exc:
             self._fail(f"no path to ({self.goal.x:.2f}, {self.goal.y:.2f}): {exc}")
             return False
@@ -315,3 +374,65 @@ class Navigator:
         self.status = NavStatus.FAILED
         self.reason = reason
         self.path = None
+        self._end_leg("failed")
+
+
+MOVING, STOPPED = 0.05, 0.01  # m/s: a stop is moving -> stopped -> moving within one leg
+
+
+def leg_report(
+    legs: list[Leg], t: np.ndarray, xy: np.ndarray, v: np.ndarray, end_time: float
+) -> dict[str, Any]:
+    """Per-leg path quality from the true trajectory (times ``t``, positions ``xy``,
+    commanded speeds ``v``): planned and shortest length, distance driven, their ratios
+    and the stops on the way; plus the worst ratio over the legs that succeeded."""
+    rows: list[dict[str, Any]] = []
+    for leg in legs:
+        t1 = leg.t_end if leg.t_end is not None else end_time
+        # [t_start, t_end): the row at t_end is the next leg's first
+        inside = (t >= leg.t_start - 1e-9) & ((t < t1 - 1e-9) | (t1 >= end_time))
+        path = xy[inside]
+        driven = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1))) if len(path) else 0.0
+        row: dict[str, Any] = {
+            "goal": [round(leg.goal.x, 3), round(leg.goal.y, 3)],
+            "status": leg.status if leg.t_end is not None else "running",
+            "t_start": round(leg.t_start, 3),
+            "t_end": round(t1, 3),
+            "planned": _r(leg.planned),
+            "shortest": _r(leg.shortest),
+            "driven": round(driven, 4),
+            "replans": leg.replans,
+            "stops": _stops(v[inside]),
+        }
+        for key, num, den in (
+            ("driven_vs_planned", driven, leg.planned),
+            ("driven_vs_shortest", driven, leg.shortest),
+            ("planned_vs_shortest", leg.planned, leg.shortest),
+        ):
+            row[key] = round(num / den, 4) if num is not None and den and den > 0.2 else None
+        rows.append(row)
+    done = [r for r in rows if r["status"] == "succeeded"]
+    report: dict[str, Any] = {"legs": rows}
+    for key in ("driven_vs_planned", "driven_vs_shortest", "planned_vs_shortest"):
+        values = [r[key] for r in done if r[key] is not None]
+        report[f"{key}_max"] = max(values) if values else None
+    report["stops"] = sum(r["stops"] for r in done)
+    return report
+
+
+def _stops(v: np.ndarray) -> int:
+    """Times the speed fell from moving to standing and rose again (stop-and-go)."""
+    stops, moving, pending = 0, False, False
+    for speed in np.abs(v):
+        if speed >= MOVING:
+            if pending:
+                stops += 1
+                pending = False
+            moving = True
+        elif speed < STOPPED and moving:
+            moving, pending = False, True
+    return stops
+
+
+def _r(value: float | None) -> float | None:
+    return None if value is None else round(value, 4)

@@ -40,13 +40,39 @@ class OmplPlannerConfig(PluginConfig):
     planner: str = Field(
         "RRTConnect", description="OMPL geometric planner class, e.g. RRTConnect, BITstar"
     )
-    time_limit: float = Field(1.0, gt=0, description="wall-clock budget of one plan, seconds")
+    iterations: int = Field(
+        20000,
+        ge=1,
+        le=10_000_000,
+        description="the budget of one plan: planner iterations (termination checks), "
+        "counted, never timed, so a plan is the same under any CPU load",
+    )
+    time_limit: float = Field(
+        5.0,
+        gt=0,
+        le=600.0,
+        description="wall-clock watchdog of one plan, seconds: a plan still running then "
+        "fails (and that run is not reproducible); PRM-family planners (which grow their "
+        "roadmap in a second thread) run on this clock",
+    )
     simplify: bool = Field(True, description="shortcut + smooth the solution (deterministic)")
+    refine: bool = Field(
+        True,
+        description="make the solution cost-aware: the cheapest path over the costmap's "
+        "inflation cost within a band around it, shortcut and filleted (as cost_grid does); "
+        "without it the inflation cost plays no part in OMPL's plans",
+    )
+    cost_weight: float = Field(
+        1.0, ge=0, le=100.0, description="refinement: weight of the inflation cost (see cost_grid)"
+    )
     clearance: float = Field(
-        0.05, ge=0, description="metres of margin beyond the robot radius a path must keep"
+        0.05, ge=0, le=5.0, description="metres of margin beyond the robot radius a path must keep"
     )
     range: float | None = Field(
-        None, gt=0, description="longest edge (metres) for planners that have one; None: OMPL's"
+        None,
+        gt=0,
+        le=1000.0,
+        description="longest edge (metres) for planners that have one; None: OMPL's",
     )
     goal_bias: float | None = Field(
         None, ge=0, le=1, description="goal sampling probability where supported; None: OMPL's"
@@ -54,11 +80,15 @@ class OmplPlannerConfig(PluginConfig):
     cost_threshold: float | None = Field(
         1.05,
         ge=1.0,
+        le=100.0,
         description="optimising planners stop once the path is no longer than this multiple "
-        "of the smoothed shortest grid path; None: always use the whole time_limit",
+        "of the smoothed shortest grid path; None: always use the whole iteration budget",
     )
     round_iterations: int = Field(
-        200, ge=1, description="optimising planners: iterations of the first round (doubling)"
+        200,
+        ge=1,
+        le=1_000_000,
+        description="optimising planners: iterations of the first round (doubling)",
     )
 
     @field_validator("planner")
@@ -70,6 +100,51 @@ class OmplPlannerConfig(PluginConfig):
                 f"unknown planner {name!r}; OMPL geometric planners are: {', '.join(known)}"
             )
         return name
+
+
+class CostGridConfig(PluginConfig):
+    """``global_planner`` block of the default planner (``type: cost_grid``)."""
+
+    plugin: ClassVar[str] = "agv_mission.planners.cost_grid:CostGridPlanner"
+
+    type: Literal["cost_grid"] = "cost_grid"
+    clearance: float = Field(
+        0.05, ge=0, le=5.0, description="metres of margin beyond the robot radius a path must keep"
+    )
+    cost_weight: float = Field(
+        1.0,
+        ge=0,
+        le=100.0,
+        description="how much the inflation cost adds to a step (0: shortest path; 1: a "
+        "step at the inscribed radius costs 2x, one outside the inflation zone 1x)",
+    )
+    coarse_resolution: float = Field(
+        0.2, gt=0, le=2.0, description="block size of the coarse search, metres"
+    )
+    band: int = Field(
+        2, ge=1, le=20, description="blocks either side of the coarse path the fine search may use"
+    )
+    max_turn_radius: float = Field(
+        0.8, ge=0, le=10.0, description="largest fillet radius at a corner, metres (0: no fillets)"
+    )
+    min_turn_radius: float = Field(
+        0.1, gt=0, le=10.0, description="corners that cannot take a fillet this large stay sharp"
+    )
+    max_detour: float | None = Field(
+        1.05,
+        ge=1.0,
+        le=10.0,
+        description="a plan longer than this multiple of the shortest path at the same "
+        "clearance is searched again with less inflation cost; None: never",
+    )
+    keep_prior: float = Field(
+        0.85,
+        gt=0,
+        le=1.0,
+        description="replanning: the way of the previous path is kept (searched within "
+        "``band`` blocks of it) unless it is blocked or another way is shorter than this "
+        "share of it",
+    )
 
 
 class GridAstarConfig(PluginConfig):

@@ -22,14 +22,24 @@ What OMPL 2.0.1 (PyPI wheel, nanobind) does, as probed for this module:
 * ``SimpleSetup.solve`` keeps the GIL: a Python callback called from a planner's
   second thread (PRM's solution checker calls the termination condition) deadlocks.
   PRM-like planners therefore only ever get C++ termination conditions here.
-* Optimising planners use the whole time budget unless something stops them. Here
-  they run in rounds (round k: ``round_iterations * 2**k`` iterations, counted in
-  Python so where a plan stops does not depend on the clock; PRM-like planners: rounds
-  of wall time) and stop once the simplified path is no longer than ``cost_threshold``
-  times a reference length: the any-angle-smoothed shortest grid path over the same
-  free cells (:func:`grid_astar.grid_path`, ~40 ms on a 500x500 map), which is within
-  a few percent of the optimum. The objective carries the same threshold so a planner
-  whose raw cost gets there stops inside a round.
+* Budgets. A plan stops on a count, never on the clock: the termination condition
+  counts its own evaluations (one per planner iteration) up to ``iterations``, so a
+  run is byte-identical with or without other processes loading the CPU. Optimising
+  planners run in doubling rounds (round k: ``round_iterations * 2**k`` iterations,
+  within the same total) and stop once the simplified path is no longer than
+  ``cost_threshold`` times a reference length: the any-angle shortest path at the
+  same clearance (:class:`cost_grid.CostGridPlanner` with ``cost_weight: 0``). The
+  objective carries the same threshold so a planner whose raw cost gets there stops
+  inside a round. ``time_limit`` is only a watchdog. The exception is the PRM family
+  (PRM, PRMstar, LazyPRM, LazyPRMstar, SPARS, SPARStwo): it grows its roadmap in a
+  second thread whatever the termination condition, so it runs on wall-time slices
+  and is not reproducible.
+* Inflation cost. OMPL samples the free space only; with ``refine`` (the default) its
+  solution is then made cost-aware by :meth:`cost_grid.CostGridPlanner.refine`: the
+  cheapest path over the inflation cost within a band around OMPL's path (OMPL
+  chooses the way round obstacles, the costmap where in the corridor), shortcut and
+  filleted. So ``stack.costmap.inflation_radius`` shapes OMPL plans as it does
+  cost_grid's.
 """
 
 from __future__ import annotations
@@ -42,8 +52,9 @@ import numpy as np
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
 from agv_mission.planners.base import PlannedPath, PlanningError
-from agv_mission.planners.configs import OmplPlannerConfig
-from agv_mission.planners.grid_astar import FreeSpace, grid_path
+from agv_mission.planners.configs import CostGridConfig, OmplPlannerConfig
+from agv_mission.planners.cost_grid import CostGridPlanner
+from agv_mission.planners.grid_astar import FreeSpace
 
 # Anytime, asymptotically optimal planners: worth running past their first solution.
 OPTIMIZING_PLANNERS = frozenset(
@@ -71,18 +82,31 @@ class OmplPlanner:
 
     def plan(self, costmap: Costmap, start: Pose2D, goal: Pose2D, seed: int = 0) -> PlannedPath:
         t0 = time.perf_counter()
-        space = FreeSpace(costmap, self.config.clearance)
+        cfg = self.config
+        space = FreeSpace(costmap, cfg.clearance)
         s = space.check_endpoint(start, "start")
         g = space.check_endpoint(goal, "goal")
-        if space.segment_free(*s, *g):  # the straight line is free: nothing to plan
+        if space.segment_free(*s, *g):  # the straight line is free: nothing to sample
             pts = np.array([s, g], dtype=float)
         else:
-            pts = _solve(space, s, g, self.config, seed, t0)
+            pts = _solve(space, s, g, cfg, seed, t0)
             if pts is None:
                 raise PlanningError(
-                    f"{self.config.planner} found no path from ({start.x:.2f}, {start.y:.2f}) "
-                    f"to ({goal.x:.2f}, {goal.y:.2f}) within {self.config.time_limit:.2f} s"
+                    f"{cfg.planner} found no path from ({start.x:.2f}, {start.y:.2f}) "
+                    f"to ({goal.x:.2f}, {goal.y:.2f}) within {cfg.iterations} iterations"
+                    + (
+                        ""
+                        if time.perf_counter() - t0 < cfg.time_limit
+                        else f" (stopped by the {cfg.time_limit:g} s watchdog)"
+                    )
                 )
+        if cfg.refine:
+            refiner = CostGridPlanner(
+                CostGridConfig(clearance=cfg.clearance, cost_weight=cfg.cost_weight)
+            )
+            refined = refiner.refine(space, s, g, pts)
+            if refined is not None:
+                pts = refined
         points = space.to_world(pts)
         points[0], points[-1] = start.xy, goal.xy
         return PlannedPath(points=points, planning_time=time.perf_counter() - t0)
@@ -129,7 +153,10 @@ def _solve(
     anytime = cfg.planner in OPTIMIZING_PLANNERS
     threshold = -math.inf  # no threshold: nothing is short enough
     if anytime and cfg.cost_threshold is not None:
-        ref = grid_path(space, start, goal, cost_weight=0.0, smooth=True)
+        shortest = CostGridPlanner(
+            CostGridConfig(clearance=cfg.clearance, cost_weight=0.0, max_turn_radius=0.0)
+        )
+        ref = shortest.local_path(space, start, goal)
         if ref is None:
             return None  # not connected: no sampling planner will do better
         threshold = cfg.cost_threshold * float(np.sum(np.linalg.norm(np.diff(ref, axis=0), axis=1)))
@@ -196,33 +223,46 @@ def _solve(
     try:
         if anytime:
             return _run_rounds(ob, ss, pdef, current, cfg, threshold, deadline)
-        ss.solve(max(deadline - time.perf_counter(), 1e-3))
+        if cfg.planner in THREADED_PLANNERS:  # the documented exception: the wall clock
+            ss.solve(ob.timedPlannerTerminationCondition(max(deadline - time.perf_counter(), 1e-3)))
+        else:
+            ss.solve(ob.PlannerTerminationCondition(_IterationBudget(cfg.iterations, deadline)))
         return current()[0] if pdef.hasExactSolution() else None
     finally:  # nothing of OMPL's may outlive the plan (nanobind reports leaks at exit)
         simplifier = pdef = planner = objective = validator = si = ss = None
         s_state = g_state = bounds = ompl_space = None
 
 
+class _IterationBudget:
+    """A termination condition that counts its own evaluations (one per planner
+    iteration) instead of reading the clock; the wall-clock ``deadline`` is a watchdog."""
+
+    def __init__(self, iterations: int, deadline: float) -> None:
+        self.left = iterations
+        self.deadline = deadline
+
+    def __call__(self) -> bool:
+        self.left -= 1
+        return self.left < 0 or time.perf_counter() >= self.deadline
+
+
 def _run_rounds(ob, ss, pdef, current, cfg, threshold: float, deadline: float):
-    """Run an anytime planner in doubling rounds until the path meets ``threshold``."""
-    count, limit = [0], [cfg.round_iterations]
-
-    def round_over() -> bool:
-        count[0] += 1
-        return count[0] > limit[0] or time.perf_counter() >= deadline
-
+    """Run an anytime planner in doubling rounds until the path meets ``threshold`` or
+    the iteration budget is spent (PRM-family planners: rounds of wall time)."""
     threaded = cfg.planner in THREADED_PLANNERS
     slice_s = cfg.time_limit / 32.0
+    spent, limit = 0, cfg.round_iterations
     best_pts, best_len, last_raw = None, math.inf, math.inf
-    while time.perf_counter() < deadline:
+    while time.perf_counter() < deadline and (threaded or spent < cfg.iterations):
         if threaded:
             remaining = deadline - time.perf_counter()
             ss.solve(ob.timedPlannerTerminationCondition(min(slice_s, remaining)))
             slice_s *= 2.0
         else:
-            count[0] = 0
-            ss.solve(ob.PlannerTerminationCondition(round_over))
-            limit[0] *= 2
+            budget = min(limit, cfg.iterations - spent)
+            ss.solve(ob.PlannerTerminationCondition(_IterationBudget(budget, deadline)))
+            spent += budget
+            limit *= 2
         if not pdef.hasExactSolution():
             continue
         raw = pdef.getSolutionPath().length()

@@ -69,20 +69,19 @@ class MpcConfig(PluginConfig):
     horizon: int = Field(20, ge=2, le=100, description="number of model steps N")
     dt: float = Field(0.1, gt=0, description="model step, s")
     max_obstacles: int = Field(
-        16, ge=0, description="lidar points nearest the reference kept as candidates (0: none)"
+        256,
+        ge=0,
+        description="lidar points considered (the nearest to the robot); 0: no obstacle "
+        "constraints",
     )
     obstacles_per_stage: int = Field(
         2,
         ge=1,
-        description="constraints per model step: the candidates nearest that step's predicted "
-        "position (a few per step instead of every candidate at every step keeps the solve "
-        "small)",
+        description="constraints per model step: the points nearest that step's predicted "
+        "position (a few per step instead of every point at every step keeps the solve small)",
     )
     obstacle_range: float = Field(
-        1.0, gt=0, description="lidar points farther than this from the reference are ignored, m"
-    )
-    obstacle_spacing: float = Field(
-        0.1, ge=0, description="lidar points are thinned to one per cell of this size, m"
+        1.0, gt=0, description="points farther than this from a predicted position are ignored, m"
     )
     safety_margin: float = Field(0.05, ge=0, description="clearance beyond robot_radius, m")
     solver: Literal["fatrop", "ipopt"] = "fatrop"
@@ -320,50 +319,39 @@ class MpcController:
 
     # -- helpers -----------------------------------------------------------------------
 
-    def _select_obstacles(
-        self, obstacles: np.ndarray, near_xy: np.ndarray, pose: Pose2D
+    def _stage_obstacles(
+        self, obstacles: np.ndarray, guess_xy: np.ndarray, pose: Pose2D
     ) -> np.ndarray:
-        """(K, 2) robot-frame points nearest to ``near_xy`` (robot frame: the reference and
-        the warm-start trajectory); unused slots parked far away."""
-        k = self.config.max_obstacles
-        out = np.full((k, 2), _FAR)
-        if k == 0 or obstacles is None or len(obstacles) == 0:
+        """(N-1, m, 2) robot-frame points: for each stage 1..N-1 the ``m`` lidar points
+        nearest its guessed position (the constraints that can bind there); slots with no
+        point within ``obstacle_range`` are parked far away."""
+        m, cfg = self._problem.m, self.config
+        out = np.full((len(guess_xy) - 2, m, 2), _FAR)
+        if obstacles is None or len(obstacles) == 0:
             return out
         pts = np.asarray(obstacles, dtype=float).reshape(-1, 2)
-        # Cheap prefilter around the robot, then robot frame.
-        reach = float(np.max(np.abs(near_xy))) + self.config.obstacle_range
-        rel = pts - np.array([pose.x, pose.y])
-        pts = _to_local(pts[np.einsum("ij,ij->i", rel, rel) < reach * reach], pose)
-        # Thin out: one point per grid cell (the one nearest the robot), so that K points
-        # spread over the surroundings instead of crowding on the nearest centimetres of wall.
-        cell = self.config.obstacle_spacing
-        if cell > 0 and len(pts) > k:
-            pts = pts[np.argsort(np.einsum("ij,ij->i", pts, pts))]
-            ij = np.floor(pts / cell).astype(np.int64)
-            _, first = np.unique(ij[:, 0] * 1_000_003 + ij[:, 1], return_index=True)
-            pts = pts[first]
-        # Distance of each point to the robot, the reference and the previous prediction.
-        samples = np.vstack(([0.0, 0.0], near_xy[::2], near_xy[-1:]))
-        d2 = ((pts[:, None, :] - samples[None, :, :]) ** 2).sum(axis=2).min(axis=1)
-        keep = d2 < self.config.obstacle_range**2
-        pts, d2 = pts[keep], d2[keep]
-        if len(pts) > k:
-            idx = np.argpartition(d2, k - 1)[:k]
-            pts = pts[idx]
-        out[: len(pts)] = pts
-        return out
-
-    def _stage_obstacles(self, candidates: np.ndarray, guess_xy: np.ndarray) -> np.ndarray:
-        """(N-1, m, 2): for each stage 1..N-1 the ``m`` candidates nearest its guessed
-        position (the constraints that can bind there)."""
-        m = self._problem.m
+        reach = float(np.max(np.abs(guess_xy))) + cfg.obstacle_range
+        rel = pts - (pose.x, pose.y)
+        d2_robot = np.einsum("ij,ij->i", rel, rel)
+        inside = d2_robot < reach * reach
+        pts, d2_robot = pts[inside], d2_robot[inside]
+        if len(pts) > cfg.max_obstacles:
+            nearest = np.argpartition(d2_robot, cfg.max_obstacles - 1)[: cfg.max_obstacles]
+            pts = pts[nearest]
+        if len(pts) == 0:
+            return out
+        pts = _to_local(pts, pose)
         pos = guess_xy[1:-1]
-        d2 = ((pos[:, None, :] - candidates[None, :, :]) ** 2).sum(axis=2)
-        if m < len(candidates):
-            idx = np.argpartition(d2, m - 1, axis=1)[:, :m]
-        else:
-            idx = np.broadcast_to(np.arange(len(candidates)), (len(pos), len(candidates)))
-        return candidates[idx]
+        d2 = ((pos[:, None, :] - pts[None, :, :]) ** 2).sum(axis=2)
+        k = min(m, len(pts))
+        idx = np.argpartition(d2, k - 1, axis=1)[:, :k] if k < len(pts) else None
+        if idx is None:
+            idx = np.broadcast_to(np.arange(k), (len(pos), k))
+        chosen = pts[idx]
+        far = np.take_along_axis(d2, idx, axis=1) > cfg.obstacle_range**2
+        chosen[far] = _FAR
+        out[:, :k] = chosen
+        return out
 
     @property
     def last_stats(self) -> dict:
@@ -509,7 +497,6 @@ class MpcController:
         x0 = np.array([0.0, 0.0, 0.0, v0, w0])
         guess = self._warm_start(pose, x0, ref)
         guess_states = pb.states(guess)
-        near = np.vstack((ref[0:2].T, guess_states[:, 0:2]))
         r = self.robot_radius + cfg.safety_margin
         p = self._p
         p[0:_NX] = x0
@@ -517,8 +504,7 @@ class MpcController:
         p[-4:] = (r * r, speed_weight, heading_weight, position_weight)
         slack = np.full(pb.n, 1e-4)
         if pb.m > 0:
-            obs = self._select_obstacles(obstacles, near, pose)
-            stage_obs = self._stage_obstacles(obs, guess_states[:, 0:2])
+            stage_obs = self._stage_obstacles(obstacles, guess_states[:, 0:2], pose)
             p[pb.p_obs] = stage_obs.ravel()
             # Slacks that make the guess feasible (a cold start inside the margin converges).
             d2 = ((guess_states[1:-1, None, 0:2] - stage_obs) ** 2).sum(axis=2).min(axis=1)

@@ -1,9 +1,14 @@
 """The obstacle layer: what the lidar sees that the static map does not hold.
 
-Every scan clears the cells its beams pass through and marks the cells its returns end
-in, unless a mapped obstacle is already there (within ``map_tolerance``, so localisation
-error does not paint the walls twice). The layered :class:`Costmap` the planners use is
-the static one with the marked cells added.
+Every scan clears the marked cells its beams pass through and marks the cells its returns
+end in, unless a mapped obstacle is already there (within ``map_tolerance``, so
+localisation error does not paint the walls twice). The layered :class:`Costmap` the
+planners use is the static one with the marked cells added.
+
+A scan touches only a rolling window around the robot (Nav2's local costmap idea): clearing
+looks at the marked cells within ``raytrace_range`` and projects each onto the beam at its
+bearing (cleared when that beam reaches past it), so a scan costs O(beams + marked cells
+nearby), whatever the size of the map.
 """
 
 from __future__ import annotations
@@ -41,28 +46,53 @@ class ObstacleLayer:
         """Clear along the beams and mark the returns of ``scan`` seen from ``pose``."""
         if not self.config.enabled:
             return False
-        grid = self.static.grid
-        res = grid.resolution
-        angles = scan.angles + pose.yaw
-        ranges = np.where(np.isfinite(scan.ranges), scan.ranges, np.inf)
-        reach = np.minimum(ranges - res, self.config.raytrace_range)
-        steps = np.arange(0.0, self.config.raytrace_range, res * 0.5)
-        along = steps[None, :] < reach[:, None]
-        dirs = np.stack([np.cos(angles), np.sin(angles)], axis=1)
-        pts = np.array([pose.x, pose.y]) + steps[None, :, None] * dirs[:, None, :]
-        before = self.marks.copy()
-        self._set(pts[along], False)
+        changed = self._clear(pose, scan)
+        ranges = scan.ranges
         hit = np.isfinite(ranges) & (ranges <= self.config.max_range)
-        ends = np.array([pose.x, pose.y]) + ranges[hit, None] * dirs[hit]
-        if len(ends):
+        if hit.any():
+            angles = scan.angle_min + scan.angle_increment * np.flatnonzero(hit) + pose.yaw
+            r = ranges[hit].astype(float)
+            ends = np.column_stack((pose.x + r * np.cos(angles), pose.y + r * np.sin(angles)))
             unmapped = self.static.clearance(ends) > self.config.map_tolerance
-            self._set(ends[unmapped], True)
-        changed = not np.array_equal(before, self.marks)
+            if unmapped.any():
+                rows, cols = self.static.grid.world_to_cell(ends[unmapped])
+                inside = self.static.grid.in_bounds(rows, cols)
+                rows, cols = rows[inside], cols[inside]
+                if len(rows) and not self.marks[rows, cols].all():
+                    self.marks[rows, cols] = True
+                    changed = True
         if changed:
             self._layered = None
         return changed
 
-    def _set(self, xy: np.ndarray, value: bool) -> None:
-        rows, cols = self.static.grid.world_to_cell(xy)
-        inside = self.static.grid.in_bounds(rows, cols)
-        self.marks[rows[inside], cols[inside]] = value
+    def _clear(self, pose: Pose2D, scan: LaserScan) -> bool:
+        """Unmark the marked cells within reach that a beam passes through."""
+        grid = self.static.grid
+        res = grid.resolution
+        reach_max = self.config.raytrace_range
+        row, col = grid.world_to_cell(np.array([pose.x, pose.y]))
+        k = int(np.ceil(reach_max / res)) + 1
+        r0, r1 = max(int(row) - k, 0), min(int(row) + k + 1, grid.height)
+        c0, c1 = max(int(col) - k, 0), min(int(col) + k + 1, grid.width)
+        if r0 >= r1 or c0 >= c1:
+            return False
+        rr, cc = np.nonzero(self.marks[r0:r1, c0:c1])
+        if not len(rr):
+            return False
+        rr += r0
+        cc += c0
+        d = grid.cell_to_world(rr, cc) - (pose.x, pose.y)
+        dist = np.hypot(d[:, 0], d[:, 1])
+        n = len(scan.ranges)
+        bearing = np.mod(np.arctan2(d[:, 1], d[:, 0]) - pose.yaw - scan.angle_min, 2.0 * np.pi)
+        beam = np.round(bearing / scan.angle_increment).astype(np.int64)
+        full_circle = n * scan.angle_increment >= 2.0 * np.pi - 1e-6
+        seen = np.ones(len(beam), dtype=bool) if full_circle else beam < n
+        beam = beam % n
+        ranges = scan.ranges[beam].astype(float)
+        reach = np.minimum(np.where(np.isfinite(ranges), ranges, np.inf) - res, reach_max)
+        clear = seen & (dist < reach)
+        if not clear.any():
+            return False
+        self.marks[rr[clear], cc[clear]] = False
+        return True

@@ -197,7 +197,7 @@ def test_mpc_warm_start_needs_no_more_iterations(mpc):
 
 
 def test_mpc_solver_failure_brakes_with_ok_false():
-    cfg = MpcConfig(solver_options={"max_iter": 1})
+    cfg = MpcConfig(solver="fatrop", solver_options={"max_iter": 1})
     ctrl = MpcController(cfg, LIMITS, RADIUS, PERIOD)
     cmd = ctrl.compute(Pose2D(0.0, 0.0, 0.0), (0.2, 0.5), L_PATH, Pose2D(1.5, 1.2), NO_POINTS)
     assert not cmd.ok
@@ -211,10 +211,23 @@ def test_mpc_with_ipopt_solves():
     assert cmd.ok and cmd.v > 0.0
 
 
+def test_mpc_fatrop_and_rti_agree_on_the_first_command():
+    """The real-time iteration (3 SQP steps from a cold start) lands near the NLP optimum."""
+    pose, vel, goal = Pose2D(0.3, 0.02, 0.05), (0.2, 0.0), Pose2D(1.5, 1.2)
+    points = circle_points((1.0, 0.3), 0.06)
+    cmds = []
+    for solver in ("rti", "fatrop"):
+        ctrl = MpcController(MpcConfig(solver=solver), LIMITS, RADIUS, PERIOD)
+        cmd = ctrl.compute(pose, vel, L_PATH, goal, points)
+        assert cmd.ok
+        cmds.append((cmd.v, cmd.w))
+    assert cmds[0] == pytest.approx(cmds[1], abs=0.02)
+
+
 def test_mpc_config_rejects_unknown_keys():
     with pytest.raises(ValueError):
         MpcConfig(horizon=20, horizont=10)
-    assert MpcConfig.model_validate({"type": "mpc"}).solver == "fatrop"
+    assert MpcConfig.model_validate({"type": "mpc"}).solver == "rti"
 
 
 # -- pure pursuit ---------------------------------------------------------------------------

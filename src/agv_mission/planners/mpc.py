@@ -19,6 +19,7 @@ from __future__ import annotations
 import functools
 import math
 import time
+from dataclasses import dataclass
 from typing import Literal
 
 import casadi as ca
@@ -84,7 +85,15 @@ class MpcConfig(PluginConfig):
         1.0, gt=0, description="points farther than this from a predicted position are ignored, m"
     )
     safety_margin: float = Field(0.05, ge=0, description="clearance beyond robot_radius, m")
-    solver: Literal["fatrop", "ipopt"] = "fatrop"
+    solver: Literal["rti", "fatrop", "ipopt"] = Field(
+        "rti",
+        description="rti: one Gauss-Newton SQP step per control step (real-time iteration, "
+        "a dense QP on the controls solved by DAQP); fatrop / ipopt: the NLP solved to "
+        "tolerance every step",
+    )
+    rti_cold_iterations: int = Field(
+        3, ge=1, description="rti: SQP steps when there is no previous solution to start from"
+    )
     solver_options: SolverOptions = Field(default_factory=SolverOptions)
     weights: MpcWeights = Field(default_factory=MpcWeights)
     decel_fraction: float = Field(
@@ -178,6 +187,24 @@ class _Problem:
             cost += wts.acceleration * uk[0] ** 2 + wts.angular_acceleration * uk[1] ** 2
             cost += wts.slack_linear * uk[2] + wts.slack_quadratic * uk[2] ** 2
 
+        self.n, self.m = n, m
+        self.stride = _NX + _NU
+        self.nw = n * self.stride + _NX
+        self.idx_x = np.arange(n + 1)[:, None] * self.stride + np.arange(_NX)[None, :]
+        self.idx_u = np.arange(n)[:, None] * self.stride + _NX + np.arange(_NU)[None, :]
+        self.idx_slack = np.arange(n) * self.stride + _NX + 2
+        # Parameter vector layout, filled in place every solve.
+        self.n_params = params.shape[0]
+        self.p_ref = slice(_NX, _NX + 4 * (n + 1))
+        self.p_obs = slice(self.p_ref.stop, self.p_ref.stop + 2 * m * (n - 1))
+        self.kind = cfg.solver
+        self.cold_iterations = cfg.rti_cold_iterations
+        if cfg.solver == "rti":
+            self.rti = _rti_function(
+                cfg, limits, step, params, p_x0, p_ref, p_obs, p_r2, p_wv, p_wh, p_wp
+            )
+            return
+
         nlp = {"x": ca.vertcat(*w), "f": cost, "g": ca.vertcat(*g), "p": params}
         so = cfg.solver_options
         # error_on_fail: a failed solve raises (caught by the controller), so the hot path
@@ -212,9 +239,6 @@ class _Problem:
             }
         self.solver = ca.nlpsol("mpc", cfg.solver, nlp, opts)
 
-        self.n, self.m = n, m
-        self.stride = _NX + _NU
-        self.nw = n * self.stride + _NX
         lbx = np.empty(self.nw)
         ubx = np.empty(self.nw)
         for k in range(n + 1):
@@ -228,13 +252,19 @@ class _Problem:
         eq = np.array(equality, dtype=bool)
         self.lbx, self.ubx = ca.DM(lbx), ca.DM(ubx)
         self.lbg, self.ubg = ca.DM(np.zeros(len(eq))), ca.DM(np.where(eq, 0.0, np.inf))
-        self.idx_x = np.arange(n + 1)[:, None] * self.stride + np.arange(_NX)[None, :]
-        self.idx_u = np.arange(n)[:, None] * self.stride + _NX + np.arange(_NU)[None, :]
-        self.idx_slack = np.arange(n) * self.stride + _NX + 2
-        # Parameter vector layout, filled in place every solve.
-        self.p = np.empty(params.shape[0])
-        self.p_ref = slice(_NX, _NX + 4 * (n + 1))
-        self.p_obs = slice(self.p_ref.stop, self.p_ref.stop + 2 * m * (n - 1))
+
+    def solve(self, guess: np.ndarray, p: np.ndarray, cold: bool) -> tuple[np.ndarray, dict]:
+        """The solution vector from ``guess``; raises RuntimeError when the solver fails."""
+        if self.kind == "rti":
+            u = guess[self.idx_u].ravel()
+            for _ in range(self.cold_iterations if cold else 1):
+                u = self.rti.step(u, p)
+            wopt = np.empty(self.nw)
+            wopt[self.idx_u] = u.reshape(self.n, _NU)
+            wopt[self.idx_x] = self.rti.rollout(u, p).full().T
+            return wopt, {"success": True, "iter_count": self.cold_iterations if cold else 1}
+        sol = self.solver(x0=guess, p=p, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg)
+        return sol["x"].full().ravel(), {}
 
     def states(self, wopt: np.ndarray) -> np.ndarray:
         """(N+1, 5) states of a solution vector."""
@@ -249,6 +279,117 @@ class _Problem:
         wv[self.idx_x] = states
         wv[self.idx_u] = controls
         return wv
+
+
+def _rti_function(
+    cfg: MpcConfig,
+    limits: VelocityLimits,
+    step: ca.Function,
+    params: ca.SX,
+    p_x0: ca.SX,
+    p_ref: ca.SX,
+    p_obs: ca.SX,
+    p_r2: ca.SX,
+    p_wv: ca.SX,
+    p_wh: ca.SX,
+    p_wp: ca.SX,
+) -> _Rti:
+    """The functions of one real-time-iteration step: (controls, params) -> new controls.
+
+    Single shooting: the states are the model's rollout of the controls from x0, so the
+    QP has only the N x 3 controls. The cost is a sum of squared residuals, so its
+    Gauss-Newton Hessian J'J is positive definite and the QP convex; the speed and turn
+    rate bounds are linear in the accelerations (exact), the obstacle constraints are
+    linearised at the guess (their slack keeps the QP feasible). DAQP (a dual active-set method for small dense QPs) solves
+    the QP; the step is taken in full and the states rolled out again from the new controls.
+    """
+    n, m, wts = cfg.horizon, (p_obs.shape[1] // max(cfg.horizon - 1, 1)), cfg.weights
+    u = ca.SX.sym("u", _NU * n)
+    xs = [p_x0]
+    for k in range(n):
+        xs.append(step(xs[-1], u[k * _NU : (k + 1) * _NU]))
+    sp, sh, sv = ca.sqrt(p_wp), ca.sqrt(p_wh), ca.sqrt(p_wv)
+    res: list[ca.SX] = []
+    linear = 0
+    speed: list[ca.SX] = []
+    turn: list[ca.SX] = []
+    obstacles: list[ca.SX] = []
+    for k in range(1, n + 1):
+        xk, r = xs[k], p_ref[:, k]
+        terminal = k == n
+        res.append(
+            sp * math.sqrt(wts.terminal_position if terminal else wts.position) * (xk[0:2] - r[0:2])
+        )
+        res.append(
+            sh * math.sqrt(wts.terminal_heading if terminal else wts.heading) * (xk[2] - r[2])
+        )
+        res.append(sv * math.sqrt(wts.speed) * (xk[3] - r[3]))
+        if not terminal:
+            res.append(math.sqrt(wts.angular_velocity) * xk[4])
+        speed.append(xk[3])
+        turn.append(xk[4])
+    for k in range(n):
+        uk = u[k * _NU : (k + 1) * _NU]
+        res.append(math.sqrt(wts.acceleration) * uk[0])
+        res.append(math.sqrt(wts.angular_acceleration) * uk[1])
+        res.append(math.sqrt(wts.slack_quadratic) * uk[2])
+        linear += wts.slack_linear * uk[2]
+        if k >= 1 and m > 0:
+            o, xk = p_obs[:, (k - 1) * m : k * m], xs[k]
+            obstacles.append(((xk[0] - o[0, :]) ** 2 + (xk[1] - o[1, :]) ** 2).T + uk[2] - p_r2)
+    residual = ca.vertcat(*res)
+    cons = ca.vertcat(*speed, *turn, *obstacles)
+    big = 1e6  # finite bounds for the QP solver
+    lbc = np.concatenate(
+        (np.full(n, limits.min_v), np.full(n, -limits.max_w), np.zeros(len(obstacles) * m))
+    )
+    ubc = np.concatenate(
+        (np.full(n, limits.max_v), np.full(n, limits.max_w), np.full(len(obstacles) * m, big))
+    )
+    # J'J from the sparse residual Jacobian (a stage's residuals depend only on the
+    # controls before it): far fewer scalar operations than a dense product.
+    jac = ca.jacobian(residual, u)
+    qp_data = ca.Function(
+        "mpc_qp_data",
+        [u, params],
+        [
+            ca.densify(2.0 * ca.mtimes(jac.T, jac)),
+            2.0 * ca.mtimes(jac.T, residual) + ca.gradient(linear, u),
+            ca.densify(ca.jacobian(cons, u)),
+            lbc - cons,
+            ubc - cons,
+        ],
+        {"cse": True},
+    )
+    rollout = ca.Function("mpc_rollout", [u, params], [ca.horzcat(*xs)])
+    qp = ca.conic(
+        "mpc_qp",
+        "daqp",
+        {"h": ca.Sparsity.dense(_NU * n, _NU * n), "a": ca.Sparsity.dense(cons.shape[0], _NU * n)},
+        {"error_on_fail": True},
+    )
+    lbu = np.tile([-limits.max_acc_v, -limits.max_acc_w, 0.0], n)
+    ubu = np.tile([limits.max_acc_v, limits.max_acc_w, big], n)
+    # The QP data and the solve in one function: no matrix crosses into Python (casadi's
+    # dense conversions cost more than the solve).
+    u_mx = ca.MX.sym("u", _NU * n)
+    p_mx = ca.MX.sym("p", params.shape[0])
+    h, g, a, lba, uba = qp_data(u_mx, p_mx)
+    sol = qp(h=h, g=g, a=a, lba=lba, uba=uba, lbx=ca.DM(lbu) - u_mx, ubx=ca.DM(ubu) - u_mx)
+    step_fn = ca.Function("mpc_rti", [u_mx, p_mx], [u_mx + sol["x"]])
+    return _Rti(step_fn, rollout)
+
+
+@dataclass(frozen=True)
+class _Rti:
+    """The functions of the real-time iteration (see :func:`_rti_function`)."""
+
+    step_fn: ca.Function  # (u, p) -> controls after one Gauss-Newton SQP step
+    rollout: ca.Function  # (u, p) -> (5, N+1) states
+
+    def step(self, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """One Gauss-Newton SQP step from the controls ``u``: the new controls."""
+        return self.step_fn(u, p).full().ravel()
 
 
 @functools.lru_cache(maxsize=16)
@@ -304,8 +445,9 @@ class MpcController:
         self.control_period = control_period
         self._tracker = ProgressTracker(window_ahead=limits.max_v * control_period * 3.0 + 0.3)
         self._problem = _problem(config.model_dump_json(), limits)
-        self._p = np.empty_like(self._problem.p)  # parameter vector, filled in place
+        self._p = np.empty(self._problem.n_params)  # parameter vector, filled in place
         self._stats: dict | None = {}
+        self._solve_info: dict = {}
         self._t_solver_call = 0.0
         self.reset()
 
@@ -357,7 +499,8 @@ class MpcController:
     def last_stats(self) -> dict:
         """The solver's statistics of the last solve (fetched on demand: costs ~0.1 ms)."""
         if self._stats is None:
-            self._stats = dict(self._problem.solver.stats())
+            pb = self._problem
+            self._stats = dict(self._solve_info or pb.solver.stats())
             self._stats["t_wall_solver_call"] = self._t_solver_call
         return self._stats
 
@@ -514,11 +657,10 @@ class MpcController:
         self._stats = None
         t_solve = time.perf_counter()
         try:
-            sol = pb.solver(x0=guess, p=p, lbx=pb.lbx, ubx=pb.ubx, lbg=pb.lbg, ubg=pb.ubg)
+            wopt, self._solve_info = pb.solve(guess, p, cold=self._prev_w is None)
         except RuntimeError:
             return self._fail((v0, w0), t0)
         self._t_solver_call = time.perf_counter() - t_solve
-        wopt = np.asarray(sol["x"]).ravel()
         if not np.all(np.isfinite(wopt)):
             return self._fail((v0, w0), t0)
         self._prev_w = wopt

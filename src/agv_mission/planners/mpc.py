@@ -33,6 +33,7 @@ from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.planners.base import PluginConfig, VelocityCommand, VelocityLimits
 from agv_mission.planners.path_tracking import (
     ProgressTracker,
+    clean_path,
     interpolate,
     prepare_path,
     speed_profile,
@@ -446,15 +447,12 @@ def _problem(cfg_json: str, limits: VelocityLimits) -> _Problem:
 
 def _to_local(points: np.ndarray, pose: Pose2D) -> np.ndarray:
     c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-    d = points - np.array([pose.x, pose.y])
-    return np.column_stack((c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]))
+    return (points - (pose.x, pose.y)) @ np.array([[c, -s], [s, c]])
 
 
 def _to_map(points: np.ndarray, pose: Pose2D) -> np.ndarray:
     c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-    return np.column_stack(
-        (pose.x + c * points[:, 0] - s * points[:, 1], pose.y + s * points[:, 0] + c * points[:, 1])
-    )
+    return points @ np.array([[c, s], [-s, c]]) + (pose.x, pose.y)
 
 
 def brake_command(
@@ -498,6 +496,8 @@ class MpcController:
 
     def reset(self) -> None:
         """Forget the warm start and the path progress (a new goal)."""
+        self._path_key: int | None = None
+        self._prepared: tuple[np.ndarray, np.ndarray, float] = (np.zeros((0, 2)), np.zeros(0), 0.0)
         self._prev_w: np.ndarray | None = None
         self._prev_pose: Pose2D | None = None
         self._rotating = False
@@ -517,24 +517,21 @@ class MpcController:
         if obstacles is None or len(obstacles) == 0:
             return out
         pts = np.asarray(obstacles, dtype=float).reshape(-1, 2)
-        reach = float(np.max(np.abs(guess_xy))) + cfg.obstacle_range
-        rel = pts - (pose.x, pose.y)
-        d2_robot = np.einsum("ij,ij->i", rel, rel)
-        inside = d2_robot < reach * reach
-        pts, d2_robot = pts[inside], d2_robot[inside]
         if len(pts) > cfg.max_obstacles:
-            nearest = np.argpartition(d2_robot, cfg.max_obstacles - 1)[: cfg.max_obstacles]
-            pts = pts[nearest]
-        if len(pts) == 0:
-            return out
-        pts = _to_local(pts, pose)
-        pos = guess_xy[1:-1]
-        d2 = ((pos[:, None, :] - pts[None, :, :]) ** 2).sum(axis=2)
+            rel = pts - (pose.x, pose.y)
+            d2_robot = np.einsum("ij,ij->i", rel, rel)
+            pts = pts[np.argpartition(d2_robot, cfg.max_obstacles - 1)[: cfg.max_obstacles]]
+        # Distances in the map frame (N-1 stage positions moved, not the points).
+        stages = _to_map(guess_xy[1:-1], pose)
+        dx = stages[:, 0, None] - pts[None, :, 0]
+        dy = stages[:, 1, None] - pts[None, :, 1]
+        d2 = dx * dx + dy * dy
         k = min(m, len(pts))
-        idx = np.argpartition(d2, k - 1, axis=1)[:, :k] if k < len(pts) else None
-        if idx is None:
-            idx = np.broadcast_to(np.arange(k), (len(pos), k))
-        chosen = pts[idx]
+        if k < len(pts):
+            idx = np.argpartition(d2, k - 1, axis=1)[:, :k]
+        else:
+            idx = np.broadcast_to(np.arange(k), (len(stages), k))
+        chosen = _to_local(pts[idx.ravel()], pose).reshape(len(stages), k, 2)
         far = np.take_along_axis(d2, idx, axis=1) > cfg.obstacle_range**2
         chosen[far] = _FAR
         out[:, :k] = chosen
@@ -590,6 +587,20 @@ class MpcController:
         states[0] = x0
         return pb.pack(states, controls)
 
+    def _prepare(
+        self, path: np.ndarray, pose: Pose2D, goal: Pose2D
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """:func:`prepare_path`, kept while the navigator passes the same path."""
+        path = np.asarray(path, dtype=float)
+        key = hash(path.tobytes())
+        if key == self._path_key:
+            return self._prepared
+        prepared = prepare_path(path, pose, goal)
+        # A path of fewer than two distinct points is completed from the pose: not kept.
+        if len(path) >= 2 and len(prepared[0]) == len(clean_path(path)):
+            self._path_key, self._prepared = key, prepared
+        return prepared
+
     def _fail(self, velocity: tuple[float, float], t0: float) -> VelocityCommand:
         self._prev_w = None
         v, w = brake_command(velocity, self.limits, self.control_period)
@@ -607,7 +618,7 @@ class MpcController:
     ) -> VelocityCommand:
         t0 = time.perf_counter()
         cfg, lim, pb = self.config, self.limits, self._problem
-        path, cumlen, total = prepare_path(path, pose, goal)
+        path, cumlen, total = self._prepare(path, pose, goal)
         xy = np.array([pose.x, pose.y])
         v0 = min(max(float(velocity[0]), lim.min_v), lim.max_v)
         w0 = min(max(float(velocity[1]), -lim.max_w), lim.max_w)

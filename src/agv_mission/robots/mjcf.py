@@ -22,6 +22,10 @@ times a small one. The model then holds ``wall_slots`` box slots ``wall_slot_<i>
 ``pillar_slots`` cylinder slots ``pillar_slot_<i>`` instead, parked (group
 :data:`PARKED_GROUP`, no collisions) until :class:`agv_mission.robots.simulation.DiffDriveSim`
 moves the walls near the robot into them (a rolling window, like a local costmap).
+MuJoCo precomputes the world body's bounding-volume tree from the compiled geoms, so every
+slot is compiled as a box (cylinder) covering the whole world: the tree stays conservative
+whatever wall a slot later takes (compiled at its real size, a moved slot would be culled
+from the contact search).
 """
 
 from __future__ import annotations
@@ -82,6 +86,18 @@ def uses_wall_slots(world: World) -> bool:
     return len(world.boxes) > WALL_SLOTS or len(world.cylinders) > PILLAR_SLOTS
 
 
+def _world_bounds(world: World) -> tuple[float, float, float, float]:
+    """(xmin, xmax, ymin, ymax) holding the map and every wall, with a margin."""
+    x0, x1, y0, y1 = world.map.extent
+    for b in world.boxes:
+        r = math.hypot(b.half_x, b.half_y)
+        x0, x1, y0, y1 = min(x0, b.x - r), max(x1, b.x + r), min(y0, b.y - r), max(y1, b.y + r)
+    for c in world.cylinders:
+        x0, x1 = min(x0, c.x - c.radius), max(x1, c.x + c.radius)
+        y0, y1 = min(y0, c.y - c.radius), max(y1, c.y + c.radius)
+    return x0 - 1.0, x1 + 1.0, y0 - 1.0, y1 + 1.0
+
+
 def build_mjcf(robot: RobotDescription, world: World, timestep: float = 0.002) -> str:
     """The MJCF XML of ``world``'s walls (or, in a large world, parked wall slots) plus
     ``robot`` (spawned at the origin; place it by writing the free joint's ``qpos``)."""
@@ -109,14 +125,17 @@ def build_mjcf(robot: RobotDescription, world: World, timestep: float = 0.002) -
     walls = []
     slots = uses_wall_slots(world)
     if slots:
+        x0, x1, y0, y1 = _world_bounds(world)
+        cx, cy, hx, hy = (x0 + x1) / 2, (y0 + y1) / 2, (x1 - x0) / 2, (y1 - y0) / 2
+        parked = f'class="wall" group="{PARKED_GROUP}" contype="0"'
         walls += [
-            f'    <geom name="wall_slot_{i}" type="box" pos="0 0 -10" size="0.01 0.01 0.01" '
-            f'class="wall" group="{PARKED_GROUP}" contype="0" conaffinity="0"/>'
+            f'    <geom name="wall_slot_{i}" type="box" pos="{_vec(cx, cy, h_wall / 2)}" '
+            f'size="{_vec(hx, hy, h_wall / 2)}" {parked}/>'
             for i in range(WALL_SLOTS)
         ]
         walls += [
-            f'    <geom name="pillar_slot_{i}" type="cylinder" pos="0 0 -10" size="0.01 0.01" '
-            f'class="wall" group="{PARKED_GROUP}" contype="0" conaffinity="0"/>'
+            f'    <geom name="pillar_slot_{i}" type="cylinder" pos="{_vec(cx, cy, h_wall / 2)}" '
+            f'size="{_vec(math.hypot(hx, hy), h_wall / 2)}" {parked}/>'
             for i in range(PILLAR_SLOTS)
         ]
     for i, b in enumerate([] if slots else world.boxes):

@@ -42,6 +42,9 @@ class SimConfig(BaseModel):
     )
 
 
+WINDOW_CHECK_PERIOD = 0.1  # s of simulated motion between wall-window checks
+
+
 class _Walls:
     """The world's static boxes and cylinders as arrays, for planar distance queries."""
 
@@ -99,6 +102,20 @@ class WallWindow:
 
         self.box_slots = ids("wall_slot_")
         self.cyl_slots = ids("pillar_slot_")
+        # The world body's bounding-volume tree, refitted bottom-up after every move.
+        adr, num = int(model.body_bvhadr[0]), int(model.body_bvhnum[0])
+        nodes = np.arange(adr, adr + num)
+        geom = model.bvh_nodeid[adr : adr + num]
+        children = model.bvh_child[adr : adr + num] + adr
+        depth = model.bvh_depth[adr : adr + num]
+        is_slot = np.isin(geom, np.concatenate((self.box_slots, self.cyl_slots)))
+        self._slot_leaves, self._slot_leaf_geoms = nodes[is_slot], geom[is_slot]
+        inner = geom < 0
+        self._levels = [
+            (nodes[inner & (depth == d)], children[inner & (depth == d)])
+            for d in range(int(depth.max(initial=0)), -1, -1)
+            if np.any(inner & (depth == d))
+        ]
         self.centre: tuple[float, float] | None = None
         self.active_boxes = np.zeros(0, dtype=np.int64)
         self.active_cylinders = np.zeros(0, dtype=np.int64)
@@ -138,7 +155,32 @@ class WallWindow:
         )
         m.geom_rbound[used] = np.hypot(cyl[:, 2], h / 2)
         self._enable(used, self.cyl_slots[len(idx) :])
+        self._refit()
         return True
+
+    def _refit(self) -> None:
+        """World-frame boxes of the slot leaves, then every inner node as the union of its
+        children, deepest level first (MuJoCo keeps the tree it compiled; its boxes must
+        follow the slots)."""
+        m = self.model
+        aabb = m.bvh_aabb
+        g = self._slot_leaf_geoms
+        q = m.geom_quat[g]  # yaw only: (cos, 0, 0, sin) of yaw / 2
+        c = np.abs(1.0 - 2.0 * q[:, 3] ** 2)
+        s = np.abs(2.0 * q[:, 0] * q[:, 3])
+        size = m.geom_size[g]
+        box = m.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX
+        hx = size[:, 0]
+        hy = np.where(box, size[:, 1], size[:, 0])
+        hz = np.where(box, size[:, 2], size[:, 1])
+        aabb[self._slot_leaves, 0:3] = m.geom_pos[g]
+        aabb[self._slot_leaves, 3:6] = np.column_stack((c * hx + s * hy, s * hx + c * hy, hz))
+        for nodes, children in self._levels:
+            a, b = aabb[children[:, 0]], aabb[children[:, 1]]
+            lo = np.minimum(a[:, 0:3] - a[:, 3:6], b[:, 0:3] - b[:, 3:6])
+            hi = np.maximum(a[:, 0:3] + a[:, 3:6], b[:, 0:3] + b[:, 3:6])
+            aabb[nodes, 0:3] = (lo + hi) / 2
+            aabb[nodes, 3:6] = (hi - lo) / 2
 
     def _nearest(self, distance: np.ndarray, slots: int) -> np.ndarray:
         idx = np.flatnonzero(distance < self.radius)
@@ -150,10 +192,8 @@ class WallWindow:
     def _enable(self, used: np.ndarray, parked: np.ndarray) -> None:
         m = self.model
         m.geom_group[used] = WALL_GROUP
-        m.geom_contype[used] = WALL_BIT
-        m.geom_conaffinity[used] = WALL_BIT
+        m.geom_conaffinity[used] = WALL_BIT  # no contype: slots never test each other
         m.geom_group[parked] = PARKED_GROUP
-        m.geom_contype[parked] = 0
         m.geom_conaffinity[parked] = 0
         m.geom_pos[parked] = (0.0, 0.0, -10.0)
 
@@ -266,9 +306,12 @@ class DiffDriveSim:
     def advance(self, duration: float) -> None:
         """Step the physics for ``round(duration / dt)`` steps (at least 0)."""
         n = int(round(duration / self.dt))
-        if n > 0:
+        # With a wall window, re-centre it at least every WINDOW_CHECK_PERIOD of motion.
+        chunk = n if self.wall_window is None else max(1, int(WINDOW_CHECK_PERIOD / self.dt))
+        while n > 0:
             self._follow_window()
-            mujoco.mj_step(self.model, self.data, n)
+            mujoco.mj_step(self.model, self.data, min(chunk, n))
+            n -= chunk
 
     def _follow_window(self) -> None:
         """Re-centre the wall window on the robot when it has moved (large worlds)."""

@@ -15,6 +15,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.ndimage import distance_transform_edt
 
+from agv_mission.maps.distance import obstacle_distance
 from agv_mission.maps.grid import FREE, OccupancyGrid
 
 LETHAL = 254
@@ -72,7 +73,7 @@ class Costmap:
         if config.resolution is not None:
             grid = grid.resampled(config.resolution)
         blocked = grid.data != FREE if config.unknown_is_obstacle else grid.data > 50
-        distance = (distance_transform_edt(~blocked) * grid.resolution).astype(np.float32)
+        distance = obstacle_distance(blocked, grid.resolution)  # cached per map
         cost = _inflation_cost(distance, robot_radius, config)
         return cls(grid, robot_radius, config, distance, cost)
 

@@ -84,3 +84,20 @@ def test_obstacle_distance_is_computed_once_per_mask_and_read_only():
     assert c is not a and c[100, 100] == 0.0
     with pytest.raises(ValueError):
         a[0, 0] = 1.0
+
+
+def test_patched_costmap_matches_a_full_rebuild():
+    obs = layer()
+    rng = np.random.default_rng(2)
+    for k in range(8):
+        pose = Pose2D(*rng.uniform(-3.5, 3.5, size=2), rng.uniform(-3.0, 3.0))
+        ranges = {int(i): float(rng.uniform(0.3, 2.4)) for i in rng.integers(0, BEAMS, 40)}
+        obs.update(pose, scan(ranges, default=math.inf if k % 2 else 2.5))
+        full = obs.static.with_obstacles(obs.marks)
+        assert np.array_equal(obs.costmap.cost, full.cost)
+        reach = obs.static.robot_radius + obs.static.config.inflation_radius
+        near = full.distance <= reach
+        assert np.array_equal(obs.costmap.distance[near], full.distance[near])
+    assert obs.marks.any()
+    obs.clear()
+    assert obs.costmap is obs.static

@@ -8,15 +8,18 @@ planners use is the static one with the marked cells added.
 A scan touches only a rolling window around the robot (Nav2's local costmap idea): clearing
 looks at the marked cells within ``raytrace_range`` and projects each onto the beam at its
 bearing (cleared when that beam reaches past it), so a scan costs O(beams + marked cells
-nearby), whatever the size of the map.
+nearby), whatever the size of the map. The layered costmap is patched in place around the
+cells that changed (a mark reaches ``robot_radius + inflation_radius + 0.5`` m), not
+rebuilt over the whole map.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 
 from agv_mission.geometry import Pose2D
-from agv_mission.maps.costmap import Costmap, ObstacleLayerConfig
+from agv_mission.maps.costmap import Costmap, ObstacleLayerConfig, inflation_cost
 from agv_mission.messages import LaserScan
 
 
@@ -27,13 +30,17 @@ class ObstacleLayer:
         self.static = static
         self.config = config
         self.marks = np.zeros(static.distance.shape, dtype=bool)
-        self._layered: Costmap | None = static
+        self._layered: Costmap = static
+        self._dirty: list[int] | None = None  # row0, row1, col0, col1 of changed cells
+        res = static.resolution
+        self._reach = static.robot_radius + static.config.inflation_radius + 0.5
+        self._pad = int(np.ceil(self._reach / res))
 
     @property
     def costmap(self) -> Costmap:
-        """The static costmap with the marked obstacles added (recomputed when they change)."""
-        if self._layered is None:
-            self._layered = self.static.with_obstacles(self.marks)
+        """The static costmap with the marked obstacles added (patched when they change)."""
+        if self._dirty is not None:
+            self._patch()
         return self._layered
 
     def clear(self) -> None:
@@ -41,6 +48,44 @@ class ObstacleLayer:
         if self.marks.any():
             self.marks[:] = False
             self._layered = self.static
+            self._dirty = None
+
+    def _touch(self, rows: np.ndarray, cols: np.ndarray) -> None:
+        box = [int(rows.min()), int(rows.max()), int(cols.min()), int(cols.max())]
+        if self._dirty is not None:
+            d = self._dirty
+            box = [min(d[0], box[0]), max(d[1], box[1]), min(d[2], box[2]), max(d[3], box[3])]
+        self._dirty = box
+
+    def _patch(self) -> None:
+        """Recompute distance and cost within reach of the changed cells."""
+        static, (r0, r1, c0, c1) = self.static, self._dirty
+        self._dirty = None
+        if self._layered is static:
+            self._layered = Costmap(
+                static.grid,
+                static.robot_radius,
+                static.config,
+                static.distance.copy(),
+                static.cost.copy(),
+            )
+        h, w, p = self.marks.shape[0], self.marks.shape[1], self._pad
+        win = (slice(max(r0 - p, 0), min(r1 + p + 1, h)), slice(max(c0 - p, 0), min(c1 + p + 1, w)))
+        ext_r0, ext_c0 = max(r0 - 2 * p, 0), max(c0 - 2 * p, 0)
+        ext = (slice(ext_r0, min(r1 + 2 * p + 1, h)), slice(ext_c0, min(c1 + 2 * p + 1, w)))
+        marks = self.marks[ext]
+        crop = (
+            slice(win[0].start - ext_r0, win[0].stop - ext_r0),
+            slice(win[1].start - ext_c0, win[1].stop - ext_c0),
+        )
+        distance = static.distance[win]
+        if marks.any():
+            near = (distance_transform_edt(~marks)[crop] * static.resolution).astype(np.float32)
+            # A mark reaches exactly _reach: every cell it touches is patched when it goes.
+            distance = np.where(near <= self._reach, np.minimum(distance, near), distance)
+        layered = self._layered
+        layered.distance[win] = distance
+        layered.cost[win] = inflation_cost(distance, static.robot_radius, static.config)
 
     def update(self, pose: Pose2D, scan: LaserScan) -> bool:
         """Clear along the beams and mark the returns of ``scan`` seen from ``pose``."""
@@ -60,9 +105,8 @@ class ObstacleLayer:
                 rows, cols = rows[inside], cols[inside]
                 if len(rows) and not self.marks[rows, cols].all():
                     self.marks[rows, cols] = True
+                    self._touch(rows, cols)
                     changed = True
-        if changed:
-            self._layered = None
         return changed
 
     def _clear(self, pose: Pose2D, scan: LaserScan) -> bool:
@@ -95,4 +139,5 @@ class ObstacleLayer:
         if not clear.any():
             return False
         self.marks[rr[clear], cc[clear]] = False
+        self._touch(rr[clear], cc[clear])
         return True

@@ -278,8 +278,9 @@ def _rti_function(
         "mpc_qp_data",
         [u, params],
         [
-            ca.densify(2.0 * ca.mtimes(jac.T, jac)),
-            2.0 * ca.mtimes(jac.T, residual) + ca.gradient(linear, u),
+            jac,  # sparse: a stage's residuals depend only on the controls before it
+            residual,
+            ca.gradient(linear, u),
             ca.densify(ca.jacobian(cons, u)),
             lbc - cons,
             ubc - cons,
@@ -296,11 +297,20 @@ def _rti_function(
     lbu = np.tile([-limits.max_acc_v, -limits.max_acc_w, 0.0], n)
     ubu = np.tile([limits.max_acc_v, limits.max_acc_w, big], n)
     # The QP data and the solve in one function: no matrix crosses into Python (casadi's
-    # dense conversions cost more than the solve).
+    # dense conversions cost more than the solve). J'J is a sparse MX product (compiled
+    # loops; as SX scalar instructions it costs several times more).
     u_mx = ca.MX.sym("u", _NU * n)
     p_mx = ca.MX.sym("p", params.shape[0])
-    h, g, a, lba, uba = qp_data(u_mx, p_mx)
-    sol = qp(h=h, g=g, a=a, lba=lba, uba=uba, lbx=ca.DM(lbu) - u_mx, ubx=ca.DM(ubu) - u_mx)
+    jac_mx, res_mx, lin_mx, a, lba, uba = qp_data(u_mx, p_mx)
+    sol = qp(
+        h=ca.densify(2.0 * ca.mtimes(jac_mx.T, jac_mx)),
+        g=2.0 * ca.mtimes(jac_mx.T, res_mx) + lin_mx,
+        a=a,
+        lba=lba,
+        uba=uba,
+        lbx=ca.DM(lbu) - u_mx,
+        ubx=ca.DM(ubu) - u_mx,
+    )
     u_new = u_mx + sol["x"]
     return _Rti(ca.Function("mpc_rti", [u_mx, p_mx], [u_new, rollout(u_new, p_mx)]))
 

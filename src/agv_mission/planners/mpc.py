@@ -181,11 +181,13 @@ class _Problem:
     def solve(self, guess: np.ndarray, p: np.ndarray, cold: bool) -> tuple[np.ndarray, dict]:
         """The solution vector from ``guess``; raises RuntimeError when the solver fails."""
         if self.kind == "rti":
-            u = guess[self.idx_u].ravel()
+            controls = guess[self.idx_u]
+            u = np.append(controls[:, 0:2].ravel(), controls[:, 2].max())
             for _ in range(self.cold_iterations if cold else 1):
                 u, states = self.rti.step(u, p)
             wopt = np.empty(self.nw)
-            wopt[self.idx_u] = u.reshape(self.n, _NU)
+            wopt[self.idx_u[:, 0:2]] = u[:-1].reshape(self.n, 2)
+            wopt[self.idx_u[:, 2]] = u[-1]
             wopt[self.idx_x] = states
             return wopt, {"success": True, "iter_count": self.cold_iterations if cold else 1}
         sol = self.solver(x0=guess, p=p, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg, ubg=self.ubg)
@@ -222,17 +224,21 @@ def _rti_function(
     """The functions of one real-time-iteration step: (controls, params) -> new controls.
 
     Single shooting: the states are the model's rollout of the controls from x0, so the
-    QP has only the N x 3 controls. The cost is a sum of squared residuals, so its
-    Gauss-Newton Hessian J'J is positive definite and the QP convex; the speed and turn
-    rate bounds are linear in the accelerations (exact), the obstacle constraints are
-    linearised at the guess (their slack keeps the QP feasible). DAQP (a dual active-set method for small dense QPs) solves
-    the QP; the step is taken in full and the states rolled out again from the new controls.
+    QP has only the controls: (a, alpha) per step and one slack shared by every obstacle
+    constraint (``u = [a_0, alpha_0, ..., a_N-1, alpha_N-1, slack]``; one slack instead
+    of one per step halves the active bounds the QP solver works through). The cost is a
+    sum of squared residuals, so its Gauss-Newton Hessian J'J is positive definite and the
+    QP convex; the speed and turn rate bounds are linear in the accelerations (exact), the
+    obstacle constraints are linearised at the guess (the slack keeps the QP feasible; it
+    is penalised as if every step had used it). DAQP (a dual active-set method for small
+    dense QPs) solves the QP; the step is taken in full and the states rolled out again.
     """
     n, m, wts = cfg.horizon, (p_obs.shape[1] // max(cfg.horizon - 1, 1)), cfg.weights
-    u = ca.SX.sym("u", _NU * n)
+    u = ca.SX.sym("u", 2 * n + 1)
+    slack = u[2 * n]
     xs = [p_x0]
     for k in range(n):
-        xs.append(step(xs[-1], u[k * _NU : (k + 1) * _NU]))
+        xs.append(step(xs[-1], ca.vertcat(u[2 * k : 2 * k + 2], 0.0)))
     sp, sh, sv = ca.sqrt(p_wp), ca.sqrt(p_wh), ca.sqrt(p_wv)
     res: list[ca.SX] = []
     linear = 0
@@ -254,14 +260,13 @@ def _rti_function(
         speed.append(xk[3])
         turn.append(xk[4])
     for k in range(n):
-        uk = u[k * _NU : (k + 1) * _NU]
-        res.append(math.sqrt(wts.acceleration) * uk[0])
-        res.append(math.sqrt(wts.angular_acceleration) * uk[1])
-        res.append(math.sqrt(wts.slack_quadratic) * uk[2])
-        linear += wts.slack_linear * uk[2]
+        res.append(math.sqrt(wts.acceleration) * u[2 * k])
+        res.append(math.sqrt(wts.angular_acceleration) * u[2 * k + 1])
         if k >= 1 and m > 0:
             o, xk = p_obs[:, (k - 1) * m : k * m], xs[k]
-            obstacles.append(((xk[0] - o[0, :]) ** 2 + (xk[1] - o[1, :]) ** 2).T + uk[2] - p_r2)
+            obstacles.append(((xk[0] - o[0, :]) ** 2 + (xk[1] - o[1, :]) ** 2).T + slack - p_r2)
+    res.append(math.sqrt(wts.slack_quadratic * (n - 1)) * slack)
+    linear = wts.slack_linear * (n - 1) * slack
     residual = ca.vertcat(*res)
     cons = ca.vertcat(*speed, *turn, *obstacles)
     big = 1e6  # finite bounds for the QP solver
@@ -291,15 +296,18 @@ def _rti_function(
     qp = ca.conic(
         "mpc_qp",
         "daqp",
-        {"h": ca.Sparsity.dense(_NU * n, _NU * n), "a": ca.Sparsity.dense(cons.shape[0], _NU * n)},
+        {
+            "h": ca.Sparsity.dense(2 * n + 1, 2 * n + 1),
+            "a": ca.Sparsity.dense(cons.shape[0], 2 * n + 1),
+        },
         {"error_on_fail": True},
     )
-    lbu = np.tile([-limits.max_acc_v, -limits.max_acc_w, 0.0], n)
-    ubu = np.tile([limits.max_acc_v, limits.max_acc_w, big], n)
+    lbu = np.append(np.tile([-limits.max_acc_v, -limits.max_acc_w], n), 0.0)
+    ubu = np.append(np.tile([limits.max_acc_v, limits.max_acc_w], n), big)
     # The QP data and the solve in one function: no matrix crosses into Python (casadi's
     # dense conversions cost more than the solve). J'J is a sparse MX product (compiled
     # loops; as SX scalar instructions it costs several times more).
-    u_mx = ca.MX.sym("u", _NU * n)
+    u_mx = ca.MX.sym("u", 2 * n + 1)
     p_mx = ca.MX.sym("p", params.shape[0])
     jac_mx, res_mx, lin_mx, a, lba, uba = qp_data(u_mx, p_mx)
     sol = qp(
@@ -322,7 +330,7 @@ class _Rti:
     step_fn: ca.Function  # (u, p) -> controls after one Gauss-Newton SQP step, their states
 
     def step(self, u: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """One Gauss-Newton SQP step from the controls ``u``: the new controls (N * 3,)
+        """One Gauss-Newton SQP step from the controls ``u``: the new controls (2N + 1,)
         and the states they give (N+1, 5)."""
         u_new, states = self.step_fn(u, p)
         return u_new.full().ravel(), states.full().T

@@ -399,8 +399,8 @@ def brake_command(
     dw = limits.max_acc_w * period
     v_new = max(v - dv, 0.0) if v > 0 else min(v + dv, 0.0)
     w_new = max(w - dw, 0.0) if w > 0 else min(w + dw, 0.0)
-    v_new = float(np.clip(v_new, limits.min_v, limits.max_v))
-    w_new = float(np.clip(w_new, -limits.max_w, limits.max_w))
+    v_new = float(min(max(v_new, limits.min_v), limits.max_v))
+    w_new = float(min(max(w_new, -limits.max_w), limits.max_w))
     return v_new, w_new
 
 

@@ -274,8 +274,9 @@ class DiffDriveSim:
 
     def set_command(self, v: float, w: float) -> None:
         """Body twist command (m/s, rad/s), clipped to the robot's limits, as wheel speeds."""
-        v = float(np.clip(v, -self.robot.max_linear_velocity, self.robot.max_linear_velocity))
-        w = float(np.clip(w, -self.robot.max_angular_velocity, self.robot.max_angular_velocity))
+        v_max, w_max = self.robot.max_linear_velocity, self.robot.max_angular_velocity
+        v = min(max(float(v), -v_max), v_max)
+        w = min(max(float(w), -w_max), w_max)
         self._command = (v, w)
         half = self.robot.wheel_separation / 2.0
         r = self.robot.wheel_radius

@@ -240,3 +240,21 @@ def test_pure_pursuit_follows_l_path_and_stops_at_goal(yaw):
     assert oks.all()
     assert_within_limits(cmds)
     assert_stopped_at_goal(poses, cmds, L_PATH)
+
+
+def test_mpc_rti_functions_are_cached_on_disk(tmp_path, monkeypatch):
+    from agv_mission.planners import mpc as mpc_module
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    cfg = MpcConfig(horizon=8)
+    built = mpc_module._Problem(cfg, LIMITS)
+    files = list((tmp_path / "agv-mission" / "mpc").glob("*.casadi"))
+    assert len(files) == 1
+    loaded = mpc_module._Problem(cfg, LIMITS)
+    assert loaded.rti.step_fn is not built.rti.step_fn
+    u = np.zeros(2 * cfg.horizon + 1)
+    p = np.zeros(built.n_params)
+    p[built.p_ref] = np.linspace(0.0, 1.0, 4 * (cfg.horizon + 1))
+    p[-4:] = (0.07, 1.0, 1.0, 1.0)
+    for a, b in zip(built.rti.step(u, p), loaded.rti.step(u, p), strict=True):
+        assert np.allclose(a, b)

@@ -359,8 +359,8 @@ def _cache_key(cfg: MpcConfig, limits: VelocityLimits) -> str:
 def _load_cached(cfg: MpcConfig, limits: VelocityLimits) -> _Rti | None:
     """The RTI functions serialised by an earlier process (loading takes ~0.07 s, building
     with common-subexpression elimination ~0.6 s), or None."""
-    stem = _cache_dir() / _cache_key(cfg, limits)
     try:
+        stem = _cache_dir() / _cache_key(cfg, limits)
         return _Rti(ca.Function.load(str(stem) + ".casadi"))
     except (OSError, RuntimeError):
         return None
@@ -369,8 +369,8 @@ def _load_cached(cfg: MpcConfig, limits: VelocityLimits) -> _Rti | None:
 def _save_cached(cfg: MpcConfig, limits: VelocityLimits, rti: _Rti) -> None:
     """Serialise the RTI functions for later processes; a cache that cannot be written
     only costs the next process the build time."""
-    stem = _cache_dir() / _cache_key(cfg, limits)
     try:
+        stem = _cache_dir() / _cache_key(cfg, limits)
         stem.parent.mkdir(parents=True, exist_ok=True)
         tmp = stem.parent / f".{stem.name}.{os.getpid()}.tmp"
         rti.step_fn.save(str(tmp))

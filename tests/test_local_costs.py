@@ -93,6 +93,7 @@ def test_patched_costmap_matches_a_full_rebuild():
         pose = Pose2D(*rng.uniform(-3.5, 3.5, size=2), rng.uniform(-3.0, 3.0))
         ranges = {int(i): float(rng.uniform(0.3, 2.4)) for i in rng.integers(0, BEAMS, 40)}
         obs.update(pose, scan(ranges, default=math.inf if k % 2 else 2.5))
+        assert obs.has_marks == bool(obs.marks.any())
         full = obs.static.with_obstacles(obs.marks)
         assert np.array_equal(obs.costmap.cost, full.cost)
         reach = obs.static.robot_radius + obs.static.config.inflation_radius
@@ -100,4 +101,4 @@ def test_patched_costmap_matches_a_full_rebuild():
         assert np.array_equal(obs.costmap.distance[near], full.distance[near])
     assert obs.marks.any()
     obs.clear()
-    assert obs.costmap is obs.static
+    assert obs.costmap is obs.static and not obs.has_marks

@@ -32,9 +32,17 @@ class ObstacleLayer:
         self.marks = np.zeros(static.distance.shape, dtype=bool)
         self._layered: Costmap = static
         self._dirty: list[int] | None = None  # row0, row1, col0, col1 of changed cells
+        self._any: bool | None = False  # whether any cell is marked (None: not known)
         res = static.resolution
         self._reach = static.robot_radius + static.config.inflation_radius + 0.5
         self._pad = int(np.ceil(self._reach / res))
+
+    @property
+    def has_marks(self) -> bool:
+        """Whether any obstacle is marked (without scanning the whole grid every call)."""
+        if self._any is None:
+            self._any = bool(self.marks.any())
+        return self._any
 
     @property
     def costmap(self) -> Costmap:
@@ -49,6 +57,7 @@ class ObstacleLayer:
             self.marks[:] = False
             self._layered = self.static
             self._dirty = None
+        self._any = False
 
     def _touch(self, rows: np.ndarray, cols: np.ndarray) -> None:
         box = [int(rows.min()), int(rows.max()), int(cols.min()), int(cols.max())]
@@ -105,6 +114,7 @@ class ObstacleLayer:
                 rows, cols = rows[inside], cols[inside]
                 if len(rows) and not self.marks[rows, cols].all():
                     self.marks[rows, cols] = True
+                    self._any = True
                     self._touch(rows, cols)
                     changed = True
         return changed
@@ -139,5 +149,6 @@ class ObstacleLayer:
         if not clear.any():
             return False
         self.marks[rr[clear], cc[clear]] = False
+        self._any = None
         self._touch(rr[clear], cc[clear])
         return True

@@ -1,5 +1,9 @@
 """Local-planner timing: MPC solve time and success rate, pure-pursuit compute time.
 
+``solve_ms`` is wall time of a whole ``compute`` call (reference, obstacle selection and
+solve), ``solve_cpu_ms`` the same call's thread CPU time (steadier on a shared machine);
+the fatrop NLP runs in the same process for a side-by-side ratio.
+
 Closed loop with an exact unicycle integration at 0.1 s in an L-shaped corridor whose
 walls are given as lidar points (1 cm apart, 3.5 m range) plus a small round obstacle
 next to the path, so the MPC works with its full set of obstacle constraints
@@ -63,6 +67,7 @@ def _step(pose: Pose2D, v: float, w: float, dt: float) -> Pose2D:
 def _drive(controller, paths, points, max_steps=600) -> dict[str, list]:
     out: dict[str, list] = {
         "ms": [],
+        "cpu_ms": [],
         "ok": [],
         "iters": [],
         "solver_ms": [],
@@ -76,8 +81,9 @@ def _drive(controller, paths, points, max_steps=600) -> dict[str, list]:
         vel = (0.0, 0.0)
         for _ in range(max_steps):
             visible = points[np.hypot(*(points - [pose.x, pose.y]).T) < LIDAR_RANGE]
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.thread_time()
             cmd = controller.compute(pose, vel, path, goal, visible)
+            out["cpu_ms"].append((time.thread_time() - c0) * 1e3)
             out["ms"].append((time.perf_counter() - t0) * 1e3)
             out["ok"].append(cmd.ok)
             stats = getattr(controller, "last_stats", {})
@@ -100,9 +106,18 @@ def run() -> dict[str, float]:
     mpc = MpcController(MpcConfig(), LIMITS, RADIUS, PERIOD)
     build_s = time.perf_counter() - t0
     m = _drive(mpc, paths, points)
+    # The NLP solved to tolerance every step (fatrop, the solver before the RTI), same run.
+    f = _drive(MpcController(MpcConfig(solver="fatrop"), LIMITS, RADIUS, PERIOD), paths, points)
     p = _drive(PurePursuitController(PurePursuitConfig(), LIMITS, RADIUS, PERIOD), paths, points)
     ms, pms = np.array(m["ms"]), np.array(p["ms"])
+    cpu, fcpu = np.array(m["cpu_ms"]), np.array(f["cpu_ms"])
     return {
+        "mpc.solve_cpu_ms.p50": float(np.percentile(cpu, 50)),
+        "mpc.solve_cpu_ms.p99": float(np.percentile(cpu, 99)),
+        "mpc.fatrop.solve_cpu_ms.p50": float(np.percentile(fcpu, 50)),
+        "mpc.fatrop.solve_cpu_ms.p99": float(np.percentile(fcpu, 99)),
+        "mpc.fatrop.goal_error_m.max": float(max(f["goal_err"])),
+        "mpc.fatrop.clearance_m.min": float(min(f["clear"])),
         "mpc.solve_ms.p50": float(np.percentile(ms, 50)),
         "mpc.solve_ms.p99": float(np.percentile(ms, 99)),
         "mpc.solve_ms.max": float(ms.max()),

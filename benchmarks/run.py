@@ -27,14 +27,19 @@ MODULES = [
     "bench_amcl",
     "bench_slam",
     "bench_mission",
+    "bench_breakdown",
     "bench_regress",
 ]
 
 # metric -> (comparison, target) from the issues
 TARGETS = {
-    "mpc.solve_ms.p50": ("<=", 5.0),
-    "mpc.solve_ms.p99": ("<=", 20.0),
-    "mission.patrol.real_time_factor": (">=", 10.0),
+    "mpc.solve_ms.p50": ("<=", 0.5),
+    "mpc.solve_ms.p99": ("<=", 1.5),
+    "mpc.solve_cpu_ms.p50": ("<=", 0.5),
+    "mpc.solve_cpu_ms.p99": ("<=", 1.5),
+    "mission.patrol.real_time_factor": (">=", 60.0),
+    "breakdown.patrol.real_time_factor": (">=", 60.0),
+    "breakdown.warehouse_over_patrol_cost": ("<=", 1.2),
     "amcl.update_ms.p50.1000x60": ("<=", 2.0),
     "mission.map_area_small_house.real_time_factor": (">=", 5.0),
     "regress.speedup_ratio": ("<=", 0.6),

@@ -197,7 +197,7 @@ def test_mpc_warm_start_needs_no_more_iterations(mpc):
 
 
 def test_mpc_solver_failure_brakes_with_ok_false():
-    cfg = MpcConfig(solver_options={"max_iter": 1})
+    cfg = MpcConfig(solver="fatrop", solver_options={"max_iter": 1})
     ctrl = MpcController(cfg, LIMITS, RADIUS, PERIOD)
     cmd = ctrl.compute(Pose2D(0.0, 0.0, 0.0), (0.2, 0.5), L_PATH, Pose2D(1.5, 1.2), NO_POINTS)
     assert not cmd.ok
@@ -211,10 +211,23 @@ def test_mpc_with_ipopt_solves():
     assert cmd.ok and cmd.v > 0.0
 
 
+def test_mpc_fatrop_and_rti_agree_on_the_first_command():
+    """The real-time iteration (3 SQP steps from a cold start) lands near the NLP optimum."""
+    pose, vel, goal = Pose2D(0.3, 0.02, 0.05), (0.2, 0.0), Pose2D(1.5, 1.2)
+    points = circle_points((1.0, 0.3), 0.06)
+    cmds = []
+    for solver in ("rti", "fatrop"):
+        ctrl = MpcController(MpcConfig(solver=solver), LIMITS, RADIUS, PERIOD)
+        cmd = ctrl.compute(pose, vel, L_PATH, goal, points)
+        assert cmd.ok
+        cmds.append((cmd.v, cmd.w))
+    assert cmds[0] == pytest.approx(cmds[1], abs=0.02)
+
+
 def test_mpc_config_rejects_unknown_keys():
     with pytest.raises(ValueError):
         MpcConfig(horizon=20, horizont=10)
-    assert MpcConfig.model_validate({"type": "mpc"}).solver == "fatrop"
+    assert MpcConfig.model_validate({"type": "mpc"}).solver == "rti"
 
 
 # -- pure pursuit ---------------------------------------------------------------------------
@@ -227,3 +240,21 @@ def test_pure_pursuit_follows_l_path_and_stops_at_goal(yaw):
     assert oks.all()
     assert_within_limits(cmds)
     assert_stopped_at_goal(poses, cmds, L_PATH)
+
+
+def test_mpc_rti_functions_are_cached_on_disk(tmp_path, monkeypatch):
+    from agv_mission.planners import mpc as mpc_module
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    cfg = MpcConfig(horizon=8)
+    built = mpc_module._Problem(cfg, LIMITS)
+    files = list((tmp_path / "agv-mission" / "mpc").glob("*.casadi"))
+    assert len(files) == 1
+    loaded = mpc_module._Problem(cfg, LIMITS)
+    assert loaded.rti.step_fn is not built.rti.step_fn
+    u = np.zeros(2 * cfg.horizon + 1)
+    p = np.zeros(built.n_params)
+    p[built.p_ref] = np.linspace(0.0, 1.0, 4 * (cfg.horizon + 1))
+    p[-4:] = (0.07, 1.0, 1.0, 1.0)
+    for a, b in zip(built.rti.step(u, p), loaded.rti.step(u, p), strict=True):
+        assert np.allclose(a, b)

@@ -188,3 +188,53 @@ def test_teleport_moves_robot_without_encoder_jump():
     assert sim.encoder_ticks() == moved != ticks
     assert sim.true_pose().distance_to(Pose2D(1.0, -1.0)) < 1e-3
     assert sim.time == pytest.approx(1.0)
+
+
+def large_world() -> World:
+    """A 20 x 20 m field of 30 x 30 small posts (900 boxes) and 40 pillars."""
+    boxes = [
+        Box(-9.75 + 0.7 * i, -9.75 + 0.7 * j, 0.05, 0.05) for i in range(30) for j in range(30)
+    ]
+    pillars = [Cylinder(-9.4 + 0.45 * k, 0.35, 0.08) for k in range(40)]
+    grid = OccupancyGrid(np.zeros((80, 80), dtype=np.int8), 0.25, Pose2D(-10.0, -10.0))
+    return World("posts", boxes, pillars, grid, Pose2D(0.0, 0.0))
+
+
+def test_large_world_scans_match_a_model_with_every_wall(monkeypatch):
+    """The rolling window of wall slots sees exactly what a model holding all walls sees."""
+    import agv_mission.robots.mjcf as mjcf
+
+    world, start = large_world(), Pose2D(0.0, 0.0, 0.3)
+    windowed = make_sim(world, start, lidar_noise=0.0)
+    assert windowed.wall_window is not None
+    assert windowed.model.ngeom < len(world.boxes) // 2
+    monkeypatch.setattr(mjcf, "WALL_SLOTS", 10_000)
+    monkeypatch.setattr(mjcf, "PILLAR_SLOTS", 10_000)
+    full = make_sim(world, start, lidar_noise=0.0)
+    assert full.wall_window is None and full.model.ngeom > len(world.boxes)
+    rng = np.random.default_rng(5)
+    for _ in range(12):
+        pose = Pose2D(*rng.uniform(-9.0, 9.0, size=2), rng.uniform(-math.pi, math.pi))
+        windowed.teleport(pose)
+        full.teleport(pose)
+        a, b = windowed.scan().ranges, full.scan().ranges
+        assert np.array_equal(np.isinf(a), np.isinf(b))
+        assert np.allclose(a[np.isfinite(a)], b[np.isfinite(b)], atol=1e-6)
+        assert windowed.min_clearance() == pytest.approx(full.min_clearance(), abs=1e-9)
+
+
+def test_large_world_window_follows_the_robot_into_a_wall():
+    world = large_world()
+    # A free lane between two rows of posts (rows at y = 0.05 and y = -0.65).
+    sim = make_sim(world, Pose2D(-3.0, -0.3, 0.0))
+    centre = sim.wall_window.centre
+    sim.set_command(0.25, 0.0)
+    sim.advance(4.0)
+    assert sim.true_pose().x > -2.2
+    assert sim.wall_window.centre[0] > centre[0] + 0.5  # re-centred during the advance
+    assert sim.contacts() == 0
+    # Facing a post 0.3 m ahead (its face at x = 0.0): the chassis must hit it.
+    sim.teleport(Pose2D(-0.3 - BURGER.footprint_radius, 0.05, 0.0))
+    sim.advance(3.0)
+    assert sim.contacts() > 0
+    assert sim.min_clearance() < 0.005

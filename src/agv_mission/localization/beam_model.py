@@ -9,8 +9,8 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from scipy import ndimage
 
+from agv_mission.maps.distance import obstacle_distance
 from agv_mission.maps.grid import OccupancyGrid
 
 LaserModel = Literal["likelihood_field", "likelihood_field_prob"]
@@ -54,8 +54,7 @@ class BeamModel:
         res = self.resolution
         max_dist = float(params.likelihood_max_dist)
         if occupied.any():
-            dist = ndimage.distance_transform_edt(~occupied).astype(np.float32) * res
-            dist = np.minimum(dist, np.float32(max_dist))
+            dist = np.minimum(obstacle_distance(occupied, res), np.float32(max_dist))
         else:
             dist = np.full(occupied.shape, max_dist, dtype=np.float32)
         # Pad by the beam length so that every end point of a particle on the map indexes

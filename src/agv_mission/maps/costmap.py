@@ -15,6 +15,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.ndimage import distance_transform_edt
 
+from agv_mission.maps.distance import obstacle_distance
 from agv_mission.maps.grid import FREE, OccupancyGrid
 
 LETHAL = 254
@@ -72,8 +73,8 @@ class Costmap:
         if config.resolution is not None:
             grid = grid.resampled(config.resolution)
         blocked = grid.data != FREE if config.unknown_is_obstacle else grid.data > 50
-        distance = (distance_transform_edt(~blocked) * grid.resolution).astype(np.float32)
-        cost = _inflation_cost(distance, robot_radius, config)
+        distance = obstacle_distance(blocked, grid.resolution)  # cached per map
+        cost = inflation_cost(distance, robot_radius, config)
         return cls(grid, robot_radius, config, distance, cost)
 
     @property
@@ -111,7 +112,7 @@ class Costmap:
         distance = self.distance.copy()
         distance[window] = np.minimum(distance[window], near)
         cost = self.cost.copy()
-        cost[window] = _inflation_cost(distance[window], self.robot_radius, self.config)
+        cost[window] = inflation_cost(distance[window], self.robot_radius, self.config)
         return Costmap(self.grid, self.robot_radius, self.config, distance, cost)
 
     def cost_at(self, xy: np.ndarray) -> np.ndarray:
@@ -122,7 +123,7 @@ class Costmap:
         return out
 
 
-def _inflation_cost(distance: np.ndarray, robot_radius: float, config: CostmapConfig) -> np.ndarray:
+def inflation_cost(distance: np.ndarray, robot_radius: float, config: CostmapConfig) -> np.ndarray:
     cost = np.zeros(distance.shape, dtype=np.uint8)
     decay = 252.0 * np.exp(-config.cost_scaling_factor * (distance - robot_radius))
     inflated = distance <= robot_radius + config.inflation_radius

@@ -275,7 +275,7 @@ class Navigator:
 
     def _path_blocked(self, pose: Pose2D) -> bool:
         """Whether a marked obstacle stands on the path within ``lookahead`` of the robot."""
-        if not self.layer.marks.any() or self.path is None or len(self.path.points) < 2:
+        if not self.layer.has_marks or self.path is None or len(self.path.points) < 2:
             return False
         i, _, here = self._closest(pose)
         ahead = np.vstack([here, self.path.points[i + 1 :]])

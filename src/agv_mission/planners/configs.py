@@ -200,15 +200,31 @@ class MpcConfig(PluginConfig):
     type: Literal["mpc"] = "mpc"
     horizon: int = Field(20, ge=2, le=100, description="number of model steps N")
     dt: float = Field(0.1, gt=0, description="model step, s")
-    max_obstacles: int = Field(16, ge=0, description="lidar points kept as constraints")
-    obstacle_range: float = Field(
-        1.0, gt=0, description="lidar points farther than this from the reference are ignored, m"
+    max_obstacles: int = Field(
+        256,
+        ge=0,
+        description="lidar points considered (the nearest to the robot); 0: no obstacle "
+        "constraints",
     )
-    obstacle_spacing: float = Field(
-        0.1, ge=0, description="lidar points are thinned to one per cell of this size, m"
+    obstacles_per_stage: int = Field(
+        2,
+        ge=1,
+        description="constraints per model step: the points nearest that step's predicted "
+        "position (a few per step instead of every point at every step keeps the solve small)",
+    )
+    obstacle_range: float = Field(
+        1.0, gt=0, description="points farther than this from a predicted position are ignored, m"
     )
     safety_margin: float = Field(0.05, ge=0, description="clearance beyond robot_radius, m")
-    solver: Literal["fatrop", "ipopt"] = "fatrop"
+    solver: Literal["rti", "fatrop", "ipopt"] = Field(
+        "rti",
+        description="rti: one Gauss-Newton SQP step per control step (real-time iteration, "
+        "a dense QP on the controls solved by DAQP); fatrop / ipopt: the NLP solved to "
+        "tolerance every step",
+    )
+    rti_cold_iterations: int = Field(
+        3, ge=1, description="rti: SQP steps when there is no previous solution to start from"
+    )
     solver_options: SolverOptions = Field(default_factory=SolverOptions)
     weights: MpcWeights = Field(default_factory=MpcWeights)
     decel_fraction: float = Field(

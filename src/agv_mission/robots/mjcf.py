@@ -15,6 +15,17 @@ Layout of the generated model (names are part of the contract used by
 Collision bits keep the contact search tiny even with hundreds of wall boxes: walls and
 floor never test against each other (same body, disjoint bits), wheels and casters only
 touch the floor, and only the chassis tests against walls.
+
+Large worlds (more static shapes than ``wall_slots``): MuJoCo updates every geom each step
+and the lidar's rays test every geom, so a map with a thousand wall blocks costs several
+times a small one. The model then holds ``wall_slots`` box slots ``wall_slot_<i>`` and
+``pillar_slots`` cylinder slots ``pillar_slot_<i>`` instead, parked (group
+:data:`PARKED_GROUP`, no collisions) until :class:`agv_mission.robots.simulation.DiffDriveSim`
+moves the walls near the robot into them (a rolling window, like a local costmap).
+MuJoCo precomputes the world body's bounding-volume tree from the compiled geoms, so every
+slot is compiled as a box (cylinder) covering the whole world: the tree stays conservative
+whatever wall a slot later takes (compiled at its real size, a moved slot would be culled
+from the contact search).
 """
 
 from __future__ import annotations
@@ -27,10 +38,15 @@ from agv_mission.robots.description import RobotDescription
 FLOOR_GROUP = 0
 WALL_GROUP = 1
 ROBOT_GROUP = 2
+PARKED_GROUP = 3  # wall slots not in use: neither the lidar nor the contact search sees them
+
+WALL_SLOTS = 192  # box slots of the rolling window in large worlds
+PILLAR_SLOTS = 32
 
 # contype / conaffinity bits
 _FLOOR_BIT = 1
 _WALL_BIT = 2
+WALL_BIT = _WALL_BIT
 
 GRAVITY = 9.81
 WHEEL_FRICTION = 1.0
@@ -65,9 +81,26 @@ def wheel_kv(robot: RobotDescription) -> float:
     return reflected_inertia / 0.01
 
 
+def uses_wall_slots(world: World) -> bool:
+    """Whether ``world`` is large enough for the rolling window of wall slots."""
+    return len(world.boxes) > WALL_SLOTS or len(world.cylinders) > PILLAR_SLOTS
+
+
+def _world_bounds(world: World) -> tuple[float, float, float, float]:
+    """(xmin, xmax, ymin, ymax) holding the map and every wall, with a margin."""
+    x0, x1, y0, y1 = world.map.extent
+    for b in world.boxes:
+        r = math.hypot(b.half_x, b.half_y)
+        x0, x1, y0, y1 = min(x0, b.x - r), max(x1, b.x + r), min(y0, b.y - r), max(y1, b.y + r)
+    for c in world.cylinders:
+        x0, x1 = min(x0, c.x - c.radius), max(x1, c.x + c.radius)
+        y0, y1 = min(y0, c.y - c.radius), max(y1, c.y + c.radius)
+    return x0 - 1.0, x1 + 1.0, y0 - 1.0, y1 + 1.0
+
+
 def build_mjcf(robot: RobotDescription, world: World, timestep: float = 0.002) -> str:
-    """The MJCF XML of ``world``'s walls plus ``robot`` (spawned at the origin; place it by
-    writing the free joint's ``qpos``)."""
+    """The MJCF XML of ``world``'s walls (or, in a large world, parked wall slots) plus
+    ``robot`` (spawned at the origin; place it by writing the free joint's ``qpos``)."""
     r = robot.wheel_radius
     rf = robot.footprint_radius
     half_sep = robot.wheel_separation / 2.0
@@ -90,13 +123,28 @@ def build_mjcf(robot: RobotDescription, world: World, timestep: float = 0.002) -
     tau = wheel_torque_limit(robot)
 
     walls = []
-    for i, b in enumerate(world.boxes):
+    slots = uses_wall_slots(world)
+    if slots:
+        x0, x1, y0, y1 = _world_bounds(world)
+        cx, cy, hx, hy = (x0 + x1) / 2, (y0 + y1) / 2, (x1 - x0) / 2, (y1 - y0) / 2
+        parked = f'class="wall" group="{PARKED_GROUP}" contype="0"'
+        walls += [
+            f'    <geom name="wall_slot_{i}" type="box" pos="{_vec(cx, cy, h_wall / 2)}" '
+            f'size="{_vec(hx, hy, h_wall / 2)}" {parked}/>'
+            for i in range(WALL_SLOTS)
+        ]
+        walls += [
+            f'    <geom name="pillar_slot_{i}" type="cylinder" pos="{_vec(cx, cy, h_wall / 2)}" '
+            f'size="{_vec(math.hypot(hx, hy), h_wall / 2)}" {parked}/>'
+            for i in range(PILLAR_SLOTS)
+        ]
+    for i, b in enumerate([] if slots else world.boxes):
         walls.append(
             f'    <geom name="wall_{i}" type="box" pos="{_vec(b.x, b.y, h_wall / 2)}" '
             f'size="{_vec(b.half_x, b.half_y, h_wall / 2)}" quat="{_yaw_quat(b.yaw)}" '
             f'class="wall"/>'
         )
-    for i, c in enumerate(world.cylinders):
+    for i, c in enumerate([] if slots else world.cylinders):
         walls.append(
             f'    <geom name="pillar_{i}" type="cylinder" pos="{_vec(c.x, c.y, h_wall / 2)}" '
             f'size="{_vec(c.radius, h_wall / 2)}" class="wall"/>'

@@ -42,6 +42,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from agv_mission.geometry import Pose2D
 from agv_mission.localization.particle_filter import MotionNoise, ParticleFilter, SensorParams
+from agv_mission.localization.scan_refine import Correction, PoseTracker, RefineParams
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
 from agv_mission.planners.base import PluginConfig
@@ -61,6 +62,7 @@ class InitialPose(BaseModel):
 #: Named parameter sets for ``profile``; keys given next to ``profile`` win.
 PROFILES: dict[str, dict[str, Any]] = {
     "turtlebot3": {},  # the field defaults: TurtleBot3's amcl.launch
+    "accurate": {"refine": True},
     "recovery": {
         "laser_model_type": "likelihood_field_prob",
         "laser_log_likelihood_scale": 0.1,
@@ -75,10 +77,12 @@ class AmclConfig(PluginConfig):
     """ROS amcl's parameters, defaults from TurtleBot3's ``amcl.launch``."""
 
     type: Literal["amcl"] = "amcl"
-    profile: Literal["turtlebot3", "recovery"] = Field(
-        "turtlebot3",
-        description="named defaults (PROFILES): turtlebot3 = amcl.launch; recovery = "
-        "global localisation and kidnap recovery; keys set next to it override it",
+    profile: Literal["accurate", "turtlebot3", "recovery"] = Field(
+        "accurate",
+        description="named defaults (PROFILES): accurate = amcl.launch's filter plus "
+        "scan-to-map refinement (centimetre estimates with a consistent covariance); "
+        "turtlebot3 = amcl.launch alone; recovery = global localisation and kidnap "
+        "recovery; keys set next to it override it",
     )
 
     # Overall filter
@@ -133,6 +137,36 @@ class AmclConfig(PluginConfig):
     odom_alpha3: float = Field(0.1, ge=0, description="translation noise from translation")
     odom_alpha4: float = Field(0.1, ge=0, description="translation noise from rotation")
 
+    # Scan-to-map refinement (not in ROS; see scan_refine.PoseTracker)
+    refine: bool = Field(
+        False,
+        description="refine the filter's estimate against the map's distance field with "
+        "every scan (iterated EKF); the estimate and covariance then come from it",
+    )
+    refine_sigma: float = Field(0.02, gt=0, description="per-beam noise, m")
+    refine_huber: float = Field(0.03, gt=0, description="robust kernel width, m")
+    refine_outlier: float = Field(0.25, gt=0, description="beams farther off are ignored, m")
+    refine_inlier: float = Field(0.05, gt=0, description="a beam this close fits, m")
+    refine_min_inlier_fraction: float = Field(
+        0.6, ge=0, le=1, description="fit-quality gate: share of beams that must fit"
+    )
+    refine_min_beams: int = Field(20, ge=3)
+    refine_max_beams: int = Field(360, ge=3)
+    refine_floor_xy: float = Field(
+        0.01, gt=0, description="m: no single scan pins x or y tighter (beams correlate)"
+    )
+    refine_floor_yaw: float = Field(0.005, gt=0, description="rad: the same for yaw")
+    refine_noise_along: float = Field(0.02, ge=0, description="odometry sd per metre driven")
+    refine_noise_lateral: float = Field(0.01, ge=0, description="sideways sd per metre")
+    refine_noise_turn: float = Field(0.02, ge=0, description="yaw sd per radian turned")
+    refine_noise_yaw_per_m: float = Field(0.01, ge=0, description="yaw sd per metre driven")
+    refine_max_failures: int = Field(
+        25, ge=1, description="scans in a row that fail the gate before the filter takes over"
+    )
+    refine_start_std_xy: float = Field(
+        0.15, gt=0, description="m: the filter must be this sure before refinement starts"
+    )
+
     # Plot support
     snapshot_interval: int = Field(5, ge=1, description="filter updates between snapshots")
     max_snapshots: int = Field(40, ge=2)
@@ -142,7 +176,7 @@ class AmclConfig(PluginConfig):
     def _profile_defaults(cls, data: Any) -> Any:
         """Fill the keys not given from the named profile (unknown names: the field's error)."""
         if isinstance(data, dict):
-            name = data.get("profile", "turtlebot3")
+            name = data.get("profile", "accurate")
             preset = PROFILES.get(name) if isinstance(name, str) else None
             if preset:
                 data = {**preset, **data}
@@ -183,6 +217,33 @@ class AmclLocalizer:
             alpha_fast=c.recovery_alpha_fast,
             inject_candidates=c.recovery_candidates,
         )
+        self.tracker = (
+            PoseTracker(
+                grid,
+                RefineParams(
+                    sigma=c.refine_sigma,
+                    huber=c.refine_huber,
+                    outlier=c.refine_outlier,
+                    inlier=c.refine_inlier,
+                    min_inlier_fraction=c.refine_min_inlier_fraction,
+                    min_beams=c.refine_min_beams,
+                    max_beams=c.refine_max_beams,
+                    floor_xy=c.refine_floor_xy,
+                    floor_yaw=c.refine_floor_yaw,
+                    noise_along=c.refine_noise_along,
+                    noise_lateral=c.refine_noise_lateral,
+                    noise_turn=c.refine_noise_turn,
+                    noise_yaw_per_m=c.refine_noise_yaw_per_m,
+                ),
+            )
+            if c.refine
+            else None
+        )
+        self.refine_stats = {"scans": 0, "accepted": 0, "rejected": 0, "starts": 0}
+        self._track_odom = Pose2D(0.0, 0.0, 0.0)
+        self._failures = 0
+        self._pf_cov = np.diag([c.initial_cov_xx, c.initial_cov_yy, c.initial_cov_aa])
+        self._estimate = Pose2D(0.0, 0.0, 0.0)
         self.snapshots: list[tuple[float, np.ndarray]] = []
         self.particle_counts: list[tuple[float, int]] = []
         self.filter_updates = 0
@@ -210,8 +271,24 @@ class AmclLocalizer:
 
     @property
     def map_to_odom(self) -> Pose2D:
-        """amcl's ``map -> odom`` transform."""
-        return self._pose.compose(Pose2D(0.0, 0.0, 0.0).relative_to(self._odom))
+        """amcl's ``map -> odom`` transform (of the current estimate)."""
+        return self._estimate.compose(Pose2D(0.0, 0.0, 0.0).relative_to(self._track_odom))
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """3x3 covariance (x, y, yaw) of the current estimate.
+
+        The refinement's Kalman covariance while it tracks, else the particle cloud's
+        weighted covariance at the last filter update.
+        """
+        if self.tracker is not None and self.tracker.active:
+            return self.tracker.cov.copy()
+        return self._pf_cov.copy()
+
+    @property
+    def refining(self) -> bool:
+        """True while the scan-to-map refinement gives the estimate."""
+        return self.tracker is not None and self.tracker.active
 
     def reset(self, pose: Pose2D, odom: Pose2D) -> None:
         c = self.config
@@ -226,6 +303,12 @@ class AmclLocalizer:
             cov = np.diag([c.initial_cov_xx, c.initial_cov_yy, c.initial_cov_aa])
             self.filter.init_gaussian(start.as_array(), cov)
         self._pose, self._odom = start, odom
+        self._estimate, self._track_odom = start, odom
+        self._pf_cov = self.filter.covariance(start.as_array())
+        self._failures = 0
+        self.refine_stats = {"scans": 0, "accepted": 0, "rejected": 0, "starts": 0}
+        if self.tracker is not None:
+            self.tracker.stop()
         self._initialised = False
         self._resample_count = 0
         self._force_update = False
@@ -243,10 +326,31 @@ class AmclLocalizer:
                 math.hypot(delta.x, delta.y) >= self.config.update_min_d
                 or abs(delta.yaw) >= self.config.update_min_a
             )
+        delta = odom.relative_to(self._track_odom)
+        self._track_odom = odom
+        tracker = self.tracker
+        if tracker is not None and tracker.active:
+            tracker.predict(delta.as_array())
+        filtered = False
+        if scan is not None:
+            delta = odom.relative_to(self._odom)
+            moved = (
+                math.hypot(delta.x, delta.y) >= self.config.update_min_d
+                or abs(delta.yaw) >= self.config.update_min_a
+            )
             if moved or self._force_update or not self._initialised:
                 self._filter_update(odom, scan, time, moved or self._force_update)
                 self._force_update = False
-        return self._pose.compose(odom.relative_to(self._odom))
+                filtered = True
+        pf_pose = self._pose.compose(odom.relative_to(self._odom))
+        if tracker is not None and scan is not None:
+            self._refine(tracker, scan, pf_pose, filtered)
+        if tracker is not None and tracker.active:
+            m = tracker.mean
+            self._estimate = Pose2D(float(m[0]), float(m[1]), float(m[2]))
+        else:
+            self._estimate = pf_pose
+        return self._estimate
 
     def request_nomotion_update(self) -> None:
         """Update the filter with the next scan although the robot has not moved far enough.
@@ -257,6 +361,59 @@ class AmclLocalizer:
         self._force_update = True
 
     # ------------------------------------------------------------------ internals
+
+    def _refine(
+        self, tracker: PoseTracker, scan: LaserScan, pf_pose: Pose2D, filtered: bool
+    ) -> None:
+        """Correct the tracked pose with ``scan``; start, stop and recentre as the fit says.
+
+        The tracker starts from the filter's pose once the cloud is tight (position sd below
+        ``refine_start_std_xy``) or the scan fits the map from there almost perfectly; it
+        stops (the filter's estimate takes over) after ``refine_max_failures`` scans in a row
+        that see walls but do not fit them. While it tracks, the particle cloud is moved
+        onto its pose at every filter update, so the filter does not drift away from a
+        centimetre estimate in long stretches with little to see.
+        """
+        c = self.config
+        points = _scan_points(scan, c.laser_min_range, c.laser_max_range)
+        self.refine_stats["scans"] += 1
+        if tracker.active:
+            corr = tracker.correct(points)
+            self._count(corr)
+            if corr.beams >= c.refine_min_beams:
+                self._failures = 0 if corr.accepted else self._failures + 1
+            if self._failures >= c.refine_max_failures:
+                tracker.stop()
+                self._failures = 0
+        else:
+            cov = self._pf_cov + np.diag([0.02**2, 0.02**2, 0.02**2])
+            sure = math.sqrt(max(cov[0, 0], cov[1, 1])) <= c.refine_start_std_xy
+            tracker.start(pf_pose.as_array(), cov)
+            corr = tracker.correct(points)
+            good = corr.accepted and (sure or corr.inlier_fraction >= 0.9)
+            if not good:
+                tracker.stop()
+                return
+            self._count(corr)
+            self.refine_stats["starts"] += 1
+            self._failures = 0
+        if tracker.active and filtered and tracker.last is not None and tracker.last.accepted:
+            self._recentre(tracker.mean)
+
+    def _count(self, corr: Correction) -> None:
+        self.refine_stats["accepted" if corr.accepted else "rejected"] += 1
+
+    def _recentre(self, mean: np.ndarray) -> None:
+        """Move the particle cloud (rigidly about its estimate) onto the tracked pose."""
+        p = self.filter.particles
+        est = self._pose.as_array()
+        dyaw = _wrap1(float(mean[2] - est[2]))
+        c, s = math.cos(dyaw), math.sin(dyaw)
+        rx, ry = p[:, 0] - est[0], p[:, 1] - est[1]
+        p[:, 0] = mean[0] + c * rx - s * ry
+        p[:, 1] = mean[1] + s * rx + c * ry
+        p[:, 2] = (p[:, 2] + dyaw + math.pi) % (2.0 * math.pi) - math.pi
+        self._pose = Pose2D(float(mean[0]), float(mean[1]), float(mean[2]))
 
     def _filter_update(self, odom: Pose2D, scan: LaserScan, time: float, moved: bool) -> None:
         pf = self.filter
@@ -270,6 +427,7 @@ class AmclLocalizer:
             pf.resample()
         est, _ = pf.estimate()
         self._pose = Pose2D(float(est[0]), float(est[1]), float(est[2]))
+        self._pf_cov = pf.covariance(est)
         self._odom = odom
         self._initialised = True
         self.filter_updates += 1
@@ -279,3 +437,18 @@ class AmclLocalizer:
             if len(self.snapshots) > self.config.max_snapshots:
                 del self.snapshots[1::2]  # keep the first, thin evenly
                 self._snapshot_every *= 2
+
+
+def _scan_points(scan: LaserScan, min_range: float, max_range: float) -> np.ndarray:
+    """Robot-frame end points (M, 2) of the valid beams within amcl's laser range limits."""
+    r = np.asarray(scan.ranges, dtype=np.float64)
+    rmin = min_range if min_range > 0.0 else scan.range_min
+    rmax = max_range if max_range > 0.0 else scan.range_max
+    ok = np.isfinite(r) & (r >= rmin) & (r < rmax)
+    a = scan.angle_min + scan.angle_increment * np.flatnonzero(ok)
+    r = r[ok]
+    return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
+
+
+def _wrap1(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi

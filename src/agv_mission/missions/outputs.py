@@ -13,7 +13,7 @@ import yaml
 
 from agv_mission.atomic import atomic_write_bytes, atomic_write_text
 from agv_mission.missions.loader import LoadedMission
-from agv_mission.missions.runner import TRAJECTORY_COLUMNS, RunRecord
+from agv_mission.missions.runner import COVARIANCE_COLUMNS, TRAJECTORY_COLUMNS, RunRecord
 
 
 def make_run_dir(output_root: Path, name: str) -> Path:
@@ -55,7 +55,7 @@ def write_mission(run_dir: Path, loaded: LoadedMission) -> None:
 
 def write_run(run_dir: Path, loaded: LoadedMission, record: RunRecord) -> dict[str, Any]:
     """Write every output of a finished run; returns the result document."""
-    write_trajectory(run_dir / "trajectory.csv", record.trajectory)
+    write_trajectory(run_dir / "trajectory.csv", record.trajectory, record.covariance)
     atomic_write_text(run_dir / "tree.txt", record.tree_text + "\n")
     plot_run(run_dir / "run.png", loaded, record)
     result = result_document(loaded, record, run_dir)
@@ -75,11 +75,21 @@ def _json_default(value: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
-def write_trajectory(path: Path, trajectory: np.ndarray) -> None:
+def write_trajectory(
+    path: Path, trajectory: np.ndarray, covariance: np.ndarray | None = None
+) -> None:
+    """The contract's nine columns, then the estimate's covariance when the localiser has one."""
     buf = io.StringIO()
-    buf.write(",".join(TRAJECTORY_COLUMNS) + "\n")
+    columns = TRAJECTORY_COLUMNS
+    if covariance is not None and len(covariance) == len(trajectory):
+        columns = TRAJECTORY_COLUMNS + COVARIANCE_COLUMNS
+        trajectory = np.hstack([trajectory, covariance])
+    buf.write(",".join(columns) + "\n")
     if trajectory.size:
-        np.savetxt(buf, trajectory, delimiter=",", fmt="%.6f")
+        fmt = ["%.6f"] * len(TRAJECTORY_COLUMNS) + ["%.6g"] * (
+            len(columns) - len(TRAJECTORY_COLUMNS)
+        )
+        np.savetxt(buf, trajectory, delimiter=",", fmt=fmt)
     atomic_write_text(path, buf.getvalue())
 
 

@@ -41,6 +41,10 @@ from agv_mission.robots.simulation import DiffDriveSim
 CONTROL_PERIOD = 0.1
 
 TRAJECTORY_COLUMNS = ("t", "x", "y", "yaw", "est_x", "est_y", "est_yaw", "v", "w")
+#: Extra trajectory.csv columns after the contract's nine: the estimate's covariance.
+COVARIANCE_COLUMNS = ("cov_xx", "cov_xy", "cov_yy", "cov_yawyaw")
+#: Localisation errors are also summarised after the estimate has had this long to settle.
+SETTLE_TIME = 10.0
 
 ProgressCallback = Callable[[float, float], None]
 
@@ -62,6 +66,7 @@ class RunRecord:
     extras: dict[str, Any] = field(default_factory=dict)  # more keys for result.json
     particle_snapshots: list[tuple[float, np.ndarray]] = field(default_factory=list)
     built_map: OccupancyGrid | None = None  # the last map a map_area task saved
+    covariance: np.ndarray | None = None  # (steps, len(COVARIANCE_COLUMNS)), NaN: none
 
 
 class VelocitySmoother:
@@ -161,6 +166,7 @@ class MissionRun:
         self.scan_period = 1.0 / robot.lidar.rate
         self.next_scan = 0.0
         self.rows: list[tuple[float, ...]] = []
+        self.covs: list[tuple[float, ...]] = []
         self.task_status = ["not_run"] * len(self.tree.tasks)
         self.collisions: list[dict[str, float]] = []
         self.in_contact = False
@@ -209,6 +215,7 @@ class MissionRun:
         self.rows.append(
             (now, truth.x, truth.y, truth.yaw, estimate.x, estimate.y, estimate.yaw, v, w)
         )
+        self.covs.append(_covariance_row(self.localizer))
         self._watch_safety(now, truth)
 
         if self.status is not None:
@@ -337,6 +344,7 @@ class MissionRun:
             self.task_status = ["aborted" if s == "running" else s for s in self.task_status]
         tasks = _task_reports(self.mission, self.tree, self.task_status, self.handle.events)
         _add_true_errors(tasks, trajectory)
+        covariance = np.asarray(self.covs, dtype=float).reshape(-1, len(COVARIANCE_COLUMNS))
         metrics = _metrics(
             trajectory,
             self.navigator,
@@ -350,6 +358,10 @@ class MissionRun:
             if e["event"] == "recovery":
                 recoveries[e["kind"]] = recoveries.get(e["kind"], 0) + 1
         metrics["navigation"]["recoveries"] = recoveries
+        metrics["localization"].update(_covariance_metrics(trajectory, covariance))
+        refine = getattr(self.localizer, "refine_stats", None)
+        if refine and refine.get("scans"):
+            metrics["localization"]["refinement"] = dict(refine)
         extras: dict[str, Any] = {"collisions": self.collisions, "faults": self.faults.report()}
         if self.maps:
             extras["maps"] = self.maps
@@ -375,6 +387,7 @@ class MissionRun:
             tasks=tasks,
             metrics=metrics,
             trajectory=trajectory,
+            covariance=covariance if np.isfinite(covariance).any() else None,
             paths=self.navigator.paths,
             events=self.handle.events,
             tree_text=self.tree.render(),
@@ -382,6 +395,47 @@ class MissionRun:
             particle_snapshots=list(getattr(self.localizer, "snapshots", [])),
             built_map=self.built_map,
         )
+
+
+def _covariance_row(localizer: Any) -> tuple[float, float, float, float]:
+    """(xx, xy, yy, yawyaw) of the localiser's covariance, NaN when it reports none."""
+    cov = getattr(localizer, "covariance", None)
+    if cov is None:
+        return (math.nan,) * 4
+    c = np.asarray(cov, dtype=float)
+    return float(c[0, 0]), float(c[0, 1]), float(c[1, 1]), float(c[2, 2])
+
+
+def _covariance_metrics(traj: np.ndarray, cov: np.ndarray) -> dict[str, Any]:
+    """Errors after SETTLE_TIME, and how often the true error lies in the 2-sigma ellipse.
+
+    ``consistency_2sigma`` is the share of steps whose position error ``e`` has
+    ``e^T C^-1 e <= 4`` under the reported position covariance ``C``.
+    """
+    out: dict[str, Any] = {}
+    if not len(traj):
+        return out
+    err_xy = traj[:, 4:6] - traj[:, 1:3]
+    err = np.linalg.norm(err_xy, axis=1)
+    late = traj[:, 0] >= SETTLE_TIME
+    if late.any():
+        out["position_rmse_settled"] = round(float(np.sqrt(np.mean(err[late] ** 2))), 5)
+        out["position_max_error_settled"] = round(float(err[late].max()), 5)
+    have = np.isfinite(cov).all(axis=1) if len(cov) == len(traj) else np.zeros(len(traj), bool)
+    if not have.any():
+        return out
+    xx, xy, yy = cov[have, 0], cov[have, 1], cov[have, 2]
+    ex, ey = err_xy[have, 0], err_xy[have, 1]
+    det = xx * yy - xy**2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d2 = (yy * ex**2 - 2.0 * xy * ex * ey + xx * ey**2) / det
+    d2 = np.where(det > 0.0, d2, np.where(np.hypot(ex, ey) == 0.0, 0.0, np.inf))
+    out["consistency_2sigma"] = round(float(np.mean(d2 <= 4.0)), 4)
+    last = cov[np.flatnonzero(have)[-1]]
+    out["final_covariance"] = {
+        k.removeprefix("cov_"): float(f"{v:.4g}") for k, v in zip(COVARIANCE_COLUMNS, last)
+    }
+    return out
 
 
 def _recorders(loaded: LoadedMission, run_dir: Path | None) -> list[LocationRecorder]:

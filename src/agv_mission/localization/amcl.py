@@ -156,15 +156,29 @@ class AmclConfig(PluginConfig):
         0.01, gt=0, description="m: no single scan pins x or y tighter (beams correlate)"
     )
     refine_floor_yaw: float = Field(0.005, gt=0, description="rad: the same for yaw")
-    refine_noise_along: float = Field(0.02, ge=0, description="odometry sd per metre driven")
-    refine_noise_lateral: float = Field(0.01, ge=0, description="sideways sd per metre")
-    refine_noise_turn: float = Field(0.02, ge=0, description="yaw sd per radian turned")
-    refine_noise_yaw_per_m: float = Field(0.01, ge=0, description="yaw sd per metre driven")
+    refine_noise_along: float = Field(
+        0.02, ge=0, description="odometry random walk: m sd after 1 m driven"
+    )
+    refine_noise_lateral: float = Field(0.01, ge=0, description="m sd sideways after 1 m")
+    refine_noise_turn: float = Field(0.02, ge=0, description="rad sd after 1 rad turned")
+    refine_noise_yaw_per_m: float = Field(0.01, ge=0, description="rad sd after 1 m driven")
+    refine_map_error_scale: float = Field(
+        1.0, ge=0, description="covariance floor: x, y sd = this times the fit's residual RMS"
+    )
+    refine_map_error_lever: float = Field(
+        2.0, gt=0, description="m: the yaw sd floor is the x, y floor over this"
+    )
     refine_max_failures: int = Field(
         25, ge=1, description="scans in a row that fail the gate before the filter takes over"
     )
     refine_start_std_xy: float = Field(
         0.15, gt=0, description="m: the filter must be this sure before refinement starts"
+    )
+    refine_jump: float = Field(
+        0.5,
+        gt=0,
+        description="m (and rad, at least 0.3): a sure filter estimate this far from the "
+        "tracked pose restarts the tracker there",
     )
 
     # Plot support
@@ -234,12 +248,14 @@ class AmclLocalizer:
                     noise_lateral=c.refine_noise_lateral,
                     noise_turn=c.refine_noise_turn,
                     noise_yaw_per_m=c.refine_noise_yaw_per_m,
+                    map_error_scale=c.refine_map_error_scale,
+                    map_error_lever=c.refine_map_error_lever,
                 ),
             )
             if c.refine
             else None
         )
-        self.refine_stats = {"scans": 0, "accepted": 0, "rejected": 0, "starts": 0}
+        self.refine_stats = {"scans": 0, "accepted": 0, "rejected": 0, "starts": 0, "restarts": 0}
         self._track_odom = Pose2D(0.0, 0.0, 0.0)
         self._failures = 0
         self._pf_cov = np.diag([c.initial_cov_xx, c.initial_cov_yy, c.initial_cov_aa])
@@ -306,7 +322,7 @@ class AmclLocalizer:
         self._estimate, self._track_odom = start, odom
         self._pf_cov = self.filter.covariance(start.as_array())
         self._failures = 0
-        self.refine_stats = {"scans": 0, "accepted": 0, "rejected": 0, "starts": 0}
+        self.refine_stats = {"scans": 0, "accepted": 0, "rejected": 0, "starts": 0, "restarts": 0}
         if self.tracker is not None:
             self.tracker.stop()
         self._initialised = False
@@ -368,15 +384,29 @@ class AmclLocalizer:
         """Correct the tracked pose with ``scan``; start, stop and recentre as the fit says.
 
         The tracker starts from the filter's pose once the cloud is tight (position sd below
-        ``refine_start_std_xy``) or the scan fits the map from there almost perfectly; it
-        stops (the filter's estimate takes over) after ``refine_max_failures`` scans in a row
-        that see walls but do not fit them. While it tracks, the particle cloud is moved
-        onto its pose at every filter update, so the filter does not drift away from a
-        centimetre estimate in long stretches with little to see.
+        ``refine_start_std_xy``), or, with a tracking-sized cloud (sd below 0.6 m, e.g. the
+        initial pose's), when the scan fits the map from there almost perfectly; never
+        from a globally spread cloud, whose heaviest cluster may be a look-alike place. It
+        stops (the filter's estimate takes over) after ``refine_max_failures`` scans in a
+        row that see walls but do not fit them, and restarts from the filter when a tight
+        cloud's estimate jumps more than ``refine_jump`` away from it (the filter switched
+        to another mode). While it tracks, the particle cloud is moved rigidly onto its pose
+        at every filter update, so the filter does not drift away from a centimetre
+        estimate in long stretches with little to see.
         """
         c = self.config
         points = _scan_points(scan, c.laser_min_range, c.laser_max_range)
         self.refine_stats["scans"] += 1
+        pf_std = math.sqrt(max(self._pf_cov[0, 0], self._pf_cov[1, 1]))
+        sure = pf_std <= c.refine_start_std_xy
+        if tracker.active and filtered and sure:
+            m = tracker.mean
+            jump = math.hypot(m[0] - self._pose.x, m[1] - self._pose.y) > c.refine_jump or abs(
+                _wrap1(float(m[2]) - self._pose.yaw)
+            ) > max(c.refine_jump, 0.3)
+            if jump:
+                tracker.stop()
+                self.refine_stats["restarts"] += 1
         if tracker.active:
             corr = tracker.correct(points)
             self._count(corr)
@@ -385,13 +415,11 @@ class AmclLocalizer:
             if self._failures >= c.refine_max_failures:
                 tracker.stop()
                 self._failures = 0
-        else:
+        elif sure or pf_std <= 0.6:
             cov = self._pf_cov + np.diag([0.02**2, 0.02**2, 0.02**2])
-            sure = math.sqrt(max(cov[0, 0], cov[1, 1])) <= c.refine_start_std_xy
             tracker.start(pf_pose.as_array(), cov)
             corr = tracker.correct(points)
-            good = corr.accepted and (sure or corr.inlier_fraction >= 0.9)
-            if not good:
+            if not (corr.accepted and (sure or corr.inlier_fraction >= 0.9)):
                 tracker.stop()
                 return
             self._count(corr)

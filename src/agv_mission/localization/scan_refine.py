@@ -216,8 +216,9 @@ class PoseTracker:
         w_beam = 1.0 / p.sigma**2
         post_info = prior_info
         r = np.zeros(len(pts))
-        it = 0
+        iterations = 0
         for it in range(1, p.iterations + 1):
+            iterations = it
             c, s = math.cos(x[2]), math.sin(x[2])
             rx = c * pts[:, 0] - s * pts[:, 1]
             ry = s * pts[:, 0] + c * pts[:, 1]
@@ -253,7 +254,7 @@ class PoseTracker:
             )
             err = p.map_error_scale * self.fit_rms
             cov = floor_covariance(cov, np.array([err, err, err / p.map_error_lever]))
-        out = Correction(accepted, x, cov, len(pts), inlier, rms, it)
+        out = Correction(accepted, x, cov, len(pts), inlier, rms, iterations)
         if accepted and commit:
             self.mean, self.cov = x, cov
         self.last = out

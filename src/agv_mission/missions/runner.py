@@ -433,7 +433,8 @@ def _covariance_metrics(traj: np.ndarray, cov: np.ndarray) -> dict[str, Any]:
     out["consistency_2sigma"] = round(float(np.mean(d2 <= 4.0)), 4)
     last = cov[np.flatnonzero(have)[-1]]
     out["final_covariance"] = {
-        k.removeprefix("cov_"): float(f"{v:.4g}") for k, v in zip(COVARIANCE_COLUMNS, last)
+        k.removeprefix("cov_"): float(f"{v:.4g}")
+        for k, v in zip(COVARIANCE_COLUMNS, last, strict=True)
     }
     return out
 

@@ -40,7 +40,8 @@ OCCUPIED_THRESHOLD = 65
 class SignedDistanceField:
     """Signed distance (m) to the boundary of the occupied cells, bilinear between centres.
 
-    Positive in free (and unknown) space, negative inside walls, zero on a wall's face:
+    Positive in free (and unknown) space, negative inside walls and in the unknown space
+    right behind them, zero on a wall's face:
     a free cell next to a wall holds ``+res / 2`` and the wall cell ``-res / 2``, so the
     interpolated zero lies on the face the simulated lidar (walls built from the same
     cells) hits. Clipped at ``max_distance``; points off the map read ``max_distance``
@@ -53,10 +54,15 @@ class SignedDistanceField:
         self.resolution = res
         self.origin = grid.origin
         self.max_distance = float(max_distance)
-        if occupied.any() and not occupied.all():
-            outside = ndimage.distance_transform_edt(~occupied) - 0.5
-            inside = ndimage.distance_transform_edt(occupied) - 0.5
-            sdf = np.where(occupied, -inside, outside) * res
+        free = (grid.data >= 0) & ~occupied
+        if occupied.any() and free.any():
+            to_wall = ndimage.distance_transform_edt(~occupied)
+            to_free = ndimage.distance_transform_edt(~free)
+            # Unknown cells closer to a wall than to free space lie behind that wall (the
+            # far side of a thin wall): inside, so an end point pushed through a wall is
+            # pulled back rather than out. Other unknown cells count as free, as in amcl.
+            inside = occupied | ((grid.data < 0) & (to_wall < to_free))
+            sdf = np.where(inside, -(to_free - 0.5), to_wall - 0.5) * res
         else:
             sdf = np.full(occupied.shape, -max_distance if occupied.any() else max_distance)
         sdf = np.clip(sdf, -max_distance, max_distance)
@@ -108,7 +114,7 @@ class RefineParams:
     max_beams: int = 360
     floor_xy: float = 0.01  # m, no single scan pins x or y tighter than this
     floor_yaw: float = 0.005  # rad, nor the yaw
-    iterations: int = 8
+    iterations: int = 12
     # Covariance floor from the fit: the accepted scans' residual RMS (smoothed) times
     # ``map_error_scale`` in x and y, divided by ``map_error_lever`` (m) for the yaw.
     map_error_scale: float = 1.0
@@ -156,7 +162,7 @@ class PoseTracker:
 
     def __init__(self, grid: OccupancyGrid, params: RefineParams | None = None) -> None:
         self.params = params or RefineParams()
-        self.sdf = SignedDistanceField(grid, max_distance=max(1.0, 2.0 * self.params.outlier))
+        self.sdf = SignedDistanceField(grid, max_distance=max(1.0, 3.0 * self.params.outlier))
         self.mean = np.zeros(3)
         self.cov = np.eye(3)
         self.active = False
@@ -217,6 +223,7 @@ class PoseTracker:
         post_info = prior_info
         r = np.zeros(len(pts))
         iterations = 0
+        converged = False
         for it in range(1, p.iterations + 1):
             iterations = it
             c, s = math.cos(x[2]), math.sin(x[2])
@@ -224,8 +231,12 @@ class PoseTracker:
             ry = s * pts[:, 0] + c * pts[:, 1]
             r, grad = self.sdf.lookup(np.stack([x[0] + rx, x[1] + ry], axis=1))
             a = np.abs(r)
-            w = np.where(a <= p.huber, 1.0, p.huber / np.maximum(a, 1e-12))
-            w[a > p.outlier] = 0.0
+            # The first iterations use a wide kernel: from a prior a decimetre or a few
+            # degrees off, most end points are farther than ``outlier`` from their wall.
+            wide = it <= p.iterations // 2 and not converged
+            huber, outlier = (4.0 * p.huber, 2.0 * p.outlier) if wide else (p.huber, p.outlier)
+            w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-12))
+            w[a > outlier] = 0.0
             jac = np.empty((len(pts), 3))
             jac[:, 0], jac[:, 1] = grad[:, 0], grad[:, 1]
             jac[:, 2] = grad[:, 1] * rx - grad[:, 0] * ry
@@ -240,8 +251,10 @@ class PoseTracker:
             step = -np.linalg.solve(post_info, prior_info @ dx_prior + gvec)
             x = x + step
             x[2] = _wrap(x[2])
-            if abs(step[0]) + abs(step[1]) < 1e-5 and abs(step[2]) < 1e-5:
+            small = abs(step[0]) + abs(step[1]) < 1e-5 and abs(step[2]) < 1e-5
+            if small and not wide:
                 break
+            converged = converged or abs(step[0]) + abs(step[1]) < 1e-3 and abs(step[2]) < 1e-3
         valid = np.abs(r) < p.outlier
         inlier = float(np.mean(np.abs(r) < p.inlier))
         rms = float(np.sqrt(np.mean(r[valid] ** 2))) if valid.any() else math.nan

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Protocol
 
+import numpy as np
+
 from agv_mission.geometry import Pose2D
 from agv_mission.messages import LaserScan
 
@@ -25,3 +27,7 @@ class Localizer(Protocol):
 
     def request_nomotion_update(self) -> None:
         """Refine the estimate with the next scan even though the robot stands still."""
+
+    @property
+    def covariance(self) -> np.ndarray | None:
+        """3x3 covariance (x, y, yaw) of the latest estimate; None when there is none."""

@@ -36,3 +36,8 @@ class GroundTruthLocalizer:
 
     def request_nomotion_update(self) -> None:
         """Nothing to refine without a filter."""
+
+    @property
+    def covariance(self) -> np.ndarray | None:
+        """None: the truth has no uncertainty to report."""
+        return None

@@ -38,3 +38,8 @@ class OdometryLocalizer:
 
     def request_nomotion_update(self) -> None:
         """Nothing to refine without a filter."""
+
+    @property
+    def covariance(self) -> np.ndarray | None:
+        """None: dead reckoning keeps no uncertainty."""
+        return None

@@ -6,7 +6,16 @@ update (and once on the first scan). Between updates the estimate is the last fi
 composed with the odometry motion since then, i.e. amcl's ``map -> odom`` transform
 applied to the current odometry, so it moves smoothly at the control rate.
 
-The defaults are TurtleBot3's ``amcl.launch`` (``profile: turtlebot3``). Measured here
+The default ``profile: accurate`` adds scan-to-map refinement
+(:mod:`agv_mission.localization.scan_refine`): every scan corrects a Kalman pose estimate
+against the map's signed distance field, the estimate and its covariance come from that,
+and the particle cloud is moved onto it at each filter update; the filter stays the
+fallback (and the start) when scans stop fitting. Measured (tests/test_localization_accuracy.py,
+benchmarks/bench_localization.py): 1-2 mm RMSE on the real AWS small house map (amcl alone
+7 cm), 2-3 cm in a 30 x 50 m warehouse (amcl alone 22 cm, 0.97 m maximum), with the true
+error inside the reported 2-sigma ellipse on more than 99 % of the steps.
+
+The field defaults are TurtleBot3's ``amcl.launch`` (``profile: turtlebot3``). Measured here
 (tests/test_amcl.py): they track the demo patrol to ~0.03 m / 0.02 rad RMSE from a start
 0.3 m / 0.2 rad off, but amcl's default ``likelihood_field`` score (``1 + sum(pz**3)``) is
 too flat to localise globally in the small house, and recovery is off, so a kidnapped
@@ -40,7 +49,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from agv_mission.geometry import Pose2D
+from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.localization.particle_filter import MotionNoise, ParticleFilter, SensorParams
 from agv_mission.localization.scan_refine import Correction, PoseTracker, RefineParams
 from agv_mission.maps.grid import OccupancyGrid
@@ -402,7 +411,7 @@ class AmclLocalizer:
         if tracker.active and filtered and sure:
             m = tracker.mean
             jump = math.hypot(m[0] - self._pose.x, m[1] - self._pose.y) > c.refine_jump or abs(
-                _wrap1(float(m[2]) - self._pose.yaw)
+                wrap_angle(float(m[2]) - self._pose.yaw)
             ) > max(c.refine_jump, 0.3)
             if jump:
                 tracker.stop()
@@ -435,7 +444,7 @@ class AmclLocalizer:
         """Move the particle cloud (rigidly about its estimate) onto the tracked pose."""
         p = self.filter.particles
         est = self._pose.as_array()
-        dyaw = _wrap1(float(mean[2] - est[2]))
+        dyaw = wrap_angle(float(mean[2] - est[2]))
         c, s = math.cos(dyaw), math.sin(dyaw)
         rx, ry = p[:, 0] - est[0], p[:, 1] - est[1]
         p[:, 0] = mean[0] + c * rx - s * ry
@@ -476,7 +485,3 @@ def _scan_points(scan: LaserScan, min_range: float, max_range: float) -> np.ndar
     a = scan.angle_min + scan.angle_increment * np.flatnonzero(ok)
     r = r[ok]
     return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
-
-
-def _wrap1(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi

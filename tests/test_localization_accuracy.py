@@ -144,8 +144,11 @@ def test_covariance_floor_raises_only_small_directions():
     assert np.diag(out) == pytest.approx([1e-4, 0.04, 0.005**2])
 
 
-def drive_room(loc: AmclLocalizer, seconds: float, seed: int = 0) -> np.ndarray:
-    """Drive circles in ROOM with 2 % odometry noise; rows (err_x, err_y, cov_xx, xy, yy)."""
+def drive_room(
+    loc: AmclLocalizer, seconds: float, seed: int = 0, scale: float = 1.0, scan_every: int = 2
+) -> np.ndarray:
+    """Drive circles in ROOM with 2 % odometry noise (distances times ``scale``), a scan
+    every ``scan_every`` steps; rows (err_x, err_y, cov_xx, cov_xy, cov_yy)."""
     rng = np.random.default_rng(seed)
     truth, odom = Pose2D(3.0, 2.0, 0.0), Pose2D(0.0, 0.0, 0.0)
     loc.reset(truth, odom)
@@ -153,10 +156,10 @@ def drive_room(loc: AmclLocalizer, seconds: float, seed: int = 0) -> np.ndarray:
     for k in range(1, round(seconds / 0.1) + 1):
         v, w = 0.2, 0.25
         truth = truth.compose(Pose2D(v * 0.1, 0.0, w * 0.1))
-        noisy = Pose2D(v * 0.1 * (1 + 0.02 * rng.standard_normal()), 0.0, w * 0.1)
+        noisy = Pose2D(v * 0.1 * scale * (1 + 0.02 * rng.standard_normal()), 0.0, w * 0.1)
         odom = odom.compose(noisy)
         scan = None
-        if k % 2 == 0:
+        if k % scan_every == 0:
             pts = scan_points(ROOM, truth, rng)
             r = np.full(360, np.inf, np.float32)
             ang = np.round(np.arctan2(pts[:, 1], pts[:, 0]) / (2 * math.pi / 360)).astype(int) % 360
@@ -186,6 +189,19 @@ def test_default_profile_refines_and_its_covariance_is_consistent():
     rows_tb3 = drive_room(tb3, 40.0)
     assert not tb3.refining and tb3.tracker is None
     assert np.sqrt(np.mean(np.hypot(rows_tb3[50:, 0], rows_tb3[50:, 1]) ** 2)) > 0.02
+
+
+def test_odometry_noise_adapts_to_slipping_wheels():
+    # Wheels that report 25 % too much travel, a scan every 2 s: the prediction is off
+    # by ~10 cm when each scan arrives, far outside what the configured noise says.
+    slipping = AmclLocalizer(AmclConfig(), ROOM, np.random.default_rng(4))
+    rows = drive_room(slipping, 60.0, scale=1.25, scan_every=20)
+    assert slipping.tracker.noise_scale > 5.0
+    assert coverage_2sigma(rows[100:]) >= 0.9  # after the first 10 s (5 scans)
+    fixed = AmclLocalizer(AmclConfig(refine_adaptive_noise=False), ROOM, np.random.default_rng(4))
+    rows_fixed = drive_room(fixed, 60.0, scale=1.25, scan_every=20)
+    assert fixed.tracker.noise_scale == 1.0
+    assert coverage_2sigma(rows_fixed[100:]) < 0.5
 
 
 # --------------------------------------------------------------------------- missions

@@ -177,6 +177,9 @@ class AmclConfig(PluginConfig):
     refine_map_error_lever: float = Field(
         2.0, gt=0, description="m: the yaw sd floor is the x, y floor over this"
     )
+    refine_adaptive_noise: bool = Field(
+        True, description="scale the odometry noise up when scans keep moving the prediction"
+    )
     refine_max_failures: int = Field(
         25, ge=1, description="scans in a row that fail the gate before the filter takes over"
     )
@@ -259,6 +262,7 @@ class AmclLocalizer:
                     noise_yaw_per_m=c.refine_noise_yaw_per_m,
                     map_error_scale=c.refine_map_error_scale,
                     map_error_lever=c.refine_map_error_lever,
+                    adaptive_noise=c.refine_adaptive_noise,
                 ),
             )
             if c.refine

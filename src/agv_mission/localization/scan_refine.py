@@ -125,6 +125,7 @@ class RefineParams:
     # conservative rasterisation, map_saver's hit cells) draws walls on average half a cell
     # thick; a map built cell for cell reads 0.
     wall_offset_rate: float = 0.05
+    adaptive_noise: bool = True  # scale the odometry noise by the corrections' size
     # Odometry noise of the prediction, as random walks: the standard deviation after one
     # metre driven along (m), sideways (m), one radian turned (rad), and of the yaw after
     # one metre driven (rad); variances grow in proportion to the motion.
@@ -175,9 +176,11 @@ class PoseTracker:
         self.last: Correction | None = None
         self.fit_rms = math.nan  # smoothed residual RMS of the accepted scans, m
         self.wall_offset = 0.0  # m, where the scans see the walls' faces (see RefineParams)
+        self.noise_scale = 1.0  # adaptive factor on the odometry noise (see correct)
         self._floor = np.array([self.params.floor_xy, self.params.floor_xy, self.params.floor_yaw])
 
     def start(self, mean: np.ndarray, cov: np.ndarray) -> None:
+        self.noise_scale = 1.0
         self.mean = np.asarray(mean, dtype=float).copy()
         self.cov = 0.5 * (np.asarray(cov, dtype=float) + np.asarray(cov, dtype=float).T)
         self.active = True
@@ -208,7 +211,19 @@ class PoseTracker:
         self.mean = np.array(
             [self.mean[0] + c * dx - s * dy, self.mean[1] + s * dx + c * dy, _wrap(th + dth)]
         )
-        self.cov = f @ self.cov @ f.T + g @ q @ g.T
+        self.cov = f @ self.cov @ f.T + self.noise_scale * (g @ q @ g.T)
+
+    def _adapt_noise(self, delta: np.ndarray, prior_info: np.ndarray) -> None:
+        """Scale the odometry noise by how far the scans move the prediction.
+
+        With honest noise the correction ``delta`` is within the prior's ellipse
+        (``delta^T P^-1 delta`` about 3 on average, chi-square with 3 degrees of freedom);
+        when scans keep moving the estimate farther (wheels slipping more than the noise
+        says), the noise is scaled up, smoothed over about 5 scans, within 1..100.
+        """
+        nis = _nis(delta, prior_info)
+        target = min(100.0, max(1.0, self.noise_scale * nis / 3.0))
+        self.noise_scale = 0.8 * self.noise_scale + 0.2 * target
 
     def correct(self, points: np.ndarray, commit: bool = True) -> Correction:
         """Refine the pose with scan end points ``points`` (M, 2) in the robot frame.
@@ -269,6 +284,8 @@ class PoseTracker:
         cov = np.linalg.inv(post_info)
         cov = 0.5 * (cov + cov.T)
         accepted = inlier >= p.min_inlier_fraction
+        if accepted and commit and p.adaptive_noise:
+            self._adapt_noise(x - prior, prior_info)
         if accepted and commit and math.isfinite(rms):
             self.fit_rms = (
                 rms if not math.isfinite(self.fit_rms) else 0.8 * self.fit_rms + 0.2 * rms
@@ -287,6 +304,12 @@ class PoseTracker:
             self.mean, self.cov = x, cov
         self.last = out
         return out
+
+
+def _nis(delta: np.ndarray, info: np.ndarray) -> float:
+    d = delta.copy()
+    d[2] = _wrap(float(d[2]))
+    return float(d @ info @ d)
 
 
 def floor_covariance(cov: np.ndarray, floor: np.ndarray) -> np.ndarray:

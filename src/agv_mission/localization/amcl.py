@@ -349,12 +349,6 @@ class AmclLocalizer:
     def update(self, odom: Pose2D, scan: LaserScan | None, truth: Pose2D, time: float) -> Pose2D:
         if self.filter.count == 0:
             raise RuntimeError("amcl: reset(pose, odom) must come before update()")
-        if scan is not None:
-            delta = odom.relative_to(self._odom)
-            moved = (
-                math.hypot(delta.x, delta.y) >= self.config.update_min_d
-                or abs(delta.yaw) >= self.config.update_min_a
-            )
         delta = odom.relative_to(self._track_odom)
         self._track_odom = odom
         tracker = self.tracker

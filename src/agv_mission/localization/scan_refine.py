@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from agv_mission.geometry import wrap_angle
 from agv_mission.maps.grid import OccupancyGrid
 
 #: Cells at or above this value count as occupied (map_server's occupied_thresh 0.65).
@@ -209,7 +210,7 @@ class PoseTracker:
             ]
         )
         self.mean = np.array(
-            [self.mean[0] + c * dx - s * dy, self.mean[1] + s * dx + c * dy, _wrap(th + dth)]
+            [self.mean[0] + c * dx - s * dy, self.mean[1] + s * dx + c * dy, wrap_angle(th + dth)]
         )
         self.cov = f @ self.cov @ f.T + self.noise_scale * (g @ q @ g.T)
 
@@ -269,11 +270,11 @@ class PoseTracker:
             scale = _cap_scale(jw.T @ jac, h)
             gvec = scale @ (jw.T @ r)
             dx_prior = x - prior
-            dx_prior[2] = _wrap(dx_prior[2])
+            dx_prior[2] = wrap_angle(dx_prior[2])
             post_info = prior_info + h
             step = -np.linalg.solve(post_info, prior_info @ dx_prior + gvec)
             x = x + step
-            x[2] = _wrap(x[2])
+            x[2] = wrap_angle(x[2])
             small = abs(step[0]) + abs(step[1]) < 1e-5 and abs(step[2]) < 1e-5
             if small and not wide:
                 break
@@ -308,7 +309,7 @@ class PoseTracker:
 
 def _nis(delta: np.ndarray, info: np.ndarray) -> float:
     d = delta.copy()
-    d[2] = _wrap(float(d[2]))
+    d[2] = wrap_angle(float(d[2]))
     return float(d @ info @ d)
 
 
@@ -326,7 +327,3 @@ def floor_covariance(cov: np.ndarray, floor: np.ndarray) -> np.ndarray:
 def _cap_scale(h_full: np.ndarray, h_capped: np.ndarray) -> np.ndarray:
     """The linear map taking ``h_full`` to ``h_capped`` (``h_capped @ pinv(h_full)``)."""
     return h_capped @ np.linalg.pinv(h_full, rcond=1e-9, hermitian=True)
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi

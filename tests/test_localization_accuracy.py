@@ -28,7 +28,8 @@ from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.outputs import write_run
-from agv_mission.missions.runner import COVARIANCE_COLUMNS, TRAJECTORY_COLUMNS, run_mission
+from agv_mission.missions.run_report import COVARIANCE_COLUMNS
+from agv_mission.missions.runner import TRAJECTORY_COLUMNS, run_mission
 
 RES = 0.05
 PAD = 10

@@ -13,7 +13,8 @@ import yaml
 
 from agv_mission.atomic import atomic_write_bytes, atomic_write_text
 from agv_mission.missions.loader import LoadedMission
-from agv_mission.missions.runner import COVARIANCE_COLUMNS, TRAJECTORY_COLUMNS, RunRecord
+from agv_mission.missions.run_report import COVARIANCE_COLUMNS
+from agv_mission.missions.runner import TRAJECTORY_COLUMNS, RunRecord
 
 
 def make_run_dir(output_root: Path, name: str) -> Path:

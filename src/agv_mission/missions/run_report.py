@@ -159,3 +159,11 @@ def covariance_metrics(traj: np.ndarray, cov: np.ndarray) -> dict[str, Any]:
         for k, v in zip(COVARIANCE_COLUMNS, last, strict=True)
     }
     return out
+
+
+def covariance_row(cov: np.ndarray | None) -> tuple[float, float, float, float]:
+    """(xx, xy, yy, yawyaw) of the estimate's covariance, NaN when there is none."""
+    if cov is None:
+        return (math.nan,) * 4
+    c = np.asarray(cov, dtype=float)
+    return float(c[0, 0]), float(c[0, 1]), float(c[1, 1]), float(c[2, 2])

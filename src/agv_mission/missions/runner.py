@@ -39,6 +39,7 @@ from agv_mission.missions.run_report import (
     COVARIANCE_COLUMNS,
     add_true_errors,
     covariance_metrics,
+    covariance_row,
     run_metrics,
     task_reports,
 )
@@ -225,7 +226,7 @@ class MissionRun:
         self.rows.append(
             (now, truth.x, truth.y, truth.yaw, estimate.x, estimate.y, estimate.yaw, v, w)
         )
-        self.covs.append(_covariance_row(self._estimate_covariance()))
+        self.covs.append(covariance_row(self._estimate_covariance()))
         self._watch_safety(now, truth)
 
         if self.status is None:
@@ -350,14 +351,6 @@ class MissionRun:
             particle_snapshots=list(diagnostics.snapshots),
             built_map=self.mapper.built_map,
         )
-
-
-def _covariance_row(cov: np.ndarray | None) -> tuple[float, float, float, float]:
-    """(xx, xy, yy, yawyaw) of the estimate's covariance, NaN when there is none."""
-    if cov is None:
-        return (math.nan,) * 4
-    c = np.asarray(cov, dtype=float)
-    return float(c[0, 0]), float(c[0, 1]), float(c[1, 1]), float(c[2, 2])
 
 
 class _Sampler:

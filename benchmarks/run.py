@@ -26,6 +26,7 @@ MODULES = [
     "bench_mpc",
     "bench_amcl",
     "bench_slam",
+    "bench_localization",
     "bench_mission",
     "bench_breakdown",
     "bench_regress",
@@ -44,6 +45,28 @@ TARGETS = {
     "mission.map_area_small_house.real_time_factor": (">=", 5.0),
     "regress.speedup_ratio": ("<=", 0.6),
     "planners.warehouse_50m.cost_grid.time_ms.p50": ("<=", 50.0),
+    # issue 15: centimetre localisation on the real house, never lost on large maps
+    **{
+        f"localization.ros_aws_small_house.{robot}.accurate.{name}": bound
+        for robot in ("waffle", "burger")
+        for name, bound in (("rmse_m", ("<=", 0.03)), ("max_error_m", ("<=", 0.10)))
+    },
+    **{
+        f"localization.{key}.accurate.{name}": bound
+        for key in ("warehouse_30x50.waffle", "depot_30x15.burger")
+        for name, bound in (("rmse_m", ("<=", 0.06)), ("max_error_m", ("<=", 0.25)))
+    },
+    **{
+        f"localization.{key}.accurate.consistency_2sigma": (">=", 0.9)
+        for key in (
+            "turtlebot3_world.burger",
+            "ros_turtlebot3_world.burger",
+            "ros_aws_small_house.waffle",
+            "ros_aws_small_house.burger",
+            "warehouse_30x50.waffle",
+            "depot_30x15.burger",
+        )
+    },
 }
 # metric name suffix -> (comparison, target), for keys of every map (issue 15)
 SUFFIX_TARGETS = {
@@ -73,6 +96,8 @@ def main() -> int:
         module = importlib.import_module(name)
         values = module.run()
         results.update(values)
+        for extra in getattr(module, "tables", lambda _: [])(values):
+            console.print(extra)
         console.print(f"  done in {time.perf_counter() - start:.1f} s")
     table = Table(title="agv-mission benchmarks", header_style="bold")
     table.add_column("metric")

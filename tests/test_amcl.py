@@ -136,7 +136,7 @@ def test_registered():
 
 
 def test_turtlebot3_defaults():
-    c = AmclConfig()
+    c = AmclConfig(profile="turtlebot3")
     assert (c.min_particles, c.max_particles, c.kld_err, c.kld_z) == (500, 3000, 0.02, 0.99)
     assert (c.update_min_d, c.update_min_a, c.resample_interval) == (0.2, 0.2, 1)
     assert (c.laser_max_beams, c.laser_max_range, c.laser_likelihood_max_dist) == (180, 3.5, 2.0)
@@ -145,7 +145,13 @@ def test_turtlebot3_defaults():
     assert (c.odom_alpha1, c.odom_alpha2, c.odom_alpha3, c.odom_alpha4) == (0.1,) * 4
     assert (c.recovery_alpha_slow, c.recovery_alpha_fast) == (0.0, 0.0)
     assert c.initial_pose is None and not c.global_localization
-    assert c.profile == "turtlebot3" and AmclConfig(profile="turtlebot3") == c
+    assert not c.refine
+    # The default profile is amcl.launch's filter plus the scan-to-map refinement.
+    default = AmclConfig()
+    assert default.profile == "accurate" and default.refine
+    assert default.model_dump(exclude={"profile", "refine"}) == c.model_dump(
+        exclude={"profile", "refine"}
+    )
     with pytest.raises(ValueError):
         AmclConfig(type="amcl", bogus=1)
     with pytest.raises(ValueError):

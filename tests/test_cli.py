@@ -82,7 +82,8 @@ def test_run_writes_a_complete_run_directory(tmp_path: Path) -> None:
     assert result["status"] == "succeeded" and result["reason"] is None
     assert result["tasks"][0]["status"] == "succeeded"
     header = (run_dir / "trajectory.csv").read_text().splitlines()[0]
-    assert header == "t,x,y,yaw,est_x,est_y,est_yaw,v,w"
+    # The contract's nine columns, then the estimate's covariance (amcl reports one).
+    assert header == "t,x,y,yaw,est_x,est_y,est_yaw,v,w,cov_xx,cov_xy,cov_yy,cov_yawyaw"
 
 
 def test_failed_mission_exits_1_with_reason(tmp_path: Path) -> None:

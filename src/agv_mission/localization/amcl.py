@@ -6,7 +6,16 @@ update (and once on the first scan). Between updates the estimate is the last fi
 composed with the odometry motion since then, i.e. amcl's ``map -> odom`` transform
 applied to the current odometry, so it moves smoothly at the control rate.
 
-The defaults are TurtleBot3's ``amcl.launch`` (``profile: turtlebot3``). Measured here
+The default ``profile: accurate`` adds scan-to-map refinement
+(:mod:`agv_mission.localization.scan_refine`): every scan corrects a Kalman pose estimate
+against the map's signed distance field, the estimate and its covariance come from that,
+and the particle cloud is moved onto it at each filter update; the filter stays the
+fallback (and the start) when scans stop fitting. Measured (tests/test_localization_accuracy.py,
+benchmarks/bench_localization.py): 1-2 mm RMSE on the real AWS small house map (amcl alone
+7 cm), 2-3 cm in a 30 x 50 m warehouse (amcl alone 22 cm, 0.97 m maximum), with the true
+error inside the reported 2-sigma ellipse on more than 99 % of the steps.
+
+The field defaults are TurtleBot3's ``amcl.launch`` (``profile: turtlebot3``). Measured here
 (tests/test_amcl.py): they track the demo patrol to ~0.03 m / 0.02 rad RMSE from a start
 0.3 m / 0.2 rad off, but amcl's default ``likelihood_field`` score (``1 + sum(pz**3)``) is
 too flat to localise globally in the small house, and recovery is off, so a kidnapped
@@ -38,11 +47,12 @@ import math
 
 import numpy as np
 
-from agv_mission.geometry import Pose2D, wrap_angles
+from agv_mission.geometry import Pose2D, wrap_angle, wrap_angles
 from agv_mission.localization.base import LocalizerDiagnostics
 from agv_mission.localization.beam_model import SensorParams
 from agv_mission.localization.configs import AmclConfig
 from agv_mission.localization.particle_filter import MotionNoise, ParticleFilter
+from agv_mission.localization.scan_refine import Correction, PoseTracker, RefineParams
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
 
@@ -80,6 +90,36 @@ class AmclLocalizer:
             alpha_fast=c.recovery_alpha_fast,
             inject_candidates=c.recovery_candidates,
         )
+        self.tracker = (
+            PoseTracker(
+                grid,
+                RefineParams(
+                    sigma=c.refine_sigma,
+                    huber=c.refine_huber,
+                    outlier=c.refine_outlier,
+                    inlier=c.refine_inlier,
+                    min_inlier_fraction=c.refine_min_inlier_fraction,
+                    min_beams=c.refine_min_beams,
+                    max_beams=c.refine_max_beams,
+                    floor_xy=c.refine_floor_xy,
+                    floor_yaw=c.refine_floor_yaw,
+                    noise_along=c.refine_noise_along,
+                    noise_lateral=c.refine_noise_lateral,
+                    noise_turn=c.refine_noise_turn,
+                    noise_yaw_per_m=c.refine_noise_yaw_per_m,
+                    map_error_scale=c.refine_map_error_scale,
+                    map_error_lever=c.refine_map_error_lever,
+                    adaptive_noise=c.refine_adaptive_noise,
+                ),
+            )
+            if c.refine
+            else None
+        )
+        self.refine_stats = {"scans": 0, "accepted": 0, "rejected": 0, "starts": 0, "restarts": 0}
+        self._track_odom = Pose2D(0.0, 0.0, 0.0)
+        self._failures = 0
+        self._pf_cov = np.diag([c.initial_cov_xx, c.initial_cov_yy, c.initial_cov_aa])
+        self._estimate = Pose2D(0.0, 0.0, 0.0)
         self.snapshots: list[tuple[float, np.ndarray]] = []
         self.particle_counts: list[tuple[float, int]] = []
         self.filter_updates = 0
@@ -107,8 +147,24 @@ class AmclLocalizer:
 
     @property
     def map_to_odom(self) -> Pose2D:
-        """amcl's ``map -> odom`` transform."""
-        return self._pose.compose(Pose2D(0.0, 0.0, 0.0).relative_to(self._odom))
+        """amcl's ``map -> odom`` transform (of the current estimate)."""
+        return self._estimate.compose(Pose2D(0.0, 0.0, 0.0).relative_to(self._track_odom))
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """3x3 covariance (x, y, yaw) of the current estimate.
+
+        The refinement's Kalman covariance while it tracks, else the particle cloud's
+        weighted covariance at the last filter update.
+        """
+        if self.tracker is not None and self.tracker.active:
+            return self.tracker.cov.copy()
+        return self._pf_cov.copy()
+
+    @property
+    def refining(self) -> bool:
+        """True while the scan-to-map refinement gives the estimate."""
+        return self.tracker is not None and self.tracker.active
 
     def reset(self, pose: Pose2D, odom: Pose2D) -> None:
         c = self.config
@@ -123,6 +179,12 @@ class AmclLocalizer:
             cov = np.diag([c.initial_cov_xx, c.initial_cov_yy, c.initial_cov_aa])
             self.filter.init_gaussian(start.as_array(), cov)
         self._pose, self._odom = start, odom
+        self._estimate, self._track_odom = start, odom
+        self._pf_cov = self.filter.covariance(start.as_array())
+        self._failures = 0
+        self.refine_stats = {"scans": 0, "accepted": 0, "rejected": 0, "starts": 0, "restarts": 0}
+        if self.tracker is not None:
+            self.tracker.stop()
         self._initialised = False
         self._resample_count = 0
         self._force_update = False
@@ -134,6 +196,12 @@ class AmclLocalizer:
     def update(self, odom: Pose2D, scan: LaserScan | None, truth: Pose2D, time: float) -> Pose2D:
         if self.filter.count == 0:
             raise RuntimeError("amcl: reset(pose, odom) must come before update()")
+        delta = odom.relative_to(self._track_odom)
+        self._track_odom = odom
+        tracker = self.tracker
+        if tracker is not None and tracker.active:
+            tracker.predict(delta.as_array())
+        filtered = False
         if scan is not None:
             delta = odom.relative_to(self._odom)
             moved = (
@@ -143,21 +211,25 @@ class AmclLocalizer:
             if moved or self._force_update or not self._initialised:
                 self._filter_update(odom, scan, time, moved or self._force_update)
                 self._force_update = False
-        return self._pose.compose(odom.relative_to(self._odom))
+                filtered = True
+        pf_pose = self._pose.compose(odom.relative_to(self._odom))
+        if tracker is not None and scan is not None:
+            self._refine(tracker, scan, pf_pose, filtered)
+        if tracker is not None and tracker.active:
+            m = tracker.mean
+            self._estimate = Pose2D(float(m[0]), float(m[1]), float(m[2]))
+        else:
+            self._estimate = pf_pose
+        return self._estimate
 
     def diagnostics(self) -> LocalizerDiagnostics:
-        p, w = self.filter.particles, self.filter.weights
-        mean = self._pose.as_array()
-        d = p - mean
-        d[:, 2] = wrap_angles(d[:, 2])
-        total = float(w.sum()) or 1.0
-        cov = (d * (w / total)[:, None]).T @ d
+        """Filter statistics; ``covariance`` is the estimate's (see :attr:`covariance`)."""
         return LocalizerDiagnostics(
             filter_updates=self.filter_updates,
             particle_counts=self.particle_counts,
             snapshots=self.snapshots,
-            particles=p,
-            covariance=cov,
+            particles=self.filter.particles,
+            covariance=self.covariance,
         )
 
     def request_nomotion_update(self) -> None:
@@ -169,6 +241,71 @@ class AmclLocalizer:
         self._force_update = True
 
     # ------------------------------------------------------------------ internals
+
+    def _refine(
+        self, tracker: PoseTracker, scan: LaserScan, pf_pose: Pose2D, filtered: bool
+    ) -> None:
+        """Correct the tracked pose with ``scan``; start, stop and recentre as the fit says.
+
+        The tracker starts from the filter's pose once the cloud is tight (position sd below
+        ``refine_start_std_xy``), or, with a tracking-sized cloud (sd below 0.6 m, e.g. the
+        initial pose's), when the scan fits the map from there almost perfectly; never
+        from a globally spread cloud, whose heaviest cluster may be a look-alike place. It
+        stops (the filter's estimate takes over) after ``refine_max_failures`` scans in a
+        row that see walls but do not fit them, and restarts from the filter when a tight
+        cloud's estimate jumps more than ``refine_jump`` away from it (the filter switched
+        to another mode). While it tracks, the particle cloud is moved rigidly onto its pose
+        at every filter update, so the filter does not drift away from a centimetre
+        estimate in long stretches with little to see.
+        """
+        c = self.config
+        points = _scan_points(scan, c.laser_min_range, c.laser_max_range)
+        self.refine_stats["scans"] += 1
+        pf_std = math.sqrt(max(self._pf_cov[0, 0], self._pf_cov[1, 1]))
+        sure = pf_std <= c.refine_start_std_xy
+        if tracker.active and filtered and sure:
+            m = tracker.mean
+            jump = math.hypot(m[0] - self._pose.x, m[1] - self._pose.y) > c.refine_jump or abs(
+                wrap_angle(float(m[2]) - self._pose.yaw)
+            ) > max(c.refine_jump, 0.3)
+            if jump:
+                tracker.stop()
+                self.refine_stats["restarts"] += 1
+        if tracker.active:
+            corr = tracker.correct(points)
+            self._count(corr)
+            if corr.beams >= c.refine_min_beams:
+                self._failures = 0 if corr.accepted else self._failures + 1
+            if self._failures >= c.refine_max_failures:
+                tracker.stop()
+                self._failures = 0
+        elif sure or pf_std <= 0.6:
+            cov = self._pf_cov + np.diag([0.02**2, 0.02**2, 0.02**2])
+            tracker.start(pf_pose.as_array(), cov)
+            corr = tracker.correct(points)
+            if not (corr.accepted and (sure or corr.inlier_fraction >= 0.9)):
+                tracker.stop()
+                return
+            self._count(corr)
+            self.refine_stats["starts"] += 1
+            self._failures = 0
+        if tracker.active and filtered and tracker.last is not None and tracker.last.accepted:
+            self._recentre(tracker.mean)
+
+    def _count(self, corr: Correction) -> None:
+        self.refine_stats["accepted" if corr.accepted else "rejected"] += 1
+
+    def _recentre(self, mean: np.ndarray) -> None:
+        """Move the particle cloud (rigidly about its estimate) onto the tracked pose."""
+        p = self.filter.particles
+        est = self._pose.as_array()
+        dyaw = wrap_angle(float(mean[2] - est[2]))
+        c, s = math.cos(dyaw), math.sin(dyaw)
+        rx, ry = p[:, 0] - est[0], p[:, 1] - est[1]
+        p[:, 0] = mean[0] + c * rx - s * ry
+        p[:, 1] = mean[1] + s * rx + c * ry
+        p[:, 2] = wrap_angles(p[:, 2] + dyaw)
+        self._pose = Pose2D(float(mean[0]), float(mean[1]), float(mean[2]))
 
     def _filter_update(self, odom: Pose2D, scan: LaserScan, time: float, moved: bool) -> None:
         pf = self.filter
@@ -182,6 +319,7 @@ class AmclLocalizer:
             pf.resample()
         est, _ = pf.estimate()
         self._pose = Pose2D(float(est[0]), float(est[1]), float(est[2]))
+        self._pf_cov = pf.covariance(est)
         self._odom = odom
         self._initialised = True
         self.filter_updates += 1
@@ -191,3 +329,14 @@ class AmclLocalizer:
             if len(self.snapshots) > self.config.max_snapshots:
                 del self.snapshots[1::2]  # keep the first, thin evenly
                 self._snapshot_every *= 2
+
+
+def _scan_points(scan: LaserScan, min_range: float, max_range: float) -> np.ndarray:
+    """Robot-frame end points (M, 2) of the valid beams within amcl's laser range limits."""
+    r = np.asarray(scan.ranges, dtype=np.float64)
+    rmin = min_range if min_range > 0.0 else scan.range_min
+    rmax = max_range if max_range > 0.0 else scan.range_max
+    ok = np.isfinite(r) & (r >= rmin) & (r < rmax)
+    a = scan.angle_min + scan.angle_increment * np.flatnonzero(ok)
+    r = r[ok]
+    return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)

@@ -27,6 +27,7 @@ class InitialPose(BaseModel):
 #: Named parameter sets for ``profile``; keys given next to ``profile`` win.
 PROFILES: dict[str, dict[str, Any]] = {
     "turtlebot3": {},  # the field defaults: TurtleBot3's amcl.launch
+    "accurate": {"refine": True},
     "recovery": {
         "laser_model_type": "likelihood_field_prob",
         "laser_log_likelihood_scale": 0.1,
@@ -43,10 +44,12 @@ class AmclConfig(PluginConfig):
     plugin: ClassVar[str] = "agv_mission.localization.amcl:AmclLocalizer"
 
     type: Literal["amcl"] = "amcl"
-    profile: Literal["turtlebot3", "recovery"] = Field(
-        "turtlebot3",
-        description="named defaults (PROFILES): turtlebot3 = amcl.launch; recovery = "
-        "global localisation and kidnap recovery; keys set next to it override it",
+    profile: Literal["accurate", "turtlebot3", "recovery"] = Field(
+        "accurate",
+        description="named defaults (PROFILES): accurate = amcl.launch's filter plus "
+        "scan-to-map refinement (centimetre estimates with a consistent covariance); "
+        "turtlebot3 = amcl.launch alone; recovery = global localisation and kidnap "
+        "recovery; keys set next to it override it",
     )
 
     # Overall filter
@@ -101,6 +104,53 @@ class AmclConfig(PluginConfig):
     odom_alpha3: float = Field(0.1, ge=0, description="translation noise from translation")
     odom_alpha4: float = Field(0.1, ge=0, description="translation noise from rotation")
 
+    # Scan-to-map refinement (not in ROS; see scan_refine.PoseTracker)
+    refine: bool = Field(
+        False,
+        description="refine the filter's estimate against the map's distance field with "
+        "every scan (iterated EKF); the estimate and covariance then come from it",
+    )
+    refine_sigma: float = Field(0.02, gt=0, description="per-beam noise, m")
+    refine_huber: float = Field(0.03, gt=0, description="robust kernel width, m")
+    refine_outlier: float = Field(0.25, gt=0, description="beams farther off are ignored, m")
+    refine_inlier: float = Field(0.05, gt=0, description="a beam this close fits, m")
+    refine_min_inlier_fraction: float = Field(
+        0.6, ge=0, le=1, description="fit-quality gate: share of beams that must fit"
+    )
+    refine_min_beams: int = Field(20, ge=3)
+    refine_max_beams: int = Field(360, ge=3)
+    refine_floor_xy: float = Field(
+        0.01, gt=0, description="m: no single scan pins x or y tighter (beams correlate)"
+    )
+    refine_floor_yaw: float = Field(0.005, gt=0, description="rad: the same for yaw")
+    refine_noise_along: float = Field(
+        0.02, ge=0, description="odometry random walk: m sd after 1 m driven"
+    )
+    refine_noise_lateral: float = Field(0.01, ge=0, description="m sd sideways after 1 m")
+    refine_noise_turn: float = Field(0.02, ge=0, description="rad sd after 1 rad turned")
+    refine_noise_yaw_per_m: float = Field(0.01, ge=0, description="rad sd after 1 m driven")
+    refine_map_error_scale: float = Field(
+        1.0, ge=0, description="covariance floor: x, y sd = this times the fit's residual RMS"
+    )
+    refine_map_error_lever: float = Field(
+        2.0, gt=0, description="m: the yaw sd floor is the x, y floor over this"
+    )
+    refine_adaptive_noise: bool = Field(
+        True, description="scale the odometry noise up when scans keep moving the prediction"
+    )
+    refine_max_failures: int = Field(
+        25, ge=1, description="scans in a row that fail the gate before the filter takes over"
+    )
+    refine_start_std_xy: float = Field(
+        0.15, gt=0, description="m: the filter must be this sure before refinement starts"
+    )
+    refine_jump: float = Field(
+        0.5,
+        gt=0,
+        description="m (and rad, at least 0.3): a sure filter estimate this far from the "
+        "tracked pose restarts the tracker there",
+    )
+
     # Plot support
     snapshot_interval: int = Field(5, ge=1, description="filter updates between snapshots")
     max_snapshots: int = Field(40, ge=2)
@@ -110,7 +160,7 @@ class AmclConfig(PluginConfig):
     def _profile_defaults(cls, data: Any) -> Any:
         """Fill the keys not given from the named profile (unknown names: the field's error)."""
         if isinstance(data, dict):
-            name = data.get("profile", "turtlebot3")
+            name = data.get("profile", "accurate")
             preset = PROFILES.get(name) if isinstance(name, str) else None
             if preset:
                 data = {**preset, **data}

@@ -378,6 +378,13 @@ class ParticleFilter:
         """Weighted mean of all particles, circular for yaw."""
         return _weighted_pose(self.particles, self.weights)
 
+    def covariance(self, mean: np.ndarray) -> np.ndarray:
+        """Weighted covariance (3x3, yaw differences wrapped) of the particles about ``mean``."""
+        d = self.particles - np.asarray(mean, dtype=float)
+        d[:, 2] = wrap_angles(d[:, 2])
+        w = self.weights / max(float(self.weights.sum()), 1e-300)
+        return (d * w[:, None]).T @ d
+
     def estimate(self) -> tuple[np.ndarray, float]:
         """amcl's pose: the weighted mean of the heaviest cluster, and that cluster's weight.
 

@@ -15,6 +15,7 @@ import yaml
 
 from agv_mission.atomic import atomic_write_bytes, atomic_write_text
 from agv_mission.missions.loader import LoadedMission
+from agv_mission.missions.run_report import COVARIANCE_COLUMNS
 from agv_mission.missions.runner import TRAJECTORY_COLUMNS, RunRecord
 
 
@@ -65,7 +66,7 @@ def write_run(run_dir: Path, loaded: LoadedMission, record: RunRecord) -> dict[s
     write_json(run_dir / "result.json", result)
     errors: list[str] = []
     for name, write in (
-        ("trajectory.csv", lambda p: write_trajectory(p, record.trajectory)),
+        ("trajectory.csv", lambda p: write_trajectory(p, record.trajectory, record.covariance)),
         ("tree.txt", lambda p: atomic_write_text(p, strip_ansi(record.tree_text) + "\n")),
         ("run.png", lambda p: plot_run(p, loaded, record)),
     ):
@@ -100,11 +101,21 @@ def _json_default(value: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
-def write_trajectory(path: Path, trajectory: np.ndarray) -> None:
+def write_trajectory(
+    path: Path, trajectory: np.ndarray, covariance: np.ndarray | None = None
+) -> None:
+    """The contract's nine columns, then the estimate's covariance when the localiser has one."""
     buf = io.StringIO()
-    buf.write(",".join(TRAJECTORY_COLUMNS) + "\n")
+    columns = TRAJECTORY_COLUMNS
+    if covariance is not None and len(covariance) == len(trajectory):
+        columns = TRAJECTORY_COLUMNS + COVARIANCE_COLUMNS
+        trajectory = np.hstack([trajectory, covariance])
+    buf.write(",".join(columns) + "\n")
     if trajectory.size:
-        np.savetxt(buf, trajectory, delimiter=",", fmt="%.6f")
+        fmt = ["%.6f"] * len(TRAJECTORY_COLUMNS) + ["%.6g"] * (
+            len(columns) - len(TRAJECTORY_COLUMNS)
+        )
+        np.savetxt(buf, trajectory, delimiter=",", fmt=fmt)
     atomic_write_text(path, buf.getvalue())
 
 

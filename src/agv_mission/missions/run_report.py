@@ -12,6 +12,11 @@ from agv_mission.geometry import wrap_angle
 from agv_mission.missions.tree import MissionTree
 from agv_mission.navigation.navigator import Navigator, leg_report
 
+#: Extra trajectory.csv columns after the contract's nine: the estimate's covariance.
+COVARIANCE_COLUMNS = ("cov_xx", "cov_xy", "cov_yy", "cov_yawyaw")
+#: Localisation errors are also summarised after the estimate has had this long to settle.
+SETTLE_TIME = 10.0
+
 _OUTCOMES = {"goal_reached": "reached", "goal_failed": "failed", "goal_skipped": "skipped"}
 
 
@@ -125,3 +130,44 @@ def run_metrics(
         },
         "real_time_factor": round(sim_time / wall_time, 2) if wall_time > 0 else None,
     }
+
+
+def covariance_metrics(traj: np.ndarray, cov: np.ndarray) -> dict[str, Any]:
+    """Errors after SETTLE_TIME, and how often the true error lies in the 2-sigma ellipse.
+
+    ``consistency_2sigma`` is the share of steps whose position error ``e`` has
+    ``e^T C^-1 e <= 4`` under the reported position covariance ``C``.
+    """
+    out: dict[str, Any] = {}
+    if not len(traj):
+        return out
+    err_xy = traj[:, 4:6] - traj[:, 1:3]
+    err = np.linalg.norm(err_xy, axis=1)
+    late = traj[:, 0] >= SETTLE_TIME
+    if late.any():
+        out["position_rmse_settled"] = round(float(np.sqrt(np.mean(err[late] ** 2))), 5)
+        out["position_max_error_settled"] = round(float(err[late].max()), 5)
+    have = np.isfinite(cov).all(axis=1) if len(cov) == len(traj) else np.zeros(len(traj), bool)
+    if not have.any():
+        return out
+    xx, xy, yy = cov[have, 0], cov[have, 1], cov[have, 2]
+    ex, ey = err_xy[have, 0], err_xy[have, 1]
+    det = xx * yy - xy**2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d2 = (yy * ex**2 - 2.0 * xy * ex * ey + xx * ey**2) / det
+    d2 = np.where(det > 0.0, d2, np.where(np.hypot(ex, ey) == 0.0, 0.0, np.inf))
+    out["consistency_2sigma"] = round(float(np.mean(d2 <= 4.0)), 4)
+    last = cov[np.flatnonzero(have)[-1]]
+    out["final_covariance"] = {
+        k.removeprefix("cov_"): float(f"{v:.4g}")
+        for k, v in zip(COVARIANCE_COLUMNS, last, strict=True)
+    }
+    return out
+
+
+def covariance_row(cov: np.ndarray | None) -> tuple[float, float, float, float]:
+    """(xx, xy, yy, yawyaw) of the estimate's covariance, NaN when there is none."""
+    if cov is None:
+        return (math.nan,) * 4
+    c = np.asarray(cov, dtype=float)
+    return float(c[0, 0]), float(c[0, 1]), float(c[1, 1]), float(c[2, 2])

@@ -35,7 +35,14 @@ from agv_mission.missions.observe import (
     status_name,
     tree_nodes,
 )
-from agv_mission.missions.run_report import add_true_errors, run_metrics, task_reports
+from agv_mission.missions.run_report import (
+    COVARIANCE_COLUMNS,
+    add_true_errors,
+    covariance_metrics,
+    covariance_row,
+    run_metrics,
+    task_reports,
+)
 from agv_mission.missions.stack import (
     CONTROL_PERIOD,
     RobotStack,
@@ -81,6 +88,7 @@ class RunRecord:
     extras: dict[str, Any] = field(default_factory=dict)  # more keys for result.json
     particle_snapshots: list[tuple[float, np.ndarray]] = field(default_factory=list)
     built_map: OccupancyGrid | None = None  # the last map a map_area task saved
+    covariance: np.ndarray | None = None  # (steps, len(COVARIANCE_COLUMNS)), NaN: none
 
 
 def run_mission(
@@ -162,6 +170,7 @@ class MissionRun:
         )
         self.run_dir = run_dir
         self.rows: list[tuple[float, ...]] = []
+        self.covs: list[tuple[float, ...]] = []
         self.mapper = MapBuilder(stack, self.navigator, self.handle, run_dir, self.rows)
         self.tree = build_tree(mission, self.handle, robot, loaded.room_goals, self.mapper)
         self.faults = FaultInjector(mission.faults, self.sim, stack.fault_rng)
@@ -178,6 +187,13 @@ class MissionRun:
     @property
     def localizer(self) -> Localizer:
         return self.stack.localizer
+
+    def _estimate_covariance(self) -> np.ndarray | None:
+        """The current estimate's covariance: SLAM's while mapping, else the localiser's."""
+        mapping = self.mapper.session
+        if mapping is not None:
+            return getattr(mapping.slam, "covariance", None)
+        return self.localizer.diagnostics().covariance
 
     def notify_start(self) -> None:
         """Tell the observers what the run is about."""
@@ -240,6 +256,7 @@ class MissionRun:
         self.rows.append(
             (now, truth.x, truth.y, truth.yaw, estimate.x, estimate.y, estimate.yaw, v, w)
         )
+        self.covs.append(covariance_row(self._estimate_covariance()))
         self._watch_safety(now, truth)
 
         if self.status is None:
@@ -317,6 +334,7 @@ class MissionRun:
                     self.tree.tasks[i].feedback_message = self.reason or "mission failed"
         tasks = task_reports(self.mission, self.tree, self.task_status, self.handle.events)
         add_true_errors(tasks, trajectory)
+        covariance = np.asarray(self.covs, dtype=float).reshape(-1, len(COVARIANCE_COLUMNS))
         metrics = run_metrics(
             trajectory,
             self.navigator,
@@ -330,6 +348,10 @@ class MissionRun:
             if e["event"] == "recovery":
                 recoveries[e["kind"]] = recoveries.get(e["kind"], 0) + 1
         metrics["navigation"]["recoveries"] = recoveries
+        metrics["localization"].update(covariance_metrics(trajectory, covariance))
+        refine = getattr(self.localizer, "refine_stats", None)
+        if refine and refine.get("scans"):
+            metrics["localization"]["refinement"] = dict(refine)
         extras: dict[str, Any] = {"collisions": self.collisions, "faults": self.faults.report()}
         if self.mapper.maps:
             extras["maps"] = self.mapper.maps
@@ -356,6 +378,7 @@ class MissionRun:
             tasks=tasks,
             metrics=metrics,
             trajectory=trajectory,
+            covariance=covariance if np.isfinite(covariance).any() else None,
             paths=self.navigator.paths,
             events=self.handle.events,
             tree_text=self.tree.render(),

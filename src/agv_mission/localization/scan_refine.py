@@ -1,0 +1,329 @@
+"""Scan-to-map refinement: an iterated Kalman update of a pose against the map's distance field.
+
+The particle filter's estimate is only as fine as its particles (amcl's typical 5-10 cm);
+a 360-beam scan matched against the map pins the pose to millimetres wherever the lidar
+sees walls. :class:`PoseTracker` keeps a Gaussian pose estimate (mean, 3x3 covariance):
+
+* :meth:`PoseTracker.predict` composes the odometry motion and grows the covariance with
+  a motion noise proportional to the distance driven and the angle turned;
+* :meth:`PoseTracker.correct` minimises the prior's Mahalanobis term plus the robust sum of
+  squared signed distances of the beam end points to the map's walls (Gauss-Newton on a
+  :class:`SignedDistanceField`, bilinear), i.e. an iterated EKF update. Directions the scan
+  does not constrain (a corridor's axis, an empty hall) keep the prior's uncertainty, so
+  the covariance grows there honestly instead of collapsing.
+
+Each scan's information is capped (``floor``, :func:`cap_information`): the beams are not
+independent (map discretisation, the same wall seen by many beams), and a robot standing
+still sees the same scan again, so counting every beam as an independent 1 cm measurement
+would make the covariance far too small. For the same reason the covariance after a
+correction never drops below a floor set by how well the scans fit the map: the residual
+RMS (smoothed over scans) is the size of the map's own error where the robot is (a wall
+drawn half a cell off shifts every scan matched to it), measured 0.9 cm on the AWS small
+house map (walls exactly on cells, 1 cm lidar noise) and 2.3 cm on turtlebot3_world (a
+conservative rasterisation of a hexagon and round pillars, errors up to a cell).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from agv_mission.geometry import wrap_angle
+from agv_mission.maps.grid import OccupancyGrid
+
+#: Cells at or above this value count as occupied (map_server's occupied_thresh 0.65).
+OCCUPIED_THRESHOLD = 65
+
+
+class SignedDistanceField:
+    """Signed distance (m) to the boundary of the occupied cells, bilinear between centres.
+
+    Positive in free (and unknown) space, negative inside walls and in the unknown space
+    right behind them, zero on a wall's face:
+    a free cell next to a wall holds ``+res / 2`` and the wall cell ``-res / 2``, so the
+    interpolated zero lies on the face the simulated lidar (walls built from the same
+    cells) hits. Clipped at ``max_distance``; points off the map read ``max_distance``
+    with no gradient.
+    """
+
+    def __init__(self, grid: OccupancyGrid, max_distance: float = 1.0) -> None:
+        res = float(grid.resolution)
+        occupied = grid.data >= OCCUPIED_THRESHOLD
+        self.resolution = res
+        self.origin = grid.origin
+        self.max_distance = float(max_distance)
+        free = (grid.data >= 0) & ~occupied
+        if occupied.any() and free.any():
+            to_wall = ndimage.distance_transform_edt(~occupied)
+            to_free = ndimage.distance_transform_edt(~free)
+            # Unknown cells closer to a wall than to free space lie behind that wall (the
+            # far side of a thin wall): inside, so an end point pushed through a wall is
+            # pulled back rather than out. Other unknown cells count as free, as in amcl.
+            inside = occupied | ((grid.data < 0) & (to_wall < to_free))
+            sdf = np.where(inside, -(to_free - 0.5), to_wall - 0.5) * res
+        else:
+            sdf = np.full(occupied.shape, -max_distance if occupied.any() else max_distance)
+        sdf = np.clip(sdf, -max_distance, max_distance)
+        # One cell of padding so that the four corners of every in-map point exist.
+        self.values = np.pad(sdf, 1, constant_values=max_distance).astype(np.float64)
+        self.height, self.width = self.values.shape
+        c, s = math.cos(grid.origin.yaw), math.sin(grid.origin.yaw)
+        self._rot = np.array([[c, -s], [s, c]])
+
+    def lookup(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distances (N,) and map-frame gradients (N, 2) at map-frame points ``xy`` (N, 2)."""
+        o = self.origin
+        p = np.asarray(xy, dtype=np.float64) - (o.x, o.y)
+        if o.yaw != 0.0:
+            p = p @ self._rot  # into the grid frame (R^T p, row-wise)
+        inv = 1.0 / self.resolution
+        u = p[:, 0] * inv + 0.5  # padded cell-centre coordinates
+        v = p[:, 1] * inv + 0.5
+        i0 = np.floor(u).astype(np.int64)
+        j0 = np.floor(v).astype(np.int64)
+        inside = (i0 >= 0) & (i0 < self.width - 1) & (j0 >= 0) & (j0 < self.height - 1)
+        i0 = np.where(inside, i0, 0)
+        j0 = np.where(inside, j0, 0)
+        fu, fv = u - i0, v - j0
+        s = self.values
+        s00, s01 = s[j0, i0], s[j0, i0 + 1]
+        s10, s11 = s[j0 + 1, i0], s[j0 + 1, i0 + 1]
+        d = (1 - fu) * (1 - fv) * s00 + fu * (1 - fv) * s01 + (1 - fu) * fv * s10 + fu * fv * s11
+        gu = ((1 - fv) * (s01 - s00) + fv * (s11 - s10)) * inv
+        gv = ((1 - fu) * (s10 - s00) + fu * (s11 - s01)) * inv
+        grad = np.stack([gu, gv], axis=1)
+        if o.yaw != 0.0:
+            grad = grad @ self._rot.T
+        d = np.where(inside, d, self.max_distance)
+        grad[~inside] = 0.0
+        return d, grad
+
+
+@dataclass(frozen=True)
+class RefineParams:
+    """Scan-to-map refinement settings (AmclConfig's ``refine_*`` keys)."""
+
+    sigma: float = 0.02  # m, per-beam range noise used for the beam information
+    huber: float = 0.03  # m, residuals beyond this are down-weighted (Huber)
+    outlier: float = 0.25  # m, residuals beyond this are ignored (unmapped obstacles)
+    inlier: float = 0.05  # m, a beam within this of a wall counts as fitting
+    min_inlier_fraction: float = 0.6  # gate: at least this share of the beams must fit
+    min_beams: int = 20  # fewer valid beams: no correction (prediction only)
+    max_beams: int = 360
+    floor_xy: float = 0.01  # m, no single scan pins x or y tighter than this
+    floor_yaw: float = 0.005  # rad, nor the yaw
+    iterations: int = 12
+    # Covariance floor from the fit: the accepted scans' residual RMS (smoothed) times
+    # ``map_error_scale`` in x and y, divided by ``map_error_lever`` (m) for the yaw.
+    map_error_scale: float = 1.0
+    map_error_lever: float = 2.0
+    # The walls' faces as the lidar sees them, relative to the map's cell faces: the median
+    # signed distance of the fitting end points, smoothed at this rate over accepted scans
+    # (within half a cell; 0 disables). A map that marks every cell a wall touches (a
+    # conservative rasterisation, map_saver's hit cells) draws walls on average half a cell
+    # thick; a map built cell for cell reads 0.
+    wall_offset_rate: float = 0.05
+    adaptive_noise: bool = True  # scale the odometry noise by the corrections' size
+    # Odometry noise of the prediction, as random walks: the standard deviation after one
+    # metre driven along (m), sideways (m), one radian turned (rad), and of the yaw after
+    # one metre driven (rad); variances grow in proportion to the motion.
+    noise_along: float = 0.02
+    noise_lateral: float = 0.01
+    noise_turn: float = 0.02
+    noise_yaw_per_m: float = 0.01
+
+
+@dataclass(frozen=True)
+class Correction:
+    """One scan's outcome: accepted or not, and how well the scan fitted the map."""
+
+    accepted: bool
+    mean: np.ndarray
+    cov: np.ndarray
+    beams: int
+    inlier_fraction: float
+    rms: float
+    iterations: int
+
+
+def cap_information(h: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """``h`` with its eigenvalues (scaled by ``floor``) capped at 1.
+
+    In coordinates scaled by ``floor`` (x, y in floor_xy units, yaw in floor_yaw units),
+    no direction may carry more information than one measurement of standard deviation 1.
+    """
+    d = np.diag(floor)
+    hs = d @ h @ d
+    hs = 0.5 * (hs + hs.T)
+    vals, vecs = np.linalg.eigh(hs)
+    vals = np.clip(vals, 0.0, 1.0)
+    capped = (vecs * vals) @ vecs.T
+    dinv = np.diag(1.0 / floor)
+    return dinv @ capped @ dinv
+
+
+class PoseTracker:
+    """A Gaussian pose estimate kept by odometry and refined by scans against the map."""
+
+    def __init__(self, grid: OccupancyGrid, params: RefineParams | None = None) -> None:
+        self.params = params or RefineParams()
+        self.sdf = SignedDistanceField(grid, max_distance=max(1.0, 3.0 * self.params.outlier))
+        self.mean = np.zeros(3)
+        self.cov = np.eye(3)
+        self.active = False
+        self.last: Correction | None = None
+        self.fit_rms = math.nan  # smoothed residual RMS of the accepted scans, m
+        self.wall_offset = 0.0  # m, where the scans see the walls' faces (see RefineParams)
+        self.noise_scale = 1.0  # adaptive factor on the odometry noise (see correct)
+        self._floor = np.array([self.params.floor_xy, self.params.floor_xy, self.params.floor_yaw])
+
+    def start(self, mean: np.ndarray, cov: np.ndarray) -> None:
+        self.noise_scale = 1.0
+        self.mean = np.asarray(mean, dtype=float).copy()
+        self.cov = 0.5 * (np.asarray(cov, dtype=float) + np.asarray(cov, dtype=float).T)
+        self.active = True
+
+    def stop(self) -> None:
+        self.active = False
+
+    def predict(self, delta: np.ndarray) -> None:
+        """Compose an odometry motion ``delta`` [dx, dy, dyaw] (robot frame)."""
+        dx, dy, dth = (float(v) for v in delta)
+        if dx == 0.0 and dy == 0.0 and dth == 0.0:
+            return
+        p = self.params
+        th = float(self.mean[2])
+        c, s = math.cos(th), math.sin(th)
+        f = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
+        g = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        dist = math.hypot(dx, dy)
+        # Random-walk noise (variance proportional to the motion), so the growth does not
+        # depend on how finely the motion is chopped into control steps.
+        q = np.diag(
+            [
+                p.noise_along**2 * dist,
+                p.noise_lateral**2 * dist,
+                p.noise_turn**2 * abs(dth) + p.noise_yaw_per_m**2 * dist,
+            ]
+        )
+        self.mean = np.array(
+            [self.mean[0] + c * dx - s * dy, self.mean[1] + s * dx + c * dy, wrap_angle(th + dth)]
+        )
+        self.cov = f @ self.cov @ f.T + self.noise_scale * (g @ q @ g.T)
+
+    def _adapt_noise(self, delta: np.ndarray, prior_info: np.ndarray) -> None:
+        """Scale the odometry noise by how far the scans move the prediction.
+
+        With honest noise the correction ``delta`` is within the prior's ellipse
+        (``delta^T P^-1 delta`` about 3 on average, chi-square with 3 degrees of freedom);
+        when scans keep moving the estimate farther (wheels slipping more than the noise
+        says), the noise is scaled up, smoothed over about 5 scans, within 1..100.
+        """
+        nis = _nis(delta, prior_info)
+        target = min(100.0, max(1.0, self.noise_scale * nis / 3.0))
+        self.noise_scale = 0.8 * self.noise_scale + 0.2 * target
+
+    def correct(self, points: np.ndarray, commit: bool = True) -> Correction:
+        """Refine the pose with scan end points ``points`` (M, 2) in the robot frame.
+
+        The update is kept (``commit``) only when enough beams fit the map afterwards.
+        """
+        p = self.params
+        pts = np.asarray(points, dtype=np.float64)
+        if len(pts) > p.max_beams:
+            pts = pts[np.linspace(0, len(pts) - 1, p.max_beams).astype(np.int64)]
+        if len(pts) < p.min_beams:
+            out = Correction(False, self.mean, self.cov, len(pts), 0.0, math.nan, 0)
+            self.last = out
+            return out
+        prior = self.mean
+        prior_info = np.linalg.inv(self.cov)
+        x = prior.copy()
+        w_beam = 1.0 / p.sigma**2
+        post_info = prior_info
+        r = np.zeros(len(pts))
+        iterations = 0
+        converged = False
+        for it in range(1, p.iterations + 1):
+            iterations = it
+            c, s = math.cos(x[2]), math.sin(x[2])
+            rx = c * pts[:, 0] - s * pts[:, 1]
+            ry = s * pts[:, 0] + c * pts[:, 1]
+            raw, grad = self.sdf.lookup(np.stack([x[0] + rx, x[1] + ry], axis=1))
+            r = raw - self.wall_offset
+            a = np.abs(r)
+            # The first iterations use a wide kernel: from a prior a decimetre or a few
+            # degrees off, most end points are farther than ``outlier`` from their wall.
+            wide = it <= p.iterations // 2 and not converged
+            huber, outlier = (4.0 * p.huber, 2.0 * p.outlier) if wide else (p.huber, p.outlier)
+            w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-12))
+            w[a > outlier] = 0.0
+            jac = np.empty((len(pts), 3))
+            jac[:, 0], jac[:, 1] = grad[:, 0], grad[:, 1]
+            jac[:, 2] = grad[:, 1] * rx - grad[:, 0] * ry
+            jw = jac * (w * w_beam)[:, None]
+            h = cap_information(jw.T @ jac, self._floor)
+            # Scale the gradient like the information (keeps the step a Gauss-Newton step).
+            scale = _cap_scale(jw.T @ jac, h)
+            gvec = scale @ (jw.T @ r)
+            dx_prior = x - prior
+            dx_prior[2] = wrap_angle(dx_prior[2])
+            post_info = prior_info + h
+            step = -np.linalg.solve(post_info, prior_info @ dx_prior + gvec)
+            x = x + step
+            x[2] = wrap_angle(x[2])
+            small = abs(step[0]) + abs(step[1]) < 1e-5 and abs(step[2]) < 1e-5
+            if small and not wide:
+                break
+            converged = converged or abs(step[0]) + abs(step[1]) < 1e-3 and abs(step[2]) < 1e-3
+        valid = np.abs(r) < p.outlier
+        inlier = float(np.mean(np.abs(r) < p.inlier))
+        rms = float(np.sqrt(np.mean(r[valid] ** 2))) if valid.any() else math.nan
+        cov = np.linalg.inv(post_info)
+        cov = 0.5 * (cov + cov.T)
+        accepted = inlier >= p.min_inlier_fraction
+        if accepted and commit and p.adaptive_noise:
+            self._adapt_noise(x - prior, prior_info)
+        if accepted and commit and math.isfinite(rms):
+            self.fit_rms = (
+                rms if not math.isfinite(self.fit_rms) else 0.8 * self.fit_rms + 0.2 * rms
+            )
+            fits = np.abs(r) < p.inlier
+            if p.wall_offset_rate > 0.0 and fits.any():
+                step = float(np.median(raw[fits])) - self.wall_offset
+                limit = 0.5 * self.sdf.resolution
+                self.wall_offset = float(
+                    np.clip(self.wall_offset + p.wall_offset_rate * step, -limit, limit)
+                )
+            err = p.map_error_scale * self.fit_rms
+            cov = floor_covariance(cov, np.array([err, err, err / p.map_error_lever]))
+        out = Correction(accepted, x, cov, len(pts), inlier, rms, iterations)
+        if accepted and commit:
+            self.mean, self.cov = x, cov
+        self.last = out
+        return out
+
+
+def _nis(delta: np.ndarray, info: np.ndarray) -> float:
+    d = delta.copy()
+    d[2] = wrap_angle(float(d[2]))
+    return float(d @ info @ d)
+
+
+def floor_covariance(cov: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """``cov`` with its eigenvalues (in coordinates scaled by ``floor``) raised to 1."""
+    if not np.all(floor > 0.0):
+        return cov
+    dinv = np.diag(1.0 / floor)
+    cs = dinv @ cov @ dinv
+    vals, vecs = np.linalg.eigh(0.5 * (cs + cs.T))
+    d = np.diag(floor)
+    return d @ ((vecs * np.maximum(vals, 1.0)) @ vecs.T) @ d
+
+
+def _cap_scale(h_full: np.ndarray, h_capped: np.ndarray) -> np.ndarray:
+    """The linear map taking ``h_full`` to ``h_capped`` (``h_capped @ pinv(h_full)``)."""
+    return h_capped @ np.linalg.pinv(h_full, rcond=1e-9, hermitian=True)

@@ -227,6 +227,67 @@ def teleop(
     raise typer.Exit(result.exit_code)
 
 
+@app.command("map")
+def map_(
+    bag: Annotated[Path, typer.Argument(help="ROS 1 .bag, ROS 2 bag directory or .mcap file")],
+    save_map: Annotated[
+        Path, typer.Option("--save-map", help="map_saver stem: writes PATH.pgm + PATH.yaml")
+    ] = Path("map"),
+    scan_topic: Annotated[
+        Optional[str], typer.Option("--scan-topic", help="default: the LaserScan topic")  # noqa: UP007, UP045
+    ] = None,
+    odom_topic: Annotated[
+        Optional[str],  # noqa: UP007, UP045
+        typer.Option("--odom-topic", help="default: the nav_msgs/Odometry topic, else /tf"),
+    ] = None,
+    truth_topic: Annotated[
+        Optional[str],  # noqa: UP007, UP045
+        typer.Option("--truth-topic", help="ground truth for the report's RMSE"),
+    ] = None,
+    set_: Annotated[
+        list[str], typer.Option("--set", help="SLAM KEY=VALUE (stack.slam.KEY or KEY)")
+    ] = [],  # noqa: B006
+) -> None:
+    """Build an occupancy grid map from a recorded bag (map_saver format + a report)."""
+    from rich.markup import escape
+
+    from agv_mission.bags.offline import MappingFailed, map_bag, save_outputs, slam_config
+    from agv_mission.bags.reader import BagError
+
+    try:
+        config = slam_config(set_)
+        result = map_bag(bag, config, scan_topic, odom_topic, truth_topic)
+    except MissionError as exc:
+        _report_invalid(exc)
+        raise typer.Exit(2) from None
+    except BagError as exc:
+        err.print(f"[bold red]invalid input[/]: {escape(str(exc))}", highlight=False)
+        raise typer.Exit(2) from None
+    except MappingFailed as exc:
+        err.print(f"[bold red]mapping failed[/]: {escape(str(exc))}", highlight=False)
+        raise typer.Exit(1) from None
+    paths = save_outputs(result, save_map)
+    r = result.report
+    scans = r["scans"]
+    out.print(
+        f"mapped {scans['used']}/{scans['total']} scans of {r['scan_topic']} "
+        f"({r['bag_duration']:.1f} s of bag) in {r['wall_time']:.1f} s "
+        f"({r['speed_vs_real_time']}x real time); odometry from {r['odometry']}",
+        highlight=False,
+        markup=False,
+    )
+    if "rmse" in r and r["rmse"]:
+        out.print(
+            f"trajectory RMSE vs {r['ground_truth_topic']}: {r['rmse']['position_rmse']:.3f} m "
+            f"(aligned {r['rmse']['ate_aligned']:.3f} m)",
+            highlight=False,
+            markup=False,
+        )
+    for what, path in paths.items():
+        out.print(f"{what}: {path}", highlight=False, markup=False)
+    raise typer.Exit(0)
+
+
 @app.command()
 def regress(
     paths: Annotated[

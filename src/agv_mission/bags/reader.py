@@ -205,7 +205,7 @@ def _read(
     truth_rows: list[tuple[float, float, float, float]] = []
     static: dict[str, tuple[str, Transform]] = {}  # child -> (parent, transform)
     dynamic: dict[tuple[str, str], list[tuple[float, np.ndarray]]] = {}
-    for conn, log_time, raw in reader.messages(connections=conns):
+    for conn, _log_time, raw in reader.messages(connections=conns):
         msg = reader.deserialize(raw, conn.msgtype)
         topic = conn.topic
         if topic == scan_topic:

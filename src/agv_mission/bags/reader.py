@@ -237,15 +237,16 @@ def _read(
         raise BagError(f"{path}: {scan_topic} holds no messages")
 
     # Links of /tf that never change are static ones (ROS 1 static_transform_publisher).
+    links: dict[tuple[str, str], np.ndarray] = {}
     moving: dict[tuple[str, str], np.ndarray] = {}
     for (parent, child), rows in dynamic.items():
+        rows.sort(key=lambda r: r[0])
         values = np.array([r[1] for r in rows])
-        if child not in static and np.ptp(values, axis=0).max() < 1e-9:
-            static[child] = (parent, Transform(_matrix(*values[0])))
+        links[(parent, child)] = np.array([(t, v[0], v[1], _yaw_q(v[3:])) for t, v in rows])
+        if np.ptp(values, axis=0).max() < 1e-9:
+            static.setdefault(child, (parent, Transform(_matrix(*values[0]))))
         else:
-            moving[(parent, child)] = np.array(
-                [(t, v[0], v[1], _yaw_q(v[3:])) for t, v in sorted(rows, key=lambda r: r[0])]
-            )
+            moving[(parent, child)] = links[(parent, child)]
 
     # The base frame: the odometry's child, or the first moving frame above the scan frame.
     chain = _static_chain(scan_frame, static)
@@ -276,7 +277,7 @@ def _read(
     mount_pose, flipped = Transform(mount if found else np.eye(4)).planar()
 
     odom_parent = next((p for (p, c) in moving if c == base_frame), "odom")
-    map_to_odom = moving.get(("map", odom_parent))
+    map_to_odom = links.get(("map", odom_parent))
     truth = np.array(sorted(truth_rows)) if truth_rows else None
     times = [s.time for s in scans]
     return BagData(

@@ -124,7 +124,12 @@ def write_quirk_bag(path: Path, drive: Drive, q: Quirks) -> Path:
         return types["geometry_msgs/msg/Vector3"](x=float(x), y=float(y), z=float(z))
 
     def quat(roll: float, yaw: float):
-        cr, sr, cy, sy = math.cos(roll / 2), math.sin(roll / 2), math.cos(yaw / 2), math.sin(yaw / 2)
+        cr, sr, cy, sy = (
+            math.cos(roll / 2),
+            math.sin(roll / 2),
+            math.cos(yaw / 2),
+            math.sin(yaw / 2),
+        )
         return types["geometry_msgs/msg/Quaternion"](x=sr * cy, y=sr * sy, z=cr * sy, w=cr * cy)
 
     def tfs(t: float, parent: str, child: str, p: Pose2D, z: float = 0.0, roll: float = 0.0):
@@ -188,7 +193,12 @@ def write_quirk_bag(path: Path, drive: Drive, q: Quirks) -> Path:
             messages.append((s, "/odom", "nav_msgs/msg/Odometry", odometry(s, "odom", p)))
         if q.truth_topic:
             messages.append(
-                (s, "/ground_truth", "nav_msgs/msg/Odometry", odometry(s, "map", _interp(t, drive.truth, s)))
+                (
+                    s,
+                    "/ground_truth",
+                    "nav_msgs/msg/Odometry",
+                    odometry(s, "map", _interp(t, drive.truth, s)),
+                )
             )
 
     # Scans through the ray-marched lidar.

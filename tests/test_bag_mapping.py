@@ -7,11 +7,11 @@ import math
 
 import numpy as np
 import pytest
-from bagtools import Quirks, simulated_drive, wall_precision, write_quirk_bag
 
 from agv_mission.bags.offline import map_bag, slam_config
 from agv_mission.bags.reader import read_bag
 from agv_mission.geometry import Pose2D
+from bagtools import Quirks, simulated_drive, wall_precision, write_quirk_bag
 
 
 @pytest.fixture(scope="module")
@@ -132,7 +132,9 @@ def test_map_command_without_usable_odometry(tmp_path, drive, run_cli):
     bag = write_quirk_bag(tmp_path / "none", drive, Quirks(scans_before_odom=40.0))
     code, text = run_cli(["map", str(bag), "--save-map", str(tmp_path / "m")])
     assert code == 2 and "no odometry" in text and "Traceback" not in text
-    late = write_quirk_bag(tmp_path / "late", drive, Quirks(scans_before_odom=15.0, scan_until=10.0))
+    late = write_quirk_bag(
+        tmp_path / "late", drive, Quirks(scans_before_odom=15.0, scan_until=10.0)
+    )
     code, text = run_cli(["map", str(late), "--save-map", str(tmp_path / "m")])
     assert code == 1 and "no scan falls inside the odometry" in text, text
     assert not (tmp_path / "m.pgm").exists()

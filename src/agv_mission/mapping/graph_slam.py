@@ -60,10 +60,12 @@ class GraphSlamConfig(GridSlamConfig):
     loop_min_score: float = Field(0.55, gt=0, le=1, description="mean field value to accept")
     loop_submap_keyframes: int = Field(12, ge=1, description="keyframes each side in a submap")
     odom_edge_sigma: tuple[float, float] = Field(
-        (0.02, 0.01), description="m, rad: std of a keyframe-to-keyframe edge (plus 5 % of it)"
+        (0.01, 0.005),
+        description="m, rad per metre / radian of motion: the least std of a keyframe-to-"
+        "keyframe edge, on top of the front end's match covariance",
     )
     loop_edge_sigma: tuple[float, float] = Field(
-        (0.05, 0.02), description="m, rad: std of a loop edge"
+        (0.05, 0.05), description="m, rad: std of a loop edge"
     )
     huber_scale: float = Field(3.0, gt=0, description="whitened residual where Huber starts")
     rebuild_threshold: float = Field(
@@ -175,7 +177,14 @@ class GraphSlam(GridSlam):
             z = pose.relative_to(prev)
             d = math.hypot(z.x, z.y)
             sxy, sa = c.odom_edge_sigma
-            sigma = np.array([sxy + 0.05 * d, sxy + 0.05 * d, sa + 0.05 * abs(z.yaw)])
+            floor = np.array([sxy * (0.1 + d), sxy * (0.1 + d), sa * (0.1 + abs(z.yaw))])
+            # The front end's own uncertainty, in the previous keyframe's frame: a
+            # corridor leaves the motion along it uncertain, and that is where a loop
+            # closure's correction should go.
+            cy, sy = math.cos(prev.yaw), math.sin(prev.yaw)
+            rot = np.array([[cy, sy, 0.0], [-sy, cy, 0.0], [0.0, 0.0, 1.0]])
+            local = rot @ self._cov @ rot.T
+            sigma = np.sqrt(np.maximum(np.diag(local), 0.0)) + floor
             self.edges.append((len(self.nodes) - 1, len(self.nodes), z.as_array(), sigma, False))
         self.keyframes.append(Keyframe(scan, points, self._travel))
         self.nodes = np.vstack([self.nodes, pose.as_array()])
@@ -228,11 +237,19 @@ class GraphSlam(GridSlam):
         oy = math.floor((xy[:, 1].min() - margin) / res) * res
         w = int(math.ceil((xy[:, 0].max() + margin - ox) / res))
         h = int(math.ceil((xy[:, 1].max() + margin - oy) / res))
-        occupied = np.zeros((h, w), bool)
         cols = np.floor((xy[:, 0] - ox) / res).astype(int)
         rows = np.floor((xy[:, 1] - oy) / res).astype(int)
-        occupied[rows, cols] = True
-        return LikelihoodField.from_occupied(occupied, res, (ox, oy), self.config.likelihood_sigma)
+        flat = rows * w + cols
+        count = np.bincount(flat, minlength=h * w)
+        occupied = (count > 0).reshape(h, w)
+        # Anchors: where in its cell the points fell (sub-cell walls, as the front end).
+        safe = np.maximum(count, 1)
+        ax = np.bincount(flat, xy[:, 0] - (ox + (cols + 0.5) * res), h * w) / safe
+        ay = np.bincount(flat, xy[:, 1] - (oy + (rows + 0.5) * res), h * w) / safe
+        anchor = (ax.reshape(h, w).astype(np.float32), ay.reshape(h, w).astype(np.float32))
+        return LikelihoodField.from_occupied(
+            occupied, res, (ox, oy), self.config.likelihood_sigma, anchor=anchor
+        )
 
     def _optimize(self) -> Pose2D:
         """Optimise the graph, correct trajectory and map; the new current pose."""

@@ -44,8 +44,12 @@ def run(
     set_: Annotated[list[str], typer.Option("--set", help="KEY=VALUE override (YAML value)")] = [],  # noqa: B006
     output: Annotated[Path | None, typer.Option(help="root of run directories")] = None,  # noqa: UP007
     seed: Annotated[int | None, typer.Option(help="override the mission's seed")] = None,  # noqa: UP007
+    no_bag: Annotated[
+        bool, typer.Option("--no-bag", help="do not write bag/ (same as output.bag: false)")
+    ] = False,
 ) -> None:
     """Validate and run a mission in simulation; write a run directory."""
+    from agv_mission.bags.writer import BagWriter
     from agv_mission.missions.loader import load_mission
     from agv_mission.missions.outputs import make_run_dir, write_mission, write_run
     from agv_mission.missions.runner import run_mission
@@ -77,8 +81,12 @@ def run(
         disable=not err.is_terminal,
     ) as bar:
         job = bar.add_task("running", total=loaded.mission.limits.time)
+        observers = [BagWriter()] if loaded.mission.output.bag and not no_bag else []
         record = run_mission(
-            loaded, run_dir, progress=lambda t, total: bar.update(job, completed=t)
+            loaded,
+            run_dir,
+            progress=lambda t, total: bar.update(job, completed=t),
+            observers=observers,
         )
     result = write_run(run_dir, loaded, record)
     _summary(result)
@@ -177,10 +185,10 @@ def teleop(
 
     from agv_mission.maps.recorder import RecorderFileError
     from agv_mission.missions.outputs import make_run_dir
-    from agv_mission.missions.teleop import (
+    from agv_mission.missions.stack import open_recorders
+    from agv_mission.teleop.session import (
         check_recorder_file,
         load_teleop_mission,
-        open_recorders,
         run_teleop,
         write_teleop_outputs,
     )
@@ -325,20 +333,21 @@ def regress(
 
     from rich.markup import escape
 
-    from agv_mission.missions import regress as rg
+    from agv_mission.regress import backends, report
+    from agv_mission.regress import plan as planning
 
     if backend not in ("local", "ray"):
         err.print(f"[bold red]invalid input[/]: --backend {escape(backend)}: local or ray")
         raise typer.Exit(2)
-    rg.warm_up(backend, workers)  # the pool's fork server imports while we plan
+    backends.warm_up(backend, workers)  # the pool's fork server imports while we plan
     try:
-        plan = rg.plan_jobs(paths, sweep, seeds, output)
-    except rg.RegressError as exc:
+        plan = planning.plan_jobs(paths, sweep, seeds, output)
+    except planning.RegressError as exc:
         err.print(f"[bold red]invalid input[/]: {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from None
     if plan.problems:
         _report_invalid(MissionError(plan.problems))
-        rg.write_reports([], plan, 0.0, backend, workers, junit, json_)
+        report.write_reports([], plan, 0.0, backend, workers, junit, json_)
         raise typer.Exit(2)
     n_workers = workers or os.cpu_count() or 1
     out.print(
@@ -362,23 +371,23 @@ def regress(
         def progress(result: dict, done: int, total: int) -> None:
             mark = "[green]ok[/]" if result["passed"] else "[red]FAIL[/]"
             bar.console.print(
-                f"{mark} {escape(rg.run_label(result, len(plan.variants), seeds))}",
+                f"{mark} {escape(report.run_label(result, len(plan.variants), seeds))}",
                 highlight=False,
             )
             bar.update(job, completed=done)
 
         try:
-            results = rg.run_jobs(plan.jobs, backend, n_workers, address, progress)
-        except rg.RegressError as exc:
+            results = backends.run_jobs(plan.jobs, backend, n_workers, address, progress)
+        except planning.RegressError as exc:
             err.print(f"[bold red]invalid input[/]: {escape(str(exc))}", highlight=False)
             raise typer.Exit(2) from None
     elapsed = time.perf_counter() - started
     # Not a terminal (CI logs, pipes): do not squeeze the tables into 80 columns.
     tables = out if out.is_terminal else Console(soft_wrap=True, width=240)
-    tables.print(rg.results_table(results, len(plan.variants), seeds))
+    tables.print(report.results_table(results, len(plan.variants), seeds))
     if len(plan.variants) > 1 or seeds > 1:
-        tables.print(rg.comparison_table(rg.compare(results)))
-    rg.write_reports(results, plan, elapsed, backend, n_workers, junit, json_)
+        tables.print(report.comparison_table(report.compare(results)))
+    report.write_reports(results, plan, elapsed, backend, n_workers, junit, json_)
     failed = [r for r in results if not r["passed"]]
     colour = "red" if failed else "green"
     out.print(

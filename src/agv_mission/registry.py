@@ -79,7 +79,7 @@ _BUILTIN_MODULES = (
     "agv_mission.localization.ground_truth",
     "agv_mission.localization.odometry",
     "agv_mission.localization.amcl",
-    "agv_mission.localization.slam",
+    "agv_mission.mapping.slam",
     "agv_mission.mapping.graph_slam",
     "agv_mission.planners.ompl_planner",
     "agv_mission.planners.grid_astar",

@@ -85,7 +85,8 @@ class BagWriter:
     directory). ``/particlecloud`` is thinned to one cloud per ``particle_period``
     simulated seconds of at most ``max_particles`` poses (every k-th particle): a filter
     with thousands of particles updating at 10 Hz would otherwise be 95 % of the bag
-    (30 MB per 40 s). The bag is closed by :meth:`on_end` (or :meth:`close`), so it is complete
+    (30 MB per 40 s). A growing SLAM map goes to ``/map`` at most every ``map_period``
+    simulated seconds (gmapping's ``map_update_interval``), its last state always. The bag is closed by :meth:`on_end` (or :meth:`close`), so it is complete
     even when the run ends aborted or in error.
     """
 
@@ -94,11 +95,15 @@ class BagWriter:
         path: Path | None = None,
         particle_period: float = 0.5,
         max_particles: int = 1000,
+        map_period: float = 2.0,
     ) -> None:
         self.path = path
         self.particle_period = particle_period
         self.max_particles = max_particles
+        self.map_period = map_period
         self._next_particles = 0.0
+        self._next_map = 0.0
+        self._pending_map: tuple[float, Any] | None = None
         self.messages = 0
         self._writer: Writer | None = None
         self._conns: dict[str, Any] = {}
@@ -175,15 +180,26 @@ class BagWriter:
         if sample.plan is not None and len(sample.plan):
             self._write("/plan", t, rm.path(t, sample.plan, MAP_FRAME))
         if sample.grid is not None:
-            self._write("/map", t, rm.occupancy_grid(t, sample.grid, MAP_FRAME))
+            self._pending_map = (t, sample.grid)
+        if self._pending_map is not None and t >= self._next_map - 1e-9:
+            self._flush_map()
         for event in sample.events:
             self._write("/events", t, rm.string(json.dumps(event, default=_jsonable)))
 
     def on_end(self, record: Any) -> None:
         self.close()
 
+    def _flush_map(self) -> None:
+        assert self._pending_map is not None
+        t, grid = self._pending_map
+        self._write("/map", t, rm.occupancy_grid(t, grid, MAP_FRAME))
+        self._pending_map = None
+        self._next_map = t + self.map_period
+
     def close(self) -> None:
         if self._writer is not None:
+            if self._pending_map is not None:
+                self._flush_map()
             self._writer.close()
             self._writer = None
 

@@ -9,7 +9,7 @@ import py_trees
 from py_trees.common import Status
 
 from agv_mission.geometry import Pose2D, wrap_angle
-from agv_mission.maps.frontiers import find_frontiers
+from agv_mission.mapping.frontiers import find_frontiers
 from agv_mission.maps.grid import UNKNOWN, OccupancyGrid
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import NavStatus

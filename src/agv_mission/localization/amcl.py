@@ -41,6 +41,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from agv_mission.geometry import Pose2D
+from agv_mission.localization.base import LocalizerDiagnostics
 from agv_mission.localization.particle_filter import MotionNoise, ParticleFilter, SensorParams
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
@@ -247,6 +248,21 @@ class AmclLocalizer:
                 self._filter_update(odom, scan, time, moved or self._force_update)
                 self._force_update = False
         return self._pose.compose(odom.relative_to(self._odom))
+
+    def diagnostics(self) -> LocalizerDiagnostics:
+        p, w = self.filter.particles, self.filter.weights
+        mean = self._pose.as_array()
+        d = p - mean
+        d[:, 2] = (d[:, 2] + math.pi) % (2.0 * math.pi) - math.pi
+        total = float(w.sum()) or 1.0
+        cov = (d * (w / total)[:, None]).T @ d
+        return LocalizerDiagnostics(
+            filter_updates=self.filter_updates,
+            particle_counts=self.particle_counts,
+            snapshots=self.snapshots,
+            particles=p,
+            covariance=cov,
+        )
 
     def request_nomotion_update(self) -> None:
         """Update the filter with the next scan although the robot has not moved far enough.

@@ -7,6 +7,7 @@ from typing import Literal
 import numpy as np
 
 from agv_mission.geometry import Pose2D
+from agv_mission.localization.base import LocalizerDiagnostics
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
 from agv_mission.planners.base import PluginConfig
@@ -36,3 +37,6 @@ class GroundTruthLocalizer:
 
     def request_nomotion_update(self) -> None:
         """Nothing to refine without a filter."""
+
+    def diagnostics(self) -> LocalizerDiagnostics:
+        return LocalizerDiagnostics()

@@ -32,8 +32,8 @@ from scipy.sparse import csr_matrix, identity
 from scipy.sparse.linalg import spsolve
 
 from agv_mission.geometry import Pose2D, wrap_angles
-from agv_mission.localization.scan_matching import CorrelativeMatcher, LikelihoodField
-from agv_mission.localization.slam import GridSlam, GridSlamConfig
+from agv_mission.mapping.scan_matching import CorrelativeMatcher, LikelihoodField
+from agv_mission.mapping.slam import GridSlam, GridSlamConfig
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
 from agv_mission.registry import register

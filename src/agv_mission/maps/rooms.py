@@ -35,6 +35,11 @@ class Room:
         return float(poly[:, 0].mean()), float(poly[:, 1].mean())
 
 
+def room_at(rooms: dict[str, Room], x: float, y: float) -> str | None:
+    """The label of the first room whose polygon holds (x, y), if any."""
+    return next((label for label, room in rooms.items() if room.contains(x, y)), None)
+
+
 def reachable_cells(costmap: Costmap, start: Pose2D, margin: float = 0.0) -> np.ndarray:
     """Cells where the robot fits (with ``margin``) and that connect to ``start``."""
     free = costmap.distance > costmap.robot_radius + margin

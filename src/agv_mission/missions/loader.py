@@ -26,7 +26,7 @@ from agv_mission.maps.rooms_file import RoomsFileError, load_rooms
 from agv_mission.maps.world_loader import WorldError, load_world
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.schema import Mission
+from agv_mission.missions.schema import FIELD_ORDER, Mission, Setup
 from agv_mission.missions.yaml_lines import DocumentError, FieldPath, line_of, load_with_lines
 from agv_mission.robots.description import RobotDescription, load_robot
 
@@ -35,7 +35,7 @@ from agv_mission.robots.description import RobotDescription, load_robot
 class LoadedMission:
     """A validated mission with everything it names loaded and resolved."""
 
-    mission: Mission
+    mission: Mission  # a Setup (no tasks) when loaded with tasks_required=False
     source: Path | None
     name: str
     world: World
@@ -50,7 +50,7 @@ class LoadedMission:
         """The mission as it runs: defaults filled in and overrides applied."""
         doc = self.mission.model_dump(mode="json")
         doc["name"] = self.name
-        return doc
+        return {k: doc[k] for k in FIELD_ORDER if k in doc}
 
 
 def load_mission(
@@ -58,8 +58,14 @@ def load_mission(
     overrides: list[str] | None = None,
     seed: int | None = None,
     text: str | None = None,
+    *,
+    tasks_required: bool = True,
 ) -> LoadedMission:
-    """Read, override, validate and resolve a mission file."""
+    """Read, override, validate and resolve a mission file.
+
+    With ``tasks_required=False`` a file without ``tasks`` is a :class:`Setup` (world,
+    robot, start, stack) and resolves the same way; one with tasks is still checked whole.
+    """
     path = Path(path)
     file = str(path)
     if text is None:
@@ -107,10 +113,13 @@ def load_mission(
             ]
         )
 
+    model: type[Setup] = Mission if tasks_required or "tasks" in data else Setup
     try:
-        mission = Mission.model_validate(data)
+        mission = model.model_validate(data)
     except ValidationError as exc:
-        raise MissionError(_validation_problems(file, exc, data, lines, override_paths)) from None
+        raise MissionError(
+            _validation_problems(file, exc, data, lines, override_paths, model)
+        ) from None
     except RecursionError:  # e.g. an alias that contains itself: a: &x [*x]
         raise MissionError(
             [Problem(file, None, "", "the document nests too deeply (or contains itself)")]
@@ -123,7 +132,7 @@ def load_mission(
 
 
 def _resolve(
-    mission: Mission,
+    mission: Setup,
     file: str,
     base_dir: Path,
     stem: str,
@@ -201,7 +210,7 @@ def _resolve(
     else:
         start = mission.start.to_pose2d()
     _check_pose(start, costmap, ("start",), problem)
-    for i, task in enumerate(mission.tasks):
+    for i, task in enumerate(_tasks(mission)):
         if task.type == "go_to":
             _check_pose(task.pose.to_pose2d(), costmap, ("tasks", i, "pose"), problem)
         elif task.type == "patrol":
@@ -236,7 +245,7 @@ def _resolve(
     if problems:
         raise MissionError(problems)
     return LoadedMission(
-        mission=mission,
+        mission=mission,  # type: ignore[arg-type]
         source=None,
         name=mission.name or stem,
         world=world,
@@ -247,6 +256,10 @@ def _resolve(
         room_goals=room_goals,
         recorder=recorder,
     )
+
+
+def _tasks(mission: Setup) -> list[Any]:
+    return mission.tasks if isinstance(mission, Mission) else []
 
 
 def _with_obstacles(world: World, obstacles: list[Any]) -> World:
@@ -271,12 +284,12 @@ def _distance_to_obstacle(o: Any, x: float, y: float) -> float:
 
 
 def _room_goals(
-    mission: Mission, rooms: dict[str, Room], costmap: Costmap, start: Pose2D, problem: Any
+    mission: Setup, rooms: dict[str, Room], costmap: Costmap, start: Pose2D, problem: Any
 ) -> dict[str, Pose2D]:
     """Where each visited room is entered: its anchor, or a reachable point well inside."""
     goals: dict[str, Pose2D] = {}
     allowed: np.ndarray | None = None
-    for i, task in enumerate(mission.tasks):
+    for i, task in enumerate(_tasks(mission)):
         if task.type != "visit_rooms":
             continue
         for j, label in enumerate(task.rooms):
@@ -414,12 +427,13 @@ def _validation_problems(
     data: Any,
     lines: dict[FieldPath, int],
     override_paths: dict[FieldPath, str],
+    model: type[Setup] = Mission,
 ) -> list[Problem]:
     problems: list[Problem] = []
     seen: set[tuple[FieldPath, str]] = set()
     for err in exc.errors(include_url=False):
         field_path = _data_path(tuple(err["loc"]), data)
-        message = _message(err, data)
+        message = _message(err, data, model)
         if (field_path, message) in seen:
             continue
         seen.add((field_path, message))
@@ -472,7 +486,7 @@ def _is_tag(part: str) -> bool:
     return part in {"str", "int", "float", "bool", "Pose"} or "[" in part
 
 
-def _message(err: dict, data: Any = None) -> str:
+def _message(err: dict, data: Any = None, model: type[Setup] = Mission) -> str:
     kind = err["type"]
     if kind == "missing":
         return "required field is missing"
@@ -482,7 +496,7 @@ def _message(err: dict, data: Any = None) -> str:
         ctx = err.get("ctx", {})
         return f"unknown type {ctx.get('tag')!r}; expected one of {ctx.get('expected_tags')}"
     if kind == "union_tag_not_found":
-        tags = _expected_tags(tuple(err["loc"]), data)
+        tags = _expected_tags(tuple(err["loc"]), data, model)
         return "missing 'type'" + (f"; expected one of {tags}" if tags else "")
     msg = err["msg"]
     if kind in ("model_type", "model_attributes_type", "dict_type"):
@@ -500,7 +514,7 @@ def _message(err: dict, data: Any = None) -> str:
     return msg
 
 
-def _expected_tags(loc: tuple, data: Any) -> str | None:
+def _expected_tags(loc: tuple, data: Any, model: type[Setup] = Mission) -> str | None:
     """The ``type`` values a block without one could have: ask the schema with a bad one."""
     field_path = _data_path(loc, data)
     try:
@@ -511,7 +525,7 @@ def _expected_tags(loc: tuple, data: Any) -> str | None:
         if not isinstance(node, dict):
             return None
         node["type"] = "\x00"
-        Mission.model_validate(probe)
+        model.model_validate(probe)
     except ValidationError as exc:
         for err in exc.errors(include_url=False):
             if err["type"] == "union_tag_invalid" and _data_path(err["loc"], probe) == field_path:

@@ -337,8 +337,11 @@ class OutputConfig(StrictModel):
         return self.dir
 
 
-class Mission(StrictModel):
-    """A mission file."""
+class Setup(StrictModel):
+    """Where and with what a robot drives: world, robot, start, stack and simulation.
+
+    The part of a mission that does not say what to do; ``teleop`` drives in one of these.
+    """
 
     name: str | None = Field(None, description="default: the file's stem")
     world: str = Field(
@@ -353,7 +356,6 @@ class Mission(StrictModel):
     seed: int = Field(0, ge=0, description="every random draw of the run derives from it")
     stack: Stack = Field(default_factory=Stack)
     simulation: SimConfig = Field(default_factory=SimConfig)
-    tasks: list[Task] = Field(min_length=1)
     limits: Limits = Field(default_factory=Limits)
     obstacles: list[Obstacle] = Field(
         default_factory=list, description="unmapped obstacles, in the simulation only"
@@ -368,12 +370,6 @@ class Mission(StrictModel):
         default_factory=OutputConfig,
         description="root of run directories (a string), or {dir, bag}: bag: false skips bag/",
     )
-    expect: Expectations | None = Field(
-        None,
-        description="what `agv-mission regress` checks of the run (ignored by `run`): final "
-        "and per-task status, time, collisions, clearance, localisation, map IoU, rooms, "
-        "waypoints",
-    )
 
     @field_validator("name")
     @classmethod
@@ -381,3 +377,35 @@ class Mission(StrictModel):
         if v is not None and (not v.strip() or "/" in v or "\\" in v):
             raise ValueError("name must be a non-empty string without path separators")
         return v
+
+
+class Mission(Setup):
+    """A mission file: a setup and the tasks to carry out in it."""
+
+    tasks: list[Task] = Field(min_length=1)
+    expect: Expectations | None = Field(
+        None,
+        description="what `agv-mission regress` checks of the run (ignored by `run`): final "
+        "and per-task status, time, collisions, clearance, localisation, map IoU, rooms, "
+        "waypoints",
+    )
+
+
+# The order a resolved mission is written in (mission.yaml): what to do after the stack.
+FIELD_ORDER = (
+    "name",
+    "world",
+    "rooms",
+    "robot",
+    "start",
+    "seed",
+    "stack",
+    "simulation",
+    "tasks",
+    "limits",
+    "obstacles",
+    "faults",
+    "recorder",
+    "output",
+    "expect",
+)

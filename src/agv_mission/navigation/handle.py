@@ -7,9 +7,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from agv_mission.geometry import Pose2D
+from agv_mission.mapping.session import MappingSession
 from agv_mission.maps.recorder import LocationRecorder
 from agv_mission.maps.rooms import Room
-from agv_mission.navigation.mapping import MappingSession
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.navigation.state import RobotState
 
@@ -32,16 +32,13 @@ class RobotHandle:
     )
     end_mapping: Callable[[str], dict[str, Any]] | None = None
     nomotion_update: bool = False  # ask the localiser to update with the next scan
+    remote_command: tuple[float, float] | None = None  # (v, w) a remote driver sends
 
     def drive(self, v: float, w: float) -> None:
         self.command = (float(v), float(w))
 
     def stop(self) -> None:
         self.command = (0.0, 0.0)
-
-    def room_at(self, pose: Pose2D) -> str | None:
-        """The label of the first room whose polygon holds ``pose``."""
-        return next((r.label for r in self.rooms.values() if r.contains(pose.x, pose.y)), None)
 
     def record(self, label: str) -> Pose2D:
         """Record the estimated pose under ``label`` in every recorder file, atomically."""

@@ -73,6 +73,7 @@ class Navigator:
         self.goal: Pose2D | None = None
         self.path: Path | None = None
         self.paths: list[np.ndarray] = []  # every plan, for the run plot
+        self.horizon: np.ndarray | None = None  # the local planner's last predicted path
         self.stats = NavigationStats()
         self._phase = _Phase.FOLLOW
         self._xy_tol = config.xy_goal_tolerance
@@ -123,6 +124,7 @@ class Navigator:
 
     def update(self, state: RobotState) -> VelocityCommand:
         """One control step towards the goal; read ``status`` afterwards."""
+        self.horizon = None
         if self.status is not NavStatus.RUNNING or self.goal is None:
             return VelocityCommand(0.0, 0.0)
         pose, goal = state.estimate, self.goal
@@ -159,6 +161,7 @@ class Navigator:
             state.estimate, state.velocity, self.path.points, self.goal, near
         )
         self.stats.solve_times.append(cmd.solve_time)
+        self.horizon = cmd.predicted
         if not cmd.ok:
             self.stats.solver_failures += 1
         return cmd

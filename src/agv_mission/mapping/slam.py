@@ -3,7 +3,7 @@
 Like hector mapping / Cartographer's local SLAM (without loop closure): every scan after
 the robot has moved is matched against the map built so far, starting from the last
 corrected pose composed with the odometry motion since
-(:class:`~agv_mission.localization.scan_matching.CorrelativeMatcher`: correlative
+(:class:`~agv_mission.mapping.scan_matching.CorrelativeMatcher`: correlative
 branch and bound over +-0.2 m / +-10 deg, then a point-to-line refinement fused with the
 odometry prior); the scan is then integrated into the map at the corrected pose once the
 robot has moved ``update_min_d`` / ``update_min_a`` since the last integration. The true
@@ -53,7 +53,7 @@ import numpy as np
 from pydantic import Field
 
 from agv_mission.geometry import Pose2D
-from agv_mission.localization.scan_matching import (
+from agv_mission.mapping.scan_matching import (
     CorrelativeMatcher,
     LikelihoodField,
     MatchResult,

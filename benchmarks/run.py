@@ -41,6 +41,7 @@ TARGETS = {
     "regress.speedup_ratio": ("<=", 0.6),
     "bags.round_trip.tb3.free_iou.offline": (">=", 0.95),
     "bags.round_trip.tb3.x_bag_duration": (">=", 20.0),
+    "bags.round_trip.aws_small_house.free_iou.offline": (">=", 0.95),
     "bags.round_trip.aws_small_house.x_bag_duration": (">=", 20.0),
 }
 

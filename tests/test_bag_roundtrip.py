@@ -51,14 +51,16 @@ def test_round_trip_turtlebot3_world(tmp_path):
 
 
 @pytest.mark.slow
-def test_round_trip_aws_small_house(tmp_path, ros_maps):
-    """The real AWS small-house map: explored live by map_area, mapped again from the bag."""
-    world = ros_maps / "aws_small_house" / "map.yaml"
-    text = (
-        f"name: house-round-trip\nworld: {world}\nstart: {{x: 3.83, y: -1.23, yaw: 0.0}}\n"
-        "seed: 4\nstack: {slam: {type: grid}, localization: {type: ground_truth}}\n"
-        "tasks: [{type: map_area, save_map: house}]\nlimits: {time: 1500.0}\n"
+def test_round_trip_aws_small_house_patrol(tmp_path):
+    """A patrol through every room of the real AWS small-house map, mapped from its bag."""
+    loaded = load_mission(REPO / "benchmarks" / "data" / "house_patrol.yaml")
+    run_dir = make_run_dir(tmp_path / "runs", loaded.name)
+    record = run_mission(loaded, run_dir, observers=[BagWriter()])
+    assert record.status == "succeeded", record.reason
+    result = CliRunner().invoke(
+        app, ["map", str(run_dir / "bag"), "--save-map", str(tmp_path / "m")]
     )
-    live, quality, report = _round_trip(tmp_path, tmp_path / "m.yaml", [], text=text)
+    assert result.exit_code == 0, result.output
+    offline = load_ros_map(tmp_path / "m.yaml")
+    quality = map_quality(offline, loaded.world.map, None, (loaded.start.x, loaded.start.y))
     assert quality["free_iou"] >= 0.95, quality
-    assert quality["free_iou"] >= live["free_iou"] - 0.01, (quality, live)

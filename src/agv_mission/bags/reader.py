@@ -20,6 +20,7 @@ is handled here, once:
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,7 +37,6 @@ POSE_TYPES = (
     "geometry_msgs/msg/PoseStamped",
     "geometry_msgs/msg/PoseWithCovarianceStamped",
 )
-TRUTH_HINTS = ("ground_truth", "groundtruth", "truth", "gt", "mocap", "vicon")
 
 
 class BagError(Exception):
@@ -173,10 +173,10 @@ def _read(
         scan_topic = _pick(scans_found, ("/scan", "scan", "/base_scan"), counts)
 
     odoms = [t for t, ty in topics.items() if ty == ODOM_TYPE]
-    truths = [t for t in odoms + [t for t, ty in topics.items() if ty in POSE_TYPES]]
-    truths = [
-        t for t in truths if any(h in t.lower().strip("/").split("/")[-1] for h in TRUTH_HINTS)
-    ]
+    poses = odoms + [t for t, ty in topics.items() if ty in POSE_TYPES]
+    truths = [t for t in poses if _looks_like_truth(t)]
+    if truth_topic is not None and topics.get(truth_topic) not in (ODOM_TYPE, *POSE_TYPES):
+        raise BagError(f"{path}: no odometry or pose topic {truth_topic} for ground truth")
     if truth_topic is None and truths:
         truth_topic = truths[0]
     if odom_topic is not None:
@@ -296,6 +296,12 @@ def _read(
         topics=topics,
         duration=float(max(times) - min(times)) if times else 0.0,
     )
+
+
+def _looks_like_truth(topic: str) -> bool:
+    """``/ground_truth``, ``/base_pose_ground_truth``, ``/gt/odom``, ``/mocap/pose``, ..."""
+    words = set(re.split(r"[^a-z0-9]+", topic.lower()))
+    return bool(words & {"truth", "groundtruth", "gt", "mocap", "vicon"})
 
 
 def _yaw_q(q: np.ndarray) -> float:

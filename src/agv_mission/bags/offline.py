@@ -108,6 +108,7 @@ def map_bag(
             "scan_gaps": _gaps(times),
         },
         "odometry_messages": len(data.odom),
+        "trajectory_poses": len(base),
         "bag_duration": round(duration, 3),
         "wall_time": round(wall, 3),
         "read_time": round(read_s, 3),
@@ -236,12 +237,7 @@ def slam_config(overrides: list[str], base: dict[str, Any] | None = None) -> Any
     except ValidationError as exc:
         raise MissionError(
             [
-                Problem(
-                    "--set",
-                    None,
-                    ".".join(str(p) for p in ("stack", *err["loc"])),
-                    err["msg"],
-                )
+                Problem("--set", None, _dotted(err["loc"], doc.get("type")), err["msg"])
                 for err in exc.errors()
             ]
         ) from None
@@ -253,3 +249,9 @@ def _slam_fields(name: Any) -> set[str]:
         return set(registry.get("slam", str(name)).Config.model_fields)
     except UnknownPluginError:  # validation names it
         return set()
+
+
+def _dotted(loc: tuple[Any, ...], plugin: Any) -> str:
+    """``stack.slam.KEY`` from pydantic's location (which names the union's tag too)."""
+    parts = [str(p) for p in loc if p != plugin]
+    return ".".join(["stack", *parts])

@@ -265,3 +265,88 @@ def pose_array_cdr(t: float, frame: str, poses: np.ndarray) -> bytes:
     body[:, 0], body[:, 1] = p[:, 0], p[:, 1]
     body[:, 5], body[:, 6] = np.sin(p[:, 2] / 2.0), np.cos(p[:, 2] / 2.0)
     return b"\x00\x01\x00\x00" + head + body.tobytes()
+
+
+class CdrWriter:
+    """Little-endian CDR (the encapsulation ROS 2 uses) of fixed-layout messages, packed
+    with ``struct``: the per-step messages (clock, tf, odometry, twist, estimate) cost a
+    few microseconds each this way instead of ~0.1 ms as message objects. Every layout
+    is checked byte for byte against rosbags' serialiser in the tests."""
+
+    def __init__(self) -> None:
+        self.buf = bytearray(b"\x00\x01\x00\x00")
+
+    def align(self, n: int) -> None:
+        self.buf += b"\0" * (-(len(self.buf) - 4) % n)
+
+    def u32(self, v: int) -> None:
+        self.align(4)
+        self.buf += struct.pack("<I", v)
+
+    def f64(self, *values: float) -> None:
+        self.align(8)
+        self.buf += struct.pack(f"<{len(values)}d", *values)
+
+    def string(self, text: str) -> None:
+        data = text.encode() + b"\0"
+        self.u32(len(data))
+        self.buf += data
+
+    def time(self, t: float) -> None:
+        sec, nsec = divmod(nanoseconds(t), 1_000_000_000)
+        self.align(4)
+        self.buf += struct.pack("<iI", int(sec), int(nsec))
+
+    def header(self, t: float, frame: str) -> None:
+        self.time(t)
+        self.string(frame)
+
+    def pose(self, p: Pose2D, z: float = 0.0) -> None:
+        self.f64(p.x, p.y, z, 0.0, 0.0, math.sin(p.yaw / 2.0), math.cos(p.yaw / 2.0))
+
+    def bytes(self) -> bytes:
+        return bytes(self.buf)
+
+
+def clock_cdr(t: float) -> bytes:
+    w = CdrWriter()
+    w.time(t)
+    return w.bytes()
+
+
+def twist_cdr(v: float, w_: float) -> bytes:
+    w = CdrWriter()
+    w.f64(float(v), 0.0, 0.0, 0.0, 0.0, float(w_))
+    return w.bytes()
+
+
+def tf_cdr(t: float, links: list[tuple[str, str, Pose2D, float]]) -> bytes:
+    """``tf2_msgs/TFMessage`` of planar links (parent, child, pose, z), all stamped ``t``."""
+    w = CdrWriter()
+    w.u32(len(links))
+    for parent, child, p, z in links:
+        w.header(t, parent)
+        w.string(child)
+        w.pose(p, z)
+    return w.bytes()
+
+
+def pose_with_covariance_cdr(t: float, frame: str, p: Pose2D, cov3: np.ndarray | None) -> bytes:
+    w = CdrWriter()
+    w.header(t, frame)
+    w.pose(p)
+    w.f64(*covariance6(cov3).tolist())
+    return w.bytes()
+
+
+def odometry_cdr(
+    t: float, frame: str, child: str, p: Pose2D, v: float, w_: float, cov3: np.ndarray | None
+) -> bytes:
+    w = CdrWriter()
+    w.header(t, frame)
+    w.string(child)
+    w.pose(p)
+    w.f64(*covariance6(cov3).tolist())
+    w.f64(float(v), 0.0, 0.0, 0.0, 0.0, float(w_))
+    w.f64(*([0.0] * 36))
+    return w.bytes()

@@ -148,25 +148,21 @@ class BagWriter:
         t = float(sample.t)
         est, odom = sample.estimate, sample.odom
         map_to_odom = est.compose(Pose2D(0.0, 0.0, 0.0).relative_to(odom))
-        self._write("/clock", t, rm.clock(t))
-        self._write(
+        raw = self._write_raw
+        raw("/clock", t, rm.clock_cdr(t))
+        raw(
             "/tf",
             t,
-            rm.tf_message(
-                [
-                    rm.transform(t, MAP_FRAME, ODOM_FRAME, map_to_odom),
-                    rm.transform(t, ODOM_FRAME, BASE_FRAME, odom),
-                ]
+            rm.tf_cdr(
+                t, [(MAP_FRAME, ODOM_FRAME, map_to_odom, 0.0), (ODOM_FRAME, BASE_FRAME, odom, 0.0)]
             ),
         )
         v, w = self._velocity("odom", t, odom)
-        self._write("/odom", t, rm.odometry(t, ODOM_FRAME, BASE_FRAME, odom, v, w, None))
+        raw("/odom", t, rm.odometry_cdr(t, ODOM_FRAME, BASE_FRAME, odom, v, w, None))
         v, w = self._velocity("truth", t, sample.truth)
-        self._write(
-            "/ground_truth", t, rm.odometry(t, MAP_FRAME, BASE_FRAME, sample.truth, v, w, None)
-        )
-        self._write("/cmd_vel", t, rm.twist(sample.v, sample.w))
-        self._write("/amcl_pose", t, rm.pose_with_covariance(t, MAP_FRAME, est, sample.covariance))
+        raw("/ground_truth", t, rm.odometry_cdr(t, MAP_FRAME, BASE_FRAME, sample.truth, v, w, None))
+        raw("/cmd_vel", t, rm.twist_cdr(sample.v, sample.w))
+        raw("/amcl_pose", t, rm.pose_with_covariance_cdr(t, MAP_FRAME, est, sample.covariance))
         if sample.scan is not None:
             scan = sample.scan
             self._write("/scan", float(scan.time), rm.laser_scan(scan, SCAN_FRAME, self._scan_time))

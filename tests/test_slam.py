@@ -11,7 +11,8 @@ import pytest
 from scipy import ndimage
 
 from agv_mission.geometry import Pose2D, wrap_angle, wrap_angles
-from agv_mission.mapping.frontiers import find_frontiers, frontier_mask, map_quality
+from agv_mission.mapping.frontiers import find_frontiers, frontier_mask
+from agv_mission.mapping.quality import map_quality
 from agv_mission.mapping.scan_matching import (
     CorrelativeMatcher,
     LikelihoodField,

@@ -246,7 +246,7 @@ def slam_config(overrides: list[str], base: dict[str, Any] | None = None) -> Any
 def _slam_fields(name: Any) -> set[str]:
     """The config keys of SLAM plugin ``name`` (none when there is no such plugin)."""
     try:
-        return set(registry.get("slam", str(name)).Config.model_fields)
+        return set(registry.config("slam", str(name)).model_fields)
     except UnknownPluginError:  # validation names it
         return set()
 

@@ -28,6 +28,7 @@ from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.missions.errors import MissionError, Problem
 from agv_mission.missions.schema import FIELD_ORDER, Mission, Setup
 from agv_mission.missions.yaml_lines import DocumentError, FieldPath, line_of, load_with_lines
+from agv_mission.registry import registry
 from agv_mission.robots.description import RobotDescription, load_robot
 
 
@@ -494,7 +495,11 @@ def _message(err: dict, data: Any = None, model: type[Setup] = Mission) -> str:
         return "unknown key (not allowed here)"
     if kind == "union_tag_invalid":
         ctx = err.get("ctx", {})
-        return f"unknown type {ctx.get('tag')!r}; expected one of {ctx.get('expected_tags')}"
+        tag = ctx.get("tag")
+        broken = [why for name, why in registry.errors().items() if name.endswith(f".{tag}")]
+        if broken:
+            return f"plugin {tag!r} is installed but failed to load: {broken[0]}"
+        return f"unknown type {tag!r}; expected one of {ctx.get('expected_tags')}"
     if kind == "union_tag_not_found":
         tags = _expected_tags(tuple(err["loc"]), data, model)
         return "missing 'type'" + (f"; expected one of {tags}" if tags else "")

@@ -21,14 +21,11 @@ from py_trees.common import Status
 from agv_mission.behaviors.outcome import failure_reason
 from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.localization.base import Localizer
-from agv_mission.mapping.frontiers import map_quality
-from agv_mission.mapping.session import MappingSession
-from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.obstacle_layer import ObstacleLayer
-from agv_mission.maps.ros_map import load_ros_map, save_ros_map
 from agv_mission.missions.faults import FaultInjector
 from agv_mission.missions.loader import LoadedMission
+from agv_mission.missions.map_building import MapBuilder
 from agv_mission.missions.observe import (
     RunControl,
     RunObserver,
@@ -133,14 +130,11 @@ class MissionRun:
             rooms=loaded.rooms,
             recorders=open_recorders(loaded, run_dir),
         )
-        self.handle.begin_mapping = self._begin_mapping
-        self.handle.end_mapping = self._end_mapping
         self.run_dir = run_dir
-        self.maps: list[dict[str, Any]] = []
-        self.built_map: OccupancyGrid | None = None
-        self.tree = build_tree(mission, self.handle, robot, loaded.room_goals)
-        self.faults = FaultInjector(mission.faults, self.sim, stack.fault_rng)
         self.rows: list[tuple[float, ...]] = []
+        self.mapper = MapBuilder(stack, self.navigator, self.handle, run_dir, self.rows)
+        self.tree = build_tree(mission, self.handle, robot, loaded.room_goals, self.mapper)
+        self.faults = FaultInjector(mission.faults, self.sim, stack.fault_rng)
         self.task_status = ["not_run"] * len(self.tree.tasks)
         self.collisions: list[dict[str, float]] = []
         self.in_contact = False
@@ -186,7 +180,7 @@ class MissionRun:
         self.faults.apply(now, handle)
         sensing = self.stack.sense(lambda t, scan: self.faults.filter_scan(t, scan, handle))
         odom_pose, scan, truth = sensing.odom, sensing.scan, sensing.truth
-        mapping = handle.mapping
+        mapping = self.mapper.session
         if mapping is not None:
             estimate = mapping.update(odom_pose, scan, truth, now)
             costmap = mapping.refreshed_costmap(now)
@@ -234,64 +228,6 @@ class MissionRun:
         sim.set_command(v, w)
         sim.advance(CONTROL_PERIOD)
         return True
-
-    def _begin_mapping(self, bounds: tuple[float, float, float, float] | None) -> MappingSession:
-        """SLAM takes over pose and map, starting from the current estimate."""
-        bounds = bounds or self.loaded.world.map.extent
-        slam = self.stack.new_slam(bounds)
-        session = MappingSession(
-            slam, bounds, self.robot.footprint_radius, self.mission.stack.costmap
-        )
-        session.start(self._mapping_anchor(), self.stack.odom)
-        self.handle.mapping = session
-        return session
-
-    def _mapping_anchor(self) -> Pose2D:
-        """The pose the new map is anchored at.
-
-        A robot that has not moved since the start is where the mission said it is; a
-        filter estimate there only adds its initial spread to every cell of the map.
-        """
-        if not self.stack.has_moved():
-            return self.loaded.start
-        return self.handle.state.estimate
-
-    def _end_mapping(self, stem: str) -> dict[str, Any]:
-        """Save the map, judge it against the world, and navigate on it from now on."""
-        session = self.handle.mapping
-        assert session is not None
-        grid = session.grid
-        summary: dict[str, Any] = {"map": stem}
-        if self.run_dir is not None:
-            save_ros_map(grid, self.run_dir / stem)
-            grid = load_ros_map(self.run_dir / f"{stem}.yaml")  # navigate on what was saved
-        quality = map_quality(
-            grid,
-            self.loaded.world.map,
-            session.bounds,
-            start=(self.loaded.start.x, self.loaded.start.y),
-        )
-        summary.update({k: round(v, 4) for k, v in quality.items()})
-        summary["slam_rmse"] = round(self._slam_rmse(session), 4)
-        summary["known_fraction"] = round(session.known_fraction(), 4)
-        self.maps.append(summary)
-        self.built_map = grid
-        static = Costmap.from_grid(grid, self.robot.footprint_radius, self.mission.stack.costmap)
-        self.navigator.layer = ObstacleLayer(static, self.mission.stack.costmap.obstacles)
-        self.stack.localizer = self.stack.new_localizer(grid)
-        self.stack.localizer.reset(session.slam.pose, self.stack.odom)
-        self.handle.mapping = None
-        return summary
-
-    def _slam_rmse(self, session: MappingSession) -> float:
-        """SLAM trajectory error against the true trajectory at the same times."""
-        est = np.asarray(session.slam.trajectory, dtype=float).reshape(-1, 4)
-        if not len(est) or not self.rows:
-            return float("nan")
-        rows = np.asarray(self.rows)
-        idx = np.clip(np.searchsorted(rows[:, 0], est[:, 0] - 1e-9), 0, len(rows) - 1)
-        err = np.hypot(est[:, 1] - rows[idx, 1], est[:, 2] - rows[idx, 2])
-        return float(np.sqrt(np.mean(err**2)))
 
     def end(self, status: str, reason: str | None) -> bool:
         if self.status is None:
@@ -360,8 +296,8 @@ class MissionRun:
                 recoveries[e["kind"]] = recoveries.get(e["kind"], 0) + 1
         metrics["navigation"]["recoveries"] = recoveries
         extras: dict[str, Any] = {"collisions": self.collisions, "faults": self.faults.report()}
-        if self.maps:
-            extras["maps"] = self.maps
+        if self.mapper.maps:
+            extras["maps"] = self.mapper.maps
         if self.handle.recorded:
             extras["rooms_recorded"] = {
                 label: {"x": round(p.x, 4), "y": round(p.y, 4), "yaw": round(p.yaw, 4)}
@@ -390,7 +326,7 @@ class MissionRun:
             tree_text=self.tree.render(),
             extras=extras,
             particle_snapshots=list(diagnostics.snapshots),
-            built_map=self.built_map,
+            built_map=self.mapper.built_map,
         )
 
 
@@ -415,7 +351,7 @@ class _Sampler:
             self.plans = len(navigator.paths)
             plan = navigator.paths[-1]
         covariance = particles = grid = None
-        mapping = handle.mapping
+        mapping = run.mapper.session
         if mapping is not None:
             covariance = mapping.slam.covariance
             if mapping.slam.integrations != self.map_integrations:
@@ -427,8 +363,8 @@ class _Sampler:
             if diagnostics.filter_updates != self.filter_updates:
                 self.filter_updates = diagnostics.filter_updates
                 particles = diagnostics.particles
-        if run.built_map is not self.built_map:
-            self.built_map = grid = run.built_map
+        if run.mapper.built_map is not self.built_map:
+            self.built_map = grid = run.mapper.built_map
         nodes = tree_nodes(run.tree.root)
         changed = nodes != self.nodes
         self.nodes = nodes

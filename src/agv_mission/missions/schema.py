@@ -20,12 +20,12 @@ from pydantic import (
     model_validator,
 )
 
-from agv_mission.geometry import Pose2D, yaw_from_quaternion
+from agv_mission.geometry import Bounds, Pose2D, yaw_from_quaternion
 from agv_mission.maps.costmap import CostmapConfig
 from agv_mission.missions.expectations import Expectations
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.registry import registry
-from agv_mission.robots.simulation import SimConfig
+from agv_mission.robots.sim_config import SimConfig
 
 QUATERNION_TOLERANCE = 1e-3
 
@@ -98,7 +98,7 @@ SlamConfig = _plugin_union("slam")
 
 
 def _default(slot: str, name: str) -> Any:
-    return registry.get(slot, name).Config()
+    return registry.config(slot, name)()
 
 
 class Stack(StrictModel):
@@ -187,7 +187,7 @@ class RecordRoomTask(SettleBeforeRecording):
     room: str = Field(min_length=1, description="the label to record under")
 
 
-class Bounds(StrictModel):
+class AreaBounds(StrictModel):
     """An axis-aligned rectangle of the map frame, metres."""
 
     xmin: float
@@ -196,12 +196,12 @@ class Bounds(StrictModel):
     ymax: float
 
     @model_validator(mode="after")
-    def _ordered(self) -> Bounds:
+    def _ordered(self) -> AreaBounds:
         if self.xmax <= self.xmin or self.ymax <= self.ymin:
             raise ValueError("bounds need xmin < xmax and ymin < ymax")
         return self
 
-    def as_tuple(self) -> tuple[float, float, float, float]:
+    def as_tuple(self) -> Bounds:
         return (self.xmin, self.xmax, self.ymin, self.ymax)
 
 
@@ -212,7 +212,7 @@ class MapAreaTask(StrictModel):
     """
 
     type: Literal["map_area"]
-    bounds: Bounds | None = Field(None, description="default: the whole world map")
+    bounds: AreaBounds | None = Field(None, description="default: the whole world map")
     save_map: str = Field("map", description="writes <save_map>.pgm + .yaml in the run directory")
     coverage: float | None = Field(
         None, gt=0.0, le=1.0, description="stop once this share of the bounds is known"

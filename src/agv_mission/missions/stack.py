@@ -12,11 +12,12 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from agv_mission.geometry import Pose2D
+from agv_mission.geometry import Bounds, Pose2D
+from agv_mission.localization.base import Localizer
+from agv_mission.mapping.base import Slam
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.obstacle_layer import ObstacleLayer
 from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder, RecorderFileError
@@ -93,16 +94,16 @@ class RobotStack:
         self.next_scan = 0.0
         self.odom = self.odometry.update(*self.sim.encoder_ticks())
         self.odom_start = self.odom
-        self.localizer: Any = self.new_localizer(loaded.world.map)
+        self.localizer: Localizer = self.new_localizer(loaded.world.map)
         self.localizer.reset(loaded.start, self.odom)
 
-    def new_localizer(self, grid: OccupancyGrid) -> Any:
+    def new_localizer(self, grid: OccupancyGrid) -> Localizer:
         """The mission's localisation plugin on ``grid`` (not yet reset)."""
         return registry.create(
             "localization", self.loaded.mission.stack.localization, grid=grid, rng=self.loc_rng
         )
 
-    def new_slam(self, bounds: tuple[float, float, float, float]) -> Any:
+    def new_slam(self, bounds: Bounds) -> Slam:
         """The mission's SLAM plugin over ``bounds`` (not yet reset)."""
         return registry.create(
             "slam", self.loaded.mission.stack.slam, bounds=bounds, rng=self.loc_rng

@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 from agv_mission.geometry import Pose2D
-from agv_mission.mapping.session import MappingSession
 from agv_mission.maps.recorder import LocationRecorder
 from agv_mission.maps.rooms import Room
 from agv_mission.navigation.navigator import Navigator
@@ -26,11 +24,6 @@ class RobotHandle:
     rooms: dict[str, Room] = field(default_factory=dict)
     recorders: list[LocationRecorder] = field(default_factory=list)
     recorded: dict[str, Pose2D] = field(default_factory=dict)
-    mapping: MappingSession | None = None  # set while a map_area task maps
-    begin_mapping: Callable[[tuple[float, float, float, float] | None], MappingSession] | None = (
-        None
-    )
-    end_mapping: Callable[[str], dict[str, Any]] | None = None
     nomotion_update: bool = False  # ask the localiser to update with the next scan
     remote_command: tuple[float, float] | None = None  # (v, w) a remote driver sends
 

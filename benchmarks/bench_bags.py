@@ -23,7 +23,7 @@ from pathlib import Path
 
 from agv_mission.bags.offline import map_bag, slam_config
 from agv_mission.bags.writer import BagWriter
-from agv_mission.mapping.frontiers import map_quality
+from agv_mission.mapping.quality import map_quality
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.runner import run_mission
 

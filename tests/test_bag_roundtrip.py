@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from agv_mission.bags.writer import BagWriter
 from agv_mission.cli import app
-from agv_mission.mapping.frontiers import map_quality
+from agv_mission.mapping.quality import map_quality
 from agv_mission.maps.ros_map import load_ros_map
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.outputs import make_run_dir, write_run

@@ -64,6 +64,8 @@ def run(
         _report_invalid(exc)
         raise typer.Exit(2) from None
 
+    bag = loaded.mission.output.bag and not no_bag
+    observers = [BagWriter().prepare()] if bag else []
     root = output if output is not None else Path(loaded.mission.output)
     run_dir = make_run_dir(root, loaded.name)
     write_mission(run_dir, loaded)
@@ -81,7 +83,6 @@ def run(
         disable=not err.is_terminal,
     ) as bar:
         job = bar.add_task("running", total=loaded.mission.limits.time)
-        observers = [BagWriter()] if loaded.mission.output.bag and not no_bag else []
         record = run_mission(
             loaded,
             run_dir,
@@ -121,7 +122,7 @@ def _summary(result: dict) -> None:
         f"sim {result['sim_time']:.1f} s in {result['wall_time']:.1f} s wall "
         f"({m['real_time_factor']}x real time), driven {m['distance_driven']:.2f} m, "
         f"collisions {m['collisions']}, min clearance {m['min_clearance']} m, "
-        f"position RMSE {loc['position_rmse']:.3f} m",
+        f"position RMSE {loc['position_rmse']} m",
         highlight=False,
     )
     out.print(f"run directory: {result['run_dir']}", highlight=False)

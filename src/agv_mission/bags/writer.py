@@ -27,6 +27,8 @@ from rosbags.rosbag2.metadata import Qos
 
 from agv_mission.bags import ros_messages as rm
 from agv_mission.geometry import Pose2D
+from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.messages import LaserScan
 
 if TYPE_CHECKING:
     from agv_mission.missions.observe import RunStart, StepSample
@@ -109,6 +111,28 @@ class BagWriter:
         self._conns: dict[str, Any] = {}
         self._prev: dict[str, tuple[float, Pose2D]] = {}
         self._scan_time = 0.0
+
+    def prepare(self) -> BagWriter:
+        """Build the typestore and its serialisers now, not when the run starts (~0.3 s
+        the first time in a process): a run should start driving as soon as it begins."""
+        for msgtype, _ in TOPICS.values():
+            rm.typestore().get_msgdef(msgtype)
+        t = 0.0
+        samples = {
+            rm.LASER_SCAN: rm.laser_scan(
+                LaserScan(np.zeros(1, np.float32), 0.0, 1.0, 0.1, 1.0, t), SCAN_FRAME, 0.2
+            ),
+            rm.OCCUPANCY_GRID: rm.occupancy_grid(
+                t, OccupancyGrid(np.zeros((1, 1), np.int8), 0.05, Pose2D(0.0, 0.0, 0.0))
+            ),
+            rm.PATH: rm.path(t, np.zeros((2, 2))),
+            rm.MARKER_ARRAY: rm.room_markers(t, {}),
+            rm.STRING: rm.string(""),
+            rm.TF_MESSAGE: rm.tf_message([]),
+        }
+        for msgtype, msg in samples.items():
+            rm.serialize(msg, msgtype)
+        return self
 
     # ------------------------------------------------------------------ observer
 

@@ -32,7 +32,8 @@ from scipy.sparse.linalg import spsolve
 
 from agv_mission.geometry import Pose2D, wrap_angles
 from agv_mission.mapping.configs import GraphSlamConfig
-from agv_mission.mapping.scan_matching import CorrelativeMatcher, LikelihoodField
+from agv_mission.mapping.likelihood_field import LikelihoodField
+from agv_mission.mapping.scan_matching import CorrelativeMatcher
 from agv_mission.mapping.slam import GridSlam
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan

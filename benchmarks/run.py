@@ -30,6 +30,7 @@ MODULES = [
     "bench_mission",
     "bench_breakdown",
     "bench_regress",
+    "bench_bags",
 ]
 
 # metric -> (comparison, target) from the issues
@@ -67,6 +68,10 @@ TARGETS = {
             "depot_30x15.burger",
         )
     },
+    "bags.round_trip.tb3.free_iou.offline": (">=", 0.95),
+    "bags.round_trip.tb3.x_bag_duration": (">=", 20.0),
+    "bags.round_trip.aws_small_house.free_iou.offline": (">=", 0.95),
+    "bags.round_trip.aws_small_house.x_bag_duration": (">=", 20.0),
 }
 # metric name suffix -> (comparison, target), for keys of every map (issue 15)
 SUFFIX_TARGETS = {

@@ -115,7 +115,7 @@ def test_registered_with_defaults() -> None:
     assert cls is GridSlam
     config = cls.Config()
     assert config.type == "grid" and config.resolution == 0.05
-    assert registry.names("slam") == ["grid"]
+    assert registry.names("slam") == ["graph", "grid"]
     slam = registry.create("slam", config, bounds=TB3_BOUNDS, rng=np.random.default_rng(0))
     assert isinstance(slam, GridSlam)
     with pytest.raises(ValueError):

@@ -107,8 +107,12 @@ def run(
     set_: Annotated[list[str], typer.Option("--set", help="KEY=VALUE override (YAML value)")] = [],  # noqa: B006
     output: Annotated[Path | None, typer.Option(help="root of run directories")] = None,  # noqa: UP007
     seed: Annotated[int | None, typer.Option(help="override the mission's seed")] = None,  # noqa: UP007
+    no_bag: Annotated[
+        bool, typer.Option("--no-bag", help="do not write bag/ (same as output.bag: false)")
+    ] = False,
 ) -> None:
     """Validate and run a mission in simulation; write a run directory."""
+    from agv_mission.bags.writer import BagWriter
     from agv_mission.missions.loader import load_mission
     from agv_mission.missions.outputs import make_run_dir, write_mission, write_run
     from agv_mission.missions.runner import RunStopped, run_mission
@@ -130,6 +134,8 @@ def run(
         err.print("stopped before the run started", highlight=False)
         raise typer.Exit(stopper.exit_code or 130) from None
 
+    bag = loaded.mission.output.bag and not no_bag
+    observers = [BagWriter().prepare()] if bag else []
     root = output if output is not None else Path(loaded.mission.output)
     try:
         run_dir = make_run_dir(root, loaded.name)
@@ -162,6 +168,7 @@ def run(
             run_dir,
             progress=lambda t, total: bar.update(job, completed=t),
             control=stopper,
+            observers=observers,
         )
     stopper.phase = "writing"  # a signal now is too late to stop anything: outputs first
     try:
@@ -364,6 +371,67 @@ def teleop(
     if run_dir is not None:
         out.print(f"run directory: {run_dir}", highlight=False, markup=False)
     raise typer.Exit(result.exit_code)
+
+
+@app.command("map")
+def map_(
+    bag: Annotated[Path, typer.Argument(help="ROS 1 .bag, ROS 2 bag directory or .mcap file")],
+    save_map: Annotated[
+        Path, typer.Option("--save-map", help="map_saver stem: writes PATH.pgm + PATH.yaml")
+    ] = Path("map"),
+    scan_topic: Annotated[
+        Optional[str], typer.Option("--scan-topic", help="default: the LaserScan topic")  # noqa: UP007, UP045
+    ] = None,
+    odom_topic: Annotated[
+        Optional[str],  # noqa: UP007, UP045
+        typer.Option("--odom-topic", help="default: the nav_msgs/Odometry topic, else /tf"),
+    ] = None,
+    truth_topic: Annotated[
+        Optional[str],  # noqa: UP007, UP045
+        typer.Option("--truth-topic", help="ground truth for the report's RMSE"),
+    ] = None,
+    set_: Annotated[
+        list[str], typer.Option("--set", help="SLAM KEY=VALUE (stack.slam.KEY or KEY)")
+    ] = [],  # noqa: B006
+) -> None:
+    """Build an occupancy grid map from a recorded bag (map_saver format + a report)."""
+    from rich.markup import escape
+
+    from agv_mission.bags.offline import MappingFailed, map_bag, save_outputs, slam_config
+    from agv_mission.bags.reader import BagError
+
+    try:
+        config = slam_config(set_)
+        result = map_bag(bag, config, scan_topic, odom_topic, truth_topic)
+    except MissionError as exc:
+        _report_invalid(exc)
+        raise typer.Exit(2) from None
+    except BagError as exc:
+        err.print(f"[bold red]invalid input[/]: {escape(str(exc))}", highlight=False)
+        raise typer.Exit(2) from None
+    except MappingFailed as exc:
+        err.print(f"[bold red]mapping failed[/]: {escape(str(exc))}", highlight=False)
+        raise typer.Exit(1) from None
+    paths = save_outputs(result, save_map)
+    r = result.report
+    scans = r["scans"]
+    out.print(
+        f"mapped {scans['used']}/{scans['total']} scans of {r['scan_topic']} "
+        f"({r['bag_duration']:.1f} s of bag) in {r['wall_time']:.1f} s "
+        f"({r['speed_vs_real_time']}x real time); odometry from {r['odometry']}",
+        highlight=False,
+        markup=False,
+    )
+    if "rmse" in r and r["rmse"]:
+        out.print(
+            f"trajectory RMSE vs {r['ground_truth_topic']}: {r['rmse']['position_rmse']:.3f} m "
+            f"(aligned {r['rmse']['ate_aligned']:.3f} m)",
+            highlight=False,
+            markup=False,
+        )
+    for what, path in paths.items():
+        out.print(f"{what}: {path}", highlight=False, markup=False)
+    raise typer.Exit(0)
 
 
 @app.command()

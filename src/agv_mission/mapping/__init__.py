@@ -1,0 +1,1 @@
+"""Mapping: SLAM, scan matching, loop closure, frontiers and map quality."""

@@ -93,3 +93,53 @@ class GridSlamConfig(PluginConfig):
     min_score: float = Field(
         0.1, ge=0, le=1, description="matches scoring below this are rejected (odometry only)"
     )
+
+
+class GraphSlamConfig(GridSlamConfig):
+    """Grid SLAM with loop closure (the mission's ``stack.slam`` block, ``type: graph``)."""
+
+    plugin: ClassVar[str] = "agv_mission.mapping.graph_slam:GraphSlam"
+
+    type: Literal["graph"] = "graph"  # type: ignore[assignment]
+
+    keyframe_distance: float = Field(0.3, gt=0, description="metres between keyframes")
+    keyframe_angle: float = Field(0.35, gt=0, description="radians between keyframes")
+    loop_check_every: int = Field(2, ge=1, description="keyframes between loop searches")
+    loop_min_travel: float = Field(
+        8.0, gt=0, description="metres driven before a keyframe can close a loop"
+    )
+    loop_search_radius: float = Field(
+        3.0, gt=0, description="candidates within this distance (m) of the estimate"
+    )
+    loop_linear_window: float = Field(1.0, gt=0, description="+- metres searched for a loop")
+    loop_angular_window: float = Field(
+        math.radians(20.0), gt=0, description="+- radians searched for a loop"
+    )
+    loop_min_score: float = Field(0.55, gt=0, le=1, description="mean field value to accept")
+    loop_submap_keyframes: int = Field(12, ge=1, description="keyframes each side in a submap")
+    odom_edge_sigma: tuple[float, float] = Field(
+        (0.01, 0.005),
+        description="m, rad per metre / radian of motion: the least std of a keyframe-to-"
+        "keyframe edge, on top of the front end's match covariance",
+    )
+    loop_edge_sigma: tuple[float, float] = Field(
+        (0.05, 0.05), description="m, rad: std of a loop edge"
+    )
+    loop_consistent: float = Field(
+        0.02,
+        ge=0,
+        description="m / rad: a loop edge closer than this to the graph is kept without a solve",
+    )
+    huber_scale: float = Field(3.0, gt=0, description="whitened residual where Huber starts")
+    rebuild_threshold: float = Field(
+        0.05,
+        ge=0,
+        description="the map is rebuilt when a keyframe moved more (m); less than a cell "
+        "is not worth re-integrating every scan",
+    )
+    rebuild_now_threshold: float = Field(
+        0.1,
+        ge=0,
+        description="moved more (m): rebuild at once for the front end; less: when the "
+        "map is next asked for",
+    )

@@ -341,7 +341,9 @@ class GridSlam:
         finite = np.isfinite(r)
         hit = finite & (r >= scan.range_min) & (r <= max_range)
         clear = max(max_range - 2.0 * res, 0.0) if c.clear_no_return else 0.0
-        length = np.where(hit, r, np.where(finite & (r > max_range), max_range, clear))
+        # +inf is "no return" (clears); nan is an invalid reading (clears nothing).
+        no_return = np.where(np.isposinf(r), clear, 0.0)
+        length = np.where(hit, r, np.where(finite & (r > max_range), max_range, no_return))
         keep = length > 0.0
         if not keep.any():
             self._last_integrated = pose

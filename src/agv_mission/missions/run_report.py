@@ -110,6 +110,7 @@ def run_metrics(
         "collisions": collisions,
         "min_clearance": round(min_clearance, 4) if math.isfinite(min_clearance) else None,
         "localization": {
+            # None when the run ended before its first step (a very early Ctrl-C)
             "position_rmse": round(float(np.sqrt(np.mean(err**2))), 5) if err.size else None,
             "position_max_error": round(float(err.max()), 5) if err.size else None,
             "yaw_rmse": round(float(np.sqrt(np.mean(yaw_err**2))), 5) if err.size else None,

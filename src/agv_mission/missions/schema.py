@@ -393,6 +393,29 @@ Fault = Annotated[
 ]
 
 
+class OutputConfig(StrictModel):
+    """Where a run directory goes and what it holds beyond the contract's minimum.
+
+    ``output: runs`` (the contract's spelling) is short for ``output: {dir: runs}``. The
+    model is path-like (``Path(mission.output)`` is the directory), so code that took
+    ``output`` as a string keeps working.
+    """
+
+    dir: str = Field("runs", description="root of run directories")
+    bag: bool = Field(True, description="write bag/ (a ROS 2 bag of the run) in the run directory")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _from_string(cls, v: Any) -> Any:
+        return {"dir": v} if isinstance(v, str) else v
+
+    def __fspath__(self) -> str:
+        return self.dir
+
+    def __str__(self) -> str:
+        return self.dir
+
+
 class Setup(StrictModel):
     """Where and with what a robot drives: world, robot, start, stack and simulation.
 
@@ -431,7 +454,10 @@ class Setup(StrictModel):
         description="an existing location_recorder.yaml to append to (updated in place; "
         "the run directory gets a copy)",
     )
-    output: str = Field("runs", description="root of run directories")
+    output: OutputConfig = Field(
+        default_factory=OutputConfig,
+        description="root of run directories (a string), or {dir, bag}: bag: false skips bag/",
+    )
 
     @field_validator("name")
     @classmethod

@@ -1,0 +1,387 @@
+"""Reading a robot's recording: scans, odometry, the lidar mount and ground truth.
+
+Any bag ``rosbags``' ``AnyReader`` opens: ROS 1 ``.bag``, ROS 2 bag directories (SQLite
+or MCAP) and bare ``.mcap`` files. Real recordings differ from ours, and each difference
+is handled here, once:
+
+* topics are found by type (``sensor_msgs/LaserScan``; ``nav_msgs/Odometry`` or, without
+  one, the ``odom -> base`` transform of ``/tf``) unless named;
+* the scan's frame is placed on the robot through ``/tf_static`` (or constant ``/tf``
+  links, as ROS 1's ``static_transform_publisher`` sends them): off-centre and rotated
+  mounts, and upside-down ones (the scan is mirrored so that it reads counter-clockwise
+  seen from above);
+* ``nan`` / ``-inf`` ranges and returns closer than ``range_min`` are invalid (they clear
+  nothing), ``+inf`` is "no return" (clears up to the range limit), as REP-117 says;
+* odometry at any rate is interpolated at each scan's stamp; scans before the first or
+  after the last odometry, or inside a gap of odometry longer than ``max_odom_gap``, are
+  counted and skipped.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agv_mission.geometry import Pose2D
+from agv_mission.messages import LaserScan
+
+SCAN_TYPE = "sensor_msgs/msg/LaserScan"
+ODOM_TYPE = "nav_msgs/msg/Odometry"
+TF_TYPE = "tf2_msgs/msg/TFMessage"
+POSE_TYPES = (
+    "geometry_msgs/msg/PoseStamped",
+    "geometry_msgs/msg/PoseWithCovarianceStamped",
+)
+
+
+class BagError(Exception):
+    """The bag cannot be mapped as given (invalid input: exit code 2)."""
+
+
+@dataclass
+class Transform:
+    """A 3D rigid transform as a 4x4 matrix (child frame in the parent frame)."""
+
+    matrix: np.ndarray
+
+    @classmethod
+    def from_msg(cls, tr: Any) -> Transform:
+        t, q = tr.translation, tr.rotation
+        return cls(_matrix(t.x, t.y, t.z, q.x, q.y, q.z, q.w))
+
+    def planar(self) -> tuple[Pose2D, bool]:
+        """The planar pose of the child frame and whether its z axis points down."""
+        m = self.matrix
+        return Pose2D(float(m[0, 3]), float(m[1, 3]), math.atan2(m[1, 0], m[0, 0])), bool(
+            m[2, 2] < 0.0
+        )
+
+
+@dataclass
+class BagData:
+    """What mapping needs from a bag, in the robot's base frame."""
+
+    scans: list[LaserScan]  # as recorded (angles in the scan frame), nan = invalid
+    scan_topic: str
+    scan_frame: str
+    odom: np.ndarray  # (m, 4) t, x, y, yaw of the base frame in the odometry frame
+    odom_source: str  # the topic, or "/tf odom->base_footprint"
+    base_frame: str
+    mount: Pose2D  # the scan frame on the base frame (planar)
+    flipped: bool  # the lidar is upside down
+    mount_found: bool
+    map_to_odom: np.ndarray | None = None  # (k, 4) t, x, y, yaw when the bag has map->odom
+    truth: np.ndarray | None = None  # (k, 4) t, x, y, yaw
+    truth_topic: str | None = None
+    topics: dict[str, str] = field(default_factory=dict)  # topic -> type
+    duration: float = 0.0
+
+
+def _matrix(x: float, y: float, z: float, qx: float, qy: float, qz: float, qw: float) -> np.ndarray:
+    n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw) or 1.0
+    qx, qy, qz, qw = qx / n, qy / n, qz / n, qw / n
+    m = np.eye(4)
+    m[:3, :3] = [
+        [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
+        [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
+        [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)],
+    ]
+    m[:3, 3] = [x, y, z]
+    return m
+
+
+def _yaw(q: Any) -> float:
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def _time(stamp: Any) -> float:
+    sec = getattr(stamp, "sec", None)
+    if sec is None:  # ROS 1 genpy-style names
+        sec = stamp.secs
+        return float(sec) + float(stamp.nsecs) * 1e-9
+    return float(sec) + float(stamp.nanosec) * 1e-9
+
+
+def _strip(frame: str) -> str:
+    return frame.lstrip("/")
+
+
+def open_reader(path: Path) -> Any:
+    """An opened ``AnyReader``, or :class:`BagError` naming the problem."""
+    from rosbags.highlevel import AnyReader
+
+    if not path.exists():
+        raise BagError(f"{path}: no such file or directory")
+    try:
+        reader = AnyReader([path])
+        reader.open()
+    except Exception as exc:  # rosbags raises several reader errors
+        raise BagError(f"{path}: not a readable ROS 1 / ROS 2 bag ({exc})") from None
+    return reader
+
+
+def _pick(candidates: list[str], preferred: tuple[str, ...], counts: dict[str, int]) -> str:
+    for name in preferred:
+        if name in candidates:
+            return name
+    return max(candidates, key=lambda t: counts.get(t, 0))
+
+
+def read_bag(
+    path: Path,
+    scan_topic: str | None = None,
+    odom_topic: str | None = None,
+    truth_topic: str | None = None,
+) -> BagData:
+    """Scans, odometry, mount and ground truth of the bag at ``path``."""
+    reader = open_reader(path)
+    try:
+        return _read(reader, path, scan_topic, odom_topic, truth_topic)
+    finally:
+        reader.close()
+
+
+def _read(
+    reader: Any,
+    path: Path,
+    scan_topic: str | None,
+    odom_topic: str | None,
+    truth_topic: str | None,
+) -> BagData:
+    topics: dict[str, str] = {}
+    counts: dict[str, int] = {}
+    for conn in reader.connections:
+        topics[conn.topic] = conn.msgtype
+        counts[conn.topic] = counts.get(conn.topic, 0) + conn.msgcount
+
+    scans_found = [t for t, ty in topics.items() if ty == SCAN_TYPE]
+    if scan_topic is not None:
+        if scan_topic not in topics:
+            raise BagError(f"{path}: no topic {scan_topic} (topics: {', '.join(sorted(topics))})")
+        if topics[scan_topic] != SCAN_TYPE:
+            raise BagError(f"{path}: {scan_topic} is a {topics[scan_topic]}, not a LaserScan")
+    elif not scans_found:
+        raise BagError(
+            f"{path}: no sensor_msgs/LaserScan topic (topics: {', '.join(sorted(topics))})"
+        )
+    else:
+        scan_topic = _pick(scans_found, ("/scan", "scan", "/base_scan"), counts)
+
+    odoms = [t for t, ty in topics.items() if ty == ODOM_TYPE]
+    poses = odoms + [t for t, ty in topics.items() if ty in POSE_TYPES]
+    truths = [t for t in poses if _looks_like_truth(t)]
+    if truth_topic is not None and topics.get(truth_topic) not in (ODOM_TYPE, *POSE_TYPES):
+        raise BagError(f"{path}: no odometry or pose topic {truth_topic} for ground truth")
+    if truth_topic is None and truths:
+        truth_topic = truths[0]
+    if odom_topic is not None:
+        if odom_topic not in topics:
+            raise BagError(f"{path}: no topic {odom_topic} (topics: {', '.join(sorted(topics))})")
+        if topics[odom_topic] not in (ODOM_TYPE, TF_TYPE):
+            raise BagError(
+                f"{path}: {odom_topic} is a {topics[odom_topic]}, not nav_msgs/Odometry or /tf"
+            )
+    else:
+        plain = [t for t in odoms if t != truth_topic]
+        if plain:
+            odom_topic = _pick(plain, ("/odom", "odom", "/odometry/filtered"), counts)
+
+    wanted = {scan_topic, "/tf", "/tf_static", "tf", "tf_static"}
+    if odom_topic:
+        wanted.add(odom_topic)
+    if truth_topic:
+        wanted.add(truth_topic)
+    conns = [c for c in reader.connections if c.topic in wanted]
+
+    scans: list[LaserScan] = []
+    scan_frame = ""
+    odom_rows: list[tuple[float, float, float, float]] = []
+    odom_child = ""
+    truth_rows: list[tuple[float, float, float, float]] = []
+    static: dict[str, tuple[str, Transform]] = {}  # child -> (parent, transform)
+    dynamic: dict[tuple[str, str], list[tuple[float, np.ndarray]]] = {}
+    for conn, _log_time, raw in reader.messages(connections=conns):
+        msg = reader.deserialize(raw, conn.msgtype)
+        topic = conn.topic
+        if topic == scan_topic:
+            scan_frame = scan_frame or _strip(msg.header.frame_id)
+            scans.append(_scan(msg))
+        elif topic == odom_topic and conn.msgtype == ODOM_TYPE:
+            odom_child = odom_child or _strip(msg.child_frame_id)
+            p = msg.pose.pose
+            odom_rows.append(
+                (_time(msg.header.stamp), p.position.x, p.position.y, _yaw(p.orientation))
+            )
+        elif topic == truth_topic:
+            p = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
+            truth_rows.append(
+                (_time(msg.header.stamp), p.position.x, p.position.y, _yaw(p.orientation))
+            )
+        elif conn.msgtype == TF_TYPE:
+            is_static = topic.strip("/") == "tf_static"
+            for tr in msg.transforms:
+                parent, child = _strip(tr.header.frame_id), _strip(tr.child_frame_id)
+                if is_static:
+                    static[child] = (parent, Transform.from_msg(tr.transform))
+                else:
+                    t, q = tr.transform.translation, tr.transform.rotation
+                    dynamic.setdefault((parent, child), []).append(
+                        (_time(tr.header.stamp), np.array([t.x, t.y, t.z, q.x, q.y, q.z, q.w]))
+                    )
+    if not scans:
+        raise BagError(f"{path}: {scan_topic} holds no messages")
+
+    # Links of /tf that never change are static ones (ROS 1 static_transform_publisher).
+    links: dict[tuple[str, str], np.ndarray] = {}
+    moving: dict[tuple[str, str], np.ndarray] = {}
+    for (parent, child), rows in dynamic.items():
+        rows.sort(key=lambda r: r[0])
+        values = np.array([r[1] for r in rows])
+        links[(parent, child)] = np.array([(t, v[0], v[1], _yaw_q(v[3:])) for t, v in rows])
+        if np.ptp(values, axis=0).max() < 1e-9:
+            static.setdefault(child, (parent, Transform(_matrix(*values[0]))))
+        else:
+            moving[(parent, child)] = links[(parent, child)]
+
+    # The base frame: the odometry's child, or the first moving frame above the scan frame.
+    chain = _static_chain(scan_frame, static)
+    odom_source = odom_topic or ""
+    if odom_rows:
+        base_frame = odom_child or chain[-1][0]
+        odom = np.array(sorted(odom_rows))
+    else:
+        moving_children = {c: (p, c) for (p, c) in moving if p != "map"}
+        base_frame = next((f for f, _ in chain if f in moving_children), "")
+        if not base_frame:
+            raise BagError(
+                f"{path}: no odometry: no nav_msgs/Odometry topic and no /tf transform "
+                f"moving a frame above the scan frame {scan_frame!r}"
+            )
+        link = moving_children[base_frame]
+        odom = moving[link]
+        odom_source = f"/tf {link[0]}->{link[1]}"
+    mount = np.eye(4)
+    found = False
+    for frame, parent_tf in chain:
+        if frame == base_frame:
+            found = True
+            break
+        mount = parent_tf @ mount
+    if not found and scan_frame == base_frame:
+        found = True
+    mount_pose, flipped = Transform(mount if found else np.eye(4)).planar()
+
+    odom_parent = next((p for (p, c) in moving if c == base_frame), "odom")
+    map_to_odom = links.get(("map", odom_parent))
+    truth = np.array(sorted(truth_rows)) if truth_rows else None
+    times = [s.time for s in scans]
+    return BagData(
+        scans=scans,
+        scan_topic=scan_topic,
+        scan_frame=scan_frame,
+        odom=odom,
+        odom_source=odom_source,
+        base_frame=base_frame,
+        mount=mount_pose,
+        flipped=flipped,
+        mount_found=found,
+        map_to_odom=map_to_odom,
+        truth=truth,
+        truth_topic=truth_topic if truth is not None else None,
+        topics=topics,
+        duration=float(max(times) - min(times)) if times else 0.0,
+    )
+
+
+def _looks_like_truth(topic: str) -> bool:
+    """``/ground_truth``, ``/base_pose_ground_truth``, ``/gt/odom``, ``/mocap/pose``, ..."""
+    words = set(re.split(r"[^a-z0-9]+", topic.lower()))
+    return bool(words & {"truth", "groundtruth", "gt", "mocap", "vicon"})
+
+
+def _yaw_q(q: np.ndarray) -> float:
+    x, y, z, w = (float(v) for v in q)
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def _static_chain(
+    frame: str, static: dict[str, tuple[str, Transform]]
+) -> list[tuple[str, np.ndarray]]:
+    """[(frame, its transform in its parent)] from ``frame`` upwards; the last entry is
+    the topmost frame reached (with an identity)."""
+    chain: list[tuple[str, np.ndarray]] = []
+    seen = set()
+    while frame in static and frame not in seen:
+        seen.add(frame)
+        parent, tf = static[frame]
+        chain.append((frame, tf.matrix))
+        frame = parent
+    chain.append((frame, np.eye(4)))
+    return chain
+
+
+def _scan(msg: Any) -> LaserScan:
+    """A LaserScan with ROS's invalid readings as ``nan`` (no clearing) and ``+inf`` kept."""
+    r = np.asarray(msg.ranges, dtype=np.float32).copy()
+    with np.errstate(invalid="ignore"):
+        r[np.isneginf(r) | (r < msg.range_min)] = np.nan
+    return LaserScan(
+        ranges=r,
+        angle_min=float(msg.angle_min),
+        angle_increment=float(msg.angle_increment),
+        range_min=float(msg.range_min),
+        range_max=float(msg.range_max),
+        time=_time(msg.header.stamp),
+    )
+
+
+def upright(scan: LaserScan, flipped: bool) -> LaserScan:
+    """The scan as a counter-clockwise scanner with positive increments would see it."""
+    ranges, amin, inc = scan.ranges, scan.angle_min, scan.angle_increment
+    if inc < 0:  # clockwise scanner: reverse the beams
+        amin = amin + inc * (len(ranges) - 1)
+        ranges, inc = ranges[::-1], -inc
+    if flipped:  # upside down: beam angle a reads -a from above
+        amax = amin + inc * (len(ranges) - 1)
+        ranges, amin = ranges[::-1], -amax
+    return LaserScan(
+        ranges=np.ascontiguousarray(ranges),
+        angle_min=float(amin),
+        angle_increment=float(inc),
+        range_min=scan.range_min,
+        range_max=scan.range_max,
+        time=scan.time,
+    )
+
+
+def interpolate_poses(
+    rows: np.ndarray, times: np.ndarray, max_gap: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses (n, 3) of ``rows`` (m, 4: t, x, y, yaw) at ``times``, and which are valid:
+    inside the recorded span and not inside a gap longer than ``max_gap``."""
+    t = rows[:, 0]
+    yaw = np.unwrap(rows[:, 3])
+    out = np.stack(
+        [
+            np.interp(times, t, rows[:, 1]),
+            np.interp(times, t, rows[:, 2]),
+            np.interp(times, t, yaw),
+        ],
+        axis=1,
+    )
+    eps = 1e-6
+    inside = (times >= t[0] - eps) & (times <= t[-1] + eps)
+    hi = (
+        np.clip(np.searchsorted(t, times), 1, len(t) - 1)
+        if len(t) > 1
+        else np.zeros(len(times), int)
+    )
+    gap = (t[hi] - t[hi - 1]) if len(t) > 1 else np.zeros(len(times))
+    exact = np.isclose(times, t[np.clip(np.searchsorted(t, times), 0, len(t) - 1)], atol=eps)
+    ok = inside & ((gap <= max_gap) | exact)
+    return out, ok

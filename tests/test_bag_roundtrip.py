@@ -1,0 +1,66 @@
+"""Round trip: a run's bag, mapped offline by `agv-mission map`, reproduces the map that
+`map_area` built live in the same run (free-cell IoU against the world)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from agv_mission.bags.writer import BagWriter
+from agv_mission.cli import app
+from agv_mission.mapping.quality import map_quality
+from agv_mission.maps.ros_map import load_ros_map
+from agv_mission.missions.loader import load_mission
+from agv_mission.missions.outputs import make_run_dir, write_run
+from agv_mission.missions.runner import run_mission
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _round_trip(tmp_path: Path, mission: Path | str, overrides: list[str], text: str | None = None):
+    loaded = (
+        load_mission(mission, overrides, text=text) if text else load_mission(mission, overrides)
+    )
+    run_dir = make_run_dir(tmp_path / "runs", loaded.name)
+    record = run_mission(loaded, run_dir, observers=[BagWriter()])
+    write_run(run_dir, loaded, record)
+    assert record.status == "succeeded", record.reason
+    live = record.extras["maps"][0]
+    result = CliRunner().invoke(
+        app, ["map", str(run_dir / "bag"), "--save-map", str(tmp_path / "offline")]
+    )
+    assert result.exit_code == 0, result.output
+    offline = load_ros_map(tmp_path / "offline.yaml")
+    start = (loaded.start.x, loaded.start.y)
+    quality = map_quality(offline, loaded.world.map, None, start)
+    report = json.loads((tmp_path / "offline_report.json").read_text())
+    return live, quality, report
+
+
+def test_round_trip_turtlebot3_world(tmp_path):
+    live, quality, report = _round_trip(
+        tmp_path, REPO / "tests" / "scenarios" / "map_area_tb3.yaml", []
+    )
+    assert quality["free_iou"] >= live["free_iou"] - 0.01, (quality, live)
+    assert quality["free_iou"] >= 0.95
+    assert report["scans"]["used"] == report["scans"]["total"]
+    assert report["rmse"]["position_rmse"] < 0.05
+
+
+@pytest.mark.slow
+def test_round_trip_aws_small_house_patrol(tmp_path):
+    """A patrol through every room of the real AWS small-house map, mapped from its bag."""
+    loaded = load_mission(REPO / "benchmarks" / "data" / "house_patrol.yaml")
+    run_dir = make_run_dir(tmp_path / "runs", loaded.name)
+    record = run_mission(loaded, run_dir, observers=[BagWriter()])
+    assert record.status == "succeeded", record.reason
+    result = CliRunner().invoke(
+        app, ["map", str(run_dir / "bag"), "--save-map", str(tmp_path / "m")]
+    )
+    assert result.exit_code == 0, result.output
+    offline = load_ros_map(tmp_path / "m.yaml")
+    quality = map_quality(offline, loaded.world.map, None, (loaded.start.x, loaded.start.y))
+    assert quality["free_iou"] >= 0.95, quality

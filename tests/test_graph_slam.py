@@ -1,0 +1,85 @@
+"""Loop closure: the pose graph optimiser, and the graph SLAM on a 100 m loop (slow)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agv_mission.geometry import Pose2D
+from agv_mission.mapping.graph_slam import GraphSlamConfig, optimize_pose_graph
+from agv_mission.missions.schema import Stack
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _square_loop(n: int = 400, scale: float = 1.0, yaw_bias: float = 0.003):
+    """A 100 m square driven with drifting odometry: truth, dead reckoning, edges."""
+    truth = [Pose2D(0.0, 0.0, 0.0)]
+    for k in range(1, n):
+        truth.append(truth[-1].compose(Pose2D(0.25, 0.0, np.pi / 2 if k % 100 == 0 else 0.0)))
+    odo, ii, jj, z, sigma = [truth[0]], [], [], [], []
+    for k in range(1, n):
+        d = truth[k].relative_to(truth[k - 1])
+        m = Pose2D(d.x * scale, d.y, d.yaw + yaw_bias)
+        ii.append(k - 1), jj.append(k), z.append(m.as_array()), sigma.append([0.02, 0.02, 0.01])
+        odo.append(odo[-1].compose(m))
+    truth_xy = np.array([p.as_array() for p in truth])
+    nodes = np.array([p.as_array() for p in odo])
+    return truth, truth_xy, nodes, ii, jj, z, sigma
+
+
+def _rmse(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum((a[:, :2] - b[:, :2]) ** 2, axis=1))))
+
+
+def test_one_loop_edge_closes_a_100m_loop():
+    truth, txy, nodes, ii, jj, z, sigma = _square_loop()
+    n = len(nodes)
+    ii.append(0), jj.append(n - 1), sigma.append([0.05, 0.05, 0.02])
+    z.append(truth[-1].relative_to(truth[0]).as_array())
+    before = _rmse(nodes, txy)
+    after = optimize_pose_graph(nodes, np.array(ii), np.array(jj), np.array(z), np.array(sigma))
+    assert before > 5.0
+    assert _rmse(after, txy) < 0.05 * before
+    assert np.allclose(after[0], nodes[0])  # the gauge stays
+    # the last pose now agrees with the loop edge
+    end = Pose2D(*after[-1]).relative_to(Pose2D(*after[0]))
+    assert np.allclose(end.as_array(), z[-1], atol=0.05)
+
+
+def test_a_wrong_loop_edge_is_held_down_by_huber():
+    truth, txy, nodes, ii, jj, z, sigma = _square_loop(yaw_bias=0.0)
+    n = len(nodes)
+    ii.append(0), jj.append(n - 1), sigma.append([0.05, 0.05, 0.02])
+    z.append(truth[-1].relative_to(truth[0]).as_array())
+    ii.append(50), jj.append(250), sigma.append([0.05, 0.05, 0.02])
+    z.append(np.array([0.0, 0.0, 0.0]))  # a false loop: two far-apart places "the same"
+    robust = optimize_pose_graph(nodes, np.array(ii), np.array(jj), np.array(z), np.array(sigma))
+    plain = optimize_pose_graph(
+        nodes, np.array(ii), np.array(jj), np.array(z), np.array(sigma), huber=1e9
+    )
+    assert _rmse(robust, txy) < 0.5 * _rmse(plain, txy)
+
+
+def test_graph_is_a_slam_plugin_with_the_grid_keys():
+    slam = Stack.model_validate({"slam": {"type": "graph", "update_min_d": 0.2}}).slam
+    assert isinstance(slam, GraphSlamConfig) and slam.update_min_d == 0.2
+
+
+@pytest.mark.slow
+def test_graph_slam_closes_a_100m_loop_with_slipping_wheels(tmp_path):
+    from agv_mission.bags.offline import map_bag, slam_config
+    from agv_mission.bags.writer import BagWriter
+    from agv_mission.missions.loader import load_mission
+    from agv_mission.missions.runner import run_mission
+
+    loaded = load_mission(REPO / "benchmarks" / "data" / "loop_patrol.yaml")
+    record = run_mission(loaded, tmp_path, observers=[BagWriter()])
+    assert record.status == "succeeded"
+    assert record.metrics["distance_driven"] > 95.0
+    grid = map_bag(tmp_path / "bag", slam_config(["type=grid"])).report
+    graph = map_bag(tmp_path / "bag", slam_config(["type=graph"])).report
+    assert graph["slam_diagnostics"]["loop_closures"] >= 1
+    assert graph["rmse"]["position_rmse"] < 0.5 * grid["rmse"]["position_rmse"]

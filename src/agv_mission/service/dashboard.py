@@ -22,7 +22,9 @@ _TEMPLATE_ORDER = ("patrol", "visit_rooms", "teleop")
 
 def _page(name: str) -> FileResponse:
     # no-cache: a dashboard upgraded in place must not run stale scripts against a new API
-    return FileResponse(STATIC_DIR / name, media_type="text/html", headers={"Cache-Control": "no-cache"})
+    return FileResponse(
+        STATIC_DIR / name, media_type="text/html", headers={"Cache-Control": "no-cache"}
+    )
 
 
 @router.get("/", include_in_schema=False)

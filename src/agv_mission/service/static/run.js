@@ -7,6 +7,7 @@
   const $ = (id) => document.getElementById(id);
   const view = new MapView($("map"), $("hud"));
   window.agvView = view;  // for tests and the benchmark (frame counters)
+  window.agvRunState = () => ({ status, task, state: lastState, replay: replay && { t: replay.t, t0: replay.t0, t1: replay.t1 } });
 
   let run = null;
   let status = null;

@@ -9,6 +9,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,12 +24,16 @@ from agv_mission.maps.grid import UNKNOWN
 from agv_mission.maps.recorder import RecorderFileError, load_entries
 from agv_mission.maps.rooms import Room, reachable_cells, visit_point
 from agv_mission.maps.rooms_file import RoomsFileError, load_rooms
-from agv_mission.maps.world_loader import WorldError, load_world
+from agv_mission.maps.world_loader import WorldError, builtin_names, load_world
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.missions.errors import MissionError, Problem
 from agv_mission.missions.schema import Mission
 from agv_mission.missions.yaml_lines import DocumentError, FieldPath, line_of, load_with_lines
-from agv_mission.robots.description import RobotDescription, load_robot
+from agv_mission.robots.description import BUILTIN_ROBOTS, RobotDescription, load_robot
+
+# A front door's rule on which files a mission may name: (field, resolved path) -> a
+# problem message, or None when the file may be read.
+PathGuard = Callable[[str, Path], "str | None"]
 
 
 @dataclass
@@ -58,8 +63,12 @@ def load_mission(
     overrides: list[str] | None = None,
     seed: int | None = None,
     text: str | None = None,
+    path_guard: PathGuard | None = None,
 ) -> LoadedMission:
-    """Read, override, validate and resolve a mission file."""
+    """Read, override, validate and resolve a mission file.
+
+    ``path_guard`` is asked before any file the mission names is read (the service lets
+    missions read only files under its data directory)."""
     path = Path(path)
     file = str(path)
     if text is None:
@@ -117,7 +126,9 @@ def load_mission(
         ) from None
 
     base_dir = path.parent if path.name else Path.cwd()
-    loaded = _resolve(mission, file, base_dir, path.stem or "mission", lines, override_paths)
+    loaded = _resolve(
+        mission, file, base_dir, path.stem or "mission", lines, override_paths, path_guard
+    )
     loaded.source = path
     return loaded
 
@@ -129,11 +140,26 @@ def _resolve(
     stem: str,
     lines: dict[FieldPath, int],
     override_paths: dict[FieldPath, str],
+    path_guard: PathGuard | None = None,
 ) -> LoadedMission:
     problems: list[Problem] = []
 
     def problem(field_path: FieldPath, message: str) -> None:
         problems.append(_problem(file, field_path, message, lines, override_paths))
+
+    if path_guard is not None:
+        named = {
+            "world": None if mission.world.strip() in builtin_names() else mission.world,
+            "robot": None if mission.robot in BUILTIN_ROBOTS else mission.robot,
+            "rooms": mission.rooms,
+            "recorder": mission.recorder,
+        }
+        for key, spec in named.items():
+            refused = spec is not None and path_guard(key, _resolve_path(spec.strip(), base_dir))
+            if refused:
+                problem((key,), refused)
+        if problems:
+            raise MissionError(problems)
 
     try:
         world = load_world(mission.world, base_dir)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,6 +28,14 @@ from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder
 from agv_mission.maps.ros_map import load_ros_map, save_ros_map
 from agv_mission.missions.faults import FaultInjector
 from agv_mission.missions.loader import LoadedMission
+from agv_mission.missions.observe import (
+    RunControl,
+    RunObserver,
+    RunStart,
+    StepSample,
+    TreeNode,
+    tree_nodes,
+)
 from agv_mission.missions.tree import MissionTree, build_tree
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.mapping import MappingSession
@@ -84,6 +92,9 @@ def run_mission(
     loaded: LoadedMission,
     run_dir: Path | None = None,
     progress: ProgressCallback | None = None,
+    *,
+    observers: Sequence[RunObserver] = (),
+    control: RunControl | None = None,
 ) -> RunRecord:
     """Run ``loaded`` in simulation until its tree finishes or its time limit passes.
 
@@ -93,15 +104,29 @@ def run_mission(
     way a record of what happened so far comes back.
     """
     run = MissionRun(loaded, run_dir)
+    sampler = _Sampler(run, list(observers)) if observers else None
     try:
-        while run.step():
+        if sampler is not None:
+            sampler.start()
+        while True:
+            if control is not None:
+                control.before_step(run)
+            events_from = len(run.handle.events)
+            going = run.step()
+            if sampler is not None:
+                sampler.step(events_from)
+            if not going:
+                break
             if progress is not None:
                 progress(run.sim.time, loaded.mission.limits.time)
     except KeyboardInterrupt:
         run.end("aborted", "interrupted by the user (Ctrl-C)")
     except Exception as exc:  # the run directory must still say what happened
         run.end("error", f"{type(exc).__name__}: {exc}")
-    return run.record()
+    record = run.record()
+    for observer in observers:
+        observer.on_end(record)
+    return record
 
 
 class MissionRun:
@@ -169,8 +194,14 @@ class MissionRun:
         self.status: str | None = None
         self.reason: str | None = None
 
+    def cancel(self, reason: str) -> None:
+        """End the run with status ``aborted`` before the next control step."""
+        self.end("aborted", reason)
+
     def step(self) -> bool:
         """One control step; False once the mission has ended."""
+        if self.status is not None:
+            return False
         sim, handle, state = self.sim, self.handle, self.handle.state
         now = sim.time
         state.time = now
@@ -382,6 +413,72 @@ class MissionRun:
             particle_snapshots=list(getattr(self.localizer, "snapshots", [])),
             built_map=self.built_map,
         )
+
+
+class _Sampler:
+    """Builds a :class:`StepSample` per control step for the observers."""
+
+    def __init__(self, run: MissionRun, observers: list[RunObserver]) -> None:
+        self.run, self.observers = run, observers
+        self.plans = 0
+        self.filter_updates = -1
+        self.nodes: list[TreeNode] = tree_nodes(run.tree.root)
+
+    def start(self) -> None:
+        run, loaded = self.run, self.run.loaded
+        start = RunStart(
+            run.run_dir,
+            run.mission,
+            run.robot,
+            loaded.world.map,
+            loaded.rooms,
+            loaded.start,
+            self.nodes,
+        )
+        for observer in self.observers:
+            observer.on_start(start)
+
+    def step(self, events_from: int) -> None:
+        run = self.run
+        if not run.rows:
+            return
+        t, x, y, yaw, ex, ey, eyaw, v, w = run.rows[-1]
+        nav = run.navigator
+        plan = None
+        if len(nav.paths) != self.plans:
+            self.plans = len(nav.paths)
+            plan = nav.paths[-1]
+        particles = None
+        updates = getattr(run.localizer, "filter_updates", None)
+        if updates is not None and updates != self.filter_updates:
+            self.filter_updates = updates
+            particles = run.localizer.particles
+        nodes = tree_nodes(run.tree.root)
+        changed = nodes != self.nodes
+        self.nodes = nodes
+        task = next((i for i, s in enumerate(run.task_status) if s == "running"), None)
+        state = run.handle.state
+        sample = StepSample(
+            t=t,
+            truth=Pose2D(x, y, yaw),
+            estimate=Pose2D(ex, ey, eyaw),
+            covariance=None,
+            odom=run._odom,
+            v=v,
+            w=w,
+            scan=state.scan if state.scan is not None and abs(state.scan.time - t) < 1e-6 else None,
+            particles=particles,
+            plan=plan,
+            horizon=None,
+            goal=nav.goal,
+            grid=None,
+            events=run.handle.events[events_from:],
+            tree_nodes=nodes if changed else None,
+            task_index=task,
+            task_type=run.mission.tasks[task].type if task is not None else None,
+        )
+        for observer in self.observers:
+            observer.on_step(sample)
 
 
 def _recorders(loaded: LoadedMission, run_dir: Path | None) -> list[LocationRecorder]:

@@ -32,6 +32,8 @@ class RobotHandle:
     )
     end_mapping: Callable[[str], dict[str, Any]] | None = None
     nomotion_update: bool = False  # ask the localiser to update with the next scan
+    remote_command: tuple[float, float] | None = None  # a teleop task's latest (v, w)
+    remote_goal: Pose2D | None = None  # a teleop task drives here first ("2D Nav Goal")
 
     def drive(self, v: float, w: float) -> None:
         self.command = (float(v), float(w))

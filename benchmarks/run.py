@@ -28,6 +28,7 @@ MODULES = [
     "bench_slam",
     "bench_mission",
     "bench_regress",
+    "bench_dashboard",
 ]
 
 # metric -> (comparison, target) from the issues
@@ -38,6 +39,8 @@ TARGETS = {
     "amcl.update_ms.p50.1000x60": ("<=", 2.0),
     "mission.map_area_small_house.real_time_factor": (">=", 5.0),
     "regress.speedup_ratio": ("<=", 0.6),
+    "dashboard.watched_rtf_ratio": (">=", 0.9),
+    "dashboard.fps_30x50": (">=", 20.0),
 }
 
 

@@ -91,6 +91,16 @@ def wait_status(page: Any, status: str, timeout_s: float = 120.0) -> None:
     page.wait_for_selector(f'#status[data-status="{status}"]', timeout=timeout_s * 1000)
 
 
+def wait_toast(page: Any, text: str) -> None:
+    """The page's confirmation line says ``text`` (earlier toasts may still be showing)."""
+    page.wait_for_function(
+        "(text) => document.getElementById('toast').textContent.includes(text)",
+        arg=text,
+        timeout=10_000,
+    )
+    assert "good" in page.get_attribute("#toast", "class")
+
+
 def test_submit_the_demo_patrol_and_watch_it_succeed(page: Any, base_url: str, shots: Path) -> None:
     page.add_init_script(FRAME_SAMPLER)
     page.goto(base_url + "/submit")
@@ -211,8 +221,7 @@ def test_teleop_from_the_page_pause_resume_record_goal_cancel(
     page.click("#record")
     page.fill("#reclabel", "livingroom")
     page.press("#reclabel", "Enter")
-    page.wait_for_selector("#toast.show.good", timeout=10_000)
-    assert "Entry saved in file" in page.inner_text("#toast")
+    wait_toast(page, "Entry saved in file")
     page.wait_for_function("() => !!window.agvView.scene.recorded.livingroom", timeout=10_000)
 
     # the seed's "2D Nav Goal": click the map half a metre behind the robot
@@ -220,8 +229,7 @@ def test_teleop_from_the_page_pause_resume_record_goal_cancel(
     sx, sy = page.evaluate(f"() => window.agvView.toScreen({pose['x']} - 0.5, {pose['y']})")
     page.click("#navgoal")
     page.locator("#map").click(position={"x": sx, "y": sy})
-    page.wait_for_selector("#toast.show.good", timeout=10_000)
-    assert "goal set" in page.inner_text("#toast")
+    wait_toast(page, "goal set")
     goal = page.evaluate("() => window.agvView.scene.goal")
     assert goal["x"] == pytest.approx(pose["x"] - 0.5, abs=0.1)
     page.screenshot(path=str(shots / "run-teleop.png"))

@@ -14,11 +14,9 @@ const LAYER_STYLE = {
 const ROOM_HUES = [205, 140, 30, 280, 350, 60, 180, 100, 320, 240];
 
 class MapView {
-  constructor(canvas, hudEl) {
+  constructor(canvas) {
     this.canvas = canvas;
-    this.ctx = canvas.getContext("2d");
-    this.hudEl = hudEl;
-    this.hudText = "";
+    this.ctx = canvas.getContext("2d", { alpha: false });
     this.scene = this.emptyScene();
     this.layers = { map: true, rooms: true, trails: true, scan: true, particles: true, plan: true,
       horizon: true, goal: true, truth: true, estimate: true, recorded: true };
@@ -29,28 +27,52 @@ class MapView {
     this.onGoal = null;         // (x, y, yaw) => void, called when a goal is placed
     this.onCursor = null;
     this.robotRadius = 0.11;
-    this.dirty = true;
     this.alwaysDraw = false;    // benchmarks: redraw every frame
+    // Stream updates are drawn at most 20 times a second; interaction (pan, zoom) at the
+    // next frame. A frame is requested only when something changed: every drawn frame costs
+    // the browser a raster and a composite, taken from the simulation running beside it.
+    this.streamFrameMs = 1000 / 20;
+    this.urgent = false;
+    this.lastDraw = -1e9;
+    this.pending = false;
+    this._dirty = false;
     this.stats = { frames: 0, rafs: 0, drawMs: 0 };
     this.pointers = new Map();
     this.drag = null;
     this.cursor = null;
+    this.W = 0; this.H = 0;
     this.installInput();
     new ResizeObserver(() => this.resize()).observe(canvas);
     this.resize();
-    const loop = () => {
-      this.stats.rafs++;
-      if (this.dirty || this.alwaysDraw) {
-        const t0 = performance.now();
-        this.draw();
-        this.stats.drawMs += performance.now() - t0;
-        this.stats.frames++;
-        this.dirty = false;
-      }
-      requestAnimationFrame(loop);
-    };
-    requestAnimationFrame(loop);
   }
+
+  get dirty() { return this._dirty; }
+  set dirty(value) { this._dirty = value; if (value) this.schedule(); }
+
+  schedule() {
+    if (this.pending) return;
+    this.pending = true;
+    const wait = this.urgent || this.alwaysDraw ? 0 : this.lastDraw + this.streamFrameMs - performance.now();
+    if (wait > 4) setTimeout(() => requestAnimationFrame((t) => this.frame(t)), wait);
+    else requestAnimationFrame((t) => this.frame(t));
+  }
+
+  frame(now) {
+    this.pending = false;
+    this.stats.rafs++;
+    if (!this._dirty && !this.alwaysDraw) return;
+    const t0 = performance.now();
+    this.draw();
+    this.stats.drawMs += performance.now() - t0;
+    this.stats.frames++;
+    this._dirty = false;
+    this.urgent = false;
+    this.lastDraw = now;
+    if (this.alwaysDraw) this.schedule();
+  }
+
+  /** benchmarks: draw every frame (true) or only on change (false) */
+  setAlwaysDraw(on) { this.alwaysDraw = on; if (on) this.schedule(); }
 
   emptyScene() {
     return { map: null, rooms: [], recorded: {}, truth: null, estimate: null, covariance: null,
@@ -70,11 +92,12 @@ class MapView {
     const dpr = window.devicePixelRatio || 1;
     const w = this.canvas.clientWidth, h = this.canvas.clientHeight;
     if (!w || !h) return;
+    this.W = w; this.H = h;
     this.canvas.width = Math.round(w * dpr);
     this.canvas.height = Math.round(h * dpr);
     this.dpr = dpr;
     if (!this.fitted && this.scene.map) this.fit();
-    this.dirty = true;
+    this.touch();
   }
 
   /** decode a `map` message (base64 grayscale PNG, row 0 = top) into the offscreen canvas */
@@ -114,33 +137,36 @@ class MapView {
   /** the whole map in view */
   fit() {
     const m = this.scene.map;
-    const w = this.canvas.clientWidth, h = this.canvas.clientHeight;
+    const w = this.W, h = this.H;
     if (!m || !w || !h) return;
     const mw = m.width * m.resolution, mh = m.height * m.resolution;
     this.view.cx = m.origin[0] + mw / 2;
     this.view.cy = m.origin[1] + mh / 2;
     this.view.scale = Math.min(w / mw, h / mh) * 0.95;
     this.fitted = true;
-    this.dirty = true;
+    this.touch();
   }
 
+  /** redraw at the next frame, not at the stream's pace (the user is moving the view) */
+  touch() { this.urgent = true; this.dirty = true; }
+
   zoomBy(factor, sx, sy) {
-    const w = this.canvas.clientWidth, h = this.canvas.clientHeight;
+    const w = this.W, h = this.H;
     if (sx == null) { sx = w / 2; sy = h / 2; }
     const [wx, wy] = this.toWorld(sx, sy);
     this.view.scale = Math.max(2, Math.min(2000, this.view.scale * factor));
     this.view.cx = wx - (sx - w / 2) / this.view.scale;
     this.view.cy = wy + (sy - h / 2) / this.view.scale;
-    this.dirty = true;
+    this.touch();
   }
 
   toWorld(sx, sy) {
-    const w = this.canvas.clientWidth, h = this.canvas.clientHeight;
+    const w = this.W, h = this.H;
     return [this.view.cx + (sx - w / 2) / this.view.scale, this.view.cy - (sy - h / 2) / this.view.scale];
   }
 
   toScreen(x, y) {
-    const w = this.canvas.clientWidth, h = this.canvas.clientHeight;
+    const w = this.W, h = this.H;
     return [w / 2 + (x - this.view.cx) * this.view.scale, h / 2 - (y - this.view.cy) * this.view.scale];
   }
 
@@ -153,7 +179,7 @@ class MapView {
     const c = this.canvas;
     const local = (e) => { const r = c.getBoundingClientRect(); return [e.clientX - r.left, e.clientY - r.top]; };
     c.addEventListener("pointerdown", (e) => {
-      c.setPointerCapture(e.pointerId);
+      try { c.setPointerCapture(e.pointerId); } catch (_) { /* synthetic or already released */ }
       const p = local(e);
       this.pointers.set(e.pointerId, p);
       if (this.goalMode && this.pointers.size === 1) {
@@ -167,7 +193,7 @@ class MapView {
         this.drag = { kind: "pinch", dist: Math.hypot(a[0] - b[0], a[1] - b[1]) };
         this.scene.pendingGoal = null;
       }
-      this.dirty = true;
+      this.touch();
     });
     c.addEventListener("pointermove", (e) => {
       const p = local(e);
@@ -191,7 +217,7 @@ class MapView {
         if (this.drag.dist > 0) this.zoomBy(dist / this.drag.dist, (a[0] + b[0]) / 2, (a[1] + b[1]) / 2);
         this.drag.dist = dist;
       }
-      this.dirty = true;
+      if (this.drag) this.touch();
     });
     const end = (e) => {
       this.pointers.delete(e.pointerId);
@@ -202,7 +228,7 @@ class MapView {
       }
       this.drag = this.pointers.size ? this.drag : null;
       if (this.drag && this.drag.kind === "pinch") this.drag = null;
-      this.dirty = true;
+      this.touch();
     };
     c.addEventListener("pointerup", end);
     c.addEventListener("pointercancel", end);
@@ -217,22 +243,28 @@ class MapView {
   // ---------------------------------------------------------------- drawing
   draw() {
     const ctx = this.ctx, dpr = this.dpr || 1;
-    const w = this.canvas.clientWidth, h = this.canvas.clientHeight;
+    const w = this.W, h = this.H;
     const s = this.scene, L = this.layers, S = this.view.scale;
     if (this.follow && s.truth) { this.view.cx = s.truth.x; this.view.cy = s.truth.y; }
-    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
-    ctx.fillStyle = "#0b0d10";
-    ctx.fillRect(0, 0, w, h);
     const P = (x, y) => this.toScreen(x, y);
-
-    if (s.map && L.map) {
-      const m = s.map;
-      const [ox, oy] = P(m.origin[0], m.origin[1] + m.height * m.resolution);
-      ctx.imageSmoothingEnabled = S / (1 / m.resolution) < 1.5;
-      ctx.drawImage(m.canvas, ox, oy, m.width * m.resolution * S, m.height * m.resolution * S);
-      this.drawGrid(ctx, w, h);
+    // The map, grid and room outlines change only with the view: rendered once per view into
+    // a cached layer, then copied 1:1 each frame (a software raster of the scaled map and the
+    // translucent rooms costs several milliseconds a frame).
+    const key = [this.canvas.width, this.canvas.height, this.view.cx, this.view.cy, S, L.map, L.rooms].join("|");
+    if (key !== this.staticKey || s.map !== this.staticMap || s.rooms !== this.staticRooms) {
+      if (!this.staticCanvas) this.staticCanvas = document.createElement("canvas");
+      const sc = this.staticCanvas;
+      if (sc.width !== this.canvas.width || sc.height !== this.canvas.height) {
+        sc.width = this.canvas.width; sc.height = this.canvas.height;
+      }
+      const sctx = sc.getContext("2d");
+      sctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+      this.drawStatic(sctx, P, w, h);
+      this.staticKey = key; this.staticMap = s.map; this.staticRooms = s.rooms;
     }
-    if (L.rooms) this.drawRooms(ctx, P);
+    ctx.setTransform(1, 0, 0, 1, 0, 0);
+    ctx.drawImage(this.staticCanvas, 0, 0);
+    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     if (L.particles && s.particles) {
       ctx.strokeStyle = LAYER_STYLE.particles; ctx.globalAlpha = 0.7; ctx.lineWidth = 1;
       ctx.beginPath();
@@ -264,6 +296,7 @@ class MapView {
     }
     if (L.goal && s.goal) this.drawArrow(ctx, P, s.goal, LAYER_STYLE.goal, 0.5, true);
     if (s.pendingGoal) this.drawArrow(ctx, P, s.pendingGoal, "#ffffff", 0.6, true);
+    if (L.rooms) this.drawRoomLabels(ctx, P);
     if (L.recorded) this.drawRecorded(ctx, P);
     if (L.estimate && s.estimate) {
       if (s.covariance) this.drawCovariance(ctx, P, s.estimate, s.covariance);
@@ -271,7 +304,20 @@ class MapView {
     }
     if (L.truth && s.truth) this.drawRobot(ctx, P, s.truth, LAYER_STYLE.truth, true);
     this.drawScaleBar(ctx, w, h);
-    if (this.hudEl && this.hudEl.textContent !== this.hudText) this.hudEl.textContent = this.hudText;
+  }
+
+  drawStatic(ctx, P, w, h) {
+    const s = this.scene, L = this.layers, S = this.view.scale;
+    ctx.fillStyle = "#0b0d10";
+    ctx.fillRect(0, 0, w, h);
+    if (s.map && L.map) {
+      const m = s.map;
+      const [ox, oy] = P(m.origin[0], m.origin[1] + m.height * m.resolution);
+      ctx.imageSmoothingEnabled = S * m.resolution < 1.5;
+      ctx.drawImage(m.canvas, ox, oy, m.width * m.resolution * S, m.height * m.resolution * S);
+      this.drawGrid(ctx, w, h);
+    }
+    if (L.rooms) this.drawRooms(ctx, P);
   }
 
   drawGrid(ctx, w, h) {
@@ -311,8 +357,6 @@ class MapView {
 
   drawRooms(ctx, P) {
     const rooms = this.scene.rooms || [];
-    ctx.font = "600 12px system-ui, sans-serif";
-    ctx.textAlign = "center"; ctx.textBaseline = "middle";
     rooms.forEach((room, i) => {
       const poly = room.polygon || [];
       if (poly.length < 3) return;
@@ -324,21 +368,28 @@ class MapView {
       ctx.fill();
       ctx.strokeStyle = `hsla(${hue}, 70%, 65%, 0.55)`; ctx.lineWidth = 1.2; ctx.setLineDash([6, 4]);
       ctx.stroke(); ctx.setLineDash([]);
-      let cx = 0, cy = 0;
-      for (const q of poly) { cx += q[0]; cy += q[1]; }
-      cx /= poly.length; cy /= poly.length;
       if (room.anchor) {
         const [ax, ay] = P(room.anchor.x, room.anchor.y);
         ctx.fillStyle = `hsla(${hue}, 70%, 65%, 0.9)`;
         ctx.beginPath(); ctx.moveTo(ax, ay - 5); ctx.lineTo(ax + 5, ay); ctx.lineTo(ax, ay + 5); ctx.lineTo(ax - 5, ay); ctx.fill();
       }
-      const [lx, ly] = P(cx, cy);
-      const label = room.label;
-      const tw = ctx.measureText(label).width;
-      ctx.fillStyle = "rgba(11,13,16,0.75)";
+    });
+  }
+
+  drawRoomLabels(ctx, P) {
+    ctx.font = "600 12px system-ui, sans-serif";
+    ctx.textAlign = "center"; ctx.textBaseline = "middle";
+    (this.scene.rooms || []).forEach((room, i) => {
+      const poly = room.polygon || [];
+      if (poly.length < 3) return;
+      let cx = 0, cy = 0;
+      for (const q of poly) { cx += q[0]; cy += q[1]; }
+      const [lx, ly] = P(cx / poly.length, cy / poly.length);
+      const tw = ctx.measureText(room.label).width;
+      ctx.fillStyle = "rgba(11,13,16,0.72)";
       ctx.fillRect(lx - tw / 2 - 5, ly - 9, tw + 10, 18);
-      ctx.fillStyle = `hsl(${hue}, 70%, 72%)`;
-      ctx.fillText(label, lx, ly);
+      ctx.fillStyle = `hsl(${ROOM_HUES[i % ROOM_HUES.length]}, 70%, 72%)`;
+      ctx.fillText(room.label, lx, ly);
     });
   }
 

@@ -5,7 +5,7 @@
 (function () {
   const runId = decodeURIComponent(location.pathname.split("/").filter(Boolean).pop());
   const $ = (id) => document.getElementById(id);
-  const view = new MapView($("map"), $("hud"));
+  const view = new MapView($("map"));
   window.agvView = view;  // for tests and the benchmark (frame counters)
   window.agvRunState = () => ({ status, task, state: lastState, replay: replay && { t: replay.t, t0: replay.t0, t1: replay.t1 } });
 
@@ -37,7 +37,7 @@
   $("zoomin").onclick = () => view.zoomBy(1.4);
   $("zoomout").onclick = () => view.zoomBy(1 / 1.4);
   $("follow").onclick = () => { view.follow = !view.follow; view.dirty = true; };
-  view.onCursor = (p) => { cursor = p; updateHud(); };
+  view.onCursor = (p) => { cursor = p; };
 
   function toast(text, kind) {
     const t = $("toast");
@@ -89,7 +89,8 @@
     const world = AGV.worldName(AGV.runWorld(run)), robot = AGV.worldName(AGV.runRobot(run));
     const bits = [world && `world ${world}`, robot && `robot ${robot}`, `created ${AGV.fmtClock(run.created)}`,
       run.started && `duration ${AGV.fmtDuration(AGV.runDuration(run))}`, `id ${run.id}`];
-    $("meta").textContent = bits.filter(Boolean).join(" · ");
+    const text = bits.filter(Boolean).join(" · ");
+    if ($("meta").textContent !== text) $("meta").textContent = text;
     if (robot === "waffle") view.robotRadius = 0.2;
   }
 
@@ -178,8 +179,8 @@
       lines.push(status === "queued" ? "queued: waiting for a worker" : "waiting for the stream…");
     }
     if (cursor) lines.push(`cursor x${num(cursor[0], 7, 2)} y${num(cursor[1], 7, 2)}`);
-    view.hudText = lines.join("\n");
-    view.dirty = true;
+    const text = lines.join("\n");
+    if ($("hud").textContent !== text) $("hud").textContent = text;
   }
 
   function renderTree() {
@@ -228,12 +229,13 @@
     if (row && replay) seek(parseFloat(row.dataset.t));
   });
 
+  // DOM panels refresh at 5 Hz: each refresh is a layout and paint the simulation pays for
   setInterval(() => {
     if (treeDirty) renderTree();
     if (eventsDirty) renderEvents();
     updateHud();
-    if (run && !AGV.FINAL.has(status || "")) setMeta();
-  }, 100);
+  }, 200);
+  setInterval(() => { if (run && !AGV.FINAL.has(status || "")) setMeta(); }, 1000);
 
   // ------------------------------------------------------------------ teleop
   const held = new Set();
@@ -275,7 +277,8 @@
     b.addEventListener("pointerdown", (e) => {
       e.preventDefault();
       if (key === "stop") { held.clear(); sendCmd(0, 0); return; }
-      held.add(key); b.classList.add("held"); b.setPointerCapture(e.pointerId);
+      held.add(key); b.classList.add("held");
+      try { b.setPointerCapture(e.pointerId); } catch (_) { /* synthetic or already released */ }
     });
     const up = () => { held.delete(key); b.classList.remove("held"); };
     b.addEventListener("pointerup", up);

@@ -169,6 +169,37 @@ def test_submit_the_demo_patrol_and_watch_it_succeed(page: Any, base_url: str, s
     page.screenshot(path=str(shots / "runs.png"))
 
 
+def test_submit_page_shows_errors_beside_their_lines_and_takes_overrides(
+    page: Any, base_url: str, shots: Path
+) -> None:
+    page.goto(base_url + "/submit")
+    page.wait_for_selector('#template option[value="patrol"]', state="attached")
+    page.select_option("#template", "patrol")
+    page.wait_for_selector("#checkstate .okline", timeout=30_000)
+    text = page.input_value("#yaml")
+    line = text.splitlines().index("    loops: 2") + 1
+    page.fill("#yaml", text.replace("    loops: 2", "    loops: -1"))
+    # the service's problem shows beside its line, with the field, and in the list
+    mark = page.locator(f'#marks div[data-line="{line}"]')
+    mark.wait_for(timeout=30_000)
+    assert "tasks.0.loops" in mark.inner_text()
+    assert "greater than or equal to 1" in mark.inner_text()
+    assert page.locator("#gutter div.err").first.inner_text() == str(line)
+    assert f"line {line}" in page.inner_text("#checks")
+    page.screenshot(path=str(shots / "submit-error.png"))
+    # a --set override fixes it: the same text is then accepted
+    page.fill("#overrides", "tasks.0.loops=1")
+    page.wait_for_selector("#checkstate .okline", timeout=30_000)
+    assert page.locator("#marks div").count() == 0
+    # an override naming an unknown plugin is refused, naming the field
+    page.fill("#overrides", "tasks.0.loops=1\nstack.local_planner.type=warp")
+    page.wait_for_function(
+        "() => document.getElementById('checks').innerText.includes('stack.local_planner')",
+        timeout=30_000,
+    )
+    assert "warp" in page.inner_text("#checks")
+
+
 def _submit_teleop(base_url: str) -> str:
     templates = httpx.get(base_url + "/api/templates", timeout=10).json()["templates"]
     teleop = next(t["yaml"] for t in templates if t["name"] == "teleop")

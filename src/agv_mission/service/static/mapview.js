@@ -8,7 +8,7 @@ const MAP_PALETTE = {
   free: [40, 46, 55], occupied: [222, 229, 238], unknown: [21, 25, 31],
 };
 const LAYER_STYLE = {
-  truth: "#4aa3ff", estimate: "#ffb020", scan: "#ff4d6d", particles: "#b58cff",
+  truth: "#4aa3ff", estimate: "#ffb020", scan: "#ff2e63", particles: "#b58cff",
   plan: "#3ecf8e", horizon: "#ffe066", goal: "#ff7ad9", rooms: "#8fa3bf", recorded: "#3ecf8e",
 };
 const ROOM_HUES = [205, 140, 30, 280, 350, 60, 180, 100, 320, 240];
@@ -291,7 +291,7 @@ class MapView {
     }
     if (L.scan && s.scan) {
       ctx.fillStyle = LAYER_STYLE.scan;
-      const r = Math.max(1.5, Math.min(3, 0.03 * S));
+      const r = Math.max(2.5, Math.min(4, 0.04 * S));
       for (const q of s.scan) { const [x, y] = P(q[0], q[1]); ctx.fillRect(x - r / 2, y - r / 2, r, r); }
     }
     if (L.goal && s.goal) this.drawArrow(ctx, P, s.goal, LAYER_STYLE.goal, 0.5, true);

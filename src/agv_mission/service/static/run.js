@@ -198,7 +198,21 @@
     const counts = {};
     for (const n of treeNodes) counts[n.status] = (counts[n.status] || 0) + 1;
     $("treet").textContent = `${treeNodes.length} nodes`;
+    // keep the deepest running behaviour in view, unless the user scrolled the tree lately
+    const running = el.querySelectorAll(".node.RUNNING");
+    if (running.length && performance.now() - treeScrolledAt > 5000) {
+      const node = running[running.length - 1];
+      const top = node.getBoundingClientRect().top - el.getBoundingClientRect().top + el.scrollTop;
+      if (top < el.scrollTop || top > el.scrollTop + el.clientHeight - 30) {
+        autoScrolling = true;
+        el.scrollTop = Math.max(0, top - el.clientHeight / 2);
+      }
+    }
   }
+  let treeScrolledAt = -1e9, autoScrolling = false;
+  $("tree").addEventListener("scroll", () => {
+    if (autoScrolling) autoScrolling = false; else treeScrolledAt = performance.now();
+  });
 
   function eventClass(name) {
     if (/fail|collision|abort|error|lost|timeout/.test(name)) return "bad";

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -47,8 +48,13 @@ setInterval(() => {
 
 
 @pytest.fixture(scope="module")
-def base_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    with serve(tmp_path_factory.mktemp("dashboard-browser-data"), "--workers", "2") as url:
+def data_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("dashboard-browser-data")
+
+
+@pytest.fixture(scope="module")
+def base_url(data_dir: Path) -> Iterator[str]:
+    with serve(data_dir, "--workers", "2") as url:
         yield url
 
 
@@ -277,6 +283,38 @@ def test_teleop_from_the_page_pause_resume_record_goal_cancel(
     recorder = httpx.get(f"{base_url}/api/runs/{run_id}/files/location_recorder.yaml", timeout=10)
     assert recorder.status_code == 200
     assert "livingroom" in recorder.text
+
+
+def test_a_ros_map_is_shown_at_readable_scale(
+    page: Any, base_url: str, data_dir: Path, ros_maps: Path, shots: Path
+) -> None:
+    # missions from HTTP read files under --data only: the test puts the real map there
+    folder = data_dir / "maps" / "aws_small_house"
+    shutil.copytree(ros_maps / "aws_small_house", folder, dirs_exist_ok=True)
+    mission = (
+        f"name: aws-house\nworld: {folder / 'map.yaml'}\nrobot: burger\n"
+        "tasks:\n  - {type: teleop, duration: 60}\n"
+    )
+    answer = httpx.post(base_url + "/api/runs", json={"mission": mission}, timeout=30)
+    assert answer.status_code == 201, answer.text
+    run_id = answer.json()["id"]
+    page.goto(f"{base_url}/runs/{run_id}")
+    page.wait_for_function(
+        "() => window.agvView.scene.map && window.agvView.scene.truth", timeout=120_000
+    )
+    view = page.evaluate(
+        """() => { const v = window.agvView, k = v.scene.map.known;
+                   return {scale: v.view.scale, W: v.W, H: v.H, known: k,
+                           width: v.scene.map.width * v.scene.map.resolution}; }"""
+    )
+    x0, y0, x1, y1 = view["known"]
+    # the 25 m grid is mostly unknown: the view frames the house itself, filling the canvas
+    assert x1 - x0 < view["width"]
+    fill = max((x1 - x0) * view["scale"] / view["W"], (y1 - y0) * view["scale"] / view["H"])
+    assert fill > 0.9
+    assert view["scale"] >= 25  # pixels per metre: a 0.2 m robot is 5 px or more
+    page.screenshot(path=str(shots / "run-aws-small-house.png"))
+    httpx.post(f"{base_url}/api/runs/{run_id}/cancel", timeout=10)
 
 
 def test_phone_layout_has_no_sideways_scroll(browser: Any, base_url: str, shots: Path) -> None:

@@ -121,28 +121,42 @@ class MapView {
         }
         lut[v * 3] = c[0]; lut[v * 3 + 1] = c[1]; lut[v * 3 + 2] = c[2];
       }
+      // the known part of the map (ROS maps often carry a wide unknown border): Fit frames it
+      let r0 = off.height, r1 = -1, c0 = off.width, c1 = -1;
       for (let i = 0; i < px.length; i += 4) {
         const v = px[i];
+        if (v !== 205) {
+          const k = i >> 2, row = (k / off.width) | 0, col = k - row * off.width;
+          if (row < r0) r0 = row; if (row > r1) r1 = row;
+          if (col < c0) c0 = col; if (col > c1) c1 = col;
+        }
         px[i] = lut[v * 3]; px[i + 1] = lut[v * 3 + 1]; px[i + 2] = lut[v * 3 + 2]; px[i + 3] = 255;
       }
       octx.putImageData(data, 0, 0);
-      this.scene.map = { canvas: off, resolution: msg.resolution, origin: msg.origin,
-        width: off.width, height: off.height };
+      const res = msg.resolution, [ox, oy] = msg.origin;
+      const known = r1 < 0 ? null : [ox + c0 * res, oy + (off.height - 1 - r1) * res,
+        ox + (c1 + 1) * res, oy + (off.height - r0) * res];
+      this.scene.map = { canvas: off, resolution: res, origin: msg.origin,
+        width: off.width, height: off.height, known };
       if (!this.fitted) this.fit();
       this.dirty = true;
     };
     img.src = "data:image/png;base64," + msg.png;
   }
 
-  /** the whole map in view */
+  /** the known part of the map in view, as large as it fits */
   fit() {
     const m = this.scene.map;
     const w = this.W, h = this.H;
     if (!m || !w || !h) return;
-    const mw = m.width * m.resolution, mh = m.height * m.resolution;
-    this.view.cx = m.origin[0] + mw / 2;
-    this.view.cy = m.origin[1] + mh / 2;
-    this.view.scale = Math.min(w / mw, h / mh) * 0.95;
+    let [x0, y0, x1, y1] = m.known || [m.origin[0], m.origin[1],
+      m.origin[0] + m.width * m.resolution, m.origin[1] + m.height * m.resolution];
+    const grow = (a, b) => { const pad = Math.max(0, 8 - (b - a)) / 2; return [a - pad, b + pad]; };
+    [x0, x1] = grow(x0, x1);  // a SLAM map starts as a few metres: frame 8 m at least
+    [y0, y1] = grow(y0, y1);
+    this.view.cx = (x0 + x1) / 2;
+    this.view.cy = (y0 + y1) / 2;
+    this.view.scale = Math.min(w / (x1 - x0), h / (y1 - y0)) * 0.95;
     this.fitted = true;
     this.touch();
   }

@@ -317,6 +317,21 @@ def test_a_ros_map_is_shown_at_readable_scale(
     httpx.post(f"{base_url}/api/runs/{run_id}/cancel", timeout=10)
 
 
+def test_pages_work_with_a_token(page: Any, tmp_path: Path) -> None:
+    with serve(tmp_path, "--token", "s3cret", "--workers", "1") as url:
+        page.goto(url + "/")
+        page.wait_for_function(
+            "() => document.getElementById('health').textContent.includes('token needed')"
+        )
+        page.goto(url + "/?token=s3cret")  # once: the pages keep it
+        page.wait_for_function(
+            "() => document.getElementById('health').textContent.includes('workers')"
+        )
+        page.goto(url + "/submit")
+        page.wait_for_selector('#template option[value="patrol"]', state="attached")
+        page.wait_for_selector("#checkstate .okline", timeout=30_000)
+
+
 def test_phone_layout_has_no_sideways_scroll(browser: Any, base_url: str, shots: Path) -> None:
     context = browser.new_context(
         viewport={"width": 390, "height": 844},

@@ -39,8 +39,30 @@ const AGV = (() => {
   }
 
   function fileUrl(runId, name) {
-    const q = token() ? `?token=${encodeURIComponent(token())}` : "";
-    return `/api/runs/${encodeURIComponent(runId)}/files/${encodeURIComponent(name)}${q}`;
+    return `/api/runs/${encodeURIComponent(runId)}/files/${encodeURIComponent(name)}`;
+  }
+
+  /** with a token, a plain link cannot carry the Authorization header: fetch the file and
+   *  hand the browser a blob URL instead (links marked data-file, images data-src) */
+  function authoriseFiles(root) {
+    if (!token()) return;
+    const blob = async (url) => {
+      const res = await fetch(url, { headers: { Authorization: "Bearer " + token() } });
+      return res.ok ? URL.createObjectURL(await res.blob()) : null;
+    };
+    for (const img of root.querySelectorAll("img[data-src]")) {
+      blob(img.dataset.src).then((u) => { if (u) img.src = u; });
+    }
+    for (const a of root.querySelectorAll("a[data-file]")) {
+      a.addEventListener("click", async (e) => {
+        e.preventDefault();
+        const u = await blob(a.getAttribute("href"));
+        if (!u) return;
+        const tmp = document.createElement("a");
+        tmp.href = u; tmp.download = a.dataset.file;
+        tmp.click();
+      });
+    }
   }
 
   function wsUrl(path) {
@@ -106,5 +128,5 @@ const AGV = (() => {
     return String(w ?? "");
   }
 
-  return { api, fileText, fileUrl, wsUrl, esc, fmtDuration, fmtClock, parseTime, runDuration, badge, fmtNum, runWorld, runRobot, worldName, FINAL, STATUSES, token };
+  return { api, fileText, fileUrl, authoriseFiles, wsUrl, esc, fmtDuration, fmtClock, parseTime, runDuration, badge, fmtNum, runWorld, runRobot, worldName, FINAL, STATUSES, token };
 })();

@@ -375,13 +375,14 @@
       const rooms = t.rooms ? ` · ${t.rooms.filter((w) => w.status === "reached").length}/${t.rooms.length} rooms` : "";
       return `<div>${AGV.esc(t.index ?? "")} ${AGV.esc(t.type)} ${AGV.badge(t.status)}${AGV.esc(wps + rooms)}${t.reason ? ` <span class="muted">${AGV.esc(t.reason)}</span>` : ""}</div>`;
     }).join("");
-    const links = files.map((f) => `<a href="${AGV.fileUrl(runId, f)}" target="_blank" rel="noopener">${AGV.esc(f)}</a>`).join("");
+    const links = files.map((f) => `<a href="${AGV.fileUrl(runId, f)}" data-file="${AGV.esc(f)}" target="_blank" rel="noopener">${AGV.esc(f)}</a>`).join("");
     $("result").innerHTML = `
       <p class="reason">${AGV.badge(st)} ${AGV.esc(reason || "")}</p>
       <dl>${rows.map(([k, v]) => `<dt>${k}</dt><dd>${AGV.esc(v)}</dd>`).join("")}</dl>
       ${tasks ? `<div style="margin-top:8px;display:flex;flex-direction:column;gap:3px">${tasks}</div>` : ""}
       <div class="files">${links || '<span class="muted">no files</span>'}</div>
-      ${files.includes("run.png") ? `<a href="${AGV.fileUrl(runId, "run.png")}" target="_blank"><img src="${AGV.fileUrl(runId, "run.png")}" alt="run.png"></a>` : ""}`;
+      ${files.includes("run.png") ? `<img ${AGV.token() ? "data-src" : "src"}="${AGV.fileUrl(runId, "run.png")}" alt="run.png">` : ""}`;
+    AGV.authoriseFiles($("result"));
     if (result?.events && !events.length) { events = result.events.slice(); eventsDirty = true; }
   }
 

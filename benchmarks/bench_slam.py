@@ -15,9 +15,9 @@ import time
 import numpy as np
 
 from agv_mission.geometry import Pose2D, wrap_angle
-from agv_mission.localization.slam import GridSlam, GridSlamConfig, trajectory_rmse
+from agv_mission.mapping.frontiers import find_frontiers
+from agv_mission.mapping.slam import GridSlam, GridSlamConfig, trajectory_rmse
 from agv_mission.maps.builtin_worlds import small_house
-from agv_mission.maps.frontiers import find_frontiers
 from agv_mission.robots.description import BUILTIN_ROBOTS
 from agv_mission.robots.odometry import DiffDriveOdometry
 from agv_mission.robots.simulation import DiffDriveSim, SimConfig

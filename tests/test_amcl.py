@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 
 from agv_mission.geometry import Pose2D, wrap_angle
-from agv_mission.localization.amcl import PROFILES, AmclConfig, AmclLocalizer
+from agv_mission.localization.amcl import AmclConfig, AmclLocalizer
+from agv_mission.localization.configs import PROFILES
 from agv_mission.localization.particle_filter import ParticleFilter, SensorParams
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
-from agv_mission.missions import runner
+from agv_mission.missions import stack
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.runner import run_mission
 from agv_mission.registry import registry
@@ -543,10 +544,10 @@ class _KidnappingSim(DiffDriveSim):
 
 @pytest.mark.parametrize("recovery", [True, False], ids=["recovery", "no-recovery"])
 def test_kidnapped_robot_in_small_house_is_found_again(monkeypatch, recovery):
-    monkeypatch.setattr(runner, "DiffDriveSim", _KidnappingSim)
+    monkeypatch.setattr(stack, "DiffDriveSim", _KidnappingSim)
     text = HOUSE.format(seed=1, start="null", duration=50, limit=55)
     profile = {**GLOBAL, **(RECOVERY if recovery else {})}
-    record = runner.run_mission(load_mission("house.yaml", _overrides(profile), text=text))
+    record = run_mission(load_mission("house.yaml", _overrides(profile), text=text))
     t, err, _ = _errors(record)
     assert err[t < _KidnappingSim.AT].max() < 0.1  # tracking before
     assert err[(t > _KidnappingSim.AT) & (t < _KidnappingSim.AT + 1.0)].min() > 2.0

@@ -16,8 +16,8 @@ import pytest
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.outputs import write_run
 from agv_mission.missions.runner import run_mission
-from agv_mission.planners.base import PluginConfig, VelocityCommand
-from agv_mission.registry import register
+from agv_mission.planners.base import VelocityCommand
+from agv_mission.registry import PluginConfig, register
 
 HOUSE = """
 name: {name}

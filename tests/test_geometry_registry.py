@@ -38,8 +38,7 @@ def test_registry_serves_every_builtin_slot() -> None:
 def test_a_new_plugin_is_one_class_and_one_line() -> None:
     from typing import Literal
 
-    from agv_mission.planners.base import PluginConfig
-    from agv_mission.registry import Registry
+    from agv_mission.registry import PluginConfig, Registry
 
     reg = Registry()
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
-from pathlib import Path as FilePath
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,12 +14,12 @@ from pydantic import ValidationError
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap, CostmapConfig
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
-from agv_mission.planners.base import Path, PlanningError
+from agv_mission.planners.base import PlannedPath, PlanningError
 from agv_mission.planners.grid_astar import FreeSpace, GridAstarConfig, GridAstarPlanner
 from agv_mission.planners.ompl_planner import OmplPlanner, OmplPlannerConfig
 from agv_mission.registry import registry
 
-ROS_MAPS = FilePath(__file__).resolve().parents[2] / "shared" / "data" / "ros_maps"
+ROS_MAPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "ros_maps"
 
 RES = 0.05
 ROBOT_RADIUS = 0.105
@@ -52,7 +52,7 @@ def to_world(costmap: Costmap, x: float, y: float) -> Pose2D:
 START, GOAL = Pose2D(1.0, 1.0), Pose2D(5.0, 1.0)
 
 
-def assert_path_free(costmap: Costmap, path: Path, margin: float) -> None:
+def assert_path_free(costmap: Costmap, path: PlannedPath, margin: float) -> None:
     """Every waypoint and every segment, sampled at half a cell, keeps the clearance."""
     pts = path.points
     assert pts.ndim == 2 and pts.shape[1] == 2 and len(pts) >= 2
@@ -65,7 +65,7 @@ def assert_path_free(costmap: Costmap, path: Path, margin: float) -> None:
         assert free.all(), f"segment {a} -> {b} leaves free space at {samples[~free][0]}"
 
 
-def assert_joins(path: Path, start: Pose2D, goal: Pose2D) -> None:
+def assert_joins(path: PlannedPath, start: Pose2D, goal: Pose2D) -> None:
     np.testing.assert_allclose(path.points[0], start.xy, atol=1e-9)
     np.testing.assert_allclose(path.points[-1], goal.xy, atol=1e-9)
 
@@ -255,7 +255,7 @@ def test_grid_astar_keeps_to_the_middle(room: Costmap) -> None:
     centred = GridAstarPlanner(GridAstarConfig(cost_weight=1.0)).plan(room, START, GOAL)
     assert_path_free(room, centred, 0.05)
 
-    def min_clearance(path: Path) -> float:
+    def min_clearance(path: PlannedPath) -> float:
         pts = path.points
         samples = np.concatenate(
             [
@@ -322,7 +322,7 @@ def test_no_ompl_leaks_or_log_lines() -> None:
         "        OmplPlanner(OmplPlannerConfig(planner=name, time_limit=0.3)).plan(room, START, GOAL, seed)\n"
         "print('ok')\n"
     )
-    root = FilePath(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[1]
     proc = subprocess.run(
         [sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120
     )
@@ -349,7 +349,7 @@ def legs(waypoints: list[Pose2D]) -> list[tuple[Pose2D, Pose2D]]:
     return list(zip(waypoints, waypoints[1:] + waypoints[:1], strict=True))
 
 
-def patrol(costmap: Costmap, waypoints: list[Pose2D], planner, seed: int = 0) -> list[Path]:
+def patrol(costmap: Costmap, waypoints: list[Pose2D], planner, seed: int = 0) -> list[PlannedPath]:
     paths = []
     for i, (a, b) in enumerate(legs(waypoints)):
         path = planner.plan(costmap, a, b, seed=seed + i)

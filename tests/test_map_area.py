@@ -101,7 +101,9 @@ def test_blacklisted_goals_are_retried_once_the_map_grew() -> None:
     data = np.full((100, 100), UNKNOWN, np.int8)
     grid = OccupancyGrid(data, 0.05, Pose2D(0.0, 0.0, 0.0))
     mapping = SimpleNamespace(grid=grid, costmap=SimpleNamespace(grid=grid))
-    explore = MapArea("map", SimpleNamespace(mapping=mapping), None, "m", None, None, 8, 0.05)
+    mapper = SimpleNamespace(begin=lambda bounds: mapping)
+    explore = MapArea("map", SimpleNamespace(), mapper, None, "m", None, None, 8, 0.05)
+    explore.mapping = mapper.begin(None)
     here, there = Pose2D(1.0, 1.0, 0.0), Pose2D(3.0, 1.0, 0.0)
     explore._give_up(here)
     assert explore._blacklist(grid) == [(1.0, 1.0)]
@@ -176,7 +178,7 @@ def test_scan_matching_beats_dead_reckoning_during_map_area(tmp_path: Path) -> N
     anchor = None
     slam_err, odom_err = [], []
     while run.step():
-        if run.handle.mapping is None:
+        if run.mapper.session is None:
             assert anchor is None, "mapping ended but the mission goes on"
             continue
         t, x, y, _, ex, ey, eyaw = run.rows[-1][:7]

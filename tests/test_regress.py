@@ -15,8 +15,9 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from agv_mission.missions import regress as rg
 from agv_mission.missions.expectations import Expectations, Failure, check
+from agv_mission.regress import backends, report
+from agv_mission.regress import plan as planning
 
 REPO = Path(__file__).resolve().parents[1]
 SCENARIOS = REPO / "tests" / "scenarios"
@@ -158,20 +159,20 @@ def test_discovery_skips_non_missions_and_recurses(tmp_path: Path) -> None:
     (tmp_path / "a.yaml").write_text("tasks: []\n")
     (tmp_path / "sub" / "b.yaml").write_text("tasks: []\n")
     (tmp_path / "notes.txt").write_text("tasks: []\n")
-    found = rg.discover([tmp_path])
+    found = planning.discover([tmp_path])
     assert [p.name for p in found] == ["a.yaml", "b.yaml"]
-    assert rg.discover([tmp_path / "rooms.yaml"]) == [(tmp_path / "rooms.yaml").resolve()]
-    with pytest.raises(rg.RegressError, match="no such file"):
-        rg.discover([tmp_path / "nope"])
+    assert planning.discover([tmp_path / "rooms.yaml"]) == [(tmp_path / "rooms.yaml").resolve()]
+    with pytest.raises(planning.RegressError, match="no such file"):
+        planning.discover([tmp_path / "nope"])
     (tmp_path / "empty").mkdir()
-    with pytest.raises(rg.RegressError, match="no scenario files"):
-        rg.discover([tmp_path / "empty"])
+    with pytest.raises(planning.RegressError, match="no scenario files"):
+        planning.discover([tmp_path / "empty"])
 
 
 def test_scenario_suite_is_valid_and_covers_the_stack() -> None:
     from agv_mission.missions.loader import load_mission
 
-    suite = rg.discover([SCENARIOS])
+    suite = planning.discover([SCENARIOS])
     loaded = [load_mission(p) for p in suite]
     missions = [x.mission for x in loaded]
     assert all(m.expect is not None for m in missions)
@@ -198,29 +199,29 @@ def test_scenario_suite_is_valid_and_covers_the_stack() -> None:
 
 
 def test_sweeps_are_cartesian_and_yaml_aware() -> None:
-    assert rg.expand_variants([]) == [rg.Variant("")]
-    vs = rg.expand_variants(
+    assert planning.expand_variants([]) == [planning.Variant("")]
+    vs = planning.expand_variants(
         [
             "stack.global_planner.planner=RRTConnect,RRTstar,BITstar",
             "stack.local_planner.type=mpc,pure_pursuit",
         ]
     )
     assert len(vs) == 6
-    assert vs[0] == rg.Variant(
+    assert vs[0] == planning.Variant(
         "planner=RRTConnect type=mpc",
         ("stack.global_planner.planner=RRTConnect", "stack.local_planner.type=mpc"),
     )
-    key, values = rg.parse_sweep("tasks.0.pose={x: 1, y: 2},{x: 3, y: 4}, 'a,b'")
+    key, values = planning.parse_sweep("tasks.0.pose={x: 1, y: 2},{x: 3, y: 4}, 'a,b'")
     assert key == "tasks.0.pose" and values == ["{x: 1, y: 2}", "{x: 3, y: 4}", "'a,b'"]
-    same_leaf = rg.expand_variants(["a.type=x", "b.type=y"])
+    same_leaf = planning.expand_variants(["a.type=x", "b.type=y"])
     assert same_leaf[0].label == "a.type=x b.type=y"
     for bad in (["nokey"], ["=1,2"], ["a=1,,2"], ["a=1", "a=2"]):
-        with pytest.raises(rg.RegressError):
-            rg.expand_variants(bad)
+        with pytest.raises(planning.RegressError):
+            planning.expand_variants(bad)
 
 
 def test_plan_seeds_follow_the_mission_seed(tmp_path: Path) -> None:
-    plan = rg.plan_jobs(
+    plan = planning.plan_jobs(
         [SCENARIOS / "go_to_tb3.yaml"],
         ["stack.local_planner.type=mpc,pure_pursuit"],
         seeds=3,
@@ -229,9 +230,11 @@ def test_plan_seeds_follow_the_mission_seed(tmp_path: Path) -> None:
     assert len(plan.jobs) == 6 and not plan.problems
     assert sorted({j["seed"] for j in plan.jobs}) == [1, 2, 3]  # the scenario's seed is 1
     assert all(Path(j["output_root"]) == tmp_path.resolve() for j in plan.jobs)
-    swept = rg.plan_jobs([SCENARIOS / "go_to_tb3.yaml"], ["seed=10"], seeds=2, output_root=tmp_path)
+    swept = planning.plan_jobs(
+        [SCENARIOS / "go_to_tb3.yaml"], ["seed=10"], seeds=2, output_root=tmp_path
+    )
     assert [j["seed"] for j in swept.jobs] == [10, 11]
-    bad = rg.plan_jobs(
+    bad = planning.plan_jobs(
         [SCENARIOS / "go_to_tb3.yaml"], ["stack.global_planner.planner=Nope"], output_root=tmp_path
     )
     assert not bad.jobs and "Nope" in str(bad.problems[0])
@@ -241,22 +244,24 @@ def test_plan_seeds_follow_the_mission_seed(tmp_path: Path) -> None:
 
 
 def _plain(results: list[dict]) -> list[dict]:
-    return [rg.deterministic_view(r) for r in results]
+    return [report.deterministic_view(r) for r in results]
 
 
 def test_fast_scenarios_pass(tmp_path: Path) -> None:
     """The fast half of tests/scenarios, through the regress machinery, 2 workers."""
-    plan = rg.plan_jobs(FAST, output_root=tmp_path / "runs")
+    plan = planning.plan_jobs(FAST, output_root=tmp_path / "runs")
     assert not plan.problems
     seen: list[int] = []
-    results = rg.run_jobs(plan.jobs, "local", 2, on_result=lambda r, done, total: seen.append(done))
+    results = backends.run_jobs(
+        plan.jobs, "local", 2, on_result=lambda r, done, total: seen.append(done)
+    )
     assert seen == list(range(1, len(plan.jobs) + 1))
-    failed = {r["name"]: rg.failure_text(r) or r["error"] for r in results if not r["passed"]}
+    failed = {r["name"]: report.failure_text(r) or r["error"] for r in results if not r["passed"]}
     assert not failed, failed
     for r in results:
         assert (Path(r["run_dir"]) / "result.json").is_file()
         assert Path(r["run_dir"]).parent == tmp_path / "runs"
-    rg.write_reports(results, plan, 1.0, "local", 2, tmp_path / "j.xml", tmp_path / "s.json")
+    report.write_reports(results, plan, 1.0, "local", 2, tmp_path / "j.xml", tmp_path / "s.json")
     suite = ET.parse(tmp_path / "j.xml").getroot()
     assert suite.get("tests") == str(len(FAST)) and suite.get("failures") == "0"
     doc = json.loads((tmp_path / "s.json").read_text())
@@ -265,31 +270,31 @@ def test_fast_scenarios_pass(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_slow_scenarios_pass(tmp_path: Path) -> None:
-    plan = rg.plan_jobs([SLOW], output_root=tmp_path)
-    results = rg.run_jobs(plan.jobs, "local", 2)
-    failed = {r["name"]: rg.failure_text(r) or r["error"] for r in results if not r["passed"]}
+    plan = planning.plan_jobs([SLOW], output_root=tmp_path)
+    results = backends.run_jobs(plan.jobs, "local", 2)
+    failed = {r["name"]: report.failure_text(r) or r["error"] for r in results if not r["passed"]}
     assert not failed, failed
 
 
 def test_parallel_runs_equal_serial_runs(tmp_path: Path) -> None:
     """Process-pool workers reproduce the in-process runs (wall-clock keys aside)."""
-    plan = rg.plan_jobs(SHORT, ["stack.local_planner.type=mpc,pure_pursuit"], 1, tmp_path)
-    serial = rg.run_jobs(plan.jobs, "local", 1)
-    parallel = rg.run_jobs(plan.jobs, "local", 2)
+    plan = planning.plan_jobs(SHORT, ["stack.local_planner.type=mpc,pure_pursuit"], 1, tmp_path)
+    serial = backends.run_jobs(plan.jobs, "local", 1)
+    parallel = backends.run_jobs(plan.jobs, "local", 2)
     assert [r["status"] for r in serial] == [r["status"] for r in parallel]
     assert _plain(serial) == _plain(parallel)
     assert {r["variant"] for r in serial} == {"type=mpc", "type=pure_pursuit"}
 
 
 def test_sweep_comparison(tmp_path: Path) -> None:
-    plan = rg.plan_jobs(
+    plan = planning.plan_jobs(
         [SCENARIOS / "go_to_tb3.yaml"],
         ["stack.global_planner.planner=RRTConnect,BITstar"],
         seeds=2,
         output_root=tmp_path,
     )
-    results = rg.run_jobs(plan.jobs, "local", 2)
-    rows = rg.compare(results)
+    results = backends.run_jobs(plan.jobs, "local", 2)
+    rows = report.compare(results)
     assert [r["variant"] for r in rows] == ["planner=RRTConnect", "planner=BITstar"]
     for row in rows:
         assert row["runs"] == 2 and row["success_rate"] == 1.0
@@ -299,18 +304,18 @@ def test_sweep_comparison(tmp_path: Path) -> None:
     from rich.console import Console
 
     console = Console(width=200, record=True)
-    console.print(rg.comparison_table(rows))
+    console.print(report.comparison_table(rows))
     text = console.export_text()
     assert "planner=BITstar" in text and "100%" in text
 
 
 def test_ray_backend_matches_local(tmp_path: Path) -> None:
     ray = pytest.importorskip("ray", reason="ray not installed (pip install 'agv-mission[ray]')")
-    plan = rg.plan_jobs(SHORT, seeds=2, output_root=tmp_path)
-    local = rg.run_jobs(plan.jobs, "local", 1)
+    plan = planning.plan_jobs(SHORT, seeds=2, output_root=tmp_path)
+    local = backends.run_jobs(plan.jobs, "local", 1)
     ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING")
     try:
-        remote = rg.run_jobs(plan.jobs, "ray", 2)
+        remote = backends.run_jobs(plan.jobs, "ray", 2)
     finally:
         ray.shutdown()
     assert all(r["error"] is None for r in remote), [r["error"] for r in remote]
@@ -319,15 +324,17 @@ def test_ray_backend_matches_local(tmp_path: Path) -> None:
 
 def test_ray_backend_missing_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
-    with pytest.raises(rg.RegressError, match=r"pip install 'agv-mission\[ray\]'"):
-        rg.run_jobs([{"id": 0}], "ray", 1)
+    with pytest.raises(planning.RegressError, match=r"pip install 'agv-mission\[ray\]'"):
+        backends.run_jobs([{"id": 0}], "ray", 1)
 
 
 def test_worker_errors_become_error_results(tmp_path: Path) -> None:
-    (job,) = rg.plan_jobs([SCENARIOS / "go_to_tb3.yaml"], output_root=tmp_path).jobs
-    result = rg.run_job({**job, "scenario": str(tmp_path / "gone.yaml")})
+    (job,) = planning.plan_jobs([SCENARIOS / "go_to_tb3.yaml"], output_root=tmp_path).jobs
+    result = backends.run_job({**job, "scenario": str(tmp_path / "gone.yaml")})
     assert result["status"] == "error" and not result["passed"] and "cannot read" in result["error"]
-    xml = rg.junit_xml([result], rg.Plan([], [], [rg.Variant("")], 1, tmp_path), 0.5)
+    xml = report.junit_xml(
+        [result], planning.Plan([], [], [planning.Variant("")], 1, tmp_path), 0.5
+    )
     case = ET.fromstring(xml).find(".//testcase")
     assert case is not None and case.find("error") is not None
 

@@ -11,15 +11,16 @@ import pytest
 from scipy import ndimage
 
 from agv_mission.geometry import Pose2D, wrap_angle, wrap_angles
-from agv_mission.localization.scan_matching import (
+from agv_mission.mapping.frontiers import find_frontiers, frontier_mask
+from agv_mission.mapping.quality import map_quality
+from agv_mission.mapping.scan_matching import (
     CorrelativeMatcher,
     LikelihoodField,
     sliding_max,
 )
-from agv_mission.localization.slam import GridSlam, GridSlamConfig, trajectory_rmse
+from agv_mission.mapping.slam import GridSlam, GridSlamConfig, trajectory_rmse
 from agv_mission.maps.builtin_worlds import small_house, turtlebot3_world
 from agv_mission.maps.costmap import Costmap
-from agv_mission.maps.frontiers import find_frontiers, frontier_mask, map_quality
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.maps.worlds import World
 from agv_mission.registry import registry

@@ -19,15 +19,11 @@ import yaml
 from agv_mission.geometry import wrap_angle
 from agv_mission.maps.builtin_worlds import HOUSE_SPAWN
 from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder
-from agv_mission.missions.teleop import (
-    TeleopKeys,
-    TeleopRobot,
-    load_teleop_mission,
-    open_recorders,
-    room_at,
-    split_keys,
-)
+from agv_mission.maps.rooms import room_at
+from agv_mission.missions.stack import open_recorders
 from agv_mission.planners.base import VelocityLimits
+from agv_mission.teleop.session import TeleopRobot, load_teleop_mission
+from agv_mission.teleop.terminal import TeleopKeys, split_keys
 
 CLI = [sys.executable, "-m", "agv_mission.cli"]
 STATUS = re.compile(

@@ -177,10 +177,10 @@ def teleop(
 
     from agv_mission.maps.recorder import RecorderFileError
     from agv_mission.missions.outputs import make_run_dir
-    from agv_mission.missions.teleop import (
+    from agv_mission.missions.stack import open_recorders
+    from agv_mission.teleop.session import (
         check_recorder_file,
         load_teleop_mission,
-        open_recorders,
         run_teleop,
         write_teleop_outputs,
     )
@@ -264,20 +264,21 @@ def regress(
 
     from rich.markup import escape
 
-    from agv_mission.missions import regress as rg
+    from agv_mission.regress import backends, report
+    from agv_mission.regress import plan as planning
 
     if backend not in ("local", "ray"):
         err.print(f"[bold red]invalid input[/]: --backend {escape(backend)}: local or ray")
         raise typer.Exit(2)
-    rg.warm_up(backend, workers)  # the pool's fork server imports while we plan
+    backends.warm_up(backend, workers)  # the pool's fork server imports while we plan
     try:
-        plan = rg.plan_jobs(paths, sweep, seeds, output)
-    except rg.RegressError as exc:
+        plan = planning.plan_jobs(paths, sweep, seeds, output)
+    except planning.RegressError as exc:
         err.print(f"[bold red]invalid input[/]: {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from None
     if plan.problems:
         _report_invalid(MissionError(plan.problems))
-        rg.write_reports([], plan, 0.0, backend, workers, junit, json_)
+        report.write_reports([], plan, 0.0, backend, workers, junit, json_)
         raise typer.Exit(2)
     n_workers = workers or os.cpu_count() or 1
     out.print(
@@ -301,23 +302,23 @@ def regress(
         def progress(result: dict, done: int, total: int) -> None:
             mark = "[green]ok[/]" if result["passed"] else "[red]FAIL[/]"
             bar.console.print(
-                f"{mark} {escape(rg.run_label(result, len(plan.variants), seeds))}",
+                f"{mark} {escape(report.run_label(result, len(plan.variants), seeds))}",
                 highlight=False,
             )
             bar.update(job, completed=done)
 
         try:
-            results = rg.run_jobs(plan.jobs, backend, n_workers, address, progress)
-        except rg.RegressError as exc:
+            results = backends.run_jobs(plan.jobs, backend, n_workers, address, progress)
+        except planning.RegressError as exc:
             err.print(f"[bold red]invalid input[/]: {escape(str(exc))}", highlight=False)
             raise typer.Exit(2) from None
     elapsed = time.perf_counter() - started
     # Not a terminal (CI logs, pipes): do not squeeze the tables into 80 columns.
     tables = out if out.is_terminal else Console(soft_wrap=True, width=240)
-    tables.print(rg.results_table(results, len(plan.variants), seeds))
+    tables.print(report.results_table(results, len(plan.variants), seeds))
     if len(plan.variants) > 1 or seeds > 1:
-        tables.print(rg.comparison_table(rg.compare(results)))
-    rg.write_reports(results, plan, elapsed, backend, n_workers, junit, json_)
+        tables.print(report.comparison_table(report.compare(results)))
+    report.write_reports(results, plan, elapsed, backend, n_workers, junit, json_)
     failed = [r for r in results if not r["passed"]]
     colour = "red" if failed else "green"
     out.print(

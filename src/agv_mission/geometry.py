@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+Bounds = tuple[float, float, float, float]  # (xmin, xmax, ymin, ymax) of the map frame, metres
+
 
 def wrap_angle(angle: float) -> float:
     """Wrap an angle to [-pi, pi)."""

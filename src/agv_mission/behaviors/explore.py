@@ -3,18 +3,30 @@
 from __future__ import annotations
 
 import math
+from typing import Any, Protocol
 
 import numpy as np
 import py_trees
 from py_trees.common import Status
 
-from agv_mission.geometry import Pose2D, wrap_angle
-from agv_mission.maps.frontiers import find_frontiers
+from agv_mission.geometry import Bounds, Pose2D, wrap_angle
+from agv_mission.mapping.frontiers import find_frontiers
+from agv_mission.mapping.session import MappingSession
 from agv_mission.maps.grid import UNKNOWN, OccupancyGrid
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import NavStatus
 
-Bounds = tuple[float, float, float, float]
+
+class Mapper(Protocol):
+    """Starts and ends the mapping session a :class:`MapArea` explores with."""
+
+    def begin(self, bounds: Bounds | None) -> MappingSession:
+        """SLAM takes over pose and map (the whole known map's extent without bounds)."""
+        ...
+
+    def end(self, stem: str) -> dict[str, Any]:
+        """Save the map as ``stem``; returns what to report about it."""
+        ...
 
 
 class MapArea(py_trees.behaviour.Behaviour):
@@ -47,6 +59,7 @@ class MapArea(py_trees.behaviour.Behaviour):
         self,
         name: str,
         handle: RobotHandle,
+        mapper: Mapper,
         bounds: Bounds | None,
         save_map: str,
         coverage: float | None,
@@ -56,6 +69,8 @@ class MapArea(py_trees.behaviour.Behaviour):
     ):
         super().__init__(name)
         self.handle = handle
+        self.mapper = mapper
+        self.mapping: MappingSession | None = None
         self.bounds = bounds
         self.save_map = save_map
         self.coverage = coverage
@@ -70,8 +85,7 @@ class MapArea(py_trees.behaviour.Behaviour):
         self.frontiers_visited = 0
 
     def initialise(self) -> None:
-        assert self.handle.begin_mapping is not None, "the runner provides mapping"
-        self.handle.begin_mapping(self.bounds)
+        self.mapping = self.mapper.begin(self.bounds)
         self.goal = None
         self.attempts = []
         self.frontiers_visited = 0
@@ -83,7 +97,7 @@ class MapArea(py_trees.behaviour.Behaviour):
 
     def update(self) -> Status:
         handle, state = self.handle, self.handle.state
-        mapping = handle.mapping
+        mapping = self.mapping
         assert mapping is not None
         if mapping.slam.integrations == 0:
             # Stand still until SLAM has its first scan: the map is anchored where the
@@ -117,8 +131,8 @@ class MapArea(py_trees.behaviour.Behaviour):
         if done is not None:
             nav.cancel()
             handle.stop()
-            assert handle.end_mapping is not None
-            summary = handle.end_mapping(self.save_map)
+            summary = self.mapper.end(self.save_map)
+            self.mapping = None
             handle.log("map_saved", reason=done, frontiers=self.frontiers_visited, **summary)
             self.feedback_message = done
             return Status.SUCCESS
@@ -129,14 +143,15 @@ class MapArea(py_trees.behaviour.Behaviour):
     def _done(self, now: float) -> str | None:
         if now >= self._deadline:
             return "time limit of the task reached"
-        if self.coverage is not None and self.handle.mapping.known_fraction() >= self.coverage:
+        if self.coverage is not None and self.mapping.known_fraction() >= self.coverage:
             return f"coverage target {self.coverage:g} reached"
         return None
 
     def _next_goal(self) -> str | None:
         """Aim at the nearest frontier; ``"no reachable frontier left"`` when done."""
         handle, state = self.handle, self.handle.state
-        costmap = handle.mapping.costmap
+        assert self.mapping is not None
+        costmap = self.mapping.costmap
         assert costmap is not None
         est = state.estimate
         frontiers = find_frontiers(
@@ -170,7 +185,8 @@ class MapArea(py_trees.behaviour.Behaviour):
 
     def _give_up(self, goal: Pose2D) -> None:
         """Blacklist ``goal`` (one more attempt at the spot, if it was tried before)."""
-        mapping = self.handle.mapping
+        mapping = self.mapping
+        assert mapping is not None
         grid = mapping.costmap.grid if mapping.costmap is not None else mapping.grid
         known = float(np.count_nonzero(grid.data != UNKNOWN))
         for entry in self.attempts:

@@ -35,121 +35,17 @@ For plots the plugin keeps ``snapshots`` (``(time, particles)`` every
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from agv_mission.geometry import Pose2D
+from agv_mission.geometry import Pose2D, wrap_angles
+from agv_mission.localization.base import LocalizerDiagnostics
+from agv_mission.localization.configs import AmclConfig
 from agv_mission.localization.particle_filter import MotionNoise, ParticleFilter, SensorParams
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
-from agv_mission.planners.base import PluginConfig
-from agv_mission.registry import register
 
 
-class InitialPose(BaseModel):
-    """amcl's ``initial_pose_x / _y / _a``."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    x: float
-    y: float
-    yaw: float = 0.0
-
-
-#: Named parameter sets for ``profile``; keys given next to ``profile`` win.
-PROFILES: dict[str, dict[str, Any]] = {
-    "turtlebot3": {},  # the field defaults: TurtleBot3's amcl.launch
-    "recovery": {
-        "laser_model_type": "likelihood_field_prob",
-        "laser_log_likelihood_scale": 0.1,
-        "max_particles": 20000,
-        "recovery_alpha_slow": 0.001,
-        "recovery_alpha_fast": 0.1,
-    },
-}
-
-
-class AmclConfig(PluginConfig):
-    """ROS amcl's parameters, defaults from TurtleBot3's ``amcl.launch``."""
-
-    type: Literal["amcl"] = "amcl"
-    profile: Literal["turtlebot3", "recovery"] = Field(
-        "turtlebot3",
-        description="named defaults (PROFILES): turtlebot3 = amcl.launch; recovery = "
-        "global localisation and kidnap recovery; keys set next to it override it",
-    )
-
-    # Overall filter
-    min_particles: int = Field(500, ge=1)
-    max_particles: int = Field(3000, ge=1)
-    kld_err: float = Field(0.02, gt=0)
-    kld_z: float = Field(0.99, gt=0, description="used as the normal quantile, as amcl does")
-    update_min_d: float = Field(0.2, ge=0, description="metres of motion between updates")
-    update_min_a: float = Field(0.2, ge=0, description="radians of motion between updates")
-    resample_interval: int = Field(1, ge=1)
-    recovery_alpha_slow: float = Field(0.0, ge=0, le=1, description="0 disables; ROS: 0.001")
-    recovery_alpha_fast: float = Field(0.0, ge=0, le=1, description="0 disables; ROS: 0.1")
-    recovery_candidates: int = Field(
-        50,
-        ge=1,
-        description="not in ROS: injected poses are drawn by the last scan's likelihood "
-        "from this many uniform poses each (at most max_particles per update); 1 is "
-        "amcl's uniform injection",
-    )
-
-    # Initial state
-    initial_pose: InitialPose | None = Field(
-        None, description="None: the mission's start pose (given to reset)"
-    )
-    initial_cov_xx: float = Field(0.25, ge=0, description="m^2")
-    initial_cov_yy: float = Field(0.25, ge=0, description="m^2")
-    initial_cov_aa: float = Field((math.pi / 12.0) ** 2, ge=0, description="rad^2")
-    global_localization: bool = Field(
-        False, description="start with max_particles spread over the free space"
-    )
-
-    # Laser model
-    laser_model_type: Literal["likelihood_field", "likelihood_field_prob"] = "likelihood_field"
-    laser_min_range: float = Field(-1.0, description="<= 0: the scan's range_min")
-    laser_max_range: float = Field(3.5, description="<= 0: the scan's range_max")
-    laser_max_beams: int = Field(180, ge=2)
-    laser_z_hit: float = Field(0.5, ge=0)
-    laser_z_rand: float = Field(0.5, ge=0)
-    laser_sigma_hit: float = Field(0.2, gt=0)
-    laser_likelihood_max_dist: float = Field(2.0, gt=0)
-    laser_log_likelihood_scale: float = Field(
-        1.0,
-        gt=0,
-        le=1,
-        description="not in ROS: likelihood_field_prob multiplies each beam's log-likelihood "
-        "by this; < 1 tempers the product of correlated beams (global localisation)",
-    )
-
-    # Odometry model (diff drive)
-    odom_alpha1: float = Field(0.1, ge=0, description="rotation noise from rotation")
-    odom_alpha2: float = Field(0.1, ge=0, description="rotation noise from translation")
-    odom_alpha3: float = Field(0.1, ge=0, description="translation noise from translation")
-    odom_alpha4: float = Field(0.1, ge=0, description="translation noise from rotation")
-
-    # Plot support
-    snapshot_interval: int = Field(5, ge=1, description="filter updates between snapshots")
-    max_snapshots: int = Field(40, ge=2)
-
-    @model_validator(mode="before")
-    @classmethod
-    def _profile_defaults(cls, data: Any) -> Any:
-        """Fill the keys not given from the named profile (unknown names: the field's error)."""
-        if isinstance(data, dict):
-            name = data.get("profile", "turtlebot3")
-            preset = PROFILES.get(name) if isinstance(name, str) else None
-            if preset:
-                data = {**preset, **data}
-        return data
-
-
-@register("localization", "amcl")
 class AmclLocalizer:
     """Adaptive Monte Carlo localisation; never looks at the true pose."""
 
@@ -247,6 +143,21 @@ class AmclLocalizer:
                 self._filter_update(odom, scan, time, moved or self._force_update)
                 self._force_update = False
         return self._pose.compose(odom.relative_to(self._odom))
+
+    def diagnostics(self) -> LocalizerDiagnostics:
+        p, w = self.filter.particles, self.filter.weights
+        mean = self._pose.as_array()
+        d = p - mean
+        d[:, 2] = wrap_angles(d[:, 2])
+        total = float(w.sum()) or 1.0
+        cov = (d * (w / total)[:, None]).T @ d
+        return LocalizerDiagnostics(
+            filter_updates=self.filter_updates,
+            particle_counts=self.particle_counts,
+            snapshots=self.snapshots,
+            particles=p,
+            covariance=cov,
+        )
 
     def request_nomotion_update(self) -> None:
         """Update the filter with the next scan although the robot has not moved far enough.

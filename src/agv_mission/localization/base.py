@@ -2,10 +2,27 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Protocol
+
+import numpy as np
 
 from agv_mission.geometry import Pose2D
 from agv_mission.messages import LaserScan
+
+
+@dataclass
+class LocalizerDiagnostics:
+    """The numbers a localiser shows the runner (metrics, plots, live views).
+
+    Every field has an empty default: a localiser without a filter reports nothing.
+    """
+
+    filter_updates: int = 0  # how many times the filter used a scan so far
+    particle_counts: list[tuple[float, int]] = field(default_factory=list)  # (t, n) per update
+    snapshots: list[tuple[float, np.ndarray]] = field(default_factory=list)  # for plots
+    particles: np.ndarray | None = None  # (n, 3) the current cloud
+    covariance: np.ndarray | None = None  # (3, 3) of the estimate (x, y, yaw)
 
 
 class Localizer(Protocol):
@@ -25,3 +42,7 @@ class Localizer(Protocol):
 
     def request_nomotion_update(self) -> None:
         """Refine the estimate with the next scan even though the robot stands still."""
+
+    def diagnostics(self) -> LocalizerDiagnostics:
+        """Filter statistics so far (empty for a localiser without a filter)."""
+        ...

@@ -2,24 +2,15 @@
 
 from __future__ import annotations
 
-from typing import Literal
-
 import numpy as np
 
 from agv_mission.geometry import Pose2D
+from agv_mission.localization.base import LocalizerDiagnostics
+from agv_mission.localization.configs import GroundTruthConfig
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
-from agv_mission.planners.base import PluginConfig
-from agv_mission.registry import register
 
 
-class GroundTruthConfig(PluginConfig):
-    """The estimate is the true pose."""
-
-    type: Literal["ground_truth"] = "ground_truth"
-
-
-@register("localization", "ground_truth")
 class GroundTruthLocalizer:
     Config = GroundTruthConfig
 
@@ -36,3 +27,6 @@ class GroundTruthLocalizer:
 
     def request_nomotion_update(self) -> None:
         """Nothing to refine without a filter."""
+
+    def diagnostics(self) -> LocalizerDiagnostics:
+        return LocalizerDiagnostics()

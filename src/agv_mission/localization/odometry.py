@@ -2,24 +2,15 @@
 
 from __future__ import annotations
 
-from typing import Literal
-
 import numpy as np
 
 from agv_mission.geometry import Pose2D
+from agv_mission.localization.base import LocalizerDiagnostics
+from agv_mission.localization.configs import OdometryConfig
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
-from agv_mission.planners.base import PluginConfig
-from agv_mission.registry import register
 
 
-class OdometryConfig(PluginConfig):
-    """map -> odom is fixed at the start; the estimate drifts with the encoders."""
-
-    type: Literal["odometry"] = "odometry"
-
-
-@register("localization", "odometry")
 class OdometryLocalizer:
     Config = OdometryConfig
 
@@ -38,3 +29,6 @@ class OdometryLocalizer:
 
     def request_nomotion_update(self) -> None:
         """Nothing to refine without a filter."""
+
+    def diagnostics(self) -> LocalizerDiagnostics:
+        return LocalizerDiagnostics()

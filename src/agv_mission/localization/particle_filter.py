@@ -37,6 +37,7 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from agv_mission.geometry import wrap_angle, wrap_angles
 from agv_mission.maps.grid import OccupancyGrid
 
 LaserModel = Literal["likelihood_field", "likelihood_field_prob"]
@@ -55,14 +56,6 @@ PROPOSAL_LOG_SCALE = 0.2
 PROPOSAL_BROAD_SIGMA = 0.5
 PROPOSAL_JITTER = (0.25, 0.15)
 PROPOSAL_ROUNDS = 2
-
-
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
-
-
-def _wrap1(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 @dataclass(frozen=True)
@@ -243,7 +236,7 @@ class ParticleFilter:
         """``n`` (default ``max_particles``) particles around ``mean`` [x, y, yaw]."""
         n = self.max_particles if n is None else int(n)
         p = self.rng.multivariate_normal(np.asarray(mean, float), np.asarray(cov, float), n)
-        p[:, 2] = _wrap(p[:, 2])
+        p[:, 2] = wrap_angles(p[:, 2])
         self._set(p)
         self._reset_averages()
 
@@ -273,13 +266,13 @@ class ParticleFilter:
     def motion_update(self, old: np.ndarray, new: np.ndarray) -> None:
         """Move every particle by the odometry motion ``old -> new`` ([x, y, yaw], odom frame)."""
         dx, dy = float(new[0] - old[0]), float(new[1] - old[1])
-        dyaw = _wrap1(float(new[2] - old[2]))
+        dyaw = wrap_angle(float(new[2] - old[2]))
         trans = math.hypot(dx, dy)
-        rot1 = 0.0 if trans < 0.01 else _wrap1(math.atan2(dy, dx) - float(old[2]))
-        rot2 = _wrap1(dyaw - rot1)
+        rot1 = 0.0 if trans < 0.01 else wrap_angle(math.atan2(dy, dx) - float(old[2]))
+        rot2 = wrap_angle(dyaw - rot1)
         # Reversing is a small rotation, not a half turn (amcl_odom.cpp).
-        rot1_n = min(abs(rot1), abs(_wrap1(rot1 - math.pi)))
-        rot2_n = min(abs(rot2), abs(_wrap1(rot2 - math.pi)))
+        rot1_n = min(abs(rot1), abs(wrap_angle(rot1 - math.pi)))
+        rot2_n = min(abs(rot2), abs(wrap_angle(rot2 - math.pi)))
         m = self.motion
         n = self.count
         sd_rot1 = math.sqrt(m.alpha1 * rot1_n**2 + m.alpha2 * trans**2)
@@ -293,7 +286,7 @@ class ParticleFilter:
         heading = p[:, 2] + rot1_hat
         p[:, 0] += trans_hat * np.cos(heading)
         p[:, 1] += trans_hat * np.sin(heading)
-        p[:, 2] = _wrap(heading + rot2_hat)
+        p[:, 2] = wrap_angles(heading + rot2_hat)
 
     # ------------------------------------------------------------------ sensor model
 
@@ -439,7 +432,7 @@ class ParticleFilter:
             poses = poses[
                 _systematic(_softmax(score), n if r == PROPOSAL_ROUNDS - 1 else keep, rng)
             ]
-        poses[:, 2] = _wrap(poses[:, 2])
+        poses[:, 2] = wrap_angles(poses[:, 2])
         return poses
 
     def _proposal_fields(self, range_max: float) -> tuple[LikelihoodField, LikelihoodField]:

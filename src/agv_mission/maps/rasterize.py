@@ -16,13 +16,11 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 from scipy import ndimage
 
-from agv_mission.geometry import Pose2D
+from agv_mission.geometry import Bounds, Pose2D
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.maps.worlds import Box, Cylinder
 
 _EPS = 1e-7  # metres: overlaps thinner than this do not count as touching
-
-Bounds = tuple[float, float, float, float]  # (xmin, xmax, ymin, ymax), like OccupancyGrid.extent
 
 
 def grid_shape(bounds: Bounds, resolution: float) -> tuple[int, int]:

@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from matplotlib.path import Path as PolygonPath
 from scipy.ndimage import distance_transform_edt, label
 
 from agv_mission.geometry import Pose2D
@@ -22,17 +21,28 @@ class Room:
 
     def contains(self, x: float, y: float) -> bool:
         """Even-odd point-in-polygon test."""
+        return bool(self.contains_points(np.array([[x, y]], dtype=float))[0])
+
+    def contains_points(self, points: np.ndarray) -> np.ndarray:
+        """Even-odd point-in-polygon test of (N, 2) points, edge by edge."""
+        x, y = points[:, 0], points[:, 1]
+        inside = np.zeros(len(points), dtype=bool)
         poly = np.asarray(self.polygon, dtype=float)
-        xs, ys = poly[:, 0], poly[:, 1]
-        xj, yj = np.roll(xs, 1), np.roll(ys, 1)
-        crosses = (ys > y) != (yj > y)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x_at = (xj - xs) * (y - ys) / (yj - ys) + xs
-        return bool(np.count_nonzero(crosses & (x < x_at)) % 2)
+        for (xi, yi), (xj, yj) in zip(poly, np.roll(poly, 1, axis=0), strict=True):
+            crosses = (yi > y) != (yj > y)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                x_at = (xj - xi) * (y - yi) / (yj - yi) + xi
+            inside ^= crosses & (x < x_at)
+        return inside
 
     def centroid(self) -> tuple[float, float]:
         poly = np.asarray(self.polygon, dtype=float)
         return float(poly[:, 0].mean()), float(poly[:, 1].mean())
+
+
+def room_at(rooms: dict[str, Room], x: float, y: float) -> str | None:
+    """The label of the first room whose polygon holds (x, y), if any."""
+    return next((label for label, room in rooms.items() if room.contains(x, y)), None)
 
 
 def reachable_cells(costmap: Costmap, start: Pose2D, margin: float = 0.0) -> np.ndarray:
@@ -55,11 +65,7 @@ def visit_point(room: Room, costmap: Costmap, allowed: np.ndarray) -> Pose2D | N
     grid = costmap.grid
     rows, cols = np.mgrid[0 : grid.height, 0 : grid.width]
     centres = grid.cell_to_world(rows, cols)
-    inside = (
-        PolygonPath(np.asarray(room.polygon))
-        .contains_points(centres.reshape(-1, 2))
-        .reshape(grid.data.shape)
-    )
+    inside = room.contains_points(centres.reshape(-1, 2)).reshape(grid.data.shape)
     candidates = inside & allowed
     if not candidates.any():
         return None

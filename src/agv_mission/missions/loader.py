@@ -27,8 +27,9 @@ from agv_mission.maps.rooms_file import RoomsFileError, load_rooms
 from agv_mission.maps.world_loader import WorldError, builtin_names, load_world
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.schema import Mission
+from agv_mission.missions.schema import FIELD_ORDER, Mission, Setup
 from agv_mission.missions.yaml_lines import DocumentError, FieldPath, line_of, load_with_lines
+from agv_mission.registry import registry
 from agv_mission.robots.description import BUILTIN_ROBOTS, RobotDescription, load_robot
 
 # A front door's rule on which files a mission may name: (field, resolved path) -> a
@@ -40,7 +41,7 @@ PathGuard = Callable[[str, Path], "str | None"]
 class LoadedMission:
     """A validated mission with everything it names loaded and resolved."""
 
-    mission: Mission
+    mission: Mission  # a Setup (no tasks) when loaded with tasks_required=False
     source: Path | None
     name: str
     world: World
@@ -55,7 +56,7 @@ class LoadedMission:
         """The mission as it runs: defaults filled in and overrides applied."""
         doc = self.mission.model_dump(mode="json")
         doc["name"] = self.name
-        return doc
+        return {k: doc[k] for k in FIELD_ORDER if k in doc}
 
 
 def load_mission(
@@ -63,12 +64,17 @@ def load_mission(
     overrides: list[str] | None = None,
     seed: int | None = None,
     text: str | None = None,
+    *,
+    tasks_required: bool = True,
     path_guard: PathGuard | None = None,
 ) -> LoadedMission:
     """Read, override, validate and resolve a mission file.
 
+    With ``tasks_required=False`` a file without ``tasks`` is a :class:`Setup` (world,
+    robot, start, stack) and resolves the same way; one with tasks is still checked whole.
     ``path_guard`` is asked before any file the mission names is read (the service lets
-    missions read only files under its data directory)."""
+    missions read only files under its data directory).
+    """
     path = Path(path)
     file = str(path)
     if text is None:
@@ -116,10 +122,13 @@ def load_mission(
             ]
         )
 
+    model: type[Setup] = Mission if tasks_required or "tasks" in data else Setup
     try:
-        mission = Mission.model_validate(data)
+        mission = model.model_validate(data)
     except ValidationError as exc:
-        raise MissionError(_validation_problems(file, exc, data, lines, override_paths)) from None
+        raise MissionError(
+            _validation_problems(file, exc, data, lines, override_paths, model)
+        ) from None
     except RecursionError:  # e.g. an alias that contains itself: a: &x [*x]
         raise MissionError(
             [Problem(file, None, "", "the document nests too deeply (or contains itself)")]
@@ -134,7 +143,7 @@ def load_mission(
 
 
 def _resolve(
-    mission: Mission,
+    mission: Setup,
     file: str,
     base_dir: Path,
     stem: str,
@@ -227,7 +236,7 @@ def _resolve(
     else:
         start = mission.start.to_pose2d()
     _check_pose(start, costmap, ("start",), problem)
-    for i, task in enumerate(mission.tasks):
+    for i, task in enumerate(_tasks(mission)):
         if task.type == "go_to":
             _check_pose(task.pose.to_pose2d(), costmap, ("tasks", i, "pose"), problem)
         elif task.type == "patrol":
@@ -262,7 +271,7 @@ def _resolve(
     if problems:
         raise MissionError(problems)
     return LoadedMission(
-        mission=mission,
+        mission=mission,  # type: ignore[arg-type]
         source=None,
         name=mission.name or stem,
         world=world,
@@ -273,6 +282,10 @@ def _resolve(
         room_goals=room_goals,
         recorder=recorder,
     )
+
+
+def _tasks(mission: Setup) -> list[Any]:
+    return mission.tasks if isinstance(mission, Mission) else []
 
 
 def _with_obstacles(world: World, obstacles: list[Any]) -> World:
@@ -297,12 +310,12 @@ def _distance_to_obstacle(o: Any, x: float, y: float) -> float:
 
 
 def _room_goals(
-    mission: Mission, rooms: dict[str, Room], costmap: Costmap, start: Pose2D, problem: Any
+    mission: Setup, rooms: dict[str, Room], costmap: Costmap, start: Pose2D, problem: Any
 ) -> dict[str, Pose2D]:
     """Where each visited room is entered: its anchor, or a reachable point well inside."""
     goals: dict[str, Pose2D] = {}
     allowed: np.ndarray | None = None
-    for i, task in enumerate(mission.tasks):
+    for i, task in enumerate(_tasks(mission)):
         if task.type != "visit_rooms":
             continue
         for j, label in enumerate(task.rooms):
@@ -440,12 +453,13 @@ def _validation_problems(
     data: Any,
     lines: dict[FieldPath, int],
     override_paths: dict[FieldPath, str],
+    model: type[Setup] = Mission,
 ) -> list[Problem]:
     problems: list[Problem] = []
     seen: set[tuple[FieldPath, str]] = set()
     for err in exc.errors(include_url=False):
         field_path = _data_path(tuple(err["loc"]), data)
-        message = _message(err, data)
+        message = _message(err, data, model)
         if (field_path, message) in seen:
             continue
         seen.add((field_path, message))
@@ -498,7 +512,7 @@ def _is_tag(part: str) -> bool:
     return part in {"str", "int", "float", "bool", "Pose"} or "[" in part
 
 
-def _message(err: dict, data: Any = None) -> str:
+def _message(err: dict, data: Any = None, model: type[Setup] = Mission) -> str:
     kind = err["type"]
     if kind == "missing":
         return "required field is missing"
@@ -506,9 +520,13 @@ def _message(err: dict, data: Any = None) -> str:
         return "unknown key (not allowed here)"
     if kind == "union_tag_invalid":
         ctx = err.get("ctx", {})
-        return f"unknown type {ctx.get('tag')!r}; expected one of {ctx.get('expected_tags')}"
+        tag = ctx.get("tag")
+        broken = [why for name, why in registry.errors().items() if name.endswith(f".{tag}")]
+        if broken:
+            return f"plugin {tag!r} is installed but failed to load: {broken[0]}"
+        return f"unknown type {tag!r}; expected one of {ctx.get('expected_tags')}"
     if kind == "union_tag_not_found":
-        tags = _expected_tags(tuple(err["loc"]), data)
+        tags = _expected_tags(tuple(err["loc"]), data, model)
         return "missing 'type'" + (f"; expected one of {tags}" if tags else "")
     msg = err["msg"]
     if kind in ("model_type", "model_attributes_type", "dict_type"):
@@ -526,7 +544,7 @@ def _message(err: dict, data: Any = None) -> str:
     return msg
 
 
-def _expected_tags(loc: tuple, data: Any) -> str | None:
+def _expected_tags(loc: tuple, data: Any, model: type[Setup] = Mission) -> str | None:
     """The ``type`` values a block without one could have: ask the schema with a bad one."""
     field_path = _data_path(loc, data)
     try:
@@ -537,7 +555,7 @@ def _expected_tags(loc: tuple, data: Any) -> str | None:
         if not isinstance(node, dict):
             return None
         node["type"] = "\x00"
-        Mission.model_validate(probe)
+        model.model_validate(probe)
     except ValidationError as exc:
         for err in exc.errors(include_url=False):
             if err["type"] == "union_tag_invalid" and _data_path(err["loc"], probe) == field_path:

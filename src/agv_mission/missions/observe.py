@@ -46,12 +46,12 @@ class TreeNode:
 
     name: str
     depth: int
-    status: str  # succeeded | failed | running | not_run
+    status: str  # SUCCESS | FAILURE | RUNNING | INVALID (py_trees' names, as the stream)
 
 
 def tree_nodes(root: py_trees.behaviour.Behaviour) -> list[TreeNode]:
     """Every node under ``root`` (itself included), pre-order."""
-    return [TreeNode(node.name, depth, status_name(node.status)) for node, depth in _walk(root)]
+    return [TreeNode(node.name, depth, node.status.value) for node, depth in _walk(root)]
 
 
 def _walk(

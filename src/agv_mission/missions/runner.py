@@ -20,33 +20,34 @@ from py_trees.common import Status
 
 from agv_mission.behaviors.outcome import failure_reason
 from agv_mission.geometry import Pose2D, wrap_angle
-from agv_mission.maps.costmap import Costmap
-from agv_mission.maps.frontiers import map_quality
+from agv_mission.localization.base import Localizer
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.obstacle_layer import ObstacleLayer
-from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder
-from agv_mission.maps.ros_map import load_ros_map, save_ros_map
 from agv_mission.missions.faults import FaultInjector
 from agv_mission.missions.loader import LoadedMission
+from agv_mission.missions.map_building import MapBuilder
 from agv_mission.missions.observe import (
     RunControl,
     RunObserver,
     RunStart,
     StepSample,
     TreeNode,
+    status_name,
     tree_nodes,
+)
+from agv_mission.missions.stack import (
+    CONTROL_PERIOD,
+    RobotStack,
+    Sensing,
+    VelocitySmoother,
+    open_recorders,
 )
 from agv_mission.missions.tree import MissionTree, build_tree
 from agv_mission.navigation.handle import RobotHandle
-from agv_mission.navigation.mapping import MappingSession
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.navigation.state import RobotState
-from agv_mission.planners.base import VelocityLimits
-from agv_mission.registry import registry
-from agv_mission.robots.odometry import DiffDriveOdometry
-from agv_mission.robots.simulation import DiffDriveSim
 
-CONTROL_PERIOD = 0.1
+__all__ = ["CONTROL_PERIOD", "VelocitySmoother", "MissionRun", "RunRecord", "run_mission"]
 
 TRAJECTORY_COLUMNS = ("t", "x", "y", "yaw", "est_x", "est_y", "est_yaw", "v", "w")
 
@@ -72,22 +73,6 @@ class RunRecord:
     built_map: OccupancyGrid | None = None  # the last map a map_area task saved
 
 
-class VelocitySmoother:
-    """Limits command changes to the robot's accelerations, like a cmd_vel smoother."""
-
-    def __init__(self, limits: VelocityLimits, period: float) -> None:
-        self.limits, self.period = limits, period
-        self.v = self.w = 0.0
-
-    def __call__(self, v: float, w: float) -> tuple[float, float]:
-        lim, dt = self.limits, self.period
-        v = float(np.clip(v, -lim.max_v, lim.max_v))
-        w = float(np.clip(w, -lim.max_w, lim.max_w))
-        self.v = float(np.clip(v, self.v - lim.max_acc_v * dt, self.v + lim.max_acc_v * dt))
-        self.w = float(np.clip(w, self.w - lim.max_acc_w * dt, self.w + lim.max_acc_w * dt))
-        return self.v, self.w
-
-
 def run_mission(
     loaded: LoadedMission,
     run_dir: Path | None = None,
@@ -99,23 +84,18 @@ def run_mission(
     """Run ``loaded`` in simulation until its tree finishes or its time limit passes.
 
     With ``run_dir``, recorded room poses go to ``run_dir/location_recorder.yaml`` as they
-    are recorded (and to the mission's ``recorder`` file, when it names one). Ctrl-C ends
-    the run with status ``aborted``; an exception inside it with status ``error``: either
-    way a record of what happened so far comes back.
+    are recorded (and to the mission's ``recorder`` file, when it names one). Ctrl-C or
+    ``control`` cancelling ends the run with status ``aborted``; an exception inside it
+    with status ``error``: either way a record of what happened so far comes back.
+    ``observers`` see the start, every control step and the record (once).
     """
-    run = MissionRun(loaded, run_dir)
-    sampler = _Sampler(run, list(observers)) if observers else None
+    run = MissionRun(loaded, run_dir, observers)
     try:
-        if sampler is not None:
-            sampler.start()
+        run.notify_start()
         while True:
             if control is not None:
                 control.before_step(run)
-            events_from = len(run.handle.events)
-            going = run.step()
-            if sampler is not None:
-                sampler.step(events_from)
-            if not going:
+            if not run.step():
                 break
             if progress is not None:
                 progress(run.sim.time, loaded.mission.limits.time)
@@ -132,60 +112,29 @@ def run_mission(
 class MissionRun:
     """One mission in simulation: the components, the control loop's state, the outcome."""
 
-    def __init__(self, loaded: LoadedMission, run_dir: Path | None) -> None:
+    def __init__(
+        self,
+        loaded: LoadedMission,
+        run_dir: Path | None,
+        observers: Sequence[RunObserver] = (),
+    ) -> None:
         self.loaded = loaded
         mission, robot = loaded.mission, loaded.robot
         self.mission, self.robot = mission, robot
-        seeds = np.random.SeedSequence(mission.seed).spawn(4)
-        sim_rng, loc_rng, planner_rng, fault_rng = (np.random.default_rng(s) for s in seeds)
-        self.sim = DiffDriveSim(robot, loaded.world, loaded.start, mission.simulation, sim_rng)
-        self.odometry = DiffDriveOdometry(robot.encoder.ticks_per_meter, robot.wheel_separation)
-        self.localizer = registry.create(
-            "localization", mission.stack.localization, grid=loaded.world.map, rng=loc_rng
-        )
-        self.limits = VelocityLimits(
-            max_v=robot.max_linear_velocity,
-            max_w=robot.max_angular_velocity,
-            max_acc_v=robot.max_linear_acceleration,
-            max_acc_w=robot.max_angular_acceleration,
-        )
-        local_planner = registry.create(
-            "local_planner",
-            mission.stack.local_planner,
-            limits=self.limits,
-            robot_radius=robot.footprint_radius,
-            control_period=CONTROL_PERIOD,
-        )
-        self.navigator = Navigator(
-            ObstacleLayer(loaded.costmap, mission.stack.costmap.obstacles),
-            registry.create("global_planner", mission.stack.global_planner),
-            local_planner,
-            self.limits,
-            mission.stack.navigation,
-            CONTROL_PERIOD,
-            seed=int(planner_rng.integers(0, 2**31 - 1)),
-        )
-        self._odom = self.odometry.update(*self.sim.encoder_ticks())
-        self._odom_start = self._odom
-        self.localizer.reset(loaded.start, self._odom)
+        self.stack = stack = RobotStack(loaded)
+        self.sim, self.odometry, self.limits = stack.sim, stack.odometry, stack.limits
+        self.navigator = stack.build_navigator()
         self.handle = RobotHandle(
             RobotState(time=0.0, estimate=loaded.start),
             self.navigator,
             rooms=loaded.rooms,
-            recorders=_recorders(loaded, run_dir),
+            recorders=open_recorders(loaded, run_dir),
         )
-        self.handle.begin_mapping = self._begin_mapping
-        self.handle.end_mapping = self._end_mapping
         self.run_dir = run_dir
-        self.loc_rng = loc_rng
-        self.maps: list[dict[str, Any]] = []
-        self.built_map: OccupancyGrid | None = None
-        self.tree = build_tree(mission, self.handle, robot, loaded.room_goals)
-        self.smoother = VelocitySmoother(self.limits, CONTROL_PERIOD)
-        self.faults = FaultInjector(mission.faults, self.sim, fault_rng)
-        self.scan_period = 1.0 / robot.lidar.rate
-        self.next_scan = 0.0
         self.rows: list[tuple[float, ...]] = []
+        self.mapper = MapBuilder(stack, self.navigator, self.handle, run_dir, self.rows)
+        self.tree = build_tree(mission, self.handle, robot, loaded.room_goals, self.mapper)
+        self.faults = FaultInjector(mission.faults, self.sim, stack.fault_rng)
         self.task_status = ["not_run"] * len(self.tree.tasks)
         self.collisions: list[dict[str, float]] = []
         self.in_contact = False
@@ -193,6 +142,29 @@ class MissionRun:
         self.wall_start = time.perf_counter()
         self.status: str | None = None
         self.reason: str | None = None
+        self.observers = list(observers)
+        self._sampler = _Sampler(self) if self.observers else None
+
+    @property
+    def localizer(self) -> Localizer:
+        return self.stack.localizer
+
+    def notify_start(self) -> None:
+        """Tell the observers what the run is about."""
+        if not self.observers:
+            return
+        loaded = self.loaded
+        start = RunStart(
+            run_dir=self.run_dir,
+            mission=self.mission,
+            robot=self.robot,
+            world_map=loaded.world.map,
+            rooms=loaded.rooms,
+            start=loaded.start,
+            tree_nodes=tree_nodes(self.tree.root),
+        )
+        for observer in self.observers:
+            observer.on_start(start)
 
     def cancel(self, reason: str) -> None:
         """End the run with status ``aborted`` before the next control step."""
@@ -206,14 +178,9 @@ class MissionRun:
         now = sim.time
         state.time = now
         self.faults.apply(now, handle)
-        odom_pose = self.odometry.update(*sim.encoder_ticks())
-        scan = None
-        if now >= self.next_scan - 1e-9:
-            self.next_scan += self.scan_period
-            scan = self.faults.filter_scan(now, sim.scan(), handle)
-        truth = sim.true_pose()
-        self._odom = odom_pose
-        mapping = handle.mapping
+        sensing = self.stack.sense(lambda t, scan: self.faults.filter_scan(t, scan, handle))
+        odom_pose, scan, truth = sensing.odom, sensing.scan, sensing.truth
+        mapping = self.mapper.session
         if mapping is not None:
             estimate = mapping.update(odom_pose, scan, truth, now)
             costmap = mapping.refreshed_costmap(now)
@@ -225,95 +192,42 @@ class MissionRun:
                 handle.nomotion_update = False
             estimate = self.localizer.update(odom_pose, scan, truth, now)
         state.time, state.estimate = now, estimate
-        state.velocity = (self.smoother.v, self.smoother.w)
+        smoother = self.stack.smoother
+        state.velocity = (smoother.v, smoother.w)
         if scan is not None:
             state.scan = scan
             state.obstacles = scan.points(estimate)
             self.navigator.observe(estimate, scan)
 
         handle.stop()
+        self.navigator.horizon = None  # set again if the tick drives the local planner
+        events_before = len(handle.events)
         self.tree.root.tick_once()
         for i, subtree in enumerate(self.tree.tasks):
             if subtree.status is not Status.INVALID:
                 self.task_status[i] = _status_name(subtree.status)
-        v, w = self.smoother(*handle.command)
+        v, w = smoother(*handle.command)
         self.rows.append(
             (now, truth.x, truth.y, truth.yaw, estimate.x, estimate.y, estimate.yaw, v, w)
         )
         self._watch_safety(now, truth)
 
+        if self.status is None:
+            if self.tree.root.status is Status.SUCCESS:
+                self.end("succeeded", None)
+            elif self.tree.root.status is Status.FAILURE:
+                self.end("failed", self._failure())
+            elif now >= self.mission.limits.time - 1e-9:
+                self.end("failed", self._timeout())
+        if self._sampler is not None:
+            sample = self._sampler.sample(sensing, estimate, v, w, events_before)
+            for observer in self.observers:
+                observer.on_step(sample)
         if self.status is not None:
             return False
-        if self.tree.root.status is Status.SUCCESS:
-            return self.end("succeeded", None)
-        if self.tree.root.status is Status.FAILURE:
-            return self.end("failed", self._failure())
-        if now >= self.mission.limits.time - 1e-9:
-            return self.end("failed", self._timeout())
         sim.set_command(v, w)
         sim.advance(CONTROL_PERIOD)
         return True
-
-    def _begin_mapping(self, bounds: tuple[float, float, float, float] | None) -> MappingSession:
-        """SLAM takes over pose and map, starting from the current estimate."""
-        bounds = bounds or self.loaded.world.map.extent
-        slam = registry.create("slam", self.mission.stack.slam, bounds=bounds, rng=self.loc_rng)
-        session = MappingSession(
-            slam, bounds, self.robot.footprint_radius, self.mission.stack.costmap
-        )
-        session.start(self._mapping_anchor(), self._odom)
-        self.handle.mapping = session
-        return session
-
-    def _mapping_anchor(self) -> Pose2D:
-        """The pose the new map is anchored at.
-
-        A robot that has not moved since the start is where the mission said it is; a
-        filter estimate there only adds its initial spread to every cell of the map.
-        """
-        moved = self._odom.relative_to(self._odom_start)
-        if math.hypot(moved.x, moved.y) < 1e-3 and abs(moved.yaw) < 1e-3:
-            return self.loaded.start
-        return self.handle.state.estimate
-
-    def _end_mapping(self, stem: str) -> dict[str, Any]:
-        """Save the map, judge it against the world, and navigate on it from now on."""
-        session = self.handle.mapping
-        assert session is not None
-        grid = session.grid
-        summary: dict[str, Any] = {"map": stem}
-        if self.run_dir is not None:
-            save_ros_map(grid, self.run_dir / stem)
-            grid = load_ros_map(self.run_dir / f"{stem}.yaml")  # navigate on what was saved
-        quality = map_quality(
-            grid,
-            self.loaded.world.map,
-            session.bounds,
-            start=(self.loaded.start.x, self.loaded.start.y),
-        )
-        summary.update({k: round(v, 4) for k, v in quality.items()})
-        summary["slam_rmse"] = round(self._slam_rmse(session), 4)
-        summary["known_fraction"] = round(session.known_fraction(), 4)
-        self.maps.append(summary)
-        self.built_map = grid
-        static = Costmap.from_grid(grid, self.robot.footprint_radius, self.mission.stack.costmap)
-        self.navigator.layer = ObstacleLayer(static, self.mission.stack.costmap.obstacles)
-        self.localizer = registry.create(
-            "localization", self.mission.stack.localization, grid=grid, rng=self.loc_rng
-        )
-        self.localizer.reset(session.slam.pose, self._odom)
-        self.handle.mapping = None
-        return summary
-
-    def _slam_rmse(self, session: MappingSession) -> float:
-        """SLAM trajectory error against the true trajectory at the same times."""
-        est = np.asarray(session.slam.trajectory, dtype=float).reshape(-1, 4)
-        if not len(est) or not self.rows:
-            return float("nan")
-        rows = np.asarray(self.rows)
-        idx = np.clip(np.searchsorted(rows[:, 0], est[:, 0] - 1e-9), 0, len(rows) - 1)
-        err = np.hypot(est[:, 1] - rows[idx, 1], est[:, 2] - rows[idx, 2])
-        return float(np.sqrt(np.mean(err**2)))
 
     def end(self, status: str, reason: str | None) -> bool:
         if self.status is None:
@@ -382,14 +296,15 @@ class MissionRun:
                 recoveries[e["kind"]] = recoveries.get(e["kind"], 0) + 1
         metrics["navigation"]["recoveries"] = recoveries
         extras: dict[str, Any] = {"collisions": self.collisions, "faults": self.faults.report()}
-        if self.maps:
-            extras["maps"] = self.maps
+        if self.mapper.maps:
+            extras["maps"] = self.mapper.maps
         if self.handle.recorded:
             extras["rooms_recorded"] = {
                 label: {"x": round(p.x, 4), "y": round(p.y, 4), "yaw": round(p.yaw, 4)}
                 for label, p in self.handle.recorded.items()
             }
-        counts = getattr(self.localizer, "particle_counts", None)
+        diagnostics = self.localizer.diagnostics()
+        counts = diagnostics.particle_counts
         if counts:
             c = np.asarray([n for _, n in counts])
             metrics["localization"]["particles"] = {
@@ -410,90 +325,72 @@ class MissionRun:
             events=self.handle.events,
             tree_text=self.tree.render(),
             extras=extras,
-            particle_snapshots=list(getattr(self.localizer, "snapshots", [])),
-            built_map=self.built_map,
+            particle_snapshots=list(diagnostics.snapshots),
+            built_map=self.mapper.built_map,
         )
 
 
 class _Sampler:
-    """Builds a :class:`StepSample` per control step for the observers."""
+    """Builds a :class:`StepSample` per control step (only when someone observes)."""
 
-    def __init__(self, run: MissionRun, observers: list[RunObserver]) -> None:
-        self.run, self.observers = run, observers
+    def __init__(self, run: MissionRun) -> None:
+        self.run = run
         self.plans = 0
         self.filter_updates = -1
+        self.map_integrations = -1
+        self.built_map: OccupancyGrid | None = None
         self.nodes: list[TreeNode] = tree_nodes(run.tree.root)
 
-    def start(self) -> None:
-        run, loaded = self.run, self.run.loaded
-        start = RunStart(
-            run.run_dir,
-            run.mission,
-            run.robot,
-            loaded.world.map,
-            loaded.rooms,
-            loaded.start,
-            self.nodes,
-        )
-        for observer in self.observers:
-            observer.on_start(start)
-
-    def step(self, events_from: int) -> None:
+    def sample(
+        self, sensing: Sensing, estimate: Pose2D, v: float, w: float, events_from: int
+    ) -> StepSample:
         run = self.run
-        if not run.rows:
-            return
-        t, x, y, yaw, ex, ey, eyaw, v, w = run.rows[-1]
-        nav = run.navigator
+        navigator, handle = run.navigator, run.handle
         plan = None
-        if len(nav.paths) != self.plans:
-            self.plans = len(nav.paths)
-            plan = nav.paths[-1]
-        particles = None
-        updates = getattr(run.localizer, "filter_updates", None)
-        if updates is not None and updates != self.filter_updates:
-            self.filter_updates = updates
-            particles = run.localizer.particles
+        if len(navigator.paths) != self.plans:
+            self.plans = len(navigator.paths)
+            plan = navigator.paths[-1]
+        covariance = particles = grid = None
+        mapping = run.mapper.session
+        if mapping is not None:
+            covariance = mapping.slam.covariance
+            if mapping.slam.integrations != self.map_integrations:
+                self.map_integrations = mapping.slam.integrations
+                grid = mapping.grid
+        else:
+            diagnostics = run.localizer.diagnostics()
+            covariance = diagnostics.covariance
+            if diagnostics.filter_updates != self.filter_updates:
+                self.filter_updates = diagnostics.filter_updates
+                particles = diagnostics.particles
+        if run.mapper.built_map is not self.built_map:
+            self.built_map = grid = run.mapper.built_map
         nodes = tree_nodes(run.tree.root)
         changed = nodes != self.nodes
         self.nodes = nodes
         task = next((i for i, s in enumerate(run.task_status) if s == "running"), None)
-        state = run.handle.state
-        sample = StepSample(
-            t=t,
-            truth=Pose2D(x, y, yaw),
-            estimate=Pose2D(ex, ey, eyaw),
-            covariance=None,
-            odom=run._odom,
+        return StepSample(
+            t=sensing.time,
+            truth=sensing.truth,
+            estimate=estimate,
+            covariance=covariance,
+            odom=sensing.odom,
             v=v,
             w=w,
-            scan=state.scan if state.scan is not None and abs(state.scan.time - t) < 1e-6 else None,
+            scan=sensing.scan,
             particles=particles,
             plan=plan,
-            horizon=None,
-            goal=nav.goal,
-            grid=None,
-            events=run.handle.events[events_from:],
+            horizon=navigator.horizon,
+            goal=navigator.goal,
+            grid=grid,
+            events=handle.events[events_from:],
             tree_nodes=nodes if changed else None,
             task_index=task,
             task_type=run.mission.tasks[task].type if task is not None else None,
         )
-        for observer in self.observers:
-            observer.on_step(sample)
 
 
-def _recorders(loaded: LoadedMission, run_dir: Path | None) -> list[LocationRecorder]:
-    recorders = []
-    if run_dir is not None:
-        recorders.append(LocationRecorder(run_dir / RECORDER_FILENAME, initial=loaded.recorder))
-    if loaded.recorder is not None:
-        recorders.append(LocationRecorder(loaded.recorder, initial=loaded.recorder))
-    return recorders
-
-
-def _status_name(status: Status) -> str:
-    return {Status.SUCCESS: "succeeded", Status.FAILURE: "failed", Status.RUNNING: "running"}.get(
-        status, "not_run"
-    )
+_status_name = status_name
 
 
 _OUTCOMES = {"goal_reached": "reached", "goal_failed": "failed", "goal_skipped": "skipped"}

@@ -20,12 +20,12 @@ from pydantic import (
     model_validator,
 )
 
-from agv_mission.geometry import Pose2D, yaw_from_quaternion
+from agv_mission.geometry import Bounds, Pose2D, yaw_from_quaternion
 from agv_mission.maps.costmap import CostmapConfig
 from agv_mission.missions.expectations import Expectations
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.registry import registry
-from agv_mission.robots.simulation import SimConfig
+from agv_mission.robots.sim_config import SimConfig
 
 QUATERNION_TOLERANCE = 1e-3
 
@@ -98,7 +98,7 @@ SlamConfig = _plugin_union("slam")
 
 
 def _default(slot: str, name: str) -> Any:
-    return registry.get(slot, name).Config()
+    return registry.config(slot, name)()
 
 
 class Stack(StrictModel):
@@ -187,7 +187,7 @@ class RecordRoomTask(SettleBeforeRecording):
     room: str = Field(min_length=1, description="the label to record under")
 
 
-class Bounds(StrictModel):
+class AreaBounds(StrictModel):
     """An axis-aligned rectangle of the map frame, metres."""
 
     xmin: float
@@ -196,12 +196,12 @@ class Bounds(StrictModel):
     ymax: float
 
     @model_validator(mode="after")
-    def _ordered(self) -> Bounds:
+    def _ordered(self) -> AreaBounds:
         if self.xmax <= self.xmin or self.ymax <= self.ymin:
             raise ValueError("bounds need xmin < xmax and ymin < ymax")
         return self
 
-    def as_tuple(self) -> tuple[float, float, float, float]:
+    def as_tuple(self) -> Bounds:
         return (self.xmin, self.xmax, self.ymin, self.ymax)
 
 
@@ -212,7 +212,7 @@ class MapAreaTask(StrictModel):
     """
 
     type: Literal["map_area"]
-    bounds: Bounds | None = Field(None, description="default: the whole world map")
+    bounds: AreaBounds | None = Field(None, description="default: the whole world map")
     save_map: str = Field("map", description="writes <save_map>.pgm + .yaml in the run directory")
     coverage: float | None = Field(
         None, gt=0.0, le=1.0, description="stop once this share of the bounds is known"
@@ -329,8 +329,11 @@ Fault = Annotated[
 ]
 
 
-class Mission(StrictModel):
-    """A mission file."""
+class Setup(StrictModel):
+    """Where and with what a robot drives: world, robot, start, stack and simulation.
+
+    The part of a mission that does not say what to do; ``teleop`` drives in one of these.
+    """
 
     name: str | None = Field(None, description="default: the file's stem")
     world: str = Field(
@@ -345,7 +348,6 @@ class Mission(StrictModel):
     seed: int = Field(0, ge=0, description="every random draw of the run derives from it")
     stack: Stack = Field(default_factory=Stack)
     simulation: SimConfig = Field(default_factory=SimConfig)
-    tasks: list[Task] = Field(min_length=1)
     limits: Limits = Field(default_factory=Limits)
     obstacles: list[Obstacle] = Field(
         default_factory=list, description="unmapped obstacles, in the simulation only"
@@ -357,12 +359,6 @@ class Mission(StrictModel):
         "the run directory gets a copy)",
     )
     output: str = Field("runs", description="root of run directories")
-    expect: Expectations | None = Field(
-        None,
-        description="what `agv-mission regress` checks of the run (ignored by `run`): final "
-        "and per-task status, time, collisions, clearance, localisation, map IoU, rooms, "
-        "waypoints",
-    )
 
     @field_validator("name")
     @classmethod
@@ -370,3 +366,35 @@ class Mission(StrictModel):
         if v is not None and (not v.strip() or "/" in v or "\\" in v):
             raise ValueError("name must be a non-empty string without path separators")
         return v
+
+
+class Mission(Setup):
+    """A mission file: a setup and the tasks to carry out in it."""
+
+    tasks: list[Task] = Field(min_length=1)
+    expect: Expectations | None = Field(
+        None,
+        description="what `agv-mission regress` checks of the run (ignored by `run`): final "
+        "and per-task status, time, collisions, clearance, localisation, map IoU, rooms, "
+        "waypoints",
+    )
+
+
+# The order a resolved mission is written in (mission.yaml): what to do after the stack.
+FIELD_ORDER = (
+    "name",
+    "world",
+    "rooms",
+    "robot",
+    "start",
+    "seed",
+    "stack",
+    "simulation",
+    "tasks",
+    "limits",
+    "obstacles",
+    "faults",
+    "recorder",
+    "output",
+    "expect",
+)

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import py_trees
 
-from agv_mission.behaviors.explore import MapArea
+from agv_mission.behaviors.explore import MapArea, Mapper
 from agv_mission.behaviors.motion import Dwell, Wander
 from agv_mission.behaviors.navigate import NavigateToPose
 from agv_mission.behaviors.outcome import LegOutcome
@@ -53,10 +53,10 @@ def build_tree(
     handle: RobotHandle,
     robot: RobotDescription,
     room_goals: dict[str, Pose2D],
+    mapper: Mapper | None = None,
 ) -> MissionTree:
-    builder = _Builder(
-        handle, robot, room_goals, mission.stack.navigation, mission.stack.global_planner
-    )
+    """The tree of ``mission``; ``mapper`` serves its map_area tasks."""
+    builder = _Builder(handle, robot, room_goals, mission.stack.navigation, mapper)
     tasks = [builder.task(i, task) for i, task in enumerate(mission.tasks)]
     root = py_trees.composites.Sequence(name="mission", memory=True, children=tasks)
     return MissionTree(root, tasks)
@@ -68,7 +68,7 @@ class _Builder:
     robot: RobotDescription
     room_goals: dict[str, Pose2D]
     nav: NavigationConfig
-    planner_config: object
+    mapper: Mapper | None
 
     def task(self, index: int, task: object) -> Behaviour:
         label = f"task {index + 1}: {task.type}"  # type: ignore[attr-defined]
@@ -117,15 +117,18 @@ class _Builder:
                 label, self.handle, task.duration, task.min_range, speed, turn, task.sector
             )
         if isinstance(task, MapAreaTask):
+            if self.mapper is None:
+                raise ValueError("a map_area task needs a mapper")
             return MapArea(
                 label,
                 self.handle,
+                self.mapper,
                 task.bounds.as_tuple() if task.bounds else None,
                 task.save_map,
                 task.coverage,
                 task.time_limit,
                 task.min_frontier_size,
-                clearance=float(getattr(self.planner_config, "clearance", 0.05)),
+                clearance=self.handle.navigator.global_planner.clearance,
             )
         if isinstance(task, RecordRoomTask):
             record = RecordRoom(f"record {task.room}", self.handle, task.room, task=index)

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.recorder import LocationRecorder
 from agv_mission.maps.rooms import Room
-from agv_mission.navigation.mapping import MappingSession
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.navigation.state import RobotState
 
@@ -26,13 +24,8 @@ class RobotHandle:
     rooms: dict[str, Room] = field(default_factory=dict)
     recorders: list[LocationRecorder] = field(default_factory=list)
     recorded: dict[str, Pose2D] = field(default_factory=dict)
-    mapping: MappingSession | None = None  # set while a map_area task maps
-    begin_mapping: Callable[[tuple[float, float, float, float] | None], MappingSession] | None = (
-        None
-    )
-    end_mapping: Callable[[str], dict[str, Any]] | None = None
     nomotion_update: bool = False  # ask the localiser to update with the next scan
-    remote_command: tuple[float, float] | None = None  # a teleop task's latest (v, w)
+    remote_command: tuple[float, float] | None = None  # (v, w) a remote driver sends
     remote_goal: Pose2D | None = None  # a teleop task drives here first ("2D Nav Goal")
 
     def drive(self, v: float, w: float) -> None:
@@ -40,10 +33,6 @@ class RobotHandle:
 
     def stop(self) -> None:
         self.command = (0.0, 0.0)
-
-    def room_at(self, pose: Pose2D) -> str | None:
-        """The label of the first room whose polygon holds ``pose``."""
-        return next((r.label for r in self.rooms.values() if r.contains(pose.x, pose.y)), None)
 
     def record(self, label: str) -> Pose2D:
         """Record the estimated pose under ``label`` in every recorder file, atomically."""

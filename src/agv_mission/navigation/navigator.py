@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Any
 
 import numpy as np
 
@@ -21,7 +20,14 @@ from agv_mission.maps.rooms import reachable_cells
 from agv_mission.messages import LaserScan
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.state import RobotState
-from agv_mission.planners.base import Path, PlanningError, VelocityCommand, VelocityLimits
+from agv_mission.planners.base import (
+    GlobalPlanner,
+    LocalPlanner,
+    PlannedPath,
+    PlanningError,
+    VelocityCommand,
+    VelocityLimits,
+)
 
 
 class NavStatus(Enum):
@@ -54,8 +60,8 @@ class Navigator:
     def __init__(
         self,
         layer: ObstacleLayer,
-        global_planner: Any,
-        local_planner: Any,
+        global_planner: GlobalPlanner,
+        local_planner: LocalPlanner,
         limits: VelocityLimits,
         config: NavigationConfig,
         control_period: float,
@@ -71,8 +77,9 @@ class Navigator:
         self.status = NavStatus.IDLE
         self.reason: str | None = None
         self.goal: Pose2D | None = None
-        self.path: Path | None = None
+        self.path: PlannedPath | None = None
         self.paths: list[np.ndarray] = []  # every plan, for the run plot
+        self.horizon: np.ndarray | None = None  # the local planner's last predicted path
         self.stats = NavigationStats()
         self._phase = _Phase.FOLLOW
         self._xy_tol = config.xy_goal_tolerance
@@ -123,6 +130,7 @@ class Navigator:
 
     def update(self, state: RobotState) -> VelocityCommand:
         """One control step towards the goal; read ``status`` afterwards."""
+        self.horizon = None
         if self.status is not NavStatus.RUNNING or self.goal is None:
             return VelocityCommand(0.0, 0.0)
         pose, goal = state.estimate, self.goal
@@ -159,6 +167,7 @@ class Navigator:
             state.estimate, state.velocity, self.path.points, self.goal, near
         )
         self.stats.solve_times.append(cmd.solve_time)
+        self.horizon = cmd.predicted
         if not cmd.ok:
             self.stats.solver_failures += 1
         return cmd
@@ -252,7 +261,7 @@ class Navigator:
             self._fail(f"no path to ({self.goal.x:.2f}, {self.goal.y:.2f}): {exc}")
             return False
         if escape is not None:  # leave the inflated margin the shortest way first
-            path = Path(np.vstack([[start.x, start.y], path.points]), path.planning_time)
+            path = PlannedPath(np.vstack([[start.x, start.y], path.points]), path.planning_time)
         self.path = path
         self.paths.append(path.points.copy())
         self.stats.planning_times.append(path.planning_time)
@@ -262,7 +271,7 @@ class Navigator:
     def _connected(self, start: Pose2D, goal: Pose2D) -> bool:
         """Whether free space (with the planners' margin) joins start and goal: a cheap
         check that spares a sampling planner its whole time budget on a hopeless query."""
-        margin = float(getattr(self.global_planner.config, "clearance", 0.0))
+        margin = self.global_planner.clearance
         cells = reachable_cells(self.costmap, start, margin)
         rows, cols = self.costmap.grid.world_to_cell(np.array([goal.x, goal.y]))
         if not self.costmap.grid.in_bounds(rows, cols) or not cells.any():
@@ -274,7 +283,7 @@ class Navigator:
     def _escape_point(self, pose: Pose2D) -> Pose2D | None:
         """The nearest comfortably free point when the robot stands inside the margin the
         planners require (it drifted close to a wall); ``None`` when it is free already."""
-        margin = float(getattr(self.global_planner.config, "clearance", 0.0)) + 0.01
+        margin = self.global_planner.clearance + 0.01
         here = np.array([pose.x, pose.y])
         if bool(self.costmap.is_free(here, margin)):
             return None

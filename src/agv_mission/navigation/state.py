@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from agv_mission.geometry import Pose2D
+from agv_mission.geometry import Pose2D, wrap_angles
 from agv_mission.messages import LaserScan
 
 
@@ -24,7 +24,7 @@ class RobotState:
         """Smallest valid range within +-``half_width`` radians of straight ahead."""
         if self.scan is None:
             return float("inf")
-        angles = np.abs((self.scan.angles + np.pi) % (2 * np.pi) - np.pi)
+        angles = np.abs(wrap_angles(self.scan.angles))
         sector = self.scan.ranges[angles <= half_width]
         finite = sector[np.isfinite(sector)]
         return float(finite.min()) if finite.size else float("inf")

@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
 
-
-class PluginConfig(BaseModel):
-    """Base of every plugin's configuration block: unknown keys are errors."""
-
-    model_config = ConfigDict(extra="forbid")
+from agv_mission.geometry import Pose2D
+from agv_mission.maps.costmap import Costmap
 
 
 class PlanningError(RuntimeError):
@@ -19,7 +16,7 @@ class PlanningError(RuntimeError):
 
 
 @dataclass
-class Path:
+class PlannedPath:
     """A global path in the map frame: (N, 2) waypoints from start to goal."""
 
     points: np.ndarray
@@ -52,3 +49,44 @@ class VelocityCommand:
     ok: bool = True
     solve_time: float = 0.0  # wall seconds, for benchmarks only
     predicted: np.ndarray | None = None  # (N, 2) predicted positions, for plots
+
+
+class GlobalPlanner(Protocol):
+    """Plans a path on a costmap. Built as ``cls(config)``."""
+
+    @property
+    def clearance(self) -> float:
+        """Metres of margin beyond the robot's radius that every path keeps."""
+        ...
+
+    def plan(self, costmap: Costmap, start: Pose2D, goal: Pose2D, seed: int = 0) -> PlannedPath:
+        """A free path from ``start`` to ``goal``; raises :class:`PlanningError` if none."""
+        ...
+
+    def diagnostics(self) -> dict[str, float]:
+        """Counters a run may report (may be empty)."""
+        ...
+
+
+class LocalPlanner(Protocol):
+    """Follows a path one control step at a time. Built as ``cls(config, limits=...,
+    robot_radius=..., control_period=...)``."""
+
+    def reset(self) -> None:
+        """Forget the previous goal (warm starts, progress)."""
+        ...
+
+    def compute(
+        self,
+        pose: Pose2D,
+        velocity: tuple[float, float],
+        path: np.ndarray,
+        goal: Pose2D,
+        obstacles: np.ndarray,
+    ) -> VelocityCommand:
+        """The command for this step towards ``goal`` along ``path``."""
+        ...
+
+    def diagnostics(self) -> dict[str, float]:
+        """Counters a run may report (may be empty)."""
+        ...

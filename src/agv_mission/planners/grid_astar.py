@@ -19,17 +19,15 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Literal
 
 import numpy as np
-from pydantic import Field
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
-from agv_mission.planners.base import Path, PlanningError, PluginConfig
-from agv_mission.registry import register
+from agv_mission.planners.base import PlannedPath, PlanningError
+from agv_mission.planners.configs import GridAstarConfig
 
 SQRT2, SQRT5 = math.sqrt(2.0), math.sqrt(5.0)
 EDGE_EPS = 1e-6  # cells: points this close to a cell edge count for both cells
@@ -47,28 +45,6 @@ _MOVES_16 = _MOVES_8 + (
     (1, -2, SQRT5, ((0, -1), (1, -1))),
     (2, -1, SQRT5, ((1, 0), (1, -1))),
 )
-
-
-class GridAstarConfig(PluginConfig):
-    """``global_planner`` block for the grid planner (``type: grid_astar``)."""
-
-    type: Literal["grid_astar"] = "grid_astar"
-    clearance: float = Field(
-        0.05, ge=0, description="metres of margin beyond the robot radius a path must keep"
-    )
-    cost_weight: float = Field(
-        1.0,
-        ge=0,
-        description="how much the inflation cost adds to a step (0: shortest path; "
-        "1: a step next to the inscribed radius costs ~2x, mid-corridor ~1.1x)",
-    )
-    smooth: bool = Field(True, description="line-of-sight shortcuts that keep clearance")
-    connectivity: Literal[8, 16] = Field(
-        16,
-        description="8: the 8 neighbours; 16: also knight moves, which cuts the grid's "
-        "length distortion from 8 % to 3 % and so picks the truly shorter way round "
-        "obstacles more often",
-    )
 
 
 class FreeSpace:
@@ -307,7 +283,6 @@ def grid_path(
     return string_pull(space, pts, cost_weight > 0.0) if smooth else _drop_collinear(pts)
 
 
-@register("global_planner", "grid_astar")
 class GridAstarPlanner:
     """Shortest grid path over the costmap, smoothed by line of sight."""
 
@@ -316,7 +291,14 @@ class GridAstarPlanner:
     def __init__(self, config: GridAstarConfig) -> None:
         self.config = config
 
-    def plan(self, costmap: Costmap, start: Pose2D, goal: Pose2D, seed: int = 0) -> Path:
+    @property
+    def clearance(self) -> float:
+        return self.config.clearance
+
+    def diagnostics(self) -> dict[str, float]:
+        return {}
+
+    def plan(self, costmap: Costmap, start: Pose2D, goal: Pose2D, seed: int = 0) -> PlannedPath:
         """Plan from ``start`` to ``goal`` (``seed`` is unused: the search is deterministic)."""
         t0 = time.perf_counter()
         cfg = self.config
@@ -331,4 +313,4 @@ class GridAstarPlanner:
             )
         points = space.to_world(pts)
         points[0], points[-1] = start.xy, goal.xy
-        return Path(points=points, planning_time=time.perf_counter() - t0)
+        return PlannedPath(points=points, planning_time=time.perf_counter() - t0)

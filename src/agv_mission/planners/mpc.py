@@ -18,14 +18,13 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Literal
 
 import casadi as ca
 import numpy as np
-from pydantic import Field
 
 from agv_mission.geometry import Pose2D, wrap_angle
-from agv_mission.planners.base import PluginConfig, VelocityCommand, VelocityLimits
+from agv_mission.planners.base import VelocityCommand, VelocityLimits
+from agv_mission.planners.configs import MpcConfig
 from agv_mission.planners.path_tracking import (
     ProgressTracker,
     interpolate,
@@ -33,76 +32,10 @@ from agv_mission.planners.path_tracking import (
     speed_profile,
     unwrap_from,
 )
-from agv_mission.registry import register
 
 _NX = 5  # x, y, theta, v, w
 _NU = 3  # a, alpha, slack
 _FAR = 50.0  # where unused obstacle slots are parked (robot frame, metres)
-
-
-class MpcWeights(PluginConfig):
-    """Cost weights (per stage unless named terminal)."""
-
-    position: float = Field(10.0, ge=0, description="squared distance to the reference point")
-    heading: float = Field(0.5, ge=0, description="squared heading error to the path tangent")
-    speed: float = Field(1.0, ge=0, description="squared error to the reference speed")
-    angular_velocity: float = Field(0.05, ge=0, description="w^2")
-    acceleration: float = Field(0.1, ge=0, description="a^2")
-    angular_acceleration: float = Field(0.02, ge=0, description="alpha^2")
-    terminal_position: float = Field(50.0, ge=0)
-    terminal_heading: float = Field(0.5, ge=0)
-    slack_linear: float = Field(20.0, ge=0, description="exact-penalty weight of the slack")
-    slack_quadratic: float = Field(1e4, ge=0)
-
-
-class SolverOptions(PluginConfig):
-    """Interior-point settings (used by fatrop and ipopt alike)."""
-
-    max_iter: int = Field(40, ge=1)
-    tol: float = Field(1e-3, gt=0)
-    mu_init: float = Field(1e-3, gt=0, description="small: the warm start is close to optimal")
-
-
-class MpcConfig(PluginConfig):
-    type: Literal["mpc"] = "mpc"
-    horizon: int = Field(20, ge=2, le=100, description="number of model steps N")
-    dt: float = Field(0.1, gt=0, description="model step, s")
-    max_obstacles: int = Field(16, ge=0, description="lidar points kept as constraints")
-    obstacle_range: float = Field(
-        1.0, gt=0, description="lidar points farther than this from the reference are ignored, m"
-    )
-    obstacle_spacing: float = Field(
-        0.1, ge=0, description="lidar points are thinned to one per cell of this size, m"
-    )
-    safety_margin: float = Field(0.05, ge=0, description="clearance beyond robot_radius, m")
-    solver: Literal["fatrop", "ipopt"] = "fatrop"
-    solver_options: SolverOptions = Field(default_factory=SolverOptions)
-    weights: MpcWeights = Field(default_factory=MpcWeights)
-    decel_fraction: float = Field(
-        0.5, gt=0, le=1, description="reference braking = this x max_acc_v (margin for tracking)"
-    )
-    turn_fraction: float = Field(0.7, gt=0, le=1, description="reference turn rate <= this x max_w")
-    goal_tolerance: float = Field(0.01, gt=0, description="closer than this: just brake, m")
-    rotate_threshold: float = Field(
-        1.2, gt=0, description="heading error to the path (rad) above which it turns in place"
-    )
-    rotate_exit: float = Field(0.3, gt=0, description="heading error to leave turn-in-place")
-    rotate_speed_weight: float = Field(
-        100.0, gt=0, description="speed-weight multiplier while turning in place"
-    )
-    lookahead: float = Field(0.3, gt=0, description="path point the heading error is taken to, m")
-    final_approach: float = Field(
-        0.15, gt=0, description="closer to the goal: heading weight fades, turn towards the goal"
-    )
-    final_position_gain: float = Field(
-        100.0, ge=1, description="max position-weight gain on the final approach (1/d^2 law)"
-    )
-    final_rotate_threshold: float = Field(
-        2.0, gt=0, description="turn-in-place threshold on the final approach, rad"
-    )
-    overshoot_tolerance: float = Field(
-        0.02, ge=0, description="goal behind the robot and closer than this: stop, m"
-    )
 
 
 class _Problem:
@@ -257,7 +190,6 @@ def brake_command(
     return v_new, w_new
 
 
-@register("local_planner", "mpc")
 class MpcController:
     """Tracks the path with a nonlinear MPC and stops at its end; avoids lidar points."""
 
@@ -369,6 +301,9 @@ class MpcController:
         return VelocityCommand(v, w, ok=False, solve_time=time.perf_counter() - t0)
 
     # -- the plugin API ----------------------------------------------------------------
+
+    def diagnostics(self) -> dict[str, float]:
+        return {}
 
     def compute(
         self,

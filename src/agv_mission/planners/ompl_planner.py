@@ -36,17 +36,14 @@ from __future__ import annotations
 
 import math
 import time
-from functools import lru_cache
-from typing import Literal
 
 import numpy as np
-from pydantic import Field, field_validator
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
-from agv_mission.planners.base import Path, PlanningError, PluginConfig
+from agv_mission.planners.base import PlannedPath, PlanningError
+from agv_mission.planners.configs import OmplPlannerConfig
 from agv_mission.planners.grid_astar import FreeSpace, grid_path
-from agv_mission.registry import register
 
 # Anytime, asymptotically optimal planners: worth running past their first solution.
 OPTIMIZING_PLANNERS = frozenset(
@@ -57,61 +54,6 @@ OPTIMIZING_PLANNERS = frozenset(
 THREADED_PLANNERS = frozenset({"PRM", "PRMstar", "LazyPRM", "LazyPRMstar", "SPARS", "SPARStwo"})
 
 
-@lru_cache(maxsize=1)
-def available_planners() -> tuple[str, ...]:
-    """Names of the geometric planner classes this OMPL build provides."""
-    from ompl import base as ob
-    from ompl import geometric as og
-
-    return tuple(
-        sorted(
-            name
-            for name in dir(og)
-            if isinstance(getattr(og, name), type) and issubclass(getattr(og, name), ob.Planner)
-        )
-    )
-
-
-class OmplPlannerConfig(PluginConfig):
-    """``global_planner`` block for OMPL (``type: ompl``)."""
-
-    type: Literal["ompl"] = "ompl"
-    planner: str = Field(
-        "RRTConnect", description="OMPL geometric planner class, e.g. RRTConnect, BITstar"
-    )
-    time_limit: float = Field(1.0, gt=0, description="wall-clock budget of one plan, seconds")
-    simplify: bool = Field(True, description="shortcut + smooth the solution (deterministic)")
-    clearance: float = Field(
-        0.05, ge=0, description="metres of margin beyond the robot radius a path must keep"
-    )
-    range: float | None = Field(
-        None, gt=0, description="longest edge (metres) for planners that have one; None: OMPL's"
-    )
-    goal_bias: float | None = Field(
-        None, ge=0, le=1, description="goal sampling probability where supported; None: OMPL's"
-    )
-    cost_threshold: float | None = Field(
-        1.05,
-        ge=1.0,
-        description="optimising planners stop once the path is no longer than this multiple "
-        "of the smoothed shortest grid path; None: always use the whole time_limit",
-    )
-    round_iterations: int = Field(
-        200, ge=1, description="optimising planners: iterations of the first round (doubling)"
-    )
-
-    @field_validator("planner")
-    @classmethod
-    def _known_planner(cls, name: str) -> str:
-        known = available_planners()
-        if name not in known:
-            raise ValueError(
-                f"unknown planner {name!r}; OMPL geometric planners are: {', '.join(known)}"
-            )
-        return name
-
-
-@register("global_planner", "ompl")
 class OmplPlanner:
     """Any OMPL geometric planner over the costmap's free space."""
 
@@ -120,7 +62,14 @@ class OmplPlanner:
     def __init__(self, config: OmplPlannerConfig) -> None:
         self.config = config
 
-    def plan(self, costmap: Costmap, start: Pose2D, goal: Pose2D, seed: int = 0) -> Path:
+    @property
+    def clearance(self) -> float:
+        return self.config.clearance
+
+    def diagnostics(self) -> dict[str, float]:
+        return {}
+
+    def plan(self, costmap: Costmap, start: Pose2D, goal: Pose2D, seed: int = 0) -> PlannedPath:
         t0 = time.perf_counter()
         space = FreeSpace(costmap, self.config.clearance)
         s = space.check_endpoint(start, "start")
@@ -136,7 +85,7 @@ class OmplPlanner:
                 )
         points = space.to_world(pts)
         points[0], points[-1] = start.xy, goal.xy
-        return Path(points=points, planning_time=time.perf_counter() - t0)
+        return PlannedPath(points=points, planning_time=time.perf_counter() - t0)
 
 
 _QUIETED = [False]

@@ -10,48 +10,24 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Literal
 
 import numpy as np
-from pydantic import Field
 
 from agv_mission.geometry import Pose2D, wrap_angle
-from agv_mission.planners.base import PluginConfig, VelocityCommand, VelocityLimits
+from agv_mission.planners.base import VelocityCommand, VelocityLimits
+from agv_mission.planners.configs import PurePursuitConfig
 from agv_mission.planners.path_tracking import (
     ProgressTracker,
     interpolate,
     prepare_path,
     speed_profile,
 )
-from agv_mission.registry import register
-
-
-class PurePursuitConfig(PluginConfig):
-    type: Literal["pure_pursuit"] = "pure_pursuit"
-    lookahead: float = Field(0.3, gt=0, description="lookahead distance along the path, m")
-    speed: float | None = Field(None, gt=0, description="cruise speed, m/s (None: max_v)")
-    goal_slowdown_distance: float = Field(
-        0.3, ge=0, description="speed scales down linearly over this distance to the goal, m"
-    )
-    min_speed: float = Field(0.03, gt=0, description="creep speed for the last centimetres, m/s")
-    decel_fraction: float = Field(0.5, gt=0, le=1, description="braking = this x max_acc_v")
-    turn_fraction: float = Field(0.7, gt=0, le=1, description="path turn rate <= this x max_w")
-    goal_tolerance: float = Field(0.01, gt=0, description="closer than this: brake, m")
-    overshoot_tolerance: float = Field(
-        0.02, ge=0, description="goal behind the robot and closer than this: stop, m"
-    )
-    rotate_threshold: float = Field(
-        0.9, gt=0, description="heading error (rad) to the lookahead point to turn in place"
-    )
-    rotate_exit: float = Field(0.25, gt=0, description="heading error to leave turn-in-place")
-    rotate_gain: float = Field(2.0, gt=0, description="w = gain x heading error when turning")
 
 
 def _ramp(target: float, current: float, max_step: float) -> float:
     return min(max(target, current - max_step), current + max_step)
 
 
-@register("local_planner", "pure_pursuit")
 class PurePursuitController:
     """Geometric path follower with a braking speed profile."""
 
@@ -84,6 +60,9 @@ class PurePursuitController:
         v = float(np.clip(v, max(lim.min_v, 0.0), lim.max_v))
         w = float(np.clip(w, -lim.max_w, lim.max_w))
         return v, w
+
+    def diagnostics(self) -> dict[str, float]:
+        return {}
 
     def compute(
         self,

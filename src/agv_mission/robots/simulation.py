@@ -6,7 +6,6 @@ import math
 
 import mujoco
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
 from agv_mission.geometry import Pose2D, wrap_angle, yaw_from_quaternion
 from agv_mission.maps.worlds import World
@@ -14,26 +13,7 @@ from agv_mission.messages import LaserScan
 from agv_mission.robots.description import RobotDescription
 from agv_mission.robots.mjcf import WALL_GROUP, build_mjcf
 from agv_mission.robots.sensors import Lidar, WheelEncoders
-
-
-class SimConfig(BaseModel):
-    """Simulation settings (physics rate and sensor faults)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    physics_dt: float = Field(0.002, gt=0, le=0.02, description="physics time step, s")
-    encoder_noise: float = Field(
-        0.0, ge=0, description="std of the relative tick error of each encoder read"
-    )
-    wheel_slip: float = Field(
-        0.0,
-        ge=0,
-        le=1,
-        description="each read's wheel travel is scaled by 1 + U(-slip, slip) (encoder error)",
-    )
-    lidar_noise: float | None = Field(
-        None, ge=0, description="range noise std override, m (None: the robot's LidarSpec)"
-    )
+from agv_mission.robots.sim_config import SimConfig
 
 
 class DiffDriveSim:

@@ -186,7 +186,7 @@ def create_app(settings: Settings) -> FastAPI:
             run = manager.submit(sub)
         except QueueFull as exc:
             raise ApiError(429, str(exc)) from None
-        return JSONResponse(run_object(run), status_code=201)
+        return JSONResponse(run, status_code=201)
 
     @app.post("/api/validate")
     async def validate_route(request: Request) -> dict[str, Any]:

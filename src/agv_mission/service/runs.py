@@ -178,7 +178,7 @@ class RunManager:
         self.queue.append(run["id"])
         self.hubs[run["id"]] = Hub()
         self._schedule()
-        return self.registry.get(run["id"]) or run
+        return run  # as accepted: queued (it may have started since)
 
     def _schedule(self) -> None:
         while not self.stopping and self.queue and len(self.active) < self.workers:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ipaddress
+import signal
 import socket
 import sys
 from pathlib import Path
@@ -82,4 +83,7 @@ def serve(
     shown = f"[{bound_host}]" if ":" in bound_host else bound_host
     sys.stdout.write(f"serving on http://{shown}:{bound_port}\n")
     sys.stdout.flush()
+    # uvicorn re-raises the stop signal once it has shut down; a clean stop exits 0
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: None)
     server.run(sockets=[sock])

@@ -202,12 +202,17 @@ class PipeControl:
         self.cmd_wall = -math.inf
         self.pace_origin: tuple[float, float] | None = None  # (wall, sim) of pacing start
         self.run: Any = None
+        self.cancel_reason: str | None = None
 
     def before_step(self, run: Any) -> None:
         self.run = run
         self._drain(0.0)
-        while self.paused and run.status is None:
+        while self.paused and self.cancel_reason is None:
             self._drain(1.0)
+        if self.cancel_reason is not None:
+            if run.rows:  # a run ends after at least one step: its record needs one
+                run.cancel(self.cancel_reason)
+            return
         self._teleop(run)
 
     def _drain(self, timeout: float) -> None:
@@ -220,14 +225,13 @@ class PipeControl:
         except (EOFError, OSError):
             self.stream.closed = True
             self.paused = False
-            if self.run is not None:
-                self.run.cancel("the service went away")
+            self.cancel_reason = self.cancel_reason or "the service went away"
 
     def _act(self, command: tuple[Any, ...]) -> None:
         kind, run = command[0], self.run
         if kind == "cancel":
             self.paused = False
-            run.cancel(str(command[1]))
+            self.cancel_reason = str(command[1])
         elif kind == "pause" and not self.paused:
             self.paused = True
             run.sim.set_command(0.0, 0.0)
@@ -267,13 +271,17 @@ class PipeControl:
 
     def _teleop(self, run: Any) -> None:
         """During a teleop task: the latest remote command (stale after 0.5 s wall) and
-        simulated time paced at wall speed."""
+        simulated time paced at wall speed (except while it drives to a goal it was sent:
+        nobody steers then, and the drive should not take longer than it must)."""
         handle = run.handle
         if self.stream.task is None or self.stream.task.get("type") != "teleop":
             self.pace_origin = None
             return
         now = time.monotonic()
         handle.remote_command = self.cmd if now - self.cmd_wall <= REMOTE_TIMEOUT else None
+        if handle.remote_goal is not None:  # an autonomous goal drive runs at full speed
+            self.pace_origin = None
+            return
         if self.pace_origin is None:
             self.pace_origin = (now, run.sim.time)
             return

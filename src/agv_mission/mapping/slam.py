@@ -3,7 +3,7 @@
 Like hector mapping / Cartographer's local SLAM (without loop closure): every scan after
 the robot has moved is matched against the map built so far, starting from the last
 corrected pose composed with the odometry motion since
-(:class:`~agv_mission.localization.scan_matching.CorrelativeMatcher`: correlative
+(:class:`~agv_mission.mapping.scan_matching.CorrelativeMatcher`: correlative
 branch and bound over +-0.2 m / +-10 deg, then a point-to-line refinement fused with the
 odometry prior); the scan is then integrated into the map at the corrected pose once the
 robot has moved ``update_min_d`` / ``update_min_a`` since the last integration. The true
@@ -47,13 +47,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from time import perf_counter
-from typing import Literal
 
 import numpy as np
-from pydantic import Field
 
-from agv_mission.geometry import Pose2D
-from agv_mission.localization.scan_matching import (
+from agv_mission.geometry import Bounds, Pose2D
+from agv_mission.mapping.configs import GridSlamConfig
+from agv_mission.mapping.scan_matching import (
     CorrelativeMatcher,
     LikelihoodField,
     MatchResult,
@@ -61,10 +60,6 @@ from agv_mission.localization.scan_matching import (
 )
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.messages import LaserScan
-from agv_mission.planners.base import PluginConfig
-from agv_mission.registry import register
-
-Bounds = tuple[float, float, float, float]  # (xmin, xmax, ymin, ymax)
 
 _TINY_COV = np.diag([1e-6, 1e-6, 1e-6])
 
@@ -73,89 +68,6 @@ def _logit(p: float) -> float:
     return math.log(p / (1.0 - p))
 
 
-class GridSlamConfig(PluginConfig):
-    """Occupancy-grid SLAM parameters (the mission's ``stack.slam`` block)."""
-
-    type: Literal["grid"] = "grid"
-
-    # Map
-    resolution: float = Field(0.05, gt=0, description="metres per cell")
-    map_margin: float = Field(1.0, ge=0, description="metres allocated around the bounds")
-    initial_size: float = Field(
-        20.0, gt=0, description="side (m) of the square map allocated around the start"
-    )
-    grow_step: float = Field(2.0, gt=0, description="metres added when a scan leaves the map")
-    log_odds_occupied: float = Field(0.85, gt=0, description="added per hit (p = 0.7)")
-    log_odds_free: float = Field(-0.4, lt=0, description="added per pass-through (p = 0.4)")
-    log_odds_min: float = Field(-2.0, lt=0)
-    log_odds_max: float = Field(3.5, gt=0)
-    occupied_threshold: float = Field(
-        0.65, gt=0, lt=1, description="probability above which a cell is OCCUPIED"
-    )
-    free_threshold: float = Field(
-        0.25, gt=0, lt=1, description="probability below which a cell is FREE"
-    )
-    max_range: float | None = Field(
-        None, gt=0, description="returns beyond this (m) are not integrated; None: range_max"
-    )
-    clear_no_return: bool = Field(
-        True, description="beams without a return clear free space up to the max range"
-    )
-    hit_memory: int = Field(
-        20, ge=1, description="end points averaged per cell anchor (older ones fade out)"
-    )
-    update_min_d: float = Field(0.1, ge=0, description="metres of motion between integrations")
-    update_min_a: float = Field(0.1, ge=0, description="radians of motion between integrations")
-
-    # Scan matching
-    match_min_d: float = Field(
-        0.002, ge=0, description="metres of odometry motion before a scan is matched"
-    )
-    match_min_a: float = Field(
-        0.002, ge=0, description="radians of odometry motion before a scan is matched"
-    )
-    linear_search_window: float = Field(0.2, ge=0, description="+- metres searched")
-    angular_search_window: float = Field(
-        math.radians(10.0), ge=0, description="+- radians searched"
-    )
-    angular_search_step: float | None = Field(
-        None, gt=0, description="radians; None: one cell at the farthest point"
-    )
-    coarse_block: int = Field(4, ge=1, description="cells per coarse block (power of two)")
-    translation_delta_cost_weight: float = Field(1.0, ge=0, description="1/m, search ties")
-    rotation_delta_cost_weight: float = Field(1.0, ge=0, description="1/rad, search ties")
-    likelihood_sigma: float = Field(0.05, gt=0, description="metres, field width")
-    field_threshold: float = Field(
-        0.0, description="log-odds above which a cell attracts scan points"
-    )
-    refinement: Literal["icp", "field", "none"] = Field(
-        "icp", description="point-to-line (icp), bicubic field (hector) or none"
-    )
-    refine_iterations: int = Field(6, ge=0)
-    point_sigma: float = Field(0.03, gt=0, description="m, std of a point-to-line residual")
-    scan_sigma: float = Field(0.1, gt=0, description="std of a field residual (field mode)")
-    odom_prior: bool = Field(
-        True, description="fuse the odometry prediction in the refinement (MAP estimate)"
-    )
-    odom_translation_noise: float = Field(
-        0.05, ge=0, description="odometry prior: std (m) of the translation per metre driven"
-    )
-    odom_rotation_noise: float = Field(
-        0.1, ge=0, description="odometry prior: std (rad) of the rotation per radian turned"
-    )
-    odom_rotation_per_metre: float = Field(
-        0.2, ge=0, description="odometry prior: std (rad) of the rotation per metre driven"
-    )
-    match_max_range: float | None = Field(
-        None, gt=0, description="points farther than this (m) are not matched; None: all"
-    )
-    min_points: int = Field(20, ge=1, description="fewer valid points: odometry only")
-    min_score: float = Field(
-        0.1, ge=0, le=1, description="matches scoring below this are rejected (odometry only)"
-    )
-
-
-@register("slam", "grid")
 class GridSlam:
     """Occupancy-grid SLAM with correlative + point-to-line scan-to-map matching."""
 
@@ -277,6 +189,13 @@ class GridSlam:
                 self._integrate(scan, pose)
         self.trajectory.append((float(time), pose.x, pose.y, pose.yaw))
         return pose
+
+    def diagnostics(self) -> dict[str, float]:
+        return {
+            "integrations": self.integrations,
+            "matches": self.matches,
+            "rejected_matches": self.rejected_matches,
+        }
 
     def occupancy_grid(self) -> OccupancyGrid:
         """The current map, trinary (``FREE`` / ``OCCUPIED`` / ``UNKNOWN``). The same

@@ -45,6 +45,8 @@ from typing import Literal
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
+from agv_mission.geometry import wrap_angle
+
 Refinement = Literal["icp", "field", "none"]
 
 
@@ -367,12 +369,12 @@ class CorrelativeMatcher:
                 inside = (
                     abs(cand[0] - guess[0]) <= self.linear_window + res
                     and abs(cand[1] - guess[1]) <= self.linear_window + res
-                    and abs(_wrap(cand[2] - guess[2])) <= self.angular_window + step
+                    and abs(wrap_angle(cand[2] - guess[2])) <= self.angular_window + step
                 )
                 if inside:
                     pose, refined, cov = cand, True, cov_cand
         pose = pose.copy()
-        pose[2] = _wrap(pose[2])
+        pose[2] = wrap_angle(pose[2])
         score = self.score(field, points, pose)
         return MatchResult(pose, score, coarse_pose, refined, evaluated, cov)
 
@@ -446,7 +448,7 @@ class CorrelativeMatcher:
             weight /= self.point_sigma**2
             jac = np.stack([nx, ny, nx * (-s * px - c * py) + ny * (c * px - s * py)], axis=1)
             e = x - prior_mean
-            e[2] = _wrap(e[2])
+            e[2] = wrap_angle(e[2])
             hess = (jac * weight[:, None]).T @ jac + info
             g = jac.T @ (weight * r) + info @ e
             try:
@@ -477,7 +479,7 @@ class CorrelativeMatcher:
         cost = float(np.mean((1.0 - m) ** 2)) / self.scan_sigma**2
         if prior_info is not None:
             e = pose - prior_mean
-            e[2] = _wrap(e[2])
+            e[2] = wrap_angle(e[2])
             cost += float(e @ prior_info @ e)
         return cost
 
@@ -505,7 +507,7 @@ class CorrelativeMatcher:
             dth = gx * (-s * px - c * py) + gy * (c * px - s * py)
             jac = -np.stack([gx, gy, dth], axis=1)  # d r / d (x, y, yaw)
             e = x - prior_mean
-            e[2] = _wrap(e[2])
+            e[2] = wrap_angle(e[2])
             h = w * (jac.T @ jac) + info
             g = w * (jac.T @ r) + info @ e
             damping = 1e-6 * np.trace(h) / 3.0 + 1e-12
@@ -567,10 +569,6 @@ def _partners(
     best = np.argmin(d2, axis=1)
     k = np.arange(len(wx))
     return qx[k, best], qy[k, best], occ.any(axis=1)
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def _transform(points: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

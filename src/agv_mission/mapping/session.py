@@ -2,16 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
-from agv_mission.geometry import Pose2D
+from agv_mission.geometry import Bounds, Pose2D
+from agv_mission.mapping.base import Slam
 from agv_mission.maps.costmap import Costmap, CostmapConfig
 from agv_mission.maps.grid import UNKNOWN, OccupancyGrid
 from agv_mission.messages import LaserScan
-
-Bounds = tuple[float, float, float, float]
 
 
 class MappingSession:
@@ -23,7 +20,7 @@ class MappingSession:
 
     def __init__(
         self,
-        slam: Any,
+        slam: Slam,
         bounds: Bounds,
         robot_radius: float,
         costmap_config: CostmapConfig,

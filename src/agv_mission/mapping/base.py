@@ -1,0 +1,44 @@
+"""What every SLAM plugin speaks."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from agv_mission.geometry import Pose2D
+from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.messages import LaserScan
+
+
+class Slam(Protocol):
+    """Builds a map while estimating the pose in it. Built as ``cls(config, bounds=...,
+    rng=...)`` and fed like a localiser: once per control step, odometry and the newest
+    scan (``None`` when none arrived)."""
+
+    integrations: int  # scans added to the map so far
+    trajectory: list[tuple[float, float, float, float]]  # (t, x, y, yaw) per scan
+
+    @property
+    def pose(self) -> Pose2D:
+        """The corrected pose at the last processed scan."""
+        ...
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """(3, 3) covariance of :attr:`pose` (x, y, yaw)."""
+        ...
+
+    def reset(self, pose: Pose2D, odom: Pose2D) -> None: ...
+
+    def update(
+        self, odom: Pose2D, scan: LaserScan | None, truth: Pose2D, time: float
+    ) -> Pose2D: ...
+
+    def occupancy_grid(self) -> OccupancyGrid:
+        """The map so far."""
+        ...
+
+    def diagnostics(self) -> dict[str, float]:
+        """Counters a run may report (scans matched, matches rejected, ...)."""
+        ...

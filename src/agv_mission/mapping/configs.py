@@ -1,0 +1,95 @@
+"""The configuration block of the built-in SLAM (``stack.slam``), apart from its code
+(see ``planners/configs.py``)."""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar, Literal
+
+from pydantic import Field
+
+from agv_mission.registry import PluginConfig
+
+
+class GridSlamConfig(PluginConfig):
+    """Occupancy-grid SLAM parameters (the mission's ``stack.slam`` block)."""
+
+    plugin: ClassVar[str] = "agv_mission.mapping.slam:GridSlam"
+
+    type: Literal["grid"] = "grid"
+
+    # Map
+    resolution: float = Field(0.05, gt=0, description="metres per cell")
+    map_margin: float = Field(1.0, ge=0, description="metres allocated around the bounds")
+    initial_size: float = Field(
+        20.0, gt=0, description="side (m) of the square map allocated around the start"
+    )
+    grow_step: float = Field(2.0, gt=0, description="metres added when a scan leaves the map")
+    log_odds_occupied: float = Field(0.85, gt=0, description="added per hit (p = 0.7)")
+    log_odds_free: float = Field(-0.4, lt=0, description="added per pass-through (p = 0.4)")
+    log_odds_min: float = Field(-2.0, lt=0)
+    log_odds_max: float = Field(3.5, gt=0)
+    occupied_threshold: float = Field(
+        0.65, gt=0, lt=1, description="probability above which a cell is OCCUPIED"
+    )
+    free_threshold: float = Field(
+        0.25, gt=0, lt=1, description="probability below which a cell is FREE"
+    )
+    max_range: float | None = Field(
+        None, gt=0, description="returns beyond this (m) are not integrated; None: range_max"
+    )
+    clear_no_return: bool = Field(
+        True, description="beams without a return clear free space up to the max range"
+    )
+    hit_memory: int = Field(
+        20, ge=1, description="end points averaged per cell anchor (older ones fade out)"
+    )
+    update_min_d: float = Field(0.1, ge=0, description="metres of motion between integrations")
+    update_min_a: float = Field(0.1, ge=0, description="radians of motion between integrations")
+
+    # Scan matching
+    match_min_d: float = Field(
+        0.002, ge=0, description="metres of odometry motion before a scan is matched"
+    )
+    match_min_a: float = Field(
+        0.002, ge=0, description="radians of odometry motion before a scan is matched"
+    )
+    linear_search_window: float = Field(0.2, ge=0, description="+- metres searched")
+    angular_search_window: float = Field(
+        math.radians(10.0), ge=0, description="+- radians searched"
+    )
+    angular_search_step: float | None = Field(
+        None, gt=0, description="radians; None: one cell at the farthest point"
+    )
+    coarse_block: int = Field(4, ge=1, description="cells per coarse block (power of two)")
+    translation_delta_cost_weight: float = Field(1.0, ge=0, description="1/m, search ties")
+    rotation_delta_cost_weight: float = Field(1.0, ge=0, description="1/rad, search ties")
+    likelihood_sigma: float = Field(0.05, gt=0, description="metres, field width")
+    field_threshold: float = Field(
+        0.0, description="log-odds above which a cell attracts scan points"
+    )
+    refinement: Literal["icp", "field", "none"] = Field(
+        "icp", description="point-to-line (icp), bicubic field (hector) or none"
+    )
+    refine_iterations: int = Field(6, ge=0)
+    point_sigma: float = Field(0.03, gt=0, description="m, std of a point-to-line residual")
+    scan_sigma: float = Field(0.1, gt=0, description="std of a field residual (field mode)")
+    odom_prior: bool = Field(
+        True, description="fuse the odometry prediction in the refinement (MAP estimate)"
+    )
+    odom_translation_noise: float = Field(
+        0.05, ge=0, description="odometry prior: std (m) of the translation per metre driven"
+    )
+    odom_rotation_noise: float = Field(
+        0.1, ge=0, description="odometry prior: std (rad) of the rotation per radian turned"
+    )
+    odom_rotation_per_metre: float = Field(
+        0.2, ge=0, description="odometry prior: std (rad) of the rotation per metre driven"
+    )
+    match_max_range: float | None = Field(
+        None, gt=0, description="points farther than this (m) are not matched; None: all"
+    )
+    min_points: int = Field(20, ge=1, description="fewer valid points: odometry only")
+    min_score: float = Field(
+        0.1, ge=0, le=1, description="matches scoring below this are rejected (odometry only)"
+    )

@@ -1,0 +1,198 @@
+"""The one place that builds a mission's robot: simulation, sensors, localiser, navigator,
+recorders.
+
+Every front door (``run``, ``regress``, ``teleop``, the service) starts from a
+:class:`RobotStack`, so a mission's seed gives the same random streams, the same plugins
+and the same control period whichever way it came in.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from agv_mission.geometry import Bounds, Pose2D
+from agv_mission.localization.base import Localizer
+from agv_mission.mapping.base import Slam
+from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.maps.obstacle_layer import ObstacleLayer
+from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder, RecorderFileError
+from agv_mission.messages import LaserScan
+from agv_mission.missions.loader import LoadedMission
+from agv_mission.navigation.navigator import Navigator
+from agv_mission.planners.base import VelocityLimits
+from agv_mission.registry import registry
+from agv_mission.robots.description import RobotDescription
+from agv_mission.robots.odometry import DiffDriveOdometry
+from agv_mission.robots.simulation import DiffDriveSim
+
+CONTROL_PERIOD = 0.1
+
+
+class VelocitySmoother:
+    """Limits command changes to the robot's accelerations, like a cmd_vel smoother."""
+
+    def __init__(self, limits: VelocityLimits, period: float) -> None:
+        self.limits, self.period = limits, period
+        self.v = self.w = 0.0
+
+    def __call__(self, v: float, w: float) -> tuple[float, float]:
+        lim, dt = self.limits, self.period
+        v = float(np.clip(v, -lim.max_v, lim.max_v))
+        w = float(np.clip(w, -lim.max_w, lim.max_w))
+        self.v = float(np.clip(v, self.v - lim.max_acc_v * dt, self.v + lim.max_acc_v * dt))
+        self.w = float(np.clip(w, self.w - lim.max_acc_w * dt, self.w + lim.max_acc_w * dt))
+        return self.v, self.w
+
+
+def velocity_limits(robot: RobotDescription) -> VelocityLimits:
+    """The bounds a robot description puts on commands."""
+    return VelocityLimits(
+        max_v=robot.max_linear_velocity,
+        max_w=robot.max_angular_velocity,
+        max_acc_v=robot.max_linear_acceleration,
+        max_acc_w=robot.max_angular_acceleration,
+    )
+
+
+@dataclass
+class Sensing:
+    """What one control step reads: odometry, the lidar scan when one is due, the truth."""
+
+    time: float
+    odom: Pose2D
+    scan: LaserScan | None
+    truth: Pose2D
+
+
+ScanFilter = Callable[[float, LaserScan], LaserScan | None]
+
+
+class RobotStack:
+    """The simulated robot with its encoders, lidar, odometry and localiser.
+
+    Random streams: the mission's seed spawns four (simulation, localisation, planning,
+    faults), always in this order, so every front door draws the same numbers.
+    """
+
+    def __init__(self, loaded: LoadedMission) -> None:
+        self.loaded = loaded
+        mission, robot = loaded.mission, loaded.robot
+        seeds = np.random.SeedSequence(mission.seed).spawn(4)
+        sim_rng, self.loc_rng, self.planner_rng, self.fault_rng = (
+            np.random.default_rng(s) for s in seeds
+        )
+        self.sim = DiffDriveSim(robot, loaded.world, loaded.start, mission.simulation, sim_rng)
+        self.odometry = DiffDriveOdometry(robot.encoder.ticks_per_meter, robot.wheel_separation)
+        self.limits = velocity_limits(robot)
+        self.smoother = VelocitySmoother(self.limits, CONTROL_PERIOD)
+        self.scan_period = 1.0 / robot.lidar.rate
+        self.next_scan = 0.0
+        self.odom = self.odometry.update(*self.sim.encoder_ticks())
+        self.odom_start = self.odom
+        self.localizer: Localizer = self.new_localizer(loaded.world.map)
+        self.localizer.reset(loaded.start, self.odom)
+
+    def new_localizer(self, grid: OccupancyGrid) -> Localizer:
+        """The mission's localisation plugin on ``grid`` (not yet reset)."""
+        return registry.create(
+            "localization", self.loaded.mission.stack.localization, grid=grid, rng=self.loc_rng
+        )
+
+    def new_slam(self, bounds: Bounds) -> Slam:
+        """The mission's SLAM plugin over ``bounds`` (not yet reset)."""
+        return registry.create(
+            "slam", self.loaded.mission.stack.slam, bounds=bounds, rng=self.loc_rng
+        )
+
+    def build_navigator(self) -> Navigator:
+        """The mission's global and local planners behind a navigator on the known map."""
+        mission, robot = self.loaded.mission, self.loaded.robot
+        local_planner = registry.create(
+            "local_planner",
+            mission.stack.local_planner,
+            limits=self.limits,
+            robot_radius=robot.footprint_radius,
+            control_period=CONTROL_PERIOD,
+        )
+        return Navigator(
+            ObstacleLayer(self.loaded.costmap, mission.stack.costmap.obstacles),
+            registry.create("global_planner", mission.stack.global_planner),
+            local_planner,
+            self.limits,
+            mission.stack.navigation,
+            CONTROL_PERIOD,
+            seed=int(self.planner_rng.integers(0, 2**31 - 1)),
+        )
+
+    def sense(self, scan_filter: ScanFilter | None = None) -> Sensing:
+        """Read the encoders into odometry and, when one is due, a lidar scan."""
+        sim = self.sim
+        now = sim.time
+        self.odom = self.odometry.update(*sim.encoder_ticks())
+        scan = None
+        if now >= self.next_scan - 1e-9:
+            self.next_scan += self.scan_period
+            scan = sim.scan()
+            if scan_filter is not None:
+                scan = scan_filter(now, scan)
+        return Sensing(now, self.odom, scan, sim.true_pose())
+
+    def has_moved(self) -> bool:
+        """Whether odometry saw the robot move since the start."""
+        moved = self.odom.relative_to(self.odom_start)
+        return not (math.hypot(moved.x, moved.y) < 1e-3 and abs(moved.yaw) < 1e-3)
+
+    def drive(self, v: float, w: float) -> tuple[float, float]:
+        """Smooth (v, w) within the robot's limits and send it; returns what was sent."""
+        v, w = self.smoother(v, w)
+        self.sim.set_command(v, w)
+        return v, w
+
+    def advance(self) -> None:
+        """Let physics run one control period."""
+        self.sim.advance(CONTROL_PERIOD)
+
+
+def open_recorders(
+    loaded: LoadedMission,
+    run_dir: Path | None,
+    recorder_file: Path | None = None,
+    append: Path | None = None,
+) -> list[LocationRecorder]:
+    """The recorders a session writes room poses into, the one to show first.
+
+    * ``recorder_file``: record straight into it, appending to its entries when it exists
+      (as the seed's service does); ``append`` may only name that same file.
+    * else ``run_dir/location_recorder.yaml`` (when there is a run directory), starting from
+      ``append``'s entries, or from those of the mission's ``recorder`` file, which is then
+      also updated in place.
+
+    Raises :class:`~agv_mission.maps.recorder.RecorderFileError` for a clash of
+    ``recorder_file`` and ``append``.
+    """
+    if recorder_file is not None:
+        exists = recorder_file.exists()
+        if append is not None and exists and append.resolve() != recorder_file.resolve():
+            raise RecorderFileError(
+                recorder_file,
+                f"exists and would be replaced by the entries of {append}; "
+                "--recorder appends to an existing file by itself",
+            )
+        initial = append if append is not None else (recorder_file if exists else None)
+        return [LocationRecorder(recorder_file, initial)]
+    mission_file = loaded.recorder
+    if append is not None:
+        if run_dir is None:
+            raise ValueError("appending needs a run directory or a recorder file")
+        return [LocationRecorder(run_dir / RECORDER_FILENAME, append)]
+    recorders = []
+    if run_dir is not None:
+        recorders.append(LocationRecorder(run_dir / RECORDER_FILENAME, mission_file))
+    if mission_file is not None:
+        recorders.append(LocationRecorder(mission_file, mission_file))
+    return recorders

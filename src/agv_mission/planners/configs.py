@@ -1,0 +1,186 @@
+"""The configuration blocks of the built-in planners (``stack.global_planner``,
+``stack.local_planner``).
+
+They live apart from the planners so that validating a mission or printing the schema
+imports neither OMPL's planners nor casadi: each config names its plugin class by import
+path (``plugin``), loaded only when a run builds it.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import ClassVar, Literal
+
+from pydantic import Field, field_validator
+
+from agv_mission.registry import PluginConfig
+
+
+@lru_cache(maxsize=1)
+def available_planners() -> tuple[str, ...]:
+    """Names of the geometric planner classes this OMPL build provides."""
+    from ompl import base as ob
+    from ompl import geometric as og
+
+    return tuple(
+        sorted(
+            name
+            for name in dir(og)
+            if isinstance(getattr(og, name), type) and issubclass(getattr(og, name), ob.Planner)
+        )
+    )
+
+
+class OmplPlannerConfig(PluginConfig):
+    """``global_planner`` block for OMPL (``type: ompl``)."""
+
+    plugin: ClassVar[str] = "agv_mission.planners.ompl_planner:OmplPlanner"
+
+    type: Literal["ompl"] = "ompl"
+    planner: str = Field(
+        "RRTConnect", description="OMPL geometric planner class, e.g. RRTConnect, BITstar"
+    )
+    time_limit: float = Field(1.0, gt=0, description="wall-clock budget of one plan, seconds")
+    simplify: bool = Field(True, description="shortcut + smooth the solution (deterministic)")
+    clearance: float = Field(
+        0.05, ge=0, description="metres of margin beyond the robot radius a path must keep"
+    )
+    range: float | None = Field(
+        None, gt=0, description="longest edge (metres) for planners that have one; None: OMPL's"
+    )
+    goal_bias: float | None = Field(
+        None, ge=0, le=1, description="goal sampling probability where supported; None: OMPL's"
+    )
+    cost_threshold: float | None = Field(
+        1.05,
+        ge=1.0,
+        description="optimising planners stop once the path is no longer than this multiple "
+        "of the smoothed shortest grid path; None: always use the whole time_limit",
+    )
+    round_iterations: int = Field(
+        200, ge=1, description="optimising planners: iterations of the first round (doubling)"
+    )
+
+    @field_validator("planner")
+    @classmethod
+    def _known_planner(cls, name: str) -> str:
+        known = available_planners()
+        if name not in known:
+            raise ValueError(
+                f"unknown planner {name!r}; OMPL geometric planners are: {', '.join(known)}"
+            )
+        return name
+
+
+class GridAstarConfig(PluginConfig):
+    """``global_planner`` block for the grid planner (``type: grid_astar``)."""
+
+    plugin: ClassVar[str] = "agv_mission.planners.grid_astar:GridAstarPlanner"
+
+    type: Literal["grid_astar"] = "grid_astar"
+    clearance: float = Field(
+        0.05, ge=0, description="metres of margin beyond the robot radius a path must keep"
+    )
+    cost_weight: float = Field(
+        1.0,
+        ge=0,
+        description="how much the inflation cost adds to a step (0: shortest path; "
+        "1: a step next to the inscribed radius costs ~2x, mid-corridor ~1.1x)",
+    )
+    smooth: bool = Field(True, description="line-of-sight shortcuts that keep clearance")
+    connectivity: Literal[8, 16] = Field(
+        16,
+        description="8: the 8 neighbours; 16: also knight moves, which cuts the grid's "
+        "length distortion from 8 % to 3 % and so picks the truly shorter way round "
+        "obstacles more often",
+    )
+
+
+class MpcWeights(PluginConfig):
+    """Cost weights (per stage unless named terminal)."""
+
+    position: float = Field(10.0, ge=0, description="squared distance to the reference point")
+    heading: float = Field(0.5, ge=0, description="squared heading error to the path tangent")
+    speed: float = Field(1.0, ge=0, description="squared error to the reference speed")
+    angular_velocity: float = Field(0.05, ge=0, description="w^2")
+    acceleration: float = Field(0.1, ge=0, description="a^2")
+    angular_acceleration: float = Field(0.02, ge=0, description="alpha^2")
+    terminal_position: float = Field(50.0, ge=0)
+    terminal_heading: float = Field(0.5, ge=0)
+    slack_linear: float = Field(20.0, ge=0, description="exact-penalty weight of the slack")
+    slack_quadratic: float = Field(1e4, ge=0)
+
+
+class SolverOptions(PluginConfig):
+    """Interior-point settings (used by fatrop and ipopt alike)."""
+
+    max_iter: int = Field(40, ge=1)
+    tol: float = Field(1e-3, gt=0)
+    mu_init: float = Field(1e-3, gt=0, description="small: the warm start is close to optimal")
+
+
+class MpcConfig(PluginConfig):
+    plugin: ClassVar[str] = "agv_mission.planners.mpc:MpcController"
+
+    type: Literal["mpc"] = "mpc"
+    horizon: int = Field(20, ge=2, le=100, description="number of model steps N")
+    dt: float = Field(0.1, gt=0, description="model step, s")
+    max_obstacles: int = Field(16, ge=0, description="lidar points kept as constraints")
+    obstacle_range: float = Field(
+        1.0, gt=0, description="lidar points farther than this from the reference are ignored, m"
+    )
+    obstacle_spacing: float = Field(
+        0.1, ge=0, description="lidar points are thinned to one per cell of this size, m"
+    )
+    safety_margin: float = Field(0.05, ge=0, description="clearance beyond robot_radius, m")
+    solver: Literal["fatrop", "ipopt"] = "fatrop"
+    solver_options: SolverOptions = Field(default_factory=SolverOptions)
+    weights: MpcWeights = Field(default_factory=MpcWeights)
+    decel_fraction: float = Field(
+        0.5, gt=0, le=1, description="reference braking = this x max_acc_v (margin for tracking)"
+    )
+    turn_fraction: float = Field(0.7, gt=0, le=1, description="reference turn rate <= this x max_w")
+    goal_tolerance: float = Field(0.01, gt=0, description="closer than this: just brake, m")
+    rotate_threshold: float = Field(
+        1.2, gt=0, description="heading error to the path (rad) above which it turns in place"
+    )
+    rotate_exit: float = Field(0.3, gt=0, description="heading error to leave turn-in-place")
+    rotate_speed_weight: float = Field(
+        100.0, gt=0, description="speed-weight multiplier while turning in place"
+    )
+    lookahead: float = Field(0.3, gt=0, description="path point the heading error is taken to, m")
+    final_approach: float = Field(
+        0.15, gt=0, description="closer to the goal: heading weight fades, turn towards the goal"
+    )
+    final_position_gain: float = Field(
+        100.0, ge=1, description="max position-weight gain on the final approach (1/d^2 law)"
+    )
+    final_rotate_threshold: float = Field(
+        2.0, gt=0, description="turn-in-place threshold on the final approach, rad"
+    )
+    overshoot_tolerance: float = Field(
+        0.02, ge=0, description="goal behind the robot and closer than this: stop, m"
+    )
+
+
+class PurePursuitConfig(PluginConfig):
+    plugin: ClassVar[str] = "agv_mission.planners.pure_pursuit:PurePursuitController"
+
+    type: Literal["pure_pursuit"] = "pure_pursuit"
+    lookahead: float = Field(0.3, gt=0, description="lookahead distance along the path, m")
+    speed: float | None = Field(None, gt=0, description="cruise speed, m/s (None: max_v)")
+    goal_slowdown_distance: float = Field(
+        0.3, ge=0, description="speed scales down linearly over this distance to the goal, m"
+    )
+    min_speed: float = Field(0.03, gt=0, description="creep speed for the last centimetres, m/s")
+    decel_fraction: float = Field(0.5, gt=0, le=1, description="braking = this x max_acc_v")
+    turn_fraction: float = Field(0.7, gt=0, le=1, description="path turn rate <= this x max_w")
+    goal_tolerance: float = Field(0.01, gt=0, description="closer than this: brake, m")
+    overshoot_tolerance: float = Field(
+        0.02, ge=0, description="goal behind the robot and closer than this: stop, m"
+    )
+    rotate_threshold: float = Field(
+        0.9, gt=0, description="heading error (rad) to the lookahead point to turn in place"
+    )
+    rotate_exit: float = Field(0.25, gt=0, description="heading error to leave turn-in-place")
+    rotate_gain: float = Field(2.0, gt=0, description="w = gain x heading error when turning")

@@ -1,0 +1,224 @@
+"""Scenario regression: run missions that carry an ``expect:`` block and check them.
+
+A *scenario* is a mission file; its ``expect:`` block (see ``expectations.py``) says what
+the run must achieve, and a scenario without one is expected to succeed. ``agv-mission
+regress PATHS...`` takes files and directories (searched recursively for ``*.yaml``
+files that look like missions, i.e. hold a ``tasks`` key), expands them into *jobs* and
+runs every job in its own process:
+
+* **Variants.** ``--sweep KEY=V1,V2,...`` (repeatable) gives values for one dotted mission
+  key; several sweeps combine as a cartesian product. Each value is parsed as YAML and
+  applied exactly like ``agv-mission run --set KEY=VALUE`` (commas inside ``[]``, ``{}``
+  or quotes do not split values).
+* **Seeds.** ``--seeds N`` runs each variant with the seeds ``S, S+1, ..., S+N-1`` where
+  ``S`` is the mission's own ``seed`` (or the variant's, when a sweep sets ``seed``): so
+  ``--seeds 1`` is exactly the scenario as written, and the expectations, tuned for ``S``,
+  keep meaning what they meant.
+* **Backends.** ``local``: a process pool of ``--workers`` processes (``forkserver``
+  workers that import the stack once; ``--workers 1`` runs in this process). ``ray``:
+  one Ray task per job, on a local Ray instance or the cluster at ``--address``. A job
+  is a plain dict and returns a plain dict, so both give the same results: a run is a
+  function of its mission and seed (wall-clock timings excepted, see
+  :data:`WALL_CLOCK_METRICS`).
+
+Jobs are started longest first (by ``limits.time``) so a pool finishes together.
+Each job writes an ordinary run directory under the output root. The results feed a
+table, a JUnit XML file, a JSON summary and, with variants or seeds, a comparison
+table per variant: success rate, mean and p95 sim time, path length, clearance and
+planner / controller solve times (time and path length over the succeeded runs only).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from agv_mission.missions.errors import MissionError, Problem
+
+# Result keys that come from the wall clock: they differ between any two runs.
+WALL_CLOCK_METRICS = (
+    "real_time_factor",
+    "navigation.planning_time_ms_mean",
+    "navigation.controller_solve_ms_p50",
+    "navigation.controller_solve_ms_p99",
+)
+
+ResultCallback = Callable[[dict[str, Any], int, int], None]
+
+
+class RegressError(Exception):
+    """Invalid regress input (paths, sweeps, backend); the CLI exits 2."""
+
+    def __init__(self, message: str, problems: Sequence[Problem] = ()) -> None:
+        super().__init__(message)
+        self.problems = list(problems)
+
+
+# ----------------------------------------------------------------------------- discovery
+
+
+def discover(paths: Iterable[str | Path]) -> list[Path]:
+    """Scenario files: files as given, directories searched recursively for ``*.yaml``
+    files holding a ``tasks`` key (rooms files and the like are skipped)."""
+    found: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            found += [f for f in sorted(p.rglob("*.yaml")) if _looks_like_mission(f)]
+        elif p.is_file():
+            found.append(p)
+        else:
+            raise RegressError(f"{p}: no such file or directory")
+    unique = list(dict.fromkeys(f.resolve() for f in found))
+    if not unique:
+        raise RegressError(f"no scenario files (*.yaml with tasks) in {', '.join(map(str, paths))}")
+    return unique
+
+
+def _looks_like_mission(path: Path) -> bool:
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return True  # let the loader report what is wrong with it
+    return isinstance(data, dict) and "tasks" in data
+
+
+# ------------------------------------------------------------------------------ variants
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One combination of sweep values: ``--set`` overrides and a short label."""
+
+    label: str
+    overrides: tuple[str, ...] = ()
+
+
+def parse_sweep(item: str) -> tuple[str, list[str]]:
+    """``KEY=V1,V2,...`` -> (KEY, [raw V1, raw V2, ...])."""
+    key, sep, raw = item.partition("=")
+    key = key.strip()
+    if not sep or not key or not raw.strip():
+        raise RegressError(
+            f"--sweep {item!r}: expected KEY=V1,V2,..., "
+            "e.g. stack.global_planner.planner=RRTConnect,RRTstar"
+        )
+    values = [v.strip() for v in _split_values(raw)]
+    if any(not v for v in values):
+        raise RegressError(f"--sweep {item!r}: empty value")
+    return key, values
+
+
+def _split_values(raw: str) -> list[str]:
+    """Split on commas outside brackets, braces and quotes."""
+    parts, depth, quote, current = [], 0, "", []
+    for ch in raw:
+        if quote:
+            quote = "" if ch == quote else quote
+        elif ch in "'\"":
+            quote = ch
+        elif ch in "[{":
+            depth += 1
+        elif ch in "]}":
+            depth -= 1
+        elif ch == "," and depth == 0:
+            parts.append("".join(current))
+            current = []
+            continue
+        current.append(ch)
+    parts.append("".join(current))
+    return parts
+
+
+def expand_variants(sweeps: Sequence[str]) -> list[Variant]:
+    """The cartesian product of every ``--sweep``; one unnamed variant without sweeps."""
+    if not sweeps:
+        return [Variant("")]
+    parsed = [parse_sweep(s) for s in sweeps]
+    keys = [k for k, _ in parsed]
+    if len(set(keys)) != len(keys):
+        raise RegressError(f"--sweep: a key is swept twice ({', '.join(keys)})")
+    short = [k.rsplit(".", 1)[-1] for k in keys]
+    names = short if len(set(short)) == len(short) else keys
+    variants = []
+    for combo in itertools.product(*(values for _, values in parsed)):
+        label = " ".join(f"{n}={v}" for n, v in zip(names, combo, strict=True))
+        overrides = tuple(f"{k}={v}" for k, v in zip(keys, combo, strict=True))
+        variants.append(Variant(label, overrides))
+    return variants
+
+
+# ---------------------------------------------------------------------------------- jobs
+
+
+@dataclass
+class Plan:
+    """Every job of a regress run, validated, in start order."""
+
+    jobs: list[dict[str, Any]]
+    scenarios: list[Path]
+    variants: list[Variant]
+    seeds: int
+    output_root: Path
+    problems: list[Problem] = field(default_factory=list)  # invalid scenarios / variants
+
+
+def plan_jobs(
+    paths: Iterable[str | Path],
+    sweeps: Sequence[str] = (),
+    seeds: int = 1,
+    output_root: str | Path | None = None,
+) -> Plan:
+    """Discover, expand and validate (load every scenario x variant once, here).
+
+    Invalid scenarios are collected in ``Plan.problems`` and get no jobs.
+    """
+    from agv_mission.missions.loader import load_mission
+
+    if seeds < 1:
+        raise RegressError("--seeds must be at least 1")
+    scenarios = discover(paths)
+    variants = expand_variants(sweeps)
+    if output_root is None:
+        stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+        output_root = Path("runs") / f"regress-{stamp}"
+    root = Path(output_root).resolve()
+    jobs: list[dict[str, Any]] = []
+    problems: list[Problem] = []
+    for s_index, path in enumerate(scenarios):
+        for v_index, variant in enumerate(variants):
+            try:
+                loaded = load_mission(path, list(variant.overrides))
+            except MissionError as exc:
+                problems += exc.problems
+                continue
+            base = loaded.mission.seed
+            for i in range(seeds):
+                seed = base + i
+                run_name = loaded.name
+                if len(variants) > 1:
+                    run_name += f"-v{v_index + 1}"
+                if seeds > 1:
+                    run_name += f"-s{seed}"
+                jobs.append(
+                    {
+                        "id": len(jobs),
+                        "order": (s_index, v_index, i),
+                        "scenario": str(path),
+                        "name": loaded.name,
+                        "variant": variant.label,
+                        "overrides": list(variant.overrides),
+                        "seed": seed,
+                        "run_name": run_name,
+                        "output_root": str(root),
+                        "cost": loaded.mission.limits.time,
+                    }
+                )
+    # Longest first: a pool then finishes its last jobs together.
+    jobs.sort(key=lambda j: -j["cost"])
+    return Plan(jobs, scenarios, variants, seeds, root, problems)

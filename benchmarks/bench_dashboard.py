@@ -9,11 +9,7 @@
 
 from __future__ import annotations
 
-import os
-import re
-import signal
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -27,6 +23,9 @@ import numpy as np
 from PIL import Image
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tests"))
+from service_server import Server  # noqa: E402
+
 CHROMIUM_ARGS = [
     "--no-sandbox",
     "--disable-gpu",
@@ -40,25 +39,8 @@ FPS_SECONDS = 6.0
 
 @contextmanager
 def serve(data: Path, *extra: str) -> Iterator[str]:
-    cmd = [sys.executable, "-m", "agv_mission.cli", "serve", "--port", "0", "--data", str(data)]
-    proc = subprocess.Popen(
-        [*cmd, *extra],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
-    try:
-        assert proc.stdout is not None
-        match = re.search(r"serving on (http://\S+)", proc.stdout.readline())
-        assert match, "the service did not start"
-        yield match.group(1)
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+    with Server(data, *extra) as server:
+        yield server.url
 
 
 def wait_final(client: httpx.Client, run_id: str, timeout: float = 600.0) -> dict[str, Any]:

@@ -7,11 +7,7 @@ submit page offers is a mission the service accepts.
 
 from __future__ import annotations
 
-import os
 import re
-import signal
-import subprocess
-import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -19,31 +15,14 @@ from pathlib import Path
 import httpx
 import pytest
 
+from service_server import Server
+
 
 @contextmanager
 def serve(data: Path, *extra: str) -> Iterator[str]:
     """A real service process on a free loopback port; yields its base URL."""
-    cmd = [sys.executable, "-m", "agv_mission.cli", "serve", "--port", "0", "--data", str(data)]
-    proc = subprocess.Popen(
-        [*cmd, *extra],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
-    try:
-        assert proc.stdout is not None
-        first = proc.stdout.readline()
-        match = re.search(r"serving on (http://\S+)", first)
-        assert match, f"the service did not start: {first!r}"
-        yield match.group(1)
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+    with Server(data, *extra) as server:
+        yield server.url
 
 
 @pytest.fixture(scope="module")

@@ -113,7 +113,7 @@ def tree_message(nodes: list[TreeNode]) -> dict[str, Any]:
     return {
         "type": "tree",
         "nodes": [
-            {"name": n.name, "status": TREE_STATUS.get(n.status, "INVALID"), "depth": n.depth}
+            {"name": n.name, "status": TREE_STATUS.get(n.status, n.status), "depth": n.depth}
             for n in nodes
         ],
     }

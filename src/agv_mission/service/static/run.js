@@ -195,8 +195,6 @@
       return `<div class="node ${st}" style="padding-left:${depth * 16}px" title="${AGV.esc(n.name)}: ${st}">${guides}${depth ? '<span class="elbow"></span>' : ""}<span class="box">${AGV.esc(n.name)}</span></div>`;
     });
     el.innerHTML = `<div class="legend"><span class="l-r">running</span><span class="l-s">success</span><span class="l-f">failure</span><span class="l-i">idle</span></div>` + rows.join("");
-    const counts = {};
-    for (const n of treeNodes) counts[n.status] = (counts[n.status] || 0) + 1;
     $("treet").textContent = `${treeNodes.length} nodes`;
     // keep the deepest running behaviour in view, unless the user scrolled the tree lately
     const running = el.querySelectorAll(".node.RUNNING");

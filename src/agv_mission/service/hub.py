@@ -11,9 +11,10 @@ each kind always). A client that lags by more than :data:`CLIENT_QUEUE` messages
 the oldest frequent ones; one that falls behind even on the others is dropped.
 
 Many clients share a budget: each frequent kind goes out at most :data:`KIND_BUDGET`
-times per wall second over all the run's clients (50 clients: 20 states a second each;
-up to 10 clients see every state of a run at 10x real time). A message that comes too
-early is held (the newest replaces it) and sent when its client's turn comes, so the
+times per wall second over all the run's clients (a token bucket per client and kind: 50
+clients get 20 states a second each; up to 10 clients see every state of a run at 10x
+real time). A message over budget is held (the newest replaces it) and sent when its
+client has a token again, so the
 fan-out's CPU stays bounded however many watch, and the last state always arrives.
 """
 
@@ -31,6 +32,7 @@ SNAPSHOT_ORDER = ("map", "rooms", "recorded", "tree", "plan", "goal", "state")
 CLIENT_QUEUE = 500  # messages a client may lag behind before the oldest frequent ones go
 CLIENT_HARD_LIMIT = 5000  # backlog of other messages at which a client is dropped
 KIND_BUDGET = 1000.0  # messages of one frequent kind per wall second, over all clients
+BURST = 0.5  # wall seconds of budget a client may spend at once
 
 Item = tuple[str, str, "float | None"]
 
@@ -44,9 +46,9 @@ class Client:
         self.dropped = False
         self.thinned = 0
         self.last_t: dict[str, float] = {}
-        self.last_wall: dict[str, float] = {}
         self.held: dict[str, tuple[str, float | None]] = {}
-        self.min_interval = 0.0  # wall seconds between two messages of a frequent kind
+        self.rate = KIND_BUDGET  # messages of a frequent kind per wall second (token bucket)
+        self.tokens: dict[str, tuple[float, float]] = {}  # kind -> (tokens, at wall time)
 
     def put(self, kind: str, text: str, t: float | None = None) -> None:
         if self.dropped:
@@ -82,27 +84,36 @@ class Client:
             if too_close and i != newest[kind]:
                 self.thinned += 1
                 continue
-            if now - self.last_wall.get(kind, -math.inf) < self.min_interval:
+            if not self._token(kind, now):
                 if kind in self.held:
                     self.thinned += 1
                 self.held[kind] = (text, t)
                 continue
-            self._sent(kind, t, now)
+            self._sent(kind, t)
             self.held.pop(kind, None)
             out.append((kind, text))
         due = None
         for kind in list(self.held):
-            ready_at = self.last_wall.get(kind, -math.inf) + self.min_interval
-            if now >= ready_at:
+            if self._token(kind, now):
                 text, t = self.held.pop(kind)
-                self._sent(kind, t, now)
+                self._sent(kind, t)
                 out.append((kind, text))
             else:
+                tokens, _ = self.tokens[kind]
+                ready_at = now + (1.0 - tokens) / self.rate
                 due = ready_at if due is None else min(due, ready_at)
         return out, due
 
-    def _sent(self, kind: str, t: float | None, now: float) -> None:
-        self.last_wall[kind] = now
+    def _token(self, kind: str, now: float) -> bool:
+        """Take one of ``kind``'s tokens (refilled at ``rate``, up to half a second's worth)."""
+        capacity = max(1.0, self.rate * BURST)
+        tokens, at = self.tokens.get(kind, (capacity, now))
+        tokens = min(capacity, tokens + (now - at) * self.rate)
+        ok = tokens >= 1.0
+        self.tokens[kind] = (tokens - 1.0 if ok else tokens, now)
+        return ok
+
+    def _sent(self, kind: str, t: float | None) -> None:
         if t is not None:
             self.last_t[kind] = t
 
@@ -157,6 +168,6 @@ class Hub:
         self._share()
 
     def _share(self) -> None:
-        interval = len(self.clients) / KIND_BUDGET
+        rate = KIND_BUDGET / max(1, len(self.clients))
         for client in self.clients:
-            client.min_interval = interval
+            client.rate = rate

@@ -132,7 +132,8 @@ class RunManager:
                 options["num_cpus"] = self.workers
             ray.init(**options)
         self._ray = ray
-        host = "0.0.0.0" if self.address else "127.0.0.1"
+        local = self.address is None or self.address.split(":")[0] in ("127.0.0.1", "localhost")
+        host = "127.0.0.1" if local else "0.0.0.0"  # tasks on other nodes call back
         self._authkey = secrets.token_bytes(32)
         self._listener = Listener((host, 0), authkey=self._authkey)
         threading.Thread(target=self._accept, daemon=True, name="ray-accept").start()

@@ -295,7 +295,8 @@ class PipeControl:
 
 def worker_main(job: dict[str, Any], conn: Connection) -> None:
     """The entry point of a mission process (local process or Ray task)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the service decides how a run ends
+    with contextlib.suppress(ValueError):  # not the main thread (some Ray workers)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # the service decides how a run ends
     try:
         _run(job, conn)
     except Exception as exc:  # never die silently: the service records the reason

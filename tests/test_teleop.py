@@ -20,6 +20,7 @@ from agv_mission.geometry import wrap_angle
 from agv_mission.maps.builtin_worlds import HOUSE_SPAWN
 from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder
 from agv_mission.maps.rooms import room_at
+from agv_mission.missions.loader import load_mission
 from agv_mission.missions.runner import MissionRun, run_mission
 from agv_mission.missions.stack import open_recorders
 from agv_mission.planners.base import VelocityLimits
@@ -103,6 +104,16 @@ def test_teleop_task_drives_under_remote_command_and_estimates() -> None:
     assert 0.4 < est_x - HOUSE_SPAWN.x < 0.65
     assert record.trajectory[-1, 7] == pytest.approx(0.2)
     assert record.tasks[0]["type"] == "teleop" and record.status == "aborted"
+
+
+def test_teleop_task_with_a_duration_ends_and_stands_still_without_commands(
+    tmp_path: Path,
+) -> None:
+    mission = tmp_path / "m.yaml"
+    mission.write_text("world: small_house\ntasks:\n  - {type: teleop, duration: 1.5}\n")
+    record = run_mission(load_mission(mission), None)
+    assert record.status == "succeeded" and record.sim_time == pytest.approx(1.5, abs=0.11)
+    assert float(abs(record.trajectory[:, 7]).max()) == 0.0  # no command, no motion
 
 
 def test_open_recorders_targets(tmp_path: Path) -> None:

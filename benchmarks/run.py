@@ -28,6 +28,7 @@ MODULES = [
     "bench_slam",
     "bench_mission",
     "bench_regress",
+    "bench_service",
     "bench_dashboard",
 ]
 
@@ -39,6 +40,10 @@ TARGETS = {
     "amcl.update_ms.p50.1000x60": ("<=", 2.0),
     "mission.map_area_small_house.real_time_factor": (">=", 5.0),
     "regress.speedup_ratio": ("<=", 0.6),
+    "service.throughput_ratio": (">=", 1.8),
+    "service.slowdown_50_subscribers": ("<=", 0.10),
+    "service.lost": ("<=", 0.0),
+    "service.control_ms.pause_p50": ("<=", 200.0),
     "dashboard.watched_rtf_ratio": (">=", 0.9),
     "dashboard.fps_30x50": (">=", 20.0),
 }

@@ -76,6 +76,9 @@ def test_submit_follow_files(server: Server, client: httpx.Client) -> None:
     assert client.get("/api/runs/nope").status_code == 404
     assert client.post(f"/api/runs/{run['id']}/cancel").status_code == 409
     assert client.post(f"/api/runs/{run['id']}/pause").status_code == 409
+    goal = client.post(f"/api/runs/{run['id']}/goal", json={"x": 0, "y": 0, "yaw": 0})
+    assert goal.status_code == 409  # only a running teleop task takes goals
+    assert client.post(f"/api/runs/{run['id']}/rooms/kitchen").status_code == 409
 
     # a late client of a finished run: the snapshot, then the end
     late = asyncio.run(_collect(f"{server.ws_url}/api/runs/{run['id']}/live"))

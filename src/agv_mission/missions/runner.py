@@ -482,10 +482,10 @@ def _metrics(
         "distance_driven": round(distance, 4),
         "collisions": collisions,
         "min_clearance": round(min_clearance, 4) if math.isfinite(min_clearance) else None,
-        "localization": {
-            "position_rmse": round(float(np.sqrt(np.mean(err**2))), 5),
-            "position_max_error": round(float(err.max()), 5),
-            "yaw_rmse": round(float(np.sqrt(np.mean(yaw_err**2))), 5),
+        "localization": {  # a run stopped before its first step has no errors to show
+            "position_rmse": round(float(np.sqrt(np.mean(err**2))), 5) if err.size else 0.0,
+            "position_max_error": round(float(err.max()), 5) if err.size else 0.0,
+            "yaw_rmse": round(float(np.sqrt(np.mean(yaw_err**2))), 5) if err.size else 0.0,
         },
         "navigation": {
             "plans": stats.plans,

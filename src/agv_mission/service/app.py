@@ -354,11 +354,17 @@ def create_app(settings: Settings) -> FastAPI:
 
 async def _send_loop(websocket: WebSocket, client: Client) -> None:
     """Drain one client's queue; the hub never waits for this."""
+    loop = asyncio.get_running_loop()
+    due: float | None = None
     while True:
-        await client.ready.wait()
+        if due is None:
+            await client.ready.wait()
+        else:
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(client.ready.wait(), max(due - loop.time(), 0.0))
         client.ready.clear()
-        while client.queue:
-            kind, text = client.queue.popleft()
+        items, due = client.take(loop.time())
+        for kind, text in items:
             await websocket.send_text(text)
             if kind == "end":
                 await websocket.close(code=1000)

@@ -37,7 +37,9 @@ WORKER_PRELOAD = [
 ]
 PROGRESS_SAVE_PERIOD = 2.0  # seconds between progress writes to the registry per run
 STOP_GRACE = 20.0  # seconds running missions get to write their results on shutdown
-FINISHED_HUBS = 64  # finished runs whose stream stays in memory for late clients
+FINISHED_HUBS = 64
+READ_BATCH = 50  # worker messages handled per wake-up of the event loop
+LIVE_NICE = 5  # the service's own CPU priority below its missions' (nice increment)  # finished runs whose stream stays in memory for late clients
 
 
 class QueueFull(Exception):
@@ -77,8 +79,10 @@ class RunManager:
         queue_size: int,
         backend: str = "local",
         address: str | None = None,
+        live_nice: int = LIVE_NICE,
     ) -> None:
         self.registry = registry
+        self.live_nice = live_nice
         self.workers = workers
         self.queue_size = queue_size
         self.backend = backend
@@ -106,6 +110,11 @@ class RunManager:
             from multiprocessing import forkserver
 
             await asyncio.to_thread(forkserver.ensure_running)
+        if self.live_nice:
+            # Missions come first: the fan-out of live streams (this thread: the event
+            # loop) yields the CPU to the workers, which keep the fork server's priority.
+            with contextlib.suppress(OSError):
+                os.nice(self.live_nice)
         for run_id in queued:
             self.queue.append(run_id)
             self.hubs[run_id] = Hub()
@@ -123,7 +132,8 @@ class RunManager:
                 options["num_cpus"] = self.workers
             ray.init(**options)
         self._ray = ray
-        host = "0.0.0.0" if self.address else "127.0.0.1"
+        local = self.address is None or self.address.split(":")[0] in ("127.0.0.1", "localhost")
+        host = "127.0.0.1" if local else "0.0.0.0"  # tasks on other nodes call back
         self._authkey = secrets.token_bytes(32)
         self._listener = Listener((host, 0), authkey=self._authkey)
         threading.Thread(target=self._accept, daemon=True, name="ray-accept").start()
@@ -236,12 +246,14 @@ class RunManager:
 
     # ------------------------------------------------------------------ worker -> service
 
-    def _readable(self, run: ActiveRun) -> None:
+    def _readable(self, run: ActiveRun, limit: int = READ_BATCH) -> None:
         conn = run.conn
         if conn is None:
             return
         try:
-            while conn.poll(0):
+            for _ in range(limit):  # then let HTTP requests in; the reader fires again
+                if not conn.poll(0):
+                    break
                 self._handle(run, conn.recv())
                 if run.conn is None:
                     return
@@ -256,7 +268,7 @@ class RunManager:
         kind = item[0]
         hub = self._hub(run.run_id)
         if kind == "msg":
-            hub.publish(item[1], item[2])
+            hub.publish(item[1], item[2], item[3])
         elif kind == "progress":
             run.progress = item[1]
             now = asyncio.get_running_loop().time()
@@ -279,7 +291,7 @@ class RunManager:
         assert self.loop is not None
         process = run.process
         self.loop.remove_reader(process.sentinel)
-        self._readable(run)
+        self._readable(run, limit=1 << 30)  # everything it said before it ended
         process.join(timeout=5)
         if not run.ended:
             code = process.exitcode
@@ -302,7 +314,7 @@ class RunManager:
 
     def _ray_judge(self, run: ActiveRun, future: asyncio.Future) -> None:
         if run.conn is not None:
-            self._readable(run)
+            self._readable(run, limit=1 << 30)
         if not run.ended:
             exc = future.exception()
             reason = (

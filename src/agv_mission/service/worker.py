@@ -2,7 +2,7 @@
 
 The service talks to a worker over one duplex :class:`multiprocessing.connection.Connection`
 (a pipe for local processes, a socket for Ray tasks). Worker -> service: ``("msg", type,
-text)`` live-stream messages (JSON text, encoded once here), ``("status", status)``,
+text, t)`` live-stream messages (JSON text, encoded once here), ``("status", status)``,
 ``("progress", dict)``, ``("reply", request_id, code, body)`` and finally ``("end", status,
 reason, result)``. Service -> worker: ``("cancel", reason)``, ``("pause",)``,
 ``("resume",)``, ``("cmd_vel", v, w)``, ``("goal", x, y, yaw)``, ``("record", request_id,
@@ -30,8 +30,8 @@ from agv_mission.service import messages as msg
 STREAM_FILE = "stream.jsonl"
 REMOTE_TIMEOUT = 0.5  # wall seconds without cmd_vel before a teleop robot stops
 PROGRESS_PERIOD = 0.25  # wall seconds between progress reports
-LIVE_SCAN_PERIOD = 0.1  # wall seconds between live scans (thinned; every scan is costly)
-LIVE_HORIZON_PERIOD = 0.1
+LIVE_SCAN_PERIOD = 0.2  # wall seconds between live scans (thinned; every scan is costly)
+LIVE_HORIZON_PERIOD = 0.2
 LIVE_PARTICLES_PERIOD = 0.5
 FILE_THIN_PERIOD = 0.5  # sim seconds between scans/particles/horizons in stream.jsonl
 MAP_PERIOD = 1.0  # wall seconds between map messages while SLAM grows the map
@@ -71,7 +71,7 @@ class StreamObserver:
         if to_file and self.file is not None:
             self.file.write(text + "\n")
         if live:
-            self.send(("msg", message["type"], text))
+            self.send(("msg", message["type"], text, message.get("t")))
 
     def send(self, item: tuple[Any, ...]) -> None:
         if self.closed:
@@ -295,7 +295,8 @@ class PipeControl:
 
 def worker_main(job: dict[str, Any], conn: Connection) -> None:
     """The entry point of a mission process (local process or Ray task)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the service decides how a run ends
+    with contextlib.suppress(ValueError):  # not the main thread (some Ray workers)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # the service decides how a run ends
     try:
         _run(job, conn)
     except Exception as exc:  # never die silently: the service records the reason

@@ -123,7 +123,7 @@ def detail_of(nodes: list[TreeNode] | None) -> str:
     """A one-line summary: the deepest running behaviour's path below its task."""
     if not nodes:
         return ""
-    running = [n for n in nodes if n.status == "running" and n.depth >= 1]
+    running = [n for n in nodes if n.status in ("running", "RUNNING") and n.depth >= 1]
     if not running:
         return ""
     names = [n.name for n in running]

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from agv_mission.geometry import Pose2D
-from agv_mission.localization.particle_filter import MotionNoise, ParticleFilter, SensorParams
+from agv_mission.localization.beam_model import SensorParams
+from agv_mission.localization.particle_filter import MotionNoise, ParticleFilter
 from agv_mission.maps.builtin_worlds import turtlebot3_world
 from agv_mission.maps.grid import OccupancyGrid
 

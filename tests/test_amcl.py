@@ -11,8 +11,9 @@ import pytest
 
 from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.localization.amcl import AmclConfig, AmclLocalizer
+from agv_mission.localization.beam_model import SensorParams
 from agv_mission.localization.configs import PROFILES
-from agv_mission.localization.particle_filter import ParticleFilter, SensorParams
+from agv_mission.localization.particle_filter import ParticleFilter
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
 from agv_mission.missions import stack

@@ -12,12 +12,9 @@ from scipy import ndimage
 
 from agv_mission.geometry import Pose2D, wrap_angle, wrap_angles
 from agv_mission.mapping.frontiers import find_frontiers, frontier_mask
+from agv_mission.mapping.likelihood_field import LikelihoodField, sliding_max
 from agv_mission.mapping.quality import map_quality
-from agv_mission.mapping.scan_matching import (
-    CorrelativeMatcher,
-    LikelihoodField,
-    sliding_max,
-)
+from agv_mission.mapping.scan_matching import CorrelativeMatcher
 from agv_mission.mapping.slam import GridSlam, GridSlamConfig, trajectory_rmse
 from agv_mission.maps.builtin_worlds import small_house, turtlebot3_world
 from agv_mission.maps.costmap import Costmap

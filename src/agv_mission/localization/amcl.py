@@ -40,8 +40,9 @@ import numpy as np
 
 from agv_mission.geometry import Pose2D, wrap_angles
 from agv_mission.localization.base import LocalizerDiagnostics
+from agv_mission.localization.beam_model import SensorParams
 from agv_mission.localization.configs import AmclConfig
-from agv_mission.localization.particle_filter import MotionNoise, ParticleFilter, SensorParams
+from agv_mission.localization.particle_filter import MotionNoise, ParticleFilter
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
 

@@ -43,97 +43,16 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt
 
 from agv_mission.geometry import wrap_angle
+from agv_mission.mapping.likelihood_field import (
+    LikelihoodField,
+    bicubic,
+    crop_window,
+    sliding_max,
+)
 
 Refinement = Literal["icp", "field", "none"]
-
-
-@dataclass
-class LikelihoodField:
-    """A likelihood field on a grid: ``values[row, col]`` in [0, 1], row 0 at the lowest y.
-
-    ``origin`` is the map-frame (x, y) of the lower-left corner of cell (0, 0).
-    ``nearest`` (rows, cols; int32, -1 where none lies within the field's cutoff) names
-    each cell's nearest occupied cell and ``anchor`` (x, y offsets from a cell's centre,
-    metres) where in an occupied cell its obstacle lies; both are needed by the ``"icp"``
-    refinement only. ``view`` (x, y arrays, optional): the sum of the unit vectors from
-    the scan end points that fell in each cell towards the scanner, i.e. which side the
-    cell's surface was seen from; with it the ``"icp"`` refinement never pairs a point
-    with a surface seen from the other side (the far face of a thin wall).
-    """
-
-    values: np.ndarray  # float32 (H, W)
-    resolution: float
-    origin: tuple[float, float]
-    nearest: tuple[np.ndarray, np.ndarray] | None = None
-    anchor: tuple[np.ndarray, np.ndarray] | None = None
-    view: tuple[np.ndarray, np.ndarray] | None = None
-
-    @classmethod
-    def from_occupied(
-        cls,
-        occupied: np.ndarray,
-        resolution: float,
-        origin: tuple[float, float],
-        sigma: float,
-        anchor: tuple[np.ndarray, np.ndarray] | None = None,
-    ) -> LikelihoodField:
-        """The field of a boolean occupancy mask (``anchor``: see the class)."""
-        if anchor is None:
-            zero = np.zeros(occupied.shape, np.float32)
-            anchor = (zero, zero)
-        values, nearest = field_values(occupied, resolution, sigma, anchor, return_nearest=True)
-        return cls(values, float(resolution), origin, nearest, anchor)
-
-
-def field_values(
-    occupied: np.ndarray,
-    resolution: float,
-    sigma: float,
-    anchor: tuple[np.ndarray, np.ndarray] | None = None,
-    return_nearest: bool = False,
-):
-    """``exp(-d^2 / 2 sigma^2)`` of each cell's distance ``d`` to the nearest occupied
-    cell, zero beyond ``4 sigma`` (float32).
-
-    With ``anchor`` (x and y arrays, metres: where in each occupied cell its obstacle lies,
-    relative to the cell centre, e.g. the mean of the scan end points that fell in it),
-    ``d`` is measured to that point of the nearest occupied cell instead of to its centre,
-    so the field keeps sub-cell detail. With ``return_nearest`` also returns the (rows,
-    cols) of each cell's nearest occupied cell (int32, -1 beyond the cutoff).
-    """
-    shape = occupied.shape
-    if not occupied.any():
-        values = np.zeros(shape, np.float32)
-        if return_nearest:
-            none = np.full(shape, -1, np.int32)
-            return values, (none, none.copy())
-        return values
-    cutoff = 4.0 * sigma
-    res = np.float32(resolution)
-    if anchor is None and not return_nearest:
-        d = distance_transform_edt(~occupied).astype(np.float32) * res
-    else:
-        _, (ri, ci) = distance_transform_edt(~occupied, return_distances=True, return_indices=True)
-        rows, cols = np.indices(shape)
-        dx = (ci - cols).astype(np.float32) * res
-        dy = (ri - rows).astype(np.float32) * res
-        if anchor is not None:
-            dx += anchor[0][ri, ci]
-            dy += anchor[1][ri, ci]
-        d = np.sqrt(dx * dx + dy * dy)
-    far = d > cutoff
-    values = np.exp(-0.5 * (d / np.float32(sigma)) ** 2).astype(np.float32, copy=False)
-    values[far] = 0.0
-    if not return_nearest:
-        return values
-    ri = ri.astype(np.int32)
-    ci = ci.astype(np.int32)
-    ri[far] = -1
-    ci[far] = -1
-    return values, (ri, ci)
 
 
 @dataclass
@@ -173,36 +92,6 @@ def scan_normals(
     normals[:, 0], normals[:, 1] = -np.sin(phi), np.cos(phi)
     ok = spread_ok & (lmin <= max_ratio * np.maximum(lmax, 1e-12)) & (lmax > 0)
     return normals, ok
-
-
-def sliding_max(values: np.ndarray, block: int) -> np.ndarray:
-    """``out[r, c] = max(values[r : r + block, c : c + block])`` (zero past the edges).
-
-    ``block`` must be a power of two; computed by repeated doubling, exact.
-    """
-    if block & (block - 1) or block < 1:
-        raise ValueError(f"block must be a power of two, got {block}")
-    out = values
-    width = 1
-    while width < block:
-        shifted = np.zeros_like(out)
-        shifted[:-width, :] = out[width:, :]
-        out = np.maximum(out, shifted)
-        shifted = np.zeros_like(out)
-        shifted[:, :-width] = out[:, width:]
-        out = np.maximum(out, shifted)
-        width *= 2
-    return out
-
-
-def _crop(values: np.ndarray, r0: int, c0: int, h: int, w: int) -> np.ndarray:
-    """``values[r0 : r0 + h, c0 : c0 + w]`` with zeros where it leaves the array."""
-    out = np.zeros((h, w), dtype=values.dtype)
-    rs0, cs0 = max(r0, 0), max(c0, 0)
-    rs1, cs1 = min(r0 + h, values.shape[0]), min(c0 + w, values.shape[1])
-    if rs1 > rs0 and cs1 > cs0:
-        out[rs0 - r0 : rs1 - r0, cs0 - c0 : cs1 - c0] = values[rs0:rs1, cs0:cs1]
-    return out
 
 
 class CorrelativeMatcher:
@@ -284,7 +173,7 @@ class CorrelativeMatcher:
         gr = int(math.floor((guess[1] - field.origin[1]) / res))
         gc = int(math.floor((guess[0] - field.origin[0]) / res))
         size = 2 * half + 1
-        crop = _crop(field.values, gr - half, gc - half, size, size)
+        crop = crop_window(field.values, gr - half, gc - half, size, size)
         cox = field.origin[0] + (gc - half) * res
         coy = field.origin[1] + (gr - half) * res
         flat = crop.ravel()
@@ -388,7 +277,7 @@ class CorrelativeMatcher:
             return 0.0
         wx, wy = _transform(points, pose)
         if interpolate:
-            m, _, _ = _bicubic(field, wx, wy)
+            m, _, _ = bicubic(field, wx, wy)
         else:
             res = field.resolution
             cols = np.floor((wx - field.origin[0]) / res).astype(np.int64)
@@ -475,7 +364,7 @@ class CorrelativeMatcher:
         prior_info: np.ndarray | None,
     ) -> float:
         wx, wy = _transform(points, pose)
-        m, _, _ = _bicubic(field, wx, wy)
+        m, _, _ = bicubic(field, wx, wy)
         cost = float(np.mean((1.0 - m) ** 2)) / self.scan_sigma**2
         if prior_info is not None:
             e = pose - prior_mean
@@ -501,7 +390,7 @@ class CorrelativeMatcher:
         h = info
         for _ in range(self.iterations):
             wx, wy = _transform(points, x)
-            m, gx, gy = _bicubic(field, wx, wy)
+            m, gx, gy = bicubic(field, wx, wy)
             r = 1.0 - m
             c, s = math.cos(x[2]), math.sin(x[2])
             dth = gx * (-s * px - c * py) + gy * (c * px - s * py)
@@ -575,41 +464,3 @@ def _transform(points: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.nda
     c, s = math.cos(pose[2]), math.sin(pose[2])
     px, py = points[:, 0], points[:, 1]
     return pose[0] + c * px - s * py, pose[1] + s * px + c * py
-
-
-def _bicubic(
-    field: LikelihoodField, wx: np.ndarray, wy: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Catmull-Rom bicubic value and map-frame gradient of the field (cell centres as
-    samples, zero outside). Unlike bilinear interpolation it peaks between two equal
-    samples, so a wall whose hits fill two cells still has a sharp optimum at its face."""
-    res = field.resolution
-    v = field.values
-    h, w = v.shape
-    u = (wx - field.origin[0]) / res - 0.5
-    t = (wy - field.origin[1]) / res - 0.5
-    j1 = np.floor(u).astype(np.int64)
-    i1 = np.floor(t).astype(np.int64)
-    wu, du = _catmull_rom(u - j1)  # (N, 4)
-    wt, dt = _catmull_rom(t - i1)
-    inside = (i1 >= 1) & (i1 < h - 2) & (j1 >= 1) & (j1 < w - 2)
-    i1 = np.where(inside, i1, 1)
-    j1 = np.where(inside, j1, 1)
-    k = np.arange(-1, 3)
-    patch = v[(i1[:, None] + k)[:, :, None], (j1[:, None] + k)[:, None, :]]  # (N, 4, 4)
-    patch = patch * inside[:, None, None]
-    rows = np.einsum("nij,nj->ni", patch, wu)  # interpolated along x, per row
-    m = np.einsum("ni,ni->n", rows, wt)
-    gt = np.einsum("ni,ni->n", rows, dt)
-    gu = np.einsum("nij,nj,ni->n", patch, du, wt)
-    return m, gu / res, gt / res
-
-
-def _catmull_rom(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Weights (N, 4) of samples -1, 0, 1, 2 at fraction ``f``, and their derivatives."""
-    f2, f3 = f * f, f * f * f
-    wts = 0.5 * np.stack([-f3 + 2 * f2 - f, 3 * f3 - 5 * f2 + 2, -3 * f3 + 4 * f2 + f, f3 - f2], 1)
-    der = 0.5 * np.stack(
-        [-3 * f2 + 4 * f - 1, 9 * f2 - 10 * f, -9 * f2 + 8 * f + 1, 3 * f2 - 2 * f], 1
-    )
-    return wts, der

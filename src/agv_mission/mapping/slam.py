@@ -52,12 +52,8 @@ import numpy as np
 
 from agv_mission.geometry import Bounds, Pose2D
 from agv_mission.mapping.configs import GridSlamConfig
-from agv_mission.mapping.scan_matching import (
-    CorrelativeMatcher,
-    LikelihoodField,
-    MatchResult,
-    field_values,
-)
+from agv_mission.mapping.likelihood_field import LikelihoodField, field_values
+from agv_mission.mapping.scan_matching import CorrelativeMatcher, MatchResult
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.messages import LaserScan
 

@@ -27,9 +27,20 @@ from agv_mission.maps.rooms_file import RoomsFileError, load_rooms
 from agv_mission.maps.world_loader import WorldError, builtin_names, load_world
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.missions.errors import MissionError, Problem
+from agv_mission.missions.overrides import apply, parse_override
+from agv_mission.missions.problems import (
+    first_error,
+    first_line,
+    kind_of,
+    non_string_keys,
+    one_line,
+    os_message,
+    problem_at,
+    validation_problems,
+    yaml_problem,
+)
 from agv_mission.missions.schema import FIELD_ORDER, Mission, Setup
-from agv_mission.missions.yaml_lines import DocumentError, FieldPath, line_of, load_with_lines
-from agv_mission.registry import registry
+from agv_mission.missions.yaml_lines import FieldPath, load_with_lines
 from agv_mission.robots.description import BUILTIN_ROBOTS, RobotDescription, load_robot
 
 # A front door's rule on which files a mission may name: (field, resolved path) -> a
@@ -82,7 +93,7 @@ def load_mission(
     try:
         data, lines = load_with_lines(text)
     except yaml.YAMLError as exc:
-        raise MissionError([_yaml_problem(file, exc, text)]) from None
+        raise MissionError([yaml_problem(file, exc, text)]) from None
     except RecursionError:
         raise MissionError([Problem(file, None, "", "the document nests too deeply")]) from None
     if data is None:
@@ -94,24 +105,24 @@ def load_mission(
                     file,
                     lines.get((), 1),
                     "",
-                    f"expected a mapping of mission keys, got {_kind(data)}",
+                    f"expected a mapping of mission keys, got {kind_of(data)}",
                 )
             ]
         )
     data = copy.deepcopy(data)
     override_paths: dict[FieldPath, str] = {}
     for item in overrides or []:
-        field_path, value = _parse_override(file, item)
-        _apply(data, field_path, value, file, item)
+        field_path, value = parse_override(file, item)
+        apply(data, field_path, value, file, item)
         override_paths[field_path] = f"--set {item}"
     if seed is not None:
         data["seed"] = seed
         override_paths[("seed",)] = f"--seed {seed}"
-    bad_keys = _non_string_keys(data)
+    bad_keys = non_string_keys(data)
     if bad_keys:
         raise MissionError(
             [
-                _problem(
+                problem_at(
                     file,
                     p,
                     f"keys must be strings, got {p[-1]!r} (quote it)",
@@ -127,7 +138,7 @@ def load_mission(
         mission = model.model_validate(data)
     except ValidationError as exc:
         raise MissionError(
-            _validation_problems(file, exc, data, lines, override_paths, model)
+            validation_problems(file, exc, data, lines, override_paths, model)
         ) from None
     except RecursionError:  # e.g. an alias that contains itself: a: &x [*x]
         raise MissionError(
@@ -154,7 +165,7 @@ def _resolve(
     problems: list[Problem] = []
 
     def problem(field_path: FieldPath, message: str) -> None:
-        problems.append(_problem(file, field_path, message, lines, override_paths))
+        problems.append(problem_at(file, field_path, message, lines, override_paths))
 
     if path_guard is not None:
         named = {
@@ -173,10 +184,10 @@ def _resolve(
     try:
         world = load_world(mission.world, base_dir)
     except WorldError as exc:
-        problem(("world",), _one_line(str(exc)))
+        problem(("world",), one_line(str(exc)))
         raise MissionError(problems) from None
     except (OSError, ValueError, RuntimeError) as exc:  # a path the OS refuses
-        problem(("world",), f"cannot read world {mission.world!r}: {_os_message(exc)}")
+        problem(("world",), f"cannot read world {mission.world!r}: {os_message(exc)}")
         raise MissionError(problems) from None
     except MemoryError:
         problem(
@@ -194,11 +205,11 @@ def _resolve(
             "(built-in: burger, waffle, rosbots)",
         )
     except ValidationError as exc:
-        problem(("robot",), f"invalid robot file {mission.robot!r}: {_first_error(exc)}")
+        problem(("robot",), f"invalid robot file {mission.robot!r}: {first_error(exc)}")
     except yaml.YAMLError as exc:
-        problem(("robot",), f"invalid robot file {mission.robot!r}: {_first_line(exc)}")
+        problem(("robot",), f"invalid robot file {mission.robot!r}: {first_line(exc)}")
     except (OSError, ValueError, RuntimeError) as exc:
-        problem(("robot",), f"cannot read robot file {mission.robot!r}: {_os_message(exc)}")
+        problem(("robot",), f"cannot read robot file {mission.robot!r}: {os_message(exc)}")
     except (AttributeError, TypeError):  # YAML, but not a mapping
         problem(
             ("robot",),
@@ -209,9 +220,9 @@ def _resolve(
         try:
             rooms.update(load_rooms(_resolve_path(mission.rooms, base_dir)))
         except RoomsFileError as exc:  # names the file, the line and the room
-            problem(("rooms",), _one_line(str(exc)))
+            problem(("rooms",), one_line(str(exc)))
         except Exception as exc:
-            problem(("rooms",), f"cannot read rooms file {mission.rooms!r}: {_os_message(exc)}")
+            problem(("rooms",), f"cannot read rooms file {mission.rooms!r}: {os_message(exc)}")
     if problems:
         raise MissionError(problems)
 
@@ -266,7 +277,7 @@ def _resolve(
         except (OSError, ValueError, RuntimeError) as exc:
             problem(
                 ("recorder",),
-                f"cannot read recorder file {mission.recorder!r}: {_os_message(exc)}",
+                f"cannot read recorder file {mission.recorder!r}: {os_message(exc)}",
             )
     if problems:
         raise MissionError(problems)
@@ -376,231 +387,11 @@ def _resolve_path(spec: str, base_dir: Path) -> Path:
     return p if p.is_absolute() else base_dir / p
 
 
-def _parse_override(file: str, item: str) -> tuple[FieldPath, Any]:
-    key, sep, raw = item.partition("=")
-    if not sep or not key.strip():
-        raise MissionError(
-            [
-                Problem(
-                    "--set",
-                    None,
-                    item,
-                    "expected KEY=VALUE, e.g. stack.global_planner.planner=RRTstar",
-                )
-            ]
-        )
-    try:
-        value = yaml.safe_load(raw) if raw.strip() else None
-    except yaml.YAMLError:
-        value = raw
-    parts: list[str | int] = [
-        int(p) if p.isascii() and p.isdigit() else p for p in key.strip().split(".")
-    ]  # not int("²"): str.isdigit() takes superscripts
-    return tuple(parts), value
-
-
-def _apply(data: dict, field_path: FieldPath, value: Any, file: str, item: str) -> None:
-    node: Any = data
-    for i, part in enumerate(field_path):
-        last = i == len(field_path) - 1
-        if isinstance(node, list):
-            if not isinstance(part, int) or not -len(node) <= part < len(node):
-                raise MissionError(
-                    [
-                        Problem(
-                            "--set",
-                            None,
-                            item,
-                            f"{part!r} is not an index of a list of {len(node)}",
-                        )
-                    ]
-                )
-            if last:
-                node[part] = value
-            else:
-                node = node[part]
-        elif isinstance(node, dict):
-            key: str | int = part
-            if isinstance(part, int) and part not in node:  # a mapping's keys are strings
-                key = str(part)
-            if last:
-                if _swaps_plugin(field_path, node, value):
-                    node.clear()  # the old plugin's keys mean nothing to the new one
-                node[key] = value
-            else:
-                if not isinstance(node.get(key), (dict, list)):
-                    node[key] = {}
-                node = node[key]
-        else:
-            raise MissionError(
-                [Problem("--set", None, item, f"cannot set a key inside a {_kind(node)}")]
-            )
-
-
-def _swaps_plugin(field_path: FieldPath, block: dict, value: Any) -> bool:
-    """``--set stack.<slot>.type=<other>`` selects another plugin with its own defaults."""
-    return (
-        len(field_path) == 3
-        and field_path[0] == "stack"
-        and field_path[2] == "type"
-        and block.get("type", value) != value
-    )
-
-
-def _validation_problems(
-    file: str,
-    exc: ValidationError,
-    data: Any,
-    lines: dict[FieldPath, int],
-    override_paths: dict[FieldPath, str],
-    model: type[Setup] = Mission,
-) -> list[Problem]:
-    problems: list[Problem] = []
-    seen: set[tuple[FieldPath, str]] = set()
-    for err in exc.errors(include_url=False):
-        field_path = _data_path(tuple(err["loc"]), data)
-        message = _message(err, data, model)
-        if (field_path, message) in seen:
-            continue
-        seen.add((field_path, message))
-        problems.append(_problem(file, field_path, message, lines, override_paths))
-    return problems
-
-
-def _non_string_keys(data: Any, limit: int = 10) -> list[tuple[Any, ...]]:
-    """Paths of mapping keys that YAML read as numbers, booleans, null or dates."""
-    found: list[tuple[Any, ...]] = []
-    seen: set[int] = set()
-    stack: list[tuple[Any, tuple[Any, ...]]] = [(data, ())]
-    while stack and len(found) < limit:
-        node, path = stack.pop()
-        if id(node) in seen:
-            continue
-        seen.add(id(node))
-        if isinstance(node, dict):
-            for key, value in node.items():
-                if not isinstance(key, str):
-                    found.append((*path, key))
-                stack.append((value, (*path, key)))
-        elif isinstance(node, list):
-            stack.extend((item, (*path, i)) for i, item in enumerate(node))
-    return sorted(found[:limit], key=str)
-
-
-def _data_path(loc: tuple, data: Any) -> FieldPath:
-    """Drop pydantic's union tags from an error location, keeping the document's own path."""
-    path: list[str | int] = []
-    node = data
-    for i, part in enumerate(loc):
-        last = i == len(loc) - 1
-        if (
-            isinstance(node, dict)
-            and part in node
-            or isinstance(node, list)
-            and isinstance(part, int)
-            and 0 <= part < len(node)
-        ):
-            path.append(part)
-            node = node[part]
-        elif last and isinstance(part, str) and not _is_tag(part):
-            path.append(part)  # a missing field: named, but not in the document
-        # otherwise a union tag such as 'go_to', 'Pose' or 'function-after[...]': skip
-    return tuple(path)
-
-
-def _is_tag(part: str) -> bool:
-    return part in {"str", "int", "float", "bool", "Pose"} or "[" in part
-
-
-def _message(err: dict, data: Any = None, model: type[Setup] = Mission) -> str:
-    kind = err["type"]
-    if kind == "missing":
-        return "required field is missing"
-    if kind == "extra_forbidden":
-        return "unknown key (not allowed here)"
-    if kind == "union_tag_invalid":
-        ctx = err.get("ctx", {})
-        tag = ctx.get("tag")
-        broken = [why for name, why in registry.errors().items() if name.endswith(f".{tag}")]
-        if broken:
-            return f"plugin {tag!r} is installed but failed to load: {broken[0]}"
-        return f"unknown type {tag!r}; expected one of {ctx.get('expected_tags')}"
-    if kind == "union_tag_not_found":
-        tags = _expected_tags(tuple(err["loc"]), data, model)
-        return "missing 'type'" + (f"; expected one of {tags}" if tags else "")
-    msg = err["msg"]
-    if kind in ("model_type", "model_attributes_type", "dict_type"):
-        msg = "expected a mapping"
-    if kind.endswith("_type") and isinstance(err.get("input"), (dict, list)):
-        msg += " (got a list)" if isinstance(err["input"], list) else " (got a mapping)"
-    if msg.startswith("Value error, "):
-        msg = msg[len("Value error, ") :]
-    if (
-        "input" in err
-        and kind not in ("union_tag_invalid",)
-        and not isinstance(err["input"], (dict, list))
-    ):
-        msg = f"{msg} (got {err['input']!r})"
-    return msg
-
-
-def _expected_tags(loc: tuple, data: Any, model: type[Setup] = Mission) -> str | None:
-    """The ``type`` values a block without one could have: ask the schema with a bad one."""
-    field_path = _data_path(loc, data)
-    try:
-        probe = copy.deepcopy(data)
-        node = probe
-        for part in field_path:
-            node = node[part]
-        if not isinstance(node, dict):
-            return None
-        node["type"] = "\x00"
-        model.model_validate(probe)
-    except ValidationError as exc:
-        for err in exc.errors(include_url=False):
-            if err["type"] == "union_tag_invalid" and _data_path(err["loc"], probe) == field_path:
-                return err.get("ctx", {}).get("expected_tags")
-    except Exception:  # the message just lists no types
-        return None
-    return None
-
-
-def _one_line(message: str) -> str:
-    """A multi-line message from a file loader as one line."""
-    lines = [line.strip() for line in message.splitlines() if line.strip()]
-    if len(lines) > 1 and lines[0].endswith(":"):
-        return f"{lines[0]} " + "; ".join(lines[1:])
-    return "; ".join(lines)
-
-
-def _spell(part: Any) -> str:
-    """A path part as YAML spells it (true, not True)."""
-    if isinstance(part, bool) or part is None:
-        return yaml.safe_dump(part).splitlines()[0]
-    return str(part)
-
-
-def _problem(
-    file: str,
-    field_path: FieldPath,
-    message: str,
-    lines: dict[FieldPath, int],
-    override_paths: dict[FieldPath, str],
-) -> Problem:
-    dotted = ".".join(_spell(p) for p in field_path)
-    spelled = tuple(map(str, field_path))  # --set tasks.0=... and stack.5=... alike
-    for opath, item in override_paths.items():
-        o = tuple(map(str, opath))
-        if spelled[: len(o)] == o or o[: len(spelled)] == spelled:
-            return Problem(file, None, dotted, f"{message} (from {item})")
-    return Problem(file, line_of(field_path, lines), dotted, message)
-
-
 def _read_text(path: Path, file: str) -> str:
     try:
         raw = path.read_bytes()
     except OSError as exc:
-        raise MissionError([Problem(file, None, "", f"cannot read: {_os_message(exc)}")]) from None
+        raise MissionError([Problem(file, None, "", f"cannot read: {os_message(exc)}")]) from None
     except ValueError as exc:  # e.g. an embedded null byte in the path
         raise MissionError([Problem(file, None, "", f"cannot read: {exc}")]) from None
     try:
@@ -610,49 +401,3 @@ def _read_text(path: Path, file: str) -> str:
         column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
         message = f"not a UTF-8 text file (byte 0x{raw[exc.start]:02x} at column {column})"
         raise MissionError([Problem(file, line, "", message)]) from None
-
-
-def _yaml_problem(file: str, exc: yaml.YAMLError, source: str) -> Problem:
-    if isinstance(exc, DocumentError):
-        line = exc.problem_mark.line + 1 if exc.problem_mark is not None else None
-        dotted = ".".join(str(p) for p in exc.field_path)
-        return Problem(file, line, dotted, f"invalid YAML: {exc.problem}")
-    if isinstance(exc, yaml.reader.ReaderError):  # a character YAML does not allow
-        line = source[: exc.position].count("\n") + 1
-        char = exc.character if isinstance(exc.character, int) else ord(exc.character)
-        return Problem(
-            file, line, "", f"YAML syntax error: unacceptable character #x{char:04x} ({exc.reason})"
-        )
-    mark = getattr(exc, "problem_mark", None)
-    line = mark.line + 1 if mark is not None else None
-    problem = getattr(exc, "problem", None) or str(exc)
-    context = getattr(exc, "context", None)
-    start = getattr(exc, "context_mark", None)
-    if context and start is not None and start.line + 1 != line:
-        context += f" started on line {start.line + 1}"  # e.g. the unclosed '{' or '"'
-    text = f"YAML syntax error: {problem}" + (f" ({context})" if context else "")
-    return Problem(file, line, "", text)
-
-
-def _os_message(exc: BaseException) -> str:
-    if isinstance(exc, OSError) and exc.strerror:
-        return exc.strerror
-    return _first_line(exc)
-
-
-def _first_error(exc: ValidationError) -> str:
-    errors = exc.errors(include_url=False)
-    err = errors[0]
-    where = ".".join(str(p) for p in err["loc"])
-    msg = "field required" if err["type"] == "missing" else err["msg"]
-    more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
-    return (f"{where}: {msg}" if where else msg) + more
-
-
-def _kind(value: Any) -> str:
-    return type(value).__name__ if value is not None else "nothing"
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__

@@ -1,0 +1,210 @@
+"""Bad input as :class:`Problem` s naming file, line and field: pydantic's validation errors
+and YAML's syntax errors in the words of the mission format."""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import yaml
+from pydantic import ValidationError
+
+from agv_mission.missions.errors import Problem
+from agv_mission.missions.schema import Mission, Setup
+from agv_mission.missions.yaml_lines import DocumentError, FieldPath, line_of
+from agv_mission.registry import registry
+
+
+def validation_problems(
+    file: str,
+    exc: ValidationError,
+    data: Any,
+    lines: dict[FieldPath, int],
+    override_paths: dict[FieldPath, str],
+    model: type[Setup] = Mission,
+) -> list[Problem]:
+    problems: list[Problem] = []
+    seen: set[tuple[FieldPath, str]] = set()
+    for err in exc.errors(include_url=False):
+        field_path = data_path(tuple(err["loc"]), data)
+        message = error_message(err, data, model)
+        if (field_path, message) in seen:
+            continue
+        seen.add((field_path, message))
+        problems.append(problem_at(file, field_path, message, lines, override_paths))
+    return problems
+
+
+def non_string_keys(data: Any, limit: int = 10) -> list[tuple[Any, ...]]:
+    """Paths of mapping keys that YAML read as numbers, booleans, null or dates."""
+    found: list[tuple[Any, ...]] = []
+    seen: set[int] = set()
+    stack: list[tuple[Any, tuple[Any, ...]]] = [(data, ())]
+    while stack and len(found) < limit:
+        node, path = stack.pop()
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
+        if isinstance(node, dict):
+            for key, value in node.items():
+                if not isinstance(key, str):
+                    found.append((*path, key))
+                stack.append((value, (*path, key)))
+        elif isinstance(node, list):
+            stack.extend((item, (*path, i)) for i, item in enumerate(node))
+    return sorted(found[:limit], key=str)
+
+
+def data_path(loc: tuple, data: Any) -> FieldPath:
+    """Drop pydantic's union tags from an error location, keeping the document's own path."""
+    path: list[str | int] = []
+    node = data
+    for i, part in enumerate(loc):
+        last = i == len(loc) - 1
+        if (
+            isinstance(node, dict)
+            and part in node
+            or isinstance(node, list)
+            and isinstance(part, int)
+            and 0 <= part < len(node)
+        ):
+            path.append(part)
+            node = node[part]
+        elif last and isinstance(part, str) and not is_tag(part):
+            path.append(part)  # a missing field: named, but not in the document
+        # otherwise a union tag such as 'go_to', 'Pose' or 'function-after[...]': skip
+    return tuple(path)
+
+
+def is_tag(part: str) -> bool:
+    return part in {"str", "int", "float", "bool", "Pose"} or "[" in part
+
+
+def error_message(err: dict, data: Any = None, model: type[Setup] = Mission) -> str:
+    kind = err["type"]
+    if kind == "missing":
+        return "required field is missing"
+    if kind == "extra_forbidden":
+        return "unknown key (not allowed here)"
+    if kind == "union_tag_invalid":
+        ctx = err.get("ctx", {})
+        tag = ctx.get("tag")
+        broken = [why for name, why in registry.errors().items() if name.endswith(f".{tag}")]
+        if broken:
+            return f"plugin {tag!r} is installed but failed to load: {broken[0]}"
+        return f"unknown type {tag!r}; expected one of {ctx.get('expected_tags')}"
+    if kind == "union_tag_not_found":
+        tags = expected_tags(tuple(err["loc"]), data, model)
+        return "missing 'type'" + (f"; expected one of {tags}" if tags else "")
+    msg = err["msg"]
+    if kind in ("model_type", "model_attributes_type", "dict_type"):
+        msg = "expected a mapping"
+    if kind.endswith("_type") and isinstance(err.get("input"), (dict, list)):
+        msg += " (got a list)" if isinstance(err["input"], list) else " (got a mapping)"
+    if msg.startswith("Value error, "):
+        msg = msg[len("Value error, ") :]
+    if (
+        "input" in err
+        and kind not in ("union_tag_invalid",)
+        and not isinstance(err["input"], (dict, list))
+    ):
+        msg = f"{msg} (got {err['input']!r})"
+    return msg
+
+
+def expected_tags(loc: tuple, data: Any, model: type[Setup] = Mission) -> str | None:
+    """The ``type`` values a block without one could have: ask the schema with a bad one."""
+    field_path = data_path(loc, data)
+    try:
+        probe = copy.deepcopy(data)
+        node = probe
+        for part in field_path:
+            node = node[part]
+        if not isinstance(node, dict):
+            return None
+        node["type"] = "\x00"
+        model.model_validate(probe)
+    except ValidationError as exc:
+        for err in exc.errors(include_url=False):
+            if err["type"] == "union_tag_invalid" and data_path(err["loc"], probe) == field_path:
+                return err.get("ctx", {}).get("expected_tags")
+    except Exception:  # the message just lists no types
+        return None
+    return None
+
+
+def one_line(message: str) -> str:
+    """A multi-line message from a file loader as one line."""
+    lines = [line.strip() for line in message.splitlines() if line.strip()]
+    if len(lines) > 1 and lines[0].endswith(":"):
+        return f"{lines[0]} " + "; ".join(lines[1:])
+    return "; ".join(lines)
+
+
+def spell(part: Any) -> str:
+    """A path part as YAML spells it (true, not True)."""
+    if isinstance(part, bool) or part is None:
+        return yaml.safe_dump(part).splitlines()[0]
+    return str(part)
+
+
+def problem_at(
+    file: str,
+    field_path: FieldPath,
+    message: str,
+    lines: dict[FieldPath, int],
+    override_paths: dict[FieldPath, str],
+) -> Problem:
+    dotted = ".".join(spell(p) for p in field_path)
+    spelled = tuple(map(str, field_path))  # --set tasks.0=... and stack.5=... alike
+    for opath, item in override_paths.items():
+        o = tuple(map(str, opath))
+        if spelled[: len(o)] == o or o[: len(spelled)] == spelled:
+            return Problem(file, None, dotted, f"{message} (from {item})")
+    return Problem(file, line_of(field_path, lines), dotted, message)
+
+
+def yaml_problem(file: str, exc: yaml.YAMLError, source: str) -> Problem:
+    if isinstance(exc, DocumentError):
+        line = exc.problem_mark.line + 1 if exc.problem_mark is not None else None
+        dotted = ".".join(str(p) for p in exc.field_path)
+        return Problem(file, line, dotted, f"invalid YAML: {exc.problem}")
+    if isinstance(exc, yaml.reader.ReaderError):  # a character YAML does not allow
+        line = source[: exc.position].count("\n") + 1
+        char = exc.character if isinstance(exc.character, int) else ord(exc.character)
+        return Problem(
+            file, line, "", f"YAML syntax error: unacceptable character #x{char:04x} ({exc.reason})"
+        )
+    mark = getattr(exc, "problem_mark", None)
+    line = mark.line + 1 if mark is not None else None
+    problem = getattr(exc, "problem", None) or str(exc)
+    context = getattr(exc, "context", None)
+    start = getattr(exc, "context_mark", None)
+    if context and start is not None and start.line + 1 != line:
+        context += f" started on line {start.line + 1}"  # e.g. the unclosed '{' or '"'
+    text = f"YAML syntax error: {problem}" + (f" ({context})" if context else "")
+    return Problem(file, line, "", text)
+
+
+def os_message(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror
+    return first_line(exc)
+
+
+def first_error(exc: ValidationError) -> str:
+    errors = exc.errors(include_url=False)
+    err = errors[0]
+    where = ".".join(str(p) for p in err["loc"])
+    msg = "field required" if err["type"] == "missing" else err["msg"]
+    more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+    return (f"{where}: {msg}" if where else msg) + more
+
+
+def kind_of(value: Any) -> str:
+    return type(value).__name__ if value is not None else "nothing"
+
+
+def first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__

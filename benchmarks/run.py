@@ -31,6 +31,8 @@ MODULES = [
     "bench_breakdown",
     "bench_regress",
     "bench_bags",
+    "bench_service",
+    "bench_dashboard",
 ]
 
 # metric -> (comparison, target) from the issues
@@ -72,6 +74,12 @@ TARGETS = {
     "bags.round_trip.tb3.x_bag_duration": (">=", 20.0),
     "bags.round_trip.aws_small_house.free_iou.offline": (">=", 0.95),
     "bags.round_trip.aws_small_house.x_bag_duration": (">=", 20.0),
+    "service.throughput_ratio": (">=", 1.8),
+    "service.slowdown_50_subscribers": ("<=", 0.10),
+    "service.lost": ("<=", 0.0),
+    "service.control_ms.pause_p50": ("<=", 200.0),
+    "dashboard.watched_rtf_ratio": (">=", 0.9),
+    "dashboard.fps_30x50": (">=", 20.0),
 }
 # metric name suffix -> (comparison, target), for keys of every map (issue 15)
 SUFFIX_TARGETS = {

@@ -20,9 +20,11 @@ from agv_mission.geometry import wrap_angle
 from agv_mission.maps.builtin_worlds import HOUSE_SPAWN
 from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder
 from agv_mission.maps.rooms import room_at
+from agv_mission.missions.loader import load_mission
+from agv_mission.missions.runner import MissionRun, run_mission
 from agv_mission.missions.stack import open_recorders
 from agv_mission.planners.base import VelocityLimits
-from agv_mission.teleop.session import TeleopRobot, load_teleop_mission
+from agv_mission.teleop.session import load_teleop_mission, teleop_mission
 from agv_mission.teleop.terminal import TeleopKeys, split_keys
 
 CLI = [sys.executable, "-m", "agv_mission.cli"]
@@ -83,14 +85,35 @@ def test_default_mission_is_small_house_from_the_livingroom(tmp_path: Path) -> N
     assert room_at(loaded.rooms, loaded.start.x, loaded.start.y) == "kitchen"
 
 
-def test_teleop_robot_drives_and_estimates() -> None:
-    robot = TeleopRobot(load_teleop_mission())
-    for _ in range(30):
-        robot.step(0.2, 0.0)
-    assert robot.time == pytest.approx(3.0)
-    assert 0.4 < robot.estimate.x - HOUSE_SPAWN.x < 0.65
-    assert robot.velocity[0] == pytest.approx(0.2) and robot.room() == "livingroom"
-    assert robot.trajectory().shape == (30, 9)
+def test_teleop_task_drives_under_remote_command_and_estimates() -> None:
+    """The session's robot is the runner's teleop task: a control sets the command."""
+
+    class Forward:
+        steps = 0
+
+        def before_step(self, run: MissionRun) -> None:
+            if self.steps == 30:
+                run.cancel("quit")
+            run.handle.remote_command = (0.2, 0.0)
+            self.steps += 1
+
+    record = run_mission(teleop_mission(load_teleop_mission()), None, control=Forward())
+    assert record.sim_time == pytest.approx(3.0)
+    assert record.trajectory.shape == (30, 9)
+    est_x = record.trajectory[-1, 4]
+    assert 0.4 < est_x - HOUSE_SPAWN.x < 0.65
+    assert record.trajectory[-1, 7] == pytest.approx(0.2)
+    assert record.tasks[0]["type"] == "teleop" and record.status == "aborted"
+
+
+def test_teleop_task_with_a_duration_ends_and_stands_still_without_commands(
+    tmp_path: Path,
+) -> None:
+    mission = tmp_path / "m.yaml"
+    mission.write_text("world: small_house\ntasks:\n  - {type: teleop, duration: 1.5}\n")
+    record = run_mission(load_mission(mission), None)
+    assert record.status == "succeeded" and record.sim_time == pytest.approx(1.5, abs=0.11)
+    assert float(abs(record.trajectory[:, 7]).max()) == 0.0  # no command, no motion
 
 
 def test_open_recorders_targets(tmp_path: Path) -> None:

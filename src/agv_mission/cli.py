@@ -87,7 +87,7 @@ out = Console(file=_PipeSafeStdout(), soft_wrap=True)  # type: ignore[arg-type]
 err = Console(stderr=True, soft_wrap=True)
 
 DEMO_MISSION = "visit_rooms.yaml"
-EXIT_CODES = {"succeeded": 0, "failed": 1, "error": 3, "aborted": 130}
+EXIT_CODES = {"succeeded": 0, "failed": 1, "error": 3, "aborted": 130, "interrupted": 1}
 SIGNAL_EXIT_CODES = {signal.SIGINT: 130, signal.SIGTERM: 143}
 
 
@@ -546,6 +546,111 @@ def regress(
         )
         raise typer.Exit(130)
     raise typer.Exit(1 if failed else 0)
+
+
+@app.command()
+def serve(
+    host: Annotated[
+        str, typer.Option(help="address to bind (loopback unless --token)")
+    ] = "127.0.0.1",
+    port: Annotated[int, typer.Option(min=0, max=65535, help="0 picks a free port")] = 8080,
+    data: Annotated[Path, typer.Option(help="run registry and run directories")] = Path("agv-data"),
+    workers: Annotated[
+        Optional[int], typer.Option(min=1, help="missions at once; default: the CPU count")  # noqa: UP007, UP045
+    ] = None,
+    queue_size: Annotated[int, typer.Option(min=1, help="queued runs before 429")] = 1000,
+    backend: Annotated[str, typer.Option(help="local (processes) or ray")] = "local",
+    address: Annotated[
+        Optional[str], typer.Option(help="Ray cluster address (ray backend)")  # noqa: UP007, UP045
+    ] = None,
+    token: Annotated[
+        Optional[str],  # noqa: UP007, UP045
+        typer.Option(envvar="AGV_MISSION_TOKEN", help="bearer token every /api request needs"),
+    ] = None,
+) -> None:
+    """Run missions as a service: HTTP API, run registry, workers, live stream."""
+    import os
+
+    from rich.markup import escape
+
+    from agv_mission.service.server import ServeError
+    from agv_mission.service.server import serve as run_server
+
+    try:
+        run_server(
+            host,
+            port,
+            data,
+            workers or os.cpu_count() or 1,
+            queue_size,
+            backend,
+            address,
+            token,
+        )
+    except ServeError as exc:
+        err.print(f"[bold red]cannot serve[/]: {escape(str(exc))}", highlight=False)
+        raise typer.Exit(2) from None
+
+
+@app.command()
+def submit(
+    mission: Annotated[Path, typer.Argument(help="mission file")],
+    server: Annotated[str, typer.Option(help="service URL, e.g. http://127.0.0.1:8080")],
+    set_: Annotated[list[str], typer.Option("--set", help="KEY=VALUE override (YAML value)")] = [],  # noqa: B006
+    seed: Annotated[Optional[int], typer.Option(help="override the mission's seed")] = None,  # noqa: UP007, UP045
+    follow: Annotated[bool, typer.Option("--follow", help="stream progress until it ends")] = False,
+    token: Annotated[
+        Optional[str],  # noqa: UP007, UP045
+        typer.Option(envvar="AGV_MISSION_TOKEN", help="the service's bearer token"),
+    ] = None,
+) -> None:
+    """Submit a mission to a running service; print the run id (and follow it live)."""
+    from rich.markup import escape
+
+    from agv_mission.service import client
+
+    try:
+        run = client.submit(mission, set_, seed, server, token)
+    except MissionError as exc:
+        _report_invalid(exc)
+        raise typer.Exit(2) from None
+    except client.ClientError as exc:
+        err.print(f"[bold red]error[/]: {escape(str(exc))}", highlight=False)
+        raise typer.Exit(2) from None
+    out.print(run["id"], highlight=False)
+    if not follow:
+        raise typer.Exit(0)
+    shown = {"t": -1e9}
+
+    def show(message: dict) -> None:
+        kind = message.get("type")
+        if kind == "event":
+            details = {k: v for k, v in message.items() if k not in ("type", "t", "event")}
+            err.print(
+                f"  t={message.get('t', 0):.1f} {message.get('event')} {details}",
+                highlight=False,
+                markup=False,
+            )
+        elif kind == "state" and message["t"] - shown["t"] >= 5.0:
+            shown["t"] = message["t"]
+            p = message.get("progress") or {}
+            err.print(
+                f"  t={message['t']:.1f} {message.get('status')} {p.get('detail', '')}",
+                highlight=False,
+                markup=False,
+            )
+
+    try:
+        final = client.follow(server, run["id"], token, show)
+    except client.ClientError as exc:
+        err.print(f"[bold red]error[/]: {escape(str(exc))}", highlight=False)
+        raise typer.Exit(1) from None
+    result = final.get("result")
+    if result:
+        _summary(result)
+    else:
+        out.print(f"{final['status']}: {final.get('reason')}", highlight=False)
+    raise typer.Exit(EXIT_CODES.get(final["status"], 1))
 
 
 def main() -> None:

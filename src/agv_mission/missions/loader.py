@@ -9,6 +9,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -24,7 +25,7 @@ from agv_mission.maps.grid import UNKNOWN
 from agv_mission.maps.recorder import RecorderFileError, load_entries
 from agv_mission.maps.rooms import Room, reachable_cells, visit_point
 from agv_mission.maps.rooms_file import RoomsFileError, load_rooms
-from agv_mission.maps.world_loader import WorldError, load_world
+from agv_mission.maps.world_loader import WorldError, builtin_names, load_world
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.missions.errors import MissionError, Problem
 from agv_mission.missions.overrides import apply, parse_override
@@ -46,9 +47,18 @@ from agv_mission.missions.schema import (
 )
 from agv_mission.missions.yaml_lines import FieldPath, load_with_lines
 from agv_mission.navigation.navigator import goal_margin
-from agv_mission.robots.description import RobotDescription, RobotFileError, load_robot
+from agv_mission.robots.description import (
+    BUILTIN_ROBOTS,
+    RobotDescription,
+    RobotFileError,
+    load_robot,
+)
 
 MAX_GRID_CELLS = 16_000_000  # a costmap or SLAM grid: 16 M cells (e.g. 200 m x 200 m at 5 cm)
+
+# A front door's rule on which files a mission may name: (field, resolved path) -> a
+# problem message, or None when the file may be read.
+PathGuard = Callable[[str, Path], "str | None"]
 
 
 @dataclass
@@ -80,11 +90,14 @@ def load_mission(
     text: str | None = None,
     *,
     tasks_required: bool = True,
+    path_guard: PathGuard | None = None,
 ) -> LoadedMission:
     """Read, override, validate and resolve a mission file.
 
     With ``tasks_required=False`` a file without ``tasks`` is a :class:`Setup` (world,
     robot, start, stack) and resolves the same way; one with tasks is still checked whole.
+    ``path_guard`` is asked before any file the mission names is read (the service lets
+    missions read only files under its data directory).
     """
     path = Path(path)
     file = str(path)
@@ -162,7 +175,9 @@ def load_mission(
         ) from None
 
     base_dir = path.parent if path.name else Path.cwd()
-    loaded = _resolve(mission, file, base_dir, path.stem or "mission", lines, override_paths)
+    loaded = _resolve(
+        mission, file, base_dir, path.stem or "mission", lines, override_paths, path_guard
+    )
     loaded.source = path
     return loaded
 
@@ -174,11 +189,26 @@ def _resolve(
     stem: str,
     lines: dict[FieldPath, int],
     override_paths: dict[FieldPath, str],
+    path_guard: PathGuard | None = None,
 ) -> LoadedMission:
     problems: list[Problem] = []
 
     def problem(field_path: FieldPath, message: str) -> None:
         problems.append(problem_at(file, field_path, message, lines, override_paths))
+
+    if path_guard is not None:
+        named = {
+            "world": None if mission.world.strip() in builtin_names() else mission.world,
+            "robot": None if mission.robot in BUILTIN_ROBOTS else mission.robot,
+            "rooms": mission.rooms,
+            "recorder": mission.recorder,
+        }
+        for key, spec in named.items():
+            refused = spec is not None and path_guard(key, _resolve_path(spec.strip(), base_dir))
+            if refused:
+                problem((key,), refused)
+        if problems:
+            raise MissionError(problems)
 
     try:
         world = load_world(mission.world, base_dir)

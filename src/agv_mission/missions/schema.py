@@ -305,8 +305,23 @@ class MapAreaTask(StrictModel):
         return v
 
 
+class TeleopTask(StrictModel):
+    """Hold the robot under remote command (the service's live stream sends cmd_vel).
+
+    The robot stops when no command arrived for 0.5 s of wall time; under the service,
+    simulated time runs at wall-clock speed during this task.
+    """
+
+    type: Literal["teleop"]
+    duration: float | None = Field(
+        None, gt=0.0, description="simulated seconds; None: until the run is cancelled"
+    )
+
+
 Task = Annotated[
-    Union[GoToTask, PatrolTask, WanderTask, VisitRoomsTask, RecordRoomTask, MapAreaTask],  # noqa: UP007
+    Union[  # noqa: UP007
+        GoToTask, PatrolTask, WanderTask, VisitRoomsTask, RecordRoomTask, MapAreaTask, TeleopTask
+    ],
     Field(discriminator="type"),
 ]
 

@@ -18,6 +18,7 @@ from agv_mission.behaviors.outcome import LegOutcome
 from agv_mission.behaviors.patrol import PatrolLoops
 from agv_mission.behaviors.recoveries import BackUp, ClearCostmap, RecoveryNode, Spin, Wait
 from agv_mission.behaviors.rooms import InRoom, RecordRoom, SettleLocalization
+from agv_mission.behaviors.teleop import RemoteControl
 from agv_mission.geometry import Pose2D
 from agv_mission.missions.schema import (
     FailurePolicy,
@@ -26,6 +27,7 @@ from agv_mission.missions.schema import (
     Mission,
     PatrolTask,
     RecordRoomTask,
+    TeleopTask,
     VisitRoomsTask,
     WanderTask,
 )
@@ -141,6 +143,8 @@ class _Builder:
             return py_trees.composites.Sequence(
                 name=label, memory=True, children=[self.settle(task.settle), record]
             )
+        if isinstance(task, TeleopTask):
+            return RemoteControl(label, self.handle, task.duration, task=index)
         raise TypeError(f"no behaviour for task type {type(task).__name__}")
 
     def settle(self, duration: float) -> Behaviour:

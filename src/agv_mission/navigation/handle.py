@@ -26,6 +26,7 @@ class RobotHandle:
     recorded: dict[str, Pose2D] = field(default_factory=dict)
     nomotion_update: bool = False  # ask the localiser to update with the next scan
     remote_command: tuple[float, float] | None = None  # (v, w) a remote driver sends
+    remote_goal: Pose2D | None = None  # a teleop task drives here first ("2D Nav Goal")
 
     def drive(self, v: float, w: float) -> None:
         self.command = (float(v), float(w))

@@ -1,0 +1,1 @@
+"""The HTTP/WebSocket service front door (``agv-mission serve``)."""

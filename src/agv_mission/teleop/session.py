@@ -29,6 +29,7 @@ is the rest of a line, and end of input quits.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import sys
@@ -49,7 +50,9 @@ from agv_mission.maps.recorder import (
 )
 from agv_mission.maps.rooms import room_at
 from agv_mission.missions.loader import LoadedMission, load_mission
-from agv_mission.missions.stack import CONTROL_PERIOD, RobotStack
+from agv_mission.missions.runner import MissionRun, run_mission
+from agv_mission.missions.schema import Mission
+from agv_mission.missions.stack import CONTROL_PERIOD
 from agv_mission.teleop.terminal import (
     HELP,
     KeyInput,
@@ -91,62 +94,31 @@ def load_teleop_mission(
     return load_mission(mission, sets, seed, tasks_required=False)
 
 
-# --------------------------------------------------------------------------- the robot
+# --------------------------------------------------------------------------- the mission
 
 
-class TeleopRobot:
-    """The mission's robot and localiser (see :class:`RobotStack`), one step at a time."""
-
-    def __init__(self, loaded: LoadedMission) -> None:
-        self.loaded = loaded
-        self.stack = RobotStack(loaded)
-        self.sim, self.limits = self.stack.sim, self.stack.limits
-        self.rows: list[tuple[float, ...]] = []
-        self.contact = False
-        self._sense()
-
-    @property
-    def time(self) -> float:
-        return self.sim.time
-
-    @property
-    def velocity(self) -> tuple[float, float]:
-        """The commanded (smoothed) twist being driven."""
-        return self.stack.smoother.v, self.stack.smoother.w
-
-    def room(self) -> str | None:
-        """The room the estimated pose lies in."""
-        return room_at(self.loaded.rooms, self.estimate.x, self.estimate.y)
-
-    def _sense(self) -> None:
-        sensing = self.stack.sense()
-        self.truth = sensing.truth
-        self.estimate: Pose2D = self.stack.localizer.update(
-            sensing.odom, sensing.scan, sensing.truth, sensing.time
-        )
-        self.contact = self.sim.contacts() > 0
-
-    def step(self, v: float, w: float) -> None:
-        """Drive towards the twist (v, w) for one control period, then sense."""
-        t, e, now = self.truth, self.estimate, self.sim.time
-        v, w = self.stack.drive(v, w)
-        self.rows.append((now, t.x, t.y, t.yaw, e.x, e.y, e.yaw, v, w))
-        self.stack.advance()
-        self._sense()
-
-    def trajectory(self) -> np.ndarray:
-        return np.asarray(self.rows, dtype=float).reshape(-1, 9)
+TELEOP_TIME_LIMIT = 1e9  # sim seconds: a session ends when its driver says so
 
 
-def status_line(robot: TeleopRobot, keys: TeleopKeys) -> str:
+def teleop_mission(loaded: LoadedMission) -> LoadedMission:
+    """``loaded``'s setup with one ``teleop`` task: the same task the service runs, so the
+    terminal is one more client of it, not a second implementation."""
+    doc = loaded.mission.model_dump(exclude={"tasks", "expect"})
+    doc["tasks"] = [{"type": "teleop"}]
+    doc["limits"] = {**doc.get("limits", {}), "time": TELEOP_TIME_LIMIT}
+    return dataclasses.replace(loaded, mission=Mission.model_validate(doc))
+
+
+def status_line(run: MissionRun, keys: TeleopKeys) -> str:
     """The live line, most important first (an 80-column terminal cuts the end):
     room, estimated pose, driven twist, contact flag, commanded twist, sim time."""
-    e = robot.estimate
-    v, w = robot.velocity
-    contact = " CONTACT" if robot.contact else ""
+    e = run.handle.state.estimate
+    v, w = run.handle.state.velocity
+    contact = " CONTACT" if run.sim.contacts() > 0 else ""
+    room = room_at(run.loaded.rooms, e.x, e.y)
     return (
-        f"room={robot.room() or '-'} x={_f(e.x)} y={_f(e.y)} yaw={_f(e.yaw)} "
-        f"v={_f(v)} w={_f(w)}{contact} cmd={_f(keys.v)}/{_f(keys.w)} t={robot.time:.1f}"
+        f"room={room or '-'} x={_f(e.x)} y={_f(e.y)} yaw={_f(e.yaw)} "
+        f"v={_f(v)} w={_f(w)}{contact} cmd={_f(keys.v)}/{_f(keys.w)} t={run.sim.time:.1f}"
     )
 
 
@@ -185,6 +157,9 @@ def run_teleop(
     """Drive ``loaded``'s robot from the keyboard until quit; record into ``recorders``
     (every pose into each; the first is the one shown, see :func:`open_recorders`).
 
+    The run is a mission with one ``teleop`` task (:func:`teleop_mission`) run by the
+    mission runner; this session is its :class:`~agv_mission.missions.observe.RunControl`:
+    keys set the remote command, and each control step waits for its wall-clock tick.
     ``time_scale``: simulated seconds per wall second. ``wall_limit``: end the session
     after that many wall seconds (for scripts). Never leaves the terminal in raw mode.
     """
@@ -194,8 +169,7 @@ def run_teleop(
         recorders = [recorders]
     fd = sys.stdin.fileno() if stdin_fd is None else stdin_fd
     screen = Screen(out if out is not None else sys.stdout)
-    robot = TeleopRobot(loaded)
-    reason, signum = "quit", None
+    mission = teleop_mission(loaded)
     wall_start = time.monotonic()
 
     screen.message(
@@ -203,76 +177,102 @@ def run_teleop(
         f"{loaded.mission.stack.localization.type}, recorder file "
         + ", ".join(str(r.path) for r in recorders)
     )
+    record = None
     with termination_signals(), KeyInput(fd) as term:
-        session = _Session(term, screen, robot, list(recorders))
+        control = KeyboardControl(term, screen, list(recorders), time_scale, wall_limit)
         try:
-            reason = session.loop(time_scale, wall_limit)
-        except KeyboardInterrupt:
-            reason = "interrupted"
+            record = run_mission(mission, None, control=control)
+            if record.status == "aborted" and control.reason == "quit" and control.quit_at is None:
+                control.reason = "interrupted"  # Ctrl-C as a signal, not as a key
         except Terminated as exc:
-            reason, signum = "terminated", exc.signum
+            control.reason, control.signum = "terminated", exc.signum
+            if control.run is not None:
+                control.run.cancel("terminated")
+                record = control.run.record()
         finally:
-            robot.sim.set_command(0.0, 0.0)
+            if control.run is not None:
+                control.run.sim.set_command(0.0, 0.0)
             term.restore()
             screen.close()
             for recorder in recorders:
                 if len(recorder) and not recorder.path.exists():
                     recorder.save()  # appended-to entries, nothing new recorded
     return TeleopResult(
-        reason=reason,
-        sim_time=round(robot.time, 6),
+        reason=control.reason,
+        sim_time=round(record.sim_time if record is not None else 0.0, 6),
         wall_time=round(time.monotonic() - wall_start, 3),
-        recorded=session.recorded,
-        trajectory=robot.trajectory(),
-        signum=signum,
+        recorded=control.recorded,
+        trajectory=record.trajectory if record is not None else np.zeros((0, 9)),
+        signum=control.signum,
     )
 
 
-class _Session:
-    """The real-time loop: keys in, one control step per tick, the live line out."""
+class KeyboardControl:
+    """The real-time loop as a run control: keys in, one control step per tick, the live
+    line out. Sets the teleop task's remote command; records through the run's handle."""
 
     def __init__(
         self,
         term: KeyInput,
         screen: Screen,
-        robot: TeleopRobot,
         recorders: list[LocationRecorder],
+        time_scale: float,
+        wall_limit: float | None,
     ) -> None:
-        self.term, self.screen, self.robot, self.recorders = term, screen, robot, recorders
-        self.keys = TeleopKeys.for_limits(robot.limits)
+        self.term, self.screen, self.recorders = term, screen, recorders
+        self.period = CONTROL_PERIOD / time_scale
+        self.wall_limit = wall_limit
+        self.keys: TeleopKeys | None = None
         self.recorded: list[str] = []
         self.buf = bytearray()
-        self.paused = False
+        self.run: MissionRun | None = None
+        self.reason = "quit"
+        self.quit_at: float | None = None
+        self.signum: int | None = None
+        self.start = self.next_tick = time.monotonic()
 
-    def loop(self, time_scale: float, wall_limit: float | None) -> str:
-        period = CONTROL_PERIOD / time_scale
-        start = next_tick = time.monotonic()
+    def before_step(self, run: MissionRun) -> None:
+        if self.run is None:  # the first step: this session's recorders, keys, clock
+            self.run = run
+            run.handle.recorders = self.recorders
+            self.keys = TeleopKeys.for_limits(run.limits)
+            self.start = self.next_tick = time.monotonic()
+        else:
+            self.next_tick += self.period
+        keys = self.keys
+        assert keys is not None
         self._show()
         while True:
-            data = self.term.read(next_tick - time.monotonic())
+            now = time.monotonic()
+            if self.wall_limit is not None and now - self.start >= self.wall_limit:
+                return self._end("time_limit")
+            data = self.term.read(max(self.next_tick - now, 0.0))
             if data:
                 self.buf += data
             if self._handle_keys():
-                return "quit"
+                self.quit_at = time.monotonic()
+                return self._end("quit")
             if data is None:
-                return "end_of_input"
+                return self._end("end_of_input")
             now = time.monotonic()
-            if self.paused:  # the sim stood still during the label prompt: no catch-up
-                self.paused, next_tick = False, now
-            if now >= next_tick:
-                self.robot.step(self.keys.v, self.keys.w)
-                self._show()
-                next_tick += period
-                if now - next_tick > period:  # fell behind: drop the backlog
-                    next_tick = now
-            if wall_limit is not None and now - start >= wall_limit:
-                return "time_limit"
+            if now >= self.next_tick:
+                if now - self.next_tick > self.period:  # fell behind: drop the backlog
+                    self.next_tick = now
+                break
+        run.handle.remote_command = (keys.v, keys.w)
+
+    def _end(self, reason: str) -> None:
+        self.reason = reason
+        assert self.run is not None
+        self.run.cancel(reason)
 
     def _show(self) -> None:
-        self.screen.status(status_line(self.robot, self.keys), self.robot.time)
+        assert self.run is not None and self.keys is not None
+        self.screen.status(status_line(self.run, self.keys), self.run.sim.time)
 
     def _handle_keys(self) -> bool:
         """Act on every whole key in the buffer; True when one of them quits."""
+        assert self.keys is not None and self.run is not None
         while True:
             for key in split_keys(self.buf):
                 action = self.keys.press(key)
@@ -281,9 +281,9 @@ class _Session:
                 if action == "help":
                     self.screen.message(HELP)
                 elif action == "record":
-                    pose = self.robot.estimate
+                    pose = self.run.handle.state.estimate
                     self._record(read_label(self.term, self.screen, self.buf), pose)
-                    self.paused = True
+                    self.next_tick = time.monotonic()  # the sim stood still: no catch-up
                     break  # the buffer changed under the iterator: start over
             else:
                 return False
@@ -303,6 +303,17 @@ class _Session:
                 failed.append(f"NOT recorded {label!r} in {recorder.path}: {exc}")
         if written:
             self.recorded.append(label)
+            assert self.run is not None
+            handle = self.run.handle
+            handle.recorded[label] = pose
+            handle.log(
+                "room_recorded",
+                room=label,
+                x=round(pose.x, 4),
+                y=round(pose.y, 4),
+                yaw=round(pose.yaw, 4),
+                source="keyboard",
+            )
         text = "\n".join(failed)
         if not written:
             screen.message(text)
@@ -311,7 +322,8 @@ class _Session:
             f"recorded {label!r} at x={pose.x:.3f} y={pose.y:.3f} yaw={pose.yaw:.3f} "
             f"in {', '.join(written)}" + (f"\n{text}" if text else "")
         )
-        rooms = self.robot.loaded.rooms
+        assert self.run is not None
+        rooms = self.run.loaded.rooms
         room = rooms.get(label)
         if room is not None and not room.contains(pose.x, pose.y):
             here = room_at(rooms, pose.x, pose.y)

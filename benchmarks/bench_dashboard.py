@@ -1,0 +1,164 @@
+"""Dashboard costs, measured against a real `agv-mission serve` and headless chromium.
+
+- ``dashboard.watched_rtf_ratio``: the demo patrol's real-time factor (sim s per wall s, from
+  result.json) while a browser page watches it live, over the same run unwatched; pairs run
+  back to back and alternate, the median pair ratio is kept (target >= 0.9).
+- ``dashboard.fps_30x50``: frames per second of the run page on a 30 x 50 m map (600 x 1000
+  cells) with every frame fully redrawn while a teleop run streams (target >= 20).
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+from PIL import Image
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tests"))
+from service_server import Server  # noqa: E402
+
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+]
+PAIRS = 3
+FPS_SECONDS = 6.0
+
+
+@contextmanager
+def serve(data: Path, *extra: str) -> Iterator[str]:
+    with Server(data, *extra) as server:
+        yield server.url
+
+
+def wait_final(client: httpx.Client, run_id: str, timeout: float = 600.0) -> dict[str, Any]:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        run = client.get(f"/api/runs/{run_id}").json()
+        if run["status"] in {"succeeded", "failed", "aborted", "error", "interrupted"}:
+            return run
+        time.sleep(0.2)
+    raise TimeoutError(run_id)
+
+
+def patrol_rtf(client: httpx.Client, browser: Any | None) -> float:
+    mission = (REPO / "missions" / "patrol.yaml").read_text()
+    run_id = client.post("/api/runs", json={"mission": mission}).json()["id"]
+    page = None
+    if browser is not None:
+        page = browser.new_page(viewport={"width": 1400, "height": 860})
+        page.goto(f"{client.base_url}/runs/{run_id}")
+    run = wait_final(client, run_id)
+    if page is not None:
+        page.close()
+    result = run["result"]
+    assert run["status"] == "succeeded", run.get("reason")
+    return float(result["sim_time"]) / float(result["wall_time"])
+
+
+def big_map(folder: Path) -> Path:
+    """A 30 x 50 m office floor: 5 m rooms with doors along corridors, some furniture."""
+    w, h = 600, 1000  # cells of 0.05 m
+    occ = np.zeros((h, w), dtype=bool)
+    occ[:4, :] = occ[-4:, :] = occ[:, :4] = occ[:, -4:] = True
+    for x in range(100, w, 100):
+        occ[:, x : x + 3] = True
+        for y in range(0, h, 100):
+            occ[y + 40 : y + 60, x : x + 3] = False  # doors
+    for y in range(100, h, 100):
+        occ[y : y + 3, :] = True
+        for x in range(0, w, 100):
+            occ[y : y + 3, x + 40 : x + 60] = False
+    rng = np.random.default_rng(1)
+    for _ in range(60):
+        cx, cy = rng.integers(10, w - 30), rng.integers(10, h - 30)
+        occ[cy : cy + rng.integers(6, 20), cx : cx + rng.integers(6, 20)] = True
+    occ[450:550, 250:350] = False  # the start room is clear
+    pixels = np.where(occ, 0, 254).astype(np.uint8)[::-1]  # row 0 = top
+    Image.fromarray(pixels, mode="L").save(folder / "office.pgm")
+    (folder / "office.yaml").write_text(
+        "image: office.pgm\nresolution: 0.05\norigin: [0.0, 0.0, 0.0]\n"
+        "negate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
+    return folder / "office.yaml"
+
+
+def page_fps(client: httpx.Client, browser: Any, map_yaml: Path) -> tuple[float, float]:
+    mission = (
+        f"name: office-teleop\nworld: {map_yaml}\nrobot: burger\n"
+        "start: {x: 15.0, y: 25.0, yaw: 0.0}\nseed: 1\n"
+        "tasks:\n  - {type: teleop, duration: 120}\nlimits: {time: 200.0}\n"
+    )
+    answer = client.post("/api/runs", json={"mission": mission})
+    assert answer.status_code == 201, answer.text
+    run_id = answer.json()["id"]
+    page = browser.new_page(viewport={"width": 1400, "height": 860})
+    page.goto(f"{client.base_url}/runs/{run_id}")
+    page.wait_for_function(
+        "() => window.agvView && window.agvView.scene.map && window.agvView.scene.truth",
+        timeout=120_000,
+    )
+    page.evaluate("() => window.agvView.setAlwaysDraw(true)")
+    page.keyboard.down("ArrowLeft")
+    before = page.evaluate("() => ({...window.agvView.stats, now: performance.now()})")
+    page.wait_for_timeout(FPS_SECONDS * 1000)
+    after = page.evaluate("() => ({...window.agvView.stats, now: performance.now()})")
+    page.keyboard.up("ArrowLeft")
+    page.close()
+    client.post(f"/api/runs/{run_id}/cancel")
+    frames = after["frames"] - before["frames"]
+    seconds = (after["now"] - before["now"]) / 1000
+    draw_ms = (after["drawMs"] - before["drawMs"]) / max(1, frames)
+    return frames / seconds, draw_ms
+
+
+def run() -> dict[str, float]:
+    from playwright.sync_api import sync_playwright
+
+    if not Path("/usr/bin/chromium").exists():
+        print("  /usr/bin/chromium is not installed: dashboard bench skipped")
+        return {}
+    out: dict[str, float] = {}
+    with tempfile.TemporaryDirectory() as tmp, sync_playwright() as p:
+        data = Path(tmp) / "data"
+        data.mkdir()
+        maps = data / "maps"
+        maps.mkdir()
+        map_yaml = big_map(maps)
+        browser = p.chromium.launch(
+            executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS, headless=True
+        )
+        with serve(data, "--workers", "1") as url, httpx.Client(base_url=url, timeout=30) as c:
+            patrol_rtf(c, None)  # warm-up: imports, OMPL and casadi caches
+            ratios, watched, unwatched = [], [], []
+            for i in range(PAIRS):
+                order = (None, browser) if i % 2 == 0 else (browser, None)
+                got = {id(b): patrol_rtf(c, b) for b in order}
+                u, w = got[id(None)], got[id(browser)]
+                unwatched.append(u)
+                watched.append(w)
+                ratios.append(w / u)
+            out["dashboard.patrol_rtf.unwatched"] = round(statistics.median(unwatched), 2)
+            out["dashboard.patrol_rtf.watched"] = round(statistics.median(watched), 2)
+            out["dashboard.watched_rtf_ratio"] = round(statistics.median(ratios), 3)
+            fps, draw_ms = page_fps(c, browser, map_yaml)
+            out["dashboard.fps_30x50"] = round(fps, 1)
+            out["dashboard.draw_ms_30x50"] = round(draw_ms, 2)
+        browser.close()
+    return out
+
+
+if __name__ == "__main__":
+    print(run())

@@ -1,0 +1,173 @@
+"""Fan-out of one run's live stream to its WebSocket clients, in the service process.
+
+The worker encodes each message once; the hub keeps the latest of each kind a late client
+needs first (map, rooms, recorded, tree, plan, goal, state) and appends every message to
+each client's own queue. Nothing here ever waits for a client, so no client slows a
+mission. A client's sender takes everything queued at once and thins it: of the frequent
+kinds (state, scan, particles, horizon) a message is skipped when a newer one of its kind
+is waiting and it is closer in simulated time than :data:`SPACING` to the last one sent
+(so every client still gets at least 5 states per simulated second, and the newest of
+each kind always). A client that lags by more than :data:`CLIENT_QUEUE` messages loses
+the oldest frequent ones; one that falls behind even on the others is dropped.
+
+Many clients share a budget: each frequent kind goes out at most :data:`KIND_BUDGET`
+times per wall second over all the run's clients (a token bucket per client and kind: 50
+clients get 20 states a second each; up to 10 clients see every state of a run at 10x
+real time). A message over budget is held (the newest replaces it) and sent when its
+client has a token again, so the
+fan-out's CPU stays bounded however many watch, and the last state always arrives.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+from collections import deque
+from typing import Any
+
+SPACING = {"state": 0.2, "scan": 0.2, "horizon": 0.2, "particles": 0.5}  # sim seconds
+THINNABLE = frozenset(SPACING)
+SNAPSHOT_ORDER = ("map", "rooms", "recorded", "tree", "plan", "goal", "state")
+CLIENT_QUEUE = 500  # messages a client may lag behind before the oldest frequent ones go
+CLIENT_HARD_LIMIT = 5000  # backlog of other messages at which a client is dropped
+KIND_BUDGET = 1000.0  # messages of one frequent kind per wall second, over all clients
+BURST = 0.5  # wall seconds of budget a client may spend at once
+
+Item = tuple[str, str, "float | None"]
+
+
+class Client:
+    """One subscriber: a queue its sender task drains."""
+
+    def __init__(self) -> None:
+        self.queue: deque[Item] = deque()
+        self.ready = asyncio.Event()
+        self.dropped = False
+        self.thinned = 0
+        self.last_t: dict[str, float] = {}
+        self.held: dict[str, tuple[str, float | None]] = {}
+        self.rate = KIND_BUDGET  # messages of a frequent kind per wall second (token bucket)
+        self.tokens: dict[str, tuple[float, float]] = {}  # kind -> (tokens, at wall time)
+
+    def put(self, kind: str, text: str, t: float | None = None) -> None:
+        if self.dropped:
+            return
+        q = self.queue
+        q.append((kind, text, t))
+        if len(q) > CLIENT_QUEUE:
+            for i, item in enumerate(q):
+                if item[0] in THINNABLE:
+                    del q[i]
+                    self.thinned += 1
+                    break
+            else:
+                if len(q) > CLIENT_HARD_LIMIT:
+                    self.dropped = True
+                    q.clear()
+        self.ready.set()
+
+    def take(self, now: float) -> tuple[list[tuple[str, str]], float | None]:
+        """What to send at wall time ``now`` (thinned, see the module's docstring) and when
+        a held message falls due (None: nothing held)."""
+        batch = list(self.queue)
+        self.queue.clear()
+        newest = {kind: i for i, (kind, _, _) in enumerate(batch) if kind in SPACING}
+        out = []
+        for i, (kind, text, t) in enumerate(batch):
+            if kind not in SPACING:
+                out.append((kind, text))
+                continue
+            too_close = (
+                t is not None and t - self.last_t.get(kind, -math.inf) < SPACING[kind] - 1e-6
+            )
+            if too_close and i != newest[kind]:
+                self.thinned += 1
+                continue
+            if not self._token(kind, now):
+                if kind in self.held:
+                    self.thinned += 1
+                self.held[kind] = (text, t)
+                continue
+            self._sent(kind, t)
+            self.held.pop(kind, None)
+            out.append((kind, text))
+        due = None
+        for kind in list(self.held):
+            if self._token(kind, now):
+                text, t = self.held.pop(kind)
+                self._sent(kind, t)
+                out.append((kind, text))
+            else:
+                tokens, _ = self.tokens[kind]
+                ready_at = now + (1.0 - tokens) / self.rate
+                due = ready_at if due is None else min(due, ready_at)
+        return out, due
+
+    def _token(self, kind: str, now: float) -> bool:
+        """Take one of ``kind``'s tokens (refilled at ``rate``, up to half a second's worth)."""
+        capacity = max(1.0, self.rate * BURST)
+        tokens, at = self.tokens.get(kind, (capacity, now))
+        tokens = min(capacity, tokens + (now - at) * self.rate)
+        ok = tokens >= 1.0
+        self.tokens[kind] = (tokens - 1.0 if ok else tokens, now)
+        return ok
+
+    def _sent(self, kind: str, t: float | None) -> None:
+        if t is not None:
+            self.last_t[kind] = t
+
+
+class Hub:
+    """The live stream of one run."""
+
+    def __init__(self) -> None:
+        self.clients: set[Client] = set()
+        self.latest: dict[str, str] = {}
+        self.end: str | None = None
+
+    def publish(self, kind: str, text: str, t: float | None = None) -> None:
+        if kind in SNAPSHOT_ORDER:
+            self.latest[kind] = text
+        for client in self.clients:
+            client.put(kind, text, t)
+
+    def set_status(self, status: str) -> None:
+        """A paused (or resumed) run sends no steps: republish its last state with the
+        new status, so that every client sees the change."""
+        state = self.latest_state()
+        if state is None:
+            return
+        state["status"] = status
+        self.publish("state", json.dumps(state, separators=(",", ":")), state.get("t"))
+
+    def latest_state(self) -> dict[str, Any] | None:
+        text = self.latest.get("state")
+        return json.loads(text) if text else None
+
+    def finish(self, text: str) -> None:
+        self.end = text
+        for client in self.clients:
+            client.put("end", text)
+
+    def subscribe(self) -> Client:
+        """A new client: the snapshot first (in the agreed order), then live messages."""
+        client = Client()
+        for kind in SNAPSHOT_ORDER:
+            if kind in self.latest:
+                client.queue.append((kind, self.latest[kind], None))
+        if self.end is not None:
+            client.queue.append(("end", self.end, None))
+        client.ready.set()
+        self.clients.add(client)
+        self._share()
+        return client
+
+    def unsubscribe(self, client: Client) -> None:
+        self.clients.discard(client)
+        self._share()
+
+    def _share(self) -> None:
+        rate = KIND_BUDGET / max(1, len(self.clients))
+        for client in self.clients:
+            client.rate = rate

@@ -1,0 +1,146 @@
+"""Live-stream messages (service-api.md + coord STREAM.md), built from run observations.
+
+Every message is a JSON-ready dict with a ``type``; poses are ``{x, y, yaw}``; numbers are
+rounded so that a scan stays a few kilobytes.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import math
+from typing import Any
+
+import numpy as np
+from PIL import Image
+
+from agv_mission.geometry import Pose2D
+from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.maps.rooms import Room
+from agv_mission.missions.observe import TreeNode
+
+MAX_PARTICLES = 300
+PGM_FREE, PGM_OCCUPIED, PGM_UNKNOWN = 254, 0, 205
+TREE_STATUS = {
+    "succeeded": "SUCCESS",
+    "failed": "FAILURE",
+    "running": "RUNNING",
+    "not_run": "INVALID",
+}
+
+
+def dumps(message: dict[str, Any]) -> str:
+    return json.dumps(message, separators=(",", ":"), allow_nan=False, default=_plain)
+
+
+def finite(value: Any) -> Any:
+    """``value`` with NaN and infinities as None and numpy scalars as Python numbers: what
+    strict JSON (a browser's JSON.parse) accepts."""
+    if isinstance(value, dict):
+        return {str(k): finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return finite(value.tolist())
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def pose(p: Pose2D | None) -> dict[str, float] | None:
+    if p is None:
+        return None
+    return {"x": round(p.x, 4), "y": round(p.y, 4), "yaw": round(p.yaw, 4)}
+
+
+def xy_list(points: np.ndarray | None, columns: int = 2) -> list[list[float]]:
+    if points is None or not len(points):
+        return []
+    arr = np.asarray(points, dtype=float)[:, :columns]
+    arr = arr[np.all(np.isfinite(arr), axis=1)]
+    return np.round(arr, 3).tolist()
+
+
+def map_message(grid: OccupancyGrid) -> dict[str, Any]:
+    """The map as map_saver would write it (254 free, 0 occupied, 205 unknown), PNG, row 0
+    at the top."""
+    data = np.asarray(grid.data).astype(np.int16)
+    pixels = np.full(data.shape, PGM_UNKNOWN, dtype=np.uint8)
+    pixels[(data >= 0) & (data <= 19)] = PGM_FREE
+    pixels[data >= 65] = PGM_OCCUPIED
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(pixels[::-1]), mode="L").save(buf, format="PNG")
+    return {
+        "type": "map",
+        "resolution": grid.resolution,
+        "origin": [round(grid.origin.x, 4), round(grid.origin.y, 4)],
+        "width": grid.width,
+        "height": grid.height,
+        "png": base64.b64encode(buf.getvalue()).decode("ascii"),
+    }
+
+
+def rooms_message(rooms: dict[str, Room]) -> dict[str, Any]:
+    return {
+        "type": "rooms",
+        "rooms": [
+            {
+                "label": r.label,
+                "polygon": [[round(x, 4), round(y, 4)] for x, y in r.polygon],
+                "anchor": pose(r.anchor),
+            }
+            for r in rooms.values()
+        ],
+    }
+
+
+def recorded_message(entries: dict[str, Pose2D]) -> dict[str, Any]:
+    return {"type": "recorded", "entries": {k: pose(p) for k, p in entries.items()}}
+
+
+def tree_message(nodes: list[TreeNode]) -> dict[str, Any]:
+    return {
+        "type": "tree",
+        "nodes": [
+            {"name": n.name, "status": TREE_STATUS.get(n.status, n.status), "depth": n.depth}
+            for n in nodes
+        ],
+    }
+
+
+def detail_of(nodes: list[TreeNode] | None) -> str:
+    """A one-line summary: the deepest running behaviour's path below its task."""
+    if not nodes:
+        return ""
+    running = [n for n in nodes if n.status in ("running", "RUNNING") and n.depth >= 1]
+    if not running:
+        return ""
+    names = [n.name for n in running]
+    return " > ".join(names[-2:]) if len(names) > 1 else names[0]
+
+
+def particles_list(particles: np.ndarray) -> list[list[float]]:
+    p = np.asarray(particles, dtype=float)
+    if len(p) > MAX_PARTICLES:
+        p = p[np.linspace(0, len(p) - 1, MAX_PARTICLES).astype(int)]
+    return np.round(p[:, :3], 3).tolist()
+
+
+def covariance_list(cov: np.ndarray | None) -> list[list[float]] | None:
+    if cov is None:
+        return None
+    arr = np.asarray(cov, dtype=float)
+    if arr.shape != (3, 3) or not np.all(np.isfinite(arr)):
+        return None
+    return np.round(arr, 6).tolist()

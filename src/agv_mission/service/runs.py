@@ -1,0 +1,496 @@
+"""The run manager: a bounded queue, at most N worker processes, and their connections.
+
+It lives in the service's event loop. Each worker's connection (and, for local processes,
+its exit sentinel) is watched with ``loop.add_reader``: messages are handled the moment
+they arrive and a worker that dies (a crash, ``kill -9``) ends its run ``error`` with
+the reason, without ever stopping the service.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import multiprocessing
+import os
+import secrets
+import signal
+import threading
+import uuid
+from collections import OrderedDict, deque
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection, Listener
+from pathlib import Path
+from typing import Any
+
+from agv_mission.service import messages as msg
+from agv_mission.service.hub import SNAPSHOT_ORDER, Hub
+from agv_mission.service.registry import FINAL, Registry, Submission
+from agv_mission.service.worker import STREAM_FILE, worker_main
+
+WORKER_PRELOAD = [
+    "agv_mission.service.worker",
+    "agv_mission.missions.loader",
+    "agv_mission.missions.runner",
+    "agv_mission.missions.outputs",
+    "matplotlib.pyplot",
+]
+PROGRESS_SAVE_PERIOD = 2.0  # seconds between progress writes to the registry per run
+STOP_GRACE = 20.0  # seconds running missions get to write their results on shutdown
+FINISHED_HUBS = 64
+READ_BATCH = 50  # worker messages handled per wake-up of the event loop
+LIVE_NICE = 5  # the service's own CPU priority below its missions' (nice increment)  # finished runs whose stream stays in memory for late clients
+
+
+class QueueFull(Exception):
+    """The bounded queue holds as many runs as it may."""
+
+
+class NotActive(Exception):
+    """The run is not in a state where this command means anything (409)."""
+
+
+@dataclass
+class ActiveRun:
+    run_id: str
+    conn: Connection | None = None
+    process: Any = None  # multiprocessing.Process, or a Ray ObjectRef
+    status: str = "running"
+    progress: dict[str, Any] = field(default_factory=dict)
+    replies: dict[str, asyncio.Future] = field(default_factory=dict)
+    ended: bool = False
+    saved_at: float = 0.0
+    pending: list[tuple[Any, ...]] = field(default_factory=list)  # commands before connect
+
+
+def _pool_context() -> Any:
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(WORKER_PRELOAD)
+    return ctx
+
+
+class RunManager:
+    """Queue, workers and live hubs of every run of one service."""
+
+    def __init__(
+        self,
+        registry: Registry,
+        workers: int,
+        queue_size: int,
+        backend: str = "local",
+        address: str | None = None,
+        live_nice: int = LIVE_NICE,
+    ) -> None:
+        self.registry = registry
+        self.live_nice = live_nice
+        self.workers = workers
+        self.queue_size = queue_size
+        self.backend = backend
+        self.address = address
+        self.queue: deque[str] = deque()
+        self.active: dict[str, ActiveRun] = {}
+        self.hubs: OrderedDict[str, Hub] = OrderedDict()
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self.stopping = False
+        self._ctx: Any = None
+        self._listener: Listener | None = None
+        self._ray: Any = None
+        self._idle = asyncio.Event()
+
+    # ------------------------------------------------------------------ lifecycle
+
+    async def start(self) -> tuple[list[str], list[str]]:
+        """Recover the registry after any stop and start the backend."""
+        self.loop = asyncio.get_running_loop()
+        interrupted, queued = self.registry.recover()
+        if self.backend == "ray":
+            await asyncio.to_thread(self._start_ray)
+        else:
+            self._ctx = _pool_context()
+            from multiprocessing import forkserver
+
+            await asyncio.to_thread(forkserver.ensure_running)
+        if self.live_nice:
+            # Missions come first: the fan-out of live streams (this thread: the event
+            # loop) yields the CPU to the workers, which keep the fork server's priority.
+            with contextlib.suppress(OSError):
+                os.nice(self.live_nice)
+        for run_id in queued:
+            self.queue.append(run_id)
+            self.hubs[run_id] = Hub()
+        self._schedule()
+        return interrupted, queued
+
+    def _start_ray(self) -> None:
+        import ray
+
+        if not ray.is_initialized():
+            options: dict[str, Any] = {"include_dashboard": False, "logging_level": "WARNING"}
+            if self.address:
+                options["address"] = self.address
+            else:
+                options["num_cpus"] = self.workers
+            ray.init(**options)
+        self._ray = ray
+        local = self.address is None or self.address.split(":")[0] in ("127.0.0.1", "localhost")
+        host = "127.0.0.1" if local else "0.0.0.0"  # tasks on other nodes call back
+        self._authkey = secrets.token_bytes(32)
+        self._listener = Listener((host, 0), authkey=self._authkey)
+        threading.Thread(target=self._accept, daemon=True, name="ray-accept").start()
+
+    def _accept(self) -> None:
+        """Ray tasks connect back here and say which run they are."""
+        assert self._listener is not None
+        while True:
+            try:
+                conn = self._listener.accept()
+                hello = conn.recv()
+            except (OSError, EOFError):
+                if self.stopping:
+                    return
+                continue
+            if not (isinstance(hello, tuple) and hello[:1] == ("hello",)):
+                conn.close()
+                continue
+            assert self.loop is not None
+            self.loop.call_soon_threadsafe(self._attach, str(hello[1]), conn)
+
+    async def shutdown(self) -> None:
+        """SIGINT/SIGTERM: running missions end ``aborted`` with their results; queued
+        ones stay queued for the next start."""
+        self.stopping = True
+        for run in list(self.active.values()):
+            self._send(run, ("cancel", "the service is stopping"))
+        deadline = asyncio.get_running_loop().time() + STOP_GRACE
+        while self.active and asyncio.get_running_loop().time() < deadline:
+            self._idle.clear()
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(self._idle.wait(), 0.5)
+        for run in list(self.active.values()):
+            self._kill(run)
+            self._finish(run, "aborted", "the service stopped before the run could end", None)
+        if self._listener is not None:
+            with contextlib.suppress(OSError):
+                self._listener.close()
+        if self._ray is not None:
+            with contextlib.suppress(Exception):
+                self._ray.shutdown()
+
+    # ------------------------------------------------------------------ submission
+
+    def check_room(self) -> None:
+        if len(self.queue) >= self.queue_size:
+            raise QueueFull(f"the queue holds {self.queue_size} runs; try again later")
+
+    def submit(self, submission: Submission) -> dict[str, Any]:
+        self.check_room()
+        run = self.registry.add(submission)
+        self.queue.append(run["id"])
+        self.hubs[run["id"]] = Hub()
+        self._schedule()
+        return run  # as accepted: queued (it may have started since)
+
+    def _schedule(self) -> None:
+        while not self.stopping and self.queue and len(self.active) < self.workers:
+            run_id = self.queue.popleft()
+            try:
+                self._launch(run_id)
+            except Exception as exc:  # the backend refused: this run, not the service
+                self.active.pop(run_id, None)
+                self.registry.set_status(run_id, "error", f"could not start a worker: {exc}")
+                self._hub(run_id).finish(self._end_text("error", str(exc), None))
+
+    def _launch(self, run_id: str) -> None:
+        sub = self.registry.submission(run_id)
+        job = {
+            "run_id": run_id,
+            "data_dir": str(self.registry.data_dir),
+            "run_dir": str(self.registry.run_dir(run_id)),
+            "mission": sub.mission,
+            "sets": sub.sets,
+            "seed": sub.seed,
+        }
+        run = ActiveRun(run_id)
+        self.active[run_id] = run
+        self.registry.set_status(run_id, "running")
+        if self.backend == "ray":
+            assert self._listener is not None
+            task = self._ray.remote(num_cpus=1, max_retries=0)(ray_entry)
+            run.process = task.remote(job, self._listener.address, self._authkey)
+            future = asyncio.wrap_future(run.process.future())
+            future.add_done_callback(lambda f, r=run: self._ray_done(r, f))
+            return
+        parent, child = self._ctx.Pipe(duplex=True)
+        process = self._ctx.Process(
+            target=worker_main, args=(job, child), name=f"agv-run-{run_id}", daemon=False
+        )
+        process.start()
+        child.close()
+        run.process = process
+        self._attach(run_id, parent)
+        assert self.loop is not None
+        self.loop.add_reader(process.sentinel, self._exited, run)
+        self.registry.update(run_id, worker_pid=process.pid)
+
+    def _attach(self, run_id: str, conn: Connection) -> None:
+        run = self.active.get(run_id)
+        if run is None or run.ended:
+            conn.close()
+            return
+        run.conn = conn
+        assert self.loop is not None
+        self.loop.add_reader(conn.fileno(), self._readable, run)
+        for command in run.pending:
+            self._send(run, command)
+        run.pending.clear()
+
+    # ------------------------------------------------------------------ worker -> service
+
+    def _readable(self, run: ActiveRun, limit: int = READ_BATCH) -> None:
+        conn = run.conn
+        if conn is None:
+            return
+        try:
+            for _ in range(limit):  # then let HTTP requests in; the reader fires again
+                if not conn.poll(0):
+                    break
+                self._handle(run, conn.recv())
+                if run.conn is None:
+                    return
+        except (EOFError, OSError):
+            self._detach(run)
+            if self.backend == "local" and run.process is not None:
+                return  # the sentinel says how the process ended
+            if not run.ended:
+                self._finish(run, "error", "the worker's connection closed unexpectedly", None)
+
+    def _handle(self, run: ActiveRun, item: tuple[Any, ...]) -> None:
+        kind = item[0]
+        hub = self._hub(run.run_id)
+        if kind == "msg":
+            hub.publish(item[1], item[2], item[3])
+        elif kind == "progress":
+            run.progress = item[1]
+            now = asyncio.get_running_loop().time()
+            if now - run.saved_at >= PROGRESS_SAVE_PERIOD:
+                run.saved_at = now
+                self.registry.update(run.run_id, progress=run.progress)
+        elif kind == "status":
+            run.status = item[1]
+            self.registry.set_status(run.run_id, item[1])
+            hub.set_status(item[1])
+        elif kind == "reply":
+            future = run.replies.pop(item[1], None)
+            if future is not None and not future.done():
+                future.set_result((item[2], item[3]))
+        elif kind == "end":
+            self._finish(run, item[1], item[2], item[3])
+
+    def _exited(self, run: ActiveRun) -> None:
+        """A local worker process ended: read what it still said, then judge."""
+        assert self.loop is not None
+        process = run.process
+        self.loop.remove_reader(process.sentinel)
+        self._readable(run, limit=1 << 30)  # everything it said before it ended
+        process.join(timeout=5)
+        if not run.ended:
+            code = process.exitcode
+            how = (
+                f"killed by {signal.Signals(-code).name}"
+                if code is not None and code < 0 and -code in signal.Signals._value2member_map_
+                else f"exit code {code}"
+            )
+            self._finish(run, "error", f"the worker process died ({how})", None)
+        self._detach(run)
+        with contextlib.suppress(Exception):
+            process.close()
+
+    def _ray_done(self, run: ActiveRun, future: asyncio.Future) -> None:
+        if run.ended:
+            return
+        # let the connection drain first: its end message may still be in flight
+        assert self.loop is not None
+        self.loop.call_later(0.5, self._ray_judge, run, future)
+
+    def _ray_judge(self, run: ActiveRun, future: asyncio.Future) -> None:
+        if run.conn is not None:
+            self._readable(run, limit=1 << 30)
+        if not run.ended:
+            exc = future.exception()
+            reason = (
+                f"the Ray task failed: {exc!r}" if exc else "the Ray task ended without a result"
+            )
+            self._finish(run, "error", reason, None)
+        self._detach(run)
+
+    def _detach(self, run: ActiveRun) -> None:
+        if run.conn is not None:
+            assert self.loop is not None
+            with contextlib.suppress(Exception):
+                self.loop.remove_reader(run.conn.fileno())
+            with contextlib.suppress(Exception):
+                run.conn.close()
+            run.conn = None
+
+    def _finish(
+        self, run: ActiveRun, status: str, reason: str | None, result: dict[str, Any] | None
+    ) -> None:
+        if run.ended:
+            return
+        run.ended = True
+        fields: dict[str, Any] = {}
+        if run.progress:
+            fields["progress"] = run.progress
+        self.registry.set_status(run.run_id, status, reason, **fields)
+        self._hub(run.run_id).finish(self._end_text(status, reason, result))
+        for future in run.replies.values():
+            if not future.done():
+                future.set_result((409, {"detail": f"the run ended ({status})"}))
+        self.active.pop(run.run_id, None)
+        self._retire_hubs()
+        self._idle.set()
+        self._schedule()
+
+    def _end_text(self, status: str, reason: str | None, result: dict[str, Any] | None) -> str:
+        return msg.dumps({"type": "end", "status": status, "reason": reason, "result": result})
+
+    def _kill(self, run: ActiveRun) -> None:
+        if self.backend == "ray":
+            with contextlib.suppress(Exception):
+                self._ray.cancel(run.process, force=True)
+        elif run.process is not None:
+            with contextlib.suppress(Exception):
+                run.process.kill()
+
+    # ------------------------------------------------------------------ service -> worker
+
+    def _send(self, run: ActiveRun, command: tuple[Any, ...]) -> None:
+        if run.conn is None:
+            run.pending.append(command)
+            return
+        with contextlib.suppress(OSError, EOFError):  # the sentinel reports the worker's end
+            run.conn.send(command)
+
+    def status_of(self, run_id: str) -> str | None:
+        if run_id in self.active:
+            return self.active[run_id].status
+        run = self.registry.get(run_id)
+        return None if run is None else run["status"]
+
+    def cancel(self, run_id: str) -> None:
+        if run_id in self.queue:
+            self.queue.remove(run_id)
+            reason = "cancelled before it started"
+            self.registry.set_status(run_id, "aborted", reason)
+            self._hub(run_id).finish(self._end_text("aborted", reason, None))
+            return
+        run = self.active.get(run_id)
+        if run is None or run.ended:
+            raise NotActive("the run is already final")
+        self._send(run, ("cancel", "cancelled through the API"))
+
+    def pause(self, run_id: str) -> None:
+        run = self.active.get(run_id)
+        if run is None or run.status != "running":
+            raise NotActive("the run is not running")
+        run.status = "paused"  # a second pause answers 409 at once
+        self._send(run, ("pause",))
+
+    def resume(self, run_id: str) -> None:
+        run = self.active.get(run_id)
+        if run is None or run.status != "paused":
+            raise NotActive("the run is not paused")
+        run.status = "running"
+        self._send(run, ("resume",))
+
+    def cmd_vel(self, run_id: str, v: float, w: float) -> bool:
+        run = self.active.get(run_id)
+        if run is None:
+            return False
+        self._send(run, ("cmd_vel", v, w))
+        return True
+
+    def goal(self, run_id: str, x: float, y: float, yaw: float) -> None:
+        run = self.active.get(run_id)
+        if run is None or run.status != "running" or run.progress.get("task_type") != "teleop":
+            raise NotActive("the run's current task is not teleop")
+        self._send(run, ("goal", x, y, yaw))
+
+    async def record_room(self, run_id: str, label: str) -> tuple[int, dict[str, Any]]:
+        run = self.active.get(run_id)
+        if run is None or run.status != "running":
+            raise NotActive("the run is not running")
+        request_id = uuid.uuid4().hex
+        future: asyncio.Future = asyncio.get_running_loop().create_future()
+        run.replies[request_id] = future
+        self._send(run, ("record", request_id, label))
+        try:
+            return await asyncio.wait_for(future, 10.0)
+        finally:
+            run.replies.pop(request_id, None)
+
+    # ------------------------------------------------------------------ live streams
+
+    def _hub(self, run_id: str) -> Hub:
+        hub = self.hubs.get(run_id)
+        if hub is None:
+            hub = self.hubs[run_id] = Hub()
+        return hub
+
+    def hub_for(self, run_id: str, run: dict[str, Any]) -> Hub:
+        """The live hub of a run; for a finished run no longer in memory, one rebuilt from
+        its ``stream.jsonl`` so that a late client still gets the snapshot and the end."""
+        hub = self.hubs.get(run_id)
+        if hub is not None:
+            self.hubs.move_to_end(run_id)
+            return hub
+        hub = Hub()
+        path = self.registry.run_dir(run_id) / STREAM_FILE
+        if path.is_file():
+            with open(path, encoding="utf-8") as f:
+                for line in f:
+                    with contextlib.suppress(ValueError):
+                        kind = json.loads(line).get("type")
+                        if kind in SNAPSHOT_ORDER:
+                            hub.latest[kind] = line.rstrip("\n")
+        if run["status"] in FINAL:
+            hub.end = self._end_text(
+                run["status"], run["reason"], read_result(self.registry.run_dir(run_id))
+            )
+        self.hubs[run_id] = hub
+        self._retire_hubs()
+        return hub
+
+    def _retire_hubs(self) -> None:
+        finished = [
+            rid
+            for rid, hub in self.hubs.items()
+            if hub.end is not None and not hub.clients and rid not in self.active
+        ]
+        for rid in finished[: max(0, len(finished) - FINISHED_HUBS)]:
+            self.hubs.pop(rid, None)
+
+    def live_progress(self, run_id: str) -> dict[str, Any] | None:
+        run = self.active.get(run_id)
+        return run.progress if run is not None and run.progress else None
+
+
+def read_result(run_dir: Path) -> dict[str, Any] | None:
+    path = run_dir / "result.json"
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+
+
+def ray_entry(job: dict[str, Any], address: Any, authkey: bytes) -> None:
+    """A Ray task: connect back to the service, then run like a local worker."""
+    from multiprocessing.connection import Client
+
+    conn = Client(address, authkey=authkey)
+    conn.send(("hello", job["run_id"]))
+    worker_main(job, conn)
+
+
+def default_workers() -> int:
+    return os.cpu_count() or 1

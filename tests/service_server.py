@@ -1,0 +1,133 @@
+"""A real ``agv-mission serve`` process on a loopback port, for tests and benchmarks."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+AGV = str(Path(sys.executable).with_name("agv-mission"))
+
+SHORT_MISSION = """\
+name: short
+world: turtlebot3_world
+start: {x: -2.0, y: -0.5, yaw: 0.0}
+stack: {localization: {type: ground_truth}, global_planner: {type: grid_astar}}
+tasks:
+  - {type: go_to, pose: {x: -1.5, y: -0.5, yaw: 0.0}}
+limits: {time: 30}
+"""
+
+# sim seconds that take a few wall seconds: long enough to pause, cancel or kill
+WANDER_MISSION = """\
+name: wander
+world: turtlebot3_world
+start: {x: -2.0, y: -0.5, yaw: 0.0}
+stack: {localization: {type: amcl}}
+tasks:
+  - {type: wander, duration: %(duration)s, min_range: 0.6}
+limits: {time: 2000}
+"""
+
+
+class Server:
+    """Start ``agv-mission serve --port 0`` and read its URL from the first stdout line."""
+
+    def __init__(self, data: Path, *args: str, env: dict[str, str] | None = None) -> None:
+        self.data = data
+        self.args = list(args)
+        self.env = {**os.environ, **(env or {})}
+        self.proc: subprocess.Popen[str] | None = None
+        self.url = ""
+
+    def start(self, timeout: float = 60.0) -> Server:
+        self.proc = subprocess.Popen(
+            [AGV, "serve", "--port", "0", "--data", str(self.data), *self.args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=self.env,
+            start_new_session=True,
+        )
+        assert self.proc.stdout is not None
+        line = self.proc.stdout.readline()
+        if not line.startswith("serving on "):
+            self.proc.kill()
+            raise RuntimeError(f"serve did not start: {line!r} {self.proc.stderr.read()}")
+        self.url = line.split()[-1]
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:  # the lifespan (recovery, fork server) is up
+            try:
+                httpx.get(self.url + "/api/health", headers=self.headers, timeout=5.0)
+                return self
+            except httpx.HTTPError:
+                time.sleep(0.1)
+        raise RuntimeError("serve did not answer /api/health")
+
+    @property
+    def headers(self) -> dict[str, str]:
+        token = self.env.get("AGV_MISSION_TOKEN")
+        return {"Authorization": f"Bearer {token}"} if token else {}
+
+    @property
+    def ws_url(self) -> str:
+        return "ws" + self.url[len("http") :]
+
+    def client(self) -> httpx.Client:
+        return httpx.Client(base_url=self.url, headers=self.headers, timeout=30.0)
+
+    def stop(self, sig: int = signal.SIGTERM, timeout: float = 60.0) -> int:
+        assert self.proc is not None
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            return self.proc.wait(timeout)
+        finally:
+            if self.proc.poll() is None:
+                self.proc.kill()
+            for stream in (self.proc.stdout, self.proc.stderr):
+                if stream is not None:
+                    stream.close()
+
+    def kill9(self) -> None:
+        """kill -9 the service alone (its workers notice their pipe closing)."""
+        assert self.proc is not None
+        self.proc.kill()
+        self.proc.wait(30)
+
+    def __enter__(self) -> Server:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.stop()
+
+
+def submit(client: httpx.Client, mission: str, **body: Any) -> dict[str, Any]:
+    response = client.post("/api/runs", json={"mission": mission, **body})
+    assert response.status_code == 201, response.text
+    return response.json()
+
+
+def wait_status(
+    client: httpx.Client, run_id: str, statuses: set[str], timeout: float = 120.0
+) -> dict[str, Any]:
+    """Poll until the run reaches one of ``statuses`` (a test's deadline, not a timing)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        run = client.get(f"/api/runs/{run_id}").json()
+        if run["status"] in statuses:
+            return run
+        if time.monotonic() > deadline:
+            raise AssertionError(f"run {run_id} stuck in {run['status']}: {json.dumps(run)[:500]}")
+        time.sleep(0.05)
+
+
+FINAL = {"succeeded", "failed", "aborted", "error", "interrupted"}

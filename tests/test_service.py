@@ -1,0 +1,415 @@
+"""agv-mission serve end to end: a real server process, real HTTP and WebSocket clients."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+import websockets
+import yaml
+
+from service_server import AGV, FINAL, SHORT_MISSION, WANDER_MISSION, Server, submit, wait_status
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory):
+    with Server(tmp_path_factory.mktemp("svc") / "data", "--workers", "2") as srv:
+        yield srv
+
+
+@pytest.fixture
+def client(server: Server):
+    with server.client() as c:
+        yield c
+
+
+async def _collect(url: str, until: str = "end", limit: int = 100000) -> list[dict]:
+    out: list[dict] = []
+    async with websockets.connect(url, max_size=1 << 24) as ws:
+        async for text in ws:
+            out.append(json.loads(text))
+            if out[-1]["type"] == until or len(out) >= limit:
+                break
+    return out
+
+
+def test_submit_follow_files(server: Server, client: httpx.Client) -> None:
+    health = client.get("/api/health").json()
+    assert health["status"] == "ok" and health["workers"] == 2
+    run = submit(client, SHORT_MISSION)
+    assert run["status"] == "queued" and run["name"] == "short"
+    messages = asyncio.run(_collect(f"{server.ws_url}/api/runs/{run['id']}/live"))
+    kinds = [m["type"] for m in messages]
+    assert kinds[-1] == "end" and messages[-1]["status"] == "succeeded"
+    assert {"map", "rooms", "tree", "plan", "state"} <= set(kinds)
+    states = [m for m in messages if m["type"] == "state"]
+    for key in ("t", "pose", "estimate", "v", "w", "status", "task", "progress"):
+        assert key in states[0]
+    sim_end = messages[-1]["result"]["sim_time"]
+    assert len(states) >= 5 * sim_end * 0.9  # at least 5 per simulated second
+    assert any(m["type"] == "event" and m["event"] == "goal_reached" for m in messages)
+
+    final = client.get(f"/api/runs/{run['id']}").json()
+    assert final["status"] == "succeeded" and final["result"]["status"] == "succeeded"
+    assert final["started"] and final["ended"] and final["created"]
+    assert final["progress"]["sim_time"] == pytest.approx(sim_end, abs=0.2)
+    files = client.get(f"/api/runs/{run['id']}/files").json()["files"]
+    assert {"result.json", "run.png", "mission.yaml", "stream.jsonl", "trajectory.csv"} <= set(
+        files
+    )
+    png = client.get(f"/api/runs/{run['id']}/files/run.png")
+    assert png.status_code == 200 and png.content[:8] == b"\x89PNG\r\n\x1a\n"
+    assert client.get(f"/api/runs/{run['id']}/files/result.json").json()["status"] == "succeeded"
+    assert client.get(f"/api/runs/{run['id']}/files/..%2Fregistry.sqlite3").status_code == 404
+    assert client.get(f"/api/runs/{run['id']}/files/nothing.txt").status_code == 404
+    stream = client.get(f"/api/runs/{run['id']}/files/stream.jsonl").text.splitlines()
+    assert json.loads(stream[-1])["type"] == "end"
+    listed = client.get("/api/runs", params={"status": "succeeded"}).json()["runs"]
+    assert run["id"] in [r["id"] for r in listed]
+    assert client.get("/api/runs/nope").status_code == 404
+    assert client.post(f"/api/runs/{run['id']}/cancel").status_code == 409
+    assert client.post(f"/api/runs/{run['id']}/pause").status_code == 409
+    goal = client.post(f"/api/runs/{run['id']}/goal", json={"x": 0, "y": 0, "yaw": 0})
+    assert goal.status_code == 409  # only a running teleop task takes goals
+    assert client.post(f"/api/runs/{run['id']}/rooms/kitchen").status_code == 409
+
+    # a late client of a finished run: the snapshot, then the end
+    late = asyncio.run(_collect(f"{server.ws_url}/api/runs/{run['id']}/live"))
+    assert [m["type"] for m in late][:3] == ["map", "rooms", "recorded"]
+    assert late[-1]["type"] == "end" and late[-1]["status"] == "succeeded"
+
+
+def test_invalid_mission_422_names_line_and_field(client: httpx.Client) -> None:
+    bad = SHORT_MISSION.replace("x: -1.5", "x: fast")
+    response = client.post("/api/runs", json={"mission": bad})
+    assert response.status_code == 422
+    errors = response.json()["errors"]
+    assert errors[0]["field"] == "tasks.0.pose.x"
+    assert errors[0]["line"] == 6
+    yaml_body = client.post("/api/runs", content=bad, headers={"Content-Type": "application/yaml"})
+    assert yaml_body.status_code == 422
+    override = client.post("/api/runs", json={"mission": SHORT_MISSION, "set": ["limits.time=-1"]})
+    assert override.status_code == 422 and "limits.time" in override.json()["errors"][0]["field"]
+    valid = client.post("/api/validate", json={"mission": SHORT_MISSION})
+    assert valid.status_code == 200 and valid.json()["mission"]["name"] == "short"
+    assert client.post("/api/validate", json={"mission": bad}).status_code == 422
+
+
+def test_missions_may_read_only_builtins_and_data(server: Server, client: httpx.Client) -> None:
+    outside = server.data.parent / "outside"
+    outside.mkdir(exist_ok=True)
+    (outside / "rooms.yaml").write_text("rooms: {}\n")
+    (server.data / "link.yaml").unlink(missing_ok=True)
+    (server.data / "link.yaml").symlink_to(outside / "rooms.yaml")
+    (server.data / "rooms_ok.yaml").write_text(
+        "rooms:\n  corner:\n    polygon: [[-2.5, -1], [-1.5, -1], [-1.5, 0], [-2.5, 0]]\n"
+    )
+    cases = {
+        "world": "world: /etc/passwd",
+        "rooms": "rooms: ../outside/rooms.yaml",
+        "robot": "robot: /etc/hostname",
+    }
+    for field, line in cases.items():
+        text = SHORT_MISSION.replace("name: short", f"name: short\n{line}")
+        response = client.post("/api/runs", json={"mission": text})
+        assert response.status_code == 422, (field, response.text)
+        assert response.json()["errors"][0]["field"] == field
+        assert "root:" not in response.text  # nothing of the file leaks
+    linked = SHORT_MISSION.replace("name: short", "name: short\nrooms: link.yaml")
+    response = client.post("/api/runs", json={"mission": linked})
+    assert response.status_code == 422 and response.json()["errors"][0]["field"] == "rooms"
+    via_set = client.post(
+        "/api/runs", json={"mission": SHORT_MISSION, "set": ["world=/etc/passwd"]}
+    )
+    assert via_set.status_code == 422 and via_set.json()["errors"][0]["field"] == "world"
+    ok = SHORT_MISSION.replace("name: short", "name: short\nrooms: rooms_ok.yaml")
+    assert client.post("/api/validate", json={"mission": ok}).status_code == 200
+    tagged = "!!python/object/apply:os.system ['touch /tmp/agv-pwned']\n" + SHORT_MISSION
+    assert client.post("/api/runs", json={"mission": tagged}).status_code == 422
+    assert not Path("/tmp/agv-pwned").exists()
+
+
+def test_bodies_are_bounded_and_typed(client: httpx.Client) -> None:
+    huge = "# " + "x" * 1_100_000 + "\n" + SHORT_MISSION
+    assert client.post("/api/runs", json={"mission": huge}).status_code == 413
+    plain = client.post("/api/runs", content=SHORT_MISSION, headers={"Content-Type": "text/plain"})
+    assert plain.status_code == 415
+    cross = client.post(
+        "/api/runs",
+        json={"mission": SHORT_MISSION},
+        headers={"Origin": "http://evil.example"},
+    )
+    assert cross.status_code == 403
+    assert "access-control-allow-origin" not in {k.lower() for k in cross.headers}
+
+
+def test_pause_resume_cancel(server: Server, client: httpx.Client) -> None:
+    run = submit(client, WANDER_MISSION % {"duration": 600})
+    rid = run["id"]
+    wait_status(client, rid, {"running"})
+    while client.get(f"/api/runs/{rid}").json()["progress"]["sim_time"] < 1.0:
+        time.sleep(0.05)
+    assert client.post(f"/api/runs/{rid}/resume").status_code == 409
+    assert client.post(f"/api/runs/{rid}/pause").status_code == 202
+    paused = wait_status(client, rid, {"paused"})
+    assert client.post(f"/api/runs/{rid}/pause").status_code == 409
+
+    async def while_paused() -> tuple[list[dict], dict]:
+        async with websockets.connect(f"{server.ws_url}/api/runs/{rid}/live") as ws:
+            await ws.send(json.dumps({"type": "ping"}))
+            first: list[dict] = []
+            while True:  # the snapshot (a paused run sends nothing else), then the pong
+                m = json.loads(await ws.recv())
+                if m["type"] == "pong":
+                    return first, m
+                first.append(m)
+
+    first, pong = asyncio.run(while_paused())
+    assert pong == {"type": "pong"}
+    state = next(m for m in first if m["type"] == "state")
+    assert state["status"] == "paused"
+    held = client.get(f"/api/runs/{rid}").json()["progress"]["sim_time"]
+    time.sleep(0.5)
+    assert client.get(f"/api/runs/{rid}").json()["progress"]["sim_time"] == held
+    assert held >= paused["progress"]["sim_time"]
+    assert client.post(f"/api/runs/{rid}/resume").status_code == 202
+    wait_status(client, rid, {"running"})
+    while client.get(f"/api/runs/{rid}").json()["progress"]["sim_time"] <= held + 0.5:
+        time.sleep(0.05)
+    assert client.post(f"/api/runs/{rid}/cancel").status_code == 202
+    final = wait_status(client, rid, FINAL)
+    assert final["status"] == "aborted" and final["result"]["status"] == "aborted"
+    assert "cancel" in final["reason"]
+
+
+def test_worker_kill_9_is_an_error_not_a_crash(server: Server, client: httpx.Client) -> None:
+    run = submit(client, WANDER_MISSION % {"duration": 600})
+    wait_status(client, run["id"], {"running"})
+    pid = None
+    for _ in range(200):
+        pid = _worker_pid(server.data, run["id"])
+        if pid:
+            break
+        time.sleep(0.05)
+    assert pid
+    os.kill(pid, signal.SIGKILL)
+    final = wait_status(client, run["id"], FINAL)
+    assert final["status"] == "error" and "SIGKILL" in final["reason"]
+    assert client.get("/api/health").json()["status"] == "ok"
+    after = submit(client, SHORT_MISSION)
+    assert wait_status(client, after["id"], FINAL)["status"] == "succeeded"
+
+
+def _worker_pid(data: Path, run_id: str) -> int | None:
+    import sqlite3
+
+    with sqlite3.connect(data / "registry.sqlite3") as db:
+        row = db.execute("SELECT worker_pid FROM runs WHERE id = ?", (run_id,)).fetchone()
+    return row[0] if row else None
+
+
+def test_token_and_host_rules(tmp_path: Path) -> None:
+    refused = subprocess.run(
+        [AGV, "serve", "--host", "0.0.0.0", "--port", "0", "--data", str(tmp_path / "d")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={k: v for k, v in os.environ.items() if k != "AGV_MISSION_TOKEN"},
+    )
+    assert refused.returncode == 2 and "token" in refused.stderr
+    with Server(tmp_path / "data", "--workers", "1", env={"AGV_MISSION_TOKEN": "s3cret"}) as srv:
+        assert httpx.get(srv.url + "/api/health").status_code == 401
+        wrong = httpx.get(srv.url + "/api/runs", headers={"Authorization": "Bearer nope"})
+        assert wrong.status_code == 401
+        with srv.client() as c:
+            run = submit(c, SHORT_MISSION)
+
+        async def live(url: str) -> list[dict]:
+            return await _collect(url)
+
+        with pytest.raises(websockets.exceptions.WebSocketException):
+            asyncio.run(live(f"{srv.ws_url}/api/runs/{run['id']}/live"))
+        messages = asyncio.run(live(f"{srv.ws_url}/api/runs/{run['id']}/live?token=s3cret"))
+        assert messages[-1]["type"] == "end"
+        mission = tmp_path / "short.yaml"
+        mission.write_text(SHORT_MISSION)
+        out = subprocess.run(
+            [AGV, "submit", str(mission), "--server", srv.url],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env={k: v for k, v in os.environ.items() if k != "AGV_MISSION_TOKEN"},
+        )
+        assert out.returncode == 2
+
+
+def test_submit_cli_follow_and_exit_codes(server: Server, tmp_path: Path) -> None:
+    mission = tmp_path / "short.yaml"
+    mission.write_text(SHORT_MISSION)
+    done = subprocess.run(
+        [AGV, "submit", str(mission), "--server", server.url, "--follow"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    run_id = done.stdout.splitlines()[0].strip()
+    assert len(run_id) == 12 and "succeeded" in done.stdout
+    failing = subprocess.run(
+        [AGV, "submit", str(mission), "--server", server.url, "--follow", "--set", "limits.time=1"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert failing.returncode == 1 and "time limit" in failing.stdout
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(SHORT_MISSION.replace("x: -1.5", "x: fast"))
+    invalid = subprocess.run(
+        [AGV, "submit", str(bad), "--server", server.url], capture_output=True, text=True
+    )
+    assert invalid.returncode == 2
+    assert f"{bad}:6" in invalid.stderr and "pose.x" in invalid.stderr
+
+
+def test_queue_full_429(tmp_path: Path) -> None:
+    with Server(tmp_path / "data", "--workers", "1", "--queue-size", "1") as srv, srv.client() as c:
+        long = WANDER_MISSION % {"duration": 600}
+        first = submit(c, long)
+        wait_status(c, first["id"], {"running"})
+        submit(c, long)
+        third = c.post("/api/runs", json={"mission": long})
+        assert third.status_code == 429
+        assert c.get("/api/health").json()["queued"] == 1
+        for run in c.get("/api/runs").json()["runs"]:
+            c.post(f"/api/runs/{run['id']}/cancel")
+        assert wait_status(c, first["id"], FINAL)["status"] == "aborted"
+
+
+def test_restart_after_kill_9_and_sigterm(tmp_path: Path) -> None:
+    data = tmp_path / "data"
+    long = WANDER_MISSION % {"duration": 600}
+    srv = Server(data, "--workers", "1").start()
+    with srv.client() as c:
+        done = submit(c, SHORT_MISSION)
+        wait_status(c, done["id"], FINAL)
+        running = submit(c, long)
+        wait_status(c, running["id"], {"running"})
+        queued = submit(c, SHORT_MISSION)
+    srv.kill9()
+
+    srv = Server(data, "--workers", "1").start()
+    with srv.client() as c:
+        runs = {r["id"]: r for r in c.get("/api/runs").json()["runs"]}
+        assert set(runs) == {done["id"], running["id"], queued["id"]}
+        assert runs[done["id"]]["status"] == "succeeded"
+        assert runs[running["id"]]["status"] == "interrupted"
+        assert wait_status(c, queued["id"], FINAL)["status"] == "succeeded"
+        again = submit(c, long)
+        wait_status(c, again["id"], {"running"})
+        while c.get(f"/api/runs/{again['id']}").json()["progress"]["sim_time"] < 0.5:
+            time.sleep(0.05)
+    assert srv.stop(signal.SIGTERM) == 0
+
+    srv = Server(data, "--workers", "1").start()
+    with srv.client() as c:
+        stopped = c.get(f"/api/runs/{again['id']}").json()
+        assert stopped["status"] == "aborted"
+        assert stopped["result"]["status"] == "aborted"
+        assert len(c.get("/api/runs").json()["runs"]) == 4
+    srv.stop(signal.SIGINT)
+
+
+@pytest.mark.slow
+def test_teleop_seed_003_records_four_rooms(server: Server, client: httpx.Client) -> None:
+    """Seed 003 over the API: spawn in the living room, go into each room, record it."""
+    _teleop_rooms(server, client, ["livingroom", "kitchen", "recreationroom", "bedroom"])
+
+
+def test_teleop_drive_and_record_two_rooms(server: Server, client: httpx.Client) -> None:
+    """The fast part of seed 003: remote driving, a goal, two rooms recorded."""
+    _teleop_rooms(server, client, ["livingroom", "kitchen"])
+
+
+ANCHORS = {
+    "livingroom": (3.0, -2.0),
+    "kitchen": (7.0, -2.0),
+    "recreationroom": (-0.5, 1.8),
+    "bedroom": (-4.5, -2.5),
+}
+
+
+def _teleop_rooms(server: Server, client: httpx.Client, labels: list[str]) -> None:
+    mission = (
+        "name: seed-003\nworld: small_house\nstart: livingroom\n"
+        "stack: {localization: {type: amcl}}\ntasks:\n  - {type: teleop}\n"
+    )
+    run = submit(client, mission)
+    rid = run["id"]
+    wait_status(client, rid, {"running"})
+    anchors = {label: ANCHORS[label] for label in labels}
+    replies = asyncio.run(_seed_003(server, rid, anchors))
+    for label, (x, y) in anchors.items():
+        body = replies[label]
+        assert body["confirmation"] == "Entry saved in file" and body["label"] == label
+        assert abs(body["pose"]["x"] - x) < 0.3 and abs(body["pose"]["y"] - y) < 0.3
+
+    doc = yaml.safe_load(client.get(f"/api/runs/{rid}/files/location_recorder.yaml").text)
+    assert list(doc) == list(anchors)
+    for entry in doc.values():
+        assert set(entry) == {"position", "orientation"}
+        assert set(entry["position"]) == {"x", "y", "z"}
+        assert set(entry["orientation"]) == {"x", "y", "z", "w"}
+    assert client.post(f"/api/runs/{rid}/cancel").status_code == 202
+    final = wait_status(client, rid, FINAL)
+    assert final["status"] == "aborted"
+    assert set(final["result"]["rooms_recorded"]) == set(anchors)
+    assert client.post(f"/api/runs/{rid}/rooms/kitchen").status_code == 409
+
+
+async def _seed_003(
+    server: Server, rid: str, anchors: dict[str, tuple[float, float]]
+) -> dict[str, dict]:
+    """Drive by cmd_vel a little, then per room: a goal, wait for arrival, record."""
+    replies: dict[str, dict] = {}
+    async with (
+        httpx.AsyncClient(base_url=server.url, timeout=30.0) as http,
+        websockets.connect(f"{server.ws_url}/api/runs/{rid}/live", max_size=1 << 24) as ws,
+    ):
+        events: list[dict] = []
+        states: list[dict] = []
+        arrived = asyncio.Event()
+
+        async def read() -> None:
+            async for text in ws:
+                m = json.loads(text)
+                if m["type"] == "state":
+                    states.append(m)
+                elif m["type"] == "event":
+                    events.append(m)
+                    if m["event"] in ("goal_reached", "goal_failed"):
+                        arrived.set()
+
+        reader = asyncio.create_task(read())
+        for _ in range(10):
+            await ws.send(json.dumps({"type": "cmd_vel", "v": 0.15, "w": 0.0}))
+            await asyncio.sleep(0.1)
+        assert states[-1]["task"] == {"index": 0, "type": "teleop"}
+        assert max(m["v"] for m in states) > 0.05  # it drove under remote command
+        for label, (x, y) in anchors.items():
+            arrived.clear()
+            response = await http.post(f"/api/runs/{rid}/goal", json={"x": x, "y": y, "yaw": 0.0})
+            assert response.status_code == 202
+            await asyncio.wait_for(arrived.wait(), 120)
+            assert events[-1]["event"] == "goal_reached", events[-1]
+            recorded = await http.post(f"/api/runs/{rid}/rooms/{label}")
+            assert recorded.status_code == 200, recorded.text
+            replies[label] = recorded.json()
+        reader.cancel()
+    return replies

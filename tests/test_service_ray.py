@@ -16,7 +16,7 @@ from service_server import FINAL, SHORT_MISSION, WANDER_MISSION, Server, submit,
 @pytest.mark.slow
 def test_ray_backend_runs_streams_and_cancels(tmp_path: Path) -> None:
     ray = pytest.importorskip("ray", reason="ray not installed (pip install 'agv-mission[ray]')")
-    ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING")
+    ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level="WARNING")
     try:
         address = ray.get_runtime_context().gcs_address
         args = ("--workers", "2", "--backend", "ray", "--address", address)

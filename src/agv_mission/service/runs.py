@@ -128,7 +128,8 @@ class RunManager:
             options: dict[str, Any] = {"include_dashboard": False, "logging_level": "WARNING"}
             if self.address:
                 options["address"] = self.address
-            else:
+            else:  # a new local instance, whatever a stale /tmp/ray file says
+                options["address"] = "local"
                 options["num_cpus"] = self.workers
             ray.init(**options)
         self._ray = ray

@@ -44,8 +44,11 @@ def test_round_trip_turtlebot3_world(tmp_path):
     live, quality, report = _round_trip(
         tmp_path, REPO / "tests" / "scenarios" / "map_area_tb3.yaml", []
     )
-    assert quality["free_iou"] >= live["free_iou"] - 0.01, (quality, live)
+    # The offline map is anchored at the bag's map -> odom at the first scan: amcl's first
+    # cluster mean, a few cm off the start, so the two maps differ by that shift.
+    assert quality["free_iou"] >= live["free_iou"] - 0.02, (quality, live)
     assert quality["free_iou"] >= 0.95
+    assert report["rmse"]["ate_aligned"] < 0.01
     assert report["scans"]["used"] == report["scans"]["total"]
     assert report["rmse"]["position_rmse"] < 0.05
 

@@ -69,7 +69,6 @@ BEYOND_THE_SCHEMA = {
     "quaternion_tilted": "arithmetic",
     "quaternion_zero": "arithmetic",
     "pose_non_finite_yaw": "non-finite number",
-    "plugin_time_limit_infinite": "non-finite number",
     "plugin_option_nan": "non-finite number",
     # YAML itself: duplicate keys and lone surrogates are gone once parsed
     "yaml_duplicate_key": "YAML",

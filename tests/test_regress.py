@@ -314,7 +314,7 @@ def test_ray_backend_matches_local(tmp_path: Path) -> None:
     ray = pytest.importorskip("ray", reason="ray not installed (pip install 'agv-mission[ray]')")
     plan = planning.plan_jobs(SHORT, seeds=2, output_root=tmp_path)
     local = backends.run_jobs(plan.jobs, "local", 1)
-    ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING")
+    ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level="WARNING")
     try:
         remote = backends.run_jobs(plan.jobs, "ray", 2)
     finally:

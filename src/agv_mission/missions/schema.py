@@ -536,4 +536,10 @@ def mission_json_schema() -> dict[str, Any]:
             "then": {"$ref": mapping[name]},
             "else": {k: v for k, v in union.items() if k != "title"},
         }
+    # ``output: runs`` is the contract's spelling of ``output: {dir: runs}``
+    output = schema["properties"]["output"]
+    schema["properties"]["output"] = {
+        "description": output["description"],
+        "anyOf": [{"type": "string"}, {"$ref": output["$ref"]}],
+    }
     return {"$schema": JSON_SCHEMA_DIALECT, **schema}

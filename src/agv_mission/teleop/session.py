@@ -51,7 +51,7 @@ from agv_mission.maps.recorder import (
 from agv_mission.maps.rooms import room_at
 from agv_mission.missions.loader import LoadedMission, load_mission
 from agv_mission.missions.runner import MissionRun, run_mission
-from agv_mission.missions.schema import Mission
+from agv_mission.missions.schema import MAX_SIM_SECONDS, Mission
 from agv_mission.missions.stack import CONTROL_PERIOD
 from agv_mission.teleop.terminal import (
     HELP,
@@ -97,7 +97,7 @@ def load_teleop_mission(
 # --------------------------------------------------------------------------- the mission
 
 
-TELEOP_TIME_LIMIT = 1e9  # sim seconds: a session ends when its driver says so
+TELEOP_TIME_LIMIT = MAX_SIM_SECONDS  # a session ends when its driver says so (a day at most)
 
 
 def teleop_mission(loaded: LoadedMission) -> LoadedMission:

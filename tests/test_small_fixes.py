@@ -39,3 +39,15 @@ def test_set_a_plugin_option_when_the_block_is_omitted(tmp_path: Path) -> None:
     loaded = load_mission(path, ["stack.localization.max_particles=1000"])
     localization = loaded.mission.stack.localization
     assert (localization.type, localization.max_particles) == ("amcl", 1000)
+
+
+def test_a_block_without_type_is_the_one_plugin_with_its_keys(tmp_path: Path) -> None:
+    path = tmp_path / "m.yaml"
+    path.write_text(
+        "stack:\n  global_planner: {connectivity: 16}\ntasks: [{type: wander, duration: 5}]\n"
+    )
+    assert load_mission(path).mission.stack.global_planner.type == "grid_astar"
+    path.write_text(
+        "stack:\n  global_planner: {clearance: 0.2}\ntasks: [{type: wander, duration: 5}]\n"
+    )
+    assert load_mission(path).mission.stack.global_planner.type == "cost_grid"

@@ -158,14 +158,30 @@ DEFAULT_PLUGINS = {
 
 def with_default_plugin_types(data: Any) -> Any:
     """``data`` with ``type`` filled in for every stack block that leaves it out (in place),
-    so ``--set stack.global_planner.planner=RRTstar`` works without a block in the file."""
+    so ``--set stack.global_planner.planner=RRTstar`` works without a block in the file.
+
+    A block is the slot's default plugin, unless its keys are not all the default's and
+    exactly one plugin of the slot has them all (``planner`` is OMPL's alone)."""
     stack = data.get("stack") if isinstance(data, dict) else None
     if isinstance(stack, dict):
         for slot, name in DEFAULT_PLUGINS.items():
             block = stack.get(slot)
             if isinstance(block, dict) and "type" not in block:
-                block["type"] = name
+                block["type"] = _plugin_with_keys(slot, set(block)) or name
     return data
+
+
+def _plugin_with_keys(slot: str, keys: set[Any]) -> str | None:
+    """The one plugin of ``slot`` whose config has every key of ``keys`` when the default
+    plugin's does not; None otherwise."""
+    configs = {
+        config.model_fields["type"].default: set(config.model_fields)
+        for config in registry.configs(slot)
+    }
+    if keys <= configs.get(DEFAULT_PLUGINS[slot], set()):
+        return None
+    fits = [name for name, fields in configs.items() if keys <= fields]
+    return fits[0] if len(fits) == 1 else None
 
 
 def _default(slot: str, name: str) -> Any:
@@ -531,9 +547,10 @@ def mission_json_schema() -> dict[str, Any]:
             continue
         slots[slot] = {
             "title": union.get("title", slot),
-            "description": f"a plugin chosen by `type`; without one: {name}",
+            "description": f"a plugin chosen by `type`; without one: {name}, or the one "
+            "plugin whose options the block uses",
             "if": {"type": "object", "not": {"required": ["type"]}},
-            "then": {"$ref": mapping[name]},
+            "then": {"anyOf": [{"$ref": ref} for ref in mapping.values()]},
             "else": {k: v for k, v in union.items() if k != "title"},
         }
     # ``output: runs`` is the contract's spelling of ``output: {dir: runs}``

@@ -44,9 +44,15 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
 from agv_mission.planners.base import PlannedPath, PlanningError
 from agv_mission.planners.configs import CostGridConfig
-from agv_mission.planners.grid_astar import _MOVES_8, _MOVES_16, FreeSpace
+from agv_mission.planners.grid_astar import _MOVES_8, _MOVES_16, EDGE_EPS, FreeSpace
 
 MAX_COST = 252.0
+# How much the coarse graph may misjudge a path's length (blocks of 0.2 m on a leg of a
+# few metres): the shortest-path check searches every way round obstacles within it.
+COARSE_SLACK = 0.05
+# Shortcuts may end at any turn of the cell path and at every few cells between: the
+# tangent to an obstacle often touches the middle of a straight run.
+SHORTCUT_EVERY = 4
 
 
 # --------------------------------------------------------------------------- searches
@@ -72,6 +78,19 @@ class StepGraph:
         while nodes[-1] != s:
             nodes.append(int(pred[nodes[-1]]))
         return self.cells[np.array(nodes[::-1], dtype=np.int64)]
+
+    def near_cheapest(self, start: int, goal: int, slack: float) -> np.ndarray | None:
+        """Flat indices of every cell on some path from ``start`` to ``goal`` that costs at
+        most ``1 + slack`` times the cheapest (None if not joined): each way round an
+        obstacle whose cost is that close, not only the cheapest one."""
+        s, g = int(self.node_of[start]), int(self.node_of[goal])
+        if s < 0 or g < 0:
+            return None
+        dist = dijkstra(self.graph, indices=[s, g])
+        best = dist[0, g]
+        if not np.isfinite(best):
+            return None
+        return self.cells[dist[0] + dist[1] <= (1.0 + slack) * best + 1e-9]
 
 
 def _directed_moves(connectivity: int, stride: int) -> list[tuple[int, float, tuple[int, ...]]]:
@@ -163,14 +182,67 @@ def corridor_path(
 # --------------------------------------------------------------------------- smoothing
 
 
-def _turns(cells: np.ndarray, w: int) -> np.ndarray:
-    """Indices into ``cells`` of the path's ends and of every cell where it turns."""
+def _turns(cells: np.ndarray, w: int, every: int = 0) -> np.ndarray:
+    """Indices into ``cells`` of the path's ends, of every cell where it turns and (with
+    ``every``) of every ``every``-th cell: the vertices shortcuts may end at."""
     rows, cols = np.divmod(cells, w)
     if len(cells) <= 2:
         return np.arange(len(cells))
     d = np.stack([np.diff(rows), np.diff(cols)], axis=1)
     turn = np.any(d[1:] != d[:-1], axis=1)
-    return np.concatenate([[0], np.flatnonzero(turn) + 1, [len(cells) - 1]])
+    idx = [[0], np.flatnonzero(turn) + 1, [len(cells) - 1]]
+    if every > 0:
+        idx.append(np.arange(0, len(cells), every))
+    return np.unique(np.concatenate(idx))
+
+
+def segments_cells(space: FreeSpace, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The cells of many segments ``a[i] -> b[i]`` at once, the same cells
+    :meth:`FreeSpace.segment_cells` finds for one (the cells at the ends and either side
+    of every grid-line crossing, both cells within ``EDGE_EPS`` of an edge; it may leave
+    out a cell whose corner the segment passes within ``EDGE_EPS``).
+
+    Returns ``(cells, mask, inside)``: flat indices (m, p), which of them are real, and
+    which segments stay on the grid.
+    """
+    res = space.res
+    u0, v0 = a[:, 0] / res, a[:, 1] / res
+    du, dv = b[:, 0] / res - u0, b[:, 1] / res - v0
+    m = len(a)
+    parts = [np.zeros((m, 1)), np.ones((m, 1))]
+    for c0, d in ((u0, du), (v0, dv)):
+        lo = np.ceil(np.minimum(c0, c0 + d))
+        count = np.where(d != 0.0, np.floor(np.maximum(c0, c0 + d)) - lo + 1.0, 0.0)
+        most = int(count.max(initial=0.0))
+        if most > 0:
+            k = np.arange(most)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (lo[:, None] + k[None, :] - c0[:, None]) / d[:, None]
+            t[k[None, :] >= count[:, None]] = np.nan
+            parts.append(t)
+    # The cells either side of every crossing cover every piece between crossings too:
+    # no need for the pieces' midpoints (nor to sort the crossings).
+    t = np.concatenate(parts, axis=1)
+    valid = ~np.isnan(t)
+    t = np.where(valid, t, 0.0)
+    u, v = u0[:, None] + t * du[:, None], v0[:, None] + t * dv[:, None]
+    cols = np.floor(np.concatenate([u - EDGE_EPS, u + EDGE_EPS, u - EDGE_EPS, u + EDGE_EPS], 1))
+    rows = np.floor(np.concatenate([v - EDGE_EPS, v - EDGE_EPS, v + EDGE_EPS, v + EDGE_EPS], 1))
+    mask = np.tile(valid, 4)
+    on_grid = (cols >= 0) & (rows >= 0) & (cols < space.width) & (rows < space.height)
+    inside = np.all(on_grid | ~mask, axis=1)
+    mask &= on_grid
+    cells = np.where(mask, rows * space.width + cols, 0).astype(np.int64)
+    return cells, mask, inside
+
+
+def segments_clearance(space: FreeSpace, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Least obstacle distance along each segment ``a[i] -> b[i]``; -inf where it crosses a
+    cell that is not free or leaves the grid."""
+    cells, mask, inside = segments_cells(space, a, b)
+    free = np.all(space.free_flat[cells] | ~mask, axis=1) & inside
+    least = np.min(np.where(mask, space.distance_flat[cells], np.inf), axis=1)
+    return np.where(free, least, -np.inf)
 
 
 def any_angle(
@@ -181,7 +253,9 @@ def any_angle(
     ``seg_floor[i]`` is the least clearance of the path between vertices i and i + 1.
     A run of vertices is replaced by one segment when that segment crosses only free
     cells, none nearer to an obstacle than the run came (capped at ``comfort``), give or
-    take a cell.
+    take a cell. From each vertex, the segments to vertices 1, 2, 4, 8, ... ahead are
+    checked in one batch (:func:`segments_clearance`), then 16 at a time between the
+    farthest one reached and the nearest one missed.
     """
     n = len(pts)
     if n <= 2:
@@ -191,19 +265,29 @@ def any_angle(
     out = [0]
     i = 0
     while i < n - 1:
-        j = i + 1
-        lowest = floor[i]
-        while j + 1 < n:
-            lowest_next = min(lowest, floor[j])
-            seg = space.segment_cells(pts[i, 0], pts[i, 1], pts[j + 1, 0], pts[j + 1, 1])
-            if seg is None or not space.free_flat[seg].all():
+        lowest = np.minimum.accumulate(floor[i:])  # lowest[e - 1 - i]: the run i..e
+
+        def reaches(ends: np.ndarray, i: int = i, lowest: np.ndarray = lowest) -> np.ndarray:
+            starts = np.repeat(pts[i : i + 1], len(ends), axis=0)
+            return segments_clearance(space, starts, pts[ends]) >= lowest[ends - 1 - i] - slack
+
+        # gallop (i + 2, i + 3, i + 5, i + 9, ..., the end), then narrow down between the
+        # last end reached and the first one missed, 16 ends at a time
+        ends = np.unique(np.minimum(i + 1 + 2 ** np.arange(int(math.log2(n - i)) + 2), n - 1))
+        lo, hi = i + 1, n
+        while True:
+            ends = ends[(ends > lo) & (ends < hi)]
+            if ends.size == 0:
                 break
-            if space.distance_flat[seg].min() < lowest_next - slack:
-                break
-            j += 1
-            lowest = lowest_next
-        out.append(j)
-        i = j
+            ok = reaches(ends)
+            if ok.all():
+                lo = int(ends[-1])
+            else:
+                fail = int(np.argmin(ok))
+                lo, hi = (int(ends[fail - 1]) if fail > 0 else lo), int(ends[fail])
+            ends = np.unique(np.linspace(lo + 1, hi - 1, 16).round().astype(np.int64))
+        out.append(lo)
+        i = lo
     return pts[out]
 
 
@@ -213,13 +297,7 @@ def _segment_clearance(space: FreeSpace, a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _arc_clear(space: FreeSpace, arc: np.ndarray, floor: float) -> bool:
-    for p, q in zip(arc[:-1], arc[1:], strict=True):
-        seg = space.segment_cells(p[0], p[1], q[0], q[1])
-        if seg is None or not space.free_flat[seg].all():
-            return False
-        if space.distance_flat[seg].min() < floor - 1e-6:
-            return False
-    return True
+    return bool(np.all(segments_clearance(space, arc[:-1], arc[1:]) >= floor - 1e-6))
 
 
 def fillet(
@@ -366,11 +444,11 @@ class CostGridPlanner:
             return pts
         if _length(pts) <= cfg.max_detour * math.dist(start, goal):
             return pts
-        shortest = self._search(space, start, goal, 0.0, None, fillets=False)
+        shortest = self._search(space, start, goal, 0.0, None, fillets=False, slack=COARSE_SLACK)
         bound = cfg.max_detour * _length(shortest) if shortest is not None else math.inf
         while _length(pts) > bound and weight > 0.0:
             weight = weight / 4.0 if weight > cfg.cost_weight / 60.0 else 0.0
-            pts = self._search(space, start, goal, weight, None)
+            pts = self._search(space, start, goal, weight, None, slack=COARSE_SLACK)
             if pts is None:
                 return shortest
         return pts
@@ -383,8 +461,11 @@ class CostGridPlanner:
         weight: float,
         prior: np.ndarray | None,
         fillets: bool = True,
+        slack: float | None = None,
     ) -> np.ndarray | None:
-        """Coarse-to-fine search with inflation cost ``weight``, then smoothing."""
+        """Coarse-to-fine search with inflation cost ``weight``, then smoothing. With
+        ``slack`` the fine search may use every coarse way within ``1 + slack`` of the
+        cheapest (see :meth:`StepGraph.near_cheapest`), not only the cheapest."""
         cfg = self.config
         costmap = space.costmap
         comfort = costmap.robot_radius + costmap.config.inflation_radius
@@ -397,10 +478,12 @@ class CostGridPlanner:
         if k > 1:
             coarse = self._coarse_graph(space, k, weight)
             wc = -(-w // k)
-            blocks = coarse.cheapest(
-                (s_cell // w // k) * wc + (s_cell % w) // k,
-                (g_cell // w // k) * wc + (g_cell % w) // k,
-            )
+            s_block = (s_cell // w // k) * wc + (s_cell % w) // k
+            g_block = (g_cell // w // k) * wc + (g_cell % w) // k
+            if slack is None:
+                blocks = coarse.cheapest(s_block, g_block)
+            else:
+                blocks = coarse.near_cheapest(s_block, g_block, slack)
             if blocks is None:
                 return None  # no block path: not joined at the fine level either
             cells = self._in_corridor(space, blocks, k, factor, s_cell, g_cell)
@@ -523,7 +606,7 @@ class CostGridPlanner:
         cfg = self.config
         w = space.width
         dist = space.distance_flat[cells]
-        turns = _turns(cells, w)
+        turns = _turns(cells, w, SHORTCUT_EVERY)
         centres = space.cell_centres(cells[turns] // w, cells[turns] % w)
         # least clearance of the cell path between consecutive turn vertices
         seg_floor = np.minimum.reduceat(dist, turns[:-1]) if len(turns) > 1 else dist[:1]

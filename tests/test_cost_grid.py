@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+from pathlib import Path as FilePath
 
 import numpy as np
 import pytest
@@ -157,6 +158,63 @@ def test_a_much_shorter_way_replaces_the_prior() -> None:
     assert path.length < 0.85 * np.sum(np.linalg.norm(np.diff(far, axis=0), axis=1))
 
 
+def test_a_costmap_patched_in_place_is_planned_afresh() -> None:
+    """The obstacle layer patches its costmap in place: a planner that planned on it before
+    must plan as a fresh one does on the patched map (no stale coarse graph)."""
+    start, goal = Pose2D(1.0, 2.5), Pose2D(9.0, 2.5)
+    static, closed = pillar_room(), pillar_room(block_low=True)
+    # a writable copy, as ObstacleLayer makes before it patches
+    room = Costmap(
+        static.grid, static.robot_radius, static.config, static.distance.copy(), static.cost.copy()
+    )
+    planner = CostGridPlanner(CostGridConfig())
+    below = planner.plan(room, start, goal)
+    assert below.points[:, 1].min() < 2.0
+    room.distance[:] = closed.distance  # the way below closes, same costmap object
+    room.cost[:] = closed.cost
+    again = planner.plan(room, start, goal)
+    fresh = CostGridPlanner(CostGridConfig()).plan(closed, start, goal)
+    assert again.points.tobytes() == fresh.points.tobytes()
+    assert again.points[:, 1].max() > 3.2
+
+
+def test_shortcuts_find_the_tangent_on_a_real_map(ros_maps: FilePath) -> None:
+    """Between the pillars of the real turtlebot3_world map the plan is within 1.05x of
+    the shortest path (shortcuts ending only at the cell path's turns made it 1.052x)."""
+    from agv_mission.maps.ros_map import load_ros_map
+
+    costmap = Costmap.from_grid(
+        load_ros_map(ros_maps / "turtlebot3_world" / "map.yaml"),
+        0.105,
+        CostmapConfig(inflation_radius=0.3),
+    )
+    tour = [(-2.0, -0.5), (1.13, -1.6), (0.13, 1.93), (-0.55, -0.55)]
+    planner = CostGridPlanner(CostGridConfig())
+    for a, b in zip(tour, tour[1:], strict=False):
+        start, goal = Pose2D(*a), Pose2D(*b)
+        path = planner.plan(costmap, start, goal)
+        assert path.length <= 1.05 * shortest(costmap, start, goal)
+        assert costmap.is_free(sampled(path), MARGIN).all()
+
+
+def test_localisation_expectations() -> None:
+    """A scenario can bound the largest error and ask for an honest covariance."""
+    localization = {"position_rmse": 0.02, "position_max_error": 0.3, "consistency_2sigma": 0.85}
+    result = {"status": "succeeded", "metrics": {"localization": localization}}
+    strict = Expectations(
+        localization_rmse_max=0.06,
+        localization_max_error_max=0.25,
+        localization_consistency_min=0.9,
+    )
+    failures = {f.metric: f for f in check(strict, result)}
+    assert set(failures) == {"localization_max_error_max", "localization_consistency_min"}
+    assert failures["localization_max_error_max"].by == pytest.approx(0.05)
+    loose = Expectations(localization_max_error_max=0.5, localization_consistency_min=0.8)
+    assert not check(loose, result)
+    # a run that reports no covariance cannot meet a consistency bound
+    assert check(loose, {"status": "succeeded", "metrics": {"localization": {}}})
+
+
 @pytest.mark.parametrize("planner", ["RRTConnect", "BITstar"])
 def test_inflation_radius_shapes_ompl_plans(planner: str) -> None:
     """Issue 11: inflation_radius 0.0 and 0.6 gave byte-identical OMPL plans."""
@@ -225,8 +283,6 @@ def test_leg_report_and_expectations() -> None:
 @pytest.mark.slow
 def test_ompl_run_is_byte_identical_under_cpu_load(tmp_path) -> None:
     """Issue 11: the same OMPL mission, alone and beside busy processes, drives the same."""
-    from pathlib import Path as FilePath
-
     mission = FilePath(__file__).parent / "scenarios" / "go_to_tb3.yaml"
     cli = FilePath(sys.executable).parent / "agv-mission"
 

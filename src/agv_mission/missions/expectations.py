@@ -58,6 +58,19 @@ class Expectations(BaseModel):
     localization_rmse_max: float | None = Field(
         None, ge=0.0, description="position RMSE of the estimate against ground truth, metres"
     )
+    localization_max_error_max: float | None = Field(
+        None,
+        ge=0.0,
+        description="largest position error of the estimate against ground truth, metres "
+        "(a run that loses its localisation misses it)",
+    )
+    localization_consistency_min: float | None = Field(
+        None,
+        ge=0.0,
+        le=1.0,
+        description="share of steps whose true error lies within the reported covariance's "
+        "2-sigma ellipse, at least",
+    )
     map_iou_min: float | None = Field(
         None,
         ge=0.0,
@@ -151,10 +164,17 @@ def check(expect: Expectations | None, result: dict[str, Any]) -> list[Failure]:
     ):
         at_most(key, bound, navigation.get(key))
     at_most("stops_max", e.stops_max, navigation.get("stops"))
+    localization = metrics.get("localization") or {}
+    at_most("localization_rmse_max", e.localization_rmse_max, localization.get("position_rmse"))
     at_most(
-        "localization_rmse_max",
-        e.localization_rmse_max,
-        (metrics.get("localization") or {}).get("position_rmse"),
+        "localization_max_error_max",
+        e.localization_max_error_max,
+        localization.get("position_max_error"),
+    )
+    at_least(
+        "localization_consistency_min",
+        e.localization_consistency_min,
+        localization.get("consistency_2sigma"),
     )
     for key, bound in (
         ("map_iou_min", e.map_iou_min),

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import math
 import time
-import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,6 +52,8 @@ COARSE_SLACK = 0.05
 # Shortcuts may end at any turn of the cell path and at every few cells between: the
 # tangent to an obstacle often touches the middle of a straight run.
 SHORTCUT_EVERY = 4
+NEAR_CELLS = 6  # see StepGraph.near_cheapest
+COARSE_CACHE = 4  # coarse graphs kept (a few MB each)
 
 
 # --------------------------------------------------------------------------- searches
@@ -82,15 +83,27 @@ class StepGraph:
     def near_cheapest(self, start: int, goal: int, slack: float) -> np.ndarray | None:
         """Flat indices of every cell on some path from ``start`` to ``goal`` that costs at
         most ``1 + slack`` times the cheapest (None if not joined): each way round an
-        obstacle whose cost is that close, not only the cheapest one."""
+        obstacle whose cost is that close, not only the cheapest one.
+
+        Where many ways tie (parallel aisles, open floor) the slack shrinks until the
+        cells number at most ``NEAR_CELLS`` times the cheapest path's, down to that path.
+        """
         s, g = int(self.node_of[start]), int(self.node_of[goal])
         if s < 0 or g < 0:
             return None
-        dist = dijkstra(self.graph, indices=[s, g])
+        dist, pred = dijkstra(self.graph, indices=[s, g], return_predecessors=True)
         best = dist[0, g]
         if not np.isfinite(best):
             return None
-        return self.cells[dist[0] + dist[1] <= (1.0 + slack) * best + 1e-9]
+        nodes = [g]
+        while nodes[-1] != s:
+            nodes.append(int(pred[0, nodes[-1]]))
+        total = dist[0] + dist[1]
+        for share in (slack, slack / 2.0, slack / 4.0):
+            near = np.flatnonzero(total <= (1.0 + share) * best + 1e-9)
+            if near.size <= NEAR_CELLS * len(nodes):
+                return self.cells[near]
+        return self.cells[np.array(nodes[::-1], dtype=np.int64)]
 
 
 def _directed_moves(connectivity: int, stride: int) -> list[tuple[int, float, tuple[int, ...]]]:
@@ -150,8 +163,14 @@ def pool(a: np.ndarray, k: int, fill: float | bool, how: str) -> np.ndarray:
     hc, wc = -(-h // k), -(-w // k)
     padded = np.full((hc * k, wc * k), fill, dtype=a.dtype)
     padded[:h, :w] = a
-    reduce = np.logical_or.reduce if how == "any" else np.minimum.reduce
-    return reduce(reduce(padded.reshape(hc, k, wc * k), axis=1).reshape(hc, wc, k), axis=2)
+    op = np.logical_or if how == "any" else np.minimum
+    cols = padded[:, 0::k].copy()  # strided slices: far faster than reducing a reshape
+    for j in range(1, k):
+        op(cols, padded[:, j::k], out=cols)
+    out = cols[0::k].copy()
+    for i in range(1, k):
+        op(out, cols[i::k], out=out)
+    return out
 
 
 def coarse_graph(space: FreeSpace, cost_weight: float, k: int) -> StepGraph:
@@ -384,9 +403,8 @@ class CostGridPlanner:
 
     def __init__(self, config: CostGridConfig) -> None:
         self.config = config
-        # The coarse graph of the last costmap seen: (costmap ref, (clearance, k), graph).
-        # The coarse graphs of the last costmap seen, by (clearance, block, cost weight).
-        self._coarse: tuple[weakref.ref, dict[tuple[float, int, float], StepGraph]] | None = None
+        # The coarse graphs last used, by (clearance, block, cost weight, content hashes).
+        self._coarse: dict[tuple, StepGraph] = {}
 
     @property
     def clearance(self) -> float:
@@ -514,15 +532,18 @@ class CostGridPlanner:
         return self.config.cost_weight == 0.0 or space.distance_flat[line].min() >= comfort - 1e-6
 
     def _coarse_graph(self, space: FreeSpace, k: int, weight: float) -> StepGraph:
-        """The coarse graph of ``space``'s costmap, reused while the costmap is the same."""
-        ref, graphs = self._coarse if self._coarse is not None else (None, {})
-        if ref is None or ref() is not space.costmap:
-            ref, graphs = weakref.ref(space.costmap), {}
-            self._coarse = (ref, graphs)
-        key = (space.required, k, weight)
-        if key not in graphs:
-            graphs[key] = coarse_graph(space, weight, k)
-        return graphs[key]
+        """The coarse graph of ``space``'s costmap, reused while the free cells (and, with a
+        cost weight, the costs) are the same. Keyed by content, not identity: the obstacle
+        layer patches its costmap in place."""
+        cost_key = hash(space.costmap.cost.tobytes()) if weight > 0.0 else 0
+        key = (space.required, k, weight, hash(space.free_bytes), cost_key)
+        graph = self._coarse.pop(key, None)
+        if graph is None:
+            graph = coarse_graph(space, weight, k)
+        self._coarse[key] = graph  # most recently used last
+        while len(self._coarse) > COARSE_CACHE:
+            self._coarse.pop(next(iter(self._coarse)))
+        return graph
 
     def _in_corridor(
         self,

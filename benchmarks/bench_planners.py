@@ -17,7 +17,10 @@ Keys ``planners.<map>.<planner>.<metric>``:
   in simulation (ground-truth localisation, MPC), worst leg.
 
 ``planners.warehouse_50m.cost_grid.time_ms.p50``: the 50 m leg dock -> back of the
-warehouse (target < 50 ms).
+warehouse (target < 50 ms), planned again and again (the coarse graph reused); ``cold_time_ms``
+with a fresh planner each time. ``plain_dijkstra.time_ms.p50``: scipy's Dijkstra over every
+free cell, measured interleaved as a yardstick of the machine's speed; the ratio
+``cost_grid_over_plain_dijkstra`` does not depend on how busy the machine is.
 """
 
 from __future__ import annotations
@@ -29,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.builtin_worlds import depot, turtlebot3_world, warehouse
@@ -172,6 +177,29 @@ def _drive(world: str, robot: str, tour: list, planner: dict) -> dict[str, float
     return out
 
 
+def _plain_dijkstra_time(costmap: Costmap, start: Pose2D) -> float:
+    """A yardstick for the machine's speed: scipy's Dijkstra over every free cell of the
+    map (8-connected, unit costs, graph built with COO), as a first try would do it."""
+    t0 = time.perf_counter()
+    free = costmap.distance > costmap.robot_radius + 0.05
+    h, w = free.shape
+    index = np.arange(h * w).reshape(h, w)
+    src, dst, wts = [], [], []
+    for dr, dc, length in ((0, 1, 1.0), (1, 0, 1.0), (1, 1, 2**0.5), (1, -1, 2**0.5)):
+        c0, c1 = max(0, -dc), w - max(0, dc)
+        ok = free[: h - dr, c0:c1] & free[dr:, c0 + dc : c1 + dc]
+        a = index[: h - dr, c0:c1][ok]
+        src += [a, a + dr * w + dc]
+        dst += [a + dr * w + dc, a]
+        wts += [np.full(a.size, length)] * 2
+    graph = coo_matrix(
+        (np.concatenate(wts), (np.concatenate(src), np.concatenate(dst))), shape=(h * w, h * w)
+    ).tocsr()
+    row, col = costmap.grid.world_to_cell(np.array([start.x, start.y]))
+    dijkstra(graph, indices=int(row) * w + int(col))
+    return time.perf_counter() - t0
+
+
 def run() -> dict[str, float]:
     out: dict[str, float] = {}
     for name, (world, load, robot, tour) in MAPS.items():
@@ -195,8 +223,22 @@ def run() -> dict[str, float]:
     costmap = Costmap.from_grid(warehouse().map, 0.22, CostmapConfig(inflation_radius=INFLATION))
     planner = CostGridPlanner(CostGridConfig())
     a, b = Pose2D(0.0, -22.0), Pose2D(5.4, 22.0)
-    times = [planner.plan(costmap, a, b).planning_time for _ in range(15)]
+    times, plain = [], []
+    for i in range(15):  # interleaved with the yardstick: the machine's speed drifts
+        times.append(planner.plan(costmap, a, b).planning_time)
+        if i % 3 == 0:
+            plain.append(_plain_dijkstra_time(costmap, a))
     out["planners.warehouse_50m.cost_grid.time_ms.p50"] = float(np.median(times) * 1e3)
+    out["planners.warehouse_50m.plain_dijkstra.time_ms.p50"] = float(np.median(plain) * 1e3)
+    out["planners.warehouse_50m.cost_grid_over_plain_dijkstra"] = float(
+        np.median(times) / np.median(plain)
+    )
+    cold = []
+    for _ in range(5):
+        t0 = time.perf_counter()
+        CostGridPlanner(CostGridConfig()).plan(costmap, a, b)
+        cold.append(time.perf_counter() - t0)
+    out["planners.warehouse_50m.cost_grid.cold_time_ms.p50"] = float(np.median(cold) * 1e3)
     out["planners.warehouse_50m.cost_grid.length_m"] = planner.plan(costmap, a, b).length
     return out
 

@@ -28,7 +28,7 @@ from starlette.middleware.base import BaseHTTPMiddleware
 from agv_mission.missions.errors import MissionError
 from agv_mission.service.hub import Client
 from agv_mission.service.registry import FINAL, STATUSES, Registry, Submission
-from agv_mission.service.runs import NotActive, QueueFull, RunManager, read_result
+from agv_mission.service.runs import NotActive, QueueFull, RunManager
 from agv_mission.service.sandbox import DataDirGuard
 
 try:
@@ -121,18 +121,19 @@ def create_app(settings: Settings) -> FastAPI:
 
     # ------------------------------------------------------------------ helpers
 
-    def run_object(run: dict[str, Any]) -> dict[str, Any]:
+    async def run_object(run: dict[str, Any]) -> dict[str, Any]:
         live = manager.live_progress(run["id"])
         if live is not None:
             run["progress"] = live
         if run["id"] in manager.active:
             run["status"] = manager.active[run["id"]].status
         if run["status"] in FINAL:
-            run["result"] = read_result(registry.run_dir(run["id"]))
+            run["result"] = await manager.results.get(run["id"])
         return run
 
-    def get_run(run_id: str) -> dict[str, Any]:
-        run = registry.get(run_id)
+    async def get_run(run_id: str) -> dict[str, Any]:
+        """From the registry's cache (SQLite only on a miss, off the event loop)."""
+        run = await registry.aget(run_id)
         if run is None:
             raise ApiError(404, f"no run {run_id!r}")
         return run
@@ -183,7 +184,7 @@ def create_app(settings: Settings) -> FastAPI:
         try:
             manager.check_room()
             sub = await submission(request)
-            run = manager.submit(sub)
+            run = await manager.submit(sub)
         except QueueFull as exc:
             raise ApiError(429, str(exc)) from None
         return JSONResponse(run, status_code=201)
@@ -205,7 +206,7 @@ def create_app(settings: Settings) -> FastAPI:
             raise ApiError(422, f"unknown status {status!r}; one of {sorted(STATUSES)}")
         if not 1 <= limit <= 1000:
             raise ApiError(422, "limit must be between 1 and 1000")
-        runs = registry.list(status, limit)
+        runs = await registry.alist(status, limit)
         for run in runs:
             live = manager.live_progress(run["id"])
             if live is not None:
@@ -214,11 +215,11 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.get("/api/runs/{run_id}")
     async def one_run(run_id: str) -> dict[str, Any]:
-        return run_object(get_run(run_id))
+        return await run_object(await get_run(run_id))
 
     @app.post("/api/runs/{run_id}/cancel", status_code=202)
     async def cancel(run_id: str) -> dict[str, Any]:
-        run = get_run(run_id)
+        run = await get_run(run_id)
         if run["status"] in FINAL:
             raise ApiError(409, f"the run is already {run['status']}")
         try:
@@ -229,7 +230,7 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.post("/api/runs/{run_id}/pause", status_code=202)
     async def pause(run_id: str) -> dict[str, Any]:
-        get_run(run_id)
+        await get_run(run_id)
         try:
             manager.pause(run_id)
         except NotActive as exc:
@@ -238,7 +239,7 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.post("/api/runs/{run_id}/resume", status_code=202)
     async def resume(run_id: str) -> dict[str, Any]:
-        get_run(run_id)
+        await get_run(run_id)
         try:
             manager.resume(run_id)
         except NotActive as exc:
@@ -247,7 +248,7 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.post("/api/runs/{run_id}/goal", status_code=202)
     async def goal(run_id: str, request: Request) -> dict[str, Any]:
-        get_run(run_id)
+        await get_run(run_id)
         body = await read_body(request)
         try:
             doc = json.loads(body)
@@ -265,7 +266,7 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.post("/api/runs/{run_id}/rooms/{label}")
     async def record_room(run_id: str, label: str) -> JSONResponse:
-        get_run(run_id)
+        await get_run(run_id)
         label = label.strip()
         if not label or len(label) > MAX_LABEL or not label.isprintable():
             raise ApiError(422, f"a room label is 1 to {MAX_LABEL} printable characters")
@@ -279,31 +280,19 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.get("/api/runs/{run_id}/files")
     async def files(run_id: str) -> dict[str, Any]:
-        get_run(run_id)
-        run_dir = registry.run_dir(run_id)
-        names = (
-            sorted(
-                p.name
-                for p in run_dir.iterdir()
-                if p.is_file() and not p.is_symlink() and not p.name.startswith(".")
-            )
-            if run_dir.is_dir()
-            else []
-        )
-        return {"files": names}
+        await get_run(run_id)
+        return {"files": await asyncio.to_thread(_file_names, registry.run_dir(run_id))}
 
     @app.get("/api/runs/{run_id}/files/{name}")
     async def one_file(run_id: str, name: str) -> FileResponse:
-        get_run(run_id)
+        await get_run(run_id)
         run_dir = registry.run_dir(run_id)
         path = run_dir / name
         if (
             "/" in name
             or "\\" in name
             or name.startswith(".")
-            or not path.is_file()
-            or path.is_symlink()
-            or path.resolve().parent != run_dir.resolve()
+            or not await asyncio.to_thread(_plain_file_in, path, run_dir)
         ):
             raise ApiError(404, f"no file {name!r} in run {run_id}")
         return FileResponse(path, media_type=_media_type(name))
@@ -318,12 +307,12 @@ def create_app(settings: Settings) -> FastAPI:
         if not same_origin(websocket.headers.get("origin"), websocket.headers.get("host")):
             await websocket.close(code=4403, reason="cross-origin")
             return
-        run = registry.get(run_id)
+        run = await registry.aget(run_id)
         if run is None:
             await websocket.close(code=4404, reason="no such run")
             return
         await websocket.accept()
-        hub = manager.hub_for(run_id, run)
+        hub = await manager.hub_for(run_id, run)
         client = hub.subscribe()
         sender = asyncio.create_task(_send_loop(websocket, client))
         try:
@@ -441,6 +430,21 @@ def same_origin(origin: str | None, host: str | None) -> bool:
     if not origin:
         return True
     return urlsplit(origin).netloc == (host or "")
+
+
+def _file_names(run_dir: Path) -> list[str]:
+    if not run_dir.is_dir():
+        return []
+    return sorted(
+        p.name
+        for p in run_dir.iterdir()
+        if p.is_file() and not p.is_symlink() and not p.name.startswith(".")
+    )
+
+
+def _plain_file_in(path: Path, run_dir: Path) -> bool:
+    """A regular file directly in ``run_dir`` (no symlink out of it)."""
+    return path.is_file() and not path.is_symlink() and path.resolve().parent == run_dir.resolve()
 
 
 def _media_type(name: str) -> str | None:

@@ -37,9 +37,10 @@ WORKER_PRELOAD = [
 ]
 PROGRESS_SAVE_PERIOD = 2.0  # seconds between progress writes to the registry per run
 STOP_GRACE = 20.0  # seconds running missions get to write their results on shutdown
-FINISHED_HUBS = 64
+FINISHED_HUBS = 64  # finished runs whose stream stays in memory for late clients
+RESULT_CACHE = 256  # result.json contents kept in memory
 READ_BATCH = 50  # worker messages handled per wake-up of the event loop
-LIVE_NICE = 5  # the service's own CPU priority below its missions' (nice increment)  # finished runs whose stream stays in memory for late clients
+LIVE_NICE = 5  # the service's own CPU priority below its missions' (nice increment)
 
 
 class QueueFull(Exception):
@@ -96,6 +97,7 @@ class RunManager:
         self._listener: Listener | None = None
         self._ray: Any = None
         self._idle = asyncio.Event()
+        self.results = ResultCache(registry)
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -183,12 +185,14 @@ class RunManager:
         if len(self.queue) >= self.queue_size:
             raise QueueFull(f"the queue holds {self.queue_size} runs; try again later")
 
-    def submit(self, submission: Submission) -> dict[str, Any]:
+    async def submit(self, submission: Submission) -> dict[str, Any]:
+        """Queue a run; answer once its row is on disk (a 201 is never lost by a crash)."""
         self.check_room()
-        run = self.registry.add(submission)
+        run, stored = self.registry.add(submission)
         self.queue.append(run["id"])
         self.hubs[run["id"]] = Hub()
         self._schedule()
+        await asyncio.wrap_future(stored)
         return run  # as accepted: queued (it may have started since)
 
     def _schedule(self) -> None:
@@ -339,6 +343,8 @@ class RunManager:
         if run.ended:
             return
         run.ended = True
+        if result is not None:
+            self.results.put(run.run_id, result)
         fields: dict[str, Any] = {}
         if run.progress:
             fields["progress"] = run.progress
@@ -371,12 +377,6 @@ class RunManager:
             return
         with contextlib.suppress(OSError, EOFError):  # the sentinel reports the worker's end
             run.conn.send(command)
-
-    def status_of(self, run_id: str) -> str | None:
-        if run_id in self.active:
-            return self.active[run_id].status
-        run = self.registry.get(run_id)
-        return None if run is None else run["status"]
 
     def cancel(self, run_id: str) -> None:
         if run_id in self.queue:
@@ -438,26 +438,24 @@ class RunManager:
             hub = self.hubs[run_id] = Hub()
         return hub
 
-    def hub_for(self, run_id: str, run: dict[str, Any]) -> Hub:
+    async def hub_for(self, run_id: str, run: dict[str, Any]) -> Hub:
         """The live hub of a run; for a finished run no longer in memory, one rebuilt from
-        its ``stream.jsonl`` so that a late client still gets the snapshot and the end."""
+        its ``stream.jsonl`` (read off the event loop) so that a late client still gets the
+        snapshot and the end."""
         hub = self.hubs.get(run_id)
         if hub is not None:
             self.hubs.move_to_end(run_id)
             return hub
+        run_dir = self.registry.run_dir(run_id)
+        latest = await asyncio.to_thread(_snapshot_of, run_dir / STREAM_FILE)
+        hub = self.hubs.get(run_id)  # another client may have rebuilt it meanwhile
+        if hub is not None:
+            return hub
         hub = Hub()
-        path = self.registry.run_dir(run_id) / STREAM_FILE
-        if path.is_file():
-            with open(path, encoding="utf-8") as f:
-                for line in f:
-                    with contextlib.suppress(ValueError):
-                        kind = json.loads(line).get("type")
-                        if kind in SNAPSHOT_ORDER:
-                            hub.latest[kind] = line.rstrip("\n")
+        hub.latest.update(latest)
         if run["status"] in FINAL:
-            hub.end = self._end_text(
-                run["status"], run["reason"], read_result(self.registry.run_dir(run_id))
-            )
+            result = await self.results.get(run_id)
+            hub.end = self._end_text(run["status"], run["reason"], result)
         self.hubs[run_id] = hub
         self._retire_hubs()
         return hub
@@ -482,6 +480,42 @@ def read_result(run_dir: Path) -> dict[str, Any] | None:
         return json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
+
+
+def _snapshot_of(path: Path) -> dict[str, str]:
+    """The latest message of each snapshot kind in a finished run's ``stream.jsonl``."""
+    latest: dict[str, str] = {}
+    if path.is_file():
+        with open(path, encoding="utf-8") as f:
+            for line in f:
+                with contextlib.suppress(ValueError):
+                    kind = json.loads(line).get("type")
+                    if kind in SNAPSHOT_ORDER:
+                        latest[kind] = line.rstrip("\n")
+    return latest
+
+
+class ResultCache:
+    """``result.json`` of finished runs, read once off the event loop and kept (LRU)."""
+
+    def __init__(self, registry: Registry, size: int = RESULT_CACHE) -> None:
+        self.registry = registry
+        self.size = size
+        self._results: OrderedDict[str, dict[str, Any] | None] = OrderedDict()
+
+    async def get(self, run_id: str) -> dict[str, Any] | None:
+        if run_id in self._results:
+            self._results.move_to_end(run_id)
+            return self._results[run_id]
+        result = await asyncio.to_thread(read_result, self.registry.run_dir(run_id))
+        self.put(run_id, result)
+        return result
+
+    def put(self, run_id: str, result: dict[str, Any] | None) -> None:
+        self._results[run_id] = result
+        self._results.move_to_end(run_id)
+        while len(self._results) > self.size:
+            self._results.popitem(last=False)
 
 
 def ray_entry(job: dict[str, Any], address: Any, authkey: bytes) -> None:

@@ -23,7 +23,8 @@ from urllib.parse import urlsplit
 
 from fastapi import FastAPI, Request, WebSocket, WebSocketDisconnect
 from fastapi.responses import FileResponse, JSONResponse
-from starlette.middleware.base import BaseHTTPMiddleware
+from starlette.datastructures import Headers
+from starlette.types import ASGIApp, Receive, Scope, Send
 
 from agv_mission.missions.errors import MissionError
 from agv_mission.service.hub import Client
@@ -39,6 +40,7 @@ except metadata.PackageNotFoundError:  # a source tree without an install
 MAX_BODY = 1_000_000  # bytes of a request body
 MAX_WS_MESSAGE = 4096  # bytes of a client message on the live stream
 MAX_LABEL = 100
+SEND_PERIOD = 0.05  # seconds between two sends to one live client (20 batches a second)
 
 
 class ApiError(Exception):
@@ -99,18 +101,29 @@ def create_app(settings: Settings) -> FastAPI:
             given = header[7:].strip()
         return given is not None and hmac.compare_digest(given.encode(), settings.token.encode())
 
-    class Guard(BaseHTTPMiddleware):
-        async def dispatch(self, request: Request, call_next):  # type: ignore[no-untyped-def]
-            if request.url.path.startswith("/api"):
-                if not authorised(request.headers.get("authorization"), None):
-                    return JSONResponse(
+    class Guard:
+        """Token and origin checks of every ``/api`` HTTP request (plain ASGI: no extra task
+        or body queue per request, unlike ``BaseHTTPMiddleware``)."""
+
+        def __init__(self, app: ASGIApp) -> None:
+            self.app = app
+
+        async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+            if scope["type"] == "http" and scope["path"].startswith("/api"):
+                headers = Headers(scope=scope)
+                refusal = None
+                if not authorised(headers.get("authorization"), None):
+                    refusal = JSONResponse(
                         {"detail": "missing or wrong bearer token"},
                         status_code=401,
                         headers={"WWW-Authenticate": "Bearer"},
                     )
-                if not same_origin(request.headers.get("origin"), request.headers.get("host")):
-                    return JSONResponse({"detail": "cross-origin requests are refused"}, 403)
-            return await call_next(request)
+                elif not same_origin(headers.get("origin"), headers.get("host")):
+                    refusal = JSONResponse({"detail": "cross-origin requests are refused"}, 403)
+                if refusal is not None:
+                    await refusal(scope, receive, send)
+                    return
+            await self.app(scope, receive, send)
 
     app.add_middleware(Guard)
 
@@ -342,7 +355,9 @@ def create_app(settings: Settings) -> FastAPI:
 
 
 async def _send_loop(websocket: WebSocket, client: Client) -> None:
-    """Drain one client's queue; the hub never waits for this."""
+    """Drain one client's queue, at most every :data:`SEND_PERIOD` seconds: a message
+    wakes no client by itself (that would be one task switch per client per worker step),
+    what arrived meanwhile goes out together, thinned; the hub never waits for this."""
     loop = asyncio.get_running_loop()
     due: float | None = None
     while True:
@@ -352,7 +367,8 @@ async def _send_loop(websocket: WebSocket, client: Client) -> None:
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(client.ready.wait(), max(due - loop.time(), 0.0))
         client.ready.clear()
-        items, due = client.take(loop.time())
+        started = loop.time()
+        items, due = client.take(started)
         for kind, text in items:
             await websocket.send_text(text)
             if kind == "end":
@@ -361,6 +377,7 @@ async def _send_loop(websocket: WebSocket, client: Client) -> None:
         if client.dropped:
             await websocket.close(code=1013, reason="too slow")
             return
+        await asyncio.sleep(max(0.0, started + SEND_PERIOD - loop.time()))
 
 
 def _client_message(manager: RunManager, run_id: str, client: Client, text: str) -> None:

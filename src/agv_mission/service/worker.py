@@ -31,6 +31,7 @@ from agv_mission.service import messages as msg
 
 STREAM_FILE = "stream.jsonl"
 REMOTE_TIMEOUT = 0.5  # wall seconds without cmd_vel before a teleop robot stops
+LIVE_STATE_SPACING = 0.2  # sim seconds between live states: the contract's 5 per sim second
 PROGRESS_PERIOD = 0.25  # wall seconds between progress reports
 LIVE_SCAN_PERIOD = 0.2  # wall seconds between live scans (thinned; every scan is costly)
 LIVE_HORIZON_PERIOD = 0.2
@@ -130,6 +131,7 @@ class StreamObserver:
         self._file_due: dict[str, float] = {}
         self._last_map = -math.inf
         self._goal: dict[str, float] | None = None
+        self._last_live_state = -math.inf
         self.sim_time = 0.0
         self.cpu0 = time.process_time()  # the worker's CPU seconds are reported from here
         self.closed = False
@@ -193,7 +195,10 @@ class StreamObserver:
             self._goal = goal
             self.emit({"type": "goal", "t": round(s.t, 3), "pose": goal})
         self._thinned(s, wall)
-        self.emit(self.state(s))
+        live = s.t >= self._last_live_state + LIVE_STATE_SPACING - 1e-6
+        if live:
+            self._last_live_state = s.t
+        self.emit(self.state(s), live=live)
         if wall - self.last_progress >= PROGRESS_PERIOD:
             self.last_progress = wall
             self.send(("progress", self.progress()))

@@ -355,18 +355,15 @@ def create_app(settings: Settings) -> FastAPI:
 
 
 async def _send_loop(websocket: WebSocket, client: Client) -> None:
-    """Drain one client's queue, at most every :data:`SEND_PERIOD` seconds: a message
-    wakes no client by itself (that would be one task switch per client per worker step),
-    what arrived meanwhile goes out together, thinned; the hub never waits for this."""
+    """Drain one client's queue, at most every :data:`SEND_PERIOD` seconds (a status
+    change or the end at once): a message wakes no client by itself (that would be one
+    task switch per client per worker step); what arrived meanwhile goes out together,
+    thinned. The hub never waits for this."""
     loop = asyncio.get_running_loop()
-    due: float | None = None
     while True:
-        if due is None:
-            await client.ready.wait()
-        else:
-            with contextlib.suppress(asyncio.TimeoutError):
-                await asyncio.wait_for(client.ready.wait(), max(due - loop.time(), 0.0))
+        await client.ready.wait()
         client.ready.clear()
+        client.urgent.clear()
         started = loop.time()
         items, due = client.take(started)
         for kind, text in items:
@@ -377,7 +374,13 @@ async def _send_loop(websocket: WebSocket, client: Client) -> None:
         if client.dropped:
             await websocket.close(code=1013, reason="too slow")
             return
-        await asyncio.sleep(max(0.0, started + SEND_PERIOD - loop.time()))
+        if due is not None:  # a held message falls due then
+            loop.call_at(max(due, started + SEND_PERIOD), client.ready.set)
+        rest = started + SEND_PERIOD - loop.time()
+        if rest > 0 and not client.urgent.is_set():
+            wake = loop.call_later(rest, client.urgent.set)
+            await client.urgent.wait()
+            wake.cancel()
 
 
 def _client_message(manager: RunManager, run_id: str, client: Client, text: str) -> None:

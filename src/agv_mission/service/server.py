@@ -79,6 +79,9 @@ def serve(
         lifespan="on",
         timeout_graceful_shutdown=3,
         ws_max_size=1 << 16,
+        # compression would deflate every message once per client (its own zlib context):
+        # the fan-out's largest cost, for bytes that mostly stay on one machine or LAN
+        ws_per_message_deflate=False,
         server_header=False,
     )
     server = uvicorn.Server(config)

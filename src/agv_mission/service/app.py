@@ -27,7 +27,7 @@ from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from agv_mission.missions.errors import MissionError
-from agv_mission.service.hub import Client
+from agv_mission.service.hub import KIND_BUDGET, Client
 from agv_mission.service.registry import FINAL, STATUSES, Registry, Submission
 from agv_mission.service.runs import NotActive, QueueFull, RunManager
 from agv_mission.service.sandbox import DataDirGuard
@@ -326,7 +326,7 @@ def create_app(settings: Settings) -> FastAPI:
             return
         await websocket.accept()
         hub = await manager.hub_for(run_id, run)
-        client = hub.subscribe()
+        client = hub.subscribe(_rate(websocket.query_params.get("rate")))
         sender = asyncio.create_task(_send_loop(websocket, client))
         try:
             while True:
@@ -381,6 +381,16 @@ async def _send_loop(websocket: WebSocket, client: Client) -> None:
             wake = loop.call_later(rest, client.urgent.set)
             await client.urgent.wait()
             wake.cancel()
+
+
+def _rate(given: str | None) -> float:
+    """``?rate=N``: at most N messages of each frequent kind (state, scan, particles,
+    horizon) per wall second for this client (1 to the hub's budget; default: the budget)."""
+    try:
+        rate = float(given) if given is not None else KIND_BUDGET
+    except ValueError:
+        rate = KIND_BUDGET
+    return min(max(rate, 1.0), KIND_BUDGET) if math.isfinite(rate) else KIND_BUDGET
 
 
 def _client_message(manager: RunManager, run_id: str, client: Client, text: str) -> None:

@@ -41,7 +41,8 @@ Item = tuple[str, str, "float | None"]
 class Client:
     """One subscriber: a queue its sender task drains."""
 
-    def __init__(self) -> None:
+    def __init__(self, max_rate: float = KIND_BUDGET) -> None:
+        self.max_rate = max_rate  # what the client asked for (``?rate=``), per frequent kind
         self.queue: deque[Item] = deque()
         self.ready = asyncio.Event()  # something is queued
         self.urgent = asyncio.Event()  # something is queued that should not wait a period
@@ -49,7 +50,7 @@ class Client:
         self.thinned = 0
         self.last_t: dict[str, float] = {}
         self.held: dict[str, tuple[str, float | None]] = {}
-        self.rate = KIND_BUDGET  # messages of a frequent kind per wall second (token bucket)
+        self.rate = max_rate  # messages of a frequent kind per wall second (token bucket)
         self.tokens: dict[str, tuple[float, float]] = {}  # kind -> (tokens, at wall time)
 
     def put(self, kind: str, text: str, t: float | None = None, urgent: bool = False) -> None:
@@ -154,9 +155,11 @@ class Hub:
         for client in self.clients:
             client.put("end", text)
 
-    def subscribe(self) -> Client:
-        """A new client: the snapshot first (in the agreed order), then live messages."""
-        client = Client()
+    def subscribe(self, max_rate: float = KIND_BUDGET) -> Client:
+        """A new client: the snapshot first (in the agreed order), then live messages; at
+        most ``max_rate`` messages of each frequent kind per wall second (a page that draws
+        20 frames a second needs no more)."""
+        client = Client(max_rate)
         for kind in SNAPSHOT_ORDER:
             if kind in self.latest:
                 client.queue.append((kind, self.latest[kind], None))
@@ -174,4 +177,4 @@ class Hub:
     def _share(self) -> None:
         rate = KIND_BUDGET / max(1, len(self.clients))
         for client in self.clients:
-            client.rate = rate
+            client.rate = min(rate, client.max_rate)

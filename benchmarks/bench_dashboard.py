@@ -1,8 +1,14 @@
 """Dashboard costs, measured against a real `agv-mission serve` and headless chromium.
 
 - ``dashboard.watched_rtf_ratio``: the demo patrol's real-time factor (sim s per wall s, from
-  result.json) while a browser page watches it live, over the same run unwatched; pairs run
-  back to back and alternate, the median pair ratio is kept (target >= 0.9).
+  result.json) while a browser page watches it live, over the same run unwatched (target
+  >= 0.9): medians of 5 interleaved pairs, the order alternating, after a warm-up run. The
+  page is open (on the runs page) before the run starts and goes to the run's page as it
+  is submitted, as a person at the dashboard would: chromium's start-up is not the run's
+  cost. The browser runs on this same 2-core machine (other engineers' load too), so
+  ``dashboard.worker_cpu_ms_per_sim_s.*`` (the mission process's own CPU per sim second)
+  and ``dashboard.browser_cpu_per_wall_s.watched`` (chromium's CPU while watching) say
+  where a difference comes from; ``.pairs_median`` is the median of each pair's ratio.
 - ``dashboard.fps_30x50``: frames per second of the run page on a 30 x 50 m map (600 x 1000
   cells) with every frame fully redrawn while a teleop run streams (target >= 20).
 """
@@ -37,6 +43,7 @@ CHROMIUM_ARGS = [
     "--no-first-run",
 ]
 PAIRS = 5
+BROWSER_NICE = 10
 FPS_SECONDS = 6.0
 
 
@@ -169,6 +176,21 @@ def page_fps(client: httpx.Client, browser: Any, map_yaml: Path) -> tuple[float,
     return frames / seconds, draw_ms
 
 
+@contextmanager
+def browser_niced() -> Iterator[None]:
+    """Processes started meanwhile (the Playwright driver, chromium) run at nice
+    :data:`BROWSER_NICE`: the browser stands for a person's laptop, not for a second job
+    of the machine the mission runs on (the service was started before, at its own
+    priority). This process's priority comes back after."""
+    before = os.getpriority(os.PRIO_PROCESS, 0)
+    os.setpriority(os.PRIO_PROCESS, 0, before + BROWSER_NICE)
+    try:
+        yield
+    finally:
+        with contextlib.suppress(OSError):  # raising a priority back needs the right
+            os.setpriority(os.PRIO_PROCESS, 0, before)
+
+
 def _driver_pid() -> int | None:
     """The Playwright driver this process started (chromium runs below it)."""
     mine = _children().get(os.getpid(), [])
@@ -186,16 +208,21 @@ def run() -> dict[str, float]:
         print("  /usr/bin/chromium is not installed: dashboard bench skipped")
         return {}
     out: dict[str, float] = {}
-    with tempfile.TemporaryDirectory() as tmp, sync_playwright() as p:
+    with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "data"
         data.mkdir()
         maps = data / "maps"
         maps.mkdir()
         map_yaml = big_map(maps)
-        browser = p.chromium.launch(
-            executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS, headless=True
-        )
-        with serve(data, "--workers", "1") as url, httpx.Client(base_url=url, timeout=30) as c:
+        with (
+            serve(data, "--workers", "1") as url,
+            httpx.Client(base_url=url, timeout=30) as c,
+            browser_niced(),
+            sync_playwright() as p,
+        ):
+            browser = p.chromium.launch(
+                executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS, headless=True
+            )
             driver = _driver_pid()
             page = browser.new_page(viewport={"width": 1400, "height": 860})
             page.goto(f"{url}/")
@@ -239,7 +266,7 @@ def run() -> dict[str, float]:
             fps, draw_ms = page_fps(c, browser, map_yaml)
             out["dashboard.fps_30x50"] = round(fps, 1)
             out["dashboard.draw_ms_30x50"] = round(draw_ms, 2)
-        browser.close()
+            browser.close()
     return out
 
 

@@ -5,7 +5,8 @@
   >= 0.9): medians of 5 interleaved pairs, the order alternating, after a warm-up run. The
   page is open (on the runs page) before the run starts and goes to the run's page as it
   is submitted, as a person at the dashboard would: chromium's start-up is not the run's
-  cost. The browser runs on this same 2-core machine (other engineers' load too), so
+  cost. The browser runs on this same 2-core machine (other engineers' load too), under
+  SCHED_IDLE: it stands for the person's own computer (see :func:`browser_in_background`);
   ``dashboard.worker_cpu_ms_per_sim_s.*`` (the mission process's own CPU per sim second)
   and ``dashboard.browser_cpu_per_wall_s.watched`` (chromium's CPU while watching) say
   where a difference comes from; ``.pairs_median`` is the median of each pair's ratio.
@@ -43,7 +44,6 @@ CHROMIUM_ARGS = [
     "--no-first-run",
 ]
 PAIRS = 5
-BROWSER_NICE = 10
 FPS_SECONDS = 6.0
 
 
@@ -177,18 +177,20 @@ def page_fps(client: httpx.Client, browser: Any, map_yaml: Path) -> tuple[float,
 
 
 @contextmanager
-def browser_niced() -> Iterator[None]:
-    """Processes started meanwhile (the Playwright driver, chromium) run at nice
-    :data:`BROWSER_NICE`: the browser stands for a person's laptop, not for a second job
-    of the machine the mission runs on (the service was started before, at its own
-    priority). This process's priority comes back after."""
-    before = os.getpriority(os.PRIO_PROCESS, 0)
-    os.setpriority(os.PRIO_PROCESS, 0, before + BROWSER_NICE)
+def browser_in_background() -> Iterator[None]:
+    """Processes started meanwhile (the Playwright driver, chromium) run under SCHED_IDLE:
+    the browser stands for a person's laptop, not for a second job of the machine the
+    mission runs on (the service was started before, at its own priority). Chromium,
+    running as root here, raises its compositor threads to nice -8 itself, so a nice value
+    would not hold; the idle policy does (threads inherit it and ``setpriority`` leaves it).
+    This process's policy comes back after."""
+    before = os.sched_getscheduler(0)
+    os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
     try:
         yield
     finally:
-        with contextlib.suppress(OSError):  # raising a priority back needs the right
-            os.setpriority(os.PRIO_PROCESS, 0, before)
+        with contextlib.suppress(OSError):
+            os.sched_setscheduler(0, before, os.sched_param(0))
 
 
 def _driver_pid() -> int | None:
@@ -217,7 +219,7 @@ def run() -> dict[str, float]:
         with (
             serve(data, "--workers", "1") as url,
             httpx.Client(base_url=url, timeout=30) as c,
-            browser_niced(),
+            browser_in_background(),
             sync_playwright() as p,
         ):
             browser = p.chromium.launch(

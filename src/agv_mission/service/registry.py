@@ -131,6 +131,10 @@ class Registry:
     def _write(self, sql: str, args: tuple[Any, ...]) -> None:
         self._db.execute(sql, args)
 
+    def _insert(self, run_id: str, sql: str, args: tuple[Any, ...]) -> None:
+        self.run_dir(run_id).mkdir(parents=True, exist_ok=True)
+        self._db.execute(sql, args)
+
     # ------------------------------------------------------------------ the cache
 
     def _remember(self, run: dict[str, Any]) -> None:
@@ -169,9 +173,9 @@ class Registry:
         }
         self._remember(run)
         self._subs[run_id] = submission
-        self.run_dir(run_id).mkdir(parents=True, exist_ok=True)
         done = self._later(
-            self._write,
+            self._insert,
+            run_id,
             "INSERT INTO runs (id, name, status, created, mission, sets, seed) "
             "VALUES (?, ?, 'queued', ?, ?, ?, ?)",
             (

@@ -13,9 +13,11 @@ the oldest frequent ones; one that falls behind even on the others is dropped.
 Many clients share a budget: each frequent kind goes out at most :data:`KIND_BUDGET`
 times per wall second over all the run's clients (a token bucket per client and kind: 50
 clients get 6 states a second each; up to 6 clients see every state of a run at 10x
-real time). A message over budget is held (the newest replaces it) and sent when its
-client has a token again, so the
-fan-out's CPU stays bounded however many watch, and the last state always arrives.
+real time); a client may ask for less (``?rate=N``: the dashboard takes 25). A message
+over budget is held (the newest replaces it) and sent when its client has a token again,
+so the fan-out's CPU stays bounded however many watch, and the last state always
+arrives. Each client's sender wakes at most 20 times a second (``app.SEND_PERIOD``),
+except for a status change, a pong or the end.
 """
 
 from __future__ import annotations

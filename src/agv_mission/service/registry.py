@@ -219,6 +219,10 @@ class Registry:
 
         return self._call(read)
 
+    def forget_submission(self, run_id: str) -> None:
+        """A queued run cancelled before it started: its text is no longer needed in memory."""
+        self._subs.pop(run_id, None)
+
     def preload(self, run_ids: list[str]) -> None:
         """Read the submissions of runs about to start (at start-up, off the event loop)."""
         for run_id in run_ids:

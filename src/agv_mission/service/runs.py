@@ -447,6 +447,7 @@ class RunManager:
     def cancel(self, run_id: str) -> None:
         if run_id in self.queue:
             self.queue.remove(run_id)
+            self.registry.forget_submission(run_id)
             reason = "cancelled before it started"
             self.registry.set_status(run_id, "aborted", reason)
             self._hub(run_id).finish(self._end_text("aborted", reason, None))

@@ -74,7 +74,7 @@ def closest_point(
     valid = lo <= hi
     if not np.any(valid):  # empty window: fall back to the whole path
         lo, hi, valid = np.zeros_like(t), np.ones_like(t), np.ones_like(t, dtype=bool)
-    t = np.clip(t, lo, hi)
+    t = np.minimum(np.maximum(t, lo), hi)
     proj = a + t[:, None] * d
     dist2 = np.einsum("ij,ij->i", proj - p, proj - p)
     dist2[~valid] = np.inf
@@ -91,10 +91,11 @@ def interpolate(
     path: np.ndarray, cumlen: np.ndarray, s: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Points (K, 2) and tangent headings (K,) at arclengths ``s`` (clamped to the path)."""
-    s = np.clip(np.asarray(s, dtype=float), 0.0, cumlen[-1])
+    s = np.minimum(np.maximum(np.asarray(s, dtype=float), 0.0), cumlen[-1])
     if len(path) < 2:
         return np.repeat(path[:1], len(s), axis=0), np.zeros(len(s))
-    i = np.clip(np.searchsorted(cumlen, s, side="right") - 1, 0, len(path) - 2)
+    i = np.searchsorted(cumlen, s, side="right") - 1
+    i = np.minimum(np.maximum(i, 0), len(path) - 2)
     seg = path[i + 1] - path[i]
     seg_len = cumlen[i + 1] - cumlen[i]
     t = (s - cumlen[i]) / np.maximum(seg_len, 1e-18)
@@ -154,7 +155,7 @@ def speed_profile(
     for curvature. Sample 0 is at s0 with speed v0 (clipped to [min_v, max_v]).
     """
     total = float(cumlen[-1])
-    v0 = float(np.clip(v0, max(min_v, 0.0), max_v))
+    v0 = min(max(float(v0), max(min_v, 0.0)), max_v)
     # A grid long enough to cover the horizon plus braking from max speed.
     reach = max_v * steps * dt + max_v * max_v / (2.0 * dec) + 0.1
     end = min(total, s0 + reach)

@@ -277,7 +277,7 @@ class PoseTracker:
             step = -np.linalg.solve(post_info, prior_info @ dx_prior + gvec)
             x = x + step
             x[2] = wrap_angle(x[2])
-            small = abs(step[0]) + abs(step[1]) < 1e-5 and abs(step[2]) < 1e-5
+            small = abs(step[0]) + abs(step[1]) < 1e-4 and abs(step[2]) < 1e-4
             if small and not wide:
                 break
             converged = converged or abs(step[0]) + abs(step[1]) < 1e-3 and abs(step[2]) < 1e-3

@@ -240,11 +240,12 @@ class MpcController:
             turn_fraction=cfg.turn_fraction,
             min_v=max(lim.min_v, 0.0),
         )
-        ref_xy, ref_th = interpolate(path, cumlen, s_ref)
-        # The heading error that decides turn-in-place: to the goal on the final approach,
-        # else to a point ahead on the path (or its tangent there when that point is close).
-        ahead, ahead_th = interpolate(path, cumlen, np.array([min(s0 + cfg.lookahead, total)]))
-        to_ahead = ahead[0] - xy
+        # The reference and, last, the point ahead whose heading decides turn-in-place: to
+        # the goal on the final approach, else to a point ahead on the path (or its tangent
+        # there when that point is close).
+        pts, ths = interpolate(path, cumlen, np.append(s_ref, min(s0 + cfg.lookahead, total)))
+        ref_xy, ref_th, ahead_th = pts[:-1], ths[:-1], ths[-1:]
+        to_ahead = pts[-1] - xy
         threshold = cfg.rotate_threshold
         final = dist_goal < cfg.final_approach
         if final:

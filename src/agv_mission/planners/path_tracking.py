@@ -105,9 +105,23 @@ def interpolate(
 
 def unwrap_from(angles: np.ndarray, start: float) -> np.ndarray:
     """``angles`` made continuous, the first one within pi of ``start``."""
-    out = np.unwrap(np.asarray(angles, dtype=float))
+    out = _unwrap(np.asarray(angles, dtype=float))
     if len(out):
         out = out + 2.0 * math.pi * round((start - out[0]) / (2.0 * math.pi))
+    return out
+
+
+def _unwrap(p: np.ndarray) -> np.ndarray:
+    """``np.unwrap(p)`` of a 1-D array (same arithmetic, without its generality's cost)."""
+    if len(p) < 2:
+        return p.copy()
+    dd = np.diff(p)
+    ddmod = np.mod(dd + math.pi, 2.0 * math.pi) - math.pi
+    ddmod[(ddmod == -math.pi) & (dd > 0)] = math.pi
+    correct = ddmod - dd
+    correct[np.abs(dd) < math.pi] = 0.0
+    out = p.copy()
+    out[1:] = p[1:] + np.cumsum(correct)
     return out
 
 
@@ -125,8 +139,9 @@ def curvature_speed_limit(
     Curvature is the heading change over [s - window, s + window] divided by its length,
     which smooths polyline corners into arcs of about the window's size.
     """
-    _, h_back = interpolate(path, cumlen, s - window)
-    _, h_fwd = interpolate(path, cumlen, s + window)
+    s = np.asarray(s, dtype=float)
+    _, h = interpolate(path, cumlen, np.concatenate((s - window, s + window)))
+    h_back, h_fwd = h[: len(s)], h[len(s) :]
     dpsi = np.abs((h_fwd - h_back + np.pi) % (2.0 * np.pi) - np.pi)
     kappa = dpsi / (2.0 * window)
     with np.errstate(divide="ignore"):

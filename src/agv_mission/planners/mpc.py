@@ -75,6 +75,7 @@ class MpcController:
         self._tracker = ProgressTracker(window_ahead=limits.max_v * control_period * 3.0 + 0.3)
         self._problem = mpc_problem(config.model_dump_json(), limits)
         self._p = np.empty(self._problem.n_params)  # parameter vector, filled in place
+        self._rows = np.arange(self._problem.n)[:, None]  # row index of per-stage arrays
         self._stats: dict | None = {}
         self._solve_info: dict = {}
         self._t_solver_call = 0.0
@@ -118,7 +119,7 @@ class MpcController:
         else:
             idx = np.broadcast_to(np.arange(k), (len(stages), k))
         chosen = _to_local(pts[idx.ravel()], pose).reshape(len(stages), k, 2)
-        far = np.take_along_axis(d2, idx, axis=1) > cfg.obstacle_range**2
+        far = d2[self._rows[: len(stages)], idx] > cfg.obstacle_range**2
         chosen[far] = _FAR
         out[:, :k] = chosen
         return out

@@ -43,30 +43,48 @@ class Projection:
     distance: float
 
 
+@dataclass(frozen=True)
+class Segments:
+    """A polyline's segments as arrays (what every projection on it needs)."""
+
+    path: np.ndarray
+    cumlen: np.ndarray
+    start: np.ndarray  # (K, 2) first point of each segment
+    delta: np.ndarray  # (K, 2) segment vectors
+    length2: np.ndarray  # (K,) squared lengths
+    length: np.ndarray  # (K,)
+
+    @staticmethod
+    def of(path: np.ndarray, cumlen: np.ndarray | None = None) -> Segments:
+        if cumlen is None:
+            cumlen = cumulative_length(path)
+        d = np.diff(path, axis=0)
+        length2 = np.einsum("ij,ij->i", d, d)
+        return Segments(path, cumlen, path[:-1], d, length2, np.sqrt(length2))
+
+
 def closest_point(
     path: np.ndarray,
     point: np.ndarray | tuple[float, float],
     cumlen: np.ndarray | None = None,
     s_min: float | None = None,
     s_max: float | None = None,
+    segments: Segments | None = None,
 ) -> Projection:
     """Project ``point`` on the polyline, optionally only on the arclength window [s_min, s_max].
 
     Ties go to the lowest arclength, so a path that comes back near itself is
     followed in order when a window around the previous progress is given.
+    ``segments`` (of this path) saves recomputing them.
     """
     p = np.asarray(point, dtype=float)
-    if cumlen is None:
-        cumlen = cumulative_length(path)
     if len(path) == 1:
         return Projection(0.0, path[0].copy(), 0, float(np.linalg.norm(p - path[0])))
-    a = path[:-1]
-    d = np.diff(path, axis=0)
-    seg_len2 = np.einsum("ij,ij->i", d, d)
-    t = np.einsum("ij,ij->i", p - a, d) / np.maximum(seg_len2, 1e-18)
+    seg = segments if segments is not None else Segments.of(path, cumlen)
+    cumlen, a, d, seg_len = seg.cumlen, seg.start, seg.delta, seg.length
+    t = np.einsum("ij,ij->i", p - a, d) / np.maximum(seg.length2, 1e-18)
     lo = np.zeros_like(t)
     hi = np.ones_like(t)
-    seg_len = np.sqrt(seg_len2)
     if s_min is not None:
         lo = np.maximum(lo, (s_min - cumlen[:-1]) / np.maximum(seg_len, 1e-18))
     if s_max is not None:
@@ -218,20 +236,23 @@ class ProgressTracker:
     def reset(self) -> None:
         self.progress: float | None = None
         self._key: int | None = None
+        self._segments: Segments | None = None
 
     def update(self, path: np.ndarray, cumlen: np.ndarray, xy: np.ndarray) -> float:
         key = hash(path.tobytes())
-        if self.progress is not None and key == self._key:
+        if self.progress is not None and key == self._key and self._segments is not None:
             proj = closest_point(
                 path,
                 xy,
                 cumlen,
                 s_min=self.progress - self.window_back,
                 s_max=self.progress + self.window_ahead,
+                segments=self._segments,
             )
             s = max(proj.s, self.progress - 0.05)
         else:
-            s = closest_point(path, xy, cumlen).s
+            self._segments = Segments.of(path, cumlen) if len(path) >= 2 else None
+            s = closest_point(path, xy, cumlen, segments=self._segments).s
         self.progress, self._key = s, key
         return s
 

@@ -30,6 +30,7 @@ MODULES = [
     "bench_mission",
     "bench_breakdown",
     "bench_regress",
+    "bench_startup",
     "bench_bags",
     "bench_service",
     "bench_dashboard",
@@ -47,6 +48,8 @@ TARGETS = {
     "amcl.update_ms.p50.1000x60": ("<=", 2.0),
     "mission.map_area_small_house.real_time_factor": (">=", 5.0),
     "regress.speedup_ratio": ("<=", 0.6),
+    "startup.validate_s": ("<=", 1.0),
+    "startup.run_help_s": ("<=", 1.0),
     "planners.warehouse_50m.cost_grid.time_ms.p50": ("<=", 50.0),
     # issue 15: centimetre localisation on the real house, never lost on large maps
     **{

@@ -15,6 +15,7 @@ import hmac
 import importlib.util
 import json
 import math
+import re
 from contextlib import asynccontextmanager
 from importlib import metadata
 from pathlib import Path
@@ -452,7 +453,12 @@ def parse_json_submission(body: bytes) -> tuple[str, list[str], int | None]:
 
 
 def _err(line: int | None, field: str, message: str) -> dict[str, Any]:
-    return {"line": line, "field": field, "message": message}
+    """One problem as the contract spells it: list indices in brackets
+    (``tasks[0].waypoints[1].yaw``, where the command line prints ``tasks.0.waypoints.1.yaw``)."""
+    return {"line": line, "field": _INDEX.sub(r"[\1]", field), "message": message}
+
+
+_INDEX = re.compile(r"\.(\d+)(?=\.|$)")
 
 
 def same_origin(origin: str | None, host: str | None) -> bool:

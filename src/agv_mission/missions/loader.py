@@ -47,7 +47,7 @@ from agv_mission.missions.schema import (
     with_default_plugin_types,
 )
 from agv_mission.missions.yaml_lines import FieldPath, load_with_lines
-from agv_mission.navigation.navigator import goal_margin
+from agv_mission.planners.configs import goal_margin
 from agv_mission.robots.description import (
     BUILTIN_ROBOTS,
     RobotDescription,

@@ -78,13 +78,6 @@ class NavigationStats:
     legs: list[Leg] = field(default_factory=list)
 
 
-def goal_margin(planner_config: Any) -> float:
-    """Metres beyond the robot's radius that a goal (and every path) must keep from
-    obstacles: the global planner's ``clearance``. ``validate`` checks goals with the same
-    margin the navigator plans with, so a goal that passes validation can be planned to."""
-    return float(getattr(planner_config, "clearance", 0.0))
-
-
 class Navigator:
     """Drives the robot to one goal at a time."""
 

@@ -275,3 +275,10 @@ class PurePursuitConfig(PluginConfig):
     )
     rotate_exit: float = Field(0.25, gt=0, description="heading error to leave turn-in-place")
     rotate_gain: float = Field(2.0, gt=0, description="w = gain x heading error when turning")
+
+
+def goal_margin(planner_config: PluginConfig) -> float:
+    """Metres beyond the robot's radius that a goal (and every path) must keep from
+    obstacles: the global planner's ``clearance``. ``validate`` checks goals with the same
+    margin the navigator plans with, so a goal that passes validation can be planned to."""
+    return float(getattr(planner_config, "clearance", 0.0))

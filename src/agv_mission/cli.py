@@ -166,10 +166,7 @@ def run(
     code = EXIT_CODES.get(record.status, 3)
     if record.status == "aborted" and stopper.exit_code:
         code = stopper.exit_code
-    # Everything is written: a signal now must not turn the exit code into a kill
-    # (Python restores the default handlers while it shuts down).
-    for sig in SIGNAL_EXIT_CODES:
-        signal.signal(sig, signal.SIG_IGN)
+    stopper.ignore()  # everything is written: a signal now must not turn the code into a kill
     raise typer.Exit(code)
 
 

@@ -27,6 +27,13 @@ class SignalStop:
             signal.signal(sig, self.handle)
         return self
 
+    def ignore(self) -> None:
+        """Ignore SIGINT and SIGTERM from now on: once everything is written a signal must
+        not turn the exit code into a kill (Python restores the default handlers while it
+        shuts down)."""
+        for sig in SIGNAL_EXIT_CODES:
+            signal.signal(sig, signal.SIG_IGN)
+
     def handle(self, signum: int, _frame: object) -> None:
         self.received.append(signum)
         if self.phase == "loading" and len(self.received) == 1:

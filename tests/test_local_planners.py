@@ -243,14 +243,14 @@ def test_pure_pursuit_follows_l_path_and_stops_at_goal(yaw):
 
 
 def test_mpc_rti_functions_are_cached_on_disk(tmp_path, monkeypatch):
-    from agv_mission.planners import mpc as mpc_module
+    from agv_mission.planners import mpc_problem
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     cfg = MpcConfig(horizon=8)
-    built = mpc_module._Problem(cfg, LIMITS)
+    built = mpc_problem.MpcProblem(cfg, LIMITS)
     files = list((tmp_path / "agv-mission" / "mpc").glob("*.casadi"))
     assert len(files) == 1
-    loaded = mpc_module._Problem(cfg, LIMITS)
+    loaded = mpc_problem.MpcProblem(cfg, LIMITS)
     assert loaded.rti.step_fn is not built.rti.step_fn
     u = np.zeros(2 * cfg.horizon + 1)
     p = np.zeros(built.n_params)

@@ -81,3 +81,23 @@ def test_many_clients_share_a_budget() -> None:
         assert last == [19.9] * 50  # each still gets the newest state
 
     asyncio.run(main())
+
+
+def test_a_client_may_ask_for_fewer_messages() -> None:
+    async def main() -> None:
+        hub = Hub()
+        page = hub.subscribe(max_rate=5.0)  # a page drawing a few frames a second
+        full = hub.subscribe()
+        page.take(0.0)
+        full.take(0.0)
+        got = {page: 0, full: 0}
+        for step in range(200):  # 2 wall seconds of a run at 10x real time
+            now = step / 100
+            hub.publish("state", _state(step * 0.1), round(step * 0.1, 3))
+            for c in got:
+                got[c] += len(c.take(now)[0])
+        assert got[page] <= 5 * 2 + 5 * BURST + 1 < got[full]
+        items, _ = page.take(10.0)
+        assert json.loads(items[-1][1])["t"] == 19.9  # the newest still arrives
+
+    asyncio.run(main())

@@ -7,9 +7,8 @@ import os
 import signal
 import sys
 import time
-from importlib.resources import as_file, files
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import Annotated, Optional
 
 
 def _exit_quietly(signum: int, _frame: object) -> None:
@@ -86,9 +85,7 @@ def _started() -> None:
 out = Console(file=_PipeSafeStdout(), soft_wrap=True)  # type: ignore[arg-type]
 err = Console(stderr=True, soft_wrap=True)
 
-DEMO_MISSION = "visit_rooms.yaml"
 EXIT_CODES = {"succeeded": 0, "failed": 1, "error": 3, "aborted": 130, "interrupted": 1}
-SIGNAL_EXIT_CODES = {signal.SIGINT: 130, signal.SIGTERM: 143}
 
 
 def _report_invalid(exc: MissionError) -> None:
@@ -113,17 +110,15 @@ def run(
 ) -> None:
     """Validate and run a mission in simulation; write a run directory."""
     from agv_mission.bags.writer import BagWriter
-    from agv_mission.missions.loader import load_mission
-    from agv_mission.missions.outputs import make_run_dir, write_mission, write_run
+    from agv_mission.missions.loader import load_demo_mission, load_mission
+    from agv_mission.missions.outputs import RunDirError, open_run_dir, write_run
     from agv_mission.missions.runner import RunStopped, run_mission
+    from agv_mission.missions.signals import SignalStop
 
-    stopper = _SignalStop()
-    for sig in SIGNAL_EXIT_CODES:
-        signal.signal(sig, stopper.handle)
+    stopper = SignalStop().install()
     try:
         if mission is None:
-            with as_file(files("agv_mission") / "data" / "missions" / DEMO_MISSION) as demo:
-                loaded = load_mission(demo, set_, seed)
+            loaded = load_demo_mission(set_, seed)
         else:
             loaded = load_mission(mission, set_, seed)
         stopper.phase = "running"  # from here a signal ends the run, with a result
@@ -138,30 +133,16 @@ def run(
     observers = [BagWriter().prepare()] if bag else []
     root = output if output is not None else Path(loaded.mission.output)
     try:
-        run_dir = make_run_dir(root, loaded.name)
-        write_mission(run_dir, loaded)
-    except (OSError, ValueError) as exc:
+        run_dir = open_run_dir(root, loaded)
+    except RunDirError as exc:
         where = "--output" if output is not None else f"{loaded.source}: output"
-        err.print(
-            f"[bold red]invalid input[/]: {where} {str(root)!r}: cannot create a run "
-            f"directory there: {getattr(exc, 'strerror', None) or exc}",
-            highlight=False,
-        )
+        err.print(f"[bold red]invalid input[/]: {where} {exc}", highlight=False)
         raise typer.Exit(2) from None
-    # From here on the run directory must end with a result.json, whatever happens.
     out.print(
         f"[bold]{loaded.name}[/]: {len(loaded.mission.tasks)} task(s) in "
         f"{loaded.world.name} with {loaded.robot.name}, seed {loaded.mission.seed}"
     )
-    with Progress(
-        TextColumn("[progress.description]{task.description}"),
-        BarColumn(),
-        TextColumn("{task.completed:.1f}/{task.total:.0f} sim s"),
-        TimeElapsedColumn(),
-        console=err,
-        transient=True,
-        disable=not err.is_terminal,
-    ) as bar:
+    with _progress("{task.completed:.1f}/{task.total:.0f} sim s") as bar:
         job = bar.add_task("running", total=loaded.mission.limits.time)
         record = run_mission(
             loaded,
@@ -185,47 +166,26 @@ def run(
     code = EXIT_CODES.get(record.status, 3)
     if record.status == "aborted" and stopper.exit_code:
         code = stopper.exit_code
-    # Everything is written: a signal now must not turn the exit code into a kill
-    # (Python restores the default handlers while it shuts down).
-    for sig in SIGNAL_EXIT_CODES:
-        signal.signal(sig, signal.SIG_IGN)
+    stopper.ignore()  # everything is written: a signal now must not turn the code into a kill
     raise typer.Exit(code)
 
 
-class _SignalStop:
-    """SIGINT and SIGTERM for ``run``: while the mission loads they stop it at once; once
-    it runs they only ask, and the run's control hook ends the run ``aborted`` before the
-    next step. (Raising inside the loop is not enough: casadi, for one, catches the
-    KeyboardInterrupt a solve is interrupted with, prints it and goes on.)"""
-
-    def __init__(self) -> None:
-        self.phase = "loading"
-        self.received: list[int] = []
-
-    def handle(self, signum: int, _frame: object) -> None:
-        from agv_mission.missions.runner import RunStopped
-
-        self.received.append(signum)
-        if self.phase == "loading" and len(self.received) == 1:
-            if signum == signal.SIGINT:
-                raise KeyboardInterrupt
-            raise RunStopped(f"stopped by {signal.Signals(signum).name}", signum)
-
-    @property
-    def exit_code(self) -> int | None:
-        return SIGNAL_EXIT_CODES[self.received[0]] if self.received else None
-
-    def before_step(self, run: Any) -> None:
-        if self.received and self.phase == "running":
-            first = self.received[0]
-            run.cancel(
-                "interrupted by the user (Ctrl-C)"
-                if first == signal.SIGINT
-                else f"stopped by {signal.Signals(first).name}"
-            )
+def _progress(counter: str) -> Progress:
+    """A progress bar on stderr, shown only on a terminal and gone when it ends."""
+    return Progress(
+        TextColumn("[progress.description]{task.description}"),
+        BarColumn(),
+        TextColumn(counter),
+        TimeElapsedColumn(),
+        console=err,
+        transient=True,
+        disable=not err.is_terminal,
+    )
 
 
 def _summary(result: dict) -> None:
+    from agv_mission.missions.summary import metrics_line, task_rows
+
     ok = result["status"] == "succeeded"
     colour = "green" if ok else "red"
     out.print(
@@ -233,31 +193,12 @@ def _summary(result: dict) -> None:
         highlight=False,
     )
     table = Table(show_header=True, header_style="bold", box=None)
-    table.add_column("task")
-    table.add_column("status")
-    table.add_column("detail")
-    for task in result["tasks"]:
-        detail = task.get("reason") or ""
-        if "waypoints" in task:
-            reached = sum(w["status"] == "reached" for w in task["waypoints"])
-            planned = task.get("waypoints_planned", len(task["waypoints"]))
-            detail = f"{reached}/{planned} waypoints reached " + detail
-        if "rooms" in task:
-            reached = sum(r["status"] == "reached" for r in task["rooms"])
-            recorded = sum(bool(r.get("recorded")) for r in task["rooms"])
-            detail = f"{reached}/{len(task['rooms'])} rooms reached, {recorded} recorded " + detail
-        table.add_row(f"{task['index']}. {task['type']}", task["status"], detail)
+    for column in ("task", "status", "detail"):
+        table.add_column(column)
+    for row in task_rows(result):
+        table.add_row(*row)
     out.print(table)
-    m = result["metrics"]
-    loc = m["localization"]
-    out.print(
-        f"sim {result['sim_time']:.1f} s in {result['wall_time']:.1f} s wall "
-        f"({m['real_time_factor']}x real time), driven {m['distance_driven']:.2f} m, "
-        f"collisions {m['collisions']}, min clearance {m['min_clearance']} m, "
-        "position RMSE "
-        + (f"{loc['position_rmse']:.3f} m" if loc["position_rmse"] is not None else "n/a"),
-        highlight=False,
-    )
+    out.print(metrics_line(result), highlight=False)
     out.print(f"run directory: {result['run_dir']}", highlight=False)
 
 
@@ -326,12 +267,11 @@ def teleop(
     from rich.markup import escape
 
     from agv_mission.maps.recorder import RecorderFileError
-    from agv_mission.missions.outputs import make_run_dir
-    from agv_mission.missions.stack import open_recorders
     from agv_mission.teleop.session import (
-        check_recorder_file,
         load_teleop_mission,
+        open_session,
         run_teleop,
+        session_report,
         write_teleop_outputs,
     )
 
@@ -346,34 +286,15 @@ def teleop(
         _report_invalid(exc)
         raise typer.Exit(2) from None
     try:
-        if recorder is not None:
-            run_dir, recs = None, open_recorders(loaded, None, recorder, append)
-        else:
-            if append is not None:
-                check_recorder_file(append)  # before making a directory
-            root = output if output is not None else Path(loaded.mission.output)
-            name = loaded.name if loaded.name == "teleop" else f"{loaded.name}-teleop"
-            run_dir = make_run_dir(root, name)
-            recs = open_recorders(loaded, run_dir, None, append)
+        run_dir, recs = open_session(loaded, output, recorder, append)
     except RecorderFileError as exc:
         err.print(f"[bold red]invalid input[/]: {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from None
     result = run_teleop(loaded, recs, time_scale=time_scale)
     if run_dir is not None:
         write_teleop_outputs(run_dir, loaded, result)
-    out.print(f"teleop ended ({result.reason}) after {result.sim_time:.1f} sim s", highlight=False)
-    saved = [r for r in recs if len(r) and r.path.exists()]
-    for rec in saved:
-        n = len(rec)
-        out.print(
-            f"recorder file: {rec.path} ({n} entr{'y' if n == 1 else 'ies'}: {', '.join(rec.labels)})",
-            highlight=False,
-            markup=False,
-        )
-    if not saved:
-        out.print("nothing recorded; no recorder file written", highlight=False)
-    if run_dir is not None:
-        out.print(f"run directory: {run_dir}", highlight=False, markup=False)
+    for line in session_report(result, recs, run_dir):
+        out.print(line, highlight=False, markup=False)
     raise typer.Exit(result.exit_code)
 
 
@@ -401,7 +322,13 @@ def map_(
     """Build an occupancy grid map from a recorded bag (map_saver format + a report)."""
     from rich.markup import escape
 
-    from agv_mission.bags.offline import MappingFailed, map_bag, save_outputs, slam_config
+    from agv_mission.bags.offline import (
+        MappingFailed,
+        map_bag,
+        report_lines,
+        save_outputs,
+        slam_config,
+    )
     from agv_mission.bags.reader import BagError
 
     try:
@@ -416,25 +343,8 @@ def map_(
     except MappingFailed as exc:
         err.print(f"[bold red]mapping failed[/]: {escape(str(exc))}", highlight=False)
         raise typer.Exit(1) from None
-    paths = save_outputs(result, save_map)
-    r = result.report
-    scans = r["scans"]
-    out.print(
-        f"mapped {scans['used']}/{scans['total']} scans of {r['scan_topic']} "
-        f"({r['bag_duration']:.1f} s of bag) in {r['wall_time']:.1f} s "
-        f"({r['speed_vs_real_time']}x real time); odometry from {r['odometry']}",
-        highlight=False,
-        markup=False,
-    )
-    if "rmse" in r and r["rmse"]:
-        out.print(
-            f"trajectory RMSE vs {r['ground_truth_topic']}: {r['rmse']['position_rmse']:.3f} m "
-            f"(aligned {r['rmse']['ate_aligned']:.3f} m)",
-            highlight=False,
-            markup=False,
-        )
-    for what, path in paths.items():
-        out.print(f"{what}: {path}", highlight=False, markup=False)
+    for line in report_lines(result, save_outputs(result, save_map)):
+        out.print(line, highlight=False, markup=False)
     raise typer.Exit(0)
 
 
@@ -491,22 +401,9 @@ def regress(
         report.write_reports([], plan, 0.0, backend, workers, junit, json_)
         raise typer.Exit(2)
     n_workers = workers or os.cpu_count() or 1
-    out.print(
-        f"{len(plan.jobs)} run(s): {len(plan.scenarios)} scenario(s) x {len(plan.variants)} "
-        f"variant(s) x {seeds} seed(s) on {backend} "
-        + (f"({n_workers} workers)" if backend == "local" else f"({address or 'local Ray'})"),
-        highlight=False,
-    )
+    out.print(report.plan_line(plan, seeds, backend, n_workers, address), highlight=False)
     started = time.perf_counter()
-    with Progress(
-        TextColumn("[progress.description]{task.description}"),
-        BarColumn(),
-        TextColumn("{task.completed:.0f}/{task.total:.0f} runs"),
-        TimeElapsedColumn(),
-        console=err,
-        transient=True,
-        disable=not err.is_terminal,
-    ) as bar:
+    with _progress("{task.completed:.0f}/{task.total:.0f} runs") as bar:
         job = bar.add_task("regress", total=len(plan.jobs))
 
         def progress(result: dict, done: int, total: int) -> None:
@@ -543,11 +440,7 @@ def regress(
         if path is not None:
             out.print(f"{what}: {escape(str(path))}", highlight=False)
     if interrupted:
-        err.print(
-            f"interrupted: {len(results)} of {len(plan.jobs)} run(s) ran (the running ones "
-            "ended aborted); the queued ones were cancelled",
-            highlight=False,
-        )
+        err.print(report.interrupted_line(results, plan), highlight=False)
         raise typer.Exit(130)
     raise typer.Exit(1 if failed else 0)
 

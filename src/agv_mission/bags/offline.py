@@ -192,6 +192,25 @@ def save_outputs(result: OfflineMap, stem: Path) -> dict[str, Path]:
     return {"pgm": pgm, "yaml": yaml_path, "trajectory": traj, "report": report}
 
 
+def report_lines(result: OfflineMap, paths: dict[str, Path]) -> list[str]:
+    """What ``agv-mission map`` made, a line each: scans used, speed, odometry source, the
+    trajectory's RMSE against ground truth (when the bag has one) and the files written."""
+    r = result.report
+    scans = r["scans"]
+    lines = [
+        f"mapped {scans['used']}/{scans['total']} scans of {r['scan_topic']} "
+        f"({r['bag_duration']:.1f} s of bag) in {r['wall_time']:.1f} s "
+        f"({r['speed_vs_real_time']}x real time); odometry from {r['odometry']}"
+    ]
+    if r.get("rmse"):
+        lines.append(
+            f"trajectory RMSE vs {r['ground_truth_topic']}: {r['rmse']['position_rmse']:.3f} m "
+            f"(aligned {r['rmse']['ate_aligned']:.3f} m)"
+        )
+    lines += [f"{what}: {path}" for what, path in paths.items()]
+    return lines
+
+
 def _finite(value: Any) -> Any:
     if isinstance(value, float) and not math.isfinite(value):
         return None

@@ -72,6 +72,15 @@ class SignedDistanceField:
         self.height, self.width = self.values.shape
         c, s = math.cos(grid.origin.yaw), math.sin(grid.origin.yaw)
         self._rot = np.array([[c, -s], [s, c]])
+        # The bilinear patch of every cell as [s00, s01 - s00, s10 - s00, s11 - s10 - s01
+        # + s00] over a second ring of padding: a lookup is one gather, and a point off the
+        # map, clamped onto the outer ring, reads max_distance with no gradient.
+        v = np.pad(self.values, 1, constant_values=max_distance)
+        s00, s01, s10, s11 = v[:-1, :-1], v[:-1, 1:], v[1:, :-1], v[1:, 1:]
+        self._patches = np.stack((s00, s01 - s00, s10 - s00, s11 - s10 - s01 + s00), axis=-1)
+        self._patches = self._patches.reshape(-1, 4)
+        self._patch_cols = v.shape[1] - 1
+        self._last_patch = np.array([v.shape[1] - 2, v.shape[0] - 2], dtype=np.float64)
 
     def lookup(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distances (N,) and map-frame gradients (N, 2) at map-frame points ``xy`` (N, 2)."""
@@ -80,25 +89,20 @@ class SignedDistanceField:
         if o.yaw != 0.0:
             p = p @ self._rot  # into the grid frame (R^T p, row-wise)
         inv = 1.0 / self.resolution
-        u = p[:, 0] * inv + 0.5  # padded cell-centre coordinates
-        v = p[:, 1] * inv + 0.5
-        i0 = np.floor(u).astype(np.int64)
-        j0 = np.floor(v).astype(np.int64)
-        inside = (i0 >= 0) & (i0 < self.width - 1) & (j0 >= 0) & (j0 < self.height - 1)
-        i0 = np.where(inside, i0, 0)
-        j0 = np.where(inside, j0, 0)
-        fu, fv = u - i0, v - j0
-        s = self.values
-        s00, s01 = s[j0, i0], s[j0, i0 + 1]
-        s10, s11 = s[j0 + 1, i0], s[j0 + 1, i0 + 1]
-        d = (1 - fu) * (1 - fv) * s00 + fu * (1 - fv) * s01 + (1 - fu) * fv * s10 + fu * fv * s11
-        gu = ((1 - fv) * (s01 - s00) + fv * (s11 - s10)) * inv
-        gv = ((1 - fu) * (s10 - s00) + fu * (s11 - s01)) * inv
-        grad = np.stack([gu, gv], axis=1)
+        uv = p * inv + 1.5  # cell-centre coordinates in the twice padded grid
+        cell = np.floor(uv)
+        np.maximum(np.minimum(cell, self._last_patch, out=cell), 0.0, out=cell)
+        frac = uv - cell
+        np.maximum(np.minimum(frac, 1.0, out=frac), 0.0, out=frac)
+        idx = cell.astype(np.intp)
+        patch = self._patches[idx[:, 1] * self._patch_cols + idx[:, 0]]
+        fu, fv = frac[:, 0], frac[:, 1]
+        d = patch[:, 0] + patch[:, 1] * fu + (patch[:, 2] + patch[:, 3] * fu) * fv
+        grad = np.empty_like(p)
+        grad[:, 0] = (patch[:, 1] + patch[:, 3] * fv) * inv
+        grad[:, 1] = (patch[:, 2] + patch[:, 3] * fu) * inv
         if o.yaw != 0.0:
             grad = grad @ self._rot.T
-        d = np.where(inside, d, self.max_distance)
-        grad[~inside] = 0.0
         return d, grad
 
 
@@ -247,35 +251,33 @@ class PoseTracker:
         r = np.zeros(len(pts))
         iterations = 0
         converged = False
+        floor = self._floor
+        scaled = np.outer(floor, floor)  # H in floor units: H * scaled
+        jac = np.empty((len(pts), 3))
         for it in range(1, p.iterations + 1):
             iterations = it
             c, s = math.cos(x[2]), math.sin(x[2])
-            rx = c * pts[:, 0] - s * pts[:, 1]
-            ry = s * pts[:, 0] + c * pts[:, 1]
-            raw, grad = self.sdf.lookup(np.stack([x[0] + rx, x[1] + ry], axis=1))
+            rxy = pts @ np.array([[c, s], [-s, c]])  # rotated into the map frame
+            raw, grad = self.sdf.lookup(rxy + x[0:2])
             r = raw - self.wall_offset
             a = np.abs(r)
             # The first iterations use a wide kernel: from a prior a decimetre or a few
             # degrees off, most end points are farther than ``outlier`` from their wall.
             wide = it <= p.iterations // 2 and not converged
             huber, outlier = (4.0 * p.huber, 2.0 * p.outlier) if wide else (p.huber, p.outlier)
-            w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-12))
-            w[a > outlier] = 0.0
-            jac = np.empty((len(pts), 3))
-            jac[:, 0], jac[:, 1] = grad[:, 0], grad[:, 1]
-            jac[:, 2] = grad[:, 1] * rx - grad[:, 0] * ry
-            jw = jac * (w * w_beam)[:, None]
-            h = cap_information(jw.T @ jac, self._floor)
-            # Scale the gradient like the information (keeps the step a Gauss-Newton step).
-            scale = _cap_scale(jw.T @ jac, h)
-            gvec = scale @ (jw.T @ r)
+            w = np.minimum(huber / np.maximum(a, 1e-12), 1.0)  # Huber weights
+            w *= (a <= outlier) * w_beam
+            jac[:, 0:2] = grad
+            jac[:, 2] = grad[:, 1] * rxy[:, 0] - grad[:, 0] * rxy[:, 1]
+            jw = jac * w[:, None]
+            h, gvec = _capped_step(jw.T @ jac, jw.T @ r, floor, scaled)
             dx_prior = x - prior
             dx_prior[2] = wrap_angle(dx_prior[2])
             post_info = prior_info + h
             step = -np.linalg.solve(post_info, prior_info @ dx_prior + gvec)
             x = x + step
             x[2] = wrap_angle(x[2])
-            small = abs(step[0]) + abs(step[1]) < 1e-5 and abs(step[2]) < 1e-5
+            small = abs(step[0]) + abs(step[1]) < 1e-4 and abs(step[2]) < 1e-4
             if small and not wide:
                 break
             converged = converged or abs(step[0]) + abs(step[1]) < 1e-3 and abs(step[2]) < 1e-3
@@ -324,6 +326,17 @@ def floor_covariance(cov: np.ndarray, floor: np.ndarray) -> np.ndarray:
     return d @ ((vecs * np.maximum(vals, 1.0)) @ vecs.T) @ d
 
 
-def _cap_scale(h_full: np.ndarray, h_capped: np.ndarray) -> np.ndarray:
-    """The linear map taking ``h_full`` to ``h_capped`` (``h_capped @ pinv(h_full)``)."""
-    return h_capped @ np.linalg.pinv(h_full, rcond=1e-9, hermitian=True)
+def _capped_step(
+    h_full: np.ndarray, g_full: np.ndarray, floor: np.ndarray, scaled: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """One scan's capped information (:func:`cap_information`) and its gradient scaled
+    like it (``h_capped @ pinv(h_full) @ g_full``, so the step stays a Gauss-Newton step),
+    from one eigendecomposition in floor units."""
+    hs = h_full * scaled
+    vals, vecs = np.linalg.eigh(0.5 * (hs + hs.T))
+    capped = np.maximum(np.minimum(vals, 1.0), 0.0)
+    keep = vals > 1e-9 * max(abs(float(vals[0])), abs(float(vals[-1])), 1e-300)
+    ratio = np.where(keep, capped / np.where(keep, vals, 1.0), 0.0)
+    h = ((vecs * capped) @ vecs.T) / scaled
+    gvec = (vecs @ (ratio * (vecs.T @ (g_full * floor)))) / floor
+    return h, gvec

@@ -11,6 +11,7 @@ import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from importlib.resources import as_file, files
 from pathlib import Path
 from typing import Any
 
@@ -81,6 +82,15 @@ class LoadedMission:
         doc = self.mission.model_dump(mode="json")
         doc["name"] = self.name
         return {k: doc[k] for k in FIELD_ORDER if k in doc}
+
+
+DEMO_MISSION = "visit_rooms.yaml"  # what ``agv-mission run`` runs without a file
+
+
+def load_demo_mission(overrides: list[str] | None = None, seed: int | None = None) -> LoadedMission:
+    """The demo mission shipped in the package, loaded like a file."""
+    with as_file(files("agv_mission") / "data" / "missions" / DEMO_MISSION) as demo:
+        return load_mission(demo, overrides, seed)
 
 
 def load_mission(

@@ -33,6 +33,22 @@ def make_run_dir(output_root: Path, name: str) -> Path:
     raise RuntimeError(f"cannot create a run directory under {output_root}")
 
 
+class RunDirError(Exception):
+    """The run directory cannot be made; the message names the root and why."""
+
+
+def open_run_dir(root: Path, loaded: LoadedMission, name: str | None = None) -> Path:
+    """Make ``root/<name>-<UTC timestamp>/`` (name: the mission's) and write the resolved
+    ``mission.yaml`` into it: from here on the directory must end with a result.json."""
+    try:
+        run_dir = make_run_dir(root, name or loaded.name)
+        write_mission(run_dir, loaded)
+    except (OSError, ValueError) as exc:
+        reason = getattr(exc, "strerror", None) or exc
+        raise RunDirError(f"{str(root)!r}: cannot create a run directory there: {reason}") from exc
+    return run_dir
+
+
 def result_document(loaded: LoadedMission, record: RunRecord, run_dir: Path) -> dict[str, Any]:
     return {
         "name": loaded.name,

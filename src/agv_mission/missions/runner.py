@@ -398,6 +398,8 @@ class _Sampler:
         self.map_integrations = -1
         self.built_map: OccupancyGrid | None = None
         self.nodes: list[TreeNode] = tree_nodes(run.tree.root)
+        self._behaviours = list(run.tree.root.iterate())
+        self._statuses = [node.status for node in self._behaviours]
 
     def sample(
         self, sensing: Sensing, estimate: Pose2D, v: float, w: float, events_from: int
@@ -423,9 +425,16 @@ class _Sampler:
                 particles = diagnostics.particles
         if run.mapper.built_map is not self.built_map:
             self.built_map = grid = run.mapper.built_map
-        nodes = tree_nodes(run.tree.root)
-        changed = nodes != self.nodes
-        self.nodes = nodes
+        # Walk the tree again only when a status changed (statuses read in place are
+        # cheap; a TreeNode list per step is not).
+        statuses = [node.status for node in self._behaviours]
+        changed = statuses != self._statuses
+        if changed:
+            nodes = tree_nodes(run.tree.root)
+            changed = nodes != self.nodes
+            self.nodes = nodes
+            self._behaviours = list(run.tree.root.iterate())
+            self._statuses = [node.status for node in self._behaviours]
         task = next((i for i, s in enumerate(run.task_status) if s == "running"), None)
         return StepSample(
             t=sensing.time,
@@ -442,7 +451,7 @@ class _Sampler:
             goal=navigator.goal,
             grid=grid,
             events=handle.events[events_from:],
-            tree_nodes=nodes if changed else None,
+            tree_nodes=self.nodes if changed else None,
             task_index=task,
             task_type=run.mission.tasks[task].type if task is not None else None,
         )

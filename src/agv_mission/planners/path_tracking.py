@@ -43,30 +43,48 @@ class Projection:
     distance: float
 
 
+@dataclass(frozen=True)
+class Segments:
+    """A polyline's segments as arrays (what every projection on it needs)."""
+
+    path: np.ndarray
+    cumlen: np.ndarray
+    start: np.ndarray  # (K, 2) first point of each segment
+    delta: np.ndarray  # (K, 2) segment vectors
+    length2: np.ndarray  # (K,) squared lengths
+    length: np.ndarray  # (K,)
+
+    @staticmethod
+    def of(path: np.ndarray, cumlen: np.ndarray | None = None) -> Segments:
+        if cumlen is None:
+            cumlen = cumulative_length(path)
+        d = np.diff(path, axis=0)
+        length2 = np.einsum("ij,ij->i", d, d)
+        return Segments(path, cumlen, path[:-1], d, length2, np.sqrt(length2))
+
+
 def closest_point(
     path: np.ndarray,
     point: np.ndarray | tuple[float, float],
     cumlen: np.ndarray | None = None,
     s_min: float | None = None,
     s_max: float | None = None,
+    segments: Segments | None = None,
 ) -> Projection:
     """Project ``point`` on the polyline, optionally only on the arclength window [s_min, s_max].
 
     Ties go to the lowest arclength, so a path that comes back near itself is
     followed in order when a window around the previous progress is given.
+    ``segments`` (of this path) saves recomputing them.
     """
     p = np.asarray(point, dtype=float)
-    if cumlen is None:
-        cumlen = cumulative_length(path)
     if len(path) == 1:
         return Projection(0.0, path[0].copy(), 0, float(np.linalg.norm(p - path[0])))
-    a = path[:-1]
-    d = np.diff(path, axis=0)
-    seg_len2 = np.einsum("ij,ij->i", d, d)
-    t = np.einsum("ij,ij->i", p - a, d) / np.maximum(seg_len2, 1e-18)
+    seg = segments if segments is not None else Segments.of(path, cumlen)
+    cumlen, a, d, seg_len = seg.cumlen, seg.start, seg.delta, seg.length
+    t = np.einsum("ij,ij->i", p - a, d) / np.maximum(seg.length2, 1e-18)
     lo = np.zeros_like(t)
     hi = np.ones_like(t)
-    seg_len = np.sqrt(seg_len2)
     if s_min is not None:
         lo = np.maximum(lo, (s_min - cumlen[:-1]) / np.maximum(seg_len, 1e-18))
     if s_max is not None:
@@ -74,7 +92,7 @@ def closest_point(
     valid = lo <= hi
     if not np.any(valid):  # empty window: fall back to the whole path
         lo, hi, valid = np.zeros_like(t), np.ones_like(t), np.ones_like(t, dtype=bool)
-    t = np.clip(t, lo, hi)
+    t = np.minimum(np.maximum(t, lo), hi)
     proj = a + t[:, None] * d
     dist2 = np.einsum("ij,ij->i", proj - p, proj - p)
     dist2[~valid] = np.inf
@@ -91,10 +109,11 @@ def interpolate(
     path: np.ndarray, cumlen: np.ndarray, s: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Points (K, 2) and tangent headings (K,) at arclengths ``s`` (clamped to the path)."""
-    s = np.clip(np.asarray(s, dtype=float), 0.0, cumlen[-1])
+    s = np.minimum(np.maximum(np.asarray(s, dtype=float), 0.0), cumlen[-1])
     if len(path) < 2:
         return np.repeat(path[:1], len(s), axis=0), np.zeros(len(s))
-    i = np.clip(np.searchsorted(cumlen, s, side="right") - 1, 0, len(path) - 2)
+    i = np.searchsorted(cumlen, s, side="right") - 1
+    i = np.minimum(np.maximum(i, 0), len(path) - 2)
     seg = path[i + 1] - path[i]
     seg_len = cumlen[i + 1] - cumlen[i]
     t = (s - cumlen[i]) / np.maximum(seg_len, 1e-18)
@@ -104,9 +123,23 @@ def interpolate(
 
 def unwrap_from(angles: np.ndarray, start: float) -> np.ndarray:
     """``angles`` made continuous, the first one within pi of ``start``."""
-    out = np.unwrap(np.asarray(angles, dtype=float))
+    out = _unwrap(np.asarray(angles, dtype=float))
     if len(out):
         out = out + 2.0 * math.pi * round((start - out[0]) / (2.0 * math.pi))
+    return out
+
+
+def _unwrap(p: np.ndarray) -> np.ndarray:
+    """``np.unwrap(p)`` of a 1-D array (same arithmetic, without its generality's cost)."""
+    if len(p) < 2:
+        return p.copy()
+    dd = np.diff(p)
+    ddmod = np.mod(dd + math.pi, 2.0 * math.pi) - math.pi
+    ddmod[(ddmod == -math.pi) & (dd > 0)] = math.pi
+    correct = ddmod - dd
+    correct[np.abs(dd) < math.pi] = 0.0
+    out = p.copy()
+    out[1:] = p[1:] + np.cumsum(correct)
     return out
 
 
@@ -124,8 +157,9 @@ def curvature_speed_limit(
     Curvature is the heading change over [s - window, s + window] divided by its length,
     which smooths polyline corners into arcs of about the window's size.
     """
-    _, h_back = interpolate(path, cumlen, s - window)
-    _, h_fwd = interpolate(path, cumlen, s + window)
+    s = np.asarray(s, dtype=float)
+    _, h = interpolate(path, cumlen, np.concatenate((s - window, s + window)))
+    h_back, h_fwd = h[: len(s)], h[len(s) :]
     dpsi = np.abs((h_fwd - h_back + np.pi) % (2.0 * np.pi) - np.pi)
     kappa = dpsi / (2.0 * window)
     with np.errstate(divide="ignore"):
@@ -154,7 +188,7 @@ def speed_profile(
     for curvature. Sample 0 is at s0 with speed v0 (clipped to [min_v, max_v]).
     """
     total = float(cumlen[-1])
-    v0 = float(np.clip(v0, max(min_v, 0.0), max_v))
+    v0 = min(max(float(v0), max(min_v, 0.0)), max_v)
     # A grid long enough to cover the horizon plus braking from max speed.
     reach = max_v * steps * dt + max_v * max_v / (2.0 * dec) + 0.1
     end = min(total, s0 + reach)
@@ -202,20 +236,23 @@ class ProgressTracker:
     def reset(self) -> None:
         self.progress: float | None = None
         self._key: int | None = None
+        self._segments: Segments | None = None
 
     def update(self, path: np.ndarray, cumlen: np.ndarray, xy: np.ndarray) -> float:
         key = hash(path.tobytes())
-        if self.progress is not None and key == self._key:
+        if self.progress is not None and key == self._key and self._segments is not None:
             proj = closest_point(
                 path,
                 xy,
                 cumlen,
                 s_min=self.progress - self.window_back,
                 s_max=self.progress + self.window_ahead,
+                segments=self._segments,
             )
             s = max(proj.s, self.progress - 0.05)
         else:
-            s = closest_point(path, xy, cumlen).s
+            self._segments = Segments.of(path, cumlen) if len(path) >= 2 else None
+            s = closest_point(path, xy, cumlen, segments=self._segments).s
         self.progress, self._key = s, key
         return s
 

@@ -65,7 +65,7 @@ def run_job(job: dict[str, Any]) -> dict[str, Any] | None:
         return None
     from agv_mission.missions.expectations import check
     from agv_mission.missions.loader import load_mission
-    from agv_mission.missions.outputs import make_run_dir, write_mission, write_run
+    from agv_mission.missions.outputs import open_run_dir, write_run
     from agv_mission.missions.runner import run_mission
 
     t0 = time.perf_counter()
@@ -73,8 +73,7 @@ def run_job(job: dict[str, Any]) -> dict[str, Any] | None:
     output_root = Path(tempfile.mkdtemp(prefix="agv-regress-")) if shipped else None
     try:
         loaded = load_mission(job["scenario"], job["overrides"], job["seed"])
-        run_dir = make_run_dir(output_root or Path(job["output_root"]), job["run_name"])
-        write_mission(run_dir, loaded)
+        run_dir = open_run_dir(output_root or Path(job["output_root"]), loaded, job["run_name"])
         record = run_mission(loaded, run_dir, control=_StopControl())
         doc = write_run(run_dir, loaded, record)
         doc = json.loads(json.dumps(doc, default=json_default))  # plain types only

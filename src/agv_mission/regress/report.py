@@ -40,6 +40,23 @@ def deterministic_view(result: dict[str, Any]) -> dict[str, Any]:
     return view
 
 
+def plan_line(plan: Plan, seeds: int, backend: str, workers: int, address: str | None) -> str:
+    """What is about to run, and where: runs, scenarios x variants x seeds, the backend."""
+    where = f"({workers} workers)" if backend == "local" else f"({address or 'local Ray'})"
+    return (
+        f"{len(plan.jobs)} run(s): {len(plan.scenarios)} scenario(s) x {len(plan.variants)} "
+        f"variant(s) x {seeds} seed(s) on {backend} " + where
+    )
+
+
+def interrupted_line(results: Sequence[dict[str, Any]], plan: Plan) -> str:
+    """How much of an interrupted suite ran."""
+    return (
+        f"interrupted: {len(results)} of {len(plan.jobs)} run(s) ran (the running ones "
+        "ended aborted); the queued ones were cancelled"
+    )
+
+
 def run_label(result: dict[str, Any], variants: int = 1, seeds: int = 1) -> str:
     label = result["name"]
     extra = []

@@ -33,17 +33,20 @@ class _Walls:
         self.box_h = np.array([[b.half_x, b.half_y] for b in boxes], dtype=float).reshape(-1, 2)
         self.box_yaw = np.array([b.yaw for b in boxes], dtype=float)
         self.box_cs = np.stack([np.cos(self.box_yaw), np.sin(self.box_yaw)], axis=1).reshape(-1, 2)
+        # Rows cx, cy, cos, sin, half_x, half_y: one array for the per-step distance query.
+        self._box = np.vstack((self.box_c.T, self.box_cs.T, self.box_h.T))
         cyl = world.cylinders
         self.cyl = np.array([[c.x, c.y, c.radius] for c in cyl], dtype=float).reshape(-1, 3)
 
     def box_distance(self, x: float, y: float, idx: np.ndarray | slice = slice(None)) -> np.ndarray:
         """Planar distance from (x, y) to each box (negative inside)."""
-        d = np.array([x, y]) - self.box_c[idx]
-        cs = self.box_cs[idx]
-        c, s = cs[:, 0], cs[:, 1]
-        local = np.abs(np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], 1))
-        q = local - self.box_h[idx]
-        return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
+        b = self._box if isinstance(idx, slice) and idx == slice(None) else self._box[:, idx]
+        cx, cy, c, s, hx, hy = b
+        dx, dy = x - cx, y - cy
+        qx = np.abs(c * dx + s * dy) - hx
+        qy = np.abs(-s * dx + c * dy) - hy
+        ox, oy = np.maximum(qx, 0.0), np.maximum(qy, 0.0)
+        return np.sqrt(ox * ox + oy * oy) + np.minimum(np.maximum(qx, qy), 0.0)
 
     def cyl_distance(self, x: float, y: float, idx: np.ndarray | slice = slice(None)) -> np.ndarray:
         cyl = self.cyl[idx]

@@ -15,6 +15,7 @@ import hmac
 import importlib.util
 import json
 import math
+import re
 from contextlib import asynccontextmanager
 from importlib import metadata
 from pathlib import Path
@@ -23,12 +24,13 @@ from urllib.parse import urlsplit
 
 from fastapi import FastAPI, Request, WebSocket, WebSocketDisconnect
 from fastapi.responses import FileResponse, JSONResponse
-from starlette.middleware.base import BaseHTTPMiddleware
+from starlette.datastructures import Headers
+from starlette.types import ASGIApp, Receive, Scope, Send
 
 from agv_mission.missions.errors import MissionError
-from agv_mission.service.hub import Client
+from agv_mission.service.hub import KIND_BUDGET, Client
 from agv_mission.service.registry import FINAL, STATUSES, Registry, Submission
-from agv_mission.service.runs import NotActive, QueueFull, RunManager, read_result
+from agv_mission.service.runs import NotActive, QueueFull, RunManager
 from agv_mission.service.sandbox import DataDirGuard
 
 try:
@@ -39,6 +41,7 @@ except metadata.PackageNotFoundError:  # a source tree without an install
 MAX_BODY = 1_000_000  # bytes of a request body
 MAX_WS_MESSAGE = 4096  # bytes of a client message on the live stream
 MAX_LABEL = 100
+SEND_PERIOD = 0.05  # seconds between two sends to one live client (20 batches a second)
 
 
 class ApiError(Exception):
@@ -99,18 +102,29 @@ def create_app(settings: Settings) -> FastAPI:
             given = header[7:].strip()
         return given is not None and hmac.compare_digest(given.encode(), settings.token.encode())
 
-    class Guard(BaseHTTPMiddleware):
-        async def dispatch(self, request: Request, call_next):  # type: ignore[no-untyped-def]
-            if request.url.path.startswith("/api"):
-                if not authorised(request.headers.get("authorization"), None):
-                    return JSONResponse(
+    class Guard:
+        """Token and origin checks of every ``/api`` HTTP request (plain ASGI: no extra task
+        or body queue per request, unlike ``BaseHTTPMiddleware``)."""
+
+        def __init__(self, app: ASGIApp) -> None:
+            self.app = app
+
+        async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+            if scope["type"] == "http" and scope["path"].startswith("/api"):
+                headers = Headers(scope=scope)
+                refusal = None
+                if not authorised(headers.get("authorization"), None):
+                    refusal = JSONResponse(
                         {"detail": "missing or wrong bearer token"},
                         status_code=401,
                         headers={"WWW-Authenticate": "Bearer"},
                     )
-                if not same_origin(request.headers.get("origin"), request.headers.get("host")):
-                    return JSONResponse({"detail": "cross-origin requests are refused"}, 403)
-            return await call_next(request)
+                elif not same_origin(headers.get("origin"), headers.get("host")):
+                    refusal = JSONResponse({"detail": "cross-origin requests are refused"}, 403)
+                if refusal is not None:
+                    await refusal(scope, receive, send)
+                    return
+            await self.app(scope, receive, send)
 
     app.add_middleware(Guard)
 
@@ -121,18 +135,19 @@ def create_app(settings: Settings) -> FastAPI:
 
     # ------------------------------------------------------------------ helpers
 
-    def run_object(run: dict[str, Any]) -> dict[str, Any]:
+    async def run_object(run: dict[str, Any]) -> dict[str, Any]:
         live = manager.live_progress(run["id"])
         if live is not None:
             run["progress"] = live
         if run["id"] in manager.active:
             run["status"] = manager.active[run["id"]].status
         if run["status"] in FINAL:
-            run["result"] = read_result(registry.run_dir(run["id"]))
+            run["result"] = await manager.results.get(run["id"])
         return run
 
-    def get_run(run_id: str) -> dict[str, Any]:
-        run = registry.get(run_id)
+    async def get_run(run_id: str) -> dict[str, Any]:
+        """From the registry's cache (SQLite only on a miss, off the event loop)."""
+        run = await registry.aget(run_id)
         if run is None:
             raise ApiError(404, f"no run {run_id!r}")
         return run
@@ -183,7 +198,7 @@ def create_app(settings: Settings) -> FastAPI:
         try:
             manager.check_room()
             sub = await submission(request)
-            run = manager.submit(sub)
+            run = await manager.submit(sub)
         except QueueFull as exc:
             raise ApiError(429, str(exc)) from None
         return JSONResponse(run, status_code=201)
@@ -205,7 +220,7 @@ def create_app(settings: Settings) -> FastAPI:
             raise ApiError(422, f"unknown status {status!r}; one of {sorted(STATUSES)}")
         if not 1 <= limit <= 1000:
             raise ApiError(422, "limit must be between 1 and 1000")
-        runs = registry.list(status, limit)
+        runs = await registry.alist(status, limit)
         for run in runs:
             live = manager.live_progress(run["id"])
             if live is not None:
@@ -214,11 +229,11 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.get("/api/runs/{run_id}")
     async def one_run(run_id: str) -> dict[str, Any]:
-        return run_object(get_run(run_id))
+        return await run_object(await get_run(run_id))
 
     @app.post("/api/runs/{run_id}/cancel", status_code=202)
     async def cancel(run_id: str) -> dict[str, Any]:
-        run = get_run(run_id)
+        run = await get_run(run_id)
         if run["status"] in FINAL:
             raise ApiError(409, f"the run is already {run['status']}")
         try:
@@ -229,7 +244,7 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.post("/api/runs/{run_id}/pause", status_code=202)
     async def pause(run_id: str) -> dict[str, Any]:
-        get_run(run_id)
+        await get_run(run_id)
         try:
             manager.pause(run_id)
         except NotActive as exc:
@@ -238,7 +253,7 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.post("/api/runs/{run_id}/resume", status_code=202)
     async def resume(run_id: str) -> dict[str, Any]:
-        get_run(run_id)
+        await get_run(run_id)
         try:
             manager.resume(run_id)
         except NotActive as exc:
@@ -247,7 +262,7 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.post("/api/runs/{run_id}/goal", status_code=202)
     async def goal(run_id: str, request: Request) -> dict[str, Any]:
-        get_run(run_id)
+        await get_run(run_id)
         body = await read_body(request)
         try:
             doc = json.loads(body)
@@ -265,7 +280,7 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.post("/api/runs/{run_id}/rooms/{label}")
     async def record_room(run_id: str, label: str) -> JSONResponse:
-        get_run(run_id)
+        await get_run(run_id)
         label = label.strip()
         if not label or len(label) > MAX_LABEL or not label.isprintable():
             raise ApiError(422, f"a room label is 1 to {MAX_LABEL} printable characters")
@@ -279,31 +294,19 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.get("/api/runs/{run_id}/files")
     async def files(run_id: str) -> dict[str, Any]:
-        get_run(run_id)
-        run_dir = registry.run_dir(run_id)
-        names = (
-            sorted(
-                p.name
-                for p in run_dir.iterdir()
-                if p.is_file() and not p.is_symlink() and not p.name.startswith(".")
-            )
-            if run_dir.is_dir()
-            else []
-        )
-        return {"files": names}
+        await get_run(run_id)
+        return {"files": await asyncio.to_thread(_file_names, registry.run_dir(run_id))}
 
     @app.get("/api/runs/{run_id}/files/{name}")
     async def one_file(run_id: str, name: str) -> FileResponse:
-        get_run(run_id)
+        await get_run(run_id)
         run_dir = registry.run_dir(run_id)
         path = run_dir / name
         if (
             "/" in name
             or "\\" in name
             or name.startswith(".")
-            or not path.is_file()
-            or path.is_symlink()
-            or path.resolve().parent != run_dir.resolve()
+            or not await asyncio.to_thread(_plain_file_in, path, run_dir)
         ):
             raise ApiError(404, f"no file {name!r} in run {run_id}")
         return FileResponse(path, media_type=_media_type(name))
@@ -318,13 +321,13 @@ def create_app(settings: Settings) -> FastAPI:
         if not same_origin(websocket.headers.get("origin"), websocket.headers.get("host")):
             await websocket.close(code=4403, reason="cross-origin")
             return
-        run = registry.get(run_id)
+        run = await registry.aget(run_id)
         if run is None:
             await websocket.close(code=4404, reason="no such run")
             return
         await websocket.accept()
-        hub = manager.hub_for(run_id, run)
-        client = hub.subscribe()
+        hub = await manager.hub_for(run_id, run)
+        client = hub.subscribe(_rate(websocket.query_params.get("rate")))
         sender = asyncio.create_task(_send_loop(websocket, client))
         try:
             while True:
@@ -353,17 +356,17 @@ def create_app(settings: Settings) -> FastAPI:
 
 
 async def _send_loop(websocket: WebSocket, client: Client) -> None:
-    """Drain one client's queue; the hub never waits for this."""
+    """Drain one client's queue, at most every :data:`SEND_PERIOD` seconds (a status
+    change or the end at once): a message wakes no client by itself (that would be one
+    task switch per client per worker step); what arrived meanwhile goes out together,
+    thinned. The hub never waits for this."""
     loop = asyncio.get_running_loop()
-    due: float | None = None
     while True:
-        if due is None:
-            await client.ready.wait()
-        else:
-            with contextlib.suppress(asyncio.TimeoutError):
-                await asyncio.wait_for(client.ready.wait(), max(due - loop.time(), 0.0))
+        await client.ready.wait()
         client.ready.clear()
-        items, due = client.take(loop.time())
+        client.urgent.clear()
+        started = loop.time()
+        items, due = client.take(started)
         for kind, text in items:
             await websocket.send_text(text)
             if kind == "end":
@@ -372,6 +375,23 @@ async def _send_loop(websocket: WebSocket, client: Client) -> None:
         if client.dropped:
             await websocket.close(code=1013, reason="too slow")
             return
+        if due is not None:  # a held message falls due then
+            loop.call_at(max(due, started + SEND_PERIOD), client.ready.set)
+        rest = started + SEND_PERIOD - loop.time()
+        if rest > 0 and not client.urgent.is_set():
+            wake = loop.call_later(rest, client.urgent.set)
+            await client.urgent.wait()
+            wake.cancel()
+
+
+def _rate(given: str | None) -> float:
+    """``?rate=N``: at most N messages of each frequent kind (state, scan, particles,
+    horizon) per wall second for this client (1 to the hub's budget; default: the budget)."""
+    try:
+        rate = float(given) if given is not None else KIND_BUDGET
+    except ValueError:
+        rate = KIND_BUDGET
+    return min(max(rate, 1.0), KIND_BUDGET) if math.isfinite(rate) else KIND_BUDGET
 
 
 def _client_message(manager: RunManager, run_id: str, client: Client, text: str) -> None:
@@ -433,7 +453,12 @@ def parse_json_submission(body: bytes) -> tuple[str, list[str], int | None]:
 
 
 def _err(line: int | None, field: str, message: str) -> dict[str, Any]:
-    return {"line": line, "field": field, "message": message}
+    """One problem as the contract spells it: list indices in brackets
+    (``tasks[0].waypoints[1].yaw``, where the command line prints ``tasks.0.waypoints.1.yaw``)."""
+    return {"line": line, "field": _INDEX.sub(r"[\1]", field), "message": message}
+
+
+_INDEX = re.compile(r"\.(\d+)(?=\.|$)")
 
 
 def same_origin(origin: str | None, host: str | None) -> bool:
@@ -441,6 +466,21 @@ def same_origin(origin: str | None, host: str | None) -> bool:
     if not origin:
         return True
     return urlsplit(origin).netloc == (host or "")
+
+
+def _file_names(run_dir: Path) -> list[str]:
+    if not run_dir.is_dir():
+        return []
+    return sorted(
+        p.name
+        for p in run_dir.iterdir()
+        if p.is_file() and not p.is_symlink() and not p.name.startswith(".")
+    )
+
+
+def _plain_file_in(path: Path, run_dir: Path) -> bool:
+    """A regular file directly in ``run_dir`` (no symlink out of it)."""
+    return path.is_file() and not path.is_symlink() and path.resolve().parent == run_dir.resolve()
 
 
 def _media_type(name: str) -> str | None:

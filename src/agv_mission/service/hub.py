@@ -12,10 +12,12 @@ the oldest frequent ones; one that falls behind even on the others is dropped.
 
 Many clients share a budget: each frequent kind goes out at most :data:`KIND_BUDGET`
 times per wall second over all the run's clients (a token bucket per client and kind: 50
-clients get 20 states a second each; up to 10 clients see every state of a run at 10x
-real time). A message over budget is held (the newest replaces it) and sent when its
-client has a token again, so the
-fan-out's CPU stays bounded however many watch, and the last state always arrives.
+clients get 6 states a second each; up to 6 clients see every state of a run at 10x
+real time); a client may ask for less (``?rate=N``: the dashboard takes 25). A message
+over budget is held (the newest replaces it) and sent when its client has a token again,
+so the fan-out's CPU stays bounded however many watch, and the last state always
+arrives. Each client's sender wakes at most 20 times a second (``app.SEND_PERIOD``),
+except for a status change, a pong or the end.
 """
 
 from __future__ import annotations
@@ -28,10 +30,11 @@ from typing import Any
 
 SPACING = {"state": 0.2, "scan": 0.2, "horizon": 0.2, "particles": 0.5}  # sim seconds
 THINNABLE = frozenset(SPACING)
+URGENT = frozenset({"end", "pong", "recorded"})  # sent without waiting for the next period
 SNAPSHOT_ORDER = ("map", "rooms", "recorded", "tree", "plan", "goal", "state")
 CLIENT_QUEUE = 500  # messages a client may lag behind before the oldest frequent ones go
 CLIENT_HARD_LIMIT = 5000  # backlog of other messages at which a client is dropped
-KIND_BUDGET = 1000.0  # messages of one frequent kind per wall second, over all clients
+KIND_BUDGET = 300.0  # messages of one frequent kind per wall second, over all clients
 BURST = 0.5  # wall seconds of budget a client may spend at once
 
 Item = tuple[str, str, "float | None"]
@@ -40,19 +43,23 @@ Item = tuple[str, str, "float | None"]
 class Client:
     """One subscriber: a queue its sender task drains."""
 
-    def __init__(self) -> None:
+    def __init__(self, max_rate: float = KIND_BUDGET) -> None:
+        self.max_rate = max_rate  # what the client asked for (``?rate=``), per frequent kind
         self.queue: deque[Item] = deque()
-        self.ready = asyncio.Event()
+        self.ready = asyncio.Event()  # something is queued
+        self.urgent = asyncio.Event()  # something is queued that should not wait a period
         self.dropped = False
         self.thinned = 0
         self.last_t: dict[str, float] = {}
         self.held: dict[str, tuple[str, float | None]] = {}
-        self.rate = KIND_BUDGET  # messages of a frequent kind per wall second (token bucket)
+        self.rate = max_rate  # messages of a frequent kind per wall second (token bucket)
         self.tokens: dict[str, tuple[float, float]] = {}  # kind -> (tokens, at wall time)
 
-    def put(self, kind: str, text: str, t: float | None = None) -> None:
+    def put(self, kind: str, text: str, t: float | None = None, urgent: bool = False) -> None:
         if self.dropped:
             return
+        if urgent or kind in URGENT:
+            self.urgent.set()
         q = self.queue
         q.append((kind, text, t))
         if len(q) > CLIENT_QUEUE:
@@ -126,11 +133,11 @@ class Hub:
         self.latest: dict[str, str] = {}
         self.end: str | None = None
 
-    def publish(self, kind: str, text: str, t: float | None = None) -> None:
+    def publish(self, kind: str, text: str, t: float | None = None, urgent: bool = False) -> None:
         if kind in SNAPSHOT_ORDER:
             self.latest[kind] = text
         for client in self.clients:
-            client.put(kind, text, t)
+            client.put(kind, text, t, urgent)
 
     def set_status(self, status: str) -> None:
         """A paused (or resumed) run sends no steps: republish its last state with the
@@ -139,7 +146,7 @@ class Hub:
         if state is None:
             return
         state["status"] = status
-        self.publish("state", json.dumps(state, separators=(",", ":")), state.get("t"))
+        self.publish("state", json.dumps(state, separators=(",", ":")), state.get("t"), True)
 
     def latest_state(self) -> dict[str, Any] | None:
         text = self.latest.get("state")
@@ -150,9 +157,11 @@ class Hub:
         for client in self.clients:
             client.put("end", text)
 
-    def subscribe(self) -> Client:
-        """A new client: the snapshot first (in the agreed order), then live messages."""
-        client = Client()
+    def subscribe(self, max_rate: float = KIND_BUDGET) -> Client:
+        """A new client: the snapshot first (in the agreed order), then live messages; at
+        most ``max_rate`` messages of each frequent kind per wall second (a page that draws
+        20 frames a second needs no more)."""
+        client = Client(max_rate)
         for kind in SNAPSHOT_ORDER:
             if kind in self.latest:
                 client.queue.append((kind, self.latest[kind], None))
@@ -170,4 +179,4 @@ class Hub:
     def _share(self) -> None:
         rate = KIND_BUDGET / max(1, len(self.clients))
         for client in self.clients:
-            client.rate = rate
+            client.rate = min(rate, client.max_rate)

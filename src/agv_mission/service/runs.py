@@ -13,11 +13,15 @@ import contextlib
 import json
 import multiprocessing
 import os
+import pickle
 import secrets
 import signal
+import socket
+import struct
 import threading
 import uuid
 from collections import OrderedDict, deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, Listener
 from pathlib import Path
@@ -37,9 +41,11 @@ WORKER_PRELOAD = [
 ]
 PROGRESS_SAVE_PERIOD = 2.0  # seconds between progress writes to the registry per run
 STOP_GRACE = 20.0  # seconds running missions get to write their results on shutdown
-FINISHED_HUBS = 64
-READ_BATCH = 50  # worker messages handled per wake-up of the event loop
-LIVE_NICE = 5  # the service's own CPU priority below its missions' (nice increment)  # finished runs whose stream stays in memory for late clients
+FINISHED_HUBS = 64  # finished runs whose stream stays in memory for late clients
+RESULT_CACHE = 256  # result.json contents kept in memory
+READ_BATCH = 50  # worker messages handled before HTTP requests get their turn
+LINK_BUFFER = 1 << 20  # bytes a worker link buffers (a map message is a few hundred kB)
+LIVE_NICE = 5  # the service's own CPU priority below its missions' (nice increment)
 
 
 class QueueFull(Exception):
@@ -53,7 +59,8 @@ class NotActive(Exception):
 @dataclass
 class ActiveRun:
     run_id: str
-    conn: Connection | None = None
+    link: WorkerLink | None = None
+    pump: asyncio.Task | None = None
     process: Any = None  # multiprocessing.Process, or a Ray ObjectRef
     status: str = "running"
     progress: dict[str, Any] = field(default_factory=dict)
@@ -61,6 +68,42 @@ class ActiveRun:
     ended: bool = False
     saved_at: float = 0.0
     pending: list[tuple[Any, ...]] = field(default_factory=list)  # commands before connect
+
+
+class WorkerLink:
+    """The service's end of a worker's connection, on the event loop: multiprocessing's
+    frames (a 4-byte length, or -1 and an 8-byte one, then a pickle) read from an asyncio
+    stream, so a frame half written never blocks the loop, and commands written without
+    waiting. The worker keeps a plain :class:`Connection`."""
+
+    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self.reader = reader
+        self.writer = writer
+
+    @classmethod
+    async def of(cls, conn: Connection) -> WorkerLink:
+        fd = os.dup(conn.fileno())
+        conn.close()
+        reader, writer = await asyncio.open_connection(
+            sock=socket.socket(fileno=fd), limit=LINK_BUFFER
+        )
+        return cls(reader, writer)
+
+    async def recv(self) -> tuple[Any, ...]:
+        (size,) = struct.unpack("!i", await self.reader.readexactly(4))
+        if size == -1:
+            (size,) = struct.unpack("!Q", await self.reader.readexactly(8))
+        return pickle.loads(await self.reader.readexactly(size))
+
+    def send(self, item: tuple[Any, ...]) -> None:
+        if self.writer.is_closing():
+            return
+        data = pickle.dumps(item)
+        self.writer.write(struct.pack("!i", len(data)) + data)
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self.writer.close()
 
 
 def _pool_context() -> Any:
@@ -96,6 +139,9 @@ class RunManager:
         self._listener: Listener | None = None
         self._ray: Any = None
         self._idle = asyncio.Event()
+        self.results = ResultCache(registry)
+        self._tasks: set[asyncio.Task] = set()
+        self._starter = ThreadPoolExecutor(max_workers=1, thread_name_prefix="start-worker")
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -170,6 +216,7 @@ class RunManager:
         for run in list(self.active.values()):
             self._kill(run)
             self._finish(run, "aborted", "the service stopped before the run could end", None)
+            self._detach(run)
         if self._listener is not None:
             with contextlib.suppress(OSError):
                 self._listener.close()
@@ -183,12 +230,14 @@ class RunManager:
         if len(self.queue) >= self.queue_size:
             raise QueueFull(f"the queue holds {self.queue_size} runs; try again later")
 
-    def submit(self, submission: Submission) -> dict[str, Any]:
+    async def submit(self, submission: Submission) -> dict[str, Any]:
+        """Queue a run; answer once its row is on disk (a 201 is never lost by a crash)."""
         self.check_room()
-        run = self.registry.add(submission)
+        run, stored = self.registry.add(submission)
         self.queue.append(run["id"])
         self.hubs[run["id"]] = Hub()
         self._schedule()
+        await asyncio.wrap_future(stored)
         return run  # as accepted: queued (it may have started since)
 
     def _schedule(self) -> None:
@@ -222,48 +271,63 @@ class RunManager:
             future.add_done_callback(lambda f, r=run: self._ray_done(r, f))
             return
         parent, child = self._ctx.Pipe(duplex=True)
-        process = self._ctx.Process(
+        run.process = self._ctx.Process(
             target=worker_main, args=(job, child), name=f"agv-run-{run_id}", daemon=False
         )
-        process.start()
-        child.close()
-        run.process = process
-        self._attach(run_id, parent)
+        self._spawn(self._start_process(run, parent, child))
+
+    async def _start_process(self, run: ActiveRun, parent: Connection, child: Connection) -> None:
+        """Start a local worker off the event loop: the fork server answers in a few
+        hundred milliseconds on a busy machine, and requests must not wait for that."""
         assert self.loop is not None
+        process = run.process
+        try:
+            await self.loop.run_in_executor(self._starter, process.start)
+        except Exception as exc:  # the backend refused: this run, not the service
+            parent.close()
+            self._finish(run, "error", f"could not start a worker: {exc}", None)
+            return
+        finally:
+            child.close()
+        self._attach(run.run_id, parent)
         self.loop.add_reader(process.sentinel, self._exited, run)
-        self.registry.update(run_id, worker_pid=process.pid)
+        self.registry.update(run.run_id, worker_pid=process.pid)
 
     def _attach(self, run_id: str, conn: Connection) -> None:
         run = self.active.get(run_id)
         if run is None or run.ended:
             conn.close()
             return
-        run.conn = conn
         assert self.loop is not None
-        self.loop.add_reader(conn.fileno(), self._readable, run)
-        for command in run.pending:
-            self._send(run, command)
-        run.pending.clear()
+        run.pump = self.loop.create_task(self._pump(run, conn), name=f"pump-{run_id}")
 
     # ------------------------------------------------------------------ worker -> service
 
-    def _readable(self, run: ActiveRun, limit: int = READ_BATCH) -> None:
-        conn = run.conn
-        if conn is None:
-            return
+    async def _pump(self, run: ActiveRun, conn: Connection) -> None:
+        """Read the worker's messages as they come, never blocking the event loop on a
+        message only half arrived; yield to HTTP requests every :data:`READ_BATCH`."""
+        link = await WorkerLink.of(conn)
+        run.link = link
+        for command in run.pending:
+            link.send(command)
+        run.pending.clear()
         try:
-            for _ in range(limit):  # then let HTTP requests in; the reader fires again
-                if not conn.poll(0):
-                    break
-                self._handle(run, conn.recv())
-                if run.conn is None:
-                    return
-        except (EOFError, OSError):
-            self._detach(run)
-            if self.backend == "local" and run.process is not None:
-                return  # the sentinel says how the process ended
-            if not run.ended:
-                self._finish(run, "error", "the worker's connection closed unexpectedly", None)
+            while True:
+                for _ in range(READ_BATCH):
+                    self._handle(run, await link.recv())
+                await asyncio.sleep(0)
+        except (asyncio.IncompleteReadError, ConnectionError, OSError, EOFError):
+            pass
+        if self.backend == "local" and run.process is not None:
+            return  # the process's sentinel says how it ended
+        if not run.ended:
+            self._finish(run, "error", "the worker's connection closed unexpectedly", None)
+
+    async def _drained(self, run: ActiveRun, timeout: float = 5.0) -> None:
+        """Wait until everything the worker said is handled (its connection closed)."""
+        if run.pump is not None:
+            with contextlib.suppress(asyncio.TimeoutError, Exception):
+                await asyncio.wait_for(asyncio.shield(run.pump), timeout)
 
     def _handle(self, run: ActiveRun, item: tuple[Any, ...]) -> None:
         kind = item[0]
@@ -287,12 +351,22 @@ class RunManager:
         elif kind == "end":
             self._finish(run, item[1], item[2], item[3])
 
+    def _spawn(self, coro: Any) -> None:
+        """A background task, referenced until it ends (the loop keeps weak references)."""
+        assert self.loop is not None
+        task = self.loop.create_task(coro)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
     def _exited(self, run: ActiveRun) -> None:
         """A local worker process ended: read what it still said, then judge."""
         assert self.loop is not None
+        self.loop.remove_reader(run.process.sentinel)
+        self._spawn(self._judge_exit(run))
+
+    async def _judge_exit(self, run: ActiveRun) -> None:
         process = run.process
-        self.loop.remove_reader(process.sentinel)
-        self._readable(run, limit=1 << 30)  # everything it said before it ended
+        await self._drained(run)  # everything it said before it ended
         process.join(timeout=5)
         if not run.ended:
             code = process.exitcode
@@ -309,13 +383,12 @@ class RunManager:
     def _ray_done(self, run: ActiveRun, future: asyncio.Future) -> None:
         if run.ended:
             return
-        # let the connection drain first: its end message may still be in flight
         assert self.loop is not None
-        self.loop.call_later(0.5, self._ray_judge, run, future)
+        self._spawn(self._ray_judge(run, future))
 
-    def _ray_judge(self, run: ActiveRun, future: asyncio.Future) -> None:
-        if run.conn is not None:
-            self._readable(run, limit=1 << 30)
+    async def _ray_judge(self, run: ActiveRun, future: asyncio.Future) -> None:
+        await asyncio.sleep(0.5)  # the connection back may still be on its way in
+        await self._drained(run)
         if not run.ended:
             exc = future.exception()
             reason = (
@@ -325,13 +398,11 @@ class RunManager:
         self._detach(run)
 
     def _detach(self, run: ActiveRun) -> None:
-        if run.conn is not None:
-            assert self.loop is not None
-            with contextlib.suppress(Exception):
-                self.loop.remove_reader(run.conn.fileno())
-            with contextlib.suppress(Exception):
-                run.conn.close()
-            run.conn = None
+        if run.link is not None:
+            run.link.close()
+            run.link = None
+        if run.pump is not None and not run.pump.done():
+            run.pump.cancel()
 
     def _finish(
         self, run: ActiveRun, status: str, reason: str | None, result: dict[str, Any] | None
@@ -339,6 +410,8 @@ class RunManager:
         if run.ended:
             return
         run.ended = True
+        if result is not None:
+            self.results.put(run.run_id, result)
         fields: dict[str, Any] = {}
         if run.progress:
             fields["progress"] = run.progress
@@ -366,21 +439,15 @@ class RunManager:
     # ------------------------------------------------------------------ service -> worker
 
     def _send(self, run: ActiveRun, command: tuple[Any, ...]) -> None:
-        if run.conn is None:
+        if run.link is None:
             run.pending.append(command)
             return
-        with contextlib.suppress(OSError, EOFError):  # the sentinel reports the worker's end
-            run.conn.send(command)
-
-    def status_of(self, run_id: str) -> str | None:
-        if run_id in self.active:
-            return self.active[run_id].status
-        run = self.registry.get(run_id)
-        return None if run is None else run["status"]
+        run.link.send(command)  # never waits; a dead worker is judged by its sentinel
 
     def cancel(self, run_id: str) -> None:
         if run_id in self.queue:
             self.queue.remove(run_id)
+            self.registry.forget_submission(run_id)
             reason = "cancelled before it started"
             self.registry.set_status(run_id, "aborted", reason)
             self._hub(run_id).finish(self._end_text("aborted", reason, None))
@@ -438,26 +505,24 @@ class RunManager:
             hub = self.hubs[run_id] = Hub()
         return hub
 
-    def hub_for(self, run_id: str, run: dict[str, Any]) -> Hub:
+    async def hub_for(self, run_id: str, run: dict[str, Any]) -> Hub:
         """The live hub of a run; for a finished run no longer in memory, one rebuilt from
-        its ``stream.jsonl`` so that a late client still gets the snapshot and the end."""
+        its ``stream.jsonl`` (read off the event loop) so that a late client still gets the
+        snapshot and the end."""
         hub = self.hubs.get(run_id)
         if hub is not None:
             self.hubs.move_to_end(run_id)
             return hub
+        run_dir = self.registry.run_dir(run_id)
+        latest = await asyncio.to_thread(_snapshot_of, run_dir / STREAM_FILE)
+        hub = self.hubs.get(run_id)  # another client may have rebuilt it meanwhile
+        if hub is not None:
+            return hub
         hub = Hub()
-        path = self.registry.run_dir(run_id) / STREAM_FILE
-        if path.is_file():
-            with open(path, encoding="utf-8") as f:
-                for line in f:
-                    with contextlib.suppress(ValueError):
-                        kind = json.loads(line).get("type")
-                        if kind in SNAPSHOT_ORDER:
-                            hub.latest[kind] = line.rstrip("\n")
+        hub.latest.update(latest)
         if run["status"] in FINAL:
-            hub.end = self._end_text(
-                run["status"], run["reason"], read_result(self.registry.run_dir(run_id))
-            )
+            result = await self.results.get(run_id)
+            hub.end = self._end_text(run["status"], run["reason"], result)
         self.hubs[run_id] = hub
         self._retire_hubs()
         return hub
@@ -482,6 +547,42 @@ def read_result(run_dir: Path) -> dict[str, Any] | None:
         return json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
+
+
+def _snapshot_of(path: Path) -> dict[str, str]:
+    """The latest message of each snapshot kind in a finished run's ``stream.jsonl``."""
+    latest: dict[str, str] = {}
+    if path.is_file():
+        with open(path, encoding="utf-8") as f:
+            for line in f:
+                with contextlib.suppress(ValueError):
+                    kind = json.loads(line).get("type")
+                    if kind in SNAPSHOT_ORDER:
+                        latest[kind] = line.rstrip("\n")
+    return latest
+
+
+class ResultCache:
+    """``result.json`` of finished runs, read once off the event loop and kept (LRU)."""
+
+    def __init__(self, registry: Registry, size: int = RESULT_CACHE) -> None:
+        self.registry = registry
+        self.size = size
+        self._results: OrderedDict[str, dict[str, Any] | None] = OrderedDict()
+
+    async def get(self, run_id: str) -> dict[str, Any] | None:
+        if run_id in self._results:
+            self._results.move_to_end(run_id)
+            return self._results[run_id]
+        result = await asyncio.to_thread(read_result, self.registry.run_dir(run_id))
+        self.put(run_id, result)
+        return result
+
+    def put(self, run_id: str, result: dict[str, Any] | None) -> None:
+        self._results[run_id] = result
+        self._results.move_to_end(run_id)
+        while len(self._results) > self.size:
+            self._results.popitem(last=False)
 
 
 def ray_entry(job: dict[str, Any], address: Any, authkey: bytes) -> None:

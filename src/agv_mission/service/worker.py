@@ -17,8 +17,10 @@ from __future__ import annotations
 import contextlib
 import math
 import signal
+import threading
 import time
 import traceback
+from collections import deque
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any, TextIO
@@ -29,6 +31,7 @@ from agv_mission.service import messages as msg
 
 STREAM_FILE = "stream.jsonl"
 REMOTE_TIMEOUT = 0.5  # wall seconds without cmd_vel before a teleop robot stops
+LIVE_STATE_SPACING = 0.2  # sim seconds between live states: the contract's 5 per sim second
 PROGRESS_PERIOD = 0.25  # wall seconds between progress reports
 LIVE_SCAN_PERIOD = 0.2  # wall seconds between live scans (thinned; every scan is costly)
 LIVE_HORIZON_PERIOD = 0.2
@@ -37,8 +40,74 @@ FILE_THIN_PERIOD = 0.5  # sim seconds between scans/particles/horizons in stream
 MAP_PERIOD = 1.0  # wall seconds between map messages while SLAM grows the map
 
 
+COALESCED = frozenset({"state", "scan", "particles", "horizon"})  # latest wins while queued
+
+
 class ServiceGone(Exception):
     """The service's end of the connection closed."""
+
+
+class Outbox:
+    """Sends to the service from a thread of its own, so the mission never waits for it.
+
+    When the service reads slowly (a busy event loop, a full socket buffer), a frequent
+    message (state, scan, particles, horizon) still queued is replaced in place by the
+    newer one of its kind; other messages keep their order and are all delivered.
+    """
+
+    def __init__(self, conn: Connection) -> None:
+        self.conn = conn
+        self.closed = False
+        self._queue: deque[list[Any]] = deque()
+        self._slots: dict[str, list[Any]] = {}  # kind -> its queued, unsent slot
+        self._cond = threading.Condition()
+        self._stop = False
+        self.coalesced = 0
+        self._thread = threading.Thread(target=self._pump, name="outbox", daemon=True)
+        self._thread.start()
+
+    def put(self, item: tuple[Any, ...]) -> None:
+        with self._cond:
+            if self.closed or self._stop:
+                return
+            kind = item[1] if item[0] == "msg" and item[1] in COALESCED else None
+            slot = self._slots.get(kind) if kind is not None else None
+            if slot is not None:
+                slot[0] = item
+                self.coalesced += 1
+                return
+            slot = [item]
+            self._queue.append(slot)
+            if kind is not None:
+                self._slots[kind] = slot
+            self._cond.notify()
+
+    def _pump(self) -> None:
+        while True:
+            with self._cond:
+                while not self._queue and not self._stop:
+                    self._cond.wait()
+                if not self._queue:
+                    return
+                slot = self._queue.popleft()
+                item = slot[0]
+                if item[0] == "msg" and self._slots.get(item[1]) is slot:
+                    del self._slots[item[1]]
+            try:
+                self.conn.send(item)
+            except (OSError, EOFError, BrokenPipeError, ValueError):
+                with self._cond:
+                    self.closed = True
+                    self._queue.clear()
+                    self._slots.clear()
+                return
+
+    def close(self, timeout: float = 30.0) -> None:
+        """Deliver everything queued, then stop the thread."""
+        with self._cond:
+            self._stop = True
+            self._cond.notify()
+        self._thread.join(timeout)
 
 
 class StreamObserver:
@@ -47,6 +116,7 @@ class StreamObserver:
 
     def __init__(self, conn: Connection, run_dir: Path | None) -> None:
         self.conn = conn
+        self.outbox = Outbox(conn)
         self.file: TextIO | None = (
             open(run_dir / STREAM_FILE, "w", encoding="utf-8")  # noqa: SIM115
             if run_dir is not None
@@ -61,7 +131,9 @@ class StreamObserver:
         self._file_due: dict[str, float] = {}
         self._last_map = -math.inf
         self._goal: dict[str, float] | None = None
+        self._last_live_state = -math.inf
         self.sim_time = 0.0
+        self.cpu0 = time.process_time()  # the worker's CPU seconds are reported from here
         self.closed = False
 
     # ---------------------------------------------------------------- sending
@@ -74,12 +146,13 @@ class StreamObserver:
             self.send(("msg", message["type"], text, message.get("t")))
 
     def send(self, item: tuple[Any, ...]) -> None:
-        if self.closed:
+        if self.closed or self.outbox.closed:
             return
-        try:
-            self.conn.send(item)
-        except (OSError, EOFError, BrokenPipeError):
-            self.closed = True
+        self.outbox.put(item)
+
+    def flush(self) -> None:
+        """Deliver what is queued and stop sending from the thread (the run is over)."""
+        self.outbox.close()
 
     def _due(self, table: dict[str, float], key: str, now: float, period: float) -> bool:
         if now >= table.get(key, -math.inf):
@@ -122,7 +195,10 @@ class StreamObserver:
             self._goal = goal
             self.emit({"type": "goal", "t": round(s.t, 3), "pose": goal})
         self._thinned(s, wall)
-        self.emit(self.state(s))
+        live = s.t >= self._last_live_state + LIVE_STATE_SPACING - 1e-6
+        if live:
+            self._last_live_state = s.t
+        self.emit(self.state(s), live=live)
         if wall - self.last_progress >= PROGRESS_PERIOD:
             self.last_progress = wall
             self.send(("progress", self.progress()))
@@ -165,6 +241,7 @@ class StreamObserver:
             "task_index": task.get("index"),
             "task_type": task.get("type"),
             "detail": msg.detail_of(self.nodes),
+            "cpu_time": round(time.process_time() - self.cpu0, 3),
         }
 
     def state(self, s: StepSample) -> dict[str, Any]:
@@ -340,8 +417,9 @@ def _run(job: dict[str, Any], conn: Connection) -> None:
         stream.emit(end, live=False)
     finally:
         stream.close()
-    stream.send(("progress", stream.progress()))
-    stream.send(("end", record.status, record.reason, _jsonable(result)))
+        stream.send(("progress", stream.progress()))
+        stream.flush()
+    conn.send(("end", record.status, record.reason, _jsonable(result)))
 
 
 def _jsonable(result: dict[str, Any]) -> dict[str, Any]:

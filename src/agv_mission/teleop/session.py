@@ -50,9 +50,10 @@ from agv_mission.maps.recorder import (
 )
 from agv_mission.maps.rooms import room_at
 from agv_mission.missions.loader import LoadedMission, load_mission
+from agv_mission.missions.outputs import make_run_dir, write_trajectory
 from agv_mission.missions.runner import MissionRun, run_mission
 from agv_mission.missions.schema import MAX_SIM_SECONDS, Mission
-from agv_mission.missions.stack import CONTROL_PERIOD
+from agv_mission.missions.stack import CONTROL_PERIOD, open_recorders
 from agv_mission.teleop.terminal import (
     HELP,
     KeyInput,
@@ -340,10 +341,45 @@ def check_recorder_file(path: Path) -> None:
     load_entries(path)
 
 
+def open_session(
+    loaded: LoadedMission,
+    output: Path | None,
+    recorder: Path | None,
+    append: Path | None,
+) -> tuple[Path | None, list[LocationRecorder]]:
+    """The session's run directory (none when recording straight into ``recorder``) and
+    its recorders. Raises :class:`~agv_mission.maps.recorder.RecorderFileError` for a
+    recorder file that cannot be read or would be replaced, before anything is created."""
+    if recorder is not None:
+        return None, open_recorders(loaded, None, recorder, append)
+    if append is not None:
+        check_recorder_file(append)
+    root = output if output is not None else Path(loaded.mission.output)
+    name = loaded.name if loaded.name == "teleop" else f"{loaded.name}-teleop"
+    run_dir = make_run_dir(root, name)
+    return run_dir, open_recorders(loaded, run_dir, None, append)
+
+
+def session_report(
+    result: TeleopResult, recorders: list[LocationRecorder], run_dir: Path | None
+) -> list[str]:
+    """What the session left behind, a line each: how it ended, files and run directory."""
+    lines = [f"teleop ended ({result.reason}) after {result.sim_time:.1f} sim s"]
+    saved = [r for r in recorders if len(r) and r.path.exists()]
+    for rec in saved:
+        n = len(rec)
+        lines.append(
+            f"recorder file: {rec.path} ({n} entr{'y' if n == 1 else 'ies'}: {', '.join(rec.labels)})"
+        )
+    if not saved:
+        lines.append("nothing recorded; no recorder file written")
+    if run_dir is not None:
+        lines.append(f"run directory: {run_dir}")
+    return lines
+
+
 def write_teleop_outputs(run_dir: Path, loaded: LoadedMission, result: TeleopResult) -> None:
     """``mission.yaml`` (without tasks) and ``trajectory.csv`` of the session."""
-    from agv_mission.missions.outputs import write_trajectory
-
     doc = loaded.resolved()
     doc.pop("tasks", None)
     doc["teleop"] = {"reason": result.reason, "sim_time": result.sim_time}

@@ -65,10 +65,12 @@ const AGV = (() => {
     }
   }
 
-  function wsUrl(path) {
+  function wsUrl(path, params) {
     const proto = location.protocol === "https:" ? "wss:" : "ws:";
-    const q = token() ? `?token=${encodeURIComponent(token())}` : "";
-    return `${proto}//${location.host}${path}${q}`;
+    const q = new URLSearchParams(params || {});
+    if (token()) q.set("token", token());
+    const qs = q.toString();
+    return `${proto}//${location.host}${path}${qs ? "?" + qs : ""}`;
   }
 
   function esc(value) {

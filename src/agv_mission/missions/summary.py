@@ -1,0 +1,39 @@
+"""A finished run's result document in words: one row a task and one line of metrics.
+
+Light on purpose (no numpy, no simulator): ``agv-mission submit`` prints a service's
+result with it too.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+def task_rows(result: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """``(task, status, detail)`` a task: waypoints or rooms reached, and the reason."""
+    rows = []
+    for task in result["tasks"]:
+        detail = task.get("reason") or ""
+        if "waypoints" in task:
+            reached = sum(w["status"] == "reached" for w in task["waypoints"])
+            planned = task.get("waypoints_planned", len(task["waypoints"]))
+            detail = f"{reached}/{planned} waypoints reached " + detail
+        if "rooms" in task:
+            reached = sum(r["status"] == "reached" for r in task["rooms"])
+            recorded = sum(bool(r.get("recorded")) for r in task["rooms"])
+            detail = f"{reached}/{len(task['rooms'])} rooms reached, {recorded} recorded " + detail
+        rows.append((f"{task['index']}. {task['type']}", task["status"], detail))
+    return rows
+
+
+def metrics_line(result: dict[str, Any]) -> str:
+    """Time, speed, distance, collisions, clearance and localisation error in one line."""
+    m = result["metrics"]
+    loc = m["localization"]
+    return (
+        f"sim {result['sim_time']:.1f} s in {result['wall_time']:.1f} s wall "
+        f"({m['real_time_factor']}x real time), driven {m['distance_driven']:.2f} m, "
+        f"collisions {m['collisions']}, min clearance {m['min_clearance']} m, "
+        "position RMSE "
+        + (f"{loc['position_rmse']:.3f} m" if loc["position_rmse"] is not None else "n/a")
+    )

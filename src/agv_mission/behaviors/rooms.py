@@ -43,14 +43,7 @@ class RecordRoom(py_trees.behaviour.Behaviour):
         except OSError as exc:
             self.feedback_message = f"cannot write the recorder file: {exc}"
             return Status.FAILURE
-        self.handle.log(
-            "room_recorded",
-            room=self.label,
-            x=round(pose.x, 4),
-            y=round(pose.y, 4),
-            yaw=round(pose.yaw, 4),
-            **self.log_details,
-        )
+        self.handle.log_recorded(self.label, pose, **self.log_details)
         return Status.SUCCESS
 
 

@@ -45,3 +45,15 @@ class RobotHandle:
     def log(self, event: str, **details: Any) -> None:
         """Record something that happened, stamped with simulated time."""
         self.events.append({"t": round(self.state.time, 3), "event": event, **details})
+
+    def log_recorded(self, label: str, pose: Pose2D, **details: Any) -> None:
+        """The ``room_recorded`` event every way of recording a room logs (the run's
+        report and the live stream read it)."""
+        self.log(
+            "room_recorded",
+            room=label,
+            x=round(pose.x, 4),
+            y=round(pose.y, 4),
+            yaw=round(pose.yaw, 4),
+            **details,
+        )

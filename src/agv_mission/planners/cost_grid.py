@@ -41,7 +41,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
-from agv_mission.planners.base import PlannedPath, PlanningError
+from agv_mission.planners.base import PlannedPath
 from agv_mission.planners.configs import CostGridConfig
 from agv_mission.planners.grid_astar import _MOVES_8, _MOVES_16, EDGE_EPS, FreeSpace
 
@@ -429,15 +429,7 @@ class CostGridPlanner:
         space = FreeSpace(costmap, cfg.clearance)
         s = space.check_endpoint(start, "start")
         g = space.check_endpoint(goal, "goal")
-        pts = self.local_path(space, s, g, prior)
-        if pts is None:
-            raise PlanningError(
-                f"no path from ({start.x:.2f}, {start.y:.2f}) to ({goal.x:.2f}, {goal.y:.2f}): "
-                "they are not connected by free space"
-            )
-        points = space.to_world(pts)
-        points[0], points[-1] = start.xy, goal.xy
-        return PlannedPath(points=points, planning_time=time.perf_counter() - t0)
+        return space.planned_path(self.local_path(space, s, g, prior), start, goal, t0)
 
     def local_path(
         self,

@@ -78,6 +78,20 @@ class FreeSpace:
         dx, dy = x - self.ox, y - self.oy
         return self.cos * dx + self.sin * dy, -self.sin * dx + self.cos * dy
 
+    def planned_path(
+        self, pts: np.ndarray | None, start: Pose2D, goal: Pose2D, t0: float
+    ) -> PlannedPath:
+        """A grid search's cells as the path from ``start`` to ``goal`` (exact end points,
+        timed from ``t0``); ``pts`` None means the search found no way."""
+        if pts is None:
+            raise PlanningError(
+                f"no path from ({start.x:.2f}, {start.y:.2f}) to ({goal.x:.2f}, {goal.y:.2f}): "
+                "they are not connected by free space"
+            )
+        points = self.to_world(pts)
+        points[0], points[-1] = start.xy, goal.xy
+        return PlannedPath(points=points, planning_time=time.perf_counter() - t0)
+
     def to_world(self, pts: np.ndarray) -> np.ndarray:
         px, py = pts[:, 0], pts[:, 1]
         x = self.ox + self.cos * px - self.sin * py
@@ -306,11 +320,4 @@ class GridAstarPlanner:
         s = space.check_endpoint(start, "start")
         g = space.check_endpoint(goal, "goal")
         pts = grid_path(space, s, g, cfg.cost_weight, cfg.smooth, cfg.connectivity)
-        if pts is None:
-            raise PlanningError(
-                f"no path from ({start.x:.2f}, {start.y:.2f}) to ({goal.x:.2f}, {goal.y:.2f}): "
-                "they are not connected by free space"
-            )
-        points = space.to_world(pts)
-        points[0], points[-1] = start.xy, goal.xy
-        return PlannedPath(points=points, planning_time=time.perf_counter() - t0)
+        return space.planned_path(pts, start, goal, t0)

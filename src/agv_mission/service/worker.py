@@ -335,14 +335,7 @@ class PipeControl:
         except (OSError, ValueError) as exc:
             self.stream.send(("reply", request_id, 500, {"detail": f"not recorded: {exc}"}))
             return
-        handle.log(
-            "room_recorded",
-            room=label,
-            x=round(pose.x, 4),
-            y=round(pose.y, 4),
-            yaw=round(pose.yaw, 4),
-            source="service",
-        )
+        handle.log_recorded(label, pose, source="service")
         body = {"confirmation": "Entry saved in file", "label": label, "pose": msg.pose(pose)}
         self.stream.send(("reply", request_id, 200, body))
 

@@ -307,14 +307,7 @@ class KeyboardControl:
             assert self.run is not None
             handle = self.run.handle
             handle.recorded[label] = pose
-            handle.log(
-                "room_recorded",
-                room=label,
-                x=round(pose.x, 4),
-                y=round(pose.y, 4),
-                yaw=round(pose.yaw, 4),
-                source="keyboard",
-            )
+            handle.log_recorded(label, pose, source="keyboard")
         text = "\n".join(failed)
         if not written:
             screen.message(text)

@@ -168,17 +168,7 @@ class MapArea(py_trees.behaviour.Behaviour):
         costmap = self.mapping.costmap
         assert costmap is not None
         est = state.estimate
-        frontiers = find_frontiers(
-            costmap.grid,
-            bounds=self.bounds,
-            robot=(est.x, est.y),
-            robot_radius=costmap.robot_radius,
-            clearance=self.clearance,
-            min_size=self.min_frontier_size,
-            goal_margin=self.GOAL_MARGIN,
-            blacklist=self._blacklist(costmap.grid),
-            blacklist_radius=self.BLACKLIST_RADIUS,
-        )
+        frontiers = self._frontiers(costmap, est, self.bounds)
         unseen = self.bounds is not None and self.mapping.known_fraction() < self.UNSEEN
         if not frontiers and unseen:
             towards = self._frontier_towards_bounds(costmap, est)
@@ -208,14 +198,11 @@ class MapArea(py_trees.behaviour.Behaviour):
         )
         return None
 
-    def _frontier_towards_bounds(self, costmap: Costmap, est: Pose2D) -> Frontier | None:
-        """The reachable frontier (anywhere) nearest to bounds not seen yet: driving there
-        brings them into sight."""
-        assert self.bounds is not None
-        xmin, xmax, ymin, ymax = self.bounds
-        everywhere = find_frontiers(
+    def _frontiers(self, costmap: Costmap, est: Pose2D, bounds: Bounds | None) -> list[Frontier]:
+        """Reachable frontiers within ``bounds`` (None: anywhere), nearest first."""
+        return find_frontiers(
             costmap.grid,
-            bounds=None,
+            bounds=bounds,
             robot=(est.x, est.y),
             robot_radius=costmap.robot_radius,
             clearance=self.clearance,
@@ -224,6 +211,13 @@ class MapArea(py_trees.behaviour.Behaviour):
             blacklist=self._blacklist(costmap.grid),
             blacklist_radius=self.BLACKLIST_RADIUS,
         )
+
+    def _frontier_towards_bounds(self, costmap: Costmap, est: Pose2D) -> Frontier | None:
+        """The reachable frontier (anywhere) nearest to bounds not seen yet: driving there
+        brings them into sight."""
+        assert self.bounds is not None
+        xmin, xmax, ymin, ymax = self.bounds
+        everywhere = self._frontiers(costmap, est, None)
 
         def gap(f: Frontier) -> float:
             cx, cy = f.centroid

@@ -16,6 +16,7 @@ import importlib.util
 import json
 import math
 import re
+from collections.abc import Callable
 from contextlib import asynccontextmanager
 from importlib import metadata
 from pathlib import Path
@@ -231,34 +232,30 @@ def create_app(settings: Settings) -> FastAPI:
     async def one_run(run_id: str) -> dict[str, Any]:
         return await run_object(await get_run(run_id))
 
+    def control(run_id: str, act: Callable[[str], None], status: str) -> dict[str, Any]:
+        """Ask the run's worker to act; 409 when the run is not in a state to."""
+        try:
+            act(run_id)
+        except NotActive as exc:
+            raise ApiError(409, str(exc)) from None
+        return {"id": run_id, "status": status}
+
     @app.post("/api/runs/{run_id}/cancel", status_code=202)
     async def cancel(run_id: str) -> dict[str, Any]:
         run = await get_run(run_id)
         if run["status"] in FINAL:
             raise ApiError(409, f"the run is already {run['status']}")
-        try:
-            manager.cancel(run_id)
-        except NotActive as exc:
-            raise ApiError(409, str(exc)) from None
-        return {"id": run_id, "status": "cancelling"}
+        return control(run_id, manager.cancel, "cancelling")
 
     @app.post("/api/runs/{run_id}/pause", status_code=202)
     async def pause(run_id: str) -> dict[str, Any]:
         await get_run(run_id)
-        try:
-            manager.pause(run_id)
-        except NotActive as exc:
-            raise ApiError(409, str(exc)) from None
-        return {"id": run_id, "status": "paused"}
+        return control(run_id, manager.pause, "paused")
 
     @app.post("/api/runs/{run_id}/resume", status_code=202)
     async def resume(run_id: str) -> dict[str, Any]:
         await get_run(run_id)
-        try:
-            manager.resume(run_id)
-        except NotActive as exc:
-            raise ApiError(409, str(exc)) from None
-        return {"id": run_id, "status": "running"}
+        return control(run_id, manager.resume, "running")
 
     @app.post("/api/runs/{run_id}/goal", status_code=202)
     async def goal(run_id: str, request: Request) -> dict[str, Any]:

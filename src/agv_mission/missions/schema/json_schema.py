@@ -1,0 +1,39 @@
+"""The JSON Schema of a mission file: pydantic's, with the loader's defaults spelled out."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from agv_mission.missions.schema.mission import Mission
+from agv_mission.missions.schema.stack import DEFAULT_PLUGINS
+
+JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
+
+
+def mission_json_schema() -> dict[str, Any]:
+    """The JSON Schema of a mission file (what ``agv-mission schema`` prints).
+
+    A stack block without ``type`` is the slot's default plugin, as the loader reads it.
+    """
+    schema = Mission.model_json_schema()
+    slots = schema["$defs"]["Stack"]["properties"]
+    for slot, name in DEFAULT_PLUGINS.items():
+        union = slots[slot]
+        mapping = union.get("discriminator", {}).get("mapping", {})
+        if name not in mapping:
+            continue
+        slots[slot] = {
+            "title": union.get("title", slot),
+            "description": f"a plugin chosen by `type`; without one: {name}, or the one "
+            "plugin whose options the block uses",
+            "if": {"type": "object", "not": {"required": ["type"]}},
+            "then": {"anyOf": [{"$ref": ref} for ref in mapping.values()]},
+            "else": {k: v for k, v in union.items() if k != "title"},
+        }
+    # ``output: runs`` is the contract's spelling of ``output: {dir: runs}``
+    output = schema["properties"]["output"]
+    schema["properties"]["output"] = {
+        "description": output["description"],
+        "anyOf": [{"type": "string"}, {"$ref": output["$ref"]}],
+    }
+    return {"$schema": JSON_SCHEMA_DIALECT, **schema}

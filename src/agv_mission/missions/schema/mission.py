@@ -1,0 +1,136 @@
+"""A whole mission file: :class:`Setup` (world, robot, start, stack, simulation) and
+:class:`Mission` (a setup and its tasks), and the order a resolved mission is written in."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import Field, field_validator, model_validator
+
+from agv_mission.missions.expectations import Expectations
+from agv_mission.missions.schema.base import (
+    MAX_FAULTS,
+    MAX_NAME_LENGTH,
+    MAX_OBSTACLES,
+    MAX_SIM_SECONDS,
+    MAX_TASKS,
+    StartSpec,
+    StrictModel,
+)
+from agv_mission.missions.schema.disturbances import Fault, Obstacle
+from agv_mission.missions.schema.stack import Stack
+from agv_mission.missions.schema.tasks import Task
+from agv_mission.robots.sim_config import SimConfig
+
+
+class Limits(StrictModel):
+    time: float = Field(
+        600.0, gt=0.0, le=MAX_SIM_SECONDS, description="simulated seconds for the whole mission"
+    )
+    collisions: int = Field(0, ge=0, description="collisions allowed before the mission fails")
+
+
+class OutputConfig(StrictModel):
+    """Where a run directory goes and what it holds beyond the contract's minimum.
+
+    ``output: runs`` (the contract's spelling) is short for ``output: {dir: runs}``. The
+    model is path-like (``Path(mission.output)`` is the directory), so code that took
+    ``output`` as a string keeps working.
+    """
+
+    dir: str = Field("runs", description="root of run directories")
+    bag: bool = Field(True, description="write bag/ (a ROS 2 bag of the run) in the run directory")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _from_string(cls, v: Any) -> Any:
+        return {"dir": v} if isinstance(v, str) else v
+
+    def __fspath__(self) -> str:
+        return self.dir
+
+    def __str__(self) -> str:
+        return self.dir
+
+
+class Setup(StrictModel):
+    """Where and with what a robot drives: world, robot, start, stack and simulation.
+
+    The part of a mission that does not say what to do; ``teleop`` drives in one of these.
+    """
+
+    name: str | None = Field(
+        None,
+        max_length=MAX_NAME_LENGTH,
+        description="default: the file's stem",
+        json_schema_extra={"pattern": r"^[^/\\]*[^/\\\s][^/\\]*$"},
+    )
+    world: str = Field(
+        "turtlebot3_world",
+        description="a built-in world, a world file, or a ROS map_server YAML",
+    )
+    rooms: str | None = Field(None, description="rooms file; built-in worlds carry their own")
+    robot: str = Field("burger", description="burger, waffle, rosbots, or a robot file")
+    start: StartSpec | None = Field(
+        None, description="a pose or a room label; default: the world's spawn pose"
+    )
+    seed: int = Field(0, ge=0, description="every random draw of the run derives from it")
+    stack: Stack = Field(default_factory=Stack)
+    simulation: SimConfig = Field(default_factory=SimConfig)
+    limits: Limits = Field(default_factory=Limits)
+    obstacles: list[Obstacle] = Field(
+        default_factory=list,
+        max_length=MAX_OBSTACLES,
+        description="unmapped obstacles, in the simulation only",
+    )
+    faults: list[Fault] = Field(
+        default_factory=list, max_length=MAX_FAULTS, description="faults to inject"
+    )
+    recorder: str | None = Field(
+        None,
+        description="an existing location_recorder.yaml to append to (updated in place; "
+        "the run directory gets a copy)",
+    )
+    output: OutputConfig = Field(
+        default_factory=OutputConfig,
+        description="root of run directories (a string), or {dir, bag}: bag: false skips bag/",
+    )
+
+    @field_validator("name")
+    @classmethod
+    def _name_is_a_path_component(cls, v: str | None) -> str | None:
+        if v is not None and (not v.strip() or "/" in v or "\\" in v):
+            raise ValueError("name must be a non-empty string without path separators")
+        return v
+
+
+class Mission(Setup):
+    """A mission file: a setup and the tasks to carry out in it."""
+
+    tasks: list[Task] = Field(min_length=1, max_length=MAX_TASKS)
+    expect: Expectations | None = Field(
+        None,
+        description="what `agv-mission regress` checks of the run (ignored by `run`): final "
+        "and per-task status, time, collisions, clearance, localisation, map IoU, rooms, "
+        "waypoints",
+    )
+
+
+# The order a resolved mission is written in (mission.yaml): what to do after the stack.
+FIELD_ORDER = (
+    "name",
+    "world",
+    "rooms",
+    "robot",
+    "start",
+    "seed",
+    "stack",
+    "simulation",
+    "tasks",
+    "limits",
+    "obstacles",
+    "faults",
+    "recorder",
+    "output",
+    "expect",
+)

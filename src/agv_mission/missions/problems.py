@@ -4,24 +4,47 @@ and YAML's syntax errors in the words of the mission format."""
 from __future__ import annotations
 
 import copy
+from dataclasses import dataclass, field
 from typing import Any
 
 import yaml
 from pydantic import ValidationError
 
-from agv_mission.missions.errors import Problem
+from agv_mission.missions.errors import MissionError, Problem
 from agv_mission.missions.schema import Mission, Setup
 from agv_mission.missions.yaml_lines import DocumentError, FieldPath, line_of
 from agv_mission.registry import registry
 
 
+@dataclass
+class ProblemLog:
+    """The problems found in one mission document, each placed where the user can fix it:
+    at its line in ``file``, or at the ``--set``/``--seed`` that gave the value."""
+
+    file: str
+    lines: dict[FieldPath, int]
+    override_paths: dict[FieldPath, str]
+    problems: list[Problem] = field(default_factory=list)
+
+    def at(self, field_path: FieldPath, message: str) -> Problem:
+        dotted = ".".join(spell(p) for p in field_path)
+        spelled = tuple(map(str, field_path))  # --set tasks.0=... and stack.5=... alike
+        for opath, item in self.override_paths.items():
+            o = tuple(map(str, opath))
+            if spelled[: len(o)] == o or o[: len(spelled)] == spelled:
+                return Problem(self.file, None, dotted, f"{message} (from {item})")
+        return Problem(self.file, line_of(field_path, self.lines), dotted, message)
+
+    def add(self, field_path: FieldPath, message: str) -> None:
+        self.problems.append(self.at(field_path, message))
+
+    def raise_if_any(self) -> None:
+        if self.problems:
+            raise MissionError(self.problems)
+
+
 def validation_problems(
-    file: str,
-    exc: ValidationError,
-    data: Any,
-    lines: dict[FieldPath, int],
-    override_paths: dict[FieldPath, str],
-    model: type[Setup] = Mission,
+    log: ProblemLog, exc: ValidationError, data: Any, model: type[Setup] = Mission
 ) -> list[Problem]:
     problems: list[Problem] = []
     seen: set[tuple[FieldPath, str]] = set()
@@ -31,7 +54,7 @@ def validation_problems(
         if (field_path, message) in seen:
             continue
         seen.add((field_path, message))
-        problems.append(problem_at(file, field_path, message, lines, override_paths))
+        problems.append(log.at(field_path, message))
     return problems
 
 
@@ -146,22 +169,6 @@ def spell(part: Any) -> str:
     if isinstance(part, bool) or part is None:
         return yaml.safe_dump(part).splitlines()[0]
     return str(part)
-
-
-def problem_at(
-    file: str,
-    field_path: FieldPath,
-    message: str,
-    lines: dict[FieldPath, int],
-    override_paths: dict[FieldPath, str],
-) -> Problem:
-    dotted = ".".join(spell(p) for p in field_path)
-    spelled = tuple(map(str, field_path))  # --set tasks.0=... and stack.5=... alike
-    for opath, item in override_paths.items():
-        o = tuple(map(str, opath))
-        if spelled[: len(o)] == o or o[: len(spelled)] == spelled:
-            return Problem(file, None, dotted, f"{message} (from {item})")
-    return Problem(file, line_of(field_path, lines), dotted, message)
 
 
 def yaml_problem(file: str, exc: yaml.YAMLError, source: str) -> Problem:

@@ -1,0 +1,5 @@
+"""``python -m agv_mission.cli``: the same as ``agv-mission``."""
+
+from agv_mission.cli import main
+
+main()

@@ -1,0 +1,55 @@
+"""``map``: an occupancy grid map from a recorded bag."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from agv_mission.cli.console import invalid, out, refused
+from agv_mission.missions.errors import MissionError
+
+
+def map_(
+    bag: Annotated[Path, typer.Argument(help="ROS 1 .bag, ROS 2 bag directory or .mcap file")],
+    save_map: Annotated[
+        Path, typer.Option("--save-map", help="map_saver stem: writes PATH.pgm + PATH.yaml")
+    ] = Path("map"),
+    scan_topic: Annotated[
+        Optional[str], typer.Option("--scan-topic", help="default: the LaserScan topic")  # noqa: UP007, UP045
+    ] = None,
+    odom_topic: Annotated[
+        Optional[str],  # noqa: UP007, UP045
+        typer.Option("--odom-topic", help="default: the nav_msgs/Odometry topic, else /tf"),
+    ] = None,
+    truth_topic: Annotated[
+        Optional[str],  # noqa: UP007, UP045
+        typer.Option("--truth-topic", help="ground truth for the report's RMSE"),
+    ] = None,
+    set_: Annotated[
+        list[str], typer.Option("--set", help="SLAM KEY=VALUE (stack.slam.KEY or KEY)")
+    ] = [],  # noqa: B006
+) -> None:
+    """Build an occupancy grid map from a recorded bag (map_saver format + a report)."""
+    from agv_mission.bags.offline import (
+        MappingFailed,
+        map_bag,
+        report_lines,
+        save_outputs,
+        slam_config,
+    )
+    from agv_mission.bags.reader import BagError
+
+    try:
+        config = slam_config(set_)
+        result = map_bag(bag, config, scan_topic, odom_topic, truth_topic)
+    except MissionError as exc:
+        raise invalid(exc) from None
+    except BagError as exc:
+        raise refused("invalid input", str(exc)) from None
+    except MappingFailed as exc:
+        raise refused("mapping failed", str(exc), 1) from None
+    for line in report_lines(result, save_outputs(result, save_map)):
+        out.print(line, highlight=False, markup=False)
+    raise typer.Exit(0)

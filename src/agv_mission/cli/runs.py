@@ -1,0 +1,122 @@
+"""``run``, ``validate`` and ``schema``: one mission file, run, checked or described."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from agv_mission.cli.console import (
+    EXIT_CODES,
+    Overrides,
+    PipeSafeStdout,
+    Seed,
+    err,
+    invalid,
+    out,
+    print_summary,
+    progress_bar,
+    refused,
+)
+from agv_mission.missions.errors import MissionError
+
+
+def run(
+    mission: Annotated[Path | None, typer.Argument(help="mission file; default: the demo")] = None,  # noqa: UP007
+    set_: Overrides = [],  # noqa: B006
+    output: Annotated[Path | None, typer.Option(help="root of run directories")] = None,  # noqa: UP007
+    seed: Seed = None,
+    no_bag: Annotated[
+        bool, typer.Option("--no-bag", help="do not write bag/ (same as output.bag: false)")
+    ] = False,
+) -> None:
+    """Validate and run a mission in simulation; write a run directory."""
+    from agv_mission.bags.writer import BagWriter
+    from agv_mission.missions.loader import load_demo_mission, load_mission
+    from agv_mission.missions.outputs import RunDirError, open_run_dir, write_run
+    from agv_mission.missions.runner import RunStopped, run_mission
+    from agv_mission.missions.signals import SignalStop
+
+    stopper = SignalStop().install()
+    try:
+        if mission is None:
+            loaded = load_demo_mission(set_, seed)
+        else:
+            loaded = load_mission(mission, set_, seed)
+        stopper.phase = "running"  # from here a signal ends the run, with a result
+    except MissionError as exc:
+        raise invalid(exc) from None
+    except (KeyboardInterrupt, RunStopped):  # before anything was written
+        err.print("stopped before the run started", highlight=False)
+        raise typer.Exit(stopper.exit_code or 130) from None
+
+    bag = loaded.mission.output.bag and not no_bag
+    observers = [BagWriter().prepare()] if bag else []
+    root = output if output is not None else Path(loaded.mission.output)
+    try:
+        run_dir = open_run_dir(root, loaded)
+    except RunDirError as exc:
+        where = "--output" if output is not None else f"{loaded.source}: output"
+        raise refused("invalid input", f"{where} {exc}") from None
+    out.print(
+        f"[bold]{loaded.name}[/]: {len(loaded.mission.tasks)} task(s) in "
+        f"{loaded.world.name} with {loaded.robot.name}, seed {loaded.mission.seed}"
+    )
+    with progress_bar("{task.completed:.1f}/{task.total:.0f} sim s") as bar:
+        job = bar.add_task("running", total=loaded.mission.limits.time)
+        record = run_mission(
+            loaded,
+            run_dir,
+            progress=lambda t, total: bar.update(job, completed=t),
+            control=stopper,
+            observers=observers,
+        )
+    stopper.phase = "writing"  # a signal now is too late to stop anything: outputs first
+    try:
+        result = write_run(run_dir, loaded, record)
+    except Exception as exc:  # noqa: BLE001 (result.json itself could not be written)
+        raise refused(
+            "internal error", f"cannot write {run_dir / 'result.json'}: {exc}", 3
+        ) from None
+    print_summary(result)
+    for problem in result.get("output_errors", []):
+        err.print(f"[yellow]warning[/]: not written: {problem}", highlight=False, markup=False)
+    code = EXIT_CODES.get(record.status, 3)
+    if record.status == "aborted" and stopper.exit_code:
+        code = stopper.exit_code
+    stopper.ignore()  # everything is written: a signal now must not turn the code into a kill
+    raise typer.Exit(code)
+
+
+def validate(
+    files_: Annotated[list[Path], typer.Argument(metavar="FILE...", help="mission files")],
+) -> None:
+    """Validate mission files without running them."""
+    from agv_mission.missions.loader import load_mission
+
+    bad = 0
+    for path in files_:
+        try:
+            load_mission(path)
+            out.print(f"{path}: [green]valid[/]", highlight=False)
+        except MissionError as exc:
+            bad += 1
+            invalid(exc)
+    raise typer.Exit(2 if bad else 0)
+
+
+def schema(
+    robot: Annotated[bool, typer.Option("--robot", help="the robot file's schema instead")] = False,
+) -> None:
+    """Print the JSON Schema of the mission file (or, with --robot, of a robot file)."""
+    if robot:
+        from agv_mission.robots.description import robot_json_schema
+
+        doc = robot_json_schema()
+    else:
+        from agv_mission.missions.schema import mission_json_schema
+
+        doc = mission_json_schema()
+    PipeSafeStdout().write(json.dumps(doc, indent=2) + "\n")

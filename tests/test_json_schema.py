@@ -11,7 +11,7 @@ import jsonschema
 import pytest
 import yaml
 
-from agv_mission.missions.schema import mission_json_schema
+from agv_mission.missions.schema import FIELD_ORDER, mission_json_schema
 from agv_mission.robots.description import BUILTIN_ROBOTS, robot_json_schema
 
 REPO = Path(__file__).resolve().parents[1]
@@ -110,6 +110,12 @@ def test_the_schema_declares_its_dialect_and_is_itself_valid() -> None:
     for schema in (mission_json_schema(), robot_json_schema()):
         assert schema["$schema"] == "https://json-schema.org/draft/2020-12/schema"
         jsonschema.Draft202012Validator.check_schema(schema)
+
+
+def test_mission_yaml_writes_every_key_of_the_schema() -> None:
+    """``mission.yaml`` (the resolved mission) keeps only the keys of ``FIELD_ORDER``: a key
+    the schema gains must be added there, or runs would silently drop it."""
+    assert sorted(mission_json_schema()["properties"]) == sorted(FIELD_ORDER)
 
 
 def test_ros_style_poses_and_their_mistakes() -> None:

@@ -230,10 +230,10 @@ DEFAULT_SLAM: dict[str, Any] = {"type": "graph", "match_min_d": 0.05, "match_min
 def slam_config(overrides: list[str], base: dict[str, Any] | None = None) -> Any:
     """The SLAM plugin config from ``base`` (default :data:`DEFAULT_SLAM`) and ``--set``
     items (``stack.slam.KEY=VALUE`` or ``KEY=VALUE``); :class:`MissionError` when invalid."""
-    import yaml
     from pydantic import ValidationError
 
     from agv_mission.missions.errors import MissionError, Problem
+    from agv_mission.missions.overrides import override_error, override_value
     from agv_mission.missions.schema import Stack
 
     doc = dict(DEFAULT_SLAM if base is None else base)
@@ -241,13 +241,8 @@ def slam_config(overrides: list[str], base: dict[str, Any] | None = None) -> Any
         key, sep, raw = item.partition("=")
         key = key.strip().removeprefix("stack.").removeprefix("slam.")
         if not sep or not key or "." in key:
-            raise MissionError(
-                [Problem("--set", None, item, "expected KEY=VALUE of the SLAM, e.g. type=grid")]
-            )
-        try:
-            value = yaml.safe_load(raw) if raw.strip() else None
-        except yaml.YAMLError:
-            value = raw
+            raise override_error(item, "expected KEY=VALUE of the SLAM, e.g. type=grid")
+        value = override_value(raw)
         if key == "type" and value != doc.get("type"):
             doc = {k: v for k, v in doc.items() if k in _slam_fields(value)}
         doc[key] = value

@@ -7,7 +7,6 @@ reported as :class:`MissionError` naming file, line and field.
 from __future__ import annotations
 
 import copy
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib.resources import as_file, files
@@ -30,6 +29,7 @@ from agv_mission.missions.overrides import apply, parse_override
 from agv_mission.missions.problems import (
     ProblemLog,
     kind_of,
+    non_finite_numbers,
     non_string_keys,
     one_line,
     os_message,
@@ -144,7 +144,7 @@ def load_mission(
         )
 
     with_default_plugin_types(data)
-    non_finite = _non_finite_numbers(data)
+    non_finite = non_finite_numbers(data)
     if non_finite:
         raise MissionError(
             [
@@ -257,28 +257,6 @@ def _resolve(
         room_goals=placed.room_goals,
         recorder=recorder,
     )
-
-
-def _non_finite_numbers(data: Any, limit: int = 10) -> list[tuple[FieldPath, float]]:
-    """Paths of ``.inf``/``.nan`` values anywhere in the document (every block, plugin
-    configs included: no number of a mission may be infinite)."""
-    found: list[tuple[FieldPath, float]] = []
-    seen: set[int] = set()
-    stack: list[tuple[Any, FieldPath]] = [(data, ())]
-    while stack and len(found) < limit:
-        node, path = stack.pop()
-        if isinstance(node, float):
-            if not math.isfinite(node):
-                found.append((path, node))
-            continue
-        if id(node) in seen:
-            continue
-        seen.add(id(node))
-        if isinstance(node, dict):
-            stack.extend((value, (*path, key)) for key, value in node.items())
-        elif isinstance(node, list):
-            stack.extend((item, (*path, i)) for i, item in enumerate(node))
-    return sorted(found, key=lambda item: tuple(map(str, item[0])))
 
 
 def _resolve_path(spec: str, base_dir: Path) -> Path:

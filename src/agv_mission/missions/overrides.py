@@ -11,23 +11,25 @@ from agv_mission.missions.problems import kind_of
 from agv_mission.missions.yaml_lines import FieldPath
 
 
+def override_error(item: str, message: str) -> MissionError:
+    """A bad ``--set`` item: the problem names the item, as no file line holds it."""
+    return MissionError([Problem("--set", None, item, message)])
+
+
+def override_value(raw: str) -> Any:
+    """The VALUE of ``KEY=VALUE`` as YAML reads it (empty: null); text YAML cannot read
+    stays text."""
+    try:
+        return yaml.safe_load(raw) if raw.strip() else None
+    except yaml.YAMLError:
+        return raw
+
+
 def parse_override(file: str, item: str) -> tuple[FieldPath, Any]:
     key, sep, raw = item.partition("=")
     if not sep or not key.strip():
-        raise MissionError(
-            [
-                Problem(
-                    "--set",
-                    None,
-                    item,
-                    "expected KEY=VALUE, e.g. stack.global_planner.planner=RRTstar",
-                )
-            ]
-        )
-    try:
-        value = yaml.safe_load(raw) if raw.strip() else None
-    except yaml.YAMLError:
-        value = raw
+        raise override_error(item, "expected KEY=VALUE, e.g. stack.global_planner.planner=RRTstar")
+    value = override_value(raw)
     parts: list[str | int] = [
         int(p) if p.isascii() and p.isdigit() else p for p in key.strip().split(".")
     ]  # not int("²"): str.isdigit() takes superscripts
@@ -40,16 +42,7 @@ def apply(data: dict, field_path: FieldPath, value: Any, file: str, item: str) -
         last = i == len(field_path) - 1
         if isinstance(node, list):
             if not isinstance(part, int) or not -len(node) <= part < len(node):
-                raise MissionError(
-                    [
-                        Problem(
-                            "--set",
-                            None,
-                            item,
-                            f"{part!r} is not an index of a list of {len(node)}",
-                        )
-                    ]
-                )
+                raise override_error(item, f"{part!r} is not an index of a list of {len(node)}")
             if last:
                 node[part] = value
             else:
@@ -67,9 +60,7 @@ def apply(data: dict, field_path: FieldPath, value: Any, file: str, item: str) -
                     node[key] = {}
                 node = node[key]
         else:
-            raise MissionError(
-                [Problem("--set", None, item, f"cannot set a key inside a {kind_of(node)}")]
-            )
+            raise override_error(item, f"cannot set a key inside a {kind_of(node)}")
 
 
 def swaps_plugin(field_path: FieldPath, block: dict, value: Any) -> bool:

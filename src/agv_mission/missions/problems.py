@@ -4,6 +4,7 @@ and YAML's syntax errors in the words of the mission format."""
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -12,7 +13,7 @@ from pydantic import ValidationError
 
 from agv_mission.missions.errors import MissionError, Problem
 from agv_mission.missions.schema import Mission, Setup
-from agv_mission.missions.yaml_lines import DocumentError, FieldPath, line_of
+from agv_mission.missions.yaml_lines import DocumentError, FieldPath, document_nodes, line_of
 from agv_mission.registry import registry
 
 
@@ -61,21 +62,24 @@ def validation_problems(
 def non_string_keys(data: Any, limit: int = 10) -> list[tuple[Any, ...]]:
     """Paths of mapping keys that YAML read as numbers, booleans, null or dates."""
     found: list[tuple[Any, ...]] = []
-    seen: set[int] = set()
-    stack: list[tuple[Any, tuple[Any, ...]]] = [(data, ())]
-    while stack and len(found) < limit:
-        node, path = stack.pop()
-        if id(node) in seen:
-            continue
-        seen.add(id(node))
+    for path, node in document_nodes(data):
         if isinstance(node, dict):
-            for key, value in node.items():
-                if not isinstance(key, str):
-                    found.append((*path, key))
-                stack.append((value, (*path, key)))
-        elif isinstance(node, list):
-            stack.extend((item, (*path, i)) for i, item in enumerate(node))
+            found += [(*path, key) for key in node if not isinstance(key, str)]
+        if len(found) >= limit:
+            break
     return sorted(found[:limit], key=str)
+
+
+def non_finite_numbers(data: Any, limit: int = 10) -> list[tuple[FieldPath, float]]:
+    """Paths of ``.inf``/``.nan`` values anywhere in the document (every block, plugin
+    configs included: no number of a mission may be infinite)."""
+    found: list[tuple[FieldPath, float]] = []
+    for path, node in document_nodes(data):
+        if isinstance(node, float) and not math.isfinite(node):
+            found.append((path, node))
+            if len(found) >= limit:
+                break
+    return sorted(found, key=lambda item: tuple(map(str, item[0])))
 
 
 def data_path(loc: tuple, data: Any) -> FieldPath:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import Any
 
 import yaml
@@ -102,3 +103,21 @@ def _spelling(path: FieldPath) -> tuple[str, ...]:
         else:
             out.append(str(part).lower())
     return tuple(out)
+
+
+def document_nodes(data: Any) -> Iterator[tuple[FieldPath, Any]]:
+    """Every value of a parsed document with its path, depth first; a mapping or list that
+    appears twice (a YAML alias) is visited once, so a document that contains itself ends."""
+    seen: set[int] = set()
+    stack: list[tuple[Any, FieldPath]] = [(data, ())]
+    while stack:
+        node, path = stack.pop()
+        if isinstance(node, (dict, list)):
+            if id(node) in seen:
+                continue
+            seen.add(id(node))
+        yield path, node
+        if isinstance(node, dict):
+            stack.extend((value, (*path, key)) for key, value in node.items())
+        elif isinstance(node, list):
+            stack.extend((item, (*path, i)) for i, item in enumerate(node))

@@ -42,84 +42,70 @@ def test_packaged_demo_is_the_repository_demo() -> None:
     assert packaged.read_bytes() == DEMO.read_bytes()
 
 
-def test_unknown_key_names_line_and_field(tmp_path: Path) -> None:
-    path = write(
-        tmp_path,
+# One problem each: (document, its line, its field, words its message holds).
+ONE_PROBLEM = {
+    "unknown_key": (
         "world: turtlebot3_world\ntasks:\n  - type: go_to\n    pose: {x: 0.5, y: -0.5}\n    speed: 3\n",
-    )
-    [p] = problems_of(path)
-    assert (p.line, p.field) == (5, "tasks.0.speed")
-    assert "unknown key" in p.message
-
-
-def test_wrong_type(tmp_path: Path) -> None:
-    path = write(
-        tmp_path, "tasks:\n  - type: patrol\n    waypoints: [{x: 0.5, y: -0.5}]\n    loops: many\n"
-    )
-    [p] = problems_of(path)
-    assert (p.line, p.field) == (4, "tasks.0.loops")
-    assert "integer" in p.message and "'many'" in p.message
-
-
-def test_goal_inside_a_pillar(tmp_path: Path) -> None:
-    path = write(
-        tmp_path,
+        (5, "tasks.0.speed"),
+        ["unknown key"],
+    ),
+    "wrong_type": (
+        "tasks:\n  - type: patrol\n    waypoints: [{x: 0.5, y: -0.5}]\n    loops: many\n",
+        (4, "tasks.0.loops"),
+        ["integer", "'many'"],
+    ),
+    "goal_inside_a_pillar": (
         "tasks:\n  - {type: go_to, pose: {x: 0.5, y: -0.5}}\n  - {type: go_to, pose: {x: 1.1, y: 1.1}}\n",
-    )
-    [p] = problems_of(path)
-    assert (p.line, p.field) == (3, "tasks.1.pose")
-    assert "obstacle" in p.message
-
-
-def test_goal_outside_the_map(tmp_path: Path) -> None:
-    path = write(
-        tmp_path,
+        (3, "tasks.1.pose"),
+        ["obstacle"],
+    ),
+    "goal_outside_the_map": (
         "tasks:\n  - type: patrol\n    waypoints:\n      - {x: 0.5, y: -0.5}\n      - {x: 40.0, y: 0.0}\n",
-    )
-    [p] = problems_of(path)
-    assert (p.line, p.field) == (5, "tasks.0.waypoints.1")
-    assert "outside the map" in p.message
-
-
-def test_non_unit_quaternion(tmp_path: Path) -> None:
-    path = write(
-        tmp_path,
+        (5, "tasks.0.waypoints.1"),
+        ["outside the map"],
+    ),
+    "non_unit_quaternion": (
         "tasks:\n  - type: go_to\n    pose:\n      position: {x: 0.5, y: -0.5, z: 0}\n"
         "      orientation: {x: 0, y: 0, z: 0.5, w: 0.5}\n",
-    )
-    [p] = problems_of(path)
-    assert p.field == "tasks.0.pose" and p.line == 3
-    assert "unit length" in p.message
-
-
-def test_tilted_quaternion(tmp_path: Path) -> None:
-    path = write(
-        tmp_path,
+        (3, "tasks.0.pose"),
+        ["unit length"],
+    ),
+    "tilted_quaternion": (
         "start:\n  position: {x: -2, y: -0.5, z: 0}\n  orientation: {x: 0.7071068, y: 0, z: 0, w: 0.7071068}\n"
         "tasks: [{type: go_to, pose: {x: 0.5, y: -0.5}}]\n",
-    )
-    [p] = problems_of(path)
-    assert p.field == "start" and p.line == 1 and "tilts" in p.message
-
-
-def test_unknown_planner_name(tmp_path: Path) -> None:
-    path = write(
-        tmp_path,
+        (1, "start"),
+        ["tilts"],
+    ),
+    "unknown_planner_name": (
         "stack:\n  global_planner: {type: ompl, planner: RRTFast}\ntasks: [{type: go_to, pose: {x: 0.5, y: -0.5}}]\n",
-    )
-    [p] = problems_of(path)
-    assert (p.line, p.field) == (2, "stack.global_planner.planner")
-    assert "RRTFast" in p.message
-
-
-def test_unknown_plugin_type_lists_known_types(tmp_path: Path) -> None:
-    path = write(
-        tmp_path,
+        (2, "stack.global_planner.planner"),
+        ["RRTFast"],
+    ),
+    "unknown_plugin_type_lists_known_types": (
         "stack:\n  local_planner: {type: dwa}\ntasks: [{type: go_to, pose: {x: 0.5, y: -0.5}}]\n",
-    )
-    [p] = problems_of(path)
-    assert p.line == 2 and p.field == "stack.local_planner"
-    assert "mpc" in p.message and "pure_pursuit" in p.message
+        (2, "stack.local_planner"),
+        ["mpc", "pure_pursuit"],
+    ),
+    "empty_task_list": ("tasks: []\n", (1, "tasks"), []),
+    "unknown_world": (
+        "world: moon_base\ntasks: [{type: go_to, pose: {x: 0, y: 0}}]\n",
+        (1, "world"),
+        ["turtlebot3_world"],
+    ),
+    "unknown_robot": (
+        "robot: r2d2\ntasks: [{type: wander, duration: 1}]\n",
+        (1, "robot"),
+        ["burger"],
+    ),
+}
+
+
+@pytest.mark.parametrize("case", ONE_PROBLEM)
+def test_one_problem_names_line_and_field(tmp_path: Path, case: str) -> None:
+    text, (line, field), words = ONE_PROBLEM[case]
+    [p] = problems_of(write(tmp_path, text))
+    assert (p.line, p.field) == (line, field)
+    assert all(word in p.message for word in words), p.message
 
 
 def test_yaml_syntax_error_names_line(tmp_path: Path) -> None:
@@ -127,22 +113,6 @@ def test_yaml_syntax_error_names_line(tmp_path: Path) -> None:
     [p] = problems_of(path)
     assert p.line is not None and p.line >= 3
     assert "YAML syntax error" in p.message
-
-
-def test_empty_task_list(tmp_path: Path) -> None:
-    [p] = problems_of(write(tmp_path, "tasks: []\n"))
-    assert p.field == "tasks" and p.line == 1
-
-
-def test_unknown_world_and_robot(tmp_path: Path) -> None:
-    with pytest.raises(MissionError) as info:
-        load_mission(
-            write(tmp_path, "world: moon_base\ntasks: [{type: go_to, pose: {x: 0, y: 0}}]\n")
-        )
-    [p] = info.value.problems
-    assert p.field == "world" and p.line == 1 and "turtlebot3_world" in p.message
-    [p] = problems_of(write(tmp_path, "robot: r2d2\ntasks: [{type: wander, duration: 1}]\n"))
-    assert p.field == "robot" and p.line == 1 and "burger" in p.message
 
 
 def test_set_overrides_apply_and_are_blamed(tmp_path: Path) -> None:

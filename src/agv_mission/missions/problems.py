@@ -28,6 +28,7 @@ class ProblemLog:
     problems: list[Problem] = field(default_factory=list)
 
     def at(self, field_path: FieldPath, message: str) -> Problem:
+        """The problem at ``field_path``; a value an override gave blames the override."""
         dotted = ".".join(spell(p) for p in field_path)
         spelled = tuple(map(str, field_path))  # --set tasks.0=... and stack.5=... alike
         for opath, item in self.override_paths.items():
@@ -37,9 +38,11 @@ class ProblemLog:
         return Problem(self.file, line_of(field_path, self.lines), dotted, message)
 
     def add(self, field_path: FieldPath, message: str) -> None:
+        """Note a problem and go on, so one ``validate`` names them all."""
         self.problems.append(self.at(field_path, message))
 
     def raise_if_any(self) -> None:
+        """Stop here when a problem so far makes the next step meaningless."""
         if self.problems:
             raise MissionError(self.problems)
 
@@ -47,6 +50,7 @@ class ProblemLog:
 def validation_problems(
     log: ProblemLog, exc: ValidationError, data: Any, model: type[Setup] = Mission
 ) -> list[Problem]:
+    """pydantic's errors in the mission format's words, once per field and message."""
     problems: list[Problem] = []
     seen: set[tuple[FieldPath, str]] = set()
     for err in exc.errors(include_url=False):

@@ -64,6 +64,13 @@ def read_input_bytes(path: str | os.PathLike, limit: int = MAX_INPUT_BYTES) -> b
     return data
 
 
+def input_path(spec: str | os.PathLike, base_dir: str | os.PathLike) -> Path:
+    """A file a document names: ``~`` expanded, and a relative path taken from the
+    document's own directory ``base_dir`` (not from where the program runs)."""
+    path = Path(spec).expanduser()
+    return path if path.is_absolute() else Path(base_dir) / path
+
+
 def read_input_text(path: str | os.PathLike, limit: int = MAX_INPUT_BYTES) -> str:
     """:func:`read_input_bytes` decoded as UTF-8 (``UnicodeDecodeError`` if it is not)."""
     return read_input_bytes(path, limit).decode("utf-8")

@@ -48,7 +48,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from scipy import ndimage
 
-from agv_mission.atomic import InputFileError, read_input_text
+from agv_mission.atomic import InputFileError, input_path, read_input_text
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
@@ -79,9 +79,7 @@ def load_world(spec: str, base_dir: Path | str = ".") -> World:
     names = ", ".join(builtin_names())
     if not spec:
         raise WorldError(f"empty world name; built-in worlds are: {names}")
-    path = Path(spec).expanduser()
-    if not path.is_absolute():
-        path = Path(base_dir) / path
+    path = input_path(spec, base_dir)
     if path.is_dir() and (path / "map.yaml").is_file():
         path = path / "map.yaml"
     if not path.exists():
@@ -314,10 +312,7 @@ def _rooms_of(path: Path, rooms: str | dict[str, Any] | None) -> dict[str, Room]
         if rooms is None:
             return {}
         if isinstance(rooms, str):
-            rooms_path = Path(rooms).expanduser()
-            if not rooms_path.is_absolute():
-                rooms_path = path.parent / rooms_path
-            return load_rooms(rooms_path)
+            return load_rooms(input_path(rooms, path.parent))
         try:
             model = RoomsModel.model_validate({"rooms": rooms})
         except ValidationError as exc:

@@ -16,7 +16,7 @@ from typing import Any
 import yaml
 from pydantic import ValidationError
 
-from agv_mission.atomic import InputFileError, read_input_bytes
+from agv_mission.atomic import InputFileError, input_path, read_input_bytes
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.recorder import RecorderFileError, load_entries
@@ -186,7 +186,7 @@ def _resolve(
             "recorder": mission.recorder,
         }
         for key, spec in named.items():
-            refused = spec is not None and path_guard(key, _resolve_path(spec.strip(), base_dir))
+            refused = spec is not None and path_guard(key, input_path(spec.strip(), base_dir))
             if refused:
                 log.add((key,), refused)
         log.raise_if_any()
@@ -221,7 +221,7 @@ def _resolve(
     rooms = dict(world.rooms)
     if mission.rooms is not None:
         try:
-            rooms.update(load_rooms(_resolve_path(mission.rooms, base_dir)))
+            rooms.update(load_rooms(input_path(mission.rooms, base_dir)))
         except RoomsFileError as exc:  # names the file, the line and the room
             log.add(("rooms",), one_line(str(exc)))
         except Exception as exc:
@@ -235,7 +235,7 @@ def _resolve(
     recorder = None
     if mission.recorder is not None:
         try:
-            recorder = _resolve_path(mission.recorder, base_dir)
+            recorder = input_path(mission.recorder, base_dir)
             load_entries(recorder)
         except RecorderFileError as exc:
             log.add(("recorder",), str(exc))
@@ -257,11 +257,6 @@ def _resolve(
         room_goals=placed.room_goals,
         recorder=recorder,
     )
-
-
-def _resolve_path(spec: str, base_dir: Path) -> Path:
-    p = Path(spec).expanduser()
-    return p if p.is_absolute() else base_dir / p
 
 
 def _read_text(path: Path, file: str) -> str:

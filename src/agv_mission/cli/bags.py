@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from agv_mission.cli.console import invalid, out, refused
+from agv_mission.cli.console import failure, invalid, out
 from agv_mission.missions.errors import MissionError
 
 
@@ -47,9 +47,9 @@ def map_(
     except MissionError as exc:
         raise invalid(exc) from None
     except BagError as exc:
-        raise refused("invalid input", str(exc)) from None
+        raise failure("invalid input", str(exc)) from None
     except MappingFailed as exc:
-        raise refused("mapping failed", str(exc), 1) from None
+        raise failure("mapping failed", str(exc), 1) from None
     for line in report_lines(result, save_outputs(result, save_map)):
         out.print(line, highlight=False, markup=False)
     raise typer.Exit(0)

@@ -77,7 +77,7 @@ def invalid(exc: MissionError) -> typer.Exit:
     return typer.Exit(2)
 
 
-def refused(title: str, message: str, code: int = 2) -> typer.Exit:
+def failure(title: str, message: str, code: int = 2) -> typer.Exit:
     """Print ``title: message`` on stderr (the message as plain text); the exit to raise."""
     err.print(f"[bold red]{title}[/]: {escape(message)}", highlight=False)
     return typer.Exit(code)

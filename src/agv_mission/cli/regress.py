@@ -11,7 +11,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from agv_mission.cli.console import err, invalid, out, progress_bar, refused
+from agv_mission.cli.console import err, failure, invalid, out, progress_bar
 from agv_mission.missions.errors import MissionError
 
 
@@ -50,12 +50,12 @@ def regress(
     from agv_mission.regress import plan as planning
 
     if backend not in ("local", "ray"):
-        raise refused("invalid input", f"--backend {backend}: local or ray")
+        raise failure("invalid input", f"--backend {backend}: local or ray")
     backends.warm_up(backend, workers)  # the pool's fork server imports while we plan
     try:
         plan = planning.plan_jobs(paths, sweep, seeds, output)
     except planning.RegressError as exc:
-        raise refused("invalid input", str(exc)) from None
+        raise failure("invalid input", str(exc)) from None
     if plan.problems:
         invalid(MissionError(plan.problems))
         report.write_reports([], plan, 0.0, backend, workers, junit, json_)
@@ -78,7 +78,7 @@ def regress(
         try:
             results = backends.run_jobs(plan.jobs, backend, n_workers, address, progress)
         except planning.RegressError as exc:
-            raise refused("invalid input", str(exc)) from None
+            raise failure("invalid input", str(exc)) from None
         except backends.Interrupted as exc:  # Ctrl-C: report what ran
             results, interrupted = exc.results, True
     elapsed = time.perf_counter() - started

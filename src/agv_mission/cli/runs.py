@@ -14,11 +14,11 @@ from agv_mission.cli.console import (
     PipeSafeStdout,
     Seed,
     err,
+    failure,
     invalid,
     out,
     print_summary,
     progress_bar,
-    refused,
 )
 from agv_mission.missions.errors import MissionError
 
@@ -59,7 +59,7 @@ def run(
         run_dir = open_run_dir(root, loaded)
     except RunDirError as exc:
         where = "--output" if output is not None else f"{loaded.source}: output"
-        raise refused("invalid input", f"{where} {exc}") from None
+        raise failure("invalid input", f"{where} {exc}") from None
     out.print(
         f"[bold]{loaded.name}[/]: {len(loaded.mission.tasks)} task(s) in "
         f"{loaded.world.name} with {loaded.robot.name}, seed {loaded.mission.seed}"
@@ -77,7 +77,7 @@ def run(
     try:
         result = write_run(run_dir, loaded, record)
     except Exception as exc:  # noqa: BLE001 (result.json itself could not be written)
-        raise refused(
+        raise failure(
             "internal error", f"cannot write {run_dir / 'result.json'}: {exc}", 3
         ) from None
     print_summary(result)

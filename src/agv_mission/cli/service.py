@@ -13,10 +13,10 @@ from agv_mission.cli.console import (
     Overrides,
     Seed,
     err,
+    failure,
     invalid,
     out,
     print_summary,
-    refused,
 )
 from agv_mission.missions.errors import MissionError
 
@@ -56,7 +56,7 @@ def serve(
             token,
         )
     except ServeError as exc:
-        raise refused("cannot serve", str(exc)) from None
+        raise failure("cannot serve", str(exc)) from None
 
 
 def submit(
@@ -78,7 +78,7 @@ def submit(
     except MissionError as exc:
         raise invalid(exc) from None
     except client.ClientError as exc:
-        raise refused("error", str(exc)) from None
+        raise failure("error", str(exc)) from None
     out.print(run["id"], highlight=False)
     if not follow:
         raise typer.Exit(0)
@@ -105,7 +105,7 @@ def submit(
     try:
         final = client.follow(server, run["id"], token, show)
     except client.ClientError as exc:
-        raise refused("error", str(exc), 1) from None
+        raise failure("error", str(exc), 1) from None
     result = final.get("result")
     if result:
         print_summary(result)

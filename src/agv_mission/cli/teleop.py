@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from agv_mission.cli.console import Overrides, Seed, invalid, out, refused
+from agv_mission.cli.console import Overrides, Seed, failure, invalid, out
 from agv_mission.missions.errors import MissionError
 
 
@@ -48,7 +48,7 @@ def teleop(
     )
 
     if output is not None and recorder is not None:
-        raise refused("invalid input", "give --output or --recorder, not both")
+        raise failure("invalid input", "give --output or --recorder, not both")
     try:
         loaded = load_teleop_mission(mission, world, robot, set_, seed)
     except MissionError as exc:
@@ -56,7 +56,7 @@ def teleop(
     try:
         run_dir, recs = open_session(loaded, output, recorder, append)
     except RecorderFileError as exc:
-        raise refused("invalid input", str(exc)) from None
+        raise failure("invalid input", str(exc)) from None
     result = run_teleop(loaded, recs, time_scale=time_scale)
     if run_dir is not None:
         write_teleop_outputs(run_dir, loaded, result)

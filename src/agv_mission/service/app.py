@@ -323,7 +323,7 @@ def create_app(settings: Settings) -> FastAPI:
             await websocket.close(code=4404, reason="no such run")
             return
         await websocket.accept()
-        hub = await manager.hub_for(run_id, run)
+        hub = await manager.live.hub_for(run_id, run)
         client = hub.subscribe(_rate(websocket.query_params.get("rate")))
         sender = asyncio.create_task(_send_loop(websocket, client))
         try:

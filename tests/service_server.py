@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import websockets
 
 from mission_texts import tb3_mission
 
@@ -156,6 +157,17 @@ def wait_status(
         if time.monotonic() > deadline:
             raise AssertionError(f"run {run_id} stuck in {run['status']}: {json.dumps(run)[:500]}")
         time.sleep(period)
+
+
+async def collect_live(url: str, until: str = "end", limit: int = 100000) -> list[dict]:
+    """A run's live-stream messages from ``url`` until one of type ``until`` (or ``limit``)."""
+    out: list[dict] = []
+    async with websockets.connect(url, max_size=1 << 24) as ws:
+        async for text in ws:
+            out.append(json.loads(text))
+            if out[-1]["type"] == until or len(out) >= limit:
+                break
+    return out
 
 
 FINAL = {"succeeded", "failed", "aborted", "error", "interrupted"}

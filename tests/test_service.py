@@ -313,11 +313,13 @@ async def _seed_003(
                         arrived.set()
 
         reader = asyncio.create_task(read())
-        for _ in range(10):
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + 60.0  # "running" comes before the worker's first step
+        while not any(m["v"] > 0.05 for m in states):  # until it drives under remote command
+            assert loop.time() < deadline, f"no state under cmd_vel: {states[-1:]}"
             await ws.send(json.dumps({"type": "cmd_vel", "v": 0.15, "w": 0.0}))
             await asyncio.sleep(0.1)
         assert states[-1]["task"] == {"index": 0, "type": "teleop"}
-        assert max(m["v"] for m in states) > 0.05  # it drove under remote command
         for label, (x, y) in anchors.items():
             arrived.clear()
             response = await http.post(f"/api/runs/{rid}/goal", json={"x": x, "y": y, "yaw": 0.0})

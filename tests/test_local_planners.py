@@ -251,10 +251,12 @@ def test_mpc_rti_functions_are_cached_on_disk(tmp_path, monkeypatch):
     files = list((tmp_path / "agv-mission" / "mpc").glob("*.casadi"))
     assert len(files) == 1
     loaded = mpc_problem.MpcProblem(cfg, LIMITS)
-    assert loaded.rti.step_fn is not built.rti.step_fn
-    u = np.zeros(2 * cfg.horizon + 1)
+    assert loaded.rti_fn is not built.rti_fn
+    controls = np.zeros((cfg.horizon, 3))
     p = np.zeros(built.n_params)
     p[built.p_ref] = np.linspace(0.0, 1.0, 4 * (cfg.horizon + 1))
     p[-4:] = (0.07, 1.0, 1.0, 1.0)
-    for a, b in zip(built.rti.step(u, p), loaded.rti.step(u, p), strict=True):
+    steps = [mpc_problem.RtiStep(f).step(controls, p, 1) for f in (built.rti_fn, loaded.rti_fn)]
+    for a, b in zip(*steps, strict=True):
         assert np.allclose(a, b)
+    assert np.abs(steps[0][1]).max() > 0.0  # the step moved the controls

@@ -1,4 +1,5 @@
-"""Helpers shared by the local planners: projection on a polyline and reference sampling.
+"""Helpers shared by the local planners: projection on a polyline, reference sampling and
+:class:`PathFollower`, the part of ``compute`` every path follower shares.
 
 All functions work on map-frame (N, 2) polylines and are pure numpy (no solver).
 The speed profile is the usual trapezoid-with-limits: a per-point speed cap (max speed,
@@ -9,11 +10,14 @@ acceleration, then integrated in time to give one arclength per model step.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from agv_mission.geometry import Pose2D
+from agv_mission.planners.base import VelocityCommand, VelocityLimits
 
 
 def clean_path(path: np.ndarray) -> np.ndarray:
@@ -81,8 +85,24 @@ def closest_point(
     if len(path) == 1:
         return Projection(0.0, path[0].copy(), 0, float(np.linalg.norm(p - path[0])))
     seg = segments if segments is not None else Segments.of(path, cumlen)
-    cumlen, a, d, seg_len = seg.cumlen, seg.start, seg.delta, seg.length
-    t = np.einsum("ij,ij->i", p - a, d) / np.maximum(seg.length2, 1e-18)
+    cumlen, a, d, seg_len, len2 = seg.cumlen, seg.start, seg.delta, seg.length, seg.length2
+    first = 0
+    if s_min is not None and s_max is not None and s_min <= s_max:
+        # Only the segments that overlap the window can be valid: look at those alone
+        # (a long path costs no more than a short one).
+        first = max(int(np.searchsorted(cumlen, s_min, side="left")) - 1, 0)
+        last = min(int(np.searchsorted(cumlen, s_max, side="right")), len(a))
+        if first < last:
+            a, d, seg_len, len2 = (
+                a[first:last],
+                d[first:last],
+                seg_len[first:last],
+                len2[first:last],
+            )
+            cumlen = cumlen[first : last + 1]
+        else:
+            first = 0
+    t = np.einsum("ij,ij->i", p - a, d) / np.maximum(len2, 1e-18)
     lo = np.zeros_like(t)
     hi = np.ones_like(t)
     if s_min is not None:
@@ -100,7 +120,7 @@ def closest_point(
     return Projection(
         s=float(cumlen[i] + t[i] * seg_len[i]),
         point=proj[i],
-        segment=i,
+        segment=first + i,
         distance=float(math.sqrt(dist2[i])),
     )
 
@@ -238,8 +258,12 @@ class ProgressTracker:
         self._key: int | None = None
         self._segments: Segments | None = None
 
-    def update(self, path: np.ndarray, cumlen: np.ndarray, xy: np.ndarray) -> float:
-        key = hash(path.tobytes())
+    def update(
+        self, path: np.ndarray, cumlen: np.ndarray, xy: np.ndarray, key: int | None = None
+    ) -> float:
+        """The progress at ``xy``; ``key`` identifies the path (default: a hash of it)."""
+        if key is None:
+            key = hash(path.tobytes())
         if self.progress is not None and key == self._key and self._segments is not None:
             proj = closest_point(
                 path,
@@ -269,3 +293,163 @@ def prepare_path(
         path = np.vstack(([pose.x, pose.y], path))
     cumlen = cumulative_length(path)
     return path, cumlen, float(cumlen[-1])
+
+
+class ReferenceProfile:
+    """A path prepared once for time-sampled references (what the MPC asks every step).
+
+    The speed cap (curvature, stop at the end) and its backward braking pass are
+    computed over the whole path on a fixed grid, and every segment's tangent heading
+    is made continuous along the path. While the navigator keeps the path, a reference
+    then costs one short loop over the horizon instead of a new profile per step. Looking
+    past ``s0 + reach`` (as :func:`speed_profile` does not) changes nothing: braking from
+    full speed fits within the reach.
+    """
+
+    def __init__(
+        self,
+        path: np.ndarray,
+        cumlen: np.ndarray,
+        max_v: float,
+        max_w: float,
+        acc: float,
+        dec: float,
+        curvature_window: float = 0.15,
+        turn_fraction: float = 0.7,
+        min_v: float = 0.0,
+        spacing: float = 0.05,
+    ) -> None:
+        self.path, self.cumlen = path, cumlen
+        self.total = float(cumlen[-1])
+        self.max_v, self.min_v, self.acc, self.dec = max_v, max(min_v, 0.0), acc, dec
+        seg = Segments.of(path, cumlen)
+        self._start, self._delta, self._cum = seg.start, seg.delta, cumlen
+        self._inv_len = 1.0 / np.maximum(seg.length, 1e-18)
+        self.heading = _unwrap(np.arctan2(seg.delta[:, 1], seg.delta[:, 0]))
+        n_grid = max(2, int(math.ceil(self.total / spacing)) + 1)
+        grid = np.linspace(0.0, self.total, n_grid)
+        cap = curvature_speed_limit(
+            path, cumlen, grid, max_v, max_w, curvature_window, turn_fraction
+        )
+        cap[-1] = 0.0
+        self.step = self.total / (n_grid - 1)
+        v2 = (cap * cap).tolist()
+        for i in range(n_grid - 2, -1, -1):
+            v2[i] = min(v2[i], v2[i + 1] + 2.0 * dec * self.step)
+        self.speed = [math.sqrt(max(x, 0.0)) for x in v2]
+
+    def sample(self, s0: float, v0: float, steps: int, dt: float) -> tuple[list, list]:
+        """Arclengths and speeds (``steps + 1`` each) from ``s0`` at speed ``v0``: as
+        :func:`speed_profile`, the grid fixed to the path instead of starting at s0."""
+        v_cur = min(max(float(v0), self.min_v), self.max_v)
+        s_cur, total, vg, last = s0, self.total, self.speed, len(self.speed) - 2
+        inv_step = 1.0 / self.step if self.step > 0 else 0.0
+        up, down = self.acc * dt, self.dec * dt
+        s_out, v_out = [s0], [v_cur]
+        for _ in range(steps):
+            u = (s_cur + v_cur * dt) * inv_step
+            i = min(max(int(u), 0), last)
+            t = min(max(u - i, 0.0), 1.0)
+            cap = vg[i] + t * (vg[i + 1] - vg[i])
+            v_new = min(v_cur + up, max(cap, v_cur - down))
+            s_cur = min(s_cur + 0.5 * (v_cur + v_new) * dt, total)
+            v_cur = 0.0 if s_cur >= total else v_new
+            s_out.append(s_cur)
+            v_out.append(v_cur)
+        return s_out, v_out
+
+    def at(self, s: np.ndarray | list) -> tuple[np.ndarray, np.ndarray]:
+        """Points (K, 2) and continuous tangent headings (K,) at arclengths ``s``."""
+        s = np.minimum(np.maximum(np.asarray(s, dtype=float), 0.0), self.total)
+        i = np.searchsorted(self._cum, s, side="right") - 1
+        np.clip(i, 0, len(self._start) - 1, out=i)
+        t = (s - self._cum[i]) * self._inv_len[i]
+        return self._start[i] + t[:, None] * self._delta[i], self.heading[i]
+
+
+@dataclass(frozen=True, slots=True)
+class PathProgress:
+    """Where the robot is on the path it follows (map frame)."""
+
+    path: np.ndarray  # (N, 2) the prepared polyline (at least two points)
+    cumlen: np.ndarray  # (N,) arclength at every vertex
+    total: float  # its length
+    s: float  # the robot's arclength on it
+    key: int | None  # identifies the path while the navigator keeps it (None: not kept)
+    to_goal: tuple[float, float]  # from the robot to the path's end
+    dist_goal: float
+    goal_ahead: float  # the end's distance ahead along the robot's heading
+
+
+class PathFollower:
+    """The part of ``compute`` every path-following local planner shares: the path
+    prepared once while the navigator passes the same one, the progress along it, and
+    stopping at the goal or just past it (not turning back). A subclass gives
+    :meth:`follow` (the command away from the goal) and :meth:`stop`; its ``config`` has
+    ``goal_tolerance`` and ``overshoot_tolerance``."""
+
+    config: Any
+
+    def __init__(self, limits: VelocityLimits, control_period: float) -> None:
+        self.limits = limits
+        self.control_period = control_period
+        self._tracker = ProgressTracker(window_ahead=limits.max_v * control_period * 3.0 + 0.3)
+        self._path_key: int | None = None
+        self._prepared: tuple[np.ndarray, np.ndarray, float] = (np.zeros((0, 2)), np.zeros(0), 0.0)
+
+    def reset(self) -> None:
+        """Forget the path progress (a new goal)."""
+        self._path_key = None
+        self._tracker.reset()
+
+    def diagnostics(self) -> dict[str, float]:
+        return {}
+
+    def follow(
+        self,
+        pose: Pose2D,
+        velocity: tuple[float, float],
+        progress: PathProgress,
+        obstacles: np.ndarray,
+    ) -> VelocityCommand:
+        """The command for this step while the goal is not reached."""
+        raise NotImplementedError
+
+    def stop(self, velocity: tuple[float, float]) -> tuple[float, float]:
+        """The command at the goal (braking within the limits)."""
+        raise NotImplementedError
+
+    def compute(
+        self,
+        pose: Pose2D,
+        velocity: tuple[float, float],
+        path: np.ndarray,
+        goal: Pose2D,
+        obstacles: np.ndarray,
+    ) -> VelocityCommand:
+        t0 = time.perf_counter()
+        raw = np.asarray(path, dtype=float)
+        key: int | None = hash(raw.tobytes())
+        if key == self._path_key:
+            path, cumlen, total = self._prepared
+        else:
+            path, cumlen, total = prepare_path(raw, pose, goal)
+            # A path of fewer than two distinct points is completed from the pose: not kept.
+            if len(raw) >= 2 and len(path) == len(clean_path(raw)):
+                self._path_key, self._prepared = key, (path, cumlen, total)
+            else:
+                key = None
+        s0 = self._tracker.update(path, cumlen, np.array((pose.x, pose.y)), key)
+        dx, dy = float(path[-1, 0]) - pose.x, float(path[-1, 1]) - pose.y
+        dist_goal = math.hypot(dx, dy)
+        goal_ahead = math.cos(pose.yaw) * dx + math.sin(pose.yaw) * dy
+        cfg = self.config
+        if dist_goal < cfg.goal_tolerance or (
+            goal_ahead <= 0.0 and dist_goal < cfg.overshoot_tolerance
+        ):
+            cmd = VelocityCommand(*self.stop(velocity))
+        else:
+            progress = PathProgress(path, cumlen, total, s0, key, (dx, dy), dist_goal, goal_ahead)
+            cmd = self.follow(pose, velocity, progress, obstacles)
+        cmd.solve_time = time.perf_counter() - t0
+        return cmd

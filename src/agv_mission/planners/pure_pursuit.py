@@ -9,7 +9,6 @@ command within the acceleration limits. It ignores obstacles.
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 
@@ -17,9 +16,9 @@ from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.planners.base import VelocityCommand, VelocityLimits
 from agv_mission.planners.configs import PurePursuitConfig
 from agv_mission.planners.path_tracking import (
-    ProgressTracker,
+    PathFollower,
+    PathProgress,
     interpolate,
-    prepare_path,
     speed_profile,
 )
 
@@ -28,7 +27,7 @@ def _ramp(target: float, current: float, max_step: float) -> float:
     return min(max(target, current - max_step), current + max_step)
 
 
-class PurePursuitController:
+class PurePursuitController(PathFollower):
     """Geometric path follower with a braking speed profile."""
 
     Config = PurePursuitConfig
@@ -40,16 +39,14 @@ class PurePursuitController:
         robot_radius: float,
         control_period: float,
     ) -> None:
+        super().__init__(limits, control_period)
         self.config = config
-        self.limits = limits
         self.robot_radius = robot_radius
-        self.control_period = control_period
-        self._tracker = ProgressTracker(window_ahead=limits.max_v * control_period * 3.0 + 0.3)
         self.reset()
 
     def reset(self) -> None:
+        super().reset()
         self._rotating = False
-        self._tracker.reset()
 
     def _command(
         self, v_target: float, w_target: float, velocity: tuple[float, float]
@@ -61,35 +58,20 @@ class PurePursuitController:
         w = float(np.clip(w, -lim.max_w, lim.max_w))
         return v, w
 
-    def diagnostics(self) -> dict[str, float]:
-        return {}
+    def stop(self, velocity: tuple[float, float]) -> tuple[float, float]:
+        return self._command(0.0, 0.0, velocity)
 
-    def compute(
+    def follow(
         self,
         pose: Pose2D,
         velocity: tuple[float, float],
-        path: np.ndarray,
-        goal: Pose2D,
+        progress: PathProgress,
         obstacles: np.ndarray,
     ) -> VelocityCommand:
-        t0 = time.perf_counter()
         cfg, lim, dt = self.config, self.limits, self.control_period
-        path, cumlen, total = prepare_path(path, pose, goal)
+        path, cumlen, total, s0 = progress.path, progress.cumlen, progress.total, progress.s
+        goal_ahead = progress.goal_ahead
         xy = np.array([pose.x, pose.y])
-        s0 = self._tracker.update(path, cumlen, xy)
-        to_goal = path[-1] - xy
-        dist_goal = float(np.hypot(*to_goal))
-        goal_ahead = math.cos(pose.yaw) * to_goal[0] + math.sin(pose.yaw) * to_goal[1]
-
-        def done() -> VelocityCommand:
-            v, w = self._command(0.0, 0.0, velocity)
-            return VelocityCommand(v, w, solve_time=time.perf_counter() - t0)
-
-        # At the goal, or just past it: stop rather than turn back.
-        if dist_goal < cfg.goal_tolerance or (
-            goal_ahead <= 0.0 and dist_goal < cfg.overshoot_tolerance
-        ):
-            return done()
 
         # Lookahead point; at the end of the path, the goal itself.
         s_look = min(s0 + cfg.lookahead, total)
@@ -105,8 +87,7 @@ class PurePursuitController:
             # Turn in place, braking so the heading error is not overshot.
             w_brake = math.sqrt(2.0 * 0.5 * lim.max_acc_w * abs(alpha))
             w_t = math.copysign(min(cfg.rotate_gain * abs(alpha), w_brake, lim.max_w), alpha)
-            v, w = self._command(0.0, w_t, velocity)
-            return VelocityCommand(v, w, solve_time=time.perf_counter() - t0)
+            return VelocityCommand(*self._command(0.0, w_t, velocity))
 
         # Speed: braking/curvature profile, goal slow-down, never more than the distance left.
         cruise = min(cfg.speed or lim.max_v, lim.max_v)
@@ -138,5 +119,4 @@ class PurePursuitController:
             v_t = lim.max_w / abs(kappa)
         v, _ = self._command(v_t, 0.0, velocity)
         w_t = float(np.clip(kappa * v, -lim.max_w, lim.max_w))
-        v, w = self._command(v_t, w_t, velocity)
-        return VelocityCommand(v, w, solve_time=time.perf_counter() - t0)
+        return VelocityCommand(*self._command(v_t, w_t, velocity))

@@ -29,7 +29,10 @@ __all__ = ["MpcConfig", "MpcController", "MpcProblem", "brake_command"]
 
 def _to_map(points: np.ndarray, pose: Pose2D) -> np.ndarray:
     c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-    return points @ np.array([[c, s], [-s, c]]) + (pose.x, pose.y)
+    out = np.empty_like(points)
+    out[:, 0] = c * points[:, 0] - s * points[:, 1] + pose.x
+    out[:, 1] = s * points[:, 0] + c * points[:, 1] + pose.y
+    return out
 
 
 def brake_command(
@@ -68,6 +71,7 @@ class MpcController(PathFollower):
         self._p = self._rti.p if self._rti is not None else np.zeros(pb.n_params)
         self._ref = self._p[pb.p_ref].reshape(pb.n + 1, 4)
         self._obs = self._p[pb.p_obs].reshape(max(pb.n - 1, 0), pb.m, 2)
+        self._rows = np.arange(max(pb.n - 1, 0))
         self._profile: tuple[np.ndarray, ReferenceProfile] | None = None
         self._stats: dict | None = {}
         self._solve_info: dict = {}
@@ -109,33 +113,43 @@ class MpcController(PathFollower):
         bind there); slots with no point within ``obstacle_range`` are parked far away.
         Returns each stage's smallest squared distance to its points (inf: none)."""
         out, cfg = self._obs, self.config
-        if obstacles is None or len(obstacles) == 0:
-            out[:] = _FAR
-            return np.full(len(stage_xy), np.inf)
+        reach2 = cfg.obstacle_range**2
         pts = np.asarray(obstacles, dtype=float).reshape(-1, 2)
         dx, dy = pts[:, 0] - pose.x, pts[:, 1] - pose.y
-        if len(pts) > cfg.max_obstacles:
-            near = np.argpartition(dx * dx + dy * dy, cfg.max_obstacles - 1)
-            dx, dy = dx[near[: cfg.max_obstacles]], dy[near[: cfg.max_obstacles]]
+        # Only points within obstacle_range of some stage can count: those within that
+        # of the farthest stage's distance from the robot (at most max_obstacles, the
+        # nearest).
+        ring = math.sqrt(float((stage_xy * stage_xy).sum(axis=1).max())) + cfg.obstacle_range
+        d2_robot = dx * dx + dy * dy
+        near = np.flatnonzero(d2_robot <= ring * ring)
+        if len(near) > cfg.max_obstacles:
+            near = near[np.argpartition(d2_robot[near], cfg.max_obstacles - 1)]
+            near = near[: cfg.max_obstacles]
+        if len(near) == 0:
+            out[:] = _FAR
+            return np.full(len(stage_xy), np.inf)
+        dx, dy = dx[near], dy[near]
         c, s = math.cos(pose.yaw), math.sin(pose.yaw)
         lx, ly = c * dx + s * dy, c * dy - s * dx  # the points in the robot frame
         ex = stage_xy[:, 0, None] - lx
         ey = stage_xy[:, 1, None] - ly
         d2 = ex * ex + ey * ey
+        rows = self._rows
+        nearest = np.full(len(stage_xy), np.inf)
         k = min(self._problem.m, len(lx))
-        if k < len(lx):
-            idx = np.argpartition(d2, k - 1, axis=1)[:, :k]
-            d2 = np.take_along_axis(d2, idx, axis=1)
-        else:
-            idx = np.broadcast_to(np.arange(k), d2.shape)
-        chosen = out[:, :k]
-        chosen[..., 0] = lx[idx]
-        chosen[..., 1] = ly[idx]
-        far = d2 > cfg.obstacle_range**2
-        chosen[far] = _FAR
+        # The k nearest of each stage by repeated argmin: for a few slots far cheaper
+        # than a row-wise argpartition.
+        for j in range(k):
+            i = d2.argmin(axis=1)
+            dj = d2[rows, i]
+            far = dj > reach2
+            out[:, j, 0] = np.where(far, _FAR, lx[i])
+            out[:, j, 1] = np.where(far, _FAR, ly[i])
+            if j == 0:
+                nearest = np.where(far, np.inf, dj)
+            d2[rows, i] = np.inf
         out[:, k:] = _FAR
-        d2[far] = np.inf
-        return d2.min(axis=1)
+        return nearest
 
     @property
     def last_stats(self) -> dict:
@@ -281,10 +295,12 @@ class MpcController(PathFollower):
         p[0:NX] = x0
         p[-4:] = (r * r, speed_weight, heading_weight, position_weight)
         controls[:, 2] = 1e-4
-        if pb.m > 0:
+        if pb.m > 0 and obstacles is not None and len(obstacles):
             d2 = self._stage_obstacles(obstacles, states[1:-1, 0:2], pose)
             # Slacks that make the guess feasible (a cold start inside the margin converges).
             controls[1:, 2] += np.maximum(r * r - d2, 0.0) * 1.1
+        elif pb.m > 0:
+            self._obs[:] = _FAR
 
         self._stats = None
         t_solve = time.perf_counter()

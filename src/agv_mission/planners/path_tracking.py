@@ -9,6 +9,7 @@ acceleration, then integrated in time to give one arclength per model step.
 
 from __future__ import annotations
 
+import bisect
 import math
 import time
 from dataclasses import dataclass
@@ -85,24 +86,8 @@ def closest_point(
     if len(path) == 1:
         return Projection(0.0, path[0].copy(), 0, float(np.linalg.norm(p - path[0])))
     seg = segments if segments is not None else Segments.of(path, cumlen)
-    cumlen, a, d, seg_len, len2 = seg.cumlen, seg.start, seg.delta, seg.length, seg.length2
-    first = 0
-    if s_min is not None and s_max is not None and s_min <= s_max:
-        # Only the segments that overlap the window can be valid: look at those alone
-        # (a long path costs no more than a short one).
-        first = max(int(np.searchsorted(cumlen, s_min, side="left")) - 1, 0)
-        last = min(int(np.searchsorted(cumlen, s_max, side="right")), len(a))
-        if first < last:
-            a, d, seg_len, len2 = (
-                a[first:last],
-                d[first:last],
-                seg_len[first:last],
-                len2[first:last],
-            )
-            cumlen = cumlen[first : last + 1]
-        else:
-            first = 0
-    t = np.einsum("ij,ij->i", p - a, d) / np.maximum(len2, 1e-18)
+    cumlen, a, d, seg_len = seg.cumlen, seg.start, seg.delta, seg.length
+    t = np.einsum("ij,ij->i", p - a, d) / np.maximum(seg.length2, 1e-18)
     lo = np.zeros_like(t)
     hi = np.ones_like(t)
     if s_min is not None:
@@ -120,7 +105,7 @@ def closest_point(
     return Projection(
         s=float(cumlen[i] + t[i] * seg_len[i]),
         point=proj[i],
-        segment=first + i,
+        segment=i,
         distance=float(math.sqrt(dist2[i])),
     )
 
@@ -257,6 +242,8 @@ class ProgressTracker:
         self.progress: float | None = None
         self._key: int | None = None
         self._segments: Segments | None = None
+        self._cum: list[float] = []
+        self._rows: list[tuple[float, ...]] = []
 
     def update(
         self, path: np.ndarray, cumlen: np.ndarray, xy: np.ndarray, key: int | None = None
@@ -265,20 +252,51 @@ class ProgressTracker:
         if key is None:
             key = hash(path.tobytes())
         if self.progress is not None and key == self._key and self._segments is not None:
-            proj = closest_point(
-                path,
-                xy,
-                cumlen,
-                s_min=self.progress - self.window_back,
-                s_max=self.progress + self.window_ahead,
-                segments=self._segments,
+            s = self._in_window(
+                float(xy[0]),
+                float(xy[1]),
+                self.progress - self.window_back,
+                self.progress + self.window_ahead,
             )
-            s = max(proj.s, self.progress - 0.05)
+            if s is None:  # the window misses the path: search it whole
+                s = closest_point(path, xy, cumlen, segments=self._segments).s
+            s = max(s, self.progress - 0.05)
         else:
-            self._segments = Segments.of(path, cumlen) if len(path) >= 2 else None
-            s = closest_point(path, xy, cumlen, segments=self._segments).s
+            self._segments = seg = Segments.of(path, cumlen) if len(path) >= 2 else None
+            if seg is not None:
+                self._cum = cumlen.tolist()
+                self._rows = list(
+                    zip(
+                        *seg.start.T.tolist(),
+                        *seg.delta.T.tolist(),
+                        seg.length2.tolist(),
+                        seg.length.tolist(),
+                        self._cum,
+                        strict=False,
+                    )
+                )
+            s = closest_point(path, xy, cumlen, segments=seg).s
         self.progress, self._key = s, key
         return s
+
+    def _in_window(self, x: float, y: float, s_min: float, s_max: float) -> float | None:
+        """:func:`closest_point` on the arclength window [s_min, s_max] (None: the window
+        misses the path), on the few segments that overlap it: plain floats, no arrays."""
+        first = max(bisect.bisect_left(self._cum, s_min) - 1, 0)
+        last = bisect.bisect_right(self._cum, s_max)
+        best, s_best = math.inf, None
+        for ax, ay, dx, dy, len2, length, c in self._rows[first:last]:
+            t = ((x - ax) * dx + (y - ay) * dy) / max(len2, 1e-18)
+            inv = 1.0 / max(length, 1e-18)
+            lo, hi = max((s_min - c) * inv, 0.0), min((s_max - c) * inv, 1.0)
+            if lo > hi:
+                continue
+            t = min(max(t, lo), hi)
+            ex, ey = ax + t * dx - x, ay + t * dy - y
+            d2 = ex * ex + ey * ey
+            if d2 < best:
+                best, s_best = d2, c + t * length
+        return s_best
 
 
 def prepare_path(
@@ -362,7 +380,7 @@ class ReferenceProfile:
         """Points (K, 2) and continuous tangent headings (K,) at arclengths ``s``."""
         s = np.minimum(np.maximum(np.asarray(s, dtype=float), 0.0), self.total)
         i = np.searchsorted(self._cum, s, side="right") - 1
-        np.clip(i, 0, len(self._start) - 1, out=i)
+        np.minimum(np.maximum(i, 0, out=i), len(self._start) - 1, out=i)
         t = (s - self._cum[i]) * self._inv_len[i]
         return self._start[i] + t[:, None] * self._delta[i], self.heading[i]
 

@@ -20,7 +20,7 @@ from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.planners.base import VelocityCommand, VelocityLimits
 from agv_mission.planners.configs import MpcConfig
 from agv_mission.planners.mpc_problem import NU, NX, MpcProblem, RtiStep, mpc_problem
-from agv_mission.planners.path_tracking import PathFollower, PathProgress, ReferenceProfile
+from agv_mission.planners.path_tracking import PathFollower, PathStep
 
 _FAR = 50.0  # where unused obstacle slots are parked (robot frame, metres)
 
@@ -72,7 +72,6 @@ class MpcController(PathFollower):
         self._ref = self._p[pb.p_ref].reshape(pb.n + 1, 4)
         self._obs = self._p[pb.p_obs].reshape(max(pb.n - 1, 0), pb.m, 2)
         self._rows = np.arange(max(pb.n - 1, 0))
-        self._profile: tuple[np.ndarray, ReferenceProfile] | None = None
         self._stats: dict | None = {}
         self._solve_info: dict = {}
         self._t_solver_call = 0.0
@@ -86,24 +85,6 @@ class MpcController(PathFollower):
         self._final_turn_done = False
 
     # -- helpers -----------------------------------------------------------------------
-
-    def _reference(self, progress: PathProgress) -> ReferenceProfile:
-        """The path's :class:`ReferenceProfile`, kept while the path is."""
-        if self._profile is not None and self._profile[0] is progress.path:
-            return self._profile[1]
-        cfg, lim = self.config, self.limits
-        profile = ReferenceProfile(
-            progress.path,
-            progress.cumlen,
-            lim.max_v,
-            lim.max_w,
-            lim.max_acc_v,
-            cfg.decel_fraction * lim.max_acc_v,
-            turn_fraction=cfg.turn_fraction,
-            min_v=lim.min_v,
-        )
-        self._profile = (progress.path, profile)
-        return profile
 
     def _stage_obstacles(
         self, obstacles: np.ndarray, stage_xy: np.ndarray, pose: Pose2D
@@ -227,24 +208,19 @@ class MpcController(PathFollower):
         self._stats = {}
         return brake_command((v0, w0), lim, self.control_period)
 
-    def follow(
-        self,
-        pose: Pose2D,
-        velocity: tuple[float, float],
-        progress: PathProgress,
-        obstacles: np.ndarray,
-    ) -> VelocityCommand:
-        cfg, lim, pb = self.config, self.limits, self._problem
-        v0 = min(max(float(velocity[0]), lim.min_v), lim.max_v)
-        w0 = min(max(float(velocity[1]), -lim.max_w), lim.max_w)
-        profile = self._reference(progress)
-        s0, dist_goal, (gx, gy) = progress.s, progress.dist_goal, progress.to_goal
+    def follow(self, step: PathStep) -> VelocityCommand:
+        cfg, lim, pb, pose = self.config, self.limits, self._problem, step.pose
+        v0 = min(max(float(step.velocity[0]), lim.min_v), lim.max_v)
+        w0 = min(max(float(step.velocity[1]), -lim.max_w), lim.max_w)
+        dec = cfg.decel_fraction * lim.max_acc_v
+        profile = self.reference(step, lim.max_v, dec, cfg.turn_fraction)
+        s0, dist_goal, (gx, gy) = step.s, step.dist_goal, step.to_goal
 
         # Reference: arclengths at the speed profile and, last, the point ahead whose
         # heading decides turn-in-place: to the goal on the final approach, else to a point
         # ahead on the path (or its tangent there when that point is close).
         s_ref, v_ref = profile.sample(s0, v0, pb.n, cfg.dt)
-        s_ref.append(min(s0 + cfg.lookahead, progress.total))
+        s_ref.append(min(s0 + cfg.lookahead, step.total))
         pts, ths = profile.at(s_ref)
         ax, ay = float(pts[-1, 0]) - pose.x, float(pts[-1, 1]) - pose.y
         threshold = cfg.rotate_threshold
@@ -295,8 +271,8 @@ class MpcController(PathFollower):
         p[0:NX] = x0
         p[-4:] = (r * r, speed_weight, heading_weight, position_weight)
         controls[:, 2] = 1e-4
-        if pb.m > 0 and obstacles is not None and len(obstacles):
-            d2 = self._stage_obstacles(obstacles, states[1:-1, 0:2], pose)
+        if pb.m > 0 and step.obstacles is not None and len(step.obstacles):
+            d2 = self._stage_obstacles(step.obstacles, states[1:-1, 0:2], pose)
             # Slacks that make the guess feasible (a cold start inside the margin converges).
             controls[1:, 2] += np.maximum(r * r - d2, 0.0) * 1.1
         elif pb.m > 0:

@@ -172,59 +172,6 @@ def curvature_speed_limit(
     return np.minimum(cap, max_v)
 
 
-def speed_profile(
-    path: np.ndarray,
-    cumlen: np.ndarray,
-    s0: float,
-    v0: float,
-    steps: int,
-    dt: float,
-    max_v: float,
-    max_w: float,
-    acc: float,
-    dec: float,
-    curvature_window: float = 0.15,
-    turn_fraction: float = 0.7,
-    min_v: float = 0.0,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Arclengths (steps + 1,) and speeds (steps + 1,) of a time-sampled reference from s0.
-
-    The speed ends at 0 at the end of the path, respects ``acc`` / ``dec`` and slows
-    for curvature. Sample 0 is at s0 with speed v0 (clipped to [min_v, max_v]).
-    """
-    total = float(cumlen[-1])
-    v0 = min(max(float(v0), max(min_v, 0.0)), max_v)
-    # A grid long enough to cover the horizon plus braking from max speed.
-    reach = max_v * steps * dt + max_v * max_v / (2.0 * dec) + 0.1
-    end = min(total, s0 + reach)
-    n_grid = max(2, int(math.ceil((end - s0) / 0.05)) + 1)
-    grid = np.linspace(s0, end, n_grid)
-    cap = curvature_speed_limit(path, cumlen, grid, max_v, max_w, curvature_window, turn_fraction)
-    if end >= total - 1e-9:
-        cap[-1] = 0.0
-    step = (end - s0) / (n_grid - 1)
-    # Backward pass on v^2 (braking); acceleration is limited by the time integration.
-    v2 = (cap * cap).tolist()
-    for i in range(n_grid - 2, -1, -1):
-        v2[i] = min(v2[i], v2[i + 1] + 2.0 * dec * step)
-    vg = [math.sqrt(max(x, 0.0)) for x in v2]
-    # Integrate in time, the speed cap looked up (linearly) where the step would end.
-    s_out = [s0]
-    v_out = [v0]
-    s_cur, v_cur = s0, v0
-    for _ in range(steps):
-        u = (s_cur + v_cur * dt - s0) / step if step > 0 else 0.0
-        i = min(max(int(u), 0), n_grid - 2)
-        t = min(max(u - i, 0.0), 1.0)
-        cap_here = vg[i] + t * (vg[i + 1] - vg[i])
-        v_new = min(v_cur + acc * dt, max(cap_here, v_cur - dec * dt))
-        s_cur = min(s_cur + 0.5 * (v_cur + v_new) * dt, end)
-        v_cur = 0.0 if s_cur >= total else v_new  # the reference waits at the goal
-        s_out.append(s_cur)
-        v_out.append(v_cur)
-    return np.array(s_out), np.array(v_out)
-
-
 class ProgressTracker:
     """The robot's arclength on the path, kept monotone-ish from call to call.
 
@@ -320,7 +267,7 @@ class ReferenceProfile:
     computed over the whole path on a fixed grid, and every segment's tangent heading
     is made continuous along the path. While the navigator keeps the path, a reference
     then costs one short loop over the horizon instead of a new profile per step. Looking
-    past ``s0 + reach`` (as :func:`speed_profile` does not) changes nothing: braking from
+    past ``s0 + reach`` (a profile started at s0 would not) changes nothing: braking from
     full speed fits within the reach.
     """
 
@@ -357,8 +304,10 @@ class ReferenceProfile:
         self.speed = [math.sqrt(max(x, 0.0)) for x in v2]
 
     def sample(self, s0: float, v0: float, steps: int, dt: float) -> tuple[list, list]:
-        """Arclengths and speeds (``steps + 1`` each) from ``s0`` at speed ``v0``: as
-        :func:`speed_profile`, the grid fixed to the path instead of starting at s0."""
+        """Arclengths and speeds (``steps + 1`` each) of a reference sampled every ``dt``
+        from ``s0`` at speed ``v0`` (clipped to [min_v, max_v]): it accelerates at ``acc``
+        at most, keeps under the profile (the cap looked up where a step would end) and
+        waits at the end of the path."""
         v_cur = min(max(float(v0), self.min_v), self.max_v)
         s_cur, total, vg, last = s0, self.total, self.speed, len(self.speed) - 2
         inv_step = 1.0 / self.step if self.step > 0 else 0.0
@@ -386,14 +335,17 @@ class ReferenceProfile:
 
 
 @dataclass(frozen=True, slots=True)
-class PathProgress:
-    """Where the robot is on the path it follows (map frame)."""
+class PathStep:
+    """One control step of a path follower: its inputs and where the robot is on the
+    path (map frame)."""
 
+    pose: Pose2D
+    velocity: tuple[float, float]  # the current (v, w)
+    obstacles: np.ndarray  # (K, 2) lidar points near the robot
     path: np.ndarray  # (N, 2) the prepared polyline (at least two points)
     cumlen: np.ndarray  # (N,) arclength at every vertex
     total: float  # its length
     s: float  # the robot's arclength on it
-    key: int | None  # identifies the path while the navigator keeps it (None: not kept)
     to_goal: tuple[float, float]  # from the robot to the path's end
     dist_goal: float
     goal_ahead: float  # the end's distance ahead along the robot's heading
@@ -414,6 +366,7 @@ class PathFollower:
         self._tracker = ProgressTracker(window_ahead=limits.max_v * control_period * 3.0 + 0.3)
         self._path_key: int | None = None
         self._prepared: tuple[np.ndarray, np.ndarray, float] = (np.zeros((0, 2)), np.zeros(0), 0.0)
+        self._profile: tuple[np.ndarray, tuple, ReferenceProfile] | None = None
 
     def reset(self) -> None:
         """Forget the path progress (a new goal)."""
@@ -423,13 +376,29 @@ class PathFollower:
     def diagnostics(self) -> dict[str, float]:
         return {}
 
-    def follow(
-        self,
-        pose: Pose2D,
-        velocity: tuple[float, float],
-        progress: PathProgress,
-        obstacles: np.ndarray,
-    ) -> VelocityCommand:
+    def reference(
+        self, step: PathStep, max_v: float, dec: float, turn_fraction: float
+    ) -> ReferenceProfile:
+        """The path's :class:`ReferenceProfile` (up to ``max_v``, braking at ``dec``), kept
+        while the path is."""
+        args = (max_v, dec, turn_fraction)
+        if self._profile is not None and self._profile[0] is step.path and self._profile[1] == args:
+            return self._profile[2]
+        lim = self.limits
+        profile = ReferenceProfile(
+            step.path,
+            step.cumlen,
+            max_v,
+            lim.max_w,
+            lim.max_acc_v,
+            dec,
+            turn_fraction=turn_fraction,
+            min_v=lim.min_v,
+        )
+        self._profile = (step.path, args, profile)
+        return profile
+
+    def follow(self, step: PathStep) -> VelocityCommand:
         """The command for this step while the goal is not reached."""
         raise NotImplementedError
 
@@ -467,7 +436,9 @@ class PathFollower:
         ):
             cmd = VelocityCommand(*self.stop(velocity))
         else:
-            progress = PathProgress(path, cumlen, total, s0, key, (dx, dy), dist_goal, goal_ahead)
-            cmd = self.follow(pose, velocity, progress, obstacles)
+            step = PathStep(
+                pose, velocity, obstacles, path, cumlen, total, s0, (dx, dy), dist_goal, goal_ahead
+            )
+            cmd = self.follow(step)
         cmd.solve_time = time.perf_counter() - t0
         return cmd

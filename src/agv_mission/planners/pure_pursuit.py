@@ -12,15 +12,10 @@ import math
 
 import numpy as np
 
-from agv_mission.geometry import Pose2D, wrap_angle
+from agv_mission.geometry import wrap_angle
 from agv_mission.planners.base import VelocityCommand, VelocityLimits
 from agv_mission.planners.configs import PurePursuitConfig
-from agv_mission.planners.path_tracking import (
-    PathFollower,
-    PathProgress,
-    interpolate,
-    speed_profile,
-)
+from agv_mission.planners.path_tracking import PathFollower, PathStep, interpolate
 
 
 def _ramp(target: float, current: float, max_step: float) -> float:
@@ -61,16 +56,10 @@ class PurePursuitController(PathFollower):
     def stop(self, velocity: tuple[float, float]) -> tuple[float, float]:
         return self._command(0.0, 0.0, velocity)
 
-    def follow(
-        self,
-        pose: Pose2D,
-        velocity: tuple[float, float],
-        progress: PathProgress,
-        obstacles: np.ndarray,
-    ) -> VelocityCommand:
+    def follow(self, step: PathStep) -> VelocityCommand:
         cfg, lim, dt = self.config, self.limits, self.control_period
-        path, cumlen, total, s0 = progress.path, progress.cumlen, progress.total, progress.s
-        goal_ahead = progress.goal_ahead
+        pose, velocity, goal_ahead = step.pose, step.velocity, step.goal_ahead
+        path, cumlen, total, s0 = step.path, step.cumlen, step.total, step.s
         xy = np.array([pose.x, pose.y])
 
         # Lookahead point; at the end of the path, the goal itself.
@@ -91,19 +80,10 @@ class PurePursuitController(PathFollower):
 
         # Speed: braking/curvature profile, goal slow-down, never more than the distance left.
         cruise = min(cfg.speed or lim.max_v, lim.max_v)
-        _, v_prof = speed_profile(
-            path,
-            cumlen,
-            s0,
-            velocity[0],
-            1,
-            dt,
-            cruise,
-            lim.max_w,
-            lim.max_acc_v,
-            cfg.decel_fraction * lim.max_acc_v,
-            turn_fraction=cfg.turn_fraction,
+        profile = self.reference(
+            step, cruise, cfg.decel_fraction * lim.max_acc_v, cfg.turn_fraction
         )
+        _, v_prof = profile.sample(s0, velocity[0], 1, dt)
         remaining = max(total - s0, goal_ahead) if s_look >= total else total - s0
         v_t = float(v_prof[1])
         if cfg.goal_slowdown_distance > 0:

@@ -120,9 +120,14 @@ def test_reference_profile_accelerates_and_stops_at_the_end():
     assert profile.speed[round(0.5 / profile.step)] == pytest.approx(0.26)
     s_end, v_end = map(np.array, profile.sample(cum[-1] - 0.05, 0.1, 20, 0.1))
     assert v_end[-1] < 0.02 and s_end[-1] <= cum[-1] + 1e-9 and np.all(np.diff(s_end) >= 0)
-    pts, headings = profile.at([0.5, 2.0, 99.0])
-    np.testing.assert_allclose(pts, [[0.5, 0.0], [1.5, 0.5], [1.5, 1.2]])
-    np.testing.assert_allclose(headings, [0.0, math.pi / 2, math.pi / 2])
+    points = [profile.point(s) for s in (0.5, 2.0, 99.0)]
+    np.testing.assert_allclose(
+        points, [[0.5, 0.0, 0.0], [1.5, 0.5, math.pi / 2], [1.5, 1.2, math.pi / 2]]
+    )
+    # In the robot's frame: (1, 0) facing +y sees the corner ahead-left, the path heading
+    # as relative yaw.
+    rows = profile.in_frame([0.5, 2.0], [0.1, 0.2], Pose2D(1.0, 0.0, math.pi / 2))
+    np.testing.assert_allclose(rows, [0.0, 0.5, -math.pi / 2, 0.1, 0.5, -0.5, 0.0, 0.2], atol=1e-12)
 
 
 def test_reference_headings_are_continuous_along_the_path():
@@ -130,7 +135,7 @@ def test_reference_headings_are_continuous_along_the_path():
     angles = np.linspace(0.0, 3.0 * math.pi, 60)
     spiral = np.column_stack((np.cos(angles), np.sin(angles))) * (1.0 + angles[:, None] / 10)
     profile = ReferenceProfile(spiral, cumulative_length(spiral), 0.26, 1.82, 1.0, 0.5)
-    _, headings = profile.at(np.linspace(0.0, profile.total, 200))
+    headings = np.array([profile.point(s)[2] for s in np.linspace(0.0, profile.total, 200)])
     assert np.all(np.diff(headings) >= 0.0) and headings[-1] - headings[0] > 2.5 * math.pi
 
 

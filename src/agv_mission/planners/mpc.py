@@ -216,13 +216,11 @@ class MpcController(PathFollower):
         profile = self.reference(step, lim.max_v, dec, cfg.turn_fraction)
         s0, dist_goal, (gx, gy) = step.s, step.dist_goal, step.to_goal
 
-        # Reference: arclengths at the speed profile and, last, the point ahead whose
-        # heading decides turn-in-place: to the goal on the final approach, else to a point
-        # ahead on the path (or its tangent there when that point is close).
-        s_ref, v_ref = profile.sample(s0, v0, pb.n, cfg.dt)
-        s_ref.append(min(s0 + cfg.lookahead, step.total))
-        pts, ths = profile.at(s_ref)
-        ax, ay = float(pts[-1, 0]) - pose.x, float(pts[-1, 1]) - pose.y
+        # The point ahead whose heading decides turn-in-place: to the goal on the final
+        # approach, else to a point ahead on the path (or its tangent there when that point
+        # is close).
+        ax, ay, ahead_th = profile.point(min(s0 + cfg.lookahead, step.total))
+        ax, ay = ax - pose.x, ay - pose.y
         threshold = cfg.rotate_threshold
         final = dist_goal < cfg.final_approach
         if final:
@@ -234,7 +232,7 @@ class MpcController(PathFollower):
         elif math.hypot(ax, ay) > 0.5 * cfg.lookahead:
             heading_err = wrap_angle(math.atan2(ay, ax) - pose.yaw)
         else:
-            heading_err = wrap_angle(float(ths[-1]) - pose.yaw)
+            heading_err = wrap_angle(ahead_th - pose.yaw)
         if abs(heading_err) > threshold:
             self._rotating = True
         elif abs(heading_err) < cfg.rotate_exit:
@@ -250,13 +248,9 @@ class MpcController(PathFollower):
             ref[:, 3] = 0.0
             speed_weight, heading_weight, position_weight = cfg.rotate_speed_weight, 1.0, 1.0
         else:
-            c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-            dx, dy = pts[:-1, 0] - pose.x, pts[:-1, 1] - pose.y
-            ref[:, 0] = c * dx + s * dy
-            ref[:, 1] = c * dy - s * dx
-            th = ths[:-1] - pose.yaw
-            ref[:, 2] = th + 2.0 * math.pi * round(-float(th[0]) / (2.0 * math.pi))
-            ref[:, 3] = v_ref
+            # Arclengths at the speed profile, in the robot frame.
+            s_ref, v_ref = profile.sample(s0, v0, pb.n, cfg.dt)
+            self._p[pb.p_ref] = profile.in_frame(s_ref, v_ref, pose)
             # Path heading and speed stop mattering at the goal (the navigator turns in
             # place there): fading them lets the position terms remove a last offset.
             # The position weight grows as 1/d^2 so that the last centimetres still count

@@ -288,9 +288,20 @@ class ReferenceProfile:
         self.total = float(cumlen[-1])
         self.max_v, self.min_v, self.acc, self.dec = max_v, max(min_v, 0.0), acc, dec
         seg = Segments.of(path, cumlen)
-        self._start, self._delta, self._cum = seg.start, seg.delta, cumlen
-        self._inv_len = 1.0 / np.maximum(seg.length, 1e-18)
-        self.heading = _unwrap(np.arctan2(seg.delta[:, 1], seg.delta[:, 0]))
+        heading = _unwrap(np.arctan2(seg.delta[:, 1], seg.delta[:, 0]))
+        # Per segment, as plain floats (a lookup is a bisect and a few multiplications):
+        # start, direction, 1 / length, continuous heading, arclength at its start.
+        self._cum = cumlen.tolist()
+        self._segments = list(
+            zip(
+                *seg.start.T.tolist(),
+                *seg.delta.T.tolist(),
+                (1.0 / np.maximum(seg.length, 1e-18)).tolist(),
+                heading.tolist(),
+                self._cum,
+                strict=False,
+            )
+        )
         n_grid = max(2, int(math.ceil(self.total / spacing)) + 1)
         grid = np.linspace(0.0, self.total, n_grid)
         cap = curvature_speed_limit(
@@ -325,13 +336,29 @@ class ReferenceProfile:
             v_out.append(v_cur)
         return s_out, v_out
 
-    def at(self, s: np.ndarray | list) -> tuple[np.ndarray, np.ndarray]:
-        """Points (K, 2) and continuous tangent headings (K,) at arclengths ``s``."""
-        s = np.minimum(np.maximum(np.asarray(s, dtype=float), 0.0), self.total)
-        i = np.searchsorted(self._cum, s, side="right") - 1
-        np.minimum(np.maximum(i, 0, out=i), len(self._start) - 1, out=i)
-        t = (s - self._cum[i]) * self._inv_len[i]
-        return self._start[i] + t[:, None] * self._delta[i], self.heading[i]
+    def point(self, s: float) -> tuple[float, float, float]:
+        """The point (x, y) and continuous tangent heading at arclength ``s`` (clamped to
+        the path)."""
+        s = min(max(s, 0.0), self.total)
+        i = min(max(bisect.bisect_right(self._cum, s) - 1, 0), len(self._segments) - 1)
+        ax, ay, dx, dy, inv_len, heading, start = self._segments[i]
+        t = (s - start) * inv_len
+        return ax + t * dx, ay + t * dy, heading
+
+    def in_frame(self, s: list[float], v: list[float], frame: Pose2D) -> list[float]:
+        """Rows (x, y, heading, speed) at arclengths ``s`` with speeds ``v``, flattened, in
+        ``frame`` (the robot's): headings relative to its yaw, continuous, the first one
+        within pi of 0."""
+        c, sn, yaw = math.cos(frame.yaw), math.sin(frame.yaw), frame.yaw
+        out: list[float] = []
+        shift = None
+        for s_k, v_k in zip(s, v, strict=True):
+            x, y, heading = self.point(s_k)
+            x, y, heading = x - frame.x, y - frame.y, heading - yaw
+            if shift is None:
+                shift = 2.0 * math.pi * round(-heading / (2.0 * math.pi))
+            out += (c * x + sn * y, c * y - sn * x, heading + shift, v_k)
+        return out
 
 
 @dataclass(frozen=True, slots=True)

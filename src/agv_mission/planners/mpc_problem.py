@@ -272,6 +272,7 @@ def rti_function(
     # J'J from the sparse residual Jacobian (a stage's residuals depend only on the
     # controls before it): far fewer scalar operations than a dense product.
     jac = ca.jacobian(residual, u)
+    cons_jac = ca.jacobian(cons, u)
     qp_data = ca.Function(
         "mpc_qp_data",
         [u, params],
@@ -279,7 +280,7 @@ def rti_function(
             jac,  # sparse: a stage's residuals depend only on the controls before it
             residual,
             ca.gradient(linear, u),
-            ca.densify(ca.jacobian(cons, u)),
+            cons_jac,  # sparse: DAQP densifies it itself, cheaper than SX zeros
             lbc - cons,
             ubc - cons,
         ],
@@ -291,7 +292,7 @@ def rti_function(
         "daqp",
         {
             "h": ca.Sparsity.dense(2 * n + 1, 2 * n + 1),
-            "a": ca.Sparsity.dense(cons.shape[0], 2 * n + 1),
+            "a": cons_jac.sparsity(),
         },
         {"error_on_fail": True},
     )

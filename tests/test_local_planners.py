@@ -116,8 +116,8 @@ def test_reference_profile_accelerates_and_stops_at_the_end():
     assert v[0] == 0.0 and np.all(np.diff(v[:4]) > 0)
     assert np.all(np.diff(v) <= 1.0 * 0.1 + 1e-9) and v.max() <= 0.26 + 1e-9
     # Slower through the corner (1.5 m along) than on the straight before it.
-    assert profile.speed[round(1.5 / profile.step)] < 0.25
-    assert profile.speed[round(0.5 / profile.step)] == pytest.approx(0.26)
+    assert profile.speed_sq[round(1.5 / profile.step)] < 0.25**2
+    assert profile.speed_sq[round(0.5 / profile.step)] == pytest.approx(0.26**2)
     s_end, v_end = map(np.array, profile.sample(cum[-1] - 0.05, 0.1, 20, 0.1))
     assert v_end[-1] < 0.02 and s_end[-1] <= cum[-1] + 1e-9 and np.all(np.diff(s_end) >= 0)
     points = [profile.point(s) for s in (0.5, 2.0, 99.0)]

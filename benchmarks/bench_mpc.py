@@ -124,6 +124,8 @@ def run() -> dict[str, float]:
         "mpc.solve_cpu_ms.p99": float(np.percentile(cpu, 99)),
         "mpc.fatrop.solve_cpu_ms.p50": float(np.percentile(fcpu, 50)),
         "mpc.fatrop.solve_cpu_ms.p99": float(np.percentile(fcpu, 99)),
+        # The same run's ratio: steady when the machine's speed changes between runs.
+        "mpc.cpu_p50_over_fatrop": float(np.percentile(cpu, 50) / np.percentile(fcpu, 50)),
         "mpc.fatrop.goal_error_m.max": float(max(f["goal_err"])),
         "mpc.fatrop.clearance_m.min": float(min(f["clear"])),
         "mpc.solve_ms.p50": float(np.percentile(ms, 50)),

@@ -40,6 +40,16 @@ def start_run(mission: Path, out: Path) -> subprocess.Popen:
     )
 
 
+def wait_for_stepping(out: Path, deadline: float = 120.0) -> None:
+    """Until the run's bag is open (the observers start just before the first step), then
+    a little more: a loaded machine may take seconds to build the robot before that."""
+    end = time.monotonic() + deadline
+    while not any(out.glob("*/bag/*")):
+        assert time.monotonic() < end, "the run never opened its bag"
+        time.sleep(0.05)
+    time.sleep(1.0)
+
+
 def only_result(out: Path) -> dict:
     [run_dir] = list(out.iterdir())
     return json.loads((run_dir / "result.json").read_text())
@@ -52,8 +62,8 @@ def test_a_signal_mid_run_ends_it_aborted_with_a_result(
     out = tmp_path / "out"
     proc = start_run(mission_file(tmp_path, LONG), out)
     assert proc.stdout is not None
-    assert "task(s) in" in proc.stdout.readline()  # the run has started
-    time.sleep(1.5)
+    assert "task(s) in" in proc.stdout.readline()  # the run directory is made
+    wait_for_stepping(out)
     proc.send_signal(sig)
     stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == code, stderr

@@ -311,12 +311,15 @@ class AmclLocalizer:
         pf = self.filter
         if moved:
             pf.motion_update(self._odom.as_array(), odom.as_array())
-        pf.sensor_update(
-            scan.ranges, scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max
-        )
+        c = self.config
+        # While the refinement tracks, the estimate is its own and the cloud is moved onto
+        # it at every update: the filter is the fallback, a coarse cloud is enough.
+        tracking = self.refining and self.tracker is not None and self.tracker.last is not None
+        tracking = tracking and self.tracker.last.accepted
+        pf.sensor_update(scan, c.refine_filter_beams if tracking else None)
         self._resample_count += 1
-        if self._resample_count % self.config.resample_interval == 0:
-            pf.resample()
+        if self._resample_count % c.resample_interval == 0:
+            pf.resample(c.refine_filter_particles if tracking else None)
         est, _ = pf.estimate()
         self._pose = Pose2D(float(est[0]), float(est[1]), float(est[2]))
         self._pf_cov = pf.covariance(est)

@@ -43,6 +43,7 @@ For plots the plugin keeps ``snapshots`` (``(time, particles)`` every
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -339,7 +340,15 @@ def _scan_points(scan: LaserScan, min_range: float, max_range: float) -> np.ndar
     r = np.asarray(scan.ranges, dtype=np.float64)
     rmin = min_range if min_range > 0.0 else scan.range_min
     rmax = max_range if max_range > 0.0 else scan.range_max
-    ok = np.isfinite(r) & (r >= rmin) & (r < rmax)
-    a = scan.angle_min + scan.angle_increment * np.flatnonzero(ok)
-    r = r[ok]
-    return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
+    ok = (r >= rmin) & (r < rmax)  # False for nan; inf is not below rmax
+    directions = _beam_directions(scan.angle_min, scan.angle_increment, len(r))
+    return directions[ok] * r[ok, None]
+
+
+@functools.lru_cache(maxsize=16)
+def _beam_directions(angle_min: float, angle_increment: float, n: int) -> np.ndarray:
+    """Unit vectors (n, 2) of a scan's beams: the same for every scan of a lidar."""
+    a = angle_min + angle_increment * np.arange(n)
+    out = np.stack([np.cos(a), np.sin(a)], axis=1)
+    out.flags.writeable = False
+    return out

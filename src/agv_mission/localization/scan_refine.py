@@ -29,81 +29,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from agv_mission.geometry import wrap_angle
+from agv_mission.localization.distance_field import SignedDistanceField
 from agv_mission.maps.grid import OccupancyGrid
-
-#: Cells at or above this value count as occupied (map_server's occupied_thresh 0.65).
-OCCUPIED_THRESHOLD = 65
-
-
-class SignedDistanceField:
-    """Signed distance (m) to the boundary of the occupied cells, bilinear between centres.
-
-    Positive in free (and unknown) space, negative inside walls and in the unknown space
-    right behind them, zero on a wall's face:
-    a free cell next to a wall holds ``+res / 2`` and the wall cell ``-res / 2``, so the
-    interpolated zero lies on the face the simulated lidar (walls built from the same
-    cells) hits. Clipped at ``max_distance``; points off the map read ``max_distance``
-    with no gradient.
-    """
-
-    def __init__(self, grid: OccupancyGrid, max_distance: float = 1.0) -> None:
-        res = float(grid.resolution)
-        occupied = grid.data >= OCCUPIED_THRESHOLD
-        self.resolution = res
-        self.origin = grid.origin
-        self.max_distance = float(max_distance)
-        free = (grid.data >= 0) & ~occupied
-        if occupied.any() and free.any():
-            to_wall = ndimage.distance_transform_edt(~occupied)
-            to_free = ndimage.distance_transform_edt(~free)
-            # Unknown cells closer to a wall than to free space lie behind that wall (the
-            # far side of a thin wall): inside, so an end point pushed through a wall is
-            # pulled back rather than out. Other unknown cells count as free, as in amcl.
-            inside = occupied | ((grid.data < 0) & (to_wall < to_free))
-            sdf = np.where(inside, -(to_free - 0.5), to_wall - 0.5) * res
-        else:
-            sdf = np.full(occupied.shape, -max_distance if occupied.any() else max_distance)
-        sdf = np.clip(sdf, -max_distance, max_distance)
-        # One cell of padding so that the four corners of every in-map point exist.
-        self.values = np.pad(sdf, 1, constant_values=max_distance).astype(np.float64)
-        self.height, self.width = self.values.shape
-        c, s = math.cos(grid.origin.yaw), math.sin(grid.origin.yaw)
-        self._rot = np.array([[c, -s], [s, c]])
-        # The bilinear patch of every cell as [s00, s01 - s00, s10 - s00, s11 - s10 - s01
-        # + s00] over a second ring of padding: a lookup is one gather, and a point off the
-        # map, clamped onto the outer ring, reads max_distance with no gradient.
-        v = np.pad(self.values, 1, constant_values=max_distance)
-        s00, s01, s10, s11 = v[:-1, :-1], v[:-1, 1:], v[1:, :-1], v[1:, 1:]
-        self._patches = np.stack((s00, s01 - s00, s10 - s00, s11 - s10 - s01 + s00), axis=-1)
-        self._patches = self._patches.reshape(-1, 4)
-        self._patch_cols = v.shape[1] - 1
-        self._last_patch = np.array([v.shape[1] - 2, v.shape[0] - 2], dtype=np.float64)
-
-    def lookup(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Distances (N,) and map-frame gradients (N, 2) at map-frame points ``xy`` (N, 2)."""
-        o = self.origin
-        p = np.asarray(xy, dtype=np.float64) - (o.x, o.y)
-        if o.yaw != 0.0:
-            p = p @ self._rot  # into the grid frame (R^T p, row-wise)
-        inv = 1.0 / self.resolution
-        uv = p * inv + 1.5  # cell-centre coordinates in the twice padded grid
-        cell = np.floor(uv)
-        np.maximum(np.minimum(cell, self._last_patch, out=cell), 0.0, out=cell)
-        frac = uv - cell
-        np.maximum(np.minimum(frac, 1.0, out=frac), 0.0, out=frac)
-        idx = cell.astype(np.intp)
-        patch = self._patches[idx[:, 1] * self._patch_cols + idx[:, 0]]
-        fu, fv = frac[:, 0], frac[:, 1]
-        d = patch[:, 0] + patch[:, 1] * fu + (patch[:, 2] + patch[:, 3] * fu) * fv
-        grad = np.empty_like(p)
-        grad[:, 0] = (patch[:, 1] + patch[:, 3] * fv) * inv
-        grad[:, 1] = (patch[:, 2] + patch[:, 3] * fu) * inv
-        if o.yaw != 0.0:
-            grad = grad @ self._rot.T
-        return d, grad
 
 
 @dataclass(frozen=True)
@@ -183,6 +112,8 @@ class PoseTracker:
         self.wall_offset = 0.0  # m, where the scans see the walls' faces (see RefineParams)
         self.noise_scale = 1.0  # adaptive factor on the odometry noise (see correct)
         self._floor = np.array([self.params.floor_xy, self.params.floor_xy, self.params.floor_yaw])
+        self._scaled = np.outer(self._floor, self._floor)  # H in floor units: H * scaled
+        self._saturated_info = np.diag(1.0 / self._floor**2)
 
     def start(self, mean: np.ndarray, cov: np.ndarray) -> None:
         self.noise_scale = 1.0
@@ -201,22 +132,26 @@ class PoseTracker:
         p = self.params
         th = float(self.mean[2])
         c, s = math.cos(th), math.sin(th)
-        f = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
-        g = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         dist = math.hypot(dx, dy)
         # Random-walk noise (variance proportional to the motion), so the growth does not
-        # depend on how finely the motion is chopped into control steps.
-        q = np.diag(
-            [
-                p.noise_along**2 * dist,
-                p.noise_lateral**2 * dist,
-                p.noise_turn**2 * abs(dth) + p.noise_yaw_per_m**2 * dist,
-            ]
-        )
+        # depend on how finely the motion is chopped into control steps: Q = diag(along,
+        # lateral, yaw) in the robot frame, rotated into the map frame (G Q G^T).
+        ns = self.noise_scale
+        q0, q1 = ns * p.noise_along**2 * dist, ns * p.noise_lateral**2 * dist
+        q2 = ns * (p.noise_turn**2 * abs(dth) + p.noise_yaw_per_m**2 * dist)
+        # F P F^T with F the motion's Jacobian [[1, 0, fa], [0, 1, fb], [0, 0, 1]], written
+        # out (3x3 numpy calls cost more than the arithmetic).
+        fa, fb = -s * dx - c * dy, c * dx - s * dy
+        (p00, p01, p02), (_, p11, p12), (_, _, p22) = self.cov.tolist()
+        x02, x12 = p02 + fa * p22, p12 + fb * p22
+        cs = c * s * (q0 - q1)
+        n00 = p00 + fa * p02 + fa * x02 + c * c * q0 + s * s * q1
+        n01 = p01 + fa * p12 + fb * x02 + cs
+        n11 = p11 + fb * p12 + fb * x12 + s * s * q0 + c * c * q1
         self.mean = np.array(
             [self.mean[0] + c * dx - s * dy, self.mean[1] + s * dx + c * dy, wrap_angle(th + dth)]
         )
-        self.cov = f @ self.cov @ f.T + self.noise_scale * (g @ q @ g.T)
+        self.cov = np.array([[n00, n01, x02], [n01, n11, x12], [x02, x12, p22 + q2]])
 
     def _adapt_noise(self, delta: np.ndarray, prior_info: np.ndarray) -> None:
         """Scale the odometry noise by how far the scans move the prediction.
@@ -244,7 +179,7 @@ class PoseTracker:
             self.last = out
             return out
         prior = self.mean
-        prior_info = np.linalg.inv(self.cov)
+        prior_info = _inverse3(self.cov)
         x = prior.copy()
         w_beam = 1.0 / p.sigma**2
         post_info = prior_info
@@ -257,11 +192,10 @@ class PoseTracker:
         reach = math.sqrt(float(np.max(np.einsum("ij,ij->i", pts, pts))))
         spread = math.sqrt(max(self.cov[0, 0], self.cov[1, 1])) + reach * math.sqrt(self.cov[2, 2])
         converged = 3.0 * spread <= p.outlier
-        floor = self._floor
-        scaled = np.outer(floor, floor)  # H in floor units: H * scaled
+        floor, scaled = self._floor, self._scaled
         # The posterior information when the scan pins every direction (its capped
         # information is then diag(floor^-2), see _saturated_step).
-        capped_post = prior_info + np.diag(1.0 / floor**2)
+        capped_post = prior_info + self._saturated_info
         jac = np.empty((len(pts), 3))
         for it in range(1, p.iterations + 1):
             iterations = it
@@ -295,11 +229,12 @@ class PoseTracker:
             if small and not wide:
                 break
             converged = converged or abs(step[0]) + abs(step[1]) < 1e-3 and abs(step[2]) < 1e-3
-        valid = np.abs(r) < p.outlier
-        inlier = float(np.mean(np.abs(r) < p.inlier))
-        rms = float(np.sqrt(np.mean(r[valid] ** 2))) if valid.any() else math.nan
-        cov = np.linalg.inv(post_info)
-        cov = 0.5 * (cov + cov.T)
+        a = np.abs(r)
+        fits = a < p.inlier
+        inlier = np.count_nonzero(fits) / len(r)
+        rv = r[a < p.outlier]
+        rms = math.sqrt(float(rv @ rv) / len(rv)) if len(rv) else math.nan
+        cov = _inverse3(post_info)
         accepted = inlier >= p.min_inlier_fraction
         if accepted and commit and p.adaptive_noise:
             self._adapt_noise(x - prior, prior_info)
@@ -307,7 +242,6 @@ class PoseTracker:
             self.fit_rms = (
                 rms if not math.isfinite(self.fit_rms) else 0.8 * self.fit_rms + 0.2 * rms
             )
-            fits = np.abs(r) < p.inlier
             if p.wall_offset_rate > 0.0 and fits.any():
                 step = _median(raw[fits]) - self.wall_offset
                 limit = 0.5 * self.sdf.resolution
@@ -396,6 +330,22 @@ def _saturated_step(
     (pa, pb, pc), (_, pd, pe), (_, _, pf) = capped_post.tolist()
     s0, s1, s2 = _solve3(pa, pb, pc, pd, pe, pf, *rhs)
     return np.array([-s0, -s1, -s2])
+
+
+def _inverse3(m: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive definite 3x3 matrix (adjugate over determinant:
+    exactly symmetric, and a tenth of ``np.linalg.inv``'s call overhead)."""
+    (a, b, c), (_, d, e), (_, _, f) = m.tolist()
+    c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
+    c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
+    inv = 1.0 / (a * c00 + b * c01 + c * c02)
+    return np.array(
+        [
+            [c00 * inv, c01 * inv, c02 * inv],
+            [c01 * inv, c11 * inv, c12 * inv],
+            [c02 * inv, c12 * inv, c22 * inv],
+        ]
+    )
 
 
 def _det3(a: float, b: float, c: float, d: float, e: float, f: float) -> float:

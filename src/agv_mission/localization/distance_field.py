@@ -11,6 +11,7 @@ import math
 import numpy as np
 from scipy import ndimage
 
+from agv_mission.localization.map_cache import map_table
 from agv_mission.maps.grid import OccupancyGrid
 
 #: Cells at or above this value count as occupied (map_server's occupied_thresh 0.65).
@@ -58,6 +59,8 @@ class SignedDistanceField:
         s00, s01, s10, s11 = v[:-1, :-1], v[:-1, 1:], v[1:, :-1], v[1:, 1:]
         self._patches = np.stack((s00, s01 - s00, s10 - s00, s11 - s10 - s01 + s00), axis=-1)
         self._patches = self._patches.reshape(-1, 4)
+        self.values.flags.writeable = False  # shared between runs (map_cache)
+        self._patches.flags.writeable = False
         self._patch_cols = v.shape[1] - 1
         self._last_patch = np.array([v.shape[1] - 2, v.shape[0] - 2], dtype=np.float64)
 
@@ -83,3 +86,9 @@ class SignedDistanceField:
         if o.yaw != 0.0:
             grad = grad @ self._rot.T
         return d, grad
+
+
+def signed_distance_field(grid: OccupancyGrid, max_distance: float = 1.0) -> SignedDistanceField:
+    """The map's :class:`SignedDistanceField`, built once per map content (map_cache)."""
+    d = float(max_distance)
+    return map_table("signed_distance", grid, d, lambda: SignedDistanceField(grid, d))

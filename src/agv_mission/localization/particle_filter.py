@@ -34,7 +34,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from agv_mission.geometry import wrap_angle, wrap_angles
-from agv_mission.localization.beam_model import BeamModel, SensorParams
+from agv_mission.localization.beam_model import BeamModel, SensorParams, beam_model
 from agv_mission.localization.histogram import KldBound, heaviest_cluster, kld_count, weighted_pose
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
@@ -178,7 +178,7 @@ class ParticleFilter:
         key = round(float(range_max), 6)
         f = self._fields.get(key)
         if f is None:
-            f = self._fields[key] = BeamModel(self.grid, self.sensor, key)
+            f = self._fields[key] = beam_model(self.grid, self.sensor, key)
         return f
 
     def beams(
@@ -306,8 +306,8 @@ class ParticleFilter:
             )
             broad = replace(sharp, sigma_hit=max(PROPOSAL_BROAD_SIGMA, sharp.sigma_hit))
             pair = self._proposal[key] = (
-                BeamModel(self.grid, broad, key),
-                BeamModel(self.grid, sharp, key),
+                beam_model(self.grid, broad, key),
+                beam_model(self.grid, sharp, key),
             )
         return pair
 

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agv_mission.geometry import wrap_angle
-from agv_mission.localization.distance_field import SignedDistanceField
+from agv_mission.localization.distance_field import signed_distance_field
 from agv_mission.maps.grid import OccupancyGrid
 
 
@@ -103,7 +103,7 @@ class PoseTracker:
 
     def __init__(self, grid: OccupancyGrid, params: RefineParams | None = None) -> None:
         self.params = params or RefineParams()
-        self.sdf = SignedDistanceField(grid, max_distance=max(1.0, 3.0 * self.params.outlier))
+        self.sdf = signed_distance_field(grid, max(1.0, 3.0 * self.params.outlier))
         self.mean = np.zeros(3)
         self.cov = np.eye(3)
         self.active = False

@@ -63,6 +63,7 @@ class SignedDistanceField:
         self._patches.flags.writeable = False
         self._patch_cols = v.shape[1] - 1
         self._last_patch = np.array([v.shape[1] - 2, v.shape[0] - 2], dtype=np.float64)
+        self._origin_xy = np.array([grid.origin.x, grid.origin.y])
 
     def lookup(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distances (N,) and map-frame gradients (N, 2) at map-frame points ``xy`` (N, 2)."""
@@ -86,6 +87,45 @@ class SignedDistanceField:
         if o.yaw != 0.0:
             grad = grad @ self._rot.T
         return d, grad
+
+    def scan_residuals(self, pts: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distances (M,) at robot-frame points ``pts`` (M, 2) seen from ``pose`` [x, y,
+        yaw], and their Jacobian (M, 3) with respect to the pose.
+
+        One scan-matching iteration's :meth:`lookup` and chain rule, the same arithmetic
+        fused into fewer numpy calls (at 360 points their overhead is the cost).
+        """
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        rxy = pts @ np.array([[c, s], [-s, c]])  # rotated into the map frame
+        p = rxy + pose[0:2]
+        p -= self._origin_xy
+        rotated = self.origin.yaw != 0.0
+        if rotated:
+            p = p @ self._rot  # into the grid frame (R^T p, row-wise)
+        inv = 1.0 / self.resolution
+        p *= inv
+        p += 1.5  # cell-centre coordinates in the twice padded grid
+        cell = np.floor(p)
+        np.maximum(np.minimum(cell, self._last_patch, out=cell), 0.0, out=cell)
+        frac = np.subtract(p, cell, out=p)
+        np.maximum(np.minimum(frac, 1.0, out=frac), 0.0, out=frac)
+        idx = cell.astype(np.intp)
+        flat = idx[:, 1] * self._patch_cols + idx[:, 0]
+        patch = np.take(self._patches, flat, axis=0)
+        fu, fv = frac[:, 0], frac[:, 1]
+        jac = np.empty((len(pts), 3))
+        ju, jv = jac[:, 0], jac[:, 1]
+        np.multiply(patch[:, 3], fu, out=jv)
+        jv += patch[:, 2]
+        d = patch[:, 0] + patch[:, 1] * fu + jv * fv
+        np.multiply(patch[:, 3], fv, out=ju)
+        ju += patch[:, 1]
+        grad = jac[:, 0:2]
+        grad *= inv
+        if rotated:
+            grad[:] = grad @ self._rot.T
+        jac[:, 2] = jv * rxy[:, 0] - ju * rxy[:, 1]
+        return d, jac
 
 
 def signed_distance_field(grid: OccupancyGrid, max_distance: float = 1.0) -> SignedDistanceField:

@@ -49,6 +49,9 @@ class RefineParams:
     floor_xy: float = 0.01  # m, no single scan pins x or y tighter than this
     floor_yaw: float = 0.005  # rad, nor the yaw
     iterations: int = 12
+    # Gauss-Newton stops at a step below this (m in x + y, rad in yaw): a thirtieth of the
+    # information floor, where the remaining steps shrink by ~3x per iteration.
+    step_tolerance: float = 3e-4
     # Covariance floor from the fit: the accepted scans' residual RMS (smoothed) times
     # ``map_error_scale`` in x and y, divided by ``map_error_lever`` (m) for the yaw.
     map_error_scale: float = 1.0
@@ -196,12 +199,10 @@ class PoseTracker:
         # The posterior information when the scan pins every direction (its capped
         # information is then diag(floor^-2), see _saturated_step).
         capped_post = prior_info + self._saturated_info
-        jac = np.empty((len(pts), 3))
+        tol = p.step_tolerance
         for it in range(1, p.iterations + 1):
             iterations = it
-            c, s = math.cos(x[2]), math.sin(x[2])
-            rxy = pts @ np.array([[c, s], [-s, c]])  # rotated into the map frame
-            raw, grad = self.sdf.lookup(rxy + x[0:2])
+            raw, jac = self.sdf.scan_residuals(pts, x)
             r = raw - self.wall_offset
             a = np.abs(r)
             # The first iterations use a wide kernel: from a prior a decimetre or a few
@@ -210,8 +211,6 @@ class PoseTracker:
             huber, outlier = (4.0 * p.huber, 2.0 * p.outlier) if wide else (p.huber, p.outlier)
             w = np.minimum(huber / np.maximum(a, 1e-12), 1.0)  # Huber weights
             w *= (a <= outlier) * w_beam
-            jac[:, 0:2] = grad
-            jac[:, 2] = grad[:, 1] * rxy[:, 0] - grad[:, 0] * rxy[:, 1]
             jw = jac * w[:, None]
             h_full, g_full = jw.T @ jac, jw.T @ r
             dx_prior = x - prior
@@ -225,7 +224,7 @@ class PoseTracker:
                 post_info = capped_post
             x = x + step
             x[2] = wrap_angle(x[2])
-            small = abs(step[0]) + abs(step[1]) < 1e-4 and abs(step[2]) < 1e-4
+            small = abs(step[0]) + abs(step[1]) < tol and abs(step[2]) < tol
             if small and not wide:
                 break
             converged = converged or abs(step[0]) + abs(step[1]) < 1e-3 and abs(step[2]) < 1e-3

@@ -13,7 +13,13 @@ from agv_mission.geometry import Pose2D
 from agv_mission.localization import map_cache, scan_refine
 from agv_mission.localization.beam_model import SensorParams, beam_model
 from agv_mission.localization.distance_field import SignedDistanceField, signed_distance_field
-from agv_mission.localization.histogram import KldBound, bin_keys, kld_count
+from agv_mission.localization.histogram import (
+    KldBound,
+    bin_keys,
+    heaviest_cluster,
+    kld_count,
+    weighted_pose,
+)
 from agv_mission.localization.scan_refine import PoseTracker, RefineParams
 from agv_mission.maps.grid import OccupancyGrid
 from test_amcl import ROOM, cast, drive, make
@@ -162,3 +168,49 @@ def test_filter_runs_coarse_only_while_the_refinement_tracks():
     loc.request_nomotion_update()
     loc.update(odom, cast(ROOM, here), here, 20.0)
     assert loc.particle_counts[-1][1] >= 500
+
+
+def reference_clusters(p: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, float]:
+    """The heaviest cluster by brute force: bins adjacent when x, y and yaw (circular, 36
+    bins) each differ by at most one bin; components by search."""
+    keys = np.stack(
+        [
+            np.floor(p[:, 0] / 0.5),
+            np.floor(p[:, 1] / 0.5),
+            np.floor((p[:, 2] + math.pi) / math.radians(10.0)) % 36,
+        ],
+        axis=1,
+    ).astype(int)
+    bins = sorted({tuple(k) for k in keys})
+    comp: dict[tuple[int, ...], int] = {}
+    for start in bins:
+        if start in comp:
+            continue
+        comp[start], todo = len(comp), [start]
+        while todo:
+            a = todo.pop()
+            for b in bins:
+                da = abs(a[2] - b[2])
+                near = abs(a[0] - b[0]) <= 1 and abs(a[1] - b[1]) <= 1 and min(da, 36 - da) <= 1
+                if near and b not in comp:
+                    comp[b] = comp[start]
+                    todo.append(b)
+    lab = np.array([comp[tuple(k)] for k in keys])
+    totals = np.bincount(lab, weights=w)
+    sel = lab == int(np.argmax(totals))
+    return weighted_pose(p[sel], w[sel]), float(totals.max())
+
+
+def test_heaviest_cluster_is_the_brute_force_one_across_the_yaw_seam():
+    rng = np.random.default_rng(5)
+    for _ in range(60):
+        n = int(rng.integers(20, 400))
+        spread = rng.choice([0.05, 0.4, 1.5])
+        p = rng.normal(size=(n, 3)) * [spread, spread, rng.choice([0.05, 0.3, 3.0])]
+        p[:, 2] = (p[:, 2] + rng.choice([0.0, math.pi]) + math.pi) % (2 * math.pi) - math.pi
+        p[: n // 3, :2] += rng.uniform(-4.0, 4.0, 2)  # a second, separate cloud
+        w = rng.random(n)
+        mean, weight = heaviest_cluster(p, w)
+        ref_mean, ref_weight = reference_clusters(p, w)
+        np.testing.assert_allclose(mean, ref_mean, atol=1e-12)
+        assert weight == pytest.approx(ref_weight)

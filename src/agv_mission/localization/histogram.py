@@ -99,13 +99,21 @@ def heaviest_cluster(p: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, float]:
     ka = np.floor((p[:, 2] + math.pi) / BIN_SIZE[2]).astype(np.int64) % _YAW_BINS
     kx -= kx.min()
     ky -= ky.min()
-    shape = (int(kx.max()) + 1, int(ky.max()) + 1, _YAW_BINS)
-    if shape[0] * shape[1] * shape[2] > 4_000_000:
+    nx, ny = int(kx.max()) + 1, int(ky.max()) + 1
+    if nx * ny * _YAW_BINS > 4_000_000:
         return weighted_pose(p, w), 1.0
-    occ = np.zeros(shape, dtype=bool)
+    used = np.zeros(_YAW_BINS, dtype=bool)
+    used[ka] = True
+    wrap = bool(used.all())
+    if not wrap:
+        # Turn the yaw axis so that an empty yaw bin is the last: no cluster then crosses
+        # the seam, and the histogram only needs the yaw bins between the occupied ones.
+        ka = (ka - (int(np.argmin(used)) + 1)) % _YAW_BINS
+        ka -= ka.min()
+    occ = np.zeros((nx, ny, _YAW_BINS if wrap else int(ka.max()) + 1), dtype=bool)
     occ[kx, ky, ka] = True
     labels, count = ndimage.label(occ, structure=np.ones((3, 3, 3), dtype=bool))
-    if count > 1:
+    if wrap and count > 1:
         labels = _merge_yaw_wrap(labels, count)
     lab = labels[kx, ky, ka]
     totals = np.bincount(lab, weights=w)

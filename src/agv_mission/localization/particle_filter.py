@@ -323,6 +323,9 @@ class ParticleFilter:
         # What amcl does one sample at a time: draw from the weighted set (here a shuffled
         # systematic draw, so every prefix is representative), injecting random poses with
         # probability w_diff, until the count exceeds the KLD bound of the bins filled.
+        if w_diff <= 0.0 and self.min_particles >= m:
+            self._set(self.particles[self.systematic(m)])  # the count is known: no candidates
+            return m
         candidates = self.particles[self.systematic(m)][self.rng.permutation(m)]
         inject = np.zeros(m, dtype=bool)
         if w_diff > 0.0:

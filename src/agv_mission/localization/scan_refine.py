@@ -244,9 +244,8 @@ class PoseTracker:
             if p.wall_offset_rate > 0.0 and fits.any():
                 step = _median(raw[fits]) - self.wall_offset
                 limit = 0.5 * self.sdf.resolution
-                self.wall_offset = float(
-                    np.clip(self.wall_offset + p.wall_offset_rate * step, -limit, limit)
-                )
+                moved = self.wall_offset + p.wall_offset_rate * step
+                self.wall_offset = max(-limit, min(limit, moved))
             err = p.map_error_scale * self.fit_rms
             cov = floor_covariance(cov, np.array([err, err, err / p.map_error_lever]))
         out = Correction(accepted, x, cov, len(pts), inlier, rms, iterations)

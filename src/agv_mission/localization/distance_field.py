@@ -63,7 +63,7 @@ class SignedDistanceField:
         self._patches.flags.writeable = False
         self._patch_cols = v.shape[1] - 1
         self._last_patch = np.array([v.shape[1] - 2, v.shape[0] - 2], dtype=np.float64)
-        self._origin_xy = np.array([grid.origin.x, grid.origin.y])
+        self._patch_stride = np.array([1.0, float(self._patch_cols)])
 
     def lookup(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distances (N,) and map-frame gradients (N, 2) at map-frame points ``xy`` (N, 2)."""
@@ -88,44 +88,48 @@ class SignedDistanceField:
             grad = grad @ self._rot.T
         return d, grad
 
-    def scan_residuals(self, pts: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Distances (M,) at robot-frame points ``pts`` (M, 2) seen from ``pose`` [x, y,
-        yaw], and their Jacobian (M, 3) with respect to the pose.
+    def scan_system(
+        self, pts: np.ndarray, pose: tuple[float, float, float], offset: float, out: np.ndarray
+    ) -> np.ndarray:
+        """Fill ``out`` (M, 4) with the Jacobian (M, 3) of the distances at robot-frame
+        points ``pts`` (M, 2) seen from ``pose`` (x, y, yaw) with respect to the pose, and
+        the distances minus ``offset``: one scan-matching iteration's :meth:`lookup` and
+        chain rule in few numpy calls (at 360 points their overhead is the cost).
 
-        One scan-matching iteration's :meth:`lookup` and chain rule, the same arithmetic
-        fused into fewer numpy calls (at 360 points their overhead is the cost).
+        Worked in the grid's cells: the points turned by the pose's yaw relative to the
+        grid (``q``) and shifted onto the pose give the cells; the yaw column is the
+        gradient (per cell) dotted with the turned point's derivative, ``(-q_y, q_x)``.
         """
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        rxy = pts @ np.array([[c, s], [-s, c]])  # rotated into the map frame
-        p = rxy + pose[0:2]
-        p -= self._origin_xy
-        rotated = self.origin.yaw != 0.0
-        if rotated:
-            p = p @ self._rot  # into the grid frame (R^T p, row-wise)
+        o = self.origin
         inv = 1.0 / self.resolution
-        p *= inv
-        p += 1.5  # cell-centre coordinates in the twice padded grid
-        cell = np.floor(p)
+        phi = pose[2] - o.yaw
+        c, s = math.cos(phi) * inv, math.sin(phi) * inv
+        q = pts @ np.array([[c, s], [-s, c]])  # turned into the grid frame, in cells
+        dx, dy = pose[0] - o.x, pose[1] - o.y
+        co, so = math.cos(o.yaw), math.sin(o.yaw)
+        shift = np.array([(co * dx + so * dy) * inv + 1.5, (co * dy - so * dx) * inv + 1.5])
+        uv = q + shift  # cell-centre coordinates in the twice padded grid
+        cell = np.floor(uv)
         np.maximum(np.minimum(cell, self._last_patch, out=cell), 0.0, out=cell)
-        frac = np.subtract(p, cell, out=p)
+        frac = np.subtract(uv, cell, out=uv)
         np.maximum(np.minimum(frac, 1.0, out=frac), 0.0, out=frac)
-        idx = cell.astype(np.intp)
-        flat = idx[:, 1] * self._patch_cols + idx[:, 0]
+        flat = (cell @ self._patch_stride).astype(np.intp)
         patch = np.take(self._patches, flat, axis=0)
-        fu, fv = frac[:, 0], frac[:, 1]
-        jac = np.empty((len(pts), 3))
-        ju, jv = jac[:, 0], jac[:, 1]
-        np.multiply(patch[:, 3], fu, out=jv)
-        jv += patch[:, 2]
-        d = patch[:, 0] + patch[:, 1] * fu + jv * fv
-        np.multiply(patch[:, 3], fv, out=ju)
-        ju += patch[:, 1]
-        grad = jac[:, 0:2]
-        grad *= inv
-        if rotated:
-            grad[:] = grad @ self._rot.T
-        jac[:, 2] = jv * rxy[:, 0] - ju * rxy[:, 1]
-        return d, jac
+        # Per-cell gradient [s01 - s00 + t fv, s10 - s00 + t fu], t = s11 - s10 - s01 + s00.
+        grad = out[:, 0:2]
+        np.multiply(patch[:, 3:4], frac[:, ::-1], out=grad)
+        grad += patch[:, 1:3]
+        gu, gv = grad[:, 0], grad[:, 1]
+        d = out[:, 3]
+        np.multiply(gv, frac[:, 1], out=d)
+        d += patch[:, 0]
+        d += patch[:, 1] * frac[:, 0]
+        d -= offset
+        np.subtract(gv * q[:, 0], gu * q[:, 1], out=out[:, 2])
+        grad *= inv  # per metre
+        if o.yaw != 0.0:
+            grad[:] = grad @ self._rot.T  # into the map frame
+        return out
 
 
 def signed_distance_field(grid: OccupancyGrid, max_distance: float = 1.0) -> SignedDistanceField:

@@ -183,16 +183,17 @@ class PoseTracker:
             return out
         prior = self.mean
         prior_info = _inverse3(self.cov)
-        x = prior.copy()
-        w_beam = 1.0 / p.sigma**2
+        px, py, pyaw = prior.tolist()
+        x = (px, py, pyaw)
         post_info = prior_info
-        r = np.zeros(len(pts))
+        system = np.empty((len(pts), 4))  # [Jacobian | residual] per beam
+        r = system[:, 3]
         iterations = 0
         # The wide kernel is for priors far enough off that end points miss the narrow
         # gate; a prior whose 3-sigma end point error (position plus yaw at the farthest
         # beam) is inside ``outlier`` (a tracked robot's) starts narrow, which saves the
         # one or two wide iterations per scan.
-        reach = math.sqrt(float(np.max(np.einsum("ij,ij->i", pts, pts))))
+        reach = math.sqrt(2.0) * float(np.abs(pts).max())
         spread = math.sqrt(max(self.cov[0, 0], self.cov[1, 1])) + reach * math.sqrt(self.cov[2, 2])
         converged = 3.0 * spread <= p.outlier
         floor, scaled = self._floor, self._scaled
@@ -200,34 +201,35 @@ class PoseTracker:
         # information is then diag(floor^-2), see _saturated_step).
         capped_post = prior_info + self._saturated_info
         tol = p.step_tolerance
+        w_beam = 1.0 / p.sigma**2
         for it in range(1, p.iterations + 1):
             iterations = it
-            raw, jac = self.sdf.scan_residuals(pts, x)
-            r = raw - self.wall_offset
+            self.sdf.scan_system(pts, x, self.wall_offset, system)
             a = np.abs(r)
             # The first iterations use a wide kernel: from a prior a decimetre or a few
             # degrees off, most end points are farther than ``outlier`` from their wall.
             wide = it <= p.iterations // 2 and not converged
             huber, outlier = (4.0 * p.huber, 2.0 * p.outlier) if wide else (p.huber, p.outlier)
-            w = np.minimum(huber / np.maximum(a, 1e-12), 1.0)  # Huber weights
-            w *= (a <= outlier) * w_beam
-            jw = jac * w[:, None]
-            h_full, g_full = jw.T @ jac, jw.T @ r
-            dx_prior = x - prior
-            dx_prior[2] = wrap_angle(dx_prior[2])
+            w = huber / np.maximum(a, huber)  # Huber weights: 1 within ``huber``
+            w[a > outlier] = 0.0
+            normal = (system.T * w) @ system  # [[H, g], [g^T, r^T W r]] / w_beam
+            normal *= w_beam
+            h_full, g_full = normal[:3, :3], normal[:3, 3]
+            dx_prior = (x[0] - px, x[1] - py, wrap_angle(x[2] - pyaw))
             step = _saturated_step(h_full, g_full, dx_prior, prior_info, floor, capped_post)
             if step is None:  # a direction the scan does not pin: cap it (eigenvalues)
                 h, gvec = _capped_step(h_full, g_full, floor, scaled)
                 post_info = prior_info + h
-                step = -np.linalg.solve(post_info, prior_info @ dx_prior + gvec)
+                rhs = prior_info @ np.array(dx_prior) + gvec
+                step = tuple((-np.linalg.solve(post_info, rhs)).tolist())
             else:
                 post_info = capped_post
-            x = x + step
-            x[2] = wrap_angle(x[2])
+            x = (x[0] + step[0], x[1] + step[1], wrap_angle(x[2] + step[2]))
             small = abs(step[0]) + abs(step[1]) < tol and abs(step[2]) < tol
             if small and not wide:
                 break
             converged = converged or abs(step[0]) + abs(step[1]) < 1e-3 and abs(step[2]) < 1e-3
+        x = np.array(x)
         a = np.abs(r)
         fits = a < p.inlier
         inlier = np.count_nonzero(fits) / len(r)
@@ -242,7 +244,7 @@ class PoseTracker:
                 rms if not math.isfinite(self.fit_rms) else 0.8 * self.fit_rms + 0.2 * rms
             )
             if p.wall_offset_rate > 0.0 and fits.any():
-                step = _median(raw[fits]) - self.wall_offset
+                step = _median(r[fits])  # where the fitting end points see the walls
                 limit = 0.5 * self.sdf.resolution
                 moved = self.wall_offset + p.wall_offset_rate * step
                 self.wall_offset = max(-limit, min(limit, moved))
@@ -294,11 +296,11 @@ def floor_covariance(cov: np.ndarray, floor: np.ndarray) -> np.ndarray:
 def _saturated_step(
     h_full: np.ndarray,
     g_full: np.ndarray,
-    dx_prior: np.ndarray,
+    dx_prior: tuple[float, float, float],
     prior_info: np.ndarray,
     floor: np.ndarray,
     capped_post: np.ndarray,
-) -> np.ndarray | None:
+) -> tuple[float, float, float] | None:
     """The Gauss-Newton step when the scan's information exceeds the cap in every
     direction, else None (then :func:`_capped_step` decomposes it).
 
@@ -320,14 +322,14 @@ def _saturated_step(
     g0, g1, g2 = g_full.tolist()
     u0, u1, u2 = _solve3(a, b, c, d, e, f, g0, g1, g2)
     pi = prior_info.tolist()
-    dx0, dx1, dx2 = dx_prior.tolist()
+    dx0, dx1, dx2 = dx_prior
     rhs = [
         pi[k][0] * dx0 + pi[k][1] * dx1 + pi[k][2] * dx2 + u / (fk * fk)
         for k, (u, fk) in enumerate(((u0, f0), (u1, f1), (u2, f2)))
     ]
     (pa, pb, pc), (_, pd, pe), (_, _, pf) = capped_post.tolist()
     s0, s1, s2 = _solve3(pa, pb, pc, pd, pe, pf, *rhs)
-    return np.array([-s0, -s1, -s2])
+    return (-s0, -s1, -s2)
 
 
 def _inverse3(m: np.ndarray) -> np.ndarray:

@@ -106,23 +106,23 @@ def test_fused_scan_system_matches_the_lookup_and_its_derivative(origin_yaw):
     sdf = SignedDistanceField(grid, 1.0)
     rng = np.random.default_rng(3)
     pts = rng.uniform(-3.0, 3.0, size=(200, 2))
-    out = np.empty((200, 4))
+    out = np.empty((4, 200))
     for pose in ((3.0, 2.5, 0.3), (-20.0, 4.0, -2.0)):  # on and off the map
-        sdf.scan_system(pts, pose, 0.01, out)
+        sdf.scan_system(pts.T.copy(), pose, 0.01, out)
         c, s = math.cos(pose[2]), math.sin(pose[2])
         rxy = pts @ np.array([[c, s], [-s, c]])
         d, grad = sdf.lookup(rxy + pose[:2])
-        np.testing.assert_allclose(out[:, 3], d - 0.01, atol=1e-9)
-        np.testing.assert_allclose(out[:, :2], grad, atol=1e-6)
+        np.testing.assert_allclose(out[3], d - 0.01, atol=1e-9)
+        np.testing.assert_allclose(out[:2].T, grad, atol=1e-6)
         np.testing.assert_allclose(
-            out[:, 2], grad[:, 1] * rxy[:, 0] - grad[:, 0] * rxy[:, 1], atol=1e-6
+            out[2], grad[:, 1] * rxy[:, 0] - grad[:, 0] * rxy[:, 1], atol=1e-6
         )
     # The yaw column is the derivative (away from cell borders, where bilinear kinks).
     eps = 1e-7
-    d0 = sdf.scan_system(pts, (3.0, 2.5, 0.3), 0.0, np.empty((200, 4)))
-    d1 = sdf.scan_system(pts, (3.0, 2.5, 0.3 + eps), 0.0, np.empty((200, 4)))
-    fd = (d1[:, 3] - d0[:, 3]) / eps
-    assert np.median(np.abs(fd - d0[:, 2])) < 1e-4
+    d0 = sdf.scan_system(pts.T.copy(), (3.0, 2.5, 0.3), 0.0, np.empty((4, 200)))
+    d1 = sdf.scan_system(pts.T.copy(), (3.0, 2.5, 0.3 + eps), 0.0, np.empty((4, 200)))
+    fd = (d1[3] - d0[3]) / eps
+    assert np.median(np.abs(fd - d0[2])) < 1e-4
 
 
 def test_kld_count_over_prefixes_is_the_count_over_all_candidates():

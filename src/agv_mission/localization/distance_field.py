@@ -57,12 +57,14 @@ class SignedDistanceField:
         # map, clamped onto the outer ring, reads max_distance with no gradient.
         v = np.pad(self.values, 1, constant_values=max_distance)
         s00, s01, s10, s11 = v[:-1, :-1], v[:-1, 1:], v[1:, :-1], v[1:, 1:]
-        self._patches = np.stack((s00, s01 - s00, s10 - s00, s11 - s10 - s01 + s00), axis=-1)
-        self._patches = self._patches.reshape(-1, 4)
+        # Stored as four rows (coefficient, cell): a gather of M cells gives four contiguous
+        # rows of M, which the scan matching works on without strided copies.
+        self._patches = np.stack((s00, s01 - s00, s10 - s00, s11 - s10 - s01 + s00)).reshape(4, -1)
         self.values.flags.writeable = False  # shared between runs (map_cache)
         self._patches.flags.writeable = False
         self._patch_cols = v.shape[1] - 1
         self._last_patch = np.array([v.shape[1] - 2, v.shape[0] - 2], dtype=np.float64)
+        self._last_patch_col = self._last_patch[:, None]
         self._patch_stride = np.array([1.0, float(self._patch_cols)])
 
     def lookup(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -78,12 +80,12 @@ class SignedDistanceField:
         frac = uv - cell
         np.maximum(np.minimum(frac, 1.0, out=frac), 0.0, out=frac)
         idx = cell.astype(np.intp)
-        patch = self._patches[idx[:, 1] * self._patch_cols + idx[:, 0]]
+        s00, du, dv, t = np.take(self._patches, idx[:, 1] * self._patch_cols + idx[:, 0], axis=1)
         fu, fv = frac[:, 0], frac[:, 1]
-        d = patch[:, 0] + patch[:, 1] * fu + (patch[:, 2] + patch[:, 3] * fu) * fv
+        d = s00 + du * fu + (dv + t * fu) * fv
         grad = np.empty_like(p)
-        grad[:, 0] = (patch[:, 1] + patch[:, 3] * fv) * inv
-        grad[:, 1] = (patch[:, 2] + patch[:, 3] * fu) * inv
+        grad[:, 0] = (du + t * fv) * inv
+        grad[:, 1] = (dv + t * fu) * inv
         if o.yaw != 0.0:
             grad = grad @ self._rot.T
         return d, grad
@@ -91,44 +93,50 @@ class SignedDistanceField:
     def scan_system(
         self, pts: np.ndarray, pose: tuple[float, float, float], offset: float, out: np.ndarray
     ) -> np.ndarray:
-        """Fill ``out`` (M, 4) with the Jacobian (M, 3) of the distances at robot-frame
-        points ``pts`` (M, 2) seen from ``pose`` (x, y, yaw) with respect to the pose, and
+        """Fill ``out`` (4, M) with the Jacobian rows (3, M) of the distances at robot-frame
+        points ``pts`` (2, M) seen from ``pose`` (x, y, yaw) with respect to the pose, and
         the distances minus ``offset``: one scan-matching iteration's :meth:`lookup` and
-        chain rule in few numpy calls (at 360 points their overhead is the cost).
+        chain rule in few numpy calls on contiguous rows (at 360 points the calls'
+        overhead is the cost).
 
         Worked in the grid's cells: the points turned by the pose's yaw relative to the
-        grid (``q``) and shifted onto the pose give the cells; the yaw column is the
-        gradient (per cell) dotted with the turned point's derivative, ``(-q_y, q_x)``.
+        grid (``q``) and shifted onto the pose give the cells; the yaw row is the gradient
+        (per cell) dotted with the turned point's derivative, ``(-q_y, q_x)``.
         """
         o = self.origin
         inv = 1.0 / self.resolution
         phi = pose[2] - o.yaw
         c, s = math.cos(phi) * inv, math.sin(phi) * inv
-        q = pts @ np.array([[c, s], [-s, c]])  # turned into the grid frame, in cells
+        q = np.array([[c, -s], [s, c]]) @ pts  # turned into the grid frame, in cells
         dx, dy = pose[0] - o.x, pose[1] - o.y
         co, so = math.cos(o.yaw), math.sin(o.yaw)
-        shift = np.array([(co * dx + so * dy) * inv + 1.5, (co * dy - so * dx) * inv + 1.5])
+        shift = [[(co * dx + so * dy) * inv + 1.5], [(co * dy - so * dx) * inv + 1.5]]
         uv = q + shift  # cell-centre coordinates in the twice padded grid
         cell = np.floor(uv)
-        np.maximum(np.minimum(cell, self._last_patch, out=cell), 0.0, out=cell)
+        np.maximum(np.minimum(cell, self._last_patch_col, out=cell), 0.0, out=cell)
         frac = np.subtract(uv, cell, out=uv)
         np.maximum(np.minimum(frac, 1.0, out=frac), 0.0, out=frac)
-        flat = (cell @ self._patch_stride).astype(np.intp)
-        patch = np.take(self._patches, flat, axis=0)
-        # Per-cell gradient [s01 - s00 + t fv, s10 - s00 + t fu], t = s11 - s10 - s01 + s00.
-        grad = out[:, 0:2]
-        np.multiply(patch[:, 3:4], frac[:, ::-1], out=grad)
-        grad += patch[:, 1:3]
-        gu, gv = grad[:, 0], grad[:, 1]
-        d = out[:, 3]
-        np.multiply(gv, frac[:, 1], out=d)
-        d += patch[:, 0]
-        d += patch[:, 1] * frac[:, 0]
+        flat = (self._patch_stride @ cell).astype(np.intp)
+        s00, du, dv, t = np.take(self._patches, flat, axis=1)
+        fu, fv = frac
+        gu, gv, gyaw, d = out
+        # Per-cell gradient (du + t fv, dv + t fu); the distance s00 + du fu + (dv + t fu) fv.
+        np.multiply(t, fv, out=gu)
+        gu += du
+        np.multiply(t, fu, out=gv)
+        gv += dv
+        np.multiply(gv, fv, out=d)
+        d += s00
+        du *= fu
+        d += du
         d -= offset
-        np.subtract(gv * q[:, 0], gu * q[:, 1], out=out[:, 2])
+        np.multiply(gv, q[0], out=gyaw)
+        gu_qy = np.multiply(gu, q[1], out=fv)
+        gyaw -= gu_qy
+        grad = out[0:2]
         grad *= inv  # per metre
         if o.yaw != 0.0:
-            grad[:] = grad @ self._rot.T  # into the map frame
+            grad[:] = self._rot @ grad  # into the map frame
         return out
 
 

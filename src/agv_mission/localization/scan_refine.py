@@ -186,8 +186,9 @@ class PoseTracker:
         px, py, pyaw = prior.tolist()
         x = (px, py, pyaw)
         post_info = prior_info
-        system = np.empty((len(pts), 4))  # [Jacobian | residual] per beam
-        r = system[:, 3]
+        pts_rows = np.ascontiguousarray(pts.T)
+        system = np.empty((4, len(pts)))  # Jacobian rows (x, y, yaw) and the residuals
+        r = system[3]
         iterations = 0
         # The wide kernel is for priors far enough off that end points miss the narrow
         # gate; a prior whose 3-sigma end point error (position plus yaw at the farthest
@@ -204,7 +205,7 @@ class PoseTracker:
         w_beam = 1.0 / p.sigma**2
         for it in range(1, p.iterations + 1):
             iterations = it
-            self.sdf.scan_system(pts, x, self.wall_offset, system)
+            self.sdf.scan_system(pts_rows, x, self.wall_offset, system)
             a = np.abs(r)
             # The first iterations use a wide kernel: from a prior a decimetre or a few
             # degrees off, most end points are farther than ``outlier`` from their wall.
@@ -212,7 +213,7 @@ class PoseTracker:
             huber, outlier = (4.0 * p.huber, 2.0 * p.outlier) if wide else (p.huber, p.outlier)
             w = huber / np.maximum(a, huber)  # Huber weights: 1 within ``huber``
             w[a > outlier] = 0.0
-            normal = (system.T * w) @ system  # [[H, g], [g^T, r^T W r]] / w_beam
+            normal = (system * w) @ system.T  # [[H, g], [g^T, r^T W r]] / w_beam
             normal *= w_beam
             h_full, g_full = normal[:3, :3], normal[:3, 3]
             dx_prior = (x[0] - px, x[1] - py, wrap_angle(x[2] - pyaw))

@@ -10,7 +10,15 @@ The default ``profile: accurate`` adds scan-to-map refinement
 (:mod:`agv_mission.localization.scan_refine`): every scan corrects a Kalman pose estimate
 against the map's signed distance field, the estimate and its covariance come from that,
 and the particle cloud is moved onto it at each filter update; the filter stays the
-fallback (and the start) when scans stop fitting. Measured (tests/test_localization_accuracy.py,
+fallback (and the start) when scans stop fitting. While the refinement tracks, the filter
+runs coarse (``refine_filter_particles`` 500 particles, amcl's ``min_particles``, instead of
+the KLD count, and ``refine_filter_beams`` 30 beams, amcl's default ``laser_max_beams``):
+its cloud is moved onto the tracked pose at every update anyway, so the KLD count measured
+the spread the filter's own noise kept up (~1000 particles), not the pose's uncertainty;
+it is full again from the first update after the refinement lets go. Measured on the demo
+patrol (benchmarks/bench_breakdown.py): localisation 0.4x the cost per simulated second of
+the filter at the KLD count and 180 beams with the refinement before its speed-ups, the
+same accuracy (benchmarks/bench_localization.py). Measured (tests/test_localization_accuracy.py,
 benchmarks/bench_localization.py): 1-2 mm RMSE on the real AWS small house map (amcl alone
 7 cm), 2-3 cm in a 30 x 50 m warehouse (amcl alone 22 cm, 0.97 m maximum), with the true
 error inside the reported 2-sigma ellipse on more than 99 % of the steps.

@@ -157,7 +157,10 @@ class AmclConfig(PluginConfig):
         "the jump check) resamples to at most this many particles instead of the KLD count",
     )
     refine_filter_beams: int = Field(
-        60, ge=2, description="and scores this many beams of each scan (laser_max_beams caps it)"
+        30,
+        ge=2,
+        description="and scores this many beams of each scan (ROS amcl's default "
+        "laser_max_beams; this one caps it)",
     )
 
     # Plot support

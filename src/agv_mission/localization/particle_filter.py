@@ -6,8 +6,9 @@ Pure numpy, no plugin glue. It follows ROS amcl (``pf.c``, ``amcl_odom.cpp``,
 * :meth:`ParticleFilter.motion_update` is the odometry motion model of a differential
   drive (Probabilistic Robotics, table 5.6, with amcl's fixes for reversing and turning
   in place), noise from ``odom_alpha1..4``.
-* :class:`~agv_mission.localization.beam_model.BeamModel` precomputes, once per map, the per-cell beam likelihood from
-  the distance to the nearest occupied cell (clipped at ``laser_likelihood_max_dist``);
+* :class:`~agv_mission.localization.beam_model.BeamModel` precomputes, once per map
+  (shared between runs, :mod:`~agv_mission.localization.map_cache`), the per-cell beam
+  likelihood from the distance to the nearest occupied cell (clipped at ``laser_likelihood_max_dist``);
   scoring N particles x B beams is then one matrix product, one integer conversion and
   one table gather. Unknown cells count like free ones (distance to the nearest occupied
   cell) and end points off the map get ``laser_likelihood_max_dist``, as in amcl.
@@ -24,6 +25,9 @@ Pure numpy, no plugin glue. It follows ROS amcl (``pf.c``, ``amcl_odom.cpp``,
   :meth:`ParticleFilter.injection_poses`).
 * :meth:`ParticleFilter.estimate` is amcl's: the weighted mean (circular for yaw) of the
   heaviest cluster of connected histogram bins.
+
+The histogram's parts (bins, the KLD bound, clusters: amcl's ``pf_kdtree.c``) are in
+:mod:`agv_mission.localization.histogram`.
 """
 
 from __future__ import annotations

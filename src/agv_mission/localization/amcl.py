@@ -323,8 +323,8 @@ class AmclLocalizer:
         c = self.config
         # While the refinement tracks, the estimate is its own and the cloud is moved onto
         # it at every update: the filter is the fallback, a coarse cloud is enough.
-        tracking = self.refining and self.tracker is not None and self.tracker.last is not None
-        tracking = tracking and self.tracker.last.accepted
+        last = self.tracker.last if self.tracker is not None and self.tracker.active else None
+        tracking = last is not None and last.accepted
         pf.sensor_update(scan, c.refine_filter_beams if tracking else None)
         self._resample_count += 1
         if self._resample_count % c.resample_interval == 0:

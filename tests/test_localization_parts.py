@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from agv_mission.geometry import Pose2D
-from agv_mission.localization import map_cache, scan_refine
+from agv_mission.localization import scan_refine
 from agv_mission.localization.beam_model import SensorParams, beam_model
 from agv_mission.localization.distance_field import SignedDistanceField, signed_distance_field
 from agv_mission.localization.histogram import (
@@ -21,6 +21,7 @@ from agv_mission.localization.histogram import (
     weighted_pose,
 )
 from agv_mission.localization.scan_refine import PoseTracker, RefineParams
+from agv_mission.maps import map_cache
 from agv_mission.maps.grid import OccupancyGrid
 from test_amcl import ROOM, cast, drive, make
 

@@ -10,9 +10,9 @@ from typing import Literal
 
 import numpy as np
 
-from agv_mission.localization.map_cache import map_table
 from agv_mission.maps.distance import obstacle_distance
 from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.maps.map_cache import map_table
 
 LaserModel = Literal["likelihood_field", "likelihood_field_prob"]
 

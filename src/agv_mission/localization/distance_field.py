@@ -11,8 +11,8 @@ import math
 import numpy as np
 from scipy import ndimage
 
-from agv_mission.localization.map_cache import map_table
 from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.maps.map_cache import map_table
 
 #: Cells at or above this value count as occupied (map_server's occupied_thresh 0.65).
 OCCUPIED_THRESHOLD = 65

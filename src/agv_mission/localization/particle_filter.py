@@ -7,7 +7,7 @@ Pure numpy, no plugin glue. It follows ROS amcl (``pf.c``, ``amcl_odom.cpp``,
   drive (Probabilistic Robotics, table 5.6, with amcl's fixes for reversing and turning
   in place), noise from ``odom_alpha1..4``.
 * :class:`~agv_mission.localization.beam_model.BeamModel` precomputes, once per map
-  (shared between runs, :mod:`~agv_mission.localization.map_cache`), the per-cell beam
+  (shared between runs, :mod:`~agv_mission.maps.map_cache`), the per-cell beam
   likelihood from the distance to the nearest occupied cell (clipped at ``laser_likelihood_max_dist``);
   scoring N particles x B beams is then one matrix product, one integer conversion and
   one table gather. Unknown cells count like free ones (distance to the nearest occupied

@@ -1,4 +1,5 @@
-"""Per-map tables (likelihood fields, distance fields) built once and shared between runs.
+"""Per-map tables (distance transforms, likelihood fields, distance fields) built once and
+shared between runs.
 
 Building them costs tens of milliseconds on turtlebot3_world and over a second on a
 30 x 50 m warehouse (the signed distance field), and every run on the same map, in one
@@ -22,23 +23,37 @@ from agv_mission.maps.grid import OccupancyGrid
 T = TypeVar("T")
 
 #: Tables kept (least recently used dropped first): a warehouse's take ~25 MB.
-MAX_ENTRIES = 8
+MAX_ENTRIES = 12
 
 _lock = threading.Lock()
 _tables: OrderedDict[tuple[Hashable, ...], object] = OrderedDict()
 
 
+def array_key(data: np.ndarray) -> tuple[Hashable, ...]:
+    """An array's identity by content: cells, shape and type."""
+    data = np.ascontiguousarray(data)
+    digest = hashlib.blake2b(data.tobytes(), digest_size=16).hexdigest()
+    return (digest, data.shape, str(data.dtype))
+
+
 def grid_key(grid: OccupancyGrid) -> tuple[Hashable, ...]:
     """The map's identity by content: cells, shape, resolution and origin."""
-    data = np.ascontiguousarray(grid.data)
-    digest = hashlib.blake2b(data.tobytes(), digest_size=16).hexdigest()
     o = grid.origin
-    return (digest, data.shape, str(data.dtype), float(grid.resolution), o.x, o.y, o.yaw)
+    return (*array_key(grid.data), float(grid.resolution), o.x, o.y, o.yaw)
 
 
 def map_table(kind: str, grid: OccupancyGrid, params: Hashable, build: Callable[[], T]) -> T:
     """The table ``kind`` of ``grid`` with ``params``: built by ``build()`` on a miss."""
-    key = (kind, grid_key(grid), params)
+    return cached_table((kind, grid_key(grid), params), build)
+
+
+def array_table(kind: str, data: np.ndarray, params: Hashable, build: Callable[[], T]) -> T:
+    """The table ``kind`` of the array ``data`` (e.g. a mask) with ``params``."""
+    return cached_table((kind, array_key(data), params), build)
+
+
+def cached_table(key: tuple[Hashable, ...], build: Callable[[], T]) -> T:
+    """The table under ``key``, built by ``build()`` on a miss; old tables are dropped."""
     with _lock:
         hit = _tables.get(key)
         if hit is not None:

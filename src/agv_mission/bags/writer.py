@@ -189,7 +189,7 @@ class BagWriter:
         raw("/amcl_pose", t, rm.pose_with_covariance_cdr(t, MAP_FRAME, est, sample.covariance))
         if sample.scan is not None:
             scan = sample.scan
-            self._write("/scan", float(scan.time), rm.laser_scan(scan, SCAN_FRAME, self._scan_time))
+            raw("/scan", float(scan.time), rm.laser_scan_cdr(scan, SCAN_FRAME, self._scan_time))
         particles = sample.particles
         if particles is not None and len(particles) and t >= self._next_particles - 1e-9:
             self._next_particles = t + self.particle_period

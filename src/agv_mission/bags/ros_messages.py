@@ -354,7 +354,16 @@ def _pose7(p: Pose2D, z: float = 0.0) -> tuple[float, ...]:
 
 
 def _covariance36(cov3: np.ndarray | None) -> tuple[float, ...]:
-    return _NO_COVARIANCE if cov3 is None else tuple(covariance6(cov3).tolist())
+    """:func:`covariance6` as a tuple, without numpy's per-element indexing."""
+    if cov3 is None:
+        return _NO_COVARIANCE
+    (xx, xy, xa), (yx, yy, ya), (ax, ay, aa) = np.asarray(cov3, dtype=float).tolist()
+    return (
+        (xx, xy, 0.0, 0.0, 0.0, xa)
+        + (yx, yy, 0.0, 0.0, 0.0, ya)
+        + (0.0,) * 18  # z, roll, pitch
+        + (ax, ay, 0.0, 0.0, 0.0, aa)
+    )
 
 
 _CLOCK = FixedCdr([("time",)])

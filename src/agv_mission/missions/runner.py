@@ -8,6 +8,7 @@ only to report speed.
 
 from __future__ import annotations
 
+import gc
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -95,13 +96,7 @@ def run_mission(
     try:
         run = MissionRun(loaded, run_dir, observers)
         run.notify_start()
-        while True:
-            if control is not None:
-                control.before_step(run)
-            if not run.step():
-                break
-            if progress is not None:
-                progress(run.sim.time, loaded.mission.limits.time)
+        run.drive(control, progress)
     except KeyboardInterrupt:
         ended = ("aborted", "interrupted by the user (Ctrl-C)")
     except RunStopped as exc:
@@ -196,6 +191,28 @@ class MissionRun:
         )
         for observer in self.observers:
             observer.on_start(start)
+
+    def drive(
+        self, control: RunControl | None = None, progress: ProgressCallback | None = None
+    ) -> None:
+        """Step until the mission ends: ``control`` before each step, ``progress`` after.
+
+        The set-up left ~100k long-lived objects (casadi functions, OMPL, typestores, the
+        tree); the loop freezes them out of the garbage collector, so its one full
+        collection of a 100 s run (~50 ms, 0.5 ms per simulated second) scans only what
+        the run made since.
+        """
+        gc.freeze()
+        try:
+            while True:
+                if control is not None:
+                    control.before_step(self)
+                if not self.step():
+                    break
+                if progress is not None:
+                    progress(self.sim.time, self.mission.limits.time)
+        finally:
+            gc.unfreeze()
 
     def cancel(self, reason: str) -> None:
         """End the run with status ``aborted`` before the next control step."""

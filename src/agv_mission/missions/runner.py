@@ -63,6 +63,10 @@ __all__ = [
 
 ProgressCallback = Callable[[float, float], None]
 
+#: Below this planar clearance (m) the chassis may touch a wall: contacts are read. Above
+#: it a contact would need the robot tilted by more than ~15 degrees.
+CONTACT_CLEARANCE = 0.05
+
 
 class RunStopped(BaseException):
     """Raised (by a signal handler of the front door) to stop a run from outside, e.g. on
@@ -291,7 +295,13 @@ class MissionRun:
         return False
 
     def _watch_safety(self, now: float, truth: Pose2D) -> None:
-        contacts = self.sim.contacts()
+        # Clearance is 1-Lipschitz in the position: where it was c at p0 it is at least
+        # c - |p - p0| at p. A step that cannot lower the minimum skips the clearance
+        # query, and one that cannot touch a wall (the chassis is the footprint's
+        # cylinder) skips reading the contacts.
+        x0, y0, c0 = self._clearance_at
+        bound = c0 - math.hypot(truth.x - x0, truth.y - y0)
+        contacts = self.sim.contacts() if bound < CONTACT_CLEARANCE else 0
         if contacts and not self.in_contact:
             self.collisions.append(
                 {"t": round(now, 3), "x": round(truth.x, 3), "y": round(truth.y, 3)}
@@ -301,10 +311,7 @@ class MissionRun:
                     "failed", f"collision at t={now:.1f} s near ({truth.x:.2f}, {truth.y:.2f})"
                 )
         self.in_contact = contacts > 0
-        # Clearance is 1-Lipschitz in the position: where it was c at p0 it is at least
-        # c - |p - p0| at p, so a step that cannot lower the minimum skips the query.
-        x0, y0, c0 = self._clearance_at
-        if c0 - math.hypot(truth.x - x0, truth.y - y0) < self.min_clearance:
+        if bound < self.min_clearance:
             clearance = self.sim.min_clearance()
             self._clearance_at = (truth.x, truth.y, clearance)
             self.min_clearance = min(self.min_clearance, clearance)

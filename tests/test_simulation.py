@@ -40,24 +40,24 @@ def test_mjcf_has_all_walls_and_robot_parts():
     assert m.nu == 2
     # Explicit Euler while the wheel servos are stable under it, implicitfast beyond.
     assert m.opt.integrator == mujoco.mjtIntegrator.mjINT_EULER
-    coarse = mujoco.MjModel.from_xml_string(build_mjcf(BURGER, world, timestep=0.01))
+    coarse = mujoco.MjModel.from_xml_string(build_mjcf(BURGER, world, timestep=0.02))
     assert coarse.opt.integrator == mujoco.mjtIntegrator.mjINT_IMPLICITFAST
 
 
-@pytest.mark.parametrize("dt", [0.002, 0.005, 0.01])
+@pytest.mark.parametrize("dt", [0.002, 0.01, 0.02])
 def test_lifted_wheel_settles_at_its_commanded_speed(dt):
-    """A wheel off the floor (the robot dropped from 0.2 m) spins at the commanded speed
+    """A wheel off the floor (the robot dropped from 0.5 m) spins at the commanded speed
     without oscillating, whichever integrator the time step selects."""
     import mujoco
 
     sim = make_sim(physics_dt=dt)
-    sim.data.qpos[2] += 0.2
+    sim.data.qpos[2] += 0.5
     sim.set_command(BURGER.max_linear_velocity, 0.0)
     wheel = sim.model.jnt_dofadr[
         mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_JOINT, "wheel_left")
     ]
     speeds = []
-    for _ in range(int(round(0.15 / dt))):  # still falling after 0.15 s
+    for _ in range(int(round(0.3 / dt))):  # still falling after 0.3 s
         mujoco.mj_step(sim.model, sim.data)
         speeds.append(float(sim.data.qvel[wheel]))
     target = BURGER.max_linear_velocity / BURGER.wheel_radius
@@ -66,10 +66,10 @@ def test_lifted_wheel_settles_at_its_commanded_speed(dt):
 
 
 def test_odometry_yaw_does_not_drift_with_the_time_step():
-    """Encoders against truth over alternating turns in place: the yaw error is the wheels'
-    real slip, not the integrator's (implicitfast gave 0.33 deg here at 2 ms and 0.75 deg
-    at 5 ms; explicit Euler 0.05 and 0.03 deg)."""
-    for dt in (0.002, 0.005):
+    """Encoders against truth over 20 s of alternating turns in place: the yaw error stays
+    below that of the former default (implicitfast at 2 ms: 0.33 deg; at 10 ms: 4.3 deg).
+    Explicit Euler: 0.02 deg at 2 ms, 0.21 deg at the default 10 ms."""
+    for dt in (0.002, 0.01):
         sim = make_sim(physics_dt=dt)
         odo = DiffDriveOdometry(BURGER.encoder.ticks_per_meter, BURGER.wheel_separation, ORIGIN)
         odo.update(*sim.encoder_ticks())
@@ -80,7 +80,7 @@ def test_odometry_yaw_does_not_drift_with_the_time_step():
             sim.set_command(0.0, w)
             sim.advance(0.1)
             odo.update(*sim.encoder_ticks())
-        assert abs(wrap_angle(sim.true_pose().yaw - odo.pose.yaw)) < math.radians(0.15), dt
+        assert abs(wrap_angle(sim.true_pose().yaw - odo.pose.yaw)) < math.radians(0.25), dt
 
 
 def test_commanded_speed_is_tracked():

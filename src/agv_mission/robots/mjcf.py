@@ -53,7 +53,9 @@ WALL_BIT = _WALL_BIT
 GRAVITY = 9.81
 WHEEL_FRICTION = 1.0
 WHEEL_MASS_SHARE = 0.08  # of the robot's mass, each wheel
-ARMATURE_SHARE = 0.15  # wheel rotor armature, in units of mass x wheel radius^2
+# Wheel rotor armature (a geared motor's rotor, reflected), in mass x wheel radius^2: it
+# keeps a lifted wheel's servo slow enough (7.6 ms) for explicit Euler at the 10 ms step.
+ARMATURE_SHARE = 0.35
 
 
 def _f(x: float) -> str:
@@ -87,8 +89,8 @@ def wheel_kv(robot: RobotDescription) -> float:
 
 def wheel_time_constant(robot: RobotDescription) -> float:
     """Time constant (s) of a wheel servo spinning its wheel alone (a lifted wheel): the
-    wheel's own inertia plus the armature over the gain, ~1.6 ms for every built-in robot
-    (the gain is set for the whole robot's reflected inertia, 30x more)."""
+    wheel's own inertia plus the armature over the gain, 7.6 ms for every built-in robot
+    (on the floor the robot's reflected inertia adds 0.5 m r^2: ~18 ms)."""
     r, m = robot.wheel_radius, robot.mass
     inertia = 0.4 * WHEEL_MASS_SHARE * m * r * r + ARMATURE_SHARE * m * r * r
     return inertia / wheel_kv(robot)
@@ -103,8 +105,9 @@ def integrator(robot: RobotDescription, timestep: float) -> str:
     its force is clamped by ``forcerange`` and the contact forces were solved without that
     correction, so the wheels creep against the floor by an amount that grows with the time
     step (replaying a patrol's commands, the odometry's final yaw error was 2.8 deg at
-    2 ms and 6.1 deg at 4 ms with ``implicitfast``, 1.0 deg with Euler at 2 or 3 ms, as RK4
-    at 1 ms). Above the limit ``implicitfast`` keeps a lifted wheel from oscillating.
+    2 ms and 6.1 deg at 4 ms with ``implicitfast``, 0.9-1.0 deg with Euler from 2 to 10 ms,
+    as RK4 at 1 ms). Above the limit (15 ms) ``implicitfast`` keeps a lifted wheel from
+    oscillating.
     """
     return "Euler" if timestep < 2.0 * wheel_time_constant(robot) else "implicitfast"
 

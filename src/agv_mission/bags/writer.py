@@ -28,7 +28,7 @@ from rosbags.rosbag2.metadata import Qos
 from agv_mission.bags import ros_messages as rm
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.messages import LaserScan
+from agv_mission.messages import LaserScan, json_default
 
 if TYPE_CHECKING:
     from agv_mission.missions.observe import RunStart, StepSample
@@ -245,8 +245,8 @@ class BagWriter:
 
 
 def _jsonable(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    return str(value)
+    """numpy as JSON; anything else an event may carry (a path) as its text."""
+    try:
+        return json_default(value)
+    except TypeError:
+        return str(value)

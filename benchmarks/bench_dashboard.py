@@ -34,33 +34,10 @@ from PIL import Image
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
-from service_server import Server  # noqa: E402
+from service_server import CHROMIUM, FINAL, launch_chromium, serve, wait_status  # noqa: E402
 
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--no-first-run",
-]
 PAIRS = 9
 FPS_SECONDS = 6.0
-
-
-@contextmanager
-def serve(data: Path, *extra: str) -> Iterator[str]:
-    with Server(data, *extra) as server:
-        yield server.url
-
-
-def wait_final(client: httpx.Client, run_id: str, timeout: float = 600.0) -> dict[str, Any]:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        run = client.get(f"/api/runs/{run_id}").json()
-        if run["status"] in {"succeeded", "failed", "aborted", "error", "interrupted"}:
-            return run
-        time.sleep(0.2)
-    raise TimeoutError(run_id)
 
 
 def _children() -> dict[int, list[int]]:
@@ -105,7 +82,7 @@ def patrol_rtf(client: httpx.Client, page: Any | None, driver_pid: int | None) -
     run_id = client.post("/api/runs", json={"mission": mission}).json()["id"]
     if page is not None:
         page.goto(f"{client.base_url}/runs/{run_id}")
-    run = wait_final(client, run_id)
+    run = wait_status(client, run_id, FINAL, timeout=600.0, period=0.2)
     wall = time.perf_counter() - wall0
     cpu = (browser_cpu_seconds(driver_pid) - cpu0) if driver_pid else 0.0
     if page is not None:
@@ -206,7 +183,7 @@ def _driver_pid() -> int | None:
 def run() -> dict[str, float]:
     from playwright.sync_api import sync_playwright
 
-    if not Path("/usr/bin/chromium").exists():
+    if not CHROMIUM.exists():
         print("  /usr/bin/chromium is not installed: dashboard bench skipped")
         return {}
     out: dict[str, float] = {}
@@ -222,9 +199,7 @@ def run() -> dict[str, float]:
             browser_in_background(),
             sync_playwright() as p,
         ):
-            browser = p.chromium.launch(
-                executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS, headless=True
-            )
+            browser = launch_chromium(p)
             driver = _driver_pid()
             page = browser.new_page(viewport={"width": 1400, "height": 860})
             page.goto(f"{url}/")

@@ -7,7 +7,8 @@ the fatrop NLP runs in the same process for a side-by-side ratio.
 Closed loop with an exact unicycle integration at 0.1 s in an L-shaped corridor whose
 walls are given as lidar points (1 cm apart, 3.5 m range) plus a small round obstacle
 next to the path, so the MPC works with its full set of obstacle constraints
-(16 points by default). ``run()`` returns flat ``{"mpc.solve_ms.p50": ...}`` metrics.
+(16 points by default). Tracking: ``tracking_rmse_m`` is the RMS distance of the robot to
+the path it follows, ``goal_error_m`` where it stopped, ``clearance_m`` the closest point. ``run()`` returns flat ``{"mpc.solve_ms.p50": ...}`` metrics.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 from agv_mission.geometry import Pose2D
 from agv_mission.planners.base import VelocityLimits
 from agv_mission.planners.mpc import MpcConfig, MpcController
+from agv_mission.planners.path_tracking import closest_point
 from agv_mission.planners.pure_pursuit import PurePursuitConfig, PurePursuitController
 
 PERIOD = 0.1
@@ -73,6 +75,7 @@ def _drive(controller, paths, points, max_steps=600) -> dict[str, list]:
         "solver_ms": [],
         "goal_err": [],
         "clear": [],
+        "track": [],
     }
     pose = Pose2D(0.0, 0.0, 0.0)
     for path in paths:
@@ -93,11 +96,16 @@ def _drive(controller, paths, points, max_steps=600) -> dict[str, list]:
             pose = _step(pose, cmd.v, cmd.w, PERIOD)
             vel = (cmd.v, cmd.w)
             out["clear"].append(float(np.min(np.hypot(*(points - [pose.x, pose.y]).T))))
+            out["track"].append(closest_point(path, (pose.x, pose.y)).distance)
             if pose.distance_to(goal) < 0.05 and cmd.v == 0.0 and cmd.w == 0.0:
                 break
         out["goal_err"].append(pose.distance_to(goal))
         pose = Pose2D(pose.x, pose.y, pose.yaw + math.pi)  # the navigator turns it around
     return out
+
+
+def _rms(values: list[float]) -> float:
+    return float(np.sqrt(np.mean(np.square(values))))
 
 
 def run() -> dict[str, float]:
@@ -116,6 +124,8 @@ def run() -> dict[str, float]:
         "mpc.solve_cpu_ms.p99": float(np.percentile(cpu, 99)),
         "mpc.fatrop.solve_cpu_ms.p50": float(np.percentile(fcpu, 50)),
         "mpc.fatrop.solve_cpu_ms.p99": float(np.percentile(fcpu, 99)),
+        # The same run's ratio: steady when the machine's speed changes between runs.
+        "mpc.cpu_p50_over_fatrop": float(np.percentile(cpu, 50) / np.percentile(fcpu, 50)),
         "mpc.fatrop.goal_error_m.max": float(max(f["goal_err"])),
         "mpc.fatrop.clearance_m.min": float(min(f["clear"])),
         "mpc.solve_ms.p50": float(np.percentile(ms, 50)),
@@ -128,6 +138,8 @@ def run() -> dict[str, float]:
         "mpc.steps": float(len(ms)),
         "mpc.goal_error_m.max": float(max(m["goal_err"])),
         "mpc.clearance_m.min": float(min(m["clear"])),
+        "mpc.tracking_rmse_m": _rms(m["track"]),
+        "mpc.fatrop.tracking_rmse_m": _rms(f["track"]),
         "mpc.build_s": build_s,
         "pure_pursuit.compute_ms.p50": float(np.percentile(pms, 50)),
         "pure_pursuit.compute_ms.p99": float(np.percentile(pms, 99)),

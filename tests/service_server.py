@@ -1,4 +1,5 @@
-"""A real ``agv-mission serve`` process on a loopback port, for tests and benchmarks."""
+"""A real ``agv-mission serve`` process on a loopback port, and the headless chromium that
+watches its dashboard, for tests and benchmarks."""
 
 from __future__ import annotations
 
@@ -8,33 +9,42 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import httpx
+import websockets
+
+from mission_texts import tb3_mission
 
 AGV = str(Path(sys.executable).with_name("agv-mission"))
+CHROMIUM = Path("/usr/bin/chromium")  # Debian's, driven by Playwright
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+]
 
-SHORT_MISSION = """\
-name: short
-world: turtlebot3_world
-start: {x: -2.0, y: -0.5, yaw: 0.0}
-stack: {localization: {type: ground_truth}, global_planner: {type: grid_astar}}
-tasks:
-  - {type: go_to, pose: {x: -1.5, y: -0.5, yaw: 0.0}}
-limits: {time: 30}
-"""
+SHORT_MISSION = tb3_mission(
+    "{type: go_to, pose: {x: -1.5, y: -0.5, yaw: 0.0}}",
+    limits="{time: 30}",
+    stack="{localization: {type: ground_truth}, global_planner: {type: grid_astar}}",
+    name="short",
+    robot=None,
+)
 
 # sim seconds that take a few wall seconds: long enough to pause, cancel or kill
-WANDER_MISSION = """\
-name: wander
-world: turtlebot3_world
-start: {x: -2.0, y: -0.5, yaw: 0.0}
-stack: {localization: {type: amcl}}
-tasks:
-  - {type: wander, duration: %(duration)s, min_range: 0.6}
-limits: {time: 2000}
-"""
+WANDER_MISSION = tb3_mission(
+    "{type: wander, duration: %(duration)s, min_range: 0.6}",
+    limits="{time: 2000}",
+    stack="{localization: {type: amcl}}",
+    name="wander",
+    robot=None,
+)
 
 
 class Server:
@@ -110,6 +120,20 @@ class Server:
             self.stop()
 
 
+@contextmanager
+def serve(data: Path, *extra: str) -> Iterator[str]:
+    """A real service process on a free loopback port; yields its base URL."""
+    with Server(data, *extra) as server:
+        yield server.url
+
+
+def launch_chromium(playwright: Any) -> Any:
+    """Headless chromium from a ``sync_playwright()`` context."""
+    return playwright.chromium.launch(
+        executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, headless=True
+    )
+
+
 def submit(client: httpx.Client, mission: str, **body: Any) -> dict[str, Any]:
     response = client.post("/api/runs", json={"mission": mission, **body})
     assert response.status_code == 201, response.text
@@ -117,9 +141,14 @@ def submit(client: httpx.Client, mission: str, **body: Any) -> dict[str, Any]:
 
 
 def wait_status(
-    client: httpx.Client, run_id: str, statuses: set[str], timeout: float = 120.0
+    client: httpx.Client,
+    run_id: str,
+    statuses: set[str],
+    timeout: float = 120.0,
+    period: float = 0.05,
 ) -> dict[str, Any]:
-    """Poll until the run reaches one of ``statuses`` (a test's deadline, not a timing)."""
+    """Poll every ``period`` seconds until the run reaches one of ``statuses`` (a test's
+    deadline, not a timing)."""
     deadline = time.monotonic() + timeout
     while True:
         run = client.get(f"/api/runs/{run_id}").json()
@@ -127,7 +156,18 @@ def wait_status(
             return run
         if time.monotonic() > deadline:
             raise AssertionError(f"run {run_id} stuck in {run['status']}: {json.dumps(run)[:500]}")
-        time.sleep(0.05)
+        time.sleep(period)
+
+
+async def collect_live(url: str, until: str = "end", limit: int = 100000) -> list[dict]:
+    """A run's live-stream messages from ``url`` until one of type ``until`` (or ``limit``)."""
+    out: list[dict] = []
+    async with websockets.connect(url, max_size=1 << 24) as ws:
+        async for text in ws:
+            out.append(json.loads(text))
+            if out[-1]["type"] == until or len(out) >= limit:
+                break
+    return out
 
 
 FINAL = {"succeeded", "failed", "aborted", "error", "interrupted"}

@@ -13,21 +13,12 @@ import pytest
 from agv_mission.missions.errors import MissionError
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.runner import run_mission
+from mission_texts import ENDLESS_PATROL, mission_file, tb3_mission
 
 EXE = [sys.executable, "-m", "agv_mission.cli"]
 MISSION = "tasks: [{type: wander, duration: 5}]\n"
 
-LAZY_PATROL = """\
-world: turtlebot3_world
-robot: burger
-start: {x: -2.0, y: -0.5, yaw: 0.0}
-stack: {localization: {type: ground_truth}}
-tasks:
-  - type: patrol
-    waypoints: [{x: -1.6, y: -0.5, yaw: 0.0}, {x: -2.0, y: -0.5, yaw: 3.14}]
-    loops: 1000000
-limits: {time: 25.0}
-"""
+LAZY_PATROL = tb3_mission(ENDLESS_PATROL, limits="{time: 25.0}")
 
 
 def cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
@@ -76,9 +67,7 @@ def test_validate_refuses_dev_zero_and_a_fifo_with_exit_2(tmp_path: Path) -> Non
 
 def test_a_patrol_loops_lazily(tmp_path: Path) -> None:
     """A million loops hold as many nodes as one; the time limit ends the patrol."""
-    path = tmp_path / "lazy.yaml"
-    path.write_text(LAZY_PATROL)
-    record = run_mission(load_mission(path))
+    record = run_mission(load_mission(mission_file(tmp_path, LAZY_PATROL, "lazy")))
     assert record.status == "failed" and "time limit" in (record.reason or "")
     assert len(record.tree_text.splitlines()) < 30
     task = record.tasks[0]

@@ -9,20 +9,12 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import httpx
 import pytest
 
-from service_server import Server
-
-
-@contextmanager
-def serve(data: Path, *extra: str) -> Iterator[str]:
-    """A real service process on a free loopback port; yields its base URL."""
-    with Server(data, *extra) as server:
-        yield server.url
+from service_server import serve
 
 
 @pytest.fixture(scope="module")

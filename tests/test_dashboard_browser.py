@@ -15,16 +15,7 @@ from typing import Any
 import httpx
 import pytest
 
-from test_dashboard import serve
-
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--no-first-run",
-]
+from service_server import CHROMIUM, launch_chromium, serve
 
 pytestmark = [
     pytest.mark.browser,
@@ -63,9 +54,7 @@ def browser() -> Iterator[Any]:
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as p:
-        chromium = p.chromium.launch(
-            executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, headless=True
-        )
+        chromium = launch_chromium(p)
         yield chromium
         chromium.close()
 

@@ -14,10 +14,11 @@ from agv_mission.geometry import Pose2D
 from agv_mission.planners.base import VelocityLimits
 from agv_mission.planners.mpc import MpcConfig, MpcController
 from agv_mission.planners.path_tracking import (
+    ProgressTracker,
+    ReferenceProfile,
     closest_point,
     cumulative_length,
     interpolate,
-    speed_profile,
 )
 from agv_mission.planners.pure_pursuit import PurePursuitConfig, PurePursuitController
 
@@ -108,13 +109,73 @@ def test_closest_point_and_interpolation():
     assert closest_point(loop, (0.5, 0.14), s_max=1.0).s == pytest.approx(0.5)
 
 
-def test_speed_profile_accelerates_and_stops_at_the_end():
+def test_reference_profile_accelerates_and_stops_at_the_end():
     cum = cumulative_length(L_PATH)
-    s, v = speed_profile(L_PATH, cum, 0.0, 0.0, 30, 0.1, 0.26, 1.82, 1.0, 0.5)
+    profile = ReferenceProfile(L_PATH, cum, 0.26, 1.82, 1.0, 0.5)
+    s, v = map(np.array, profile.sample(0.0, 0.0, 30, 0.1))
     assert v[0] == 0.0 and np.all(np.diff(v[:4]) > 0)
     assert np.all(np.diff(v) <= 1.0 * 0.1 + 1e-9) and v.max() <= 0.26 + 1e-9
-    s_end, v_end = speed_profile(L_PATH, cum, cum[-1] - 0.05, 0.1, 20, 0.1, 0.26, 1.82, 1.0, 0.5)
+    # Slower through the corner (1.5 m along) than on the straight before it.
+    assert profile.speed_sq[round(1.5 / profile.step)] < 0.25**2
+    assert profile.speed_sq[round(0.5 / profile.step)] == pytest.approx(0.26**2)
+    s_end, v_end = map(np.array, profile.sample(cum[-1] - 0.05, 0.1, 20, 0.1))
     assert v_end[-1] < 0.02 and s_end[-1] <= cum[-1] + 1e-9 and np.all(np.diff(s_end) >= 0)
+    points = [profile.point(s) for s in (0.5, 2.0, 99.0)]
+    np.testing.assert_allclose(
+        points, [[0.5, 0.0, 0.0], [1.5, 0.5, math.pi / 2], [1.5, 1.2, math.pi / 2]]
+    )
+    # In the robot's frame: (1, 0) facing +y sees the corner ahead-left, the path heading
+    # as relative yaw.
+    rows = profile.in_frame([0.5, 2.0], [0.1, 0.2], Pose2D(1.0, 0.0, math.pi / 2))
+    np.testing.assert_allclose(rows, [0.0, 0.5, -math.pi / 2, 0.1, 0.5, -0.5, 0.0, 0.2], atol=1e-12)
+
+
+def test_reference_headings_are_continuous_along_the_path():
+    # A path that winds one and a half turns: headings keep growing, no 2 pi jumps.
+    angles = np.linspace(0.0, 3.0 * math.pi, 60)
+    spiral = np.column_stack((np.cos(angles), np.sin(angles))) * (1.0 + angles[:, None] / 10)
+    profile = ReferenceProfile(spiral, cumulative_length(spiral), 0.26, 1.82, 1.0, 0.5)
+    headings = np.array([profile.point(s)[2] for s in np.linspace(0.0, profile.total, 200)])
+    assert np.all(np.diff(headings) >= 0.0) and headings[-1] - headings[0] > 2.5 * math.pi
+
+
+def test_progress_window_agrees_with_closest_point_on_the_window():
+    rng = np.random.default_rng(3)
+    path = np.cumsum(rng.normal(0.0, 0.2, (40, 2)), axis=0)
+    cum = cumulative_length(path)
+    tracker = ProgressTracker(window_back=0.3, window_ahead=0.5)
+    for _ in range(200):
+        tracker.reset()
+        progress = tracker.update(path, cum, path[0])
+        assert progress == 0.0
+        tracker.progress = progress = float(rng.uniform(0.0, cum[-1]))
+        point = path[rng.integers(len(path))] + rng.normal(0.0, 0.3, 2)
+        expected = closest_point(path, point, cum, s_min=progress - 0.3, s_max=progress + 0.5)
+        assert tracker.update(path, cum, point) == pytest.approx(
+            max(expected.s, progress - 0.05), abs=1e-9
+        )
+
+
+def test_mpc_obstacle_slots_hold_the_nearest_points_of_each_stage():
+    ctrl = MpcController(MpcConfig(obstacles_per_stage=2), LIMITS, RADIUS, PERIOD)
+    rng = np.random.default_rng(5)
+    pose = Pose2D(1.0, -2.0, 0.7)
+    points = np.column_stack((pose.x, pose.y)) + rng.uniform(-1.5, 1.5, (300, 2))
+    stages = np.column_stack((np.linspace(0.0, 0.5, 19), np.zeros(19)))  # robot frame
+    nearest = ctrl._stage_obstacles(points, stages, pose)
+    c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+    rel = points - (pose.x, pose.y)
+    local = np.column_stack((c * rel[:, 0] + s * rel[:, 1], c * rel[:, 1] - s * rel[:, 0]))
+    slots = ctrl._obs
+    for k, stage in enumerate(stages):
+        d2 = ((local - stage) ** 2).sum(axis=1)
+        order = np.argsort(d2)[:2]
+        np.testing.assert_allclose(np.sort(slots[k], axis=0), np.sort(local[order], axis=0))
+        assert nearest[k] == pytest.approx(d2[order[0]])
+    # Points beyond obstacle_range of every stage are parked far away, not constraints.
+    far = np.array([[pose.x + 5.0, pose.y + 5.0]])
+    assert np.isinf(ctrl._stage_obstacles(far, stages, pose)).all()
+    assert np.all(np.abs(ctrl._obs) >= 49.0)
 
 
 # -- MPC ------------------------------------------------------------------------------------
@@ -251,10 +312,12 @@ def test_mpc_rti_functions_are_cached_on_disk(tmp_path, monkeypatch):
     files = list((tmp_path / "agv-mission" / "mpc").glob("*.casadi"))
     assert len(files) == 1
     loaded = mpc_problem.MpcProblem(cfg, LIMITS)
-    assert loaded.rti.step_fn is not built.rti.step_fn
-    u = np.zeros(2 * cfg.horizon + 1)
+    assert loaded.rti_fn is not built.rti_fn
+    controls = np.zeros((cfg.horizon, 3))
     p = np.zeros(built.n_params)
     p[built.p_ref] = np.linspace(0.0, 1.0, 4 * (cfg.horizon + 1))
     p[-4:] = (0.07, 1.0, 1.0, 1.0)
-    for a, b in zip(built.rti.step(u, p), loaded.rti.step(u, p), strict=True):
+    steps = [mpc_problem.RtiStep(f).step(controls, p, 1) for f in (built.rti_fn, loaded.rti_fn)]
+    for a, b in zip(*steps, strict=True):
         assert np.allclose(a, b)
+    assert np.abs(steps[0][1]).max() > 0.0  # the step moved the controls

@@ -16,48 +16,19 @@ import pytest
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.outputs import make_run_dir, write_run
 from agv_mission.missions.runner import run_mission
+from mission_texts import ENDLESS_PATROL, mission_file, tb3_mission
 
 EXE = [sys.executable, "-m", "agv_mission.cli"]
 
 # Long enough to be stopped mid-way (a million rounds; the time limit ends it).
-LONG = """\
-world: turtlebot3_world
-robot: burger
-start: {x: -2.0, y: -0.5, yaw: 0.0}
-stack: {localization: {type: ground_truth}}
-tasks:
-  - type: patrol
-    waypoints: [{x: -1.6, y: -0.5, yaw: 0.0}, {x: -2.0, y: -0.5, yaw: 3.14}]
-    loops: 1000000
-limits: {time: 600.0}
-"""
+LONG = tb3_mission(ENDLESS_PATROL, limits="{time: 600.0}")
 
 # Drives into the wall ahead: a collision ends it (about 20 simulated seconds).
-CRASH = """\
-world: turtlebot3_world
-robot: burger
-start: {x: -2.0, y: -0.5, yaw: 0.0}
-stack: {localization: {type: ground_truth}}
-tasks:
-  - {type: wander, duration: 60.0, min_range: 0.01, sector: 5}
-limits: {time: 60.0}
-"""
+CRASH = tb3_mission(
+    "{type: wander, duration: 60.0, min_range: 0.01, sector: 5}", limits="{time: 60.0}"
+)
 
-SHORT = """\
-world: turtlebot3_world
-robot: burger
-start: {x: -2.0, y: -0.5, yaw: 0.0}
-stack: {localization: {type: ground_truth}}
-tasks:
-  - {type: go_to, pose: {x: -1.7, y: -0.5, yaw: 0.0}}
-limits: {time: 30.0}
-"""
-
-
-def mission_file(tmp_path: Path, text: str, name: str = "m") -> Path:
-    path = tmp_path / f"{name}.yaml"
-    path.write_text(text)
-    return path
+SHORT = tb3_mission("{type: go_to, pose: {x: -1.7, y: -0.5, yaw: 0.0}}", limits="{time: 30.0}")
 
 
 def start_run(mission: Path, out: Path) -> subprocess.Popen:
@@ -67,6 +38,16 @@ def start_run(mission: Path, out: Path) -> subprocess.Popen:
         stderr=subprocess.PIPE,
         text=True,
     )
+
+
+def wait_for_stepping(out: Path, deadline: float = 120.0) -> None:
+    """Until the run's bag is open (the observers start just before the first step), then
+    a little more: a loaded machine may take seconds to build the robot before that."""
+    end = time.monotonic() + deadline
+    while not any(out.glob("*/bag/*")):
+        assert time.monotonic() < end, "the run never opened its bag"
+        time.sleep(0.05)
+    time.sleep(1.0)
 
 
 def only_result(out: Path) -> dict:
@@ -81,8 +62,8 @@ def test_a_signal_mid_run_ends_it_aborted_with_a_result(
     out = tmp_path / "out"
     proc = start_run(mission_file(tmp_path, LONG), out)
     assert proc.stdout is not None
-    assert "task(s) in" in proc.stdout.readline()  # the run has started
-    time.sleep(1.5)
+    assert "task(s) in" in proc.stdout.readline()  # the run directory is made
+    wait_for_stepping(out)
     proc.send_signal(sig)
     stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == code, stderr

@@ -15,7 +15,16 @@ import pytest
 import websockets
 import yaml
 
-from service_server import AGV, FINAL, SHORT_MISSION, WANDER_MISSION, Server, submit, wait_status
+from service_server import (
+    AGV,
+    FINAL,
+    SHORT_MISSION,
+    WANDER_MISSION,
+    Server,
+    collect_live,
+    submit,
+    wait_status,
+)
 
 
 @pytest.fixture(scope="module")
@@ -30,22 +39,12 @@ def client(server: Server):
         yield c
 
 
-async def _collect(url: str, until: str = "end", limit: int = 100000) -> list[dict]:
-    out: list[dict] = []
-    async with websockets.connect(url, max_size=1 << 24) as ws:
-        async for text in ws:
-            out.append(json.loads(text))
-            if out[-1]["type"] == until or len(out) >= limit:
-                break
-    return out
-
-
 def test_submit_follow_files(server: Server, client: httpx.Client) -> None:
     health = client.get("/api/health").json()
     assert health["status"] == "ok" and health["workers"] == 2
     run = submit(client, SHORT_MISSION)
     assert run["status"] == "queued" and run["name"] == "short"
-    messages = asyncio.run(_collect(f"{server.ws_url}/api/runs/{run['id']}/live"))
+    messages = asyncio.run(collect_live(f"{server.ws_url}/api/runs/{run['id']}/live"))
     kinds = [m["type"] for m in messages]
     assert kinds[-1] == "end" and messages[-1]["status"] == "succeeded"
     assert {"map", "rooms", "tree", "plan", "state"} <= set(kinds)
@@ -81,7 +80,7 @@ def test_submit_follow_files(server: Server, client: httpx.Client) -> None:
     assert client.post(f"/api/runs/{run['id']}/rooms/kitchen").status_code == 409
 
     # a late client of a finished run: the snapshot, then the end
-    late = asyncio.run(_collect(f"{server.ws_url}/api/runs/{run['id']}/live"))
+    late = asyncio.run(collect_live(f"{server.ws_url}/api/runs/{run['id']}/live"))
     assert [m["type"] for m in late][:3] == ["map", "rooms", "recorded"]
     assert late[-1]["type"] == "end" and late[-1]["status"] == "succeeded"
 
@@ -215,41 +214,6 @@ def _worker_pid(data: Path, run_id: str) -> int | None:
     return row[0] if row else None
 
 
-def test_token_and_host_rules(tmp_path: Path) -> None:
-    refused = subprocess.run(
-        [AGV, "serve", "--host", "0.0.0.0", "--port", "0", "--data", str(tmp_path / "d")],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env={k: v for k, v in os.environ.items() if k != "AGV_MISSION_TOKEN"},
-    )
-    assert refused.returncode == 2 and "token" in refused.stderr
-    with Server(tmp_path / "data", "--workers", "1", env={"AGV_MISSION_TOKEN": "s3cret"}) as srv:
-        assert httpx.get(srv.url + "/api/health").status_code == 401
-        wrong = httpx.get(srv.url + "/api/runs", headers={"Authorization": "Bearer nope"})
-        assert wrong.status_code == 401
-        with srv.client() as c:
-            run = submit(c, SHORT_MISSION)
-
-        async def live(url: str) -> list[dict]:
-            return await _collect(url)
-
-        with pytest.raises(websockets.exceptions.WebSocketException):
-            asyncio.run(live(f"{srv.ws_url}/api/runs/{run['id']}/live"))
-        messages = asyncio.run(live(f"{srv.ws_url}/api/runs/{run['id']}/live?token=s3cret"))
-        assert messages[-1]["type"] == "end"
-        mission = tmp_path / "short.yaml"
-        mission.write_text(SHORT_MISSION)
-        out = subprocess.run(
-            [AGV, "submit", str(mission), "--server", srv.url],
-            capture_output=True,
-            text=True,
-            timeout=60,
-            env={k: v for k, v in os.environ.items() if k != "AGV_MISSION_TOKEN"},
-        )
-        assert out.returncode == 2
-
-
 def test_submit_cli_follow_and_exit_codes(server: Server, tmp_path: Path) -> None:
     mission = tmp_path / "short.yaml"
     mission.write_text(SHORT_MISSION)
@@ -276,54 +240,6 @@ def test_submit_cli_follow_and_exit_codes(server: Server, tmp_path: Path) -> Non
     )
     assert invalid.returncode == 2
     assert f"{bad}:6" in invalid.stderr and "pose.x" in invalid.stderr
-
-
-def test_queue_full_429(tmp_path: Path) -> None:
-    with Server(tmp_path / "data", "--workers", "1", "--queue-size", "1") as srv, srv.client() as c:
-        long = WANDER_MISSION % {"duration": 600}
-        first = submit(c, long)
-        wait_status(c, first["id"], {"running"})
-        submit(c, long)
-        third = c.post("/api/runs", json={"mission": long})
-        assert third.status_code == 429
-        assert c.get("/api/health").json()["queued"] == 1
-        for run in c.get("/api/runs").json()["runs"]:
-            c.post(f"/api/runs/{run['id']}/cancel")
-        assert wait_status(c, first["id"], FINAL)["status"] == "aborted"
-
-
-def test_restart_after_kill_9_and_sigterm(tmp_path: Path) -> None:
-    data = tmp_path / "data"
-    long = WANDER_MISSION % {"duration": 600}
-    srv = Server(data, "--workers", "1").start()
-    with srv.client() as c:
-        done = submit(c, SHORT_MISSION)
-        wait_status(c, done["id"], FINAL)
-        running = submit(c, long)
-        wait_status(c, running["id"], {"running"})
-        queued = submit(c, SHORT_MISSION)
-    srv.kill9()
-
-    srv = Server(data, "--workers", "1").start()
-    with srv.client() as c:
-        runs = {r["id"]: r for r in c.get("/api/runs").json()["runs"]}
-        assert set(runs) == {done["id"], running["id"], queued["id"]}
-        assert runs[done["id"]]["status"] == "succeeded"
-        assert runs[running["id"]]["status"] == "interrupted"
-        assert wait_status(c, queued["id"], FINAL)["status"] == "succeeded"
-        again = submit(c, long)
-        wait_status(c, again["id"], {"running"})
-        while c.get(f"/api/runs/{again['id']}").json()["progress"]["sim_time"] < 0.5:
-            time.sleep(0.05)
-    assert srv.stop(signal.SIGTERM) == 0
-
-    srv = Server(data, "--workers", "1").start()
-    with srv.client() as c:
-        stopped = c.get(f"/api/runs/{again['id']}").json()
-        assert stopped["status"] == "aborted"
-        assert stopped["result"]["status"] == "aborted"
-        assert len(c.get("/api/runs").json()["runs"]) == 4
-    srv.stop(signal.SIGINT)
 
 
 @pytest.mark.slow
@@ -397,11 +313,13 @@ async def _seed_003(
                         arrived.set()
 
         reader = asyncio.create_task(read())
-        for _ in range(10):
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + 60.0  # "running" comes before the worker's first step
+        while not any(m["v"] > 0.05 for m in states):  # until it drives under remote command
+            assert loop.time() < deadline, f"no state under cmd_vel: {states[-1:]}"
             await ws.send(json.dumps({"type": "cmd_vel", "v": 0.15, "w": 0.0}))
             await asyncio.sleep(0.1)
         assert states[-1]["task"] == {"index": 0, "type": "teleop"}
-        assert max(m["v"] for m in states) > 0.05  # it drove under remote command
         for label, (x, y) in anchors.items():
             arrived.clear()
             response = await http.post(f"/api/runs/{rid}/goal", json={"x": x, "y": y, "yaw": 0.0})

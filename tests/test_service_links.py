@@ -8,9 +8,8 @@ import json
 import multiprocessing
 from pathlib import Path
 
+from agv_mission.service.links import Outbox, WorkerLink
 from agv_mission.service.registry import Registry, Submission
-from agv_mission.service.runs import WorkerLink
-from agv_mission.service.worker import Outbox
 
 
 def _state(t: float) -> tuple[str, str, str, float]:

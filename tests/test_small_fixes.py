@@ -6,24 +6,20 @@ from pathlib import Path
 
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.runner import run_mission
+from mission_texts import mission_file, tb3_mission
 
-WANDER = """\
-world: turtlebot3_world
-robot: waffle
-start: {x: -2.0, y: -0.5, yaw: 0.5}
-stack: {localization: {type: ground_truth}}
-tasks:
-  - {type: wander, duration: 60.0, min_range: 0.6}
-limits: {time: 70.0, collisions: 100}
-"""
+WANDER = tb3_mission(
+    "{type: wander, duration: 60.0, min_range: 0.6}",
+    limits="{time: 70.0, collisions: 100}",
+    robot="waffle",
+    yaw=0.5,
+)
 
 
 def test_wander_keeps_the_waffle_off_the_walls(tmp_path: Path) -> None:
     """The waffle (0.22 m radius) along walls: the cone of +-20 degrees alone let it scrape
     them (1 mm of clearance); the swept corridor of its width keeps it off."""
-    path = tmp_path / "wander.yaml"
-    path.write_text(WANDER)
-    record = run_mission(load_mission(path))
+    record = run_mission(load_mission(mission_file(tmp_path, WANDER, "wander")))
     assert record.status == "succeeded", record.reason
     assert record.metrics["collisions"] == 0
     assert record.metrics["min_clearance"] >= 0.05

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -38,3 +39,13 @@ class LaserScan:
         r = self.ranges[ok].astype(float)
         a = self.angles[ok] + pose.yaw
         return np.stack([pose.x + r * np.cos(a), pose.y + r * np.sin(a)], axis=1)
+
+
+def json_default(value: Any) -> Any:
+    """numpy scalars and arrays as plain JSON values (``json.dumps(..., default=...)``), so
+    every file and message the project writes turns numpy into JSON the same way."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")

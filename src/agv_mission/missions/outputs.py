@@ -14,6 +14,7 @@ import numpy as np
 import yaml
 
 from agv_mission.atomic import atomic_write_bytes, atomic_write_text
+from agv_mission.messages import json_default
 from agv_mission.missions.loader import LoadedMission
 from agv_mission.missions.run_report import COVARIANCE_COLUMNS
 from agv_mission.missions.runner import TRAJECTORY_COLUMNS, RunRecord
@@ -106,15 +107,7 @@ def strip_ansi(text: str) -> str:
 
 
 def write_json(path: Path, doc: dict[str, Any]) -> None:
-    atomic_write_text(
-        path, json.dumps(doc, indent=2, allow_nan=False, default=_json_default) + "\n"
-    )
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+    atomic_write_text(path, json.dumps(doc, indent=2, allow_nan=False, default=json_default) + "\n")
 
 
 def write_trajectory(

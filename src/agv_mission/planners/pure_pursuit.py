@@ -9,26 +9,20 @@ command within the acceleration limits. It ignores obstacles.
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 
-from agv_mission.geometry import Pose2D, wrap_angle
+from agv_mission.geometry import wrap_angle
 from agv_mission.planners.base import VelocityCommand, VelocityLimits
 from agv_mission.planners.configs import PurePursuitConfig
-from agv_mission.planners.path_tracking import (
-    ProgressTracker,
-    interpolate,
-    prepare_path,
-    speed_profile,
-)
+from agv_mission.planners.path_tracking import PathFollower, PathStep, interpolate
 
 
 def _ramp(target: float, current: float, max_step: float) -> float:
     return min(max(target, current - max_step), current + max_step)
 
 
-class PurePursuitController:
+class PurePursuitController(PathFollower):
     """Geometric path follower with a braking speed profile."""
 
     Config = PurePursuitConfig
@@ -40,16 +34,14 @@ class PurePursuitController:
         robot_radius: float,
         control_period: float,
     ) -> None:
+        super().__init__(limits, control_period)
         self.config = config
-        self.limits = limits
         self.robot_radius = robot_radius
-        self.control_period = control_period
-        self._tracker = ProgressTracker(window_ahead=limits.max_v * control_period * 3.0 + 0.3)
         self.reset()
 
     def reset(self) -> None:
+        super().reset()
         self._rotating = False
-        self._tracker.reset()
 
     def _command(
         self, v_target: float, w_target: float, velocity: tuple[float, float]
@@ -61,35 +53,14 @@ class PurePursuitController:
         w = float(np.clip(w, -lim.max_w, lim.max_w))
         return v, w
 
-    def diagnostics(self) -> dict[str, float]:
-        return {}
+    def stop(self, velocity: tuple[float, float]) -> tuple[float, float]:
+        return self._command(0.0, 0.0, velocity)
 
-    def compute(
-        self,
-        pose: Pose2D,
-        velocity: tuple[float, float],
-        path: np.ndarray,
-        goal: Pose2D,
-        obstacles: np.ndarray,
-    ) -> VelocityCommand:
-        t0 = time.perf_counter()
+    def follow(self, step: PathStep) -> VelocityCommand:
         cfg, lim, dt = self.config, self.limits, self.control_period
-        path, cumlen, total = prepare_path(path, pose, goal)
+        pose, velocity, goal_ahead = step.pose, step.velocity, step.goal_ahead
+        path, cumlen, total, s0 = step.path, step.cumlen, step.total, step.s
         xy = np.array([pose.x, pose.y])
-        s0 = self._tracker.update(path, cumlen, xy)
-        to_goal = path[-1] - xy
-        dist_goal = float(np.hypot(*to_goal))
-        goal_ahead = math.cos(pose.yaw) * to_goal[0] + math.sin(pose.yaw) * to_goal[1]
-
-        def done() -> VelocityCommand:
-            v, w = self._command(0.0, 0.0, velocity)
-            return VelocityCommand(v, w, solve_time=time.perf_counter() - t0)
-
-        # At the goal, or just past it: stop rather than turn back.
-        if dist_goal < cfg.goal_tolerance or (
-            goal_ahead <= 0.0 and dist_goal < cfg.overshoot_tolerance
-        ):
-            return done()
 
         # Lookahead point; at the end of the path, the goal itself.
         s_look = min(s0 + cfg.lookahead, total)
@@ -105,24 +76,14 @@ class PurePursuitController:
             # Turn in place, braking so the heading error is not overshot.
             w_brake = math.sqrt(2.0 * 0.5 * lim.max_acc_w * abs(alpha))
             w_t = math.copysign(min(cfg.rotate_gain * abs(alpha), w_brake, lim.max_w), alpha)
-            v, w = self._command(0.0, w_t, velocity)
-            return VelocityCommand(v, w, solve_time=time.perf_counter() - t0)
+            return VelocityCommand(*self._command(0.0, w_t, velocity))
 
         # Speed: braking/curvature profile, goal slow-down, never more than the distance left.
         cruise = min(cfg.speed or lim.max_v, lim.max_v)
-        _, v_prof = speed_profile(
-            path,
-            cumlen,
-            s0,
-            velocity[0],
-            1,
-            dt,
-            cruise,
-            lim.max_w,
-            lim.max_acc_v,
-            cfg.decel_fraction * lim.max_acc_v,
-            turn_fraction=cfg.turn_fraction,
+        profile = self.reference(
+            step, cruise, cfg.decel_fraction * lim.max_acc_v, cfg.turn_fraction
         )
+        _, v_prof = profile.sample(s0, velocity[0], 1, dt)
         remaining = max(total - s0, goal_ahead) if s_look >= total else total - s0
         v_t = float(v_prof[1])
         if cfg.goal_slowdown_distance > 0:
@@ -138,5 +99,4 @@ class PurePursuitController:
             v_t = lim.max_w / abs(kappa)
         v, _ = self._command(v_t, 0.0, velocity)
         w_t = float(np.clip(kappa * v, -lim.max_w, lim.max_w))
-        v, w = self._command(v_t, w_t, velocity)
-        return VelocityCommand(v, w, solve_time=time.perf_counter() - t0)
+        return VelocityCommand(*self._command(v_t, w_t, velocity))

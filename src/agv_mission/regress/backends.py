@@ -19,9 +19,9 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 from typing import Any
 
+from agv_mission.messages import json_default
 from agv_mission.missions.errors import MissionError
 from agv_mission.regress.plan import RegressError, ResultCallback
-from agv_mission.regress.report import json_default
 
 # Signals this process was asked to stop with (Ctrl-C, SIGTERM): a run in progress ends
 # ``aborted`` before its next step, a job not started yet is not started.

@@ -14,16 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from agv_mission.messages import json_default
 from agv_mission.regress.plan import WALL_CLOCK_METRICS, Plan
-
-
-def json_default(value: Any) -> Any:
-    """numpy scalars and arrays as plain JSON values."""
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
 def deterministic_view(result: dict[str, Any]) -> dict[str, Any]:

@@ -16,7 +16,7 @@ clients get 6 states a second each; up to 6 clients see every state of a run at 
 real time); a client may ask for less (``?rate=N``: the dashboard takes 25). A message
 over budget is held (the newest replaces it) and sent when its client has a token again,
 so the fan-out's CPU stays bounded however many watch, and the last state always
-arrives. Each client's sender wakes at most 20 times a second (``app.SEND_PERIOD``),
+arrives. Each client's sender wakes at most 20 times a second (``live_api.SEND_PERIOD``),
 except for a status change, a pong or the end.
 """
 

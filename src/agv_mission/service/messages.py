@@ -18,6 +18,7 @@ from PIL import Image
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.rooms import Room
+from agv_mission.messages import json_default
 from agv_mission.missions.observe import TreeNode
 
 MAX_PARTICLES = 300
@@ -31,7 +32,7 @@ TREE_STATUS = {
 
 
 def dumps(message: dict[str, Any]) -> str:
-    return json.dumps(message, separators=(",", ":"), allow_nan=False, default=_plain)
+    return json.dumps(message, separators=(",", ":"), allow_nan=False, default=json_default)
 
 
 def finite(value: Any) -> Any:
@@ -48,14 +49,6 @@ def finite(value: Any) -> Any:
     if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
-
-
-def _plain(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
 def pose(p: Pose2D | None) -> dict[str, float] | None:

@@ -1,0 +1,110 @@
+"""Request bodies of the API and its error answers: bounded reads (413), mission
+submissions (JSON or YAML), and problems spelt as the contract spells them (422)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import re
+from typing import Any
+
+from fastapi import Request
+
+from agv_mission.missions.errors import MissionError
+from agv_mission.service.context import ApiError, Service
+from agv_mission.service.registry import Submission
+
+MAX_BODY = 1_000_000  # bytes of a request body
+YAML_TYPES = ("application/yaml", "application/x-yaml", "text/yaml")
+
+
+async def read_body(request: Request) -> bytes:
+    """The request body, refusing (413) anything larger than :data:`MAX_BODY`."""
+    declared = request.headers.get("content-length")
+    if declared is not None:
+        with contextlib.suppress(ValueError):
+            if int(declared) > MAX_BODY:
+                raise ApiError(413, f"the body is larger than {MAX_BODY} bytes")
+    chunks, size = [], 0
+    async for chunk in request.stream():
+        size += len(chunk)
+        if size > MAX_BODY:
+            raise ApiError(413, f"the body is larger than {MAX_BODY} bytes")
+        chunks.append(chunk)
+    return b"".join(chunks)
+
+
+def content_type(request: Request) -> str:
+    """The media type alone (no parameters), lower case."""
+    return request.headers.get("content-type", "").split(";")[0].strip().lower()
+
+
+async def submission(service: Service, request: Request) -> Submission:
+    """A run to queue: the mission as JSON ``{mission, set, seed}`` or as YAML text,
+    validated off the event loop (422 with the problems; 415 for another media type)."""
+    body = await read_body(request)
+    ctype = content_type(request)
+    if ctype in YAML_TYPES:
+        try:
+            text = body.decode("utf-8")
+        except UnicodeDecodeError:
+            raise ApiError(422, {"errors": [_err(None, "", "the body is not UTF-8")]}) from None
+        sets, seed = [], None
+    elif ctype == "application/json":
+        text, sets, seed = parse_json_submission(body)
+    else:
+        raise ApiError(415, "send application/json ({mission, set, seed}) or application/yaml")
+    loaded = await asyncio.to_thread(validate, service, text, sets, seed)
+    return Submission(loaded.name, text, sets, seed)
+
+
+def validate(service: Service, text: str, sets: list[str], seed: int | None) -> Any:
+    """The loaded mission, read as the command line reads it but confined to the data
+    directory; its problems as a 422."""
+    from agv_mission.missions.loader import load_mission
+
+    try:
+        return load_mission(
+            service.settings.data_dir / "mission.yaml",
+            sets,
+            seed,
+            text=text,
+            path_guard=service.guard,
+        )
+    except MissionError as exc:
+        raise ApiError(
+            422, {"errors": [_err(p.line, p.field, p.message) for p in exc.problems]}
+        ) from None
+
+
+def parse_json_submission(body: bytes) -> tuple[str, list[str], int | None]:
+    try:
+        doc = json.loads(body)
+    except ValueError as exc:
+        raise ApiError(422, {"errors": [_err(None, "", f"invalid JSON body: {exc}")]}) from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("mission"), str):
+        raise ApiError(
+            422, {"errors": [_err(None, "mission", "the body needs 'mission': the YAML text")]}
+        )
+    unknown = set(doc) - {"mission", "set", "seed"}
+    if unknown:
+        raise ApiError(
+            422, {"errors": [_err(None, sorted(unknown)[0], "unknown key (mission, set, seed)")]}
+        )
+    sets = doc.get("set") or []
+    if not isinstance(sets, list) or not all(isinstance(s, str) for s in sets):
+        raise ApiError(422, {"errors": [_err(None, "set", "a list of KEY=VALUE strings")]})
+    seed = doc.get("seed")
+    if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool) or seed < 0):
+        raise ApiError(422, {"errors": [_err(None, "seed", "a non-negative integer")]})
+    return doc["mission"], sets, seed
+
+
+def _err(line: int | None, field: str, message: str) -> dict[str, Any]:
+    """One problem as the contract spells it: list indices in brackets
+    (``tasks[0].waypoints[1].yaw``, where the command line prints ``tasks.0.waypoints.1.yaw``)."""
+    return {"line": line, "field": _INDEX.sub(r"[\1]", field), "message": message}
+
+
+_INDEX = re.compile(r"\.(\d+)(?=\.|$)")

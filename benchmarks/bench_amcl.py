@@ -19,6 +19,7 @@ from agv_mission.localization.beam_model import SensorParams
 from agv_mission.localization.particle_filter import MotionNoise, ParticleFilter
 from agv_mission.maps.builtin_worlds import turtlebot3_world
 from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.messages import LaserScan
 
 PARTICLES = (500, 1000, 2000)
 BEAMS = (60, 180)
@@ -46,7 +47,7 @@ def run() -> dict[str, float]:
     grid = turtlebot3_world().map
     truth = Pose2D(-2.0, -0.5, 0.3)
     ranges = cast_scan(grid, truth)
-    inc = 2.0 * math.pi / len(ranges)
+    scan = LaserScan(ranges, 0.0, 2.0 * math.pi / len(ranges), 0.12, 3.5, 0.0)
     out: dict[str, float] = {}
     for n in PARTICLES:
         for b in BEAMS:
@@ -66,7 +67,7 @@ def run() -> dict[str, float]:
                 t0 = time.perf_counter()
                 pf.motion_update(odom, new)
                 t1 = time.perf_counter()
-                pf.sensor_update(ranges, 0.0, inc, 0.12, 3.5)
+                pf.sensor_update(scan)
                 t2 = time.perf_counter()
                 pf.resample()
                 pf.estimate()

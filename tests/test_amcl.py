@@ -201,7 +201,7 @@ def test_likelihood_field_peaks_at_the_true_pose():
         pf = ParticleFilter(ROOM, np.random.default_rng(0), sensor=SensorParams(model=model))
         truth = Pose2D(3.0, 2.6, 0.7)
         scan = cast(ROOM, truth)
-        field, bx, by = pf.beams(scan.ranges, 0.0, scan.angle_increment, 0.12, 3.5)
+        field, bx, by = pf.beams(scan)
         assert 90 <= len(bx) <= 180  # every other beam of 360, minus those without return
         offsets = np.array([[0, 0, 0], [0.1, 0, 0], [0, -0.1, 0], [0, 0, 0.1], [0.3, 0.3, 0]])
         scores = field.score(truth.as_array() + offsets, bx, by)
@@ -288,7 +288,7 @@ def test_injected_poses_are_drawn_from_the_scan():
             inject_candidates=candidates,
         )
         pf.init_uniform()
-        pf.sensor_update(scan.ranges, 0.0, scan.angle_increment, 0.12, 3.5)
+        pf.sensor_update(scan)
         poses = pf.injection_poses(500)
         assert poses.shape == (500, 3) and np.all(np.abs(poses[:, 2]) <= math.pi)
         d = np.hypot(poses[:, 0] - truth.x, poses[:, 1] - truth.y)

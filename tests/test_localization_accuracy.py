@@ -18,12 +18,8 @@ import pytest
 
 from agv_mission.geometry import Pose2D
 from agv_mission.localization.amcl import AmclConfig, AmclLocalizer
-from agv_mission.localization.scan_refine import (
-    PoseTracker,
-    RefineParams,
-    SignedDistanceField,
-    floor_covariance,
-)
+from agv_mission.localization.distance_field import SignedDistanceField
+from agv_mission.localization.scan_refine import PoseTracker, RefineParams, floor_covariance
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
 from agv_mission.missions.loader import load_mission

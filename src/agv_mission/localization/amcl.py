@@ -10,7 +10,15 @@ The default ``profile: accurate`` adds scan-to-map refinement
 (:mod:`agv_mission.localization.scan_refine`): every scan corrects a Kalman pose estimate
 against the map's signed distance field, the estimate and its covariance come from that,
 and the particle cloud is moved onto it at each filter update; the filter stays the
-fallback (and the start) when scans stop fitting. Measured (tests/test_localization_accuracy.py,
+fallback (and the start) when scans stop fitting. While the refinement tracks, the filter
+runs coarse (``refine_filter_particles`` 500 particles, amcl's ``min_particles``, instead of
+the KLD count, and ``refine_filter_beams`` 30 beams, amcl's default ``laser_max_beams``):
+its cloud is moved onto the tracked pose at every update anyway, so the KLD count measured
+the spread the filter's own noise kept up (~1000 particles), not the pose's uncertainty;
+it is full again from the first update after the refinement lets go. Measured on the demo
+patrol (benchmarks/bench_breakdown.py): localisation 0.4x the cost per simulated second of
+the filter at the KLD count and 180 beams with the refinement before its speed-ups, the
+same accuracy (benchmarks/bench_localization.py). Measured (tests/test_localization_accuracy.py,
 benchmarks/bench_localization.py): 1-2 mm RMSE on the real AWS small house map (amcl alone
 7 cm), 2-3 cm in a 30 x 50 m warehouse (amcl alone 22 cm, 0.97 m maximum), with the true
 error inside the reported 2-sigma ellipse on more than 99 % of the steps.
@@ -43,6 +51,7 @@ For plots the plugin keeps ``snapshots`` (``(time, particles)`` every
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -311,12 +320,15 @@ class AmclLocalizer:
         pf = self.filter
         if moved:
             pf.motion_update(self._odom.as_array(), odom.as_array())
-        pf.sensor_update(
-            scan.ranges, scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max
-        )
+        c = self.config
+        # While the refinement tracks, the estimate is its own and the cloud is moved onto
+        # it at every update: the filter is the fallback, a coarse cloud is enough.
+        last = self.tracker.last if self.tracker is not None and self.tracker.active else None
+        tracking = last is not None and last.accepted
+        pf.sensor_update(scan, c.refine_filter_beams if tracking else None)
         self._resample_count += 1
-        if self._resample_count % self.config.resample_interval == 0:
-            pf.resample()
+        if self._resample_count % c.resample_interval == 0:
+            pf.resample(c.refine_filter_particles if tracking else None)
         est, _ = pf.estimate()
         self._pose = Pose2D(float(est[0]), float(est[1]), float(est[2]))
         self._pf_cov = pf.covariance(est)
@@ -336,7 +348,15 @@ def _scan_points(scan: LaserScan, min_range: float, max_range: float) -> np.ndar
     r = np.asarray(scan.ranges, dtype=np.float64)
     rmin = min_range if min_range > 0.0 else scan.range_min
     rmax = max_range if max_range > 0.0 else scan.range_max
-    ok = np.isfinite(r) & (r >= rmin) & (r < rmax)
-    a = scan.angle_min + scan.angle_increment * np.flatnonzero(ok)
-    r = r[ok]
-    return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
+    ok = (r >= rmin) & (r < rmax)  # False for nan; inf is not below rmax
+    directions = _beam_directions(scan.angle_min, scan.angle_increment, len(r))
+    return directions[ok] * r[ok, None]
+
+
+@functools.lru_cache(maxsize=16)
+def _beam_directions(angle_min: float, angle_increment: float, n: int) -> np.ndarray:
+    """Unit vectors (n, 2) of a scan's beams: the same for every scan of a lidar."""
+    a = angle_min + angle_increment * np.arange(n)
+    out = np.stack([np.cos(a), np.sin(a)], axis=1)
+    out.flags.writeable = False
+    return out

@@ -12,6 +12,7 @@ import numpy as np
 
 from agv_mission.maps.distance import obstacle_distance
 from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.maps.map_cache import map_table
 
 LaserModel = Literal["likelihood_field", "likelihood_field_prob"]
 
@@ -75,6 +76,8 @@ class BeamModel:
             table, self.far = k * np.log(pz), k * math.log(pz_far)
         self.table = np.ascontiguousarray(table, dtype=np.float32).ravel()
         self.distance = dist  # padded distance field, metres (for plots and tests)
+        self.table.flags.writeable = False  # shared between runs (map_cache)
+        self.distance.flags.writeable = False
 
     def to_grid_frame(self, particles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Particle positions in padded-cell units and yaws in the grid's frame."""
@@ -126,3 +129,9 @@ class BeamModel:
         if off.any():
             total[off] = base + b * self.far
         return total
+
+
+def beam_model(grid: OccupancyGrid, params: SensorParams, range_max: float) -> BeamModel:
+    """The map's :class:`BeamModel` for ``params``, built once per map content (map_cache)."""
+    r = float(range_max)
+    return map_table("beam_model", grid, (params, r), lambda: BeamModel(grid, params, r))

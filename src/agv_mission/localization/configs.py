@@ -150,6 +150,18 @@ class AmclConfig(PluginConfig):
         description="m (and rad, at least 0.3): a sure filter estimate this far from the "
         "tracked pose restarts the tracker there",
     )
+    refine_filter_particles: int = Field(
+        500,
+        ge=1,
+        description="while the refinement tracks, the particle filter (then the fallback and "
+        "the jump check) resamples to at most this many particles instead of the KLD count",
+    )
+    refine_filter_beams: int = Field(
+        30,
+        ge=2,
+        description="and scores this many beams of each scan (ROS amcl's default "
+        "laser_max_beams; this one caps it)",
+    )
 
     # Plot support
     snapshot_interval: int = Field(5, ge=1, description="filter updates between snapshots")

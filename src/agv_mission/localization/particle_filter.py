@@ -6,8 +6,9 @@ Pure numpy, no plugin glue. It follows ROS amcl (``pf.c``, ``amcl_odom.cpp``,
 * :meth:`ParticleFilter.motion_update` is the odometry motion model of a differential
   drive (Probabilistic Robotics, table 5.6, with amcl's fixes for reversing and turning
   in place), noise from ``odom_alpha1..4``.
-* :class:`~agv_mission.localization.beam_model.BeamModel` precomputes, once per map, the per-cell beam likelihood from
-  the distance to the nearest occupied cell (clipped at ``laser_likelihood_max_dist``);
+* :class:`~agv_mission.localization.beam_model.BeamModel` precomputes, once per map
+  (shared between runs, :mod:`~agv_mission.maps.map_cache`), the per-cell beam
+  likelihood from the distance to the nearest occupied cell (clipped at ``laser_likelihood_max_dist``);
   scoring N particles x B beams is then one matrix product, one integer conversion and
   one table gather. Unknown cells count like free ones (distance to the nearest occupied
   cell) and end points off the map get ``laser_likelihood_max_dist``, as in amcl.
@@ -24,6 +25,9 @@ Pure numpy, no plugin glue. It follows ROS amcl (``pf.c``, ``amcl_odom.cpp``,
   :meth:`ParticleFilter.injection_poses`).
 * :meth:`ParticleFilter.estimate` is amcl's: the weighted mean (circular for yaw) of the
   heaviest cluster of connected histogram bins.
+
+The histogram's parts (bins, the KLD bound, clusters: amcl's ``pf_kdtree.c``) are in
+:mod:`agv_mission.localization.histogram`.
 """
 
 from __future__ import annotations
@@ -32,17 +36,13 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import ndimage
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from agv_mission.geometry import wrap_angle, wrap_angles
-from agv_mission.localization.beam_model import BeamModel, SensorParams
+from agv_mission.localization.beam_model import BeamModel, SensorParams, beam_model
+from agv_mission.localization.histogram import KldBound, heaviest_cluster, kld_count, weighted_pose
 from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.messages import LaserScan
 
-#: amcl's histogram bin sizes (pf_kdtree): x, y in metres, yaw in radians.
-BIN_SIZE = (0.5, 0.5, math.radians(10.0))
-_YAW_BINS = 36
 #: Scan-guided injection (ParticleFilter.injection_poses): the proposal's per-beam
 #: log-likelihood scale, the broad field's sigma_hit (m), and the refinement jitter
 #: (x/y sd in m, yaw sd in rad), halved in each refinement round.
@@ -92,6 +92,7 @@ class ParticleFilter:
         if inject_candidates < 1:
             raise ValueError("need inject_candidates >= 1")
         self.inject_candidates = int(inject_candidates)
+        self._kld = KldBound(self.kld_err, self.kld_z, self.min_particles, self.max_particles)
         self._reset_averages()
         self._fields: dict[float, BeamModel] = {}
         self._proposal: dict[float, tuple[BeamModel, BeamModel]] = {}
@@ -181,44 +182,36 @@ class ParticleFilter:
         key = round(float(range_max), 6)
         f = self._fields.get(key)
         if f is None:
-            f = self._fields[key] = BeamModel(self.grid, self.sensor, key)
+            f = self._fields[key] = beam_model(self.grid, self.sensor, key)
         return f
 
     def beams(
-        self,
-        ranges: np.ndarray,
-        angle_min: float,
-        angle_increment: float,
-        range_min: float,
-        range_max: float,
+        self, scan: LaserScan, max_beams: int | None = None
     ) -> tuple[BeamModel, np.ndarray, np.ndarray]:
-        """The field and the used beams' robot-frame end points in cells (bx, by)."""
+        """The field and the used beams' robot-frame end points in cells (bx, by):
+        ``max_beams`` (default ``laser_max_beams``) evenly spaced beams of ``scan``."""
         sp = self.sensor
-        rmax = sp.max_range if sp.max_range > 0.0 else float(range_max)
-        rmin = sp.min_range if sp.min_range > 0.0 else float(range_min)
+        rmax = sp.max_range if sp.max_range > 0.0 else float(scan.range_max)
+        rmin = sp.min_range if sp.min_range > 0.0 else float(scan.range_min)
         f = self.field(rmax)
+        ranges = scan.ranges
         n = len(ranges)
-        step = max(1, (n - 1) // max(1, sp.max_beams - 1))
-        idx = np.arange(0, n, step)[: sp.max_beams]
+        nb = sp.max_beams if max_beams is None else max(2, min(int(max_beams), sp.max_beams))
+        step = max(1, (n - 1) // max(1, nb - 1))
+        idx = np.arange(0, n, step)[:nb]
         r = np.asarray(ranges, dtype=np.float64)[idx]
         ok = np.isfinite(r) & (r < rmax) & (r >= rmin)
-        r, a = r[ok], angle_min + angle_increment * idx[ok]
+        r, a = r[ok], scan.angle_min + scan.angle_increment * idx[ok]
         inv = 1.0 / f.resolution
         return f, (r * np.cos(a) * inv).astype(np.float32), (r * np.sin(a) * inv).astype(np.float32)
 
-    def sensor_update(
-        self,
-        ranges: np.ndarray,
-        angle_min: float,
-        angle_increment: float,
-        range_min: float,
-        range_max: float,
-    ) -> float:
-        """Reweight the particles by a scan; returns the average likelihood ``w_avg``.
+    def sensor_update(self, scan: LaserScan, max_beams: int | None = None) -> float:
+        """Reweight the particles by a scan (``max_beams`` of its beams, default
+        ``laser_max_beams``); returns the average likelihood ``w_avg``.
 
         Also updates ``w_slow`` / ``w_fast`` (amcl's recovery averages).
         """
-        f, bx, by = self.beams(ranges, angle_min, angle_increment, range_min, range_max)
+        f, bx, by = self.beams(scan, max_beams)
         score = f.score(self.particles, bx, by)
         if self.sensor.model == "likelihood_field":
             w = self.weights * score
@@ -263,21 +256,7 @@ class ParticleFilter:
 
     def kld_limit(self, k: np.ndarray) -> np.ndarray:
         """amcl's ``pf_resample_limit``: particles needed for ``k`` occupied bins."""
-        k = np.asarray(k, dtype=np.float64)
-        km1 = np.maximum(k - 1.0, 1.0)
-        b = 2.0 / (9.0 * km1)
-        x = 1.0 - b + np.sqrt(b) * self.kld_z
-        n = np.ceil(km1 / (2.0 * self.kld_err) * x**3)
-        n = np.where(k <= 1, self.max_particles, n)
-        return np.clip(n, self.min_particles, self.max_particles).astype(np.int64)
-
-    @staticmethod
-    def bin_keys(particles: np.ndarray) -> np.ndarray:
-        """amcl's histogram bin of each particle as one int64 key."""
-        kx = np.floor(particles[:, 0] / BIN_SIZE[0]).astype(np.int64) + (1 << 20)
-        ky = np.floor(particles[:, 1] / BIN_SIZE[1]).astype(np.int64) + (1 << 20)
-        ka = np.floor(particles[:, 2] / BIN_SIZE[2]).astype(np.int64) + 64
-        return (kx << 32) | (ky << 8) | ka
+        return self._kld(k)
 
     def systematic(self, n: int) -> np.ndarray:
         """Indices of a low-variance (systematic) draw of ``n`` from the weights."""
@@ -331,22 +310,26 @@ class ParticleFilter:
             )
             broad = replace(sharp, sigma_hit=max(PROPOSAL_BROAD_SIGMA, sharp.sigma_hit))
             pair = self._proposal[key] = (
-                BeamModel(self.grid, broad, key),
-                BeamModel(self.grid, sharp, key),
+                beam_model(self.grid, broad, key),
+                beam_model(self.grid, sharp, key),
             )
         return pair
 
-    def resample(self) -> int:
-        """KLD-sampling resample with random injection; returns the new particle count."""
+    def resample(self, max_count: int | None = None) -> int:
+        """KLD-sampling resample with random injection; returns the new particle count
+        (at most ``max_count``, default ``max_particles``)."""
         w_diff = 0.0
         if self.w_slow > 0.0:
             w_diff = max(0.0, 1.0 - self.w_fast / self.w_slow)
         self.last_w_diff = w_diff
         self.last_injected = 0
-        m = self.max_particles
+        m = self.max_particles if max_count is None else max(1, min(max_count, self.max_particles))
         # What amcl does one sample at a time: draw from the weighted set (here a shuffled
         # systematic draw, so every prefix is representative), injecting random poses with
         # probability w_diff, until the count exceeds the KLD bound of the bins filled.
+        if w_diff <= 0.0 and self.min_particles >= m:
+            self._set(self.particles[self.systematic(m)])  # the count is known: no candidates
+            return m
         candidates = self.particles[self.systematic(m)][self.rng.permutation(m)]
         inject = np.zeros(m, dtype=bool)
         if w_diff > 0.0:
@@ -354,16 +337,7 @@ class ParticleFilter:
             k = int(inject.sum())
             if k:
                 candidates[inject] = self.injection_poses(k)
-        if self.min_particles == m:
-            n = m
-        else:
-            keys = self.bin_keys(candidates)
-            _, first = np.unique(keys, return_index=True)
-            is_first = np.zeros(m, dtype=np.int64)
-            is_first[first] = 1
-            bins = np.cumsum(is_first)
-            over = np.flatnonzero(np.arange(1, m + 1) > self.kld_limit(bins))
-            n = int(over[0]) + 1 if over.size else m
+        n = m if self.min_particles >= m else kld_count(candidates, m, self._kld)
         n_rand = self.last_injected = int(inject[:n].sum())
         out = np.empty((n, 3))
         if n_rand:
@@ -376,7 +350,7 @@ class ParticleFilter:
 
     def mean(self) -> np.ndarray:
         """Weighted mean of all particles, circular for yaw."""
-        return _weighted_pose(self.particles, self.weights)
+        return weighted_pose(self.particles, self.weights)
 
     def covariance(self, mean: np.ndarray) -> np.ndarray:
         """Weighted covariance (3x3, yaw differences wrapped) of the particles about ``mean``."""
@@ -386,30 +360,9 @@ class ParticleFilter:
         return (d * w[:, None]).T @ d
 
     def estimate(self) -> tuple[np.ndarray, float]:
-        """amcl's pose: the weighted mean of the heaviest cluster, and that cluster's weight.
-
-        Clusters are connected components (26-neighbourhood, yaw wrapping) of the occupied
-        histogram bins.
-        """
-        p, w = self.particles, self.weights
-        kx = np.floor(p[:, 0] / BIN_SIZE[0]).astype(np.int64)
-        ky = np.floor(p[:, 1] / BIN_SIZE[1]).astype(np.int64)
-        ka = np.floor((p[:, 2] + math.pi) / BIN_SIZE[2]).astype(np.int64) % _YAW_BINS
-        kx -= kx.min()
-        ky -= ky.min()
-        shape = (int(kx.max()) + 1, int(ky.max()) + 1, _YAW_BINS)
-        if shape[0] * shape[1] * shape[2] > 4_000_000:
-            return self.mean(), 1.0
-        occ = np.zeros(shape, dtype=bool)
-        occ[kx, ky, ka] = True
-        labels, count = ndimage.label(occ, structure=np.ones((3, 3, 3), dtype=bool))
-        if count > 1:
-            labels = _merge_yaw_wrap(labels, count)
-        lab = labels[kx, ky, ka]
-        totals = np.bincount(lab, weights=w)
-        best = int(np.argmax(totals))
-        sel = lab == best
-        return _weighted_pose(p[sel], w[sel]), float(totals[best])
+        """amcl's pose: the weighted mean of the heaviest cluster of connected histogram
+        bins, and that cluster's weight (:func:`~agv_mission.localization.histogram.heaviest_cluster`)."""
+        return heaviest_cluster(self.particles, self.weights)
 
 
 def _systematic(weights: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -423,37 +376,3 @@ def _systematic(weights: np.ndarray, n: int, rng: np.random.Generator) -> np.nda
 def _softmax(log_w: np.ndarray) -> np.ndarray:
     w = np.exp(log_w - log_w.max())
     return w / w.sum()
-
-
-def _weighted_pose(p: np.ndarray, w: np.ndarray) -> np.ndarray:
-    total = float(w.sum())
-    if total <= 0.0:
-        w = np.full(len(p), 1.0 / len(p))
-        total = 1.0
-    x = float(w @ p[:, 0]) / total
-    y = float(w @ p[:, 1]) / total
-    yaw = math.atan2(float(w @ np.sin(p[:, 2])), float(w @ np.cos(p[:, 2])))
-    return np.array([x, y, yaw])
-
-
-def _merge_yaw_wrap(labels: np.ndarray, count: int) -> np.ndarray:
-    """Join components that touch across the yaw seam (bin 35 next to bin 0)."""
-    first, last = labels[:, :, 0], labels[:, :, -1]
-    pairs = []
-    nx, ny = first.shape
-    for dx in (-1, 0, 1):
-        for dy in (-1, 0, 1):
-            a = first[max(0, dx) : nx + min(0, dx), max(0, dy) : ny + min(0, dy)]
-            b = last[max(0, -dx) : nx + min(0, -dx), max(0, -dy) : ny + min(0, -dy)]
-            both = (a > 0) & (b > 0)
-            if both.any():
-                pairs.append(np.stack([a[both], b[both]]))
-    if not pairs:
-        return labels
-    ab = np.concatenate(pairs, axis=1)
-    graph = coo_matrix((np.ones(ab.shape[1]), (ab[0], ab[1])), shape=(count + 1, count + 1))
-    _, comp = connected_components(graph, directed=False)
-    # Component 0 must stay "background": relabel so that label 0 maps to 0.
-    comp = comp + 1
-    comp[0] = 0
-    return comp[labels]

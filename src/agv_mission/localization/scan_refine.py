@@ -29,81 +29,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from agv_mission.geometry import wrap_angle
+from agv_mission.localization.distance_field import signed_distance_field
 from agv_mission.maps.grid import OccupancyGrid
-
-#: Cells at or above this value count as occupied (map_server's occupied_thresh 0.65).
-OCCUPIED_THRESHOLD = 65
-
-
-class SignedDistanceField:
-    """Signed distance (m) to the boundary of the occupied cells, bilinear between centres.
-
-    Positive in free (and unknown) space, negative inside walls and in the unknown space
-    right behind them, zero on a wall's face:
-    a free cell next to a wall holds ``+res / 2`` and the wall cell ``-res / 2``, so the
-    interpolated zero lies on the face the simulated lidar (walls built from the same
-    cells) hits. Clipped at ``max_distance``; points off the map read ``max_distance``
-    with no gradient.
-    """
-
-    def __init__(self, grid: OccupancyGrid, max_distance: float = 1.0) -> None:
-        res = float(grid.resolution)
-        occupied = grid.data >= OCCUPIED_THRESHOLD
-        self.resolution = res
-        self.origin = grid.origin
-        self.max_distance = float(max_distance)
-        free = (grid.data >= 0) & ~occupied
-        if occupied.any() and free.any():
-            to_wall = ndimage.distance_transform_edt(~occupied)
-            to_free = ndimage.distance_transform_edt(~free)
-            # Unknown cells closer to a wall than to free space lie behind that wall (the
-            # far side of a thin wall): inside, so an end point pushed through a wall is
-            # pulled back rather than out. Other unknown cells count as free, as in amcl.
-            inside = occupied | ((grid.data < 0) & (to_wall < to_free))
-            sdf = np.where(inside, -(to_free - 0.5), to_wall - 0.5) * res
-        else:
-            sdf = np.full(occupied.shape, -max_distance if occupied.any() else max_distance)
-        sdf = np.clip(sdf, -max_distance, max_distance)
-        # One cell of padding so that the four corners of every in-map point exist.
-        self.values = np.pad(sdf, 1, constant_values=max_distance).astype(np.float64)
-        self.height, self.width = self.values.shape
-        c, s = math.cos(grid.origin.yaw), math.sin(grid.origin.yaw)
-        self._rot = np.array([[c, -s], [s, c]])
-        # The bilinear patch of every cell as [s00, s01 - s00, s10 - s00, s11 - s10 - s01
-        # + s00] over a second ring of padding: a lookup is one gather, and a point off the
-        # map, clamped onto the outer ring, reads max_distance with no gradient.
-        v = np.pad(self.values, 1, constant_values=max_distance)
-        s00, s01, s10, s11 = v[:-1, :-1], v[:-1, 1:], v[1:, :-1], v[1:, 1:]
-        self._patches = np.stack((s00, s01 - s00, s10 - s00, s11 - s10 - s01 + s00), axis=-1)
-        self._patches = self._patches.reshape(-1, 4)
-        self._patch_cols = v.shape[1] - 1
-        self._last_patch = np.array([v.shape[1] - 2, v.shape[0] - 2], dtype=np.float64)
-
-    def lookup(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Distances (N,) and map-frame gradients (N, 2) at map-frame points ``xy`` (N, 2)."""
-        o = self.origin
-        p = np.asarray(xy, dtype=np.float64) - (o.x, o.y)
-        if o.yaw != 0.0:
-            p = p @ self._rot  # into the grid frame (R^T p, row-wise)
-        inv = 1.0 / self.resolution
-        uv = p * inv + 1.5  # cell-centre coordinates in the twice padded grid
-        cell = np.floor(uv)
-        np.maximum(np.minimum(cell, self._last_patch, out=cell), 0.0, out=cell)
-        frac = uv - cell
-        np.maximum(np.minimum(frac, 1.0, out=frac), 0.0, out=frac)
-        idx = cell.astype(np.intp)
-        patch = self._patches[idx[:, 1] * self._patch_cols + idx[:, 0]]
-        fu, fv = frac[:, 0], frac[:, 1]
-        d = patch[:, 0] + patch[:, 1] * fu + (patch[:, 2] + patch[:, 3] * fu) * fv
-        grad = np.empty_like(p)
-        grad[:, 0] = (patch[:, 1] + patch[:, 3] * fv) * inv
-        grad[:, 1] = (patch[:, 2] + patch[:, 3] * fu) * inv
-        if o.yaw != 0.0:
-            grad = grad @ self._rot.T
-        return d, grad
 
 
 @dataclass(frozen=True)
@@ -120,6 +49,9 @@ class RefineParams:
     floor_xy: float = 0.01  # m, no single scan pins x or y tighter than this
     floor_yaw: float = 0.005  # rad, nor the yaw
     iterations: int = 12
+    # Gauss-Newton stops at a step below this (m in x + y, rad in yaw): a thirtieth of the
+    # information floor, where the remaining steps shrink by ~3x per iteration.
+    step_tolerance: float = 3e-4
     # Covariance floor from the fit: the accepted scans' residual RMS (smoothed) times
     # ``map_error_scale`` in x and y, divided by ``map_error_lever`` (m) for the yaw.
     map_error_scale: float = 1.0
@@ -174,7 +106,7 @@ class PoseTracker:
 
     def __init__(self, grid: OccupancyGrid, params: RefineParams | None = None) -> None:
         self.params = params or RefineParams()
-        self.sdf = SignedDistanceField(grid, max_distance=max(1.0, 3.0 * self.params.outlier))
+        self.sdf = signed_distance_field(grid, max(1.0, 3.0 * self.params.outlier))
         self.mean = np.zeros(3)
         self.cov = np.eye(3)
         self.active = False
@@ -183,6 +115,8 @@ class PoseTracker:
         self.wall_offset = 0.0  # m, where the scans see the walls' faces (see RefineParams)
         self.noise_scale = 1.0  # adaptive factor on the odometry noise (see correct)
         self._floor = np.array([self.params.floor_xy, self.params.floor_xy, self.params.floor_yaw])
+        self._scaled = np.outer(self._floor, self._floor)  # H in floor units: H * scaled
+        self._saturated_info = np.diag(1.0 / self._floor**2)
 
     def start(self, mean: np.ndarray, cov: np.ndarray) -> None:
         self.noise_scale = 1.0
@@ -201,22 +135,26 @@ class PoseTracker:
         p = self.params
         th = float(self.mean[2])
         c, s = math.cos(th), math.sin(th)
-        f = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
-        g = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         dist = math.hypot(dx, dy)
         # Random-walk noise (variance proportional to the motion), so the growth does not
-        # depend on how finely the motion is chopped into control steps.
-        q = np.diag(
-            [
-                p.noise_along**2 * dist,
-                p.noise_lateral**2 * dist,
-                p.noise_turn**2 * abs(dth) + p.noise_yaw_per_m**2 * dist,
-            ]
-        )
+        # depend on how finely the motion is chopped into control steps: Q = diag(along,
+        # lateral, yaw) in the robot frame, rotated into the map frame (G Q G^T).
+        ns = self.noise_scale
+        q0, q1 = ns * p.noise_along**2 * dist, ns * p.noise_lateral**2 * dist
+        q2 = ns * (p.noise_turn**2 * abs(dth) + p.noise_yaw_per_m**2 * dist)
+        # F P F^T with F the motion's Jacobian [[1, 0, fa], [0, 1, fb], [0, 0, 1]], written
+        # out (3x3 numpy calls cost more than the arithmetic).
+        fa, fb = -s * dx - c * dy, c * dx - s * dy
+        (p00, p01, p02), (_, p11, p12), (_, _, p22) = self.cov.tolist()
+        x02, x12 = p02 + fa * p22, p12 + fb * p22
+        cs = c * s * (q0 - q1)
+        n00 = p00 + fa * p02 + fa * x02 + c * c * q0 + s * s * q1
+        n01 = p01 + fa * p12 + fb * x02 + cs
+        n11 = p11 + fb * p12 + fb * x12 + s * s * q0 + c * c * q1
         self.mean = np.array(
             [self.mean[0] + c * dx - s * dy, self.mean[1] + s * dx + c * dy, wrap_angle(th + dth)]
         )
-        self.cov = f @ self.cov @ f.T + self.noise_scale * (g @ q @ g.T)
+        self.cov = np.array([[n00, n01, x02], [n01, n11, x12], [x02, x12, p22 + q2]])
 
     def _adapt_noise(self, delta: np.ndarray, prior_info: np.ndarray) -> None:
         """Scale the odometry noise by how far the scans move the prediction.
@@ -244,48 +182,61 @@ class PoseTracker:
             self.last = out
             return out
         prior = self.mean
-        prior_info = np.linalg.inv(self.cov)
-        x = prior.copy()
-        w_beam = 1.0 / p.sigma**2
+        prior_info = _inverse3(self.cov)
+        px, py, pyaw = prior.tolist()
+        x = (px, py, pyaw)
         post_info = prior_info
-        r = np.zeros(len(pts))
+        pts_rows = np.ascontiguousarray(pts.T)
+        system = np.empty((4, len(pts)))  # Jacobian rows (x, y, yaw) and the residuals
+        r = system[3]
         iterations = 0
-        converged = False
-        floor = self._floor
-        scaled = np.outer(floor, floor)  # H in floor units: H * scaled
-        jac = np.empty((len(pts), 3))
+        # The wide kernel is for priors far enough off that end points miss the narrow
+        # gate; a prior whose 3-sigma end point error (position plus yaw at the farthest
+        # beam) is inside ``outlier`` (a tracked robot's) starts narrow, which saves the
+        # one or two wide iterations per scan.
+        reach = math.sqrt(2.0) * float(np.abs(pts).max())
+        spread = math.sqrt(max(self.cov[0, 0], self.cov[1, 1])) + reach * math.sqrt(self.cov[2, 2])
+        converged = 3.0 * spread <= p.outlier
+        floor, scaled = self._floor, self._scaled
+        # The posterior information when the scan pins every direction (its capped
+        # information is then diag(floor^-2), see _saturated_step).
+        capped_post = prior_info + self._saturated_info
+        tol = p.step_tolerance
+        w_beam = 1.0 / p.sigma**2
         for it in range(1, p.iterations + 1):
             iterations = it
-            c, s = math.cos(x[2]), math.sin(x[2])
-            rxy = pts @ np.array([[c, s], [-s, c]])  # rotated into the map frame
-            raw, grad = self.sdf.lookup(rxy + x[0:2])
-            r = raw - self.wall_offset
+            self.sdf.scan_system(pts_rows, x, self.wall_offset, system)
             a = np.abs(r)
             # The first iterations use a wide kernel: from a prior a decimetre or a few
             # degrees off, most end points are farther than ``outlier`` from their wall.
             wide = it <= p.iterations // 2 and not converged
             huber, outlier = (4.0 * p.huber, 2.0 * p.outlier) if wide else (p.huber, p.outlier)
-            w = np.minimum(huber / np.maximum(a, 1e-12), 1.0)  # Huber weights
-            w *= (a <= outlier) * w_beam
-            jac[:, 0:2] = grad
-            jac[:, 2] = grad[:, 1] * rxy[:, 0] - grad[:, 0] * rxy[:, 1]
-            jw = jac * w[:, None]
-            h, gvec = _capped_step(jw.T @ jac, jw.T @ r, floor, scaled)
-            dx_prior = x - prior
-            dx_prior[2] = wrap_angle(dx_prior[2])
-            post_info = prior_info + h
-            step = -np.linalg.solve(post_info, prior_info @ dx_prior + gvec)
-            x = x + step
-            x[2] = wrap_angle(x[2])
-            small = abs(step[0]) + abs(step[1]) < 1e-4 and abs(step[2]) < 1e-4
+            w = huber / np.maximum(a, huber)  # Huber weights: 1 within ``huber``
+            w[a > outlier] = 0.0
+            normal = (system * w) @ system.T  # [[H, g], [g^T, r^T W r]] / w_beam
+            normal *= w_beam
+            h_full, g_full = normal[:3, :3], normal[:3, 3]
+            dx_prior = (x[0] - px, x[1] - py, wrap_angle(x[2] - pyaw))
+            step = _saturated_step(h_full, g_full, dx_prior, prior_info, floor, capped_post)
+            if step is None:  # a direction the scan does not pin: cap it (eigenvalues)
+                h, gvec = _capped_step(h_full, g_full, floor, scaled)
+                post_info = prior_info + h
+                rhs = prior_info @ np.array(dx_prior) + gvec
+                step = tuple((-np.linalg.solve(post_info, rhs)).tolist())
+            else:
+                post_info = capped_post
+            x = (x[0] + step[0], x[1] + step[1], wrap_angle(x[2] + step[2]))
+            small = abs(step[0]) + abs(step[1]) < tol and abs(step[2]) < tol
             if small and not wide:
                 break
             converged = converged or abs(step[0]) + abs(step[1]) < 1e-3 and abs(step[2]) < 1e-3
-        valid = np.abs(r) < p.outlier
-        inlier = float(np.mean(np.abs(r) < p.inlier))
-        rms = float(np.sqrt(np.mean(r[valid] ** 2))) if valid.any() else math.nan
-        cov = np.linalg.inv(post_info)
-        cov = 0.5 * (cov + cov.T)
+        x = np.array(x)
+        a = np.abs(r)
+        fits = a < p.inlier
+        inlier = np.count_nonzero(fits) / len(r)
+        rv = r[a < p.outlier]
+        rms = math.sqrt(float(rv @ rv) / len(rv)) if len(rv) else math.nan
+        cov = _inverse3(post_info)
         accepted = inlier >= p.min_inlier_fraction
         if accepted and commit and p.adaptive_noise:
             self._adapt_noise(x - prior, prior_info)
@@ -293,13 +244,11 @@ class PoseTracker:
             self.fit_rms = (
                 rms if not math.isfinite(self.fit_rms) else 0.8 * self.fit_rms + 0.2 * rms
             )
-            fits = np.abs(r) < p.inlier
             if p.wall_offset_rate > 0.0 and fits.any():
-                step = float(np.median(raw[fits])) - self.wall_offset
+                step = _median(r[fits])  # where the fitting end points see the walls
                 limit = 0.5 * self.sdf.resolution
-                self.wall_offset = float(
-                    np.clip(self.wall_offset + p.wall_offset_rate * step, -limit, limit)
-                )
+                moved = self.wall_offset + p.wall_offset_rate * step
+                self.wall_offset = max(-limit, min(limit, moved))
             err = p.map_error_scale * self.fit_rms
             cov = floor_covariance(cov, np.array([err, err, err / p.map_error_lever]))
         out = Correction(accepted, x, cov, len(pts), inlier, rms, iterations)
@@ -307,6 +256,16 @@ class PoseTracker:
             self.mean, self.cov = x, cov
         self.last = out
         return out
+
+
+def _median(values: np.ndarray) -> float:
+    """``np.median`` of a non-empty 1-D array, by one partition (a tenth of its overhead)."""
+    n = len(values)
+    k = n // 2
+    if n % 2:
+        return float(np.partition(values, k)[k])
+    part = np.partition(values, (k - 1, k))
+    return float((part[k - 1] + part[k]) / 2.0)
 
 
 def _nis(delta: np.ndarray, info: np.ndarray) -> float:
@@ -319,11 +278,95 @@ def floor_covariance(cov: np.ndarray, floor: np.ndarray) -> np.ndarray:
     """``cov`` with its eigenvalues (in coordinates scaled by ``floor``) raised to 1."""
     if not np.all(floor > 0.0):
         return cov
+    f0, f1, f2 = floor.tolist()
+    (a, b, c), (_, d, e), (_, _, f) = cov.tolist()
+    # I - cov in floor units positive definite (leading minors): every eigenvalue is raised
+    # to 1, so the result is diag(floor^2) whatever the eigenvectors (the usual case: a
+    # well-fitting scan pins the pose tighter than the map's error).
+    a1, b1, c1 = 1.0 - a / (f0 * f0), -b / (f0 * f1), -c / (f0 * f2)
+    d1, e1, f1_ = 1.0 - d / (f1 * f1), -e / (f1 * f2), 1.0 - f / (f2 * f2)
+    if a1 > 0.0 and a1 * d1 - b1 * b1 > 0.0 and _det3(a1, b1, c1, d1, e1, f1_) > 0.0:
+        return np.diag(floor * floor)
     dinv = np.diag(1.0 / floor)
     cs = dinv @ cov @ dinv
     vals, vecs = np.linalg.eigh(0.5 * (cs + cs.T))
     d = np.diag(floor)
     return d @ ((vecs * np.maximum(vals, 1.0)) @ vecs.T) @ d
+
+
+def _saturated_step(
+    h_full: np.ndarray,
+    g_full: np.ndarray,
+    dx_prior: tuple[float, float, float],
+    prior_info: np.ndarray,
+    floor: np.ndarray,
+    capped_post: np.ndarray,
+) -> tuple[float, float, float] | None:
+    """The Gauss-Newton step when the scan's information exceeds the cap in every
+    direction, else None (then :func:`_capped_step` decomposes it).
+
+    Why: with every eigenvalue of ``h_full`` in floor units at or above 1 (a scan that sees
+    walls around the robot: every scan of the demo patrol), :func:`cap_information` gives
+    ``diag(floor^-2)`` whatever the eigenvectors, and the scaled gradient is
+    ``floor^-2 * h_full^-1 g_full``; the test (leading minors of ``H - I`` in floor units)
+    and the two 3x3 solves are a few dozen float operations, where the eigendecomposition
+    and numpy's small-matrix calls cost most of an iteration.
+    """
+    f0, f1, f2 = floor.tolist()
+    (a, b, c), (_, d, e), (_, _, f) = h_full.tolist()
+    # H - I in floor units (symmetric): positive definite iff its leading minors are.
+    a1, b1, c1 = a * f0 * f0 - 1.0, b * f0 * f1, c * f0 * f2
+    d1, e1, f1_ = d * f1 * f1 - 1.0, e * f1 * f2, f * f2 * f2 - 1.0
+    m2 = a1 * d1 - b1 * b1
+    if a1 <= 0.0 or m2 <= 0.0 or _det3(a1, b1, c1, d1, e1, f1_) <= 0.0:
+        return None
+    g0, g1, g2 = g_full.tolist()
+    u0, u1, u2 = _solve3(a, b, c, d, e, f, g0, g1, g2)
+    pi = prior_info.tolist()
+    dx0, dx1, dx2 = dx_prior
+    rhs = [
+        pi[k][0] * dx0 + pi[k][1] * dx1 + pi[k][2] * dx2 + u / (fk * fk)
+        for k, (u, fk) in enumerate(((u0, f0), (u1, f1), (u2, f2)))
+    ]
+    (pa, pb, pc), (_, pd, pe), (_, _, pf) = capped_post.tolist()
+    s0, s1, s2 = _solve3(pa, pb, pc, pd, pe, pf, *rhs)
+    return (-s0, -s1, -s2)
+
+
+def _inverse3(m: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive definite 3x3 matrix (adjugate over determinant:
+    exactly symmetric, and a tenth of ``np.linalg.inv``'s call overhead)."""
+    (a, b, c), (_, d, e), (_, _, f) = m.tolist()
+    c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
+    c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
+    inv = 1.0 / (a * c00 + b * c01 + c * c02)
+    return np.array(
+        [
+            [c00 * inv, c01 * inv, c02 * inv],
+            [c01 * inv, c11 * inv, c12 * inv],
+            [c02 * inv, c12 * inv, c22 * inv],
+        ]
+    )
+
+
+def _det3(a: float, b: float, c: float, d: float, e: float, f: float) -> float:
+    """Determinant of the symmetric matrix [[a, b, c], [b, d, e], [c, e, f]]."""
+    return a * (d * f - e * e) - b * (b * f - e * c) + c * (b * e - d * c)
+
+
+def _solve3(
+    a: float, b: float, c: float, d: float, e: float, f: float, y0: float, y1: float, y2: float
+) -> tuple[float, float, float]:
+    """``M^-1 y`` for the symmetric positive definite M = [[a, b, c], [b, d, e], [c, e, f]]
+    (adjugate over determinant)."""
+    c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
+    c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * c00 + b * c01 + c * c02
+    return (
+        (c00 * y0 + c01 * y1 + c02 * y2) / det,
+        (c01 * y0 + c11 * y1 + c12 * y2) / det,
+        (c02 * y0 + c12 * y1 + c22 * y2) / det,
+    )
 
 
 def _capped_step(

@@ -9,16 +9,10 @@ read-only so that no caller can change another's map.
 
 from __future__ import annotations
 
-import hashlib
-import threading
-from collections import OrderedDict
-
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
-_CACHE_SIZE = 16
-_cache: OrderedDict[tuple[str, tuple[int, ...], float], np.ndarray] = OrderedDict()
-_lock = threading.Lock()
+from agv_mission.maps.map_cache import array_table
 
 
 def obstacle_distance(blocked: np.ndarray, resolution: float) -> np.ndarray:
@@ -27,16 +21,10 @@ def obstacle_distance(blocked: np.ndarray, resolution: float) -> np.ndarray:
     Read-only: copy before changing it.
     """
     blocked = np.ascontiguousarray(blocked, dtype=bool)
-    key = (hashlib.sha1(blocked.tobytes()).hexdigest(), blocked.shape, float(resolution))
-    with _lock:
-        hit = _cache.get(key)
-        if hit is not None:
-            _cache.move_to_end(key)
-            return hit
-    distance = (distance_transform_edt(~blocked) * resolution).astype(np.float32)
-    distance.setflags(write=False)
-    with _lock:
-        _cache[key] = distance
-        while len(_cache) > _CACHE_SIZE:
-            _cache.popitem(last=False)
-    return distance
+
+    def build() -> np.ndarray:
+        distance = (distance_transform_edt(~blocked) * resolution).astype(np.float32)
+        distance.setflags(write=False)
+        return distance
+
+    return array_table("obstacle_distance", blocked, float(resolution), build)

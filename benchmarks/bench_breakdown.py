@@ -151,8 +151,7 @@ def _measure(run: MissionRun) -> dict[str, float]:
         clock.wrap(observer, "on_step", "logging")
     start = time.thread_time()
     run.notify_start()
-    while run.step():
-        pass
+    run.drive()
     record = run.record()
     for observer in run.observers:
         observer.on_end(record)

@@ -14,6 +14,7 @@ from rosbags.highlevel import AnyReader
 from agv_mission.bags import ros_messages as rm
 from agv_mission.bags.writer import TOPICS, BagWriter
 from agv_mission.geometry import Pose2D, yaw_from_quaternion
+from agv_mission.messages import LaserScan
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.outputs import make_run_dir, write_run
 from agv_mission.missions.runner import run_mission
@@ -208,7 +209,28 @@ def test_struct_cdr_equals_rosbags_serialiser():
             rm.odometry(5.5, "odom", "base_footprint", p, 0.1, 0.2, cov),
             rm.ODOMETRY,
         ),
+        (
+            rm.odometry_cdr(7.25, "map", "base_link", q, -0.3, 1.5, None),
+            rm.odometry(7.25, "map", "base_link", q, -0.3, 1.5, None),
+            rm.ODOMETRY,
+        ),
+        (
+            rm.pose_with_covariance_cdr(0.1, "odom", q, None),
+            rm.pose_with_covariance(0.1, "odom", q, None),
+            rm.POSE_WITH_COVARIANCE_STAMPED,
+        ),
     ]
+    ranges = np.random.default_rng(2).uniform(0.1, 4.0, 360).astype(np.float32)
+    ranges[::7] = np.inf
+    for frame, beams in (("base_scan", 360), ("laser", 5), ("ab", 1)):
+        scan = LaserScan(ranges[:beams], 0.1, 2 * np.pi / 360, 0.12, 3.5, 123.456789)
+        pairs.append(
+            (
+                rm.laser_scan_cdr(scan, frame, 0.2),
+                rm.laser_scan(scan, frame, 0.2),
+                rm.LASER_SCAN,
+            )
+        )
     for raw, msg, msgtype in pairs:
         assert raw == rm.serialize(msg, msgtype), msgtype
 

@@ -134,3 +134,30 @@ def test_runs_without_observers_build_no_samples(tmp_path: Path) -> None:
     while run.step():
         pass
     assert run._sampler is None and run.record().status == "failed"
+
+
+def test_safety_watch_skips_only_queries_that_cannot_change_its_outcome(tmp_path: Path) -> None:
+    """The runner queries clearance and contacts only where they could matter (a bound
+    from the last query and the distance moved); its minimum clearance and contacts are
+    those of querying every step, which an observer does here."""
+
+    class EveryStep(Recorder):
+        def __init__(self) -> None:
+            super().__init__()
+            self.clearances: list[float] = []
+            self.contacts = 0
+
+        def on_step(self, sample: StepSample) -> None:
+            self.clearances.append(exact_clearance())
+            self.contacts += run.sim.contacts()
+
+    watcher = EveryStep()
+    run = MissionRun(load(tmp_path), None, [watcher])
+    exact_clearance = run.sim.min_clearance
+    queries = []
+    run.sim.min_clearance = lambda: queries.append(1) or exact_clearance()  # type: ignore[method-assign]
+    run.drive()
+    assert run.status == "succeeded" and len(watcher.clearances) > 20
+    assert run.min_clearance == min(watcher.clearances)
+    assert 0 < len(queries) < len(watcher.clearances)  # some steps were skipped
+    assert watcher.contacts == 0 and not run.collisions

@@ -38,7 +38,49 @@ def test_mjcf_has_all_walls_and_robot_parts():
     names = {m.geom(i).name for i in range(m.ngeom)}
     assert {"wall_0", "wall_1", "pillar_0", "chassis", "wheel_left", "wheel_right"} <= names
     assert m.nu == 2
-    assert m.opt.integrator == mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    # Explicit Euler while the wheel servos are stable under it, implicitfast beyond.
+    assert m.opt.integrator == mujoco.mjtIntegrator.mjINT_EULER
+    coarse = mujoco.MjModel.from_xml_string(build_mjcf(BURGER, world, timestep=0.02))
+    assert coarse.opt.integrator == mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+
+
+@pytest.mark.parametrize("dt", [0.002, 0.01, 0.02])
+def test_lifted_wheel_settles_at_its_commanded_speed(dt):
+    """A wheel off the floor (the robot dropped from 0.5 m) spins at the commanded speed
+    without oscillating, whichever integrator the time step selects."""
+    import mujoco
+
+    sim = make_sim(physics_dt=dt)
+    sim.data.qpos[2] += 0.5
+    sim.set_command(BURGER.max_linear_velocity, 0.0)
+    wheel = sim.model.jnt_dofadr[
+        mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_JOINT, "wheel_left")
+    ]
+    speeds = []
+    for _ in range(int(round(0.3 / dt))):  # still falling after 0.3 s
+        mujoco.mj_step(sim.model, sim.data)
+        speeds.append(float(sim.data.qvel[wheel]))
+    target = BURGER.max_linear_velocity / BURGER.wheel_radius
+    assert sim.data.ncon == 0  # nothing touches the floor yet
+    assert np.allclose(speeds[-3:], target, rtol=1e-3)
+
+
+def test_odometry_yaw_does_not_drift_with_the_time_step():
+    """Encoders against truth over 20 s of alternating turns in place: the yaw error stays
+    below that of the former default (implicitfast at 2 ms: 0.33 deg; at 10 ms: 4.3 deg).
+    Explicit Euler: 0.02 deg at 2 ms, 0.21 deg at the default 10 ms."""
+    for dt in (0.002, 0.01):
+        sim = make_sim(physics_dt=dt)
+        odo = DiffDriveOdometry(BURGER.encoder.ticks_per_meter, BURGER.wheel_separation, ORIGIN)
+        odo.update(*sim.encoder_ticks())
+        w = 0.0
+        for k in range(200):
+            target = 1.5 if (k // 10) % 2 else -1.5
+            w += float(np.clip(target - w, -0.4, 0.4))  # 4 rad/s^2, as the smoother
+            sim.set_command(0.0, w)
+            sim.advance(0.1)
+            odo.update(*sim.encoder_ticks())
+        assert abs(wrap_angle(sim.true_pose().yaw - odo.pose.yaw)) < math.radians(0.25), dt
 
 
 def test_commanded_speed_is_tracked():

@@ -28,7 +28,7 @@ from rosbags.rosbag2.metadata import Qos
 from agv_mission.bags import ros_messages as rm
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.messages import LaserScan
+from agv_mission.messages import LaserScan, json_default
 
 if TYPE_CHECKING:
     from agv_mission.missions.observe import RunStart, StepSample
@@ -189,7 +189,7 @@ class BagWriter:
         raw("/amcl_pose", t, rm.pose_with_covariance_cdr(t, MAP_FRAME, est, sample.covariance))
         if sample.scan is not None:
             scan = sample.scan
-            self._write("/scan", float(scan.time), rm.laser_scan(scan, SCAN_FRAME, self._scan_time))
+            raw("/scan", float(scan.time), rm.laser_scan_cdr(scan, SCAN_FRAME, self._scan_time))
         particles = sample.particles
         if particles is not None and len(particles) and t >= self._next_particles - 1e-9:
             self._next_particles = t + self.particle_period
@@ -245,8 +245,8 @@ class BagWriter:
 
 
 def _jsonable(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    return str(value)
+    """numpy as JSON; anything else an event may carry (a path) as its text."""
+    try:
+        return json_default(value)
+    except TypeError:
+        return str(value)

@@ -42,11 +42,16 @@ class VelocitySmoother:
 
     def __call__(self, v: float, w: float) -> tuple[float, float]:
         lim, dt = self.limits, self.period
-        v = float(np.clip(v, -lim.max_v, lim.max_v))
-        w = float(np.clip(w, -lim.max_w, lim.max_w))
-        self.v = float(np.clip(v, self.v - lim.max_acc_v * dt, self.v + lim.max_acc_v * dt))
-        self.w = float(np.clip(w, self.w - lim.max_acc_w * dt, self.w + lim.max_acc_w * dt))
+        v = _clip(float(v), -lim.max_v, lim.max_v)
+        w = _clip(float(w), -lim.max_w, lim.max_w)
+        self.v = _clip(v, self.v - lim.max_acc_v * dt, self.v + lim.max_acc_v * dt)
+        self.w = _clip(w, self.w - lim.max_acc_w * dt, self.w + lim.max_acc_w * dt)
         return self.v, self.w
+
+
+def _clip(x: float, lo: float, hi: float) -> float:
+    """``np.clip`` of one float (the same value, without numpy's ~8 us per call)."""
+    return min(max(x, lo), hi)
 
 
 def velocity_limits(robot: RobotDescription) -> VelocityLimits:

@@ -125,22 +125,29 @@ class WheelEncoders:
                 for j in joints
             ]
         )
-        self._last_angle = data.qpos[self._qadr].copy()
-        self._acc = np.zeros(2)  # float ticks
+        self._left, self._right = (int(a) for a in self._qadr)
+        self._last_angle = self._angles()
+        self._acc = (0.0, 0.0)  # float ticks
+
+    def _angles(self) -> tuple[float, float]:
+        qpos = self.data.qpos
+        return float(qpos[self._left]), float(qpos[self._right])
 
     def read(self) -> tuple[int, int]:
-        angle = self.data.qpos[self._qadr].copy()
-        delta = (angle - self._last_angle) * self.ticks_per_rad
-        self._last_angle = angle
-        scale = np.ones(2)
+        # Two wheels in plain floats: numpy's per-call overhead was most of the cost.
+        (a0, a1), (b0, b1) = self._angles(), self._last_angle
+        self._last_angle = (a0, a1)
+        d0, d1 = (a0 - b0) * self.ticks_per_rad, (a1 - b1) * self.ticks_per_rad
+        s0 = s1 = 1.0
         if self.noise > 0.0:
-            scale += self.rng.normal(0.0, self.noise, size=2)
+            n0, n1 = self.rng.normal(0.0, self.noise, size=2).tolist()
+            s0, s1 = s0 + n0, s1 + n1
         if self.slip > 0.0:
-            scale += self.rng.uniform(-self.slip, self.slip, size=2)
-        self._acc += delta * scale
-        left, right = np.floor(self._acc)
-        return int(left), int(right)
+            u0, u1 = self.rng.uniform(-self.slip, self.slip, size=2).tolist()
+            s0, s1 = s0 + u0, s1 + u1
+        self._acc = (self._acc[0] + d0 * s0, self._acc[1] + d1 * s1)
+        return math.floor(self._acc[0]), math.floor(self._acc[1])
 
     def rebase(self) -> None:
         """Forget wheel motion since the last read (after a teleport rewrote the joints)."""
-        self._last_angle = self.data.qpos[self._qadr].copy()
+        self._last_angle = self._angles()

@@ -11,7 +11,7 @@ class SimConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    physics_dt: float = Field(0.002, gt=0, le=0.02, description="physics time step, s")
+    physics_dt: float = Field(0.01, gt=0, le=0.02, description="physics time step, s")
     encoder_noise: float = Field(
         0.0, ge=0, description="std of the relative tick error of each encoder read"
     )

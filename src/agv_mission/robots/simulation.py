@@ -232,7 +232,10 @@ class DiffDriveSim:
             mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "wheel_left"),
             mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "wheel_right"),
         }
-        self._is_robot_geom = np.isin(m.geom_bodyid, list(robot_bodies))
+        # Geom ids of the robot and of the walls (slots included), for counting contacts.
+        self._robot_geoms = frozenset(
+            i for i in range(m.ngeom) if int(m.geom_bodyid[i]) in robot_bodies
+        )
         self._command = (0.0, 0.0)
 
         self._walls = _Walls(world)
@@ -242,8 +245,9 @@ class DiffDriveSim:
                 m, self._walls, world.wall_height, radius=robot.lidar.range_max + 0.5
             )
             self.wall_window.update(start.x, start.y)
-        is_wall = np.array([m.geom(i).name.startswith(("wall", "pillar")) for i in range(m.ngeom)])
-        self._is_wall_geom = is_wall
+        self._wall_geoms = frozenset(
+            i for i in range(m.ngeom) if m.geom(i).name.startswith(("wall", "pillar"))
+        )
 
         self._write_pose(start)
         mujoco.mj_forward(self.model, self.data)
@@ -304,9 +308,9 @@ class DiffDriveSim:
 
     # ----------------------------------------------------------------- ground truth
     def true_pose(self) -> Pose2D:
-        q = self.data.qpos[self._free_qadr : self._free_qadr + 7]
-        w, x, y, z = q[3], q[4], q[5], q[6]
-        return Pose2D(float(q[0]), float(q[1]), yaw_from_quaternion(x, y, z, w))
+        a = self._free_qadr
+        px, py, _, w, x, y, z = self.data.qpos[a : a + 7].tolist()
+        return Pose2D(px, py, yaw_from_quaternion(x, y, z, w))
 
     def true_velocity(self) -> tuple[float, float]:
         """Body-frame forward speed (m/s) and yaw rate (rad/s) of the base frame."""
@@ -346,11 +350,11 @@ class DiffDriveSim:
         n = self.data.ncon
         if n == 0:
             return 0
-        g = self.data.contact.geom[:n]
-        robot = self._is_robot_geom[g]
-        wall = self._is_wall_geom[g]
-        hit = (robot[:, 0] & wall[:, 1]) | (robot[:, 1] & wall[:, 0])
-        return int(np.count_nonzero(hit))
+        robot, wall = self._robot_geoms, self._wall_geoms
+        return sum(
+            (a in robot and b in wall) or (b in robot and a in wall)
+            for a, b in self.data.contact.geom[:n].tolist()
+        )
 
     def min_clearance(self) -> float:
         """Planar distance from the robot's footprint circle to the nearest wall/pillar

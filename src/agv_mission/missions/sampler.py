@@ -1,0 +1,94 @@
+"""The :class:`~agv_mission.missions.observe.StepSample` of each control step, built only
+when a run has observers (a plain run pays nothing for them)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from agv_mission.geometry import Pose2D
+from agv_mission.localization.base import LocalizerDiagnostics
+from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.missions.observe import StepSample, TreeNode, tree_nodes
+from agv_mission.missions.stack import Sensing
+
+if TYPE_CHECKING:
+    from agv_mission.missions.runner import MissionRun
+
+
+class StepSampler:
+    """Turns one control step of a :class:`~agv_mission.missions.runner.MissionRun` into a
+    :class:`StepSample`: what changed since the previous step (a new plan, a filter update,
+    a grown map, tree statuses) and what holds now."""
+
+    def __init__(self, run: MissionRun) -> None:
+        self.run = run
+        self.plans = 0
+        self.filter_updates = -1
+        self.map_integrations = -1
+        self.built_map: OccupancyGrid | None = None
+        self.nodes: list[TreeNode] = tree_nodes(run.tree.root)
+        self._behaviours = list(run.tree.root.iterate())
+        self._statuses = [node.status for node in self._behaviours]
+
+    def sample(
+        self,
+        sensing: Sensing,
+        estimate: Pose2D,
+        v: float,
+        w: float,
+        events_from: int,
+        covariance: np.ndarray | None,
+        diagnostics: LocalizerDiagnostics | None,
+    ) -> StepSample:
+        """The step's sample; ``covariance`` and ``diagnostics`` are what the runner read
+        from the localiser (or the SLAM session) after the tick, ``diagnostics`` ``None``
+        while mapping."""
+        run = self.run
+        navigator, handle = run.navigator, run.handle
+        plan = None
+        if len(navigator.paths) != self.plans:
+            self.plans = len(navigator.paths)
+            plan = navigator.paths[-1]
+        particles = grid = None
+        mapping = run.mapper.session
+        if mapping is not None:
+            if mapping.slam.integrations != self.map_integrations:
+                self.map_integrations = mapping.slam.integrations
+                grid = mapping.grid
+        elif diagnostics is not None and diagnostics.filter_updates != self.filter_updates:
+            self.filter_updates = diagnostics.filter_updates
+            particles = diagnostics.particles
+        if run.mapper.built_map is not self.built_map:
+            self.built_map = grid = run.mapper.built_map
+        # Walk the tree again only when a status changed (statuses read in place are
+        # cheap; a TreeNode list per step is not).
+        statuses = [node.status for node in self._behaviours]
+        changed = statuses != self._statuses
+        if changed:
+            nodes = tree_nodes(run.tree.root)
+            changed = nodes != self.nodes
+            self.nodes = nodes
+            self._behaviours = list(run.tree.root.iterate())
+            self._statuses = [node.status for node in self._behaviours]
+        task = next((i for i, s in enumerate(run.task_status) if s == "running"), None)
+        return StepSample(
+            t=sensing.time,
+            truth=sensing.truth,
+            estimate=estimate,
+            covariance=covariance,
+            odom=sensing.odom,
+            v=v,
+            w=w,
+            scan=sensing.scan,
+            particles=particles,
+            plan=plan,
+            horizon=navigator.horizon,
+            goal=navigator.goal,
+            grid=grid,
+            events=handle.events[events_from:],
+            tree_nodes=self.nodes if changed else None,
+            task_index=task,
+            task_type=run.mission.tasks[task].type if task is not None else None,
+        )

@@ -21,7 +21,6 @@ from agv_mission.maps.rooms import reachable_cells
 from agv_mission.messages import LaserScan
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.legs import Leg, NavigationStats
-from agv_mission.navigation.legs import leg_report as leg_report  # re-exported: run reports
 from agv_mission.navigation.state import RobotState
 from agv_mission.planners.base import (
     GlobalPlanner,

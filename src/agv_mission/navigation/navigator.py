@@ -69,6 +69,8 @@ class Navigator:
         self.reason: str | None = None
         self.goal: Pose2D | None = None
         self.path: PlannedPath | None = None
+        self._segments: tuple[np.ndarray, ...] | None = None  # the path's, for _closest
+        self._last_closest: tuple[Pose2D, tuple[int, float, np.ndarray]] | None = None
         self.paths: list[np.ndarray] = []  # every plan, for the run plot
         self.horizon: np.ndarray | None = None  # the local planner's last predicted path
         self.stats = NavigationStats()
@@ -211,21 +213,31 @@ class Navigator:
         return VelocityCommand(v, w)
 
     def _closest(self, pose: Pose2D) -> tuple[int, float, np.ndarray]:
-        """(segment index, distance, closest point) of the path to ``pose``."""
+        """(segment index, distance, closest point) of the path to ``pose``; asked twice a
+        step (off the path? blocked ahead?), so the path's segments and the last answer are
+        kept."""
         assert self.path is not None
         pts = self.path.points
         if len(pts) < 2:
             p = pts[0] if len(pts) else np.array([pose.x, pose.y])
             return 0, float(np.hypot(p[0] - pose.x, p[1] - pose.y)), p
-        a, b = pts[:-1], pts[1:]
-        ab = b - a
-        ap = np.array([pose.x, pose.y]) - a
-        denom = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12)
-        t = np.clip(np.einsum("ij,ij->i", ap, ab) / denom, 0.0, 1.0)
+        if self._segments is None or self._segments[0] is not pts:
+            a, ab = pts[:-1], pts[1:] - pts[:-1]
+            self._segments = (pts, a, ab, np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12))
+            self._last_closest = None
+        if self._last_closest is not None and self._last_closest[0] == pose:
+            return self._last_closest[1]
+        _, a, ab, denom = self._segments
+        xy = np.array([pose.x, pose.y])
+        ap = xy - a
+        t = np.minimum(np.maximum(np.einsum("ij,ij->i", ap, ab) / denom, 0.0), 1.0)
         closest = a + ab * t[:, None]
-        d = np.linalg.norm(closest - [pose.x, pose.y], axis=1)
-        i = int(np.argmin(d))
-        return i, float(d[i]), closest[i]
+        off = closest - xy
+        d2 = np.einsum("ij,ij->i", off, off)
+        i = int(np.argmin(d2))
+        answer = i, math.sqrt(float(d2[i])), closest[i]
+        self._last_closest = (pose, answer)
+        return answer
 
     def _off_path(self, pose: Pose2D) -> float:
         return self._closest(pose)[1]

@@ -9,21 +9,23 @@ map_area task would call it.
 
 from __future__ import annotations
 
-import math
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.mapping.frontiers import find_frontiers
-from agv_mission.mapping.slam import GridSlam, GridSlamConfig, trajectory_rmse
+from agv_mission.mapping.slam import trajectory_rmse
 from agv_mission.maps.builtin_worlds import small_house
-from agv_mission.robots.description import BUILTIN_ROBOTS
-from agv_mission.robots.odometry import DiffDriveOdometry
-from agv_mission.robots.simulation import DiffDriveSim, SimConfig
+from agv_mission.robots.simulation import SimConfig
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from slam_drive import drive  # noqa: E402
 
 ROUTE = ((3.0, -0.45), (-1.5, -0.45), (-1.5, -1.7), (-3.5, -1.7), (-5.5, -1.5), (-5.5, -3.5))
 BOUNDS = (-9.5, 9.5, -5.5, 5.5)
+NOISY = SimConfig(encoder_noise=0.05, wheel_slip=0.1)
 
 
 def _percentile(samples: list[float], q: float) -> float:
@@ -32,38 +34,8 @@ def _percentile(samples: list[float], q: float) -> float:
 
 def run() -> dict[str, float]:
     world = small_house()
-    robot = BUILTIN_ROBOTS["burger"]
-    sim = DiffDriveSim(
-        robot, world, world.spawn, SimConfig(encoder_noise=0.05, wheel_slip=0.1),
-        np.random.default_rng(0),
-    )  # fmt: skip
-    odometry = DiffDriveOdometry(robot.encoder.ticks_per_meter, robot.wheel_separation)
-    odom0 = odometry.update(*sim.encoder_ticks())
-    slam = GridSlam(GridSlamConfig(), bounds=BOUNDS)
-    slam.reset(world.spawn, odom0)
-    truth, est = [], []
-    target, step = 0, 0
-    slam_wall = 0.0
-    while target < len(ROUTE) and step < 3000:
-        odom = odometry.update(*sim.encoder_ticks())
-        scan = sim.scan() if step % 2 == 0 else None
-        pose = sim.true_pose()
-        t0 = time.perf_counter()
-        estimate = slam.update(odom, scan, Pose2D(0.0, 0.0, 0.0), sim.time)
-        slam_wall += time.perf_counter() - t0
-        truth.append(pose.as_array())
-        est.append(estimate.as_array())
-        tx, ty = ROUTE[target]
-        dist = math.hypot(tx - pose.x, ty - pose.y)
-        if dist < 0.05:
-            target += 1
-            continue
-        err = wrap_angle(math.atan2(ty - pose.y, tx - pose.x) - pose.yaw)
-        v = min(0.2, 0.5 * dist + 0.02) if abs(err) < 0.3 else 0.0
-        sim.set_command(v, max(-1.5, min(1.5, 3.0 * err)))
-        sim.advance(0.1)
-        step += 1
-
+    driven = drive(world, ROUTE, NOISY, bounds=BOUNDS, max_steps=3000)
+    slam, est = driven.slam, driven.estimate
     grid = slam.occupancy_grid()
     frontier_times = []
     for _ in range(10):
@@ -75,9 +47,9 @@ def run() -> dict[str, float]:
         "slam.integrate_ms.p99": _percentile(slam.integrate_times, 99),
         "slam.match_ms.p50": _percentile(slam.match_times, 50),
         "slam.match_ms.p99": _percentile(slam.match_times, 99),
-        "slam.ms_per_sim_s": 1e3 * slam_wall / sim.time,
+        "slam.ms_per_sim_s": 1e3 * driven.update_wall / driven.sim_time,
         "slam.frontiers_ms.p50": _percentile(frontier_times, 50),
-        "slam.route_rmse_m": trajectory_rmse(np.array(est), np.array(truth)),
+        "slam.route_rmse_m": trajectory_rmse(est, driven.truth),
     }
 
 

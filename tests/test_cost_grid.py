@@ -16,12 +16,13 @@ from agv_mission.maps.costmap import Costmap, CostmapConfig
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
 from agv_mission.missions.expectations import Expectations, check
 from agv_mission.missions.schema import Stack
-from agv_mission.navigation.navigator import Leg, leg_report
+from agv_mission.navigation.legs import Leg, leg_report
 from agv_mission.planners.base import PlannedPath as Path
 from agv_mission.planners.configs import CostGridConfig
-from agv_mission.planners.cost_grid import CostGridPlanner, max_curvature
+from agv_mission.planners.cost_grid import CostGridPlanner
 from agv_mission.planners.grid_astar import GridAstarConfig, GridAstarPlanner
 from agv_mission.planners.ompl_planner import OmplPlanner, OmplPlannerConfig
+from agv_mission.planners.path_smoothing import max_curvature
 
 WAFFLE_RADIUS = 0.22
 MARGIN = 0.05

@@ -17,7 +17,8 @@ from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
 from agv_mission.planners.base import PlannedPath, PlanningError
 from agv_mission.planners.configs import CostGridConfig
 from agv_mission.planners.cost_grid import CostGridPlanner
-from agv_mission.planners.grid_astar import FreeSpace, GridAstarConfig, GridAstarPlanner
+from agv_mission.planners.free_space import FreeSpace
+from agv_mission.planners.grid_astar import GridAstarConfig, GridAstarPlanner
 from agv_mission.planners.ompl_planner import OmplPlanner, OmplPlannerConfig
 from agv_mission.registry import registry
 

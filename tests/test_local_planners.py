@@ -13,8 +13,8 @@ import pytest
 from agv_mission.geometry import Pose2D
 from agv_mission.planners.base import VelocityLimits
 from agv_mission.planners.mpc import MpcConfig, MpcController
+from agv_mission.planners.path_follower import ProgressTracker
 from agv_mission.planners.path_tracking import (
-    ProgressTracker,
     ReferenceProfile,
     closest_point,
     cumulative_length,

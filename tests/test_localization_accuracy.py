@@ -203,12 +203,13 @@ def test_odometry_noise_adapts_to_slipping_wheels():
 
 # --------------------------------------------------------------------------- missions
 
-HOUSE_MISSION = """
-name: house-loc-{robot}
+# An AMCL patrol on a real map; ``mission_text`` fills in the place, robot and waypoints.
+PATROL_MISSION = """
+name: {name}-{robot}
 world: {world}
 robot: {robot}
-start: {{x: 3.83, y: -1.23, yaw: 0.0}}
-seed: 3
+start: {start}
+seed: {seed}
 stack:
   localization: {{type: amcl}}
   global_planner: {{type: grid_astar}}
@@ -221,13 +222,14 @@ tasks:
 limits: {{time: {limit}}}
 """
 
+HOUSE = {"name": "house-loc", "start": "{x: 3.83, y: -1.23, yaw: 0.0}", "seed": 3}
 SHORT = [(6.5, -2.0, 0.0), (4.0, 0.5, 3.14)]
 FULL = [(6.5, -2.0, 0.0), (2.0, 1.0, 3.14), (-1.5, 2.5, 1.57), (-5.0, -3.0, 3.14), (-6.0, 0.0, 0.0)]
 
 
-def mission_text(template: str, waypoints, **fields) -> str:
+def mission_text(waypoints, **fields) -> str:
     wps = "\n".join(f"      - {{x: {x}, y: {y}, yaw: {yaw}}}" for x, y, yaw in waypoints)
-    return template.format(waypoints=wps, **fields)
+    return PATROL_MISSION.format(waypoints=wps, **fields)
 
 
 def check_localisation(record, rmse_max: float, max_error: float) -> dict:
@@ -243,7 +245,7 @@ def check_localisation(record, rmse_max: float, max_error: float) -> dict:
 @pytest.mark.parametrize("robot", ["waffle", "burger"])
 def test_real_aws_house_short_patrol_is_centimetre_accurate(tmp_path, ros_maps, robot):
     world = ros_maps / "aws_small_house" / "map.yaml"
-    text = mission_text(HOUSE_MISSION, SHORT, robot=robot, world=world, limit=120)
+    text = mission_text(SHORT, **HOUSE, robot=robot, world=world, limit=120)
     loaded = load_mission(tmp_path / "m.yaml", text=text)
     record = run_mission(loaded)
     check_localisation(record, 0.03, 0.10)
@@ -263,7 +265,7 @@ def test_real_aws_house_short_patrol_is_centimetre_accurate(tmp_path, ros_maps, 
 
 def test_turtlebot3_profile_stays_selectable_on_the_real_house(tmp_path, ros_maps):
     world = ros_maps / "aws_small_house" / "map.yaml"
-    text = mission_text(HOUSE_MISSION, SHORT[:1], robot="waffle", world=world, limit=60)
+    text = mission_text(SHORT[:1], **HOUSE, robot="waffle", world=world, limit=60)
     overrides = ["stack.localization.profile=turtlebot3"]
     record = run_mission(load_mission(tmp_path / "m.yaml", overrides, text=text))
     assert record.status == "succeeded", record.reason
@@ -277,29 +279,13 @@ def test_turtlebot3_profile_stays_selectable_on_the_real_house(tmp_path, ros_map
 @pytest.mark.parametrize("robot", ["waffle", "burger"])
 def test_real_aws_house_patrol_over_five_poses(tmp_path, ros_maps, robot):
     world = ros_maps / "aws_small_house" / "map.yaml"
-    text = mission_text(HOUSE_MISSION, FULL, robot=robot, world=world, limit=400)
+    text = mission_text(FULL, **HOUSE, robot=robot, world=world, limit=400)
     record = run_mission(load_mission(tmp_path / "m.yaml", text=text))
     check_localisation(record, 0.03, 0.10)
     assert record.metrics["distance_driven"] > 20.0
 
 
-LARGE_MISSION = """
-name: large-loc-{robot}
-world: {world}
-robot: {robot}
-start: {{x: 2.0, y: 2.0, yaw: 0.0}}
-seed: 5
-stack:
-  localization: {{type: amcl}}
-  global_planner: {{type: grid_astar}}
-  local_planner: {{type: mpc}}
-tasks:
-  - type: patrol
-    waypoints:
-{waypoints}
-    on_failure: skip
-limits: {{time: 1200}}
-"""
+LARGE = {"name": "large-loc", "start": "{x: 2.0, y: 2.0, yaw: 0.0}", "seed": 5, "limit": 1200}
 
 WAREHOUSE = [(6.0, 24.0, 1.57), (6.0, 47.5, 0.0), (18.0, 47.5, -1.57), (18.0, 24.0, 0.0)]
 DEPOT = [(15.0, 7.5, 0.0), (27.0, 12.5, 1.57), (12.5, 7.5, 3.14), (3.0, 12.5, 1.57)]
@@ -313,7 +299,7 @@ DEPOT = [(15.0, 7.5, 0.0), (27.0, 12.5, 1.57), (12.5, 7.5, 3.14), (3.0, 12.5, 1.
     ids=["warehouse", "depot"],
 )
 def test_large_open_maps_are_never_lost(tmp_path, world, waypoints, robot):
-    text = mission_text(LARGE_MISSION, waypoints, robot=robot, world=WORLDS / world)
+    text = mission_text(waypoints, **LARGE, robot=robot, world=WORLDS / world)
     record = run_mission(load_mission(tmp_path / "m.yaml", text=text))
     check_localisation(record, 0.06, 0.25)
     assert record.metrics["localization"]["refinement"]["restarts"] == 0

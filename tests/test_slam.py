@@ -4,7 +4,6 @@ frontiers and map quality."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -21,68 +20,18 @@ from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.maps.worlds import World
 from agv_mission.registry import registry
-from agv_mission.robots.description import BUILTIN_ROBOTS
-from agv_mission.robots.odometry import DiffDriveOdometry
 from agv_mission.robots.simulation import DiffDriveSim, SimConfig
+from slam_drive import BURGER, GARBAGE, TB3_BOUNDS, Drive, drive
 
-BURGER = BUILTIN_ROBOTS["burger"]
-TB3_BOUNDS = (-3.0, 3.0, -3.0, 3.0)
 # A loop through the pillar field of turtlebot3_world, and back to the first corner.
 TB3_LOOP = ((1.9, -0.55), (1.9, 0.55), (-1.9, 0.55), (-1.9, -0.55), (1.9, -0.55))
 # Odometry noise and slip that make dead reckoning drift by decimetres within a minute.
 NOISY = SimConfig(encoder_noise=0.05, wheel_slip=0.1)
-GARBAGE = Pose2D(-99.0, 99.0, 0.0)  # passed as the "true pose": SLAM must not use it
 
 
 @pytest.fixture(scope="module")
 def tb3() -> World:
     return turtlebot3_world()
-
-
-@dataclass
-class Drive:
-    slam: GridSlam
-    truth: np.ndarray  # (steps, 3)
-    estimate: np.ndarray  # (steps, 3)
-    odometry: np.ndarray  # (steps, 3), dead reckoning anchored at the start
-
-
-def drive(
-    world: World,
-    waypoints,
-    config: SimConfig,
-    slam_config: GridSlamConfig | None = None,
-    bounds=TB3_BOUNDS,
-    seed: int = 0,
-) -> Drive:
-    """Follow ``waypoints`` (steering on the true pose, as a scripted test driver), feeding
-    encoder odometry and 5 Hz scans to the SLAM plugin every 0.1 s like the runner does."""
-    sim = DiffDriveSim(BURGER, world, world.spawn, config, np.random.default_rng(seed))
-    odometry = DiffDriveOdometry(BURGER.encoder.ticks_per_meter, BURGER.wheel_separation)
-    odom0 = odometry.update(*sim.encoder_ticks())
-    slam = GridSlam(slam_config or GridSlamConfig(), bounds=bounds)
-    slam.reset(world.spawn, odom0)
-    truth, est, dead = [], [], []
-    target, step = 0, 0
-    while target < len(waypoints) and step < 5000:
-        odom = odometry.update(*sim.encoder_ticks())
-        scan = sim.scan() if step % 2 == 0 else None
-        pose = sim.true_pose()
-        estimate = slam.update(odom, scan, GARBAGE, sim.time)
-        truth.append(pose.as_array())
-        est.append(estimate.as_array())
-        dead.append(world.spawn.compose(odom.relative_to(odom0)).as_array())
-        tx, ty = waypoints[target]
-        dist = math.hypot(tx - pose.x, ty - pose.y)
-        if dist < 0.05:
-            target += 1
-            continue
-        err = wrap_angle(math.atan2(ty - pose.y, tx - pose.x) - pose.yaw)
-        v = min(0.2, 0.5 * dist + 0.02) if abs(err) < 0.3 else 0.0
-        sim.set_command(v, max(-1.5, min(1.5, 3.0 * err)))
-        sim.advance(0.1)
-        step += 1
-    return Drive(slam, np.array(truth), np.array(est), np.array(dead))
 
 
 @pytest.fixture(scope="module")
@@ -222,7 +171,7 @@ def test_matcher_search_equals_exhaustive_search(tb3: World) -> None:
     """Branch and bound returns the same cell-level optimum as scoring every candidate."""
     pose = Pose2D(0.55, -0.55, -0.7)
     slam = static_map(tb3, pose)
-    field = LikelihoodField(slam._field, 0.05, slam.origin)
+    field = LikelihoodField(slam.map.field, 0.05, slam.origin)
     points = slam._scan_points(scans_at(tb3, pose, 2)[-1])
     guess = pose.as_array() + [0.08, -0.06, 0.05]
     fast = CorrelativeMatcher(refinement="none", angular_step=0.02)

@@ -10,7 +10,8 @@ import numpy as np
 from agv_mission.behaviors.outcome import failure_reason
 from agv_mission.geometry import wrap_angle
 from agv_mission.missions.tree import MissionTree
-from agv_mission.navigation.navigator import Navigator, leg_report
+from agv_mission.navigation.legs import leg_report
+from agv_mission.navigation.navigator import Navigator
 
 #: Extra trajectory.csv columns after the contract's nine: the estimate's covariance.
 COVARIANCE_COLUMNS = ("cov_xx", "cov_xy", "cov_yy", "cov_yawyaw")

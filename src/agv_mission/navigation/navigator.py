@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import inspect
 import math
-from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any
 
@@ -21,6 +20,7 @@ from agv_mission.maps.obstacle_layer import ObstacleLayer
 from agv_mission.maps.rooms import reachable_cells
 from agv_mission.messages import LaserScan
 from agv_mission.navigation.config import NavigationConfig
+from agv_mission.navigation.legs import Leg, NavigationStats
 from agv_mission.navigation.state import RobotState
 from agv_mission.planners.base import (
     GlobalPlanner,
@@ -30,7 +30,6 @@ from agv_mission.planners.base import (
     VelocityCommand,
     VelocityLimits,
 )
-from agv_mission.planners.configs import CostGridConfig
 from agv_mission.planners.cost_grid import CostGridPlanner
 
 
@@ -44,38 +43,6 @@ class NavStatus(Enum):
 class _Phase(Enum):
     FOLLOW = "follow"
     ROTATE = "rotate"
-
-
-@dataclass
-class Leg:
-    """One goal pursued: what was planned, what was shortest, when it began and ended.
-
-    ``planned`` is the length of the leg's first plan; ``shortest`` the length of the
-    shortest path at the planner's clearance between the same points, on the same costmap
-    (no inflation cost, no fillets). The driven distance comes from the trajectory.
-    """
-
-    goal: Pose2D
-    t_start: float
-    start: Pose2D
-    planned: float | None = None
-    shortest: float | None = None
-    t_end: float | None = None
-    status: str = "running"
-    replans: int = 0
-
-
-@dataclass
-class NavigationStats:
-    """Counters and timings a run reports."""
-
-    plans: int = 0
-    replans: int = 0
-    planning_times: list[float] = field(default_factory=list)
-    solve_times: list[float] = field(default_factory=list)
-    solver_failures: int = 0
-    path_lengths: list[float] = field(default_factory=list)
-    legs: list[Leg] = field(default_factory=list)
 
 
 class Navigator:
@@ -102,6 +69,8 @@ class Navigator:
         self.reason: str | None = None
         self.goal: Pose2D | None = None
         self.path: PlannedPath | None = None
+        self._segments: tuple[np.ndarray, ...] | None = None  # the path's, for _closest
+        self._last_closest: tuple[Pose2D, tuple[int, float, np.ndarray]] | None = None
         self.paths: list[np.ndarray] = []  # every plan, for the run plot
         self.horizon: np.ndarray | None = None  # the local planner's last predicted path
         self.stats = NavigationStats()
@@ -113,10 +82,7 @@ class Navigator:
         self._last_progress_time = 0.0
         self._now = 0.0
         self._takes_prior = "prior" in inspect.signature(global_planner.plan).parameters
-        margin = float(global_planner.clearance)
-        self._shortest = CostGridPlanner(
-            CostGridConfig(clearance=margin, cost_weight=0.0, max_turn_radius=0.0)
-        )
+        self._shortest = CostGridPlanner.shortest(float(global_planner.clearance))
 
     @property
     def costmap(self) -> Costmap:
@@ -247,21 +213,31 @@ class Navigator:
         return VelocityCommand(v, w)
 
     def _closest(self, pose: Pose2D) -> tuple[int, float, np.ndarray]:
-        """(segment index, distance, closest point) of the path to ``pose``."""
+        """(segment index, distance, closest point) of the path to ``pose``; asked twice a
+        step (off the path? blocked ahead?), so the path's segments and the last answer are
+        kept."""
         assert self.path is not None
         pts = self.path.points
         if len(pts) < 2:
             p = pts[0] if len(pts) else np.array([pose.x, pose.y])
             return 0, float(np.hypot(p[0] - pose.x, p[1] - pose.y)), p
-        a, b = pts[:-1], pts[1:]
-        ab = b - a
-        ap = np.array([pose.x, pose.y]) - a
-        denom = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12)
-        t = np.clip(np.einsum("ij,ij->i", ap, ab) / denom, 0.0, 1.0)
+        if self._segments is None or self._segments[0] is not pts:
+            a, ab = pts[:-1], pts[1:] - pts[:-1]
+            self._segments = (pts, a, ab, np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12))
+            self._last_closest = None
+        if self._last_closest is not None and self._last_closest[0] == pose:
+            return self._last_closest[1]
+        _, a, ab, denom = self._segments
+        xy = np.array([pose.x, pose.y])
+        ap = xy - a
+        t = np.minimum(np.maximum(np.einsum("ij,ij->i", ap, ab) / denom, 0.0), 1.0)
         closest = a + ab * t[:, None]
-        d = np.linalg.norm(closest - [pose.x, pose.y], axis=1)
-        i = int(np.argmin(d))
-        return i, float(d[i]), closest[i]
+        off = closest - xy
+        d2 = np.einsum("ij,ij->i", off, off)
+        i = int(np.argmin(d2))
+        answer = i, math.sqrt(float(d2[i])), closest[i]
+        self._last_closest = (pose, answer)
+        return answer
 
     def _off_path(self, pose: Pose2D) -> float:
         return self._closest(pose)[1]
@@ -368,64 +344,3 @@ class Navigator:
         self.reason = reason
         self.path = None
         self._end_leg("failed")
-
-
-MOVING, STOPPED = 0.05, 0.01  # m/s: a stop is moving -> stopped -> moving within one leg
-
-
-def leg_report(
-    legs: list[Leg], t: np.ndarray, xy: np.ndarray, v: np.ndarray, end_time: float
-) -> dict[str, Any]:
-    """Per-leg path quality from the true trajectory (times ``t``, positions ``xy``,
-    commanded speeds ``v``): planned and shortest length, distance driven, their ratios
-    and the stops on the way; plus the worst ratio over the legs that succeeded."""
-    rows: list[dict[str, Any]] = []
-    for leg in legs:
-        t1 = leg.t_end if leg.t_end is not None else end_time
-        # [t_start, t_end): the row at t_end is the next leg's first
-        inside = (t >= leg.t_start - 1e-9) & ((t < t1 - 1e-9) | (t1 >= end_time))
-        path = xy[inside]
-        driven = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1))) if len(path) else 0.0
-        row: dict[str, Any] = {
-            "goal": [round(leg.goal.x, 3), round(leg.goal.y, 3)],
-            "status": leg.status if leg.t_end is not None else "running",
-            "t_start": round(leg.t_start, 3),
-            "t_end": round(t1, 3),
-            "planned": _r(leg.planned),
-            "shortest": _r(leg.shortest),
-            "driven": round(driven, 4),
-            "replans": leg.replans,
-            "stops": _stops(v[inside]),
-        }
-        for key, num, den in (
-            ("driven_vs_planned", driven, leg.planned),
-            ("driven_vs_shortest", driven, leg.shortest),
-            ("planned_vs_shortest", leg.planned, leg.shortest),
-        ):
-            row[key] = round(num / den, 4) if num is not None and den and den > 0.2 else None
-        rows.append(row)
-    done = [r for r in rows if r["status"] == "succeeded"]
-    report: dict[str, Any] = {"legs": rows}
-    for key in ("driven_vs_planned", "driven_vs_shortest", "planned_vs_shortest"):
-        values = [r[key] for r in done if r[key] is not None]
-        report[f"{key}_max"] = max(values) if values else None
-    report["stops"] = sum(r["stops"] for r in done)
-    return report
-
-
-def _stops(v: np.ndarray) -> int:
-    """Times the speed fell from moving to standing and rose again (stop-and-go)."""
-    stops, moving, pending = 0, False, False
-    for speed in np.abs(v):
-        if speed >= MOVING:
-            if pending:
-                stops += 1
-                pending = False
-            moving = True
-        elif speed < STOPPED and moving:
-            moving, pending = False, True
-    return stops
-
-
-def _r(value: float | None) -> float | None:
-    return None if value is None else round(value, 4)

@@ -20,7 +20,7 @@ from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.planners.base import VelocityCommand, VelocityLimits
 from agv_mission.planners.configs import MpcConfig
 from agv_mission.planners.mpc_problem import NU, NX, MpcProblem, RtiStep, mpc_problem
-from agv_mission.planners.path_tracking import PathFollower, PathStep
+from agv_mission.planners.path_follower import PathFollower, PathStep
 
 _FAR = 50.0  # where unused obstacle slots are parked (robot frame, metres)
 

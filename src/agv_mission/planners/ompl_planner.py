@@ -54,7 +54,8 @@ from agv_mission.maps.costmap import Costmap
 from agv_mission.planners.base import PlannedPath, PlanningError
 from agv_mission.planners.configs import CostGridConfig, OmplPlannerConfig
 from agv_mission.planners.cost_grid import CostGridPlanner
-from agv_mission.planners.grid_astar import FreeSpace
+from agv_mission.planners.free_space import FreeSpace, FreeSpacePlanner
+from agv_mission.planners.path_smoothing import path_length
 
 # Anytime, asymptotically optimal planners: worth running past their first solution.
 OPTIMIZING_PLANNERS = frozenset(
@@ -65,27 +66,15 @@ OPTIMIZING_PLANNERS = frozenset(
 THREADED_PLANNERS = frozenset({"PRM", "PRMstar", "LazyPRM", "LazyPRMstar", "SPARS", "SPARStwo"})
 
 
-class OmplPlanner:
+class OmplPlanner(FreeSpacePlanner[OmplPlannerConfig]):
     """Any OMPL geometric planner over the costmap's free space."""
 
     Config = OmplPlannerConfig
 
-    def __init__(self, config: OmplPlannerConfig) -> None:
-        self.config = config
-
-    @property
-    def clearance(self) -> float:
-        return self.config.clearance
-
-    def diagnostics(self) -> dict[str, float]:
-        return {}
-
     def plan(self, costmap: Costmap, start: Pose2D, goal: Pose2D, seed: int = 0) -> PlannedPath:
         t0 = time.perf_counter()
         cfg = self.config
-        space = FreeSpace(costmap, cfg.clearance)
-        s = space.check_endpoint(start, "start")
-        g = space.check_endpoint(goal, "goal")
+        space, s, g = self.free_space(costmap, start, goal)
         if space.segment_free(*s, *g):  # the straight line is free: nothing to sample
             pts = np.array([s, g], dtype=float)
         else:
@@ -107,9 +96,7 @@ class OmplPlanner:
             refined = refiner.refine(space, s, g, pts)
             if refined is not None:
                 pts = refined
-        points = space.to_world(pts)
-        points[0], points[-1] = start.xy, goal.xy
-        return PlannedPath(points=points, planning_time=time.perf_counter() - t0)
+        return space.planned_path(pts, start, goal, t0)
 
 
 _QUIETED = [False]
@@ -153,13 +140,10 @@ def _solve(
     anytime = cfg.planner in OPTIMIZING_PLANNERS
     threshold = -math.inf  # no threshold: nothing is short enough
     if anytime and cfg.cost_threshold is not None:
-        shortest = CostGridPlanner(
-            CostGridConfig(clearance=cfg.clearance, cost_weight=0.0, max_turn_radius=0.0)
-        )
-        ref = shortest.local_path(space, start, goal)
+        ref = CostGridPlanner.shortest(cfg.clearance).local_path(space, start, goal)
         if ref is None:
             return None  # not connected: no sampling planner will do better
-        threshold = cfg.cost_threshold * float(np.sum(np.linalg.norm(np.diff(ref, axis=0), axis=1)))
+        threshold = cfg.cost_threshold * path_length(ref)
 
     _seed_ompl(seed)  # before any OMPL object (and so any RNG) is created
     segment_free, point_free = space.segment_free, space.point_free

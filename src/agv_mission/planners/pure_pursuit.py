@@ -15,7 +15,8 @@ import numpy as np
 from agv_mission.geometry import wrap_angle
 from agv_mission.planners.base import VelocityCommand, VelocityLimits
 from agv_mission.planners.configs import PurePursuitConfig
-from agv_mission.planners.path_tracking import PathFollower, PathStep, interpolate
+from agv_mission.planners.path_follower import PathFollower, PathStep
+from agv_mission.planners.path_tracking import interpolate
 
 
 def _ramp(target: float, current: float, max_step: float) -> float:

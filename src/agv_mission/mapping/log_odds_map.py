@@ -1,0 +1,223 @@
+"""The map ``grid`` SLAM builds: log-odds occupancy with anchors, the side each cell was
+seen from, and the matcher's likelihood field, all kept up to date per integrated scan.
+
+Each integration adds ``log_odds_occupied`` once to every cell holding a beam end point
+and ``log_odds_free`` once to every other cell a beam crosses (beams sampled every half
+cell; a cell hit by one beam of a scan is not also cleared by that scan), clamped to
+``[log_odds_min, log_odds_max]``. Beams without a return clear up to the max range minus
+two cells when ``clear_no_return`` is set. Each cell also keeps the mean of the end
+points that fell in it (the last ``hit_memory`` weigh most), its *anchor*, and the sum of
+the directions from its end points back to the scanner, the side it was seen from (see
+:mod:`slam`). The likelihood field (cells above ``field_threshold`` log-odds count as
+obstacles) and the nearest-obstacle tables are refreshed around each integrated scan.
+
+The map is allocated over ``bounds`` plus ``map_margin`` (or ``initial_size`` around the
+start without bounds), on the lattice of multiples of ``resolution`` (so it lines up with
+the built-in worlds' maps), and grows in ``grow_step`` chunks when a scan reaches past its
+edge.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from agv_mission.geometry import Bounds, Pose2D
+from agv_mission.mapping.configs import GridSlamConfig
+from agv_mission.mapping.likelihood_field import LikelihoodField, field_values
+from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
+from agv_mission.messages import LaserScan
+
+
+def _logit(p: float) -> float:
+    return math.log(p / (1.0 - p))
+
+
+class LogOddsMap:
+    """A growable log-odds grid with per-cell anchors and view sides, and the likelihood
+    field and nearest-obstacle tables scans are matched against."""
+
+    def __init__(self, config: GridSlamConfig, bounds: Bounds | None, start: Pose2D | None) -> None:
+        """An empty map over ``bounds`` (plus ``map_margin``), or ``initial_size`` around
+        ``start`` (the origin when None) without bounds."""
+        self.config = config
+        self.resolution = res = float(config.resolution)
+        c = config
+        if bounds is not None:
+            xmin, xmax, ymin, ymax = bounds
+            m = c.map_margin
+            xmin, xmax, ymin, ymax = xmin - m, xmax + m, ymin - m, ymax + m
+        else:
+            cx, cy = (start.x, start.y) if start is not None else (0.0, 0.0)
+            h = c.initial_size / 2.0
+            xmin, xmax, ymin, ymax = cx - h, cx + h, cy - h, cy + h
+        self.ox = math.floor(xmin / res + 1e-9) * res
+        self.oy = math.floor(ymin / res + 1e-9) * res
+        w = max(int(math.ceil((xmax - self.ox) / res - 1e-9)), 1)
+        h = max(int(math.ceil((ymax - self.oy) / res - 1e-9)), 1)
+        shape = (h, w)
+        self.logodds = np.zeros(shape, np.float32)  # log-odds
+        self.field = np.zeros(shape, np.float32)  # likelihood field
+        self.near_r = np.full(shape, -1, np.int32)  # nearest obstacle cell (row, col)
+        self.near_c = np.full(shape, -1, np.int32)
+        self.hx = np.zeros(shape, np.float32)  # sums of end point offsets from the centre
+        self.hy = np.zeros(shape, np.float32)
+        self.hn = np.zeros(shape, np.float32)  # their (capped) count
+        self.vx = np.zeros(shape, np.float32)  # sums of unit vectors end point -> sensor
+        self.vy = np.zeros(shape, np.float32)
+        self.ax = np.zeros(shape, np.float32)  # anchors: mean offsets
+        self.ay = np.zeros(shape, np.float32)
+        self._occ_l = _logit(c.occupied_threshold)
+        self._free_l = _logit(c.free_threshold)
+
+    def occupancy_grid(self) -> OccupancyGrid:
+        """The map in map_saver's trinary convention (a new grid every call)."""
+        data = np.full(self.logodds.shape, UNKNOWN, dtype=np.int8)
+        data[self.logodds < self._free_l] = FREE
+        data[self.logodds > self._occ_l] = OCCUPIED
+        return OccupancyGrid(data, self.resolution, Pose2D(self.ox, self.oy, 0.0))
+
+    def likelihood_field(self) -> LikelihoodField:
+        """The field scans are matched against (shares memory with the map)."""
+        return LikelihoodField(
+            self.field,
+            self.resolution,
+            (self.ox, self.oy),
+            nearest=(self.near_r, self.near_c),
+            anchor=(self.ax, self.ay),
+            view=(self.vx, self.vy),
+        )
+
+    def ensure_contains(self, xmin: float, xmax: float, ymin: float, ymax: float) -> None:
+        """Grow the map (by ``grow_step`` chunks) until it holds the given box."""
+        res = self.resolution
+        h, w = self.logodds.shape
+        step = max(int(math.ceil(self.config.grow_step / res)), 1)
+        left = right = down = up = 0
+        if xmin < self.ox:
+            left = step * int(math.ceil((self.ox - xmin) / res / step))
+        if ymin < self.oy:
+            down = step * int(math.ceil((self.oy - ymin) / res / step))
+        if xmax >= self.ox + w * res:
+            right = step * int(math.ceil((xmax - self.ox - w * res) / res / step + 1e-9))
+        if ymax >= self.oy + h * res:
+            up = step * int(math.ceil((ymax - self.oy - h * res) / res / step + 1e-9))
+        if not (left or right or down or up):
+            return
+        pad = ((down, up), (left, right))
+        for name in ("logodds", "field", "hx", "hy", "hn", "ax", "ay", "vx", "vy"):
+            setattr(self, name, np.pad(getattr(self, name), pad))
+        for name, shift in (("near_r", down), ("near_c", left)):
+            arr = getattr(self, name)
+            arr[arr >= 0] += shift
+            setattr(self, name, np.pad(arr, pad, constant_values=-1))
+        self.ox -= left * res
+        self.oy -= down * res
+
+    def integrate(self, scan: LaserScan, pose: Pose2D) -> bool:
+        """Add ``scan`` seen from ``pose``; False when no beam had anything to add."""
+        c, res = self.config, self.resolution
+        r = scan.ranges.astype(np.float64)
+        max_range = min(scan.range_max, c.max_range) if c.max_range else scan.range_max
+        finite = np.isfinite(r)
+        hit = finite & (r >= scan.range_min) & (r <= max_range)
+        clear = max(max_range - 2.0 * res, 0.0) if c.clear_no_return else 0.0
+        # +inf is "no return" (clears); nan is an invalid reading (clears nothing).
+        no_return = np.where(np.isposinf(r), clear, 0.0)
+        length = np.where(hit, r, np.where(finite & (r > max_range), max_range, no_return))
+        keep = length > 0.0
+        if not keep.any():
+            return False
+        a = scan.angles[keep] + pose.yaw
+        length, hit = length[keep], hit[keep]
+        ca, sa = np.cos(a), np.sin(a)
+        ex, ey = pose.x + length * ca, pose.y + length * sa
+        self.ensure_contains(
+            min(ex.min(), pose.x),
+            max(ex.max(), pose.x),
+            min(ey.min(), pose.y),
+            max(ey.max(), pose.y),
+        )
+        ox, oy = self.ox, self.oy
+
+        # The window of the map this scan touches.
+        cols_e = np.floor((ex - ox) / res).astype(np.int64)
+        rows_e = np.floor((ey - oy) / res).astype(np.int64)
+        pr, pc = int(math.floor((pose.y - oy) / res)), int(math.floor((pose.x - ox) / res))
+        r0, r1 = min(int(rows_e.min()), pr), max(int(rows_e.max()), pr) + 1
+        c0, c1 = min(int(cols_e.min()), pc), max(int(cols_e.max()), pc) + 1
+        wh, ww = r1 - r0, c1 - c0
+        n = wh * ww
+
+        # Free cells: every half cell along each beam, short of its end point.
+        step = 0.5 * res
+        t = np.arange(int(math.ceil(length.max() / step)) + 1) * step
+        along = t[None, :] < length[:, None]
+        fc = np.floor(((pose.x - ox) + ca[:, None] * t[None, :])[along] / res).astype(np.int64)
+        fr = np.floor(((pose.y - oy) + sa[:, None] * t[None, :])[along] / res).astype(np.int64)
+        np.clip(fc - c0, 0, ww - 1, out=fc)
+        np.clip(fr - r0, 0, wh - 1, out=fr)
+        free = np.zeros(n, bool)
+        free[fr * ww + fc] = True
+        occ = np.zeros(n, bool)
+        hit_idx = (rows_e[hit] - r0) * ww + (cols_e[hit] - c0)
+        occ[hit_idx] = True
+        free &= ~occ
+
+        window = self.logodds[r0:r1, c0:c1]
+        update = np.where(occ, np.float32(c.log_odds_occupied), np.float32(0.0))
+        update[free] = c.log_odds_free
+        window += update.reshape(wh, ww)
+        np.clip(window, c.log_odds_min, c.log_odds_max, out=window)
+
+        if len(hit_idx):
+            # Anchors: running means of where the end points fell in their cells.
+            offx = ex[hit] - (ox + (cols_e[hit] + 0.5) * res)
+            offy = ey[hit] - (oy + (rows_e[hit] + 0.5) * res)
+            hx, hy = self.hx[r0:r1, c0:c1], self.hy[r0:r1, c0:c1]
+            hn = self.hn[r0:r1, c0:c1]
+            hx += np.bincount(hit_idx, offx, n).reshape(wh, ww).astype(np.float32)
+            hy += np.bincount(hit_idx, offy, n).reshape(wh, ww).astype(np.float32)
+            hn += np.bincount(hit_idx, None, n).reshape(wh, ww).astype(np.float32)
+            # Which side the cell was seen from (a thin wall has two faces).
+            vx, vy = self.vx[r0:r1, c0:c1], self.vy[r0:r1, c0:c1]
+            vx -= np.bincount(hit_idx, ca[hit], n).reshape(wh, ww).astype(np.float32)
+            vy -= np.bincount(hit_idx, sa[hit], n).reshape(wh, ww).astype(np.float32)
+            over = hn > c.hit_memory
+            if over.any():
+                scale = c.hit_memory / hn[over]
+                hx[over] *= scale
+                hy[over] *= scale
+                vx[over] *= scale
+                vy[over] *= scale
+                hn[over] = c.hit_memory
+            seen = hn > 0
+            self.ax[r0:r1, c0:c1][seen] = hx[seen] / hn[seen]
+            self.ay[r0:r1, c0:c1][seen] = hy[seen] / hn[seen]
+
+        self.refresh_field(r0, r1, c0, c1)
+        return True
+
+    def refresh_field(self, r0: int, r1: int, c0: int, c1: int) -> None:
+        """Recompute the field and nearest-obstacle tables where cells [r0:r1, c0:c1] may
+        change them."""
+        c, res = self.config, self.resolution
+        m = int(math.ceil(4.0 * c.likelihood_sigma / res)) + 1
+        h, w = self.logodds.shape
+        # Cells within m of the change are rewritten; they need obstacles within m of them.
+        ar0, ar1 = max(r0 - m, 0), min(r1 + m, h)
+        ac0, ac1 = max(c0 - m, 0), min(c1 + m, w)
+        br0, br1 = max(r0 - 2 * m, 0), min(r1 + 2 * m, h)
+        bc0, bc1 = max(c0 - 2 * m, 0), min(c1 + 2 * m, w)
+        occupied = self.logodds[br0:br1, bc0:bc1] > c.field_threshold
+        anchor = (self.ax[br0:br1, bc0:bc1], self.ay[br0:br1, bc0:bc1])
+        values, (nr, nc) = field_values(
+            occupied, res, c.likelihood_sigma, anchor, return_nearest=True
+        )
+        inner = (slice(ar0 - br0, ar1 - br0), slice(ac0 - bc0, ac1 - bc0))
+        self.field[ar0:ar1, ac0:ac1] = values[inner]
+        nr, nc = nr[inner], nc[inner]
+        valid = nr >= 0
+        self.near_r[ar0:ar1, ac0:ac1] = np.where(valid, nr + br0, -1)
+        self.near_c[ar0:ar1, ac0:ac1] = np.where(valid, nc + bc0, -1)

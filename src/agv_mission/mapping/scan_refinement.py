@@ -1,0 +1,247 @@
+"""The second stage of scan matching: a sub-cell refinement of the correlative optimum
+(see :mod:`scan_matching`), a maximum a posteriori estimate when the odometry prior is
+given (:class:`PosePrior`).
+
+* :func:`icp`: point-to-line Gauss-Newton against the map's obstacle points (anchors),
+  each scan point paired along its local normal (:func:`scan_normals`) with the closest
+  anchor seen from the same side (:func:`partners`), with Huber weights.
+* :func:`gauss_newton`: hector mapping's objective ``mean (1 - M(T p))^2`` on the
+  bicubic interpolated likelihood field (:func:`field_cost`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from agv_mission.geometry import wrap_angle
+from agv_mission.mapping.likelihood_field import LikelihoodField, bicubic
+
+
+@dataclass(frozen=True)
+class PosePrior:
+    """The odometry prediction a refinement is pulled toward: its mean pose and its
+    information matrix (zeros when there is none: the scan alone decides)."""
+
+    mean: np.ndarray  # (x, y, yaw)
+    info: np.ndarray  # (3, 3)
+    given: bool
+
+    @classmethod
+    def of(cls, mean: np.ndarray, cov: np.ndarray | None) -> PosePrior:
+        """The prior of mean ``mean`` and covariance ``cov`` (None: no prior)."""
+        info = np.zeros((3, 3)) if cov is None else np.linalg.inv(cov)
+        return cls(mean, info, cov is not None)
+
+    def error(self, pose: np.ndarray) -> np.ndarray:
+        """``pose - mean`` with the yaw difference wrapped."""
+        e = pose - self.mean
+        e[2] = wrap_angle(e[2])
+        return e
+
+    def cost(self, pose: np.ndarray) -> float:
+        """The prior's term of the objective at ``pose`` (0 without a prior)."""
+        if not self.given:
+            return 0.0
+        e = self.error(pose)
+        return float(e @ self.info @ e)
+
+
+def scan_normals(
+    points: np.ndarray, half_window: int = 2, max_spread: float = 0.25, max_ratio: float = 0.05
+) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals (N, 2) of angle-ordered scan points by PCA over ``2 half_window + 1``
+    neighbours (cyclic), and which are valid: the neighbours lie within ``max_spread`` m
+    of the point and on a line (smallest / largest eigenvalue below ``max_ratio``)."""
+    n = len(points)
+    normals = np.zeros((n, 2))
+    if n < 2 * half_window + 1:
+        return normals, np.zeros(n, bool)
+    idx = (np.arange(n)[None, :] + np.arange(-half_window, half_window + 1)[:, None]) % n
+    nb = points[idx]  # (K, N, 2)
+    spread_ok = (np.hypot(*(nb - points[None]).transpose(2, 0, 1)) <= max_spread).all(axis=0)
+    mean = nb.mean(axis=0)
+    d = nb - mean[None]
+    sxx = (d[..., 0] ** 2).mean(axis=0)
+    syy = (d[..., 1] ** 2).mean(axis=0)
+    sxy = (d[..., 0] * d[..., 1]).mean(axis=0)
+    half_tr = 0.5 * (sxx + syy)
+    root = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy**2)
+    lmax, lmin = half_tr + root, half_tr - root
+    phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)  # major axis
+    normals[:, 0], normals[:, 1] = -np.sin(phi), np.cos(phi)
+    ok = spread_ok & (lmin <= max_ratio * np.maximum(lmax, 1e-12)) & (lmax > 0)
+    return normals, ok
+
+
+def icp(
+    field: LikelihoodField,
+    points: np.ndarray,
+    start: np.ndarray,
+    prior: PosePrior,
+    iterations: int,
+    point_sigma: float,
+    huber: float,
+    max_correspondence: float,
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Point-to-line Gauss-Newton against the map's obstacle points (see the module) from
+    ``start``; the pose and its covariance, ``(None, None)`` when too few points find a
+    partner. ``point_sigma`` is the std of a residual, ``huber`` its Huber threshold."""
+    assert field.nearest is not None and field.anchor is not None
+    normals, ok = scan_normals(points)
+    if ok.sum() < 10:
+        return None, None
+    p, nrm = points[ok], normals[ok]
+    # Normals point back at the scanner (the robot frame's origin): the side of the
+    # surface the point was seen from.
+    nrm = np.where(((nrm * p).sum(axis=1) > 0.0)[:, None], -nrm, nrm)
+    info = prior.info
+    x = start.astype(np.float64).copy()
+    hess = None
+    for _ in range(iterations):
+        c, s = math.cos(x[2]), math.sin(x[2])
+        wx = x[0] + c * p[:, 0] - s * p[:, 1]
+        wy = x[1] + s * p[:, 0] + c * p[:, 1]
+        side = (c * nrm[:, 0] - s * nrm[:, 1], s * nrm[:, 0] + c * nrm[:, 1])
+        qx, qy, has = partners(field, wx, wy, side)
+        if has.sum() < 10:
+            return None, None
+        ex, ey = wx[has] - qx[has], wy[has] - qy[has]
+        keep = ex * ex + ey * ey <= max_correspondence**2
+        if keep.sum() < 10:
+            return None, None
+        ex, ey = ex[keep], ey[keep]
+        nx_r, ny_r = nrm[has][keep, 0], nrm[has][keep, 1]
+        px, py = p[has][keep, 0], p[has][keep, 1]
+        nx, ny = c * nx_r - s * ny_r, s * nx_r + c * ny_r
+        r = nx * ex + ny * ey
+        a = np.abs(r)
+        weight = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-12))
+        weight /= point_sigma**2
+        jac = np.stack([nx, ny, nx * (-s * px - c * py) + ny * (c * px - s * py)], axis=1)
+        e = prior.error(x)
+        hess = (jac * weight[:, None]).T @ jac + info
+        g = jac.T @ (weight * r) + info @ e
+        try:
+            delta = -np.linalg.solve(hess + 1e-9 * np.eye(3), g)
+        except np.linalg.LinAlgError:
+            return None, None
+        x += delta
+        if abs(delta[0]) < 1e-4 and abs(delta[1]) < 1e-4 and abs(delta[2]) < 1e-4:
+            break
+    if hess is None:
+        return None, None
+    try:
+        cov = np.linalg.inv(hess)
+    except np.linalg.LinAlgError:
+        cov = None
+    return x, cov
+
+
+def field_cost(
+    field: LikelihoodField,
+    points: np.ndarray,
+    pose: np.ndarray,
+    prior: PosePrior,
+    scan_sigma: float,
+) -> float:
+    """The objective :func:`gauss_newton` lowers, at ``pose``."""
+    wx, wy = transform_points(points, pose)
+    m, _, _ = bicubic(field, wx, wy)
+    return float(np.mean((1.0 - m) ** 2)) / scan_sigma**2 + prior.cost(pose)
+
+
+def gauss_newton(
+    field: LikelihoodField,
+    points: np.ndarray,
+    start: np.ndarray,
+    prior: PosePrior,
+    iterations: int,
+    scan_sigma: float,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Gauss-Newton on ``mean (1 - M(T p))^2 / scan_sigma^2 + prior`` (hector mapping's
+    objective plus the odometry prior, as Cartographer's Ceres matcher); returns the
+    pose and its covariance (the inverse Gauss-Newton Hessian)."""
+    x = start.astype(np.float64).copy()
+    px, py = points[:, 0], points[:, 1]
+    w = 1.0 / (len(points) * scan_sigma**2)
+    info = prior.info
+    h = info
+    for _ in range(iterations):
+        wx, wy = transform_points(points, x)
+        m, gx, gy = bicubic(field, wx, wy)
+        r = 1.0 - m
+        c, s = math.cos(x[2]), math.sin(x[2])
+        dth = gx * (-s * px - c * py) + gy * (c * px - s * py)
+        jac = -np.stack([gx, gy, dth], axis=1)  # d r / d (x, y, yaw)
+        e = prior.error(x)
+        h = w * (jac.T @ jac) + info
+        g = w * (jac.T @ r) + info @ e
+        damping = 1e-6 * np.trace(h) / 3.0 + 1e-12
+        try:
+            delta = -np.linalg.solve(h + damping * np.eye(3), g)
+        except np.linalg.LinAlgError:
+            break
+        x += delta
+        if abs(delta[0]) < 1e-5 and abs(delta[1]) < 1e-5 and abs(delta[2]) < 1e-5:
+            break
+    try:
+        cov = np.linalg.inv(h)
+    except np.linalg.LinAlgError:
+        cov = None
+    return x, cov
+
+
+_NEIGHBOURS = np.array([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)])
+
+
+def partners(
+    field: LikelihoodField,
+    wx: np.ndarray,
+    wy: np.ndarray,
+    side: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The map obstacle point (anchor) closest to each map-frame point among the
+    occupied cells of its 3 x 3 neighbourhood and its nearest occupied cell, and whether
+    one exists. Looking at the neighbourhood matters at thin walls: the nearest cell by
+    centre distance may hold the far face of the wall.
+
+    With ``side`` (map-frame normals of the points, facing the scanner) and the field's
+    ``view``, cells whose surface was seen from the other side are no partners: the
+    first time a thin wall is seen from its second side only its first face is in the
+    map, a wall's thickness away, and pairing with it would shift the pose by that
+    much (and the map with it)."""
+    assert field.nearest is not None and field.anchor is not None
+    near_r, near_c = field.nearest
+    ax, ay = field.anchor
+    h, w = near_r.shape
+    res, (ox, oy) = field.resolution, field.origin
+    cols = np.floor((wx - ox) / res).astype(np.int64)
+    rows = np.floor((wy - oy) / res).astype(np.int64)
+    inside = (rows >= 1) & (rows < h - 1) & (cols >= 1) & (cols < w - 1)
+    rows, cols = np.where(inside, rows, 1), np.where(inside, cols, 1)
+    cr = rows[:, None] + _NEIGHBOURS[None, :, 0]  # (N, 9)
+    cc = cols[:, None] + _NEIGHBOURS[None, :, 1]
+    occ = (near_r[cr, cc] == cr) & (near_c[cr, cc] == cc)
+    nr, nc = near_r[rows, cols][:, None], near_c[rows, cols][:, None]
+    cr = np.concatenate([cr, np.maximum(nr, 0)], axis=1)  # (N, 10)
+    cc = np.concatenate([cc, np.maximum(nc, 0)], axis=1)
+    occ = np.concatenate([occ, nr >= 0], axis=1) & inside[:, None]
+    if side is not None and field.view is not None:
+        facing = field.view[0][cr, cc] * side[0][:, None] + field.view[1][cr, cc] * side[1][:, None]
+        occ &= facing >= 0.0
+    qx = ox + (cc + 0.5) * res + ax[cr, cc]
+    qy = oy + (cr + 0.5) * res + ay[cr, cc]
+    d2 = np.where(occ, (qx - wx[:, None]) ** 2 + (qy - wy[:, None]) ** 2, np.inf)
+    best = np.argmin(d2, axis=1)
+    k = np.arange(len(wx))
+    return qx[k, best], qy[k, best], occ.any(axis=1)
+
+
+def transform_points(points: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Map-frame (x, y) of robot-frame ``points`` (N, 2) seen from ``pose``."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    px, py = points[:, 0], points[:, 1]
+    return pose[0] + c * px - s * py, pose[1] + s * px + c * py

@@ -20,6 +20,7 @@ from agv_mission.cli.console import (
     print_summary,
     progress_bar,
 )
+from agv_mission.cli.startup import quiet_until_started, started_as_program
 from agv_mission.missions.errors import MissionError
 
 
@@ -33,6 +34,8 @@ def run(
     ] = False,
 ) -> None:
     """Validate and run a mission in simulation; write a run directory."""
+    if started_as_program():  # Ctrl-C during the imports below: exit 130, no traceback
+        quiet_until_started()
     from agv_mission.bags.writer import BagWriter
     from agv_mission.missions.loader import load_demo_mission, load_mission
     from agv_mission.missions.outputs import RunDirError, open_run_dir, write_run

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
+from agv_mission.bags import cdr
 from agv_mission.bags import ros_messages as rm
 from agv_mission.bags.writer import TOPICS, BagWriter
 from agv_mission.geometry import Pose2D, yaw_from_quaternion
@@ -187,10 +188,10 @@ def test_struct_cdr_equals_rosbags_serialiser():
     p, q = Pose2D(1.2, -3.4, 2.5), Pose2D(0.0, 1.0, -0.1)
     cov = np.arange(9.0).reshape(3, 3)
     pairs = [
-        (rm.clock_cdr(12.345), rm.clock(12.345), rm.CLOCK),
-        (rm.twist_cdr(0.2, -0.7), rm.twist(0.2, -0.7), rm.TWIST),
+        (cdr.clock_cdr(12.345), rm.clock(12.345), rm.CLOCK),
+        (cdr.twist_cdr(0.2, -0.7), rm.twist(0.2, -0.7), rm.TWIST),
         (
-            rm.tf_cdr(3.3, [("map", "odom", p, 0.0), ("odom", "base_footprint", q, 0.17)]),
+            cdr.tf_cdr(3.3, [("map", "odom", p, 0.0), ("odom", "base_footprint", q, 0.17)]),
             rm.tf_message(
                 [
                     rm.transform(3.3, "map", "odom", p),
@@ -200,22 +201,22 @@ def test_struct_cdr_equals_rosbags_serialiser():
             rm.TF_MESSAGE,
         ),
         (
-            rm.pose_with_covariance_cdr(5.5, "map", p, cov),
+            cdr.pose_with_covariance_cdr(5.5, "map", p, cov),
             rm.pose_with_covariance(5.5, "map", p, cov),
             rm.POSE_WITH_COVARIANCE_STAMPED,
         ),
         (
-            rm.odometry_cdr(5.5, "odom", "base_footprint", p, 0.1, 0.2, cov),
+            cdr.odometry_cdr(5.5, "odom", "base_footprint", p, 0.1, 0.2, cov),
             rm.odometry(5.5, "odom", "base_footprint", p, 0.1, 0.2, cov),
             rm.ODOMETRY,
         ),
         (
-            rm.odometry_cdr(7.25, "map", "base_link", q, -0.3, 1.5, None),
+            cdr.odometry_cdr(7.25, "map", "base_link", q, -0.3, 1.5, None),
             rm.odometry(7.25, "map", "base_link", q, -0.3, 1.5, None),
             rm.ODOMETRY,
         ),
         (
-            rm.pose_with_covariance_cdr(0.1, "odom", q, None),
+            cdr.pose_with_covariance_cdr(0.1, "odom", q, None),
             rm.pose_with_covariance(0.1, "odom", q, None),
             rm.POSE_WITH_COVARIANCE_STAMPED,
         ),
@@ -226,7 +227,7 @@ def test_struct_cdr_equals_rosbags_serialiser():
         scan = LaserScan(ranges[:beams], 0.1, 2 * np.pi / 360, 0.12, 3.5, 123.456789)
         pairs.append(
             (
-                rm.laser_scan_cdr(scan, frame, 0.2),
+                cdr.laser_scan_cdr(scan, frame, 0.2),
                 rm.laser_scan(scan, frame, 0.2),
                 rm.LASER_SCAN,
             )
@@ -243,7 +244,7 @@ def test_pose_array_cdr_equals_rosbags_serialiser():
         header=rm.header(12.3456789, "map"),
         poses=[rm.pose(Pose2D(*p)) for p in particles],
     )
-    assert rm.pose_array_cdr(12.3456789, "map", particles) == rm.serialize(msg, rm.POSE_ARRAY)
+    assert cdr.pose_array_cdr(12.3456789, "map", particles) == rm.serialize(msg, rm.POSE_ARRAY)
 
 
 def test_mcap_reader_decodes_every_message(patrol_run):

@@ -25,6 +25,7 @@ from rosbags.interfaces import QosDurability, QosHistory, QosLiveliness, QosReli
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.metadata import Qos
 
+from agv_mission.bags import cdr
 from agv_mission.bags import ros_messages as rm
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import OccupancyGrid
@@ -173,29 +174,31 @@ class BagWriter:
         est, odom = sample.estimate, sample.odom
         map_to_odom = est.compose(Pose2D(0.0, 0.0, 0.0).relative_to(odom))
         raw = self._write_raw
-        raw("/clock", t, rm.clock_cdr(t))
+        raw("/clock", t, cdr.clock_cdr(t))
         raw(
             "/tf",
             t,
-            rm.tf_cdr(
+            cdr.tf_cdr(
                 t, [(MAP_FRAME, ODOM_FRAME, map_to_odom, 0.0), (ODOM_FRAME, BASE_FRAME, odom, 0.0)]
             ),
         )
         v, w = self._velocity("odom", t, odom)
-        raw("/odom", t, rm.odometry_cdr(t, ODOM_FRAME, BASE_FRAME, odom, v, w, None))
+        raw("/odom", t, cdr.odometry_cdr(t, ODOM_FRAME, BASE_FRAME, odom, v, w, None))
         v, w = self._velocity("truth", t, sample.truth)
-        raw("/ground_truth", t, rm.odometry_cdr(t, MAP_FRAME, BASE_FRAME, sample.truth, v, w, None))
-        raw("/cmd_vel", t, rm.twist_cdr(sample.v, sample.w))
-        raw("/amcl_pose", t, rm.pose_with_covariance_cdr(t, MAP_FRAME, est, sample.covariance))
+        raw(
+            "/ground_truth", t, cdr.odometry_cdr(t, MAP_FRAME, BASE_FRAME, sample.truth, v, w, None)
+        )
+        raw("/cmd_vel", t, cdr.twist_cdr(sample.v, sample.w))
+        raw("/amcl_pose", t, cdr.pose_with_covariance_cdr(t, MAP_FRAME, est, sample.covariance))
         if sample.scan is not None:
             scan = sample.scan
-            raw("/scan", float(scan.time), rm.laser_scan_cdr(scan, SCAN_FRAME, self._scan_time))
+            raw("/scan", float(scan.time), cdr.laser_scan_cdr(scan, SCAN_FRAME, self._scan_time))
         particles = sample.particles
         if particles is not None and len(particles) and t >= self._next_particles - 1e-9:
             self._next_particles = t + self.particle_period
             stride = -(-len(particles) // self.max_particles)
             self._write_raw(
-                "/particlecloud", t, rm.pose_array_cdr(t, MAP_FRAME, particles[::stride])
+                "/particlecloud", t, cdr.pose_array_cdr(t, MAP_FRAME, particles[::stride])
             )
         if sample.plan is not None and len(sample.plan):
             self._write("/plan", t, rm.path(t, sample.plan, MAP_FRAME))

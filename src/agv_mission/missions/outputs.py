@@ -218,7 +218,8 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title(f"{loaded.name}: {record.status}  (sim {record.sim_time:.1f} s)")
-    ax.legend(loc="upper right", fontsize=7)
+    if ax.get_legend_handles_labels()[0]:  # a run that ended before its first row has none
+        ax.legend(loc="upper right", fontsize=7)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", bbox_inches="tight")
     plt.close(fig)

@@ -33,6 +33,7 @@ from agv_mission.missions.runner import MissionRun
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "missions" / "patrol.yaml"
+REPEATS = 5  # runs of the with-bag demo patrol (issue 16's target), median reported
 COMPONENTS = (
     "physics",
     "lidar",
@@ -204,8 +205,19 @@ def run() -> dict[str, float]:
             "warehouse_30x50": (mission, None, False),
         }
         for key, (path, overrides, bag) in cases.items():
-            for metric, value in breakdown(path, overrides, bag).items():
+            # The target case is the run of median cost of REPEATS: this machine's speed
+            # moves by 20-40 % from one 2 s run to the next.
+            runs = [breakdown(path, overrides, bag) for _ in range(REPEATS if bag else 1)]
+            runs.sort(key=lambda r: r["total_ms_per_sim_s"])
+            for metric, value in runs[len(runs) // 2].items():
                 results[f"breakdown.{key}.{metric}"] = round(value, 4)
+            if len(runs) > 1:
+                results[f"breakdown.{key}.real_time_factor_min"] = round(
+                    runs[-1]["real_time_factor"], 2
+                )
+                results[f"breakdown.{key}.real_time_factor_max"] = round(
+                    runs[0]["real_time_factor"], 2
+                )
     results["breakdown.patrol_fatrop_over_rti_control_cost"] = round(
         results["breakdown.patrol_fatrop.control_ms_per_sim_s"]
         / results["breakdown.patrol.control_ms_per_sim_s"],

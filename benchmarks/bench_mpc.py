@@ -53,19 +53,6 @@ def _world() -> tuple[list[np.ndarray], np.ndarray]:
     return [there, there[::-1].copy()], np.vstack((walls, post))
 
 
-def _step(pose: Pose2D, v: float, w: float, dt: float) -> Pose2D:
-    if abs(w) < 1e-9:
-        return Pose2D(
-            pose.x + v * dt * math.cos(pose.yaw), pose.y + v * dt * math.sin(pose.yaw), pose.yaw
-        )
-    yaw = pose.yaw + w * dt
-    return Pose2D(
-        pose.x + v / w * (math.sin(yaw) - math.sin(pose.yaw)),
-        pose.y - v / w * (math.cos(yaw) - math.cos(pose.yaw)),
-        yaw,
-    )
-
-
 def _drive(controller, paths, points, max_steps=600) -> dict[str, list]:
     out: dict[str, list] = {
         "ms": [],
@@ -93,7 +80,7 @@ def _drive(controller, paths, points, max_steps=600) -> dict[str, list]:
             if "iter_count" in stats:
                 out["iters"].append(stats["iter_count"])
                 out["solver_ms"].append(stats.get("t_wall_solver_call", 0.0) * 1e3)
-            pose = _step(pose, cmd.v, cmd.w, PERIOD)
+            pose = pose.driven(cmd.v, cmd.w, PERIOD)
             vel = (cmd.v, cmd.w)
             out["clear"].append(float(np.min(np.hypot(*(points - [pose.x, pose.y]).T))))
             out["track"].append(closest_point(path, (pose.x, pose.y)).distance)

@@ -54,3 +54,16 @@ def test_a_new_plugin_is_one_class_and_one_line() -> None:
 
     made = reg.create("local_planner", NullConfig())
     assert isinstance(made, NullController)
+
+
+def test_driven_follows_the_arc_of_a_constant_command() -> None:
+    start = Pose2D(1.0, -2.0, 0.3)
+    straight = start.driven(0.5, 0.0, 2.0)
+    assert straight.distance_to(start) == pytest.approx(1.0)
+    assert straight.yaw == start.yaw
+    pose = start  # a full turn on a circle of radius v / w comes back to the start
+    for _ in range(100):
+        pose = pose.driven(0.2, 2.0 * math.pi / 10.0, 0.1)
+    assert pose.distance_to(start) < 1e-9 and abs(pose.heading_error_to(start)) < 1e-9
+    half = Pose2D(0.0, 0.0, 0.0).driven(0.5, 0.5, 2.0 * math.pi)  # radius 1, half a circle
+    assert (half.x, half.y) == pytest.approx((0.0, 2.0), abs=1e-12)

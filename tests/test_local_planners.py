@@ -29,20 +29,6 @@ L_PATH = np.array([[0.0, 0.0], [1.5, 0.0], [1.5, 1.2]])
 NO_POINTS = np.zeros((0, 2))
 
 
-def unicycle_step(pose: Pose2D, v: float, w: float, dt: float) -> Pose2D:
-    """Exact integration of constant (v, w) over dt."""
-    if abs(w) < 1e-9:
-        return Pose2D(
-            pose.x + v * dt * math.cos(pose.yaw), pose.y + v * dt * math.sin(pose.yaw), pose.yaw
-        )
-    yaw = pose.yaw + w * dt
-    return Pose2D(
-        pose.x + v / w * (math.sin(yaw) - math.sin(pose.yaw)),
-        pose.y - v / w * (math.cos(yaw) - math.cos(pose.yaw)),
-        yaw,
-    )
-
-
 def closed_loop(controller, path, start, obstacles=NO_POINTS, max_steps=400):
     """Run until stopped at the goal; returns poses (n+1, 3) and commands (n, 2) and oks."""
     goal = Pose2D(float(path[-1][0]), float(path[-1][1]))
@@ -53,7 +39,7 @@ def closed_loop(controller, path, start, obstacles=NO_POINTS, max_steps=400):
         cmd = controller.compute(pose, vel, path, goal, obstacles)
         cmds.append((cmd.v, cmd.w))
         oks.append(cmd.ok)
-        pose = unicycle_step(pose, cmd.v, cmd.w, PERIOD)
+        pose = pose.driven(cmd.v, cmd.w, PERIOD)
         vel = (cmd.v, cmd.w)
         poses.append(pose.as_array())
         if pose.distance_to(goal) < 0.05 and cmd.v == 0.0 and cmd.w == 0.0:
@@ -250,7 +236,7 @@ def test_mpc_warm_start_needs_no_more_iterations(mpc):
     pose, vel = Pose2D(0.3, 0.02, 0.05), (0.2, 0.0)
     cmd = mpc.compute(pose, vel, L_PATH, goal, points)
     cold = mpc.last_stats["iter_count"]
-    pose = unicycle_step(pose, cmd.v, cmd.w, PERIOD)
+    pose = pose.driven(cmd.v, cmd.w, PERIOD)
     cmd = mpc.compute(pose, (cmd.v, cmd.w), L_PATH, goal, points)
     warm = mpc.last_stats["iter_count"]
     assert cmd.ok

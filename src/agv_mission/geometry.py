@@ -54,6 +54,20 @@ class Pose2D:
             wrap_angle(self.yaw + delta.yaw),
         )
 
+    def driven(self, v: float, w: float, dt: float) -> Pose2D:
+        """The pose after driving at constant (v, w) for ``dt``: exactly on the arc (a
+        unicycle's motion, what a controller's command does to an ideal robot)."""
+        if abs(w) < 1e-9:
+            return Pose2D(
+                self.x + v * dt * math.cos(self.yaw), self.y + v * dt * math.sin(self.yaw), self.yaw
+            )
+        yaw = self.yaw + w * dt
+        return Pose2D(
+            self.x + v / w * (math.sin(yaw) - math.sin(self.yaw)),
+            self.y - v / w * (math.cos(yaw) - math.cos(self.yaw)),
+            wrap_angle(yaw),
+        )
+
     def relative_to(self, origin: Pose2D) -> Pose2D:
         """``origin (-) self``: this pose expressed in the frame of ``origin``."""
         c, s = math.cos(origin.yaw), math.sin(origin.yaw)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import httpx
 import pytest
-import websockets
+from websockets.exceptions import WebSocketException
 
 from service_server import (
     AGV,
@@ -45,7 +45,7 @@ def test_token_and_host_rules(tmp_path: Path) -> None:
         async def live(url: str) -> list[dict]:
             return await collect_live(url)
 
-        with pytest.raises(websockets.exceptions.WebSocketException):
+        with pytest.raises(WebSocketException):
             asyncio.run(live(f"{srv.ws_url}/api/runs/{run['id']}/live"))
         messages = asyncio.run(live(f"{srv.ws_url}/api/runs/{run['id']}/live?token=s3cret"))
         assert messages[-1]["type"] == "end"

@@ -6,7 +6,6 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-import multiprocessing
 import os
 import shutil
 import signal
@@ -21,6 +20,7 @@ from typing import Any
 
 from agv_mission.messages import json_default
 from agv_mission.missions.errors import MissionError
+from agv_mission.missions.workers import forkserver_context
 from agv_mission.regress.plan import RegressError, ResultCallback
 
 # Signals this process was asked to stop with (Ctrl-C, SIGTERM): a run in progress ends
@@ -176,28 +176,13 @@ def _job_keys(job: dict[str, Any]) -> dict[str, Any]:
 # ------------------------------------------------------------------------------ backends
 
 
-WORKER_PRELOAD = [
-    "agv_mission.regress.backends",
-    "agv_mission.missions.loader",
-    "agv_mission.missions.runner",
-    "agv_mission.missions.outputs",
-    "matplotlib",
-]
-
-
-def _pool_context() -> Any:
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(WORKER_PRELOAD)
-    return ctx
-
-
 def warm_up(backend: str = "local", workers: int | None = None) -> None:
     """Start the local pool's fork server now, so that it imports the stack while this
     process plans (call before :func:`plan_jobs`; harmless otherwise)."""
     if backend == "local" and (workers or os.cpu_count() or 1) > 1:
         from multiprocessing import forkserver
 
-        _pool_context()
+        forkserver_context("agv_mission.regress.backends")
         forkserver.ensure_running()
 
 
@@ -248,7 +233,7 @@ def _run_local(jobs: Sequence[dict[str, Any]], workers: int, collect: Callable) 
         return
     with ProcessPoolExecutor(
         max_workers=min(workers, len(jobs)),
-        mp_context=_pool_context(),
+        mp_context=forkserver_context("agv_mission.regress.backends"),
         initializer=_stop_on_signals,
     ) as pool:
         futures = {pool.submit(run_job, job): job for job in jobs}

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import multiprocessing
 import secrets
 import signal
 import threading
@@ -17,24 +16,11 @@ from concurrent.futures import ThreadPoolExecutor
 from multiprocessing.connection import Connection, Listener
 from typing import TYPE_CHECKING, Any
 
+from agv_mission.missions.workers import forkserver_context
 from agv_mission.service.worker import ray_entry, worker_main
 
 if TYPE_CHECKING:
     from agv_mission.service.runs import ActiveRun, RunManager
-
-WORKER_PRELOAD = [
-    "agv_mission.service.worker",
-    "agv_mission.missions.loader",
-    "agv_mission.missions.runner",
-    "agv_mission.missions.outputs",
-    "matplotlib.pyplot",
-]
-
-
-def _pool_context() -> Any:
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(WORKER_PRELOAD)
-    return ctx
 
 
 class LocalBackend:
@@ -49,7 +35,7 @@ class LocalBackend:
         self._starter = ThreadPoolExecutor(max_workers=1, thread_name_prefix="start-worker")
 
     async def start(self) -> None:
-        self._ctx = _pool_context()
+        self._ctx = forkserver_context("agv_mission.service.worker")
         from multiprocessing import forkserver
 
         await asyncio.to_thread(forkserver.ensure_running)

@@ -34,7 +34,7 @@ def test_mjcf_has_all_walls_and_robot_parts():
     import mujoco
 
     world = make_world([Box(1, 0, 0.05, 1, 0.3), Box(-1, 0, 0.05, 1)], [Cylinder(0, 2, 0.1)])
-    m = mujoco.MjModel.from_xml_string(build_mjcf(BURGER, world))
+    m = mujoco.MjModel.from_xml_string(build_mjcf(BURGER, world, SimConfig().physics_dt))
     names = {m.geom(i).name for i in range(m.ngeom)}
     assert {"wall_0", "wall_1", "pillar_0", "chassis", "wheel_left", "wheel_right"} <= names
     assert m.nu == 2

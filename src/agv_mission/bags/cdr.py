@@ -53,21 +53,10 @@ class CdrWriter:
         self.align(4)
         self.buf += struct.pack("<I", v)
 
-    def f64(self, *values: float) -> None:
-        self.align(8)
-        self.buf += struct.pack(f"<{len(values)}d", *values)
-
     def string(self, text: str) -> None:
         data = text.encode() + b"\0"
         self.u32(len(data))
         self.buf += data
-
-    def time(self, t: float) -> None:
-        self.align(4)
-        self.buf += struct.pack("<iI", *sec_nsec(t))
-
-    def bytes(self) -> bytes:
-        return bytes(self.buf)
 
 
 _ENCAPSULATION = b"\x00\x01\x00\x00"
@@ -76,7 +65,7 @@ _NO_COVARIANCE = (0.0,) * 36
 
 def sec_nsec(t: float) -> tuple[int, int]:
     """A ``builtin_interfaces/Time`` of simulated seconds."""
-    return divmod(int(round(t * 1e9)), 1_000_000_000)
+    return divmod(nanoseconds(t), 1_000_000_000)
 
 
 class FixedCdr:

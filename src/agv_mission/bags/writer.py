@@ -29,7 +29,7 @@ from agv_mission.bags import cdr
 from agv_mission.bags import ros_messages as rm
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.messages import LaserScan, json_default
+from agv_mission.messages import json_default
 
 if TYPE_CHECKING:
     from agv_mission.missions.observe import RunStart, StepSample
@@ -120,9 +120,6 @@ class BagWriter:
             rm.typestore().get_msgdef(msgtype)
         t = 0.0
         samples = {
-            rm.LASER_SCAN: rm.laser_scan(
-                LaserScan(np.zeros(1, np.float32), 0.0, 1.0, 0.1, 1.0, t), SCAN_FRAME, 0.2
-            ),
             rm.OCCUPANCY_GRID: rm.occupancy_grid(
                 t, OccupancyGrid(np.zeros((1, 1), np.int8), 0.05, Pose2D(0.0, 0.0, 0.0))
             ),

@@ -54,7 +54,7 @@ GRAVITY = 9.81
 WHEEL_FRICTION = 1.0
 WHEEL_MASS_SHARE = 0.08  # of the robot's mass, each wheel
 # Wheel rotor armature (a geared motor's rotor, reflected), in mass x wheel radius^2: it
-# keeps a lifted wheel's servo slow enough (7.6 ms) for explicit Euler at the 10 ms step.
+# keeps a lifted wheel's servo slow enough (LIFTED_WHEEL_TAU) for Euler at the 10 ms step.
 ARMATURE_SHARE = 0.35
 
 
@@ -73,34 +73,33 @@ def _yaw_quat(yaw: float) -> str:
 def wheel_torque_limit(robot: RobotDescription) -> float:
     """Per-wheel motor torque limit (N m).
 
-    Enough for about three times the robot's nominal linear acceleration, but capped well
-    below what the wheel's traction (about a quarter of the weight per wheel, friction 1)
-    can carry, so step commands neither spin the wheels nor lift the chassis.
+    The torque that would give the robot's mass about three times its nominal linear
+    acceleration (the rotors' armature takes its share: about 1.7 times in effect), capped
+    well below what the wheel's traction (about a quarter of the weight per wheel,
+    friction 1) can carry, so step commands neither spin the wheels nor lift the chassis.
     """
     accel = min(3.0 * robot.max_linear_acceleration, 0.4 * WHEEL_FRICTION * GRAVITY)
     return 0.5 * robot.mass * accel * robot.wheel_radius
 
 
 def wheel_kv(robot: RobotDescription) -> float:
-    """Velocity-actuator gain (N m s / rad): ~10 ms time constant on the robot's inertia."""
+    """Velocity-actuator gain (N m s / rad): 10 ms time constant on the robot's reflected
+    inertia alone (with the wheels and rotors, ~18 ms on the floor)."""
     reflected_inertia = 0.5 * robot.mass * robot.wheel_radius**2
     return reflected_inertia / 0.01
 
 
-def wheel_time_constant(robot: RobotDescription) -> float:
-    """Time constant (s) of a wheel servo spinning its wheel alone (a lifted wheel): the
-    wheel's own inertia plus the armature over the gain, 7.6 ms for every built-in robot
-    (on the floor the robot's reflected inertia adds 0.5 m r^2: ~18 ms)."""
-    r, m = robot.wheel_radius, robot.mass
-    inertia = 0.4 * WHEEL_MASS_SHARE * m * r * r + ARMATURE_SHARE * m * r * r
-    return inertia / wheel_kv(robot)
+#: Time constant (s) of a wheel servo spinning its wheel alone (a lifted wheel): the
+#: wheel's inertia plus the armature over :func:`wheel_kv`. Both scale with mass x wheel
+#: radius^2, so it is the same for every robot: 7.6 ms.
+LIFTED_WHEEL_TAU = (0.4 * WHEEL_MASS_SHARE + ARMATURE_SHARE) * 0.01 / 0.5
 
 
-def integrator(robot: RobotDescription, timestep: float) -> str:
+def integrator(timestep: float) -> str:
     """``Euler`` when the wheel servos are stable under it, else ``implicitfast``.
 
-    Explicit Euler is stable for the servo's damping while ``timestep < 2 tau`` (tau:
-    :func:`wheel_time_constant`, also with a wheel in the air). There it is the more
+    Explicit Euler is stable for the servo's damping while ``timestep < 2 tau``
+    (:data:`LIFTED_WHEEL_TAU`, also with a wheel in the air). There it is the more
     accurate of the two: ``implicitfast`` linearises the velocity servo as a damper while
     its force is clamped by ``forcerange`` and the contact forces were solved without that
     correction, so the wheels creep against the floor by an amount that grows with the time
@@ -109,7 +108,7 @@ def integrator(robot: RobotDescription, timestep: float) -> str:
     as RK4 at 1 ms). Above the limit (15 ms) ``implicitfast`` keeps a lifted wheel from
     oscillating.
     """
-    return "Euler" if timestep < 2.0 * wheel_time_constant(robot) else "implicitfast"
+    return "Euler" if timestep < 2.0 * LIFTED_WHEEL_TAU else "implicitfast"
 
 
 def uses_wall_slots(world: World) -> bool:
@@ -129,7 +128,7 @@ def _world_bounds(world: World) -> tuple[float, float, float, float]:
     return x0 - 1.0, x1 + 1.0, y0 - 1.0, y1 + 1.0
 
 
-def build_mjcf(robot: RobotDescription, world: World, timestep: float = 0.002) -> str:
+def build_mjcf(robot: RobotDescription, world: World, timestep: float) -> str:
     """The MJCF XML of ``world``'s walls (or, in a large world, parked wall slots) plus
     ``robot`` (spawned at the origin; place it by writing the free joint's ``qpos``)."""
     r = robot.wheel_radius
@@ -184,7 +183,7 @@ def build_mjcf(robot: RobotDescription, world: World, timestep: float = 0.002) -
 
     return f"""<mujoco model="{robot.name}_in_{world.name}">
   <compiler angle="radian" autolimits="true"/>
-  <option timestep="{_f(timestep)}" integrator="{integrator(robot, timestep)}" gravity="0 0 {_f(-GRAVITY)}">
+  <option timestep="{_f(timestep)}" integrator="{integrator(timestep)}" gravity="0 0 {_f(-GRAVITY)}">
     <flag island="disable"/>
   </option>
   <visual><global offwidth="800" offheight="600"/></visual>

@@ -159,8 +159,8 @@ class AmclConfig(PluginConfig):
     refine_filter_beams: int = Field(
         30,
         ge=2,
-        description="and scores this many beams of each scan (ROS amcl's default "
-        "laser_max_beams; this one caps it)",
+        description="while the refinement tracks, the particle filter scores at most this "
+        "many beams of each scan (ROS amcl's default laser_max_beams)",
     )
 
     # Plot support

@@ -31,6 +31,7 @@ from agv_mission.planners.base import (
     VelocityLimits,
 )
 from agv_mission.planners.cost_grid import CostGridPlanner
+from agv_mission.planners.path_tracking import Projection, Segments, closest_point
 
 
 class NavStatus(Enum):
@@ -69,8 +70,7 @@ class Navigator:
         self.reason: str | None = None
         self.goal: Pose2D | None = None
         self.path: PlannedPath | None = None
-        self._segments: tuple[np.ndarray, ...] | None = None  # the path's, for _closest
-        self._last_closest: tuple[Pose2D, tuple[int, float, np.ndarray]] | None = None
+        self._segments: Segments | None = None  # the path's, for _projection
         self.paths: list[np.ndarray] = []  # every plan, for the run plot
         self.horizon: np.ndarray | None = None  # the local planner's last predicted path
         self.stats = NavigationStats()
@@ -168,12 +168,14 @@ class Navigator:
             self._replan(state, f"no progress for {self.config.progress_timeout:g} s")
         ):
             return VelocityCommand(0.0, 0.0)
-        if self.path is None or self._off_path(state.estimate) > self.config.replan_distance:
+        here = None if self.path is None else self._projection(state.estimate)
+        if here is None or here.distance > self.config.replan_distance:
             reason = "strayed from the path" if self.path is not None else "no path"
             if not self._replan(state, reason):
                 return VelocityCommand(0.0, 0.0)
+            here = self._projection(state.estimate)
         assert self.path is not None
-        if self._path_blocked(state.estimate) and not self._replan(state, "path blocked"):
+        if self._path_blocked(here) and not self._replan(state, "path blocked"):
             return VelocityCommand(0.0, 0.0)
         near = state.obstacles
         if len(near):
@@ -212,42 +214,23 @@ class Navigator:
         w = float(np.clip(w, w0 - self.limits.max_acc_w * dt, w0 + self.limits.max_acc_w * dt))
         return VelocityCommand(v, w)
 
-    def _closest(self, pose: Pose2D) -> tuple[int, float, np.ndarray]:
-        """(segment index, distance, closest point) of the path to ``pose``; asked twice a
-        step (off the path? blocked ahead?), so the path's segments and the last answer are
-        kept."""
+    def _projection(self, pose: Pose2D) -> Projection:
+        """The path's closest point to ``pose`` (the path's segments are kept while it
+        stays the same)."""
         assert self.path is not None
         pts = self.path.points
-        if len(pts) < 2:
-            p = pts[0] if len(pts) else np.array([pose.x, pose.y])
-            return 0, float(np.hypot(p[0] - pose.x, p[1] - pose.y)), p
-        if self._segments is None or self._segments[0] is not pts:
-            a, ab = pts[:-1], pts[1:] - pts[:-1]
-            self._segments = (pts, a, ab, np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12))
-            self._last_closest = None
-        if self._last_closest is not None and self._last_closest[0] == pose:
-            return self._last_closest[1]
-        _, a, ab, denom = self._segments
-        xy = np.array([pose.x, pose.y])
-        ap = xy - a
-        t = np.minimum(np.maximum(np.einsum("ij,ij->i", ap, ab) / denom, 0.0), 1.0)
-        closest = a + ab * t[:, None]
-        off = closest - xy
-        d2 = np.einsum("ij,ij->i", off, off)
-        i = int(np.argmin(d2))
-        answer = i, math.sqrt(float(d2[i])), closest[i]
-        self._last_closest = (pose, answer)
-        return answer
+        if len(pts) == 0:
+            return Projection(0.0, np.array([pose.x, pose.y]), 0, 0.0)
+        if self._segments is None or self._segments.path is not pts:
+            self._segments = Segments.of(pts) if len(pts) > 1 else None
+        return closest_point(pts, (pose.x, pose.y), segments=self._segments)
 
-    def _off_path(self, pose: Pose2D) -> float:
-        return self._closest(pose)[1]
-
-    def _path_blocked(self, pose: Pose2D) -> bool:
-        """Whether a marked obstacle stands on the path within ``lookahead`` of the robot."""
+    def _path_blocked(self, here: Projection) -> bool:
+        """Whether a marked obstacle stands on the path within ``lookahead`` of the robot
+        (``here``: the robot's projection on the path)."""
         if not self.layer.has_marks or self.path is None or len(self.path.points) < 2:
             return False
-        i, _, here = self._closest(pose)
-        ahead = np.vstack([here, self.path.points[i + 1 :]])
+        ahead = np.vstack([here.point, self.path.points[here.segment + 1 :]])
         seg = np.diff(ahead, axis=0)
         lengths = np.linalg.norm(seg, axis=1)
         cum = np.concatenate([[0.0], np.cumsum(lengths)])

@@ -122,28 +122,6 @@ def interpolate(
     return pts, np.arctan2(seg[:, 1], seg[:, 0])
 
 
-def unwrap_from(angles: np.ndarray, start: float) -> np.ndarray:
-    """``angles`` made continuous, the first one within pi of ``start``."""
-    out = _unwrap(np.asarray(angles, dtype=float))
-    if len(out):
-        out = out + 2.0 * math.pi * round((start - out[0]) / (2.0 * math.pi))
-    return out
-
-
-def _unwrap(p: np.ndarray) -> np.ndarray:
-    """``np.unwrap(p)`` of a 1-D array (same arithmetic, without its generality's cost)."""
-    if len(p) < 2:
-        return p.copy()
-    dd = np.diff(p)
-    ddmod = np.mod(dd + math.pi, 2.0 * math.pi) - math.pi
-    ddmod[(ddmod == -math.pi) & (dd > 0)] = math.pi
-    correct = ddmod - dd
-    correct[np.abs(dd) < math.pi] = 0.0
-    out = p.copy()
-    out[1:] = p[1:] + np.cumsum(correct)
-    return out
-
-
 def curvature_speed_limit(
     path: np.ndarray,
     cumlen: np.ndarray,
@@ -197,7 +175,7 @@ class ReferenceProfile:
         self.total = float(cumlen[-1])
         self.max_v, self.min_v, self.acc, self.dec = max_v, max(min_v, 0.0), acc, dec
         seg = Segments.of(path, cumlen)
-        heading = _unwrap(np.arctan2(seg.delta[:, 1], seg.delta[:, 0]))
+        heading = np.unwrap(np.arctan2(seg.delta[:, 1], seg.delta[:, 0]))
         # Per segment, as plain floats (a lookup is a bisect and a few multiplications):
         # start, direction, 1 / length, continuous heading, arclength at its start.
         self._cum = cumlen.tolist()

@@ -60,7 +60,7 @@ def test_driven_follows_the_arc_of_a_constant_command() -> None:
     start = Pose2D(1.0, -2.0, 0.3)
     straight = start.driven(0.5, 0.0, 2.0)
     assert straight.distance_to(start) == pytest.approx(1.0)
-    assert straight.yaw == start.yaw
+    assert straight.yaw == pytest.approx(start.yaw, abs=1e-12)
     pose = start  # a full turn on a circle of radius v / w comes back to the start
     for _ in range(100):
         pose = pose.driven(0.2, 2.0 * math.pi / 10.0, 0.1)

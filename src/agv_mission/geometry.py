@@ -30,6 +30,21 @@ def quaternion_from_yaw(yaw: float) -> tuple[float, float, float, float]:
     return 0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0)
 
 
+def arc_step(x: float, y: float, yaw: float, d: float, dth: float) -> tuple[float, float, float]:
+    """(x, y, yaw) after travelling ``d`` along a circular arc that turns by ``dth``: a
+    diff-drive's motion between two reads of constant wheel speeds (plain floats: the
+    odometry calls it every control step)."""
+    if abs(dth) < 1e-6:  # midpoint heading (second-order exact as dth -> 0)
+        mid = yaw + dth / 2.0
+        return x + d * math.cos(mid), y + d * math.sin(mid), wrap_angle(yaw + dth)
+    radius = d / dth
+    return (
+        x + radius * (math.sin(yaw + dth) - math.sin(yaw)),
+        y - radius * (math.cos(yaw + dth) - math.cos(yaw)),
+        wrap_angle(yaw + dth),
+    )
+
+
 @dataclass(frozen=True, slots=True)
 class Pose2D:
     """A planar pose: position in metres, yaw in radians counter-clockwise from +x."""
@@ -55,18 +70,8 @@ class Pose2D:
         )
 
     def driven(self, v: float, w: float, dt: float) -> Pose2D:
-        """The pose after driving at constant (v, w) for ``dt``: exactly on the arc (a
-        unicycle's motion, what a controller's command does to an ideal robot)."""
-        if abs(w) < 1e-9:
-            return Pose2D(
-                self.x + v * dt * math.cos(self.yaw), self.y + v * dt * math.sin(self.yaw), self.yaw
-            )
-        yaw = self.yaw + w * dt
-        return Pose2D(
-            self.x + v / w * (math.sin(yaw) - math.sin(self.yaw)),
-            self.y - v / w * (math.cos(yaw) - math.cos(self.yaw)),
-            wrap_angle(yaw),
-        )
+        """The pose after driving at constant (v, w) for ``dt`` (exactly on the arc)."""
+        return Pose2D(*arc_step(self.x, self.y, self.yaw, v * dt, w * dt))
 
     def relative_to(self, origin: Pose2D) -> Pose2D:
         """``origin (-) self``: this pose expressed in the frame of ``origin``."""

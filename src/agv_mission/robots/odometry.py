@@ -8,9 +8,7 @@ the update rate for constant wheel speeds.
 
 from __future__ import annotations
 
-import math
-
-from agv_mission.geometry import Pose2D, wrap_angle
+from agv_mission.geometry import Pose2D, arc_step, wrap_angle
 
 
 class DiffDriveOdometry:
@@ -53,17 +51,7 @@ class DiffDriveOdometry:
         self._ticks = (int(left_ticks), int(right_ticks))
         d = (dl + dr) / 2.0
         dth = (dr - dl) / self.base_width
-        yaw = self._yaw
-        if abs(dth) < 1e-6:
-            # Midpoint heading (second-order exact as dth -> 0).
-            mid = yaw + dth / 2.0
-            self._x += d * math.cos(mid)
-            self._y += d * math.sin(mid)
-        else:
-            radius = d / dth
-            self._x += radius * (math.sin(yaw + dth) - math.sin(yaw))
-            self._y -= radius * (math.cos(yaw + dth) - math.cos(yaw))
-        self._yaw = wrap_angle(yaw + dth)
+        self._x, self._y, self._yaw = arc_step(self._x, self._y, self._yaw, d, dth)
         self.distance += abs(d)
         self.last_delta = (d, dth)
         return self.pose

@@ -99,6 +99,12 @@ def test_invalid_mission_422_names_line_and_field(client: httpx.Client) -> None:
     valid = client.post("/api/validate", json={"mission": SHORT_MISSION})
     assert valid.status_code == 200 and valid.json()["mission"]["name"] == "short"
     assert client.post("/api/validate", json={"mission": bad}).status_code == 422
+    # validate reads a body as submit does: YAML must be UTF-8, other media types are refused
+    for route in ("/api/validate", "/api/runs"):
+        latin1 = client.post(route, content=b"name: \xe9", headers={"Content-Type": "text/yaml"})
+        assert latin1.status_code == 422, route
+        plain = client.post(route, content=SHORT_MISSION, headers={"Content-Type": "text/plain"})
+        assert plain.status_code == 415, route
 
 
 def test_missions_may_read_only_builtins_and_data(server: Server, client: httpx.Client) -> None:

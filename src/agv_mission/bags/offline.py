@@ -10,7 +10,6 @@ with the one the robot used), else the odometry frame, as gmapping starts.
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +21,7 @@ from agv_mission.bags.reader import BagData, interpolate_poses, read_bag, uprigh
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.ros_map import save_ros_map
+from agv_mission.messages import finite
 from agv_mission.registry import UnknownPluginError, registry
 
 _ORIGIN = Pose2D(0.0, 0.0, 0.0)
@@ -188,7 +188,7 @@ def save_outputs(result: OfflineMap, stem: Path) -> dict[str, Path]:
     traj = stem.parent / (stem.name + "_trajectory.csv")
     np.savetxt(traj, result.trajectory, delimiter=",", header="t,x,y,yaw", comments="", fmt="%.6f")
     report = stem.parent / (stem.name + "_report.json")
-    report.write_text(json.dumps(_finite(result.report), indent=2) + "\n", encoding="utf-8")
+    report.write_text(json.dumps(finite(result.report), indent=2) + "\n", encoding="utf-8")
     return {"pgm": pgm, "yaml": yaml_path, "trajectory": traj, "report": report}
 
 
@@ -209,16 +209,6 @@ def report_lines(result: OfflineMap, paths: dict[str, Path]) -> list[str]:
         )
     lines += [f"{what}: {path}" for what, path in paths.items()]
     return lines
-
-
-def _finite(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_finite(v) for v in value]
-    return value
 
 
 #: The SLAM ``agv-mission map`` runs unless told otherwise: loop closure (real bags drive

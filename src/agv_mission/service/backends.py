@@ -108,6 +108,7 @@ class RayBackend:
         self.address = address
         self._listener: Listener | None = None
         self._ray: Any = None
+        self._task: Any = None  # ray_entry as a Ray task
         self._authkey = b""
 
     async def start(self) -> None:
@@ -125,6 +126,7 @@ class RayBackend:
                 options["num_cpus"] = self.workers
             ray.init(**options)
         self._ray = ray
+        self._task = ray.remote(num_cpus=1, max_retries=0)(ray_entry)  # exported once
         local = self.address is None or self.address.split(":")[0] in ("127.0.0.1", "localhost")
         host = "127.0.0.1" if local else "0.0.0.0"  # tasks on other nodes call back
         self._authkey = secrets.token_bytes(32)
@@ -150,8 +152,7 @@ class RayBackend:
 
     def launch(self, run: ActiveRun, job: dict[str, Any]) -> None:
         assert self._listener is not None
-        task = self._ray.remote(num_cpus=1, max_retries=0)(ray_entry)
-        run.process = task.remote(job, self._listener.address, self._authkey)
+        run.process = self._task.remote(job, self._listener.address, self._authkey)
         future = asyncio.wrap_future(run.process.future())
         future.add_done_callback(lambda f, r=run: self._done(r, f))
 

@@ -40,21 +40,25 @@ def content_type(request: Request) -> str:
     return request.headers.get("content-type", "").split(";")[0].strip().lower()
 
 
-async def submission(service: Service, request: Request) -> Submission:
-    """A run to queue: the mission as JSON ``{mission, set, seed}`` or as YAML text,
-    validated off the event loop (422 with the problems; 415 for another media type)."""
+async def mission_input(request: Request) -> tuple[str, list[str], int | None]:
+    """The mission text, ``--set`` overrides and seed of a request: JSON
+    ``{mission, set, seed}`` or YAML text (422 for a malformed body, 415 for another media
+    type). Submitting and validating read bodies the same way."""
     body = await read_body(request)
     ctype = content_type(request)
     if ctype in YAML_TYPES:
         try:
-            text = body.decode("utf-8")
+            return body.decode("utf-8"), [], None
         except UnicodeDecodeError:
             raise ApiError(422, {"errors": [_err(None, "", "the body is not UTF-8")]}) from None
-        sets, seed = [], None
-    elif ctype == "application/json":
-        text, sets, seed = parse_json_submission(body)
-    else:
-        raise ApiError(415, "send application/json ({mission, set, seed}) or application/yaml")
+    if ctype == "application/json":
+        return parse_json_submission(body)
+    raise ApiError(415, "send application/json ({mission, set, seed}) or application/yaml")
+
+
+async def submission(service: Service, request: Request) -> Submission:
+    """A run to queue, validated off the event loop (422 with the problems)."""
+    text, sets, seed = await mission_input(request)
     loaded = await asyncio.to_thread(validate, service, text, sets, seed)
     return Submission(loaded.name, text, sets, seed)
 

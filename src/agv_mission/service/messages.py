@@ -9,7 +9,6 @@ from __future__ import annotations
 import base64
 import io
 import json
-import math
 from typing import Any
 
 import numpy as np
@@ -33,22 +32,6 @@ TREE_STATUS = {
 
 def dumps(message: dict[str, Any]) -> str:
     return json.dumps(message, separators=(",", ":"), allow_nan=False, default=json_default)
-
-
-def finite(value: Any) -> Any:
-    """``value`` with NaN and infinities as None and numpy scalars as Python numbers: what
-    strict JSON (a browser's JSON.parse) accepts."""
-    if isinstance(value, dict):
-        return {str(k): finite(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [finite(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return finite(value.tolist())
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
 
 
 def pose(p: Pose2D | None) -> dict[str, float] | None:

@@ -12,7 +12,7 @@ from typing import Any
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 
-from agv_mission.service.bodies import content_type, parse_json_submission, read_body, submission
+from agv_mission.service.bodies import mission_input, read_body, submission
 from agv_mission.service.bodies import validate as validate_mission
 from agv_mission.service.context import ApiError, Service
 from agv_mission.service.registry import FINAL, STATUSES
@@ -26,12 +26,18 @@ def runs_router(service: Service) -> APIRouter:
     router = APIRouter()
     manager, registry = service.manager, service.registry
 
-    async def run_object(run: dict[str, Any]) -> dict[str, Any]:
+    def with_live(run: dict[str, Any]) -> dict[str, Any]:
+        """A registry row with what only the running worker knows yet: progress, and a
+        status it changed a moment ago (paused, resumed)."""
         live = manager.live_progress(run["id"])
         if live is not None:
             run["progress"] = live
         if run["id"] in manager.active:
             run["status"] = manager.active[run["id"]].status
+        return run
+
+    async def run_object(run: dict[str, Any]) -> dict[str, Any]:
+        with_live(run)
         if run["status"] in FINAL:
             run["result"] = await manager.results.get(run["id"])
         return run
@@ -48,11 +54,7 @@ def runs_router(service: Service) -> APIRouter:
 
     @router.post("/api/validate")
     async def validate_route(request: Request) -> dict[str, Any]:
-        body = await read_body(request)
-        if content_type(request) == "application/json":
-            text, sets, seed = parse_json_submission(body)
-        else:
-            text, sets, seed = body.decode("utf-8", errors="replace"), [], None
+        text, sets, seed = await mission_input(request)
         loaded = await asyncio.to_thread(validate_mission, service, text, sets, seed)
         return {"ok": True, "mission": loaded.resolved()}
 
@@ -62,12 +64,7 @@ def runs_router(service: Service) -> APIRouter:
             raise ApiError(422, f"unknown status {status!r}; one of {sorted(STATUSES)}")
         if not 1 <= limit <= 1000:
             raise ApiError(422, "limit must be between 1 and 1000")
-        runs = await registry.alist(status, limit)
-        for run in runs:
-            live = manager.live_progress(run["id"])
-            if live is not None:
-                run["progress"] = live
-        return {"runs": runs}
+        return {"runs": [with_live(run) for run in await registry.alist(status, limit)]}
 
     @router.get("/api/runs/{run_id}")
     async def one_run(run_id: str) -> dict[str, Any]:

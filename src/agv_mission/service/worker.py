@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from agv_mission.geometry import Pose2D
+from agv_mission.messages import finite
 from agv_mission.service import messages as msg
 from agv_mission.service.stream import StreamObserver
 
@@ -169,11 +170,7 @@ def _run(job: dict[str, Any], conn: Connection) -> None:
         stream.close()
         stream.send(("progress", stream.progress()))
         stream.flush()
-    conn.send(("end", record.status, record.reason, _jsonable(result)))
-
-
-def _jsonable(result: dict[str, Any]) -> dict[str, Any]:
-    return msg.finite(result)
+    conn.send(("end", record.status, record.reason, finite(result)))
 
 
 def ray_entry(job: dict[str, Any], address: Any, authkey: bytes) -> None:

@@ -71,6 +71,14 @@ class OmplPlanner(FreeSpacePlanner[OmplPlannerConfig]):
 
     Config = OmplPlannerConfig
 
+    def __init__(self, config: OmplPlannerConfig) -> None:
+        super().__init__(config)
+        # Built once: each keeps its coarse graphs between plans on the same costmap.
+        self._refiner = CostGridPlanner(
+            CostGridConfig(clearance=config.clearance, cost_weight=config.cost_weight)
+        )
+        self._shortest = CostGridPlanner.shortest(config.clearance)
+
     def plan(self, costmap: Costmap, start: Pose2D, goal: Pose2D, seed: int = 0) -> PlannedPath:
         t0 = time.perf_counter()
         cfg = self.config
@@ -78,7 +86,7 @@ class OmplPlanner(FreeSpacePlanner[OmplPlannerConfig]):
         if space.segment_free(*s, *g):  # the straight line is free: nothing to sample
             pts = np.array([s, g], dtype=float)
         else:
-            pts = _solve(space, s, g, cfg, seed, t0)
+            pts = _solve(space, s, g, cfg, seed, t0, self._shortest)
             if pts is None:
                 raise PlanningError(
                     f"{cfg.planner} found no path from ({start.x:.2f}, {start.y:.2f}) "
@@ -90,10 +98,7 @@ class OmplPlanner(FreeSpacePlanner[OmplPlannerConfig]):
                     )
                 )
         if cfg.refine:
-            refiner = CostGridPlanner(
-                CostGridConfig(clearance=cfg.clearance, cost_weight=cfg.cost_weight)
-            )
-            refined = refiner.refine(space, s, g, pts)
+            refined = self._refiner.refine(space, s, g, pts)
             if refined is not None:
                 pts = refined
         return space.planned_path(pts, start, goal, t0)
@@ -132,6 +137,7 @@ def _solve(
     cfg: OmplPlannerConfig,
     seed: int,
     t0: float,
+    shortest: CostGridPlanner,
 ) -> np.ndarray | None:
     """Local-frame waypoints from ``start`` to ``goal``, or None if none was found in time."""
     from ompl import base as ob
@@ -140,7 +146,7 @@ def _solve(
     anytime = cfg.planner in OPTIMIZING_PLANNERS
     threshold = -math.inf  # no threshold: nothing is short enough
     if anytime and cfg.cost_threshold is not None:
-        ref = CostGridPlanner.shortest(cfg.clearance).local_path(space, start, goal)
+        ref = shortest.local_path(space, start, goal)
         if ref is None:
             return None  # not connected: no sampling planner will do better
         threshold = cfg.cost_threshold * path_length(ref)

@@ -12,8 +12,8 @@ the oldest frequent ones; one that falls behind even on the others is dropped.
 
 Many clients share a budget: each frequent kind goes out at most :data:`KIND_BUDGET`
 times per wall second over all the run's clients (a token bucket per client and kind: 50
-clients get 6 states a second each; up to 6 clients see every state of a run at 10x
-real time); a client may ask for less (``?rate=N``: the dashboard takes 25). A message
+clients get 12 states a second each; one client sees 5 states per simulated second of a
+run at up to 120x real time, 12 clients at 10x); a client may ask for less (``?rate=N``: the dashboard takes 25). A message
 over budget is held (the newest replaces it) and sent when its client has a token again,
 so the fan-out's CPU stays bounded however many watch, and the last state always
 arrives. Each client's sender wakes at most 20 times a second (``live_api.SEND_PERIOD``),
@@ -34,7 +34,7 @@ URGENT = frozenset({"end", "pong", "recorded"})  # sent without waiting for the 
 SNAPSHOT_ORDER = ("map", "rooms", "recorded", "tree", "plan", "goal", "state")
 CLIENT_QUEUE = 500  # messages a client may lag behind before the oldest frequent ones go
 CLIENT_HARD_LIMIT = 5000  # backlog of other messages at which a client is dropped
-KIND_BUDGET = 300.0  # messages of one frequent kind per wall second, over all clients
+KIND_BUDGET = 600.0  # messages of one frequent kind per wall second, over all clients
 BURST = 0.5  # wall seconds of budget a client may spend at once
 
 Item = tuple[str, str, "float | None"]

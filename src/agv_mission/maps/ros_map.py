@@ -33,7 +33,7 @@ import numpy as np
 import yaml
 from PIL import Image, UnidentifiedImageError
 
-from agv_mission.atomic import atomic_write_bytes
+from agv_mission.atomic import atomic_write_bytes, input_path
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import OccupancyGrid
 
@@ -162,9 +162,7 @@ def _parse_meta(yaml_path: Path, meta: dict):
         raise MapLoadError(f"{yaml_path}: missing required key 'image'")
     if not isinstance(image, str) or not image.strip():
         raise MapLoadError(f"{yaml_path}: 'image' must be a file name, got {image!r}")
-    image_path = Path(image.strip())
-    if not image_path.is_absolute():
-        image_path = yaml_path.parent / image_path
+    image_path = input_path(image.strip(), yaml_path.parent)
 
     resolution = _number(yaml_path, meta, "resolution")
     if resolution <= 0:

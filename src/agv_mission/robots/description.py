@@ -8,7 +8,7 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from agv_mission.atomic import InputFileError, read_input_text
+from agv_mission.atomic import InputFileError, input_path, read_input_text
 
 MAX_BEAMS = 8192  # more than any planar lidar sold; each beam is a ray cast per scan
 
@@ -124,9 +124,7 @@ def load_robot(spec: str, base_dir: Path | None = None) -> RobotDescription:
     """
     if spec in BUILTIN_ROBOTS:
         return BUILTIN_ROBOTS[spec]
-    path = Path(spec)
-    if base_dir is not None and not path.is_absolute():
-        path = base_dir / path
+    path = input_path(spec, base_dir) if base_dir is not None else Path(spec).expanduser()
     try:
         text = read_input_text(path)
     except InputFileError as exc:

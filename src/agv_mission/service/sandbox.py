@@ -11,6 +11,8 @@ from pathlib import Path
 
 import yaml
 
+from agv_mission.atomic import input_path
+
 MAX_NESTED_FILE = 1_000_000  # bytes of a world YAML read to look for nested paths
 
 
@@ -49,8 +51,7 @@ class DataDirGuard:
         for key in ("image", "rooms"):
             nested = doc.get(key)
             if isinstance(nested, str):
-                target = Path(nested).expanduser()
-                target = target if target.is_absolute() else path.parent / target
+                target = input_path(nested, path.parent)
                 if not self.inside(target):
                     return f"{key} {nested!r} of {path.name}: " + refusal.split(": ", 1)[1]
         return None

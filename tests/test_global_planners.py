@@ -20,6 +20,7 @@ from agv_mission.planners.cost_grid import CostGridPlanner
 from agv_mission.planners.free_space import FreeSpace
 from agv_mission.planners.grid_astar import GridAstarConfig, GridAstarPlanner
 from agv_mission.planners.ompl_planner import OmplPlanner, OmplPlannerConfig
+from agv_mission.planners.path_smoothing import segments_cells
 from agv_mission.registry import registry
 
 ROS_MAPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "ros_maps"
@@ -303,7 +304,8 @@ def test_rotated_map_origin() -> None:
 
 
 def test_segment_traversal_covers_dense_samples() -> None:
-    """Every cell a densely sampled segment touches is among the cells checked."""
+    """Every cell a densely sampled segment touches is among the cells checked, by the
+    single-segment walk and by the batched one the smoother uses."""
     space = FreeSpace(room_with_door(), 0.0)
     rng = np.random.default_rng(0)
     for _ in range(300):
@@ -320,6 +322,8 @@ def test_segment_traversal_covers_dense_samples() -> None:
             pts[:, 0] / RES
         ).astype(int)
         assert set(dense.tolist()) <= cells
+        batch, mask, inside = segments_cells(space, a[None], b[None])  # the batched walk too
+        assert inside[0] and set(dense.tolist()) <= set(batch[0][mask[0]].tolist())
     assert space.segment_cells(-0.1, 1.0, 1.0, 1.0) is None
 
 

@@ -20,13 +20,19 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import fastapi_offline
 from fastapi import FastAPI, Request
-from fastapi.responses import JSONResponse
+from fastapi.exceptions import RequestValidationError
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.openapi.utils import get_openapi
+from fastapi.responses import HTMLResponse, JSONResponse
 
 from agv_mission.service.access import AccessGuard
+from agv_mission.service.bodies import problem
 from agv_mission.service.context import ApiError, Service, Settings
 from agv_mission.service.files_api import files_router
-from agv_mission.service.live_api import live_router
+from agv_mission.service.live_api import LIVE_DOC, live_router
+from agv_mission.service.models import Health, body_schemas
 from agv_mission.service.registry import Registry
 from agv_mission.service.runs import RunManager
 from agv_mission.service.runs_api import runs_router
@@ -43,7 +49,12 @@ except metadata.PackageNotFoundError:  # a source tree without an install
 def create_app(settings: Settings) -> FastAPI:
     registry = Registry(settings.data_dir)
     manager = RunManager(
-        registry, settings.workers, settings.queue_size, settings.backend, settings.address
+        registry,
+        settings.workers,
+        settings.queue_size,
+        settings.backend,
+        settings.address,
+        observers=settings.observers,
     )
     service = Service(settings, registry, manager, DataDirGuard(settings.data_dir))
 
@@ -57,10 +68,12 @@ def create_app(settings: Settings) -> FastAPI:
     app = FastAPI(
         title="agv-mission",
         version=__version__,
+        summary="Missions for differential-drive indoor robots, run in simulation.",
+        description=DESCRIPTION + LIVE_DOC,
         lifespan=lifespan,
         docs_url=None,
         redoc_url=None,
-        openapi_url="/api/openapi.json",
+        openapi_url="/openapi.json",
     )
     app.state.manager = manager
     app.state.registry = registry
@@ -68,11 +81,58 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.exception_handler(ApiError)
     async def _api_error(request: Request, exc: ApiError) -> JSONResponse:
-        body = exc.detail if isinstance(exc.detail, dict) else {"detail": exc.detail}
+        if isinstance(exc.detail, dict):
+            body = dict(exc.detail)
+            if body.get("errors") and "detail" not in body:
+                body["detail"] = body["errors"][0]["message"]
+        elif exc.status == 422:  # every 422 lists problems, as a mission's do
+            body = {"errors": [problem(None, "", str(exc.detail))], "detail": str(exc.detail)}
+        else:
+            body = {"detail": exc.detail}
         return JSONResponse(body, status_code=exc.status)
 
-    @app.get("/api/health")
+    @app.exception_handler(RequestValidationError)
+    async def _bad_request(request: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = [
+            problem(None, ".".join(str(p) for p in e["loc"][1:]), e["msg"]) for e in exc.errors()
+        ]
+        return JSONResponse({"errors": errors, "detail": errors[0]["message"]}, status_code=422)
+
+    def openapi() -> dict[str, Any]:
+        """FastAPI's document plus the bodies the routes read themselves."""
+        if app.openapi_schema is None:
+            doc = get_openapi(
+                title=app.title,
+                version=app.version,
+                summary=app.summary,
+                description=app.description,
+                routes=app.routes,
+            )
+            doc.setdefault("components", {}).setdefault("schemas", {}).update(body_schemas())
+            app.openapi_schema = doc
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
+
+    @app.get("/api/openapi.json", include_in_schema=False)
+    async def openapi_alias() -> JSONResponse:
+        """The OpenAPI document where earlier versions served it."""
+        return JSONResponse(app.openapi())
+
+    @app.get("/docs", include_in_schema=False)
+    async def docs() -> HTMLResponse:
+        """Swagger UI from the package's own assets: the docs work with no network."""
+        return get_swagger_ui_html(
+            openapi_url="/openapi.json",
+            title="agv-mission API",
+            swagger_js_url="/docs-assets/swagger-ui-bundle.js",
+            swagger_css_url="/docs-assets/swagger-ui.css",
+            swagger_favicon_url="/docs-assets/favicon.png",
+        )
+
+    @app.get("/api/health", response_model=Health, tags=["service"])
     async def health() -> dict[str, Any]:
+        """Liveness and load."""
         return {
             "status": "ok",
             "version": __version__,
@@ -94,4 +154,18 @@ def create_app(settings: Settings) -> FastAPI:
         from fastapi.staticfiles import StaticFiles
 
         app.mount("/static", StaticFiles(directory=static), name="static")
+    from fastapi.staticfiles import StaticFiles
+
+    app.mount("/docs-assets", StaticFiles(directory=DOCS_ASSETS), name="docs-assets")
     return app
+
+
+DOCS_ASSETS = Path(fastapi_offline.__file__).parent / "static"  # Swagger UI 5, ReDoc (MIT)
+
+DESCRIPTION = """Runs missions (the YAML mission format of `agv-mission run`) in simulation, for many
+clients. Submit a mission with `POST /api/runs`, follow it with `GET /api/runs/{id}` or
+the live stream, fetch its files with `GET /api/runs/{id}/files/{name}`.
+
+With a token (`serve --token`), every `/api` request carries
+`Authorization: Bearer TOKEN`.
+"""

@@ -7,6 +7,8 @@ import asyncio
 import contextlib
 import json
 import re
+from collections.abc import AsyncIterator
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 from fastapi import Request
@@ -21,18 +23,22 @@ YAML_TYPES = ("application/yaml", "application/x-yaml", "text/yaml")
 
 async def read_body(request: Request) -> bytes:
     """The request body, refusing (413) anything larger than :data:`MAX_BODY`."""
+    return b"".join([chunk async for chunk in bounded_stream(request, MAX_BODY)])
+
+
+async def bounded_stream(request: Request, limit: int) -> AsyncIterator[bytes]:
+    """The request body as it arrives, refusing (413) more than ``limit`` bytes."""
     declared = request.headers.get("content-length")
     if declared is not None:
         with contextlib.suppress(ValueError):
-            if int(declared) > MAX_BODY:
-                raise ApiError(413, f"the body is larger than {MAX_BODY} bytes")
-    chunks, size = [], 0
+            if int(declared) > limit:
+                raise ApiError(413, f"the body is larger than {limit} bytes")
+    size = 0
     async for chunk in request.stream():
         size += len(chunk)
-        if size > MAX_BODY:
-            raise ApiError(413, f"the body is larger than {MAX_BODY} bytes")
-        chunks.append(chunk)
-    return b"".join(chunks)
+        if size > limit:
+            raise ApiError(413, f"the body is larger than {limit} bytes")
+        yield chunk
 
 
 def content_type(request: Request) -> str:
@@ -50,62 +56,102 @@ async def mission_input(request: Request) -> tuple[str, list[str], int | None]:
         try:
             return body.decode("utf-8"), [], None
         except UnicodeDecodeError:
-            raise ApiError(422, {"errors": [_err(None, "", "the body is not UTF-8")]}) from None
+            raise ApiError(422, {"errors": [problem(None, "", "the body is not UTF-8")]}) from None
     if ctype == "application/json":
         return parse_json_submission(body)
     raise ApiError(415, "send application/json ({mission, set, seed}) or application/yaml")
 
 
-async def submission(service: Service, request: Request) -> Submission:
-    """A run to queue, validated off the event loop (422 with the problems)."""
+async def submission(service: Service, request: Request) -> tuple[Submission, str | None]:
+    """A run to queue, validated off the event loop (422 with the problems), and the id
+    its files were stored under when it came with files (multipart)."""
+    if content_type(request) == "multipart/form-data":
+        from agv_mission.service.uploads import upload
+
+        return await upload(service, request)
     text, sets, seed = await mission_input(request)
     loaded = await asyncio.to_thread(validate, service, text, sets, seed)
-    return Submission(loaded.name, text, sets, seed)
+    return Submission(loaded.name, text, sets, seed), None
 
 
-def validate(service: Service, text: str, sets: list[str], seed: int | None) -> Any:
-    """The loaded mission, read as the command line reads it but confined to the data
-    directory; its problems as a 422."""
+def validate(
+    service: Service,
+    text: str,
+    sets: list[str],
+    seed: int | None,
+    source: Path | None = None,
+    guard: Any = None,
+) -> Any:
+    """The loaded mission, read as the command line reads it (from ``source``, default a
+    mission file in the data directory) but confined to the data directory; its problems
+    as a 422. A mission's ``output.dir`` other than ``runs`` is refused: a service run's
+    directory is ``DATA/runs/<id>`` (``output.bag`` is honoured)."""
     from agv_mission.missions.loader import load_mission
 
     try:
-        return load_mission(
-            service.settings.data_dir / "mission.yaml",
+        loaded = load_mission(
+            source or service.settings.data_dir / "mission.yaml",
             sets,
             seed,
             text=text,
-            path_guard=service.guard,
+            path_guard=guard or service.guard,
         )
     except MissionError as exc:
         raise ApiError(
-            422, {"errors": [_err(p.line, p.field, p.message) for p in exc.problems]}
+            422, {"errors": [problem(p.line, p.field, p.message) for p in exc.problems]}
         ) from None
+    output = loaded.mission.output
+    if PurePosixPath(output.dir) != PurePosixPath("runs"):
+        raise ApiError(
+            422,
+            {
+                "errors": [
+                    problem(
+                        _line_of(text, ("output",)),
+                        "output",
+                        f"the service cannot write runs to {output.dir!r}: a service run's "
+                        "directory is DATA/runs/<run id> (GET /api/runs/{id}/files); "
+                        "remove output (or make it runs); output.bag is honoured",
+                    )
+                ]
+            },
+        )
+    return loaded
+
+
+def _line_of(text: str, path: tuple[str, ...]) -> int | None:
+    """The line of a key in the mission text (None when an override set it)."""
+    from agv_mission.missions.yaml_lines import load_with_lines
+
+    with contextlib.suppress(Exception):
+        return load_with_lines(text)[1].get(path)
+    return None
 
 
 def parse_json_submission(body: bytes) -> tuple[str, list[str], int | None]:
     try:
         doc = json.loads(body)
     except ValueError as exc:
-        raise ApiError(422, {"errors": [_err(None, "", f"invalid JSON body: {exc}")]}) from None
+        raise ApiError(422, {"errors": [problem(None, "", f"invalid JSON body: {exc}")]}) from None
     if not isinstance(doc, dict) or not isinstance(doc.get("mission"), str):
         raise ApiError(
-            422, {"errors": [_err(None, "mission", "the body needs 'mission': the YAML text")]}
+            422, {"errors": [problem(None, "mission", "the body needs 'mission': the YAML text")]}
         )
     unknown = set(doc) - {"mission", "set", "seed"}
     if unknown:
         raise ApiError(
-            422, {"errors": [_err(None, sorted(unknown)[0], "unknown key (mission, set, seed)")]}
+            422, {"errors": [problem(None, sorted(unknown)[0], "unknown key (mission, set, seed)")]}
         )
     sets = doc.get("set") or []
     if not isinstance(sets, list) or not all(isinstance(s, str) for s in sets):
-        raise ApiError(422, {"errors": [_err(None, "set", "a list of KEY=VALUE strings")]})
+        raise ApiError(422, {"errors": [problem(None, "set", "a list of KEY=VALUE strings")]})
     seed = doc.get("seed")
     if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool) or seed < 0):
-        raise ApiError(422, {"errors": [_err(None, "seed", "a non-negative integer")]})
+        raise ApiError(422, {"errors": [problem(None, "seed", "a non-negative integer")]})
     return doc["mission"], sets, seed
 
 
-def _err(line: int | None, field: str, message: str) -> dict[str, Any]:
+def problem(line: int | None, field: str, message: str) -> dict[str, Any]:
     """One problem as the contract spells it: list indices in brackets
     (``tasks[0].waypoints[1].yaw``, where the command line prints ``tasks.0.waypoints.1.yaw``)."""
     return {"line": line, "field": _INDEX.sub(r"[\1]", field), "message": message}

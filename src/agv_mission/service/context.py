@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,10 @@ class Settings:
     backend: str = "local"
     address: str | None = None
     token: str | None = None
+    # the run observers a front end adds to every run (``serve`` adds the bag writer, as
+    # ``run`` does): a module-level function of the loaded mission, so a worker process or
+    # Ray task receives it by reference
+    observers: Callable[[Any], list[Any]] | None = None
 
     def __post_init__(self) -> None:
         self.token = self.token or None  # an empty token is no token

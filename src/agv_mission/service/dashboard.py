@@ -12,6 +12,8 @@ from pathlib import Path
 from fastapi import APIRouter
 from fastapi.responses import FileResponse
 
+from agv_mission.service.models import Templates
+
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 
 router = APIRouter()
@@ -63,7 +65,7 @@ def demo_templates() -> list[dict[str, str]]:
     return [{"name": name, "yaml": found[name]} for name in sorted(found, key=order)]
 
 
-@router.get("/api/templates")
+@router.get("/api/templates", response_model=Templates, tags=["dashboard"])
 def templates() -> dict[str, list[dict[str, str]]]:
     """The demo missions, for the submit page's template menu."""
     return {"templates": demo_templates()}

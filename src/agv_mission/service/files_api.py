@@ -10,6 +10,7 @@ from fastapi import APIRouter
 from fastapi.responses import FileResponse
 
 from agv_mission.service.context import ApiError, Service
+from agv_mission.service.models import FileList, answers
 
 MEDIA_TYPES = {
     ".json": "application/json",
@@ -25,16 +26,28 @@ MEDIA_TYPES = {
 
 def files_router(service: Service) -> APIRouter:
     """``/api/runs/{run_id}/files`` for one service."""
-    router = APIRouter()
+    router = APIRouter(tags=["files"])
     registry = service.registry
 
-    @router.get("/api/runs/{run_id}/files")
+    @router.get("/api/runs/{run_id}/files", response_model=FileList, responses=answers(404))
     async def files(run_id: str) -> dict[str, Any]:
+        """The run directory's files."""
         await service.get_run(run_id)
         return {"files": await asyncio.to_thread(_file_names, registry.run_dir(run_id))}
 
-    @router.get("/api/runs/{run_id}/files/{name}")
+    one = answers(404)
+    one[200] = {
+        "description": "the file, as its name's media type (application/octet-stream else)",
+        "content": {
+            media: {"schema": {"type": "string", "format": "binary"}}
+            for media in sorted({*MEDIA_TYPES.values(), "application/octet-stream"})
+        },
+    }
+
+    @router.get("/api/runs/{run_id}/files/{name}", response_class=FileResponse, responses=one)
     async def one_file(run_id: str, name: str) -> FileResponse:
+        """One file of the run directory (``result.json``, ``trajectory.csv``,
+        ``run.png``, ``mission.yaml``, saved maps, logs)."""
         await service.get_run(run_id)
         run_dir = registry.run_dir(run_id)
         path = run_dir / name

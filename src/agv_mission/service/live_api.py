@@ -46,6 +46,7 @@ def live_router(service: Service) -> APIRouter:
             while True:
                 text = await websocket.receive_text()
                 if len(text) > MAX_WS_MESSAGE:
+                    _tell(client, "error", message=f"a message is at most {MAX_WS_MESSAGE} bytes")
                     continue
                 _client_message(manager, run_id, client, text)
         except (WebSocketDisconnect, RuntimeError):
@@ -99,19 +100,61 @@ def _rate(given: str | None) -> float:
 
 
 def _client_message(manager: RunManager, run_id: str, client: Client, text: str) -> None:
+    """Act on one client message; a frame that is no valid command answers an ``error``
+    message, a ``cmd_vel`` beyond the robot's limits a ``clamped`` one."""
     try:
         message = json.loads(text)
-    except ValueError:
+    except ValueError as exc:
+        _tell(client, "error", message=f"not JSON: {exc}")
         return
     if not isinstance(message, dict):
+        _tell(client, "error", message='a message is a JSON object with a "type"')
         return
     kind = message.get("type")
     if kind == "ping":
         client.put("pong", '{"type":"pong"}')
     elif kind == "cmd_vel":
-        try:
-            v, w = float(message.get("v", 0.0)), float(message.get("w", 0.0))
-        except (TypeError, ValueError):
+        v, w = message.get("v", 0.0), message.get("w", 0.0)
+        if not all(_finite_number(x) for x in (v, w)):
+            _tell(client, "error", message="cmd_vel needs finite numbers v (m/s) and w (rad/s)")
             return
-        if math.isfinite(v) and math.isfinite(w):
-            manager.cmd_vel(run_id, v, w)
+        sent = manager.cmd_vel(run_id, float(v), float(w))
+        if sent is None:
+            _tell(client, "error", message="the run is not active: nothing to drive")
+        elif sent != (float(v), float(w)):
+            v_max, w_max = manager.limits(run_id) or (math.inf, math.inf)
+            _tell(
+                client,
+                "clamped",
+                v=sent[0],
+                w=sent[1],
+                requested={"v": v, "w": w},
+                limits={"v": v_max, "w": w_max},
+                message=f"cmd_vel clamped to the robot's limits: |v| <= {v_max} m/s, "
+                f"|w| <= {w_max} rad/s",
+            )
+    else:
+        _tell(client, "error", message=f"unknown message type {kind!r}: send ping or cmd_vel")
+
+
+def _finite_number(x: object) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _tell(client: Client, kind: str, **fields: object) -> None:
+    """A message to this client alone."""
+    client.put(kind, json.dumps({"type": kind, **fields}), urgent=True)
+
+
+LIVE_DOC = """
+## The live stream
+
+`WS /api/runs/{id}/live` (with `?token=TOKEN` when a token is set; `?rate=N` thins the
+frequent kinds to N a second) sends JSON text messages, each with a `type`: `state`
+(`t`, `pose`, `estimate`, `v`, `w`, `status`, `task`), `scan` (`t`, `points`), `plan`
+(`t`, `path`), `tree` (`nodes`), `event` (an event of `result.json`) and, once, `end`
+(`status`, `reason`). A client sends `{"type": "cmd_vel", "v": 0.1, "w": 0.0}` to drive a
+run whose current task is `teleop`, or `{"type": "ping"}` (answered `pong`). A command beyond
+the robot's limits is clamped and answered `clamped` (`v`, `w` sent, `requested`, `limits`);
+a frame that is no valid command is answered `error` (`message`).
+"""

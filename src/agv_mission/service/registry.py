@@ -49,6 +49,9 @@ MIGRATIONS: tuple[str, ...] = (
     """
     ALTER TABLE runs ADD COLUMN worker_pid INTEGER;
     """,
+    """
+    ALTER TABLE runs ADD COLUMN mission_path TEXT;
+    """,
 )
 
 
@@ -64,6 +67,9 @@ class Submission:
     mission: str
     sets: list[str]
     seed: int | None
+    # where the mission sits in its run directory when it came with its files
+    # (``inputs/...``); None: it names built-in and data-directory files only
+    mission_path: str | None = None
 
 
 class Registry:
@@ -155,9 +161,17 @@ class Registry:
     def run_dir(self, run_id: str) -> Path:
         return self.data_dir / RUNS_DIR / run_id
 
-    def add(self, submission: Submission) -> tuple[dict[str, Any], Future[None]]:
-        """A new queued run: at once in memory; the future says when it is on disk."""
-        run_id = uuid.uuid4().hex[:12]
+    @staticmethod
+    def new_id() -> str:
+        return uuid.uuid4().hex[:12]
+
+    def add(
+        self, submission: Submission, run_id: str | None = None
+    ) -> tuple[dict[str, Any], Future[None]]:
+        """A new queued run (``run_id``: one :meth:`new_id` gave, whose directory already
+        holds the submission's files): at once in memory; the future says when it is on
+        disk."""
+        run_id = run_id or self.new_id()
         created = utc_now()
         run = {
             "id": run_id,
@@ -176,8 +190,8 @@ class Registry:
         done = self._later(
             self._insert,
             run_id,
-            "INSERT INTO runs (id, name, status, created, mission, sets, seed) "
-            "VALUES (?, ?, 'queued', ?, ?, ?, ?)",
+            "INSERT INTO runs (id, name, status, created, mission, sets, seed, mission_path) "
+            "VALUES (?, ?, 'queued', ?, ?, ?, ?, ?)",
             (
                 run_id,
                 submission.name,
@@ -185,6 +199,7 @@ class Registry:
                 submission.mission,
                 json.dumps(submission.sets),
                 submission.seed,
+                submission.mission_path,
             ),
         )
         return self._cached(run_id) or run, done
@@ -213,9 +228,16 @@ class Registry:
 
         def read() -> Submission:
             row = self._db.execute(
-                "SELECT name, mission, sets, seed FROM runs WHERE id = ?", (run_id,)
+                "SELECT name, mission, sets, seed, mission_path FROM runs WHERE id = ?",
+                (run_id,),
             ).fetchone()
-            return Submission(row["name"], row["mission"], json.loads(row["sets"]), row["seed"])
+            return Submission(
+                row["name"],
+                row["mission"],
+                json.loads(row["sets"]),
+                row["seed"],
+                row["mission_path"],
+            )
 
         return self._call(read)
 

@@ -48,6 +48,7 @@ class ActiveRun:
     ended: bool = False
     saved_at: float = 0.0
     pending: list[tuple[Any, ...]] = field(default_factory=list)  # commands before connect
+    limits: tuple[float, float] | None = None  # the robot's (m/s, rad/s), once loaded
 
 
 class RunManager:
@@ -61,8 +62,10 @@ class RunManager:
         backend: str = "local",
         address: str | None = None,
         live_nice: int = LIVE_NICE,
+        observers: Any = None,
     ) -> None:
         self.registry = registry
+        self.observers = observers
         self.live_nice = live_nice
         self.workers = workers
         self.queue_size = queue_size
@@ -119,10 +122,10 @@ class RunManager:
         if len(self.queue) >= self.queue_size:
             raise QueueFull(f"the queue holds {self.queue_size} runs; try again later")
 
-    async def submit(self, submission: Submission) -> dict[str, Any]:
+    async def submit(self, submission: Submission, run_id: str | None = None) -> dict[str, Any]:
         """Queue a run; answer once its row is on disk (a 201 is never lost by a crash)."""
         self.check_room()
-        run, stored = self.registry.add(submission)
+        run, stored = self.registry.add(submission, run_id)
         self.queue.append(run["id"])
         self.live.open(run["id"])
         self._schedule()
@@ -148,6 +151,8 @@ class RunManager:
             "mission": sub.mission,
             "sets": sub.sets,
             "seed": sub.seed,
+            "mission_path": sub.mission_path,
+            "observers": self.observers,
         }
         run = ActiveRun(run_id)
         self.active[run_id] = run
@@ -210,6 +215,8 @@ class RunManager:
             future = run.replies.pop(item[1], None)
             if future is not None and not future.done():
                 future.set_result((item[2], item[3]))
+        elif kind == "limits":
+            run.limits = (float(item[1]), float(item[2]))
         elif kind == "end":
             self.finish(run, item[1], item[2], item[3])
 
@@ -285,27 +292,41 @@ class RunManager:
         run.status = "running"
         self._send(run, ("resume",))
 
-    def cmd_vel(self, run_id: str, v: float, w: float) -> bool:
+    def cmd_vel(self, run_id: str, v: float, w: float) -> tuple[float, float] | None:
+        """Send a remote command, clamped to the robot's limits; the command sent (None
+        when the run is not active)."""
         run = self.active.get(run_id)
         if run is None:
-            return False
+            return None
+        if run.limits is not None:
+            v_max, w_max = run.limits
+            v, w = min(max(v, -v_max), v_max), min(max(w, -w_max), w_max)
         self._send(run, ("cmd_vel", v, w))
-        return True
+        return v, w
 
-    def goal(self, run_id: str, x: float, y: float, yaw: float) -> None:
+    def limits(self, run_id: str) -> tuple[float, float] | None:
+        run = self.active.get(run_id)
+        return run.limits if run is not None else None
+
+    async def goal(self, run_id: str, x: float, y: float, yaw: float) -> tuple[int, dict[str, Any]]:
+        """Send a teleop run a goal; the worker answers 202, or 422 when no path reaches it."""
         run = self.active.get(run_id)
         if run is None or run.status != "running" or run.progress.get("task_type") != "teleop":
             raise NotActive("the run's current task is not teleop")
-        self._send(run, ("goal", x, y, yaw))
+        return await self._ask(run, "goal", x, y, yaw)
 
     async def record_room(self, run_id: str, label: str) -> tuple[int, dict[str, Any]]:
         run = self.active.get(run_id)
         if run is None or run.status != "running":
             raise NotActive("the run is not running")
+        return await self._ask(run, "record", label)
+
+    async def _ask(self, run: ActiveRun, kind: str, *args: Any) -> tuple[int, dict[str, Any]]:
+        """A command the worker answers: (HTTP status, body)."""
         request_id = uuid.uuid4().hex
         future: asyncio.Future = asyncio.get_running_loop().create_future()
         run.replies[request_id] = future
-        self._send(run, ("record", request_id, label))
+        self._send(run, (kind, request_id, *args))
         try:
             return await asyncio.wait_for(future, 10.0)
         finally:

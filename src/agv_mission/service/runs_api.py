@@ -6,16 +6,30 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import shutil
 from collections.abc import Callable
-from typing import Any
+from typing import Annotated, Any
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
 
 from agv_mission.service.bodies import mission_input, read_body, submission
 from agv_mission.service.bodies import validate as validate_mission
 from agv_mission.service.context import ApiError, Service
-from agv_mission.service.registry import FINAL, STATUSES
+from agv_mission.service.models import (
+    Command,
+    Goal,
+    GoalSent,
+    RoomRecord,
+    Run,
+    RunList,
+    Status,
+    Submit,
+    Validated,
+    answers,
+    request_body,
+)
+from agv_mission.service.registry import FINAL
 from agv_mission.service.runs import NotActive, QueueFull
 
 MAX_LABEL = 100
@@ -23,7 +37,7 @@ MAX_LABEL = 100
 
 def runs_router(service: Service) -> APIRouter:
     """``/api/runs`` and ``/api/validate`` for one service."""
-    router = APIRouter()
+    router = APIRouter(tags=["runs"])
     manager, registry = service.manager, service.registry
 
     def with_live(run: dict[str, Any]) -> dict[str, Any]:
@@ -42,32 +56,52 @@ def runs_router(service: Service) -> APIRouter:
             run["result"] = await manager.results.get(run["id"])
         return run
 
-    @router.post("/api/runs", status_code=201)
+    @router.post(
+        "/api/runs",
+        status_code=201,
+        response_model=Run,
+        responses=answers(413, 415, 422, 429),
+        openapi_extra=request_body(Submit, yaml=True, multipart=True),
+    )
     async def submit(request: Request) -> JSONResponse:
+        """Submit a mission: JSON ``{mission, set, seed}``, the YAML text alone
+        (``application/yaml``), or multipart with the files the mission names."""
         try:
             manager.check_room()
-            sub = await submission(service, request)
-            run = await manager.submit(sub)
         except QueueFull as exc:
+            raise ApiError(429, str(exc)) from None
+        sub, run_id = await submission(service, request)
+        try:
+            run = await manager.submit(sub, run_id)
+        except QueueFull as exc:
+            if run_id is not None:  # its files were stored already
+                await asyncio.to_thread(shutil.rmtree, registry.run_dir(run_id), True)
             raise ApiError(429, str(exc)) from None
         return JSONResponse(run, status_code=201)
 
-    @router.post("/api/validate")
+    @router.post(
+        "/api/validate",
+        response_model=Validated,
+        responses=answers(413, 415, 422),
+        openapi_extra=request_body(Submit, yaml=True),
+    )
     async def validate_route(request: Request) -> dict[str, Any]:
+        """Validate a mission without running it; the resolved mission."""
         text, sets, seed = await mission_input(request)
         loaded = await asyncio.to_thread(validate_mission, service, text, sets, seed)
         return {"ok": True, "mission": loaded.resolved()}
 
-    @router.get("/api/runs")
-    async def list_runs(status: str | None = None, limit: int = 100) -> dict[str, Any]:
-        if status is not None and status not in STATUSES:
-            raise ApiError(422, f"unknown status {status!r}; one of {sorted(STATUSES)}")
-        if not 1 <= limit <= 1000:
-            raise ApiError(422, "limit must be between 1 and 1000")
+    @router.get("/api/runs", response_model=RunList, responses=answers(422))
+    async def list_runs(
+        status: Status | None = None,
+        limit: Annotated[int, Query(ge=1, le=1000, description="at most this many")] = 100,
+    ) -> dict[str, Any]:
+        """Runs, newest first; ``?status=`` keeps the runs of one status."""
         return {"runs": [with_live(run) for run in await registry.alist(status, limit)]}
 
-    @router.get("/api/runs/{run_id}")
+    @router.get("/api/runs/{run_id}", response_model=Run, responses=answers(404))
     async def one_run(run_id: str) -> dict[str, Any]:
+        """One run; once final, with its ``result``."""
         return await run_object(await service.get_run(run_id))
 
     def control(run_id: str, act: Callable[[str], None], status: str) -> dict[str, Any]:
@@ -78,25 +112,38 @@ def runs_router(service: Service) -> APIRouter:
             raise ApiError(409, str(exc)) from None
         return {"id": run_id, "status": status}
 
-    @router.post("/api/runs/{run_id}/cancel", status_code=202)
+    steer = {"status_code": 202, "response_model": Command, "responses": answers(404, 409)}
+
+    @router.post("/api/runs/{run_id}/cancel", **steer)
     async def cancel(run_id: str) -> dict[str, Any]:
+        """Stop the run; its final status is ``aborted``."""
         run = await service.get_run(run_id)
         if run["status"] in FINAL:
             raise ApiError(409, f"the run is already {run['status']}")
         return control(run_id, manager.cancel, "cancelling")
 
-    @router.post("/api/runs/{run_id}/pause", status_code=202)
+    @router.post("/api/runs/{run_id}/pause", **steer)
     async def pause(run_id: str) -> dict[str, Any]:
+        """The robot stops and simulated time holds."""
         await service.get_run(run_id)
         return control(run_id, manager.pause, "paused")
 
-    @router.post("/api/runs/{run_id}/resume", status_code=202)
+    @router.post("/api/runs/{run_id}/resume", **steer)
     async def resume(run_id: str) -> dict[str, Any]:
+        """Carry on from where it paused."""
         await service.get_run(run_id)
         return control(run_id, manager.resume, "running")
 
-    @router.post("/api/runs/{run_id}/goal", status_code=202)
+    @router.post(
+        "/api/runs/{run_id}/goal",
+        status_code=202,
+        response_model=GoalSent,
+        responses=answers(404, 409, 413, 422, 503),
+        openapi_extra=request_body(Goal),
+    )
     async def goal(run_id: str, request: Request) -> dict[str, Any]:
+        """Drive to a pose, then remote command resumes (a teleop task only). A goal no
+        path reaches (outside the map, in an obstacle, cut off) answers 422."""
         await service.get_run(run_id)
         body = await read_body(request)
         try:
@@ -108,13 +155,23 @@ def runs_router(service: Service) -> APIRouter:
         if not all(math.isfinite(v) for v in (x, y, yaw)):
             raise ApiError(422, "x, y and yaw must be finite numbers")
         try:
-            manager.goal(run_id, x, y, yaw)
+            code, answer = await manager.goal(run_id, x, y, yaw)
         except NotActive as exc:
             raise ApiError(409, str(exc)) from None
+        except asyncio.TimeoutError:
+            raise ApiError(503, "the run did not answer in time") from None
+        if code != 202:
+            raise ApiError(code, answer.get("detail", "refused"))
         return {"id": run_id, "goal": {"x": x, "y": y, "yaw": yaw}}
 
-    @router.post("/api/runs/{run_id}/rooms/{label}")
+    @router.post(
+        "/api/runs/{run_id}/rooms/{label}",
+        response_model=RoomRecord,
+        responses=answers(404, 409, 422, 500, 503),
+    )
     async def record_room(run_id: str, label: str) -> JSONResponse:
+        """Record the robot's current estimated pose under ``label`` in the run's recorder
+        file (the seed's ``rosservice call room_service "kitchen"``)."""
         await service.get_run(run_id)
         label = label.strip()
         if not label or len(label) > MAX_LABEL or not label.isprintable():

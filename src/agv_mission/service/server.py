@@ -7,6 +7,7 @@ import signal
 import socket
 import sys
 from pathlib import Path
+from typing import Any
 
 LOOPBACK_NAMES = {"localhost", "ip6-localhost"}
 
@@ -58,8 +59,10 @@ def serve(
     backend: str,
     address: str | None,
     token: str | None,
+    observers: Any = None,
 ) -> None:
-    """Run the service in this process until it is told to stop."""
+    """Run the service in this process until it is told to stop. ``observers``: see
+    :attr:`~agv_mission.service.context.Settings.observers`."""
     import uvicorn
 
     from agv_mission.service.app import Settings, create_app
@@ -72,7 +75,7 @@ def serve(
     except OSError as exc:
         raise ServeError(f"cannot create --data {data_dir}: {exc.strerror or exc}") from None
     sock = bind(host, port)
-    app = create_app(Settings(data_dir, workers, queue_size, backend, address, token))
+    app = create_app(Settings(data_dir, workers, queue_size, backend, address, token, observers))
     config = uvicorn.Config(
         app,
         log_level="warning",

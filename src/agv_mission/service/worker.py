@@ -17,6 +17,8 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from agv_mission.geometry import Pose2D
 from agv_mission.messages import finite
 from agv_mission.service import messages as msg
@@ -78,7 +80,7 @@ class PipeControl:
         elif kind == "cmd_vel":
             self.cmd, self.cmd_wall = (float(command[1]), float(command[2])), time.monotonic()
         elif kind == "goal":
-            run.handle.remote_goal = Pose2D(float(command[1]), float(command[2]), float(command[3]))
+            self._goal(str(command[1]), Pose2D(*(float(c) for c in command[2:5])))
         elif kind == "record":
             self._record(str(command[1]), str(command[2]))
 
@@ -97,28 +99,60 @@ class PipeControl:
         body = {"confirmation": "Entry saved in file", "label": label, "pose": msg.pose(pose)}
         self.stream.send(("reply", request_id, 200, body))
 
+    def _goal(self, request_id: str, goal: Pose2D) -> None:
+        """Drive to ``goal`` if a path reaches it (202); say why not otherwise (422)."""
+        handle = self.run.handle
+        why = unreachable(handle.navigator, handle.state.estimate, goal)
+        if why is not None:
+            self.stream.send(("reply", request_id, 422, {"detail": why}))
+            return
+        handle.remote_goal = goal
+        self.stream.send(("reply", request_id, 202, {}))
+
     def _teleop(self, run: Any) -> None:
         """During a teleop task: the latest remote command (stale after 0.5 s wall) and
-        simulated time paced at wall speed (except while it drives to a goal it was sent:
-        nobody steers then, and the drive should not take longer than it must)."""
+        simulated time paced at wall speed, also while it drives to a goal it was sent
+        (the dashboard shows the drive as it happens)."""
         handle = run.handle
         if self.stream.task is None or self.stream.task.get("type") != "teleop":
             self.pace_origin = None
             return
         now = time.monotonic()
         handle.remote_command = self.cmd if now - self.cmd_wall <= REMOTE_TIMEOUT else None
-        if handle.remote_goal is not None:  # an autonomous goal drive runs at full speed
-            self.pace_origin = None
-            return
         if self.pace_origin is None:
             self.pace_origin = (now, run.sim.time)
             return
         wall0, sim0 = self.pace_origin
         wait = (run.sim.time - sim0) - (now - wall0)
-        if wait > 0.5:  # far ahead (a goal drive was fast): re-anchor
+        if wait > 0.5:  # far ahead (after a pause): re-anchor
             self.pace_origin = (now, run.sim.time)
         elif wait > 0:
             self._drain(wait)  # sleep, but answer commands at once
+
+
+def unreachable(navigator: Any, start: Pose2D, goal: Pose2D) -> str | None:
+    """Why no path reaches ``goal`` from ``start`` on the navigator's costmap (outside the
+    map, in or too near an obstacle, cut off), with the global planner's margin; None when
+    free space joins them (or the robot itself stands where nothing is free: the
+    navigator's own escape and failure reports answer that)."""
+    from agv_mission.maps.rooms import reachable_cells
+
+    costmap = navigator.costmap
+    margin = getattr(navigator.global_planner, "clearance", 0.0)
+    where = f"goal ({goal.x:.2f}, {goal.y:.2f})"
+    xy = np.array([goal.x, goal.y])
+    rows, cols = costmap.grid.world_to_cell(xy)
+    if not costmap.grid.in_bounds(rows, cols):
+        return f"{where} is outside the map"
+    if not bool(costmap.is_free(xy, margin)):
+        return f"{where} is in an obstacle or closer to one than the robot can go"
+    cells = reachable_cells(costmap, start, margin)
+    if cells.any() and not bool(cells[int(rows), int(cols)]):
+        return (
+            f"{where} is unreachable: no free corridor leads there from "
+            f"({start.x:.2f}, {start.y:.2f})"
+        )
+    return None
 
 
 def worker_main(job: dict[str, Any], conn: Connection) -> None:
@@ -145,9 +179,12 @@ def _run(job: dict[str, Any], conn: Connection) -> None:
 
     data_dir, run_dir = Path(job["data_dir"]), Path(job["run_dir"])
     run_dir.mkdir(parents=True, exist_ok=True)
+    # a mission sent with its files reads them from its run directory (inputs/)
+    mission_path = job.get("mission_path")
+    source = run_dir / mission_path if mission_path else data_dir / "mission.yaml"
     try:
         loaded = load_mission(
-            data_dir / "mission.yaml",
+            source,
             job["sets"],
             job["seed"],
             text=job["mission"],
@@ -160,8 +197,10 @@ def _run(job: dict[str, Any], conn: Connection) -> None:
     stream = StreamObserver(conn, run_dir)
     control = PipeControl(conn, stream)
     stream.send(("status", "running"))
+    stream.send(("limits", loaded.robot.max_linear_velocity, loaded.robot.max_angular_velocity))
+    observers = [stream, *(job["observers"](loaded) if job.get("observers") else [])]
     try:
-        record = run_mission(loaded, run_dir, observers=[stream], control=control)
+        record = run_mission(loaded, run_dir, observers=observers, control=control)
         stream.status = record.status
         result = write_run(run_dir, loaded, record)
         end = {"type": "end", "status": record.status, "reason": record.reason}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Any, Optional
 
 import typer
 
@@ -12,13 +12,23 @@ from agv_mission.cli.console import (
     EXIT_CODES,
     Overrides,
     Seed,
-    err,
     failure,
     invalid,
     out,
     print_summary,
+    progress_bar,
 )
 from agv_mission.missions.errors import MissionError
+
+EXIT_UNAVAILABLE = 69  # sysexits' EX_UNAVAILABLE: the service could not be reached or refused
+
+
+def run_observers(loaded: Any) -> list[Any]:
+    """What ``run`` adds to a run, for each run of ``serve``: the bag (unless the mission
+    says ``output.bag: false``). Module level, so a worker process receives it by name."""
+    from agv_mission.bags.writer import BagWriter
+
+    return [BagWriter().prepare()] if loaded.mission.output.bag else []
 
 
 def serve(
@@ -54,6 +64,7 @@ def serve(
             backend,
             address,
             token,
+            observers=run_observers,
         )
     except ServeError as exc:
         raise failure("cannot serve", str(exc)) from None
@@ -70,7 +81,11 @@ def submit(
         typer.Option(envvar="AGV_MISSION_TOKEN", help="the service's bearer token"),
     ] = None,
 ) -> None:
-    """Submit a mission to a running service; print the run id (and follow it live)."""
+    """Submit a mission to a running service, with the files it names (map, rooms,
+    robot, recorder); print the run id, and with --follow what ``run`` prints.
+
+    Exit codes: as ``run`` (0 succeeded, 1 failed, 2 invalid input, 3 error, 130
+    aborted) once followed; 69 when the service cannot be reached or refuses."""
     from agv_mission.service import client
 
     try:
@@ -78,37 +93,28 @@ def submit(
     except MissionError as exc:
         raise invalid(exc) from None
     except client.ClientError as exc:
-        raise failure("error", str(exc)) from None
+        raise failure("service unavailable", str(exc), EXIT_UNAVAILABLE) from None
     out.print(run["id"], highlight=False)
     if not follow:
         raise typer.Exit(0)
-    shown = {"t": -1e9}
+    with progress_bar("{task.completed:.1f} sim s") as bar:
+        job = bar.add_task(f"running {run['name']}", total=None)
 
-    def show(message: dict) -> None:
-        kind = message.get("type")
-        if kind == "event":
-            details = {k: v for k, v in message.items() if k not in ("type", "t", "event")}
-            err.print(
-                f"  t={message.get('t', 0):.1f} {message.get('event')} {details}",
-                highlight=False,
-                markup=False,
-            )
-        elif kind == "state" and message["t"] - shown["t"] >= 5.0:
-            shown["t"] = message["t"]
-            p = message.get("progress") or {}
-            err.print(
-                f"  t={message['t']:.1f} {message.get('status')} {p.get('detail', '')}",
-                highlight=False,
-                markup=False,
-            )
+        def show(message: dict[str, Any]) -> None:
+            if message.get("type") == "state":
+                bar.update(job, completed=float(message.get("t", 0.0)))
 
-    try:
-        final = client.follow(server, run["id"], token, show)
-    except client.ClientError as exc:
-        raise failure("error", str(exc), 1) from None
+        try:
+            final = client.follow(server, run["id"], token, show)
+        except client.ClientError as exc:
+            raise failure("service unavailable", str(exc), EXIT_UNAVAILABLE) from None
     result = final.get("result")
     if result:
+        out.print(
+            f"[bold]{result['name']}[/]: {len(result.get('tasks', []))} task(s) in "
+            f"{result.get('world')} with {result.get('robot')}, seed {result.get('seed')}"
+        )
         print_summary(result)
     else:
-        out.print(f"{final['status']}: {final.get('reason')}", highlight=False)
+        failure(final["status"], str(final.get("reason")))
     raise typer.Exit(EXIT_CODES.get(final["status"], 1))

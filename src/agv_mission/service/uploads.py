@@ -71,6 +71,8 @@ async def read_form(request: Request) -> FormData:
         )
         return await parser.parse()
     except MultiPartException as exc:
+        if "maximum size" in exc.message:  # a text field larger than a mission may be
+            raise ApiError(413, f"multipart body: {exc.message}") from None
         raise invalid("", f"malformed multipart body: {exc.message}") from None
 
 

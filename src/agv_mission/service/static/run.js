@@ -109,6 +109,7 @@
   }
 
   // ------------------------------------------------------------------ messages
+  let lastClampToast = 0;
   function apply(msg, live) {
     const s = view.scene;
     switch (msg.type) {
@@ -130,6 +131,12 @@
       }
       case "event": events.push(msg); eventsDirty = true; break;
       case "end": if (live) onFinal(msg.status, msg.reason, msg.result); break;
+      case "error": toast(`live stream: ${msg.message}`, "bad"); break;
+      case "clamped": {  // the pad may ask for more than the robot can: say so now and then
+        const now = Date.now();
+        if (now - lastClampToast > 5000) { lastClampToast = now; toast(msg.message, "bad"); }
+        break;
+      }
       default: break;
     }
     view.dirty = true;

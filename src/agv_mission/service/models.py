@@ -22,7 +22,7 @@ class Open(BaseModel):
     model_config = ConfigDict(extra="allow")
 
 
-class Health(Open):
+class Health(BaseModel):
     """Liveness and load."""
 
     status: Literal["ok"] = Field(description="always ok while the service answers")

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -71,7 +73,9 @@ def test_openapi_document_is_valid_3_1_and_types_every_body_and_answer(
                 body = op["requestBody"]["content"]
                 assert body["application/json"]["schema"]["$ref"].endswith(("/Submit", "/Goal"))
     submit_body = doc["paths"]["/api/runs"]["post"]["requestBody"]["content"]
-    assert set(submit_body) == {"application/json", "application/yaml", "multipart/form-data"}
+    assert set(submit_body) == {"application/json", "application/yaml"}
+    upload = doc["paths"]["/api/runs/upload"]["post"]["requestBody"]["content"]
+    assert upload["multipart/form-data"]["schema"]["$ref"].endswith("/SubmitWithFiles")
     assert set(schemas["Run"]["properties"]) >= {
         "id", "name", "status", "reason", "created", "started", "ended", "progress", "result"
     }  # fmt: skip
@@ -393,3 +397,61 @@ def test_submit_to_an_unreachable_server_exits_69(tmp_path: Path) -> None:
     )
     assert invalid.returncode == 2  # invalid input is found before anything is sent
     assert f"{bad}:6" in invalid.stderr
+
+
+# --------------------------------------------------------------------------- a generated client
+
+
+@pytest.mark.slow
+def test_a_generated_client_submits_and_follows_runs(
+    server: Server, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``openapi-python-client`` (a dev dependency) generates a client from /openapi.json;
+    it submits a mission as JSON and one with its files as multipart, and follows both."""
+    bin_dir = Path(sys.executable).parent
+    (tmp_path / "openapi.json").write_text(httpx.get(server.url + "/openapi.json").text)
+    subprocess.run(
+        [bin_dir / "openapi-python-client", "generate", "--path", "openapi.json",
+         "--meta", "none", "--output-path", "agv_generated"],
+        cwd=tmp_path, check=True, capture_output=True, timeout=300,
+        env={**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}"},
+    )  # fmt: skip
+    monkeypatch.syspath_prepend(str(tmp_path))
+    from agv_generated import Client
+    from agv_generated.api.runs import one_run, submit, submit_with_files
+    from agv_generated.models import Problems, Run, Submit, SubmitWithFiles
+    from agv_generated.types import File
+
+    api = Client(base_url=server.url, raise_on_unexpected_status=True)
+
+    def follow(run_id: str) -> Run:
+        deadline = time.monotonic() + 180
+        while True:
+            run = one_run.sync(run_id, client=api)
+            assert isinstance(run, Run)
+            if run.status.value in FINAL:
+                return run
+            assert time.monotonic() < deadline, run.status
+            time.sleep(0.1)
+
+    queued = submit.sync(client=api, body=Submit(mission=SHORT_MISSION, seed=5))
+    assert isinstance(queued, Run) and queued.status.value == "queued"
+    done = follow(queued.id)
+    assert done.status.value == "succeeded" and done.result["seed"] == 5
+
+    user = tmp_path / "user"
+    own_map_mission(user)
+    names = ["maps/lab.yaml", "maps/lab.pgm", "rooms/lab_rooms.yaml", "robots/lab_bot.yaml"]
+    body = SubmitWithFiles(
+        mission=(user / "missions" / "lab.yaml").read_text(),
+        mission_path="missions/lab.yaml",
+        files=[File(payload=(user / n).open("rb"), file_name=n) for n in names],
+    )
+    with_files = submit_with_files.sync(client=api, body=body)
+    assert isinstance(with_files, Run), with_files
+    done = follow(with_files.id)
+    assert done.status.value == "succeeded" and done.result["robot"] == "lab_bot"
+
+    refused = submit.sync(client=api, body=Submit(mission="tasks: 3\n"))
+    assert isinstance(refused, Problems) and refused.errors[0].field
+    sys.modules.pop("agv_generated", None)

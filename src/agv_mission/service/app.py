@@ -74,6 +74,7 @@ def create_app(settings: Settings) -> FastAPI:
         docs_url=None,
         redoc_url=None,
         openapi_url="/openapi.json",
+        generate_unique_id_function=lambda route: route.name,  # operationId: submit, one_run
     )
     app.state.manager = manager
     app.state.registry = registry

@@ -7,9 +7,10 @@ Answers that carry more than the contract fixes (a run's ``result`` is the whole
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
+from pydantic.json_schema import SkipJsonSchema
 
 Status = Literal[
     "queued", "running", "paused", "succeeded", "failed", "aborted", "error", "interrupted"
@@ -102,6 +103,11 @@ class Submit(BaseModel):
     seed: int | None = Field(None, ge=0, description="overrides the mission's seed")
 
 
+def _no_default(schema: dict[str, Any]) -> None:
+    """A multipart field left out has no value at all (not null)."""
+    schema.pop("default", None)
+
+
 class SubmitWithFiles(BaseModel):
     """A mission with the files it names (multipart/form-data): the world's map YAML and
     image, rooms file, robot file, recorder file. Each file part's filename is its path
@@ -109,13 +115,16 @@ class SubmitWithFiles(BaseModel):
     in the run's own directory (``inputs/``)."""
 
     mission: str = Field(description="the mission's YAML text (a text field or a file part)")
-    mission_path: str | None = Field(
+    mission_path: str | SkipJsonSchema[None] = Field(
         None,
         description="where the mission file sits among the files (default: the mission "
         "part's filename, else mission.yaml)",
+        json_schema_extra=_no_default,
     )
     set: list[str] = Field(default_factory=list, description="KEY=VALUE overrides")
-    seed: int | None = Field(None, ge=0, description="overrides the mission's seed")
+    seed: Annotated[int, Field(ge=0)] | SkipJsonSchema[None] = Field(
+        None, description="overrides the mission's seed", json_schema_extra=_no_default
+    )
     files: list[bytes] = Field(
         default_factory=list,
         description="the files the mission names, filename = path relative to the mission",
@@ -206,21 +215,23 @@ REFUSALS = {
 
 
 def request_body(
-    json_model: type[BaseModel], *, yaml: bool = False, multipart: bool = False
+    model: type[BaseModel], *, yaml: bool = False, multipart: bool = False
 ) -> dict[str, Any]:
     """``openapi_extra`` for a route that reads its body itself (bounded, several media
-    types): the body's schemas by reference (:func:`body_models` puts them in components)."""
-    content: dict[str, Any] = {
-        "application/json": {"schema": {"$ref": f"#/components/schemas/{json_model.__name__}"}}
-    }
+    types): the body's schema by reference (:func:`body_schemas` puts it in components),
+    as JSON or as multipart, and the YAML text alone when ``yaml``."""
+    schema = {"$ref": f"#/components/schemas/{model.__name__}"}
+    content: dict[str, Any] = {}
+    if multipart:
+        content["multipart/form-data"] = {
+            "schema": schema,
+            "encoding": {"files": {"contentType": "application/octet-stream"}},
+        }
+    else:
+        content["application/json"] = {"schema": schema}
     if yaml:
         content["application/yaml"] = {
             "schema": {"type": "string", "description": "the mission's YAML text alone"}
-        }
-    if multipart:
-        content["multipart/form-data"] = {
-            "schema": {"$ref": "#/components/schemas/SubmitWithFiles"},
-            "encoding": {"files": {"contentType": "application/octet-stream"}},
         }
     return {"requestBody": {"required": True, "content": content}}
 

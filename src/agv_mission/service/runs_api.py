@@ -13,7 +13,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
 
-from agv_mission.service.bodies import mission_input, read_body, submission
+from agv_mission.service.bodies import content_type, mission_input, read_body, submission
 from agv_mission.service.bodies import validate as validate_mission
 from agv_mission.service.context import ApiError, Service
 from agv_mission.service.models import (
@@ -25,6 +25,7 @@ from agv_mission.service.models import (
     RunList,
     Status,
     Submit,
+    SubmitWithFiles,
     Validated,
     answers,
     request_body,
@@ -56,16 +57,7 @@ def runs_router(service: Service) -> APIRouter:
             run["result"] = await manager.results.get(run["id"])
         return run
 
-    @router.post(
-        "/api/runs",
-        status_code=201,
-        response_model=Run,
-        responses=answers(413, 415, 422, 429),
-        openapi_extra=request_body(Submit, yaml=True, multipart=True),
-    )
-    async def submit(request: Request) -> JSONResponse:
-        """Submit a mission: JSON ``{mission, set, seed}``, the YAML text alone
-        (``application/yaml``), or multipart with the files the mission names."""
+    async def accept(request: Request) -> JSONResponse:
         try:
             manager.check_room()
         except QueueFull as exc:
@@ -78,6 +70,34 @@ def runs_router(service: Service) -> APIRouter:
                 await asyncio.to_thread(shutil.rmtree, registry.run_dir(run_id), True)
             raise ApiError(429, str(exc)) from None
         return JSONResponse(run, status_code=201)
+
+    @router.post(
+        "/api/runs",
+        status_code=201,
+        response_model=Run,
+        responses=answers(413, 415, 422, 429),
+        openapi_extra=request_body(Submit, yaml=True),
+    )
+    async def submit(request: Request) -> JSONResponse:
+        """Submit a mission: JSON ``{mission, set, seed}`` or the YAML text alone
+        (``application/yaml``). A multipart body with the files the mission names is taken
+        here too, as at ``POST /api/runs/upload``."""
+        return await accept(request)
+
+    @router.post(
+        "/api/runs/upload",
+        status_code=201,
+        response_model=Run,
+        responses=answers(413, 415, 422, 429),
+        openapi_extra=request_body(SubmitWithFiles, multipart=True),
+    )
+    async def submit_with_files(request: Request) -> JSONResponse:
+        """Submit a mission with the files it names (multipart): the world's map YAML and
+        image, rooms, robot and recorder files. They land in the run's own directory
+        (``inputs/``), each at its path relative to the mission."""
+        if content_type(request) != "multipart/form-data":
+            raise ApiError(415, "send multipart/form-data: mission, mission_path, set, seed, files")
+        return await accept(request)
 
     @router.post(
         "/api/validate",

@@ -455,3 +455,34 @@ def test_a_generated_client_submits_and_follows_runs(
     refused = submit.sync(client=api, body=Submit(mission="tasks: 3\n"))
     assert isinstance(refused, Problems) and refused.errors[0].field
     sys.modules.pop("agv_generated", None)
+
+
+def test_goal_into_a_sealed_room_of_an_own_map_answers_422(
+    server: Server, client: httpx.Client, tmp_path: Path
+) -> None:
+    user = tmp_path / "user"
+    own_map_mission(user)
+    teleop = (
+        "name: lab-teleop\nworld: lab.yaml\nstart: {x: 1.0, y: 1.2, yaw: 0.0}\n"
+        "stack: {localization: {type: ground_truth}, global_planner: {type: grid_astar}}\n"
+        "tasks:\n  - {type: teleop, duration: 300}\n"
+    )
+    parts = [("files", (n, (user / "maps" / n).read_bytes())) for n in ("lab.yaml", "lab.pgm")]
+    response = client.post("/api/runs/upload", data={"mission": teleop}, files=parts)
+    assert response.status_code == 201, response.text
+    rid = response.json()["id"]
+    try:
+        run = wait_status(client, rid, {"running"})
+        deadline = time.monotonic() + 60
+        while run["progress"]["task_type"] != "teleop":
+            assert time.monotonic() < deadline, run["progress"]
+            time.sleep(0.05)
+            run = client.get(f"/api/runs/{rid}").json()
+        closet = client.post(f"/api/runs/{rid}/goal", json={"x": 4.25, "y": 3.25})
+        assert closet.status_code == 422, closet.text
+        assert "no free corridor" in closet.json()["detail"]
+        open_floor = client.post(f"/api/runs/{rid}/goal", json={"x": 2.0, "y": 1.2})
+        assert open_floor.status_code == 202, open_floor.text
+    finally:
+        client.post(f"/api/runs/{rid}/cancel")
+    assert wait_status(client, rid, FINAL)["status"] == "aborted"

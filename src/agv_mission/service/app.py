@@ -109,7 +109,13 @@ def create_app(settings: Settings) -> FastAPI:
                 description=app.description,
                 routes=app.routes,
             )
-            doc.setdefault("components", {}).setdefault("schemas", {}).update(body_schemas())
+            components = doc.setdefault("components", {})
+            components.setdefault("schemas", {}).update(body_schemas())
+            # `serve --token`: every /api request carries it (Swagger UI's "Authorize")
+            components["securitySchemes"] = {
+                "bearer": {"type": "http", "scheme": "bearer", "description": "serve --token"}
+            }
+            doc["security"] = [{"bearer": []}, {}]  # {}: a service started without a token
             app.openapi_schema = doc
         return app.openapi_schema
 

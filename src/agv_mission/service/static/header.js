@@ -9,6 +9,7 @@
     <nav>
       <a href="/" class="${here === "runs" ? "active" : ""}">Runs</a>
       <a href="/submit" class="${here === "submit" ? "active" : ""}">Submit</a>
+      <a href="/docs">API</a>
     </nav>
     <span class="spacer"></span>
     <span class="health" id="health"></span>`;

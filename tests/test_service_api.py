@@ -356,6 +356,9 @@ async def _teleop_session(server: Server, client: httpx.Client, rid: str) -> dic
             refused = await http.post(f"/api/runs/{rid}/goal", json={"x": x, "y": y})
             assert refused.status_code == 422, refused.text
             assert why in refused.json()["detail"]
+        for body, field in (({"x": 1.0}, "y"), ({"x": 1, "y": 0, "z": 0}, "z")):
+            malformed = await http.post(f"/api/runs/{rid}/goal", json=body)
+            assert malformed.status_code == 422 and malformed.json()["errors"][0]["field"] == field
         await asyncio.sleep(1.0)  # the clamped command goes stale: the robot stops
         sim0, wall0 = states[-1]["t"], time.monotonic()
         goal = await http.post(f"/api/runs/{rid}/goal", json={"x": -1.4, "y": -0.5})

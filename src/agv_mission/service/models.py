@@ -149,7 +149,7 @@ class Command(BaseModel):
 class Goal(BaseModel):
     """A navigation goal for a run whose current task is teleop ("2D Nav Goal")."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     x: float = Field(description="m, map frame")
     y: float = Field(description="m, map frame")

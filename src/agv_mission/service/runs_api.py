@@ -4,16 +4,21 @@ pause, resume, goal, room records)."""
 from __future__ import annotations
 
 import asyncio
-import json
-import math
 import shutil
 from collections.abc import Callable
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse
+from pydantic import ValidationError
 
-from agv_mission.service.bodies import content_type, mission_input, read_body, submission
+from agv_mission.service.bodies import (
+    content_type,
+    mission_input,
+    problem,
+    read_body,
+    submission,
+)
 from agv_mission.service.bodies import validate as validate_mission
 from agv_mission.service.context import ApiError, Service
 from agv_mission.service.models import (
@@ -165,15 +170,18 @@ def runs_router(service: Service) -> APIRouter:
         """Drive to a pose, then remote command resumes (a teleop task only). A goal no
         path reaches (outside the map, in an obstacle, cut off) answers 422."""
         await service.get_run(run_id)
-        body = await read_body(request)
         try:
-            doc = json.loads(body)
-            x, y = float(doc["x"]), float(doc["y"])
-            yaw = float(doc.get("yaw", 0.0))
-        except (ValueError, TypeError, KeyError, AttributeError):
-            raise ApiError(422, 'the body is {"x": m, "y": m, "yaw": rad}') from None
-        if not all(math.isfinite(v) for v in (x, y, yaw)):
-            raise ApiError(422, "x, y and yaw must be finite numbers")
+            target = Goal.model_validate_json(await read_body(request))
+        except ValidationError as exc:
+            raise ApiError(
+                422,
+                {
+                    "errors": [
+                        problem(None, ".".join(map(str, e["loc"])), e["msg"]) for e in exc.errors()
+                    ]
+                },
+            ) from None
+        x, y, yaw = target.x, target.y, target.yaw
         try:
             code, answer = await manager.goal(run_id, x, y, yaw)
         except NotActive as exc:

@@ -129,6 +129,11 @@ def own_map_mission(folder: Path) -> Path:
     robot = BUILTIN_ROBOTS["burger"].model_dump(mode="json")
     robot["name"] = "lab_bot"
     (folder / "robots" / "lab_bot.yaml").write_text(yaml.safe_dump(robot))
+    (folder / "records").mkdir()
+    (folder / "records" / "location_recorder.yaml").write_text(
+        "bench:\n  position: {x: 1.0, y: 1.2, z: 0.0}\n"
+        "  orientation: {x: 0.0, y: 0.0, z: 0.0, w: 1.0}\n"
+    )
     (folder / "missions").mkdir()
     mission = folder / "missions" / "lab.yaml"
     mission.write_text(
@@ -136,9 +141,10 @@ def own_map_mission(folder: Path) -> Path:
         "world: ../maps/lab.yaml\n"
         "rooms: ../rooms/lab_rooms.yaml\n"
         "robot: ../robots/lab_bot.yaml\n"
+        "recorder: ../records/location_recorder.yaml\n"
         "start: {x: 1.0, y: 1.2, yaw: 0.0}\n"
         "stack: {localization: {type: ground_truth}, global_planner: {type: grid_astar}}\n"
-        "tasks:\n  - {type: visit_rooms, rooms: [door]}\n"
+        "tasks:\n  - {type: visit_rooms, rooms: [door], record: true}\n"
         "limits: {time: 40}\n"
     )
     return mission
@@ -173,7 +179,11 @@ def test_submit_sends_the_files_the_mission_names(server: Server, tmp_path: Path
         "maps/lab.pgm",
         "rooms/lab_rooms.yaml",
         "robots/lab_bot.yaml",
+        "records/location_recorder.yaml",
     } <= inputs
+    # the run recorded into the copy that travelled, keeping the user's own entry
+    recorded = yaml.safe_load((run_dir / "inputs/records/location_recorder.yaml").read_text())
+    assert list(recorded) == ["bench", "door"]
     result = json.loads((run_dir / "result.json").read_text())
     assert result["robot"] == "lab_bot" and result["status"] == "succeeded"
     assert {"/scan", "/odom", "/tf", "/events", "/map", "/rooms"} <= bag_topics(run_dir / "bag")
@@ -184,7 +194,13 @@ def test_raw_http_multipart_takes_a_mission_with_its_files(
 ) -> None:
     user = tmp_path / "user"
     mission = own_map_mission(user)
-    names = ["maps/lab.yaml", "maps/lab.pgm", "rooms/lab_rooms.yaml", "robots/lab_bot.yaml"]
+    names = [
+        "maps/lab.yaml",
+        "maps/lab.pgm",
+        "rooms/lab_rooms.yaml",
+        "robots/lab_bot.yaml",
+        "records/location_recorder.yaml",
+    ]
     # curl as a user would type it: the mission as a file part, each file named by its path
     curl = subprocess.run(
         [
@@ -213,15 +229,11 @@ def test_raw_http_multipart_takes_a_mission_with_its_files(
 
 def test_uploaded_files_are_confined(server: Server, client: httpx.Client, tmp_path: Path) -> None:
     user = tmp_path / "user"
-    mission = own_map_mission(user)
-    text = mission.read_text()
+    own_map_mission(user)
     good = {n: (user / n).read_bytes() for n in ("maps/lab.yaml", "maps/lab.pgm")}
-    flat = (  # the map alone travels: built-in robot, no rooms
-        text.replace("rooms: ../rooms/lab_rooms.yaml\n", "")
-        .replace("robot: ../robots/lab_bot.yaml", "robot: burger")
-        .replace(
-            "{type: visit_rooms, rooms: [door]}", "{type: go_to, pose: {x: 3.5, y: 1.2, yaw: 0}}"
-        )
+    flat = (  # the map alone travels: built-in robot, no rooms, no recorder
+        "name: lab\nworld: ../maps/lab.yaml\nstart: {x: 1.0, y: 1.2, yaw: 0.0}\n"
+        "tasks:\n  - {type: go_to, pose: {x: 3.5, y: 1.2, yaw: 0}}\n"
     )
     before = set((server.data / "runs").iterdir())
 
@@ -444,7 +456,13 @@ def test_a_generated_client_submits_and_follows_runs(
 
     user = tmp_path / "user"
     own_map_mission(user)
-    names = ["maps/lab.yaml", "maps/lab.pgm", "rooms/lab_rooms.yaml", "robots/lab_bot.yaml"]
+    names = [
+        "maps/lab.yaml",
+        "maps/lab.pgm",
+        "rooms/lab_rooms.yaml",
+        "robots/lab_bot.yaml",
+        "records/location_recorder.yaml",
+    ]
     body = SubmitWithFiles(
         mission=(user / "missions" / "lab.yaml").read_text(),
         mission_path="missions/lab.yaml",

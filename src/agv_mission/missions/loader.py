@@ -7,7 +7,7 @@ reported as :class:`MissionError` naming file, line and field.
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from importlib.resources import as_file, files
 from pathlib import Path
@@ -25,7 +25,7 @@ from agv_mission.maps.rooms_file import RoomsFileError, load_rooms
 from agv_mission.maps.world_loader import WorldError, builtin_names, load_world
 from agv_mission.maps.worlds import World
 from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.overrides import apply, parse_override
+from agv_mission.missions.overrides import Override, apply_overrides
 from agv_mission.missions.problems import (
     ProblemLog,
     kind_of,
@@ -82,7 +82,9 @@ class LoadedMission:
 DEMO_MISSION = "visit_rooms.yaml"  # what ``agv-mission run`` runs without a file
 
 
-def load_demo_mission(overrides: list[str] | None = None, seed: int | None = None) -> LoadedMission:
+def load_demo_mission(
+    overrides: Sequence[str | Override] | None = None, seed: int | None = None
+) -> LoadedMission:
     """The demo mission shipped in the package, loaded like a file."""
     with as_file(files("agv_mission") / "data" / "missions" / DEMO_MISSION) as demo:
         return load_mission(demo, overrides, seed)
@@ -90,7 +92,7 @@ def load_demo_mission(overrides: list[str] | None = None, seed: int | None = Non
 
 def load_mission(
     path: str | Path,
-    overrides: list[str] | None = None,
+    overrides: Sequence[str | Override] | None = None,
     seed: int | None = None,
     text: str | None = None,
     *,
@@ -101,7 +103,8 @@ def load_mission(
 
     With ``tasks_required=False`` a file without ``tasks`` is a :class:`Setup` (world,
     robot, start, stack) and resolves the same way; one with tasks is still checked whole.
-    ``path_guard`` is asked before any file the mission names is read (the service lets
+    ``overrides`` apply in order (a plain string is a ``--set`` item; an
+    :class:`Override` names its option, e.g. ``--sweep``). ``path_guard`` is asked before any file the mission names is read (the service lets
     missions read only files under its data directory).
     """
     path = Path(path)
@@ -128,15 +131,12 @@ def load_mission(
             ]
         )
     data = copy.deepcopy(data)
-    override_paths: dict[FieldPath, str] = {}
-    for item in overrides or []:
-        field_path, value = parse_override(file, item)
-        apply(data, field_path, value, file, item)
-        override_paths[field_path] = f"--set {item}"
+    applied = apply_overrides(data, overrides or [])
+    override_paths: dict[FieldPath, str] = dict(applied.paths)
     if seed is not None:
         data["seed"] = seed
         override_paths[("seed",)] = f"--seed {seed}"
-    log = ProblemLog(file, lines, override_paths)
+    log = ProblemLog(file, lines, override_paths, type_swaps=applied.type_swaps)
     bad_keys = non_string_keys(data)
     if bad_keys:
         raise MissionError(

@@ -57,6 +57,7 @@ from agv_mission.maps.rooms import Room
 from agv_mission.maps.rooms_file import RoomsFileError, RoomsModel, load_rooms, rooms_from_model
 from agv_mission.maps.ros_map import MapLoadError, is_ros_map_yaml, load_ros_map
 from agv_mission.maps.worlds import Box, Cylinder, World
+from agv_mission.suggest import unknown_key
 
 SPAWN_CLEARANCE = 0.3  # metres of free space the spawn of a ROS map must have around it
 DEFAULT_RESOLUTION = 0.05
@@ -279,7 +280,7 @@ def world_from_file(path: Path, doc: dict[str, Any] | None = None) -> World:
     except ValidationError as exc:
         lines = [
             f"  {'.'.join(str(p) for p in err['loc']) or '(top level)'}: "
-            + ("field required" if err["type"] == "missing" else err["msg"])
+            + _world_file_message(err)
             for err in exc.errors()
         ]
         raise WorldError(f"{path}: invalid world file:\n" + "\n".join(lines)) from exc
@@ -305,6 +306,14 @@ def world_from_file(path: Path, doc: dict[str, Any] | None = None) -> World:
         rooms=_rooms_of(path, model.rooms),
         wall_height=model.wall_height,
     )
+
+
+def _world_file_message(err: Any) -> str:
+    if err["type"] == "missing":
+        return "field required"
+    if err["type"] == "extra_forbidden":
+        return unknown_key(WorldFileModel, tuple(err["loc"]))
+    return str(err["msg"]).removeprefix("Value error, ")
 
 
 def _rooms_of(path: Path, rooms: str | dict[str, Any] | None) -> dict[str, Room]:

@@ -215,7 +215,9 @@ def _resolve(
             "(built-in: burger, waffle, rosbots)",
         )
     except RobotFileError as exc:
-        log.add(("robot",), f"invalid robot file {mission.robot!r}: {exc}")
+        for line, name, message in exc.problems:
+            where = (f"line {line}: " if line is not None else "") + (f"{name}: " if name else "")
+            log.add(("robot",), f"invalid robot file {mission.robot!r}: {where}{message}")
     except (OSError, ValueError, RuntimeError) as exc:
         log.add(("robot",), f"cannot read robot file {mission.robot!r}: {os_message(exc)}")
     rooms = dict(world.rooms)

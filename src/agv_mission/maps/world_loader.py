@@ -54,7 +54,7 @@ from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
 from agv_mission.maps.rasterize import rasterize
 from agv_mission.maps.rooms import Room
-from agv_mission.maps.rooms_file import RoomsFileError, RoomsModel, load_rooms, rooms_from_model
+from agv_mission.maps.rooms_file import RoomsFileError, load_rooms, rooms_from_doc
 from agv_mission.maps.ros_map import MapLoadError, is_ros_map_yaml, load_ros_map
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.suggest import unknown_key
@@ -322,11 +322,7 @@ def _rooms_of(path: Path, rooms: str | dict[str, Any] | None) -> dict[str, Room]
             return {}
         if isinstance(rooms, str):
             return load_rooms(input_path(rooms, path.parent))
-        try:
-            model = RoomsModel.model_validate({"rooms": rooms})
-        except ValidationError as exc:
-            raise RoomsFileError.from_validation(path, exc) from exc
-        return rooms_from_model(model)
+        return rooms_from_doc(path, rooms)
     except RoomsFileError as exc:
         raise WorldError(str(exc)) from exc
 

@@ -224,8 +224,9 @@ def _resolve(
     if mission.rooms is not None:
         try:
             rooms.update(load_rooms(input_path(mission.rooms, base_dir)))
-        except RoomsFileError as exc:  # names the file, the line and the room
-            log.add(("rooms",), one_line(str(exc)))
+        except RoomsFileError as exc:  # each problem names the file, its line and the room
+            for line in exc.lines():
+                log.add(("rooms",), line)
         except Exception as exc:
             log.add(("rooms",), f"cannot read rooms file {mission.rooms!r}: {os_message(exc)}")
     log.raise_if_any()

@@ -53,7 +53,10 @@ def allowed_keys(model: type[BaseModel], loc: tuple[Any, ...]) -> set[str]:
 
 @cache
 def _schema(model: type[BaseModel]) -> dict[str, Any]:
-    return model.model_json_schema()
+    try:
+        return model.model_json_schema()
+    except Exception:  # noqa: BLE001 (a plugin config without a schema: no suggestions)
+        return {}
 
 
 def _resolve(root: dict[str, Any], node: Any) -> Any:

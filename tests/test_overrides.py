@@ -166,3 +166,15 @@ def test_a_complete_ros_pose_is_the_planar_pose(tmp_path: Path) -> None:
     pose = load_mission(path).mission.tasks[0].pose
     assert (pose.x, pose.y) == (-1.6, -0.5)
     assert pose.yaw == pytest.approx(1.5707963, abs=1e-6)
+
+
+def test_teleop_options_are_named_in_their_errors() -> None:
+    r = subprocess.run(
+        [*EXE, "teleop", "--world", "nowhere", "--robot", "r2d2"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        stdin=subprocess.DEVNULL,
+    )
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "(from --world nowhere)" in r.stderr

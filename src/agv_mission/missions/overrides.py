@@ -30,10 +30,11 @@ class Override:
 
     item: str
     option: str = "--set"
+    shown: str | None = None  # how the user wrote it, when not ``OPTION KEY=VALUE``
 
     @property
     def label(self) -> str:
-        return f"{self.option} {self.item}"
+        return self.shown or f"{self.option} {self.item}"
 
 
 def as_override(item: str | Override) -> Override:

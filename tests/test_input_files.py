@@ -118,3 +118,18 @@ def test_world_and_robot_files_suggest_the_nearest_key(tmp_path: Path) -> None:
     assert "line 2: wheel_sep: unknown key 'wheel_sep' (did you mean 'wheel_separation'?)" in (
         r.stderr
     )
+
+
+def test_world_file_problems_one_per_line(tmp_path: Path) -> None:
+    (tmp_path / "w.yaml").write_text(
+        "spawn: {x: 0, y: 0}\nrooms:\n  den:\n    polygon: [[0, 0], [1, 0]]\n"
+        "  hall:\n    polygon: [[0, 0], [1, 0], [0, 1]]\n    anchor: {x: 3, y: 3}\n"
+    )
+    mission = tmp_path / "m.yaml"
+    mission.write_text("world: w.yaml\ntasks: [{type: wander, duration: 1}]\n")
+    r = validate(str(mission))
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.stderr.splitlines()[0] == "invalid input (2 problems):"
+    world = tmp_path / "w.yaml"
+    assert f"{world}:4: room 'den': a room's polygon needs at least 3 points" in r.stderr
+    assert f"{world}:7: room 'hall': anchor (3, 3) lies outside" in r.stderr

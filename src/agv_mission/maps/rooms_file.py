@@ -167,7 +167,7 @@ def rooms_from_doc(
     YAML node tree, is given)."""
 
     def line(loc: Loc) -> int | None:
-        return _line_of(root, loc) if root is not None else None
+        return node_line(root, loc) if root is not None else None
 
     if not isinstance(rooms, dict):
         what = "nothing" if rooms is None else type(rooms).__name__
@@ -216,11 +216,12 @@ def load_rooms(path: str | os.PathLike[str]) -> dict[str, Room]:
         raise RoomsFileError(
             path, [(None, None, "a rooms file is a mapping with a top-level 'rooms' key")]
         )
-    root = _compose(text)
+    root = compose_nodes(text)
     extra = [key for key in doc if key != "rooms"]
     if extra:
         raise RoomsFileError(
-            path, [(_line_of(root, (key,)), None, unknown_key(RoomsModel, (key,))) for key in extra]
+            path,
+            [(node_line(root, (key,)), None, unknown_key(RoomsModel, (key,))) for key in extra],
         )
     return rooms_from_doc(path, doc["rooms"], root)
 
@@ -230,7 +231,7 @@ def load_rooms(path: str | os.PathLike[str]) -> dict[str, Room]:
 
 def _duplicate_label(text: str) -> tuple[int, str, str] | None:
     """A room label given twice under ``rooms`` (YAML would keep the last silently)."""
-    root = _compose(text)
+    root = compose_nodes(text)
     if not isinstance(root, yaml.MappingNode):
         return None
     rooms = next((v for k, v in root.value if getattr(k, "value", None) == "rooms"), None)
@@ -247,14 +248,14 @@ def _duplicate_label(text: str) -> tuple[int, str, str] | None:
     return None
 
 
-def _compose(text: str) -> yaml.Node | None:
+def compose_nodes(text: str) -> yaml.Node | None:
     try:
         return yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError:
         return None
 
 
-def _line_of(node: Any, loc: Sequence[str | int]) -> int | None:
+def node_line(node: Any, loc: Sequence[str | int]) -> int | None:
     """1-based line of the deepest YAML node along ``loc`` (a mapping entry: its key)."""
     line = node.start_mark.line + 1
     for part in loc:

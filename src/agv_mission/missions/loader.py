@@ -193,8 +193,9 @@ def _resolve(
 
     try:
         world = load_world(mission.world, base_dir)
-    except WorldError as exc:
-        log.add(("world",), one_line(str(exc)))
+    except WorldError as exc:  # each of a world file's problems at its own line
+        for message in exc.problems or [one_line(str(exc))]:
+            log.add(("world",), message)
         raise MissionError(log.problems) from None
     except (OSError, ValueError, RuntimeError) as exc:  # a path the OS refuses
         log.add(("world",), f"cannot read world {mission.world!r}: {os_message(exc)}")

@@ -1,7 +1,7 @@
 """Localisation accuracy per map and robot: the whole stack, the estimate against the truth.
 
 One patrol per (map, robot, amcl profile): the demo on the built-in turtlebot3_world, the
-real ROS maps (turtlebot3_world, AWS small house) read from ``../shared/data/ros_maps``,
+real ROS maps (turtlebot3_world, AWS small house) read from ``tests/data/ros_maps``,
 and the 30 x 50 m warehouse and 30 x 15 m depot of ``tests/worlds``. Per run: position
 RMSE and maximum error after the first 10 s, the share of steps whose true error lies in
 the reported 2-sigma ellipse, and the localiser's cost per scan (filter + refinement,
@@ -21,7 +21,7 @@ from agv_mission.missions.loader import load_mission
 from agv_mission.missions.runner import MissionRun
 
 REPO = Path(__file__).resolve().parents[1]
-ROS_MAPS = REPO.parent / "shared" / "data" / "ros_maps"
+ROS_MAPS = REPO / "tests" / "data" / "ros_maps"
 WORLDS = REPO / "tests" / "worlds"
 
 MISSION = """

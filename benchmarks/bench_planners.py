@@ -1,7 +1,7 @@
 """Global planners per map: path length against the shortest, planning time, driven vs planned.
 
 Maps: the built-in ``turtlebot3_world``, ``warehouse`` (30 x 50 m) and ``depot``
-(30 x 15 m), and the real ``map_saver`` maps ``shared/data/ros_maps/{turtlebot3_world,
+(30 x 15 m), and the real ``map_saver`` maps ``tests/data/ros_maps/{turtlebot3_world,
 aws_small_house}`` (skipped when missing). Each map has a tour; every planner plans
 every leg (OMPL planners with seeds 0..2, the deterministic ones three times). Robot
 radius 0.22 m (waffle) on the large worlds, 0.105 m (burger) elsewhere; inflation 0.3 m.
@@ -45,7 +45,7 @@ from agv_mission.planners.cost_grid import CostGridPlanner
 from agv_mission.planners.grid_astar import GridAstarConfig, GridAstarPlanner
 from agv_mission.planners.ompl_planner import OmplPlanner, OmplPlannerConfig
 
-ROS_MAPS = Path(__file__).resolve().parents[2] / "shared/data/ros_maps"
+ROS_MAPS = Path(__file__).resolve().parents[1] / "tests/data/ros_maps"
 OMPL_PLANNERS = ("RRTConnect", "RRTstar", "BITstar")
 SEEDS = range(3)
 INFLATION = 0.3

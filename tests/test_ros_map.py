@@ -198,9 +198,9 @@ def test_plain_p2_pgm(tmp_path: Path) -> None:
     ("text", "expected"),
     [
         ("image: nothere.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n", "nothere.pgm not found"),
-        ("resolution: 0.05\norigin: [0, 0, 0]\n", "missing required key 'image'"),
-        ("image: map.pgm\norigin: [0, 0, 0]\n", "missing required key 'resolution'"),
-        ("image: map.pgm\nresolution: 0.05\n", "missing required key 'origin'"),
+        ("resolution: 0.05\norigin: [0, 0, 0]\n", "the map YAML lacks 'image'"),
+        ("image: map.pgm\norigin: [0, 0, 0]\n", "the map YAML lacks 'resolution'"),
+        ("image: map.pgm\nresolution: 0.05\n", "the map YAML lacks 'origin'"),
         ("image: map.pgm\nresolution: -1\norigin: [0, 0, 0]\n", "'resolution' must be > 0"),
         ("image: map.pgm\nresolution: 0.05\norigin: [0, 0]\n", "'origin' must be [x, y, yaw]"),
         ("image: map.pgm\nresolution: 0.05\norigin: [0, 0, 0]\nmode: fancy\n", "'mode' must be"),

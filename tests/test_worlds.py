@@ -378,22 +378,27 @@ def test_load_rooms_file(tmp_path: Path) -> None:
     ("text", "room", "line", "expected"),
     [
         ("rooms:\n  hall:\n    polygon: [[0, 0], [1, 0]]\n", "hall", 3, "polygon"),
-        ("rooms:\n  hall:\n    anchor: {x: 0, y: 0}\n", "hall", 2, "polygon: field required"),
+        ("rooms:\n  hall:\n    anchor: {x: 0, y: 0}\n", "hall", 2, "has no polygon"),
         (
             "rooms:\n  a:\n    polygon: [[0, 0], [1, 0], [0, 1]]\n  b:\n"
             "    polygon: [[0, 0], [1, 0], [0, 1]]\n    anchor: {x: 1}\n",
             "b",
             6,
-            "anchor.y: field required",
+            "the anchor has no 'y'",
         ),
         ("rooms:\n  flat:\n    polygon: [[0, 0], [1, 1], [2, 2]]\n", "flat", 3, "zero area"),
         (
             "rooms:\n  c:\n    polygon: [[0, 0], [1, 0], [0, 1]]\n    colour: red\n",
             "c",
             4,
-            "colour",
+            "unknown key 'colour'",
         ),
-        ("rooms:\n  d:\n    polygon: [[0, 0], [1, 0], [0, x]]\n", "d", 3, "polygon.2.1"),
+        (
+            "rooms:\n  d:\n    polygon: [[0, 0], [1, 0], [0, x]]\n",
+            "d",
+            3,
+            "polygon point 2: y must be a finite number, got 'x'",
+        ),
     ],
 )
 def test_rooms_file_errors_name_file_line_and_room(

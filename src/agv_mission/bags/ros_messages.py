@@ -226,7 +226,7 @@ def room_markers(t: float, rooms: dict[str, Any], frame: str = "map") -> Any:
                 **common,
             )
         )
-        cx, cy = room.centroid()
+        cx, cy = room.inside_point()
         markers.append(
             marker(
                 ns="room_labels",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from agv_mission.cli import bags, regress, runs, service, teleop
+from agv_mission.cli import bags, regress, runs, service, teleop, worlds
 from agv_mission.cli.startup import started
 
 app = typer.Typer(
@@ -19,6 +19,7 @@ app.command()(runs.validate)
 app.command()(runs.schema)
 app.command()(teleop.teleop)
 app.command("map")(bags.map_)
+app.command()(worlds.world)
 app.command()(regress.regress)
 app.command()(service.serve)
 app.command()(service.submit)

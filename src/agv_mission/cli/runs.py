@@ -95,14 +95,16 @@ def run(
 
 def validate(
     files_: Annotated[list[Path], typer.Argument(metavar="FILE...", help="mission files")],
+    set_: Overrides = [],  # noqa: B006
+    seed: Seed = None,
 ) -> None:
-    """Validate mission files without running them."""
+    """Validate mission files without running them (with the overrides ``run`` would take)."""
     from agv_mission.missions.loader import load_mission
 
     bad = 0
     for path in files_:
         try:
-            load_mission(path)
+            load_mission(path, set_, seed)
             out.print(f"{path}: [green]valid[/]", highlight=False)
         except MissionError as exc:
             bad += 1

@@ -8,7 +8,7 @@ world agree exactly. Walls are thin boxes (0.1 m).
     The hexagonal arena of ROBOTIS' ``turtlebot3_world`` with nine pillars (r = 0.15 m)
     at x, y in {-1.1, 0, 1.1}. The hexagon is regular, pointed along x, with its inner
     wall faces 2.5 m from the centre: a least-squares fit of the six straight wall
-    panels of the real ``map_saver`` map (``shared/data/ros_maps/turtlebot3_world``,
+    panels of the real ``map_saver`` map (``tests/data/ros_maps/turtlebot3_world``,
     fitted apothems 2.47..2.52 m, normals within 1.5 deg of 30 + 60 k). The real
     arena's small jogs near the four slanted corners are left out. Spawn (-2.0, -0.5, 0)
     as in the TurtleBot3 launch files. Rooms: ``center`` (the pillar square) and the
@@ -16,7 +16,7 @@ world agree exactly. Walls are thin boxes (0.1 m).
 
 ``small_house``
     A 18.9 x 11.0 m house laid out like the AWS RoboMaker small house (compare
-    ``shared/data/ros_maps/aws_small_house``): a bedroom wing on the west, the living
+    ``tests/data/ros_maps/aws_small_house``): a bedroom wing on the west, the living
     room (south) and recreation room (north) in the middle, the kitchen wing on the
     east. Four 1.2 m doorways: bedroom-livingroom, livingroom-recreationroom,
     livingroom-kitchen, recreationroom-kitchen. Spawn (3.83, -1.23, 0) in the living

@@ -22,13 +22,16 @@ lines, the spelling of the other entries) is kept byte for byte.
 
 Several processes may record into one file at once (two runs whose missions name the same
 ``recorder:`` file, a teleop session beside a run): each write holds a lock file beside
-the recorder file (``.<name>.lock``) and re-reads the file under it, so no entry is lost.
+the recorder file (``.<name>.lock``, removed again once written) and re-reads the file
+under it, so no entry is lost.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+import time
 from pathlib import Path
 from typing import Any
 
@@ -338,21 +341,47 @@ def _unchanged_since_read(path: Path, text: str) -> tuple[tuple[int, int, int], 
 
 
 class _Lock(FileLock):
-    """The recorder file's lock; a timeout is a :class:`RecorderFileError` naming the file."""
+    """The recorder file's lock, removed when released (no ``.<name>.lock`` left beside
+    the file); a timeout is a :class:`RecorderFileError` naming the file.
+
+    The holder unlinks the lock file before it unlocks, so a waiter may lock an inode no
+    longer at the path: it then unlocks and locks the path again, and mutual exclusion
+    holds (filelock keeps its lock files; this is the usual protocol to remove them)."""
 
     recorder_path: Path
 
     def __enter__(self) -> _Lock:
+        deadline = time.monotonic() + LOCK_TIMEOUT
+        while True:
+            try:
+                self.acquire(timeout=max(0.0, deadline - time.monotonic()))
+            except Timeout:
+                raise RecorderFileError(
+                    self.recorder_path,
+                    f"another process has held its lock ({self.lock_file}) for "
+                    f"{LOCK_TIMEOUT:g} s; not recorded",
+                ) from None
+            except OSError as exc:
+                raise RecorderFileError(
+                    self.recorder_path, f"cannot create the lock file {self.lock_file}: {exc}"
+                ) from None
+            if self._holds_its_path():
+                return self
+            self.release()  # the previous holder removed this inode: lock the path again
+
+    def __exit__(self, *exc_info: object) -> None:
+        if self.lock_counter == 1 and self._holds_its_path():
+            with contextlib.suppress(OSError):
+                os.unlink(self.lock_file)
+        self.release()
+
+    def _holds_its_path(self) -> bool:
+        """The locked file is the one at the lock's path (not one a holder removed)."""
+        fd = self._context.lock_file_fd
+        if fd is None:
+            return False
         try:
-            self.acquire()
-        except Timeout:
-            raise RecorderFileError(
-                self.recorder_path,
-                f"another process has held its lock ({self.lock_file}) for "
-                f"{LOCK_TIMEOUT:g} s; not recorded",
-            ) from None
-        except OSError as exc:
-            raise RecorderFileError(
-                self.recorder_path, f"cannot create the lock file {self.lock_file}: {exc}"
-            ) from None
-        return self
+            held, named = os.fstat(fd), os.stat(self.lock_file)
+        except OSError:
+            return False
+        return (held.st_dev, held.st_ino) == (named.st_dev, named.st_ino)

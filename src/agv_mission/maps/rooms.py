@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.ndimage import distance_transform_edt, label
+from shapely import Polygon
+from shapely.ops import polylabel
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
@@ -52,9 +55,20 @@ class Room:
                     return i, j
         return None
 
-    def centroid(self) -> tuple[float, float]:
-        poly = np.asarray(self.polygon, dtype=float)
-        return float(poly[:, 0].mean()), float(poly[:, 1].mean())
+    def inside_point(self) -> tuple[float, float]:
+        """The polygon's pole of inaccessibility (shapely's ``polylabel``): the point
+        farthest from its outline, inside even an L- or U-shaped room (where the mean of
+        the vertices may lie outside)."""
+        return _pole(self.polygon)
+
+
+@functools.lru_cache(maxsize=256)
+def _pole(polygon: tuple[tuple[float, float], ...]) -> tuple[float, float]:
+    shape = Polygon(polygon)
+    xmin, ymin, xmax, ymax = shape.bounds
+    tolerance = max(1e-3, 1e-3 * max(xmax - xmin, ymax - ymin))  # 1 mm, or 0.1 % of its size
+    point = polylabel(shape, tolerance=tolerance)
+    return float(point.x), float(point.y)
 
 
 def _segments_intersect(
@@ -96,6 +110,18 @@ def reachable_cells(costmap: Costmap, start: Pose2D, margin: float = 0.0) -> np.
         return np.zeros_like(free)
     region = labels[int(rows), int(cols)]
     return labels == region if region else np.zeros_like(free)
+
+
+def room_point(room: Room, costmap: Costmap, allowed: np.ndarray) -> Pose2D | None:
+    """Where a room without an anchor is entered or started from: its pole of
+    inaccessibility (:meth:`Room.inside_point`) when the robot may stand there (``allowed``),
+    else :func:`visit_point`. Always inside the polygon; ``None`` when nowhere is allowed."""
+    x, y = room.inside_point()
+    grid = costmap.grid
+    rows, cols = grid.world_to_cell(np.array([x, y]))
+    if grid.in_bounds(rows, cols) and allowed[int(rows), int(cols)] and room.contains(x, y):
+        return Pose2D(x, y, 0.0)
+    return visit_point(room, costmap, allowed)
 
 
 def visit_point(room: Room, costmap: Costmap, allowed: np.ndarray) -> Pose2D | None:

@@ -12,58 +12,36 @@ field.
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
 import yaml
-from pydantic import (
-    BaseModel,
-    ConfigDict,
-    Field,
-    ValidationError,
-    field_validator,
-    model_validator,
-)
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from agv_mission.atomic import InputFileError, read_input_text
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.rooms import Room
-
-Point = tuple[float, float]
+from agv_mission.suggest import unknown_key
 
 
 class RoomsFileError(ValueError):
-    """An invalid rooms file. ``problems`` holds (line or None, room or None, message)."""
+    """An invalid rooms file. ``problems`` holds (line or None, room or None, message),
+    one per problem, each at its own line."""
 
     def __init__(self, path: Path, problems: list[tuple[int | None, str | None, str]]):
         self.path = Path(path)
         self.problems = problems
+        super().__init__("\n".join(self.lines()))
+
+    def lines(self) -> list[str]:
+        """Each problem as ``file:line: room 'label': message``."""
         lines = []
-        for line, room, msg in problems:
+        for line, room, msg in self.problems:
             where = f"{self.path}:{line}" if line else f"{self.path}"
             lines.append(f"{where}: room {room!r}: {msg}" if room else f"{where}: {msg}")
-        super().__init__("\n".join(lines))
-
-    @classmethod
-    def from_validation(
-        cls, path: Path, exc: ValidationError, text: str | None = None
-    ) -> RoomsFileError:
-        """Turn a pydantic error on a ``{"rooms": ...}`` document into file/line/room
-        messages (lines only when the YAML ``text`` is given)."""
-        root = _compose(text) if text is not None else None
-        problems = []
-        for err in exc.errors():
-            loc = tuple(err["loc"])
-            room = str(loc[1]) if len(loc) >= 2 and loc[0] == "rooms" else None
-            field = ".".join(str(p) for p in (loc[2:] if room else loc))
-            line = _line_of(root, loc) if root is not None else None
-            msg = "field required" if err["type"] == "missing" else err["msg"]
-            msg = msg.removeprefix("Value error, ")
-            problems.append((line, room, f"{field}: {msg}" if field else msg))
-        return cls(path, problems)
+        return lines
 
 
 class AnchorModel(BaseModel):
@@ -78,41 +56,17 @@ MAX_POLYGON_POINTS = 1000
 
 
 class RoomModel(BaseModel):
+    """One room's shape: a polygon of [x, y] points and an optional anchor. What a visit
+    relies on beyond the shape (a simple polygon of some area, the anchor inside it) is
+    checked by :func:`room_problems`."""
+
     model_config = ConfigDict(extra="forbid")
 
-    polygon: Annotated[list[Point], Field(min_length=3, max_length=MAX_POLYGON_POINTS)]
+    polygon: Annotated[
+        list[tuple[Annotated[float, Field(allow_inf_nan=False)], ...]],
+        Field(min_length=3, max_length=MAX_POLYGON_POINTS),
+    ]
     anchor: AnchorModel | None = None
-
-    @model_validator(mode="after")
-    def _simple_and_anchored_inside(self) -> RoomModel:
-        """The rules a visit relies on: one inside (no edges crossing), and the anchor in
-        it (a visit ends by checking that the robot is in the polygon)."""
-        room = Room("", tuple(self.polygon))
-        crossing = room.self_intersection()
-        if crossing is not None:
-            i, j = crossing
-            raise ValueError(
-                f"polygon is not simple: edge {i} ({_point(self.polygon[i])} -> "
-                f"{_point(self.polygon[(i + 1) % len(self.polygon)])}) crosses edge {j}"
-            )
-        if self.anchor is not None and not room.contains(self.anchor.x, self.anchor.y):
-            raise ValueError(
-                f"anchor ({self.anchor.x:g}, {self.anchor.y:g}) lies outside the room's polygon"
-            )
-        return self
-
-    @field_validator("polygon")
-    @classmethod
-    def _proper_polygon(cls, polygon: list[Point]) -> list[Point]:
-        if not all(math.isfinite(v) for p in polygon for v in p):
-            raise ValueError("polygon coordinates must be finite numbers")
-        area2 = sum(
-            x0 * y1 - x1 * y0
-            for (x0, y0), (x1, y1) in zip(polygon, polygon[1:] + polygon[:1], strict=True)
-        )
-        if abs(area2) < 1e-12:
-            raise ValueError("polygon has zero area")
-        return polygon
 
 
 class RoomsModel(BaseModel):
@@ -121,17 +75,121 @@ class RoomsModel(BaseModel):
     rooms: dict[str, RoomModel]
 
 
-def _point(p: Point) -> str:
+def _point(p: Sequence[float]) -> str:
     return f"({p[0]:g}, {p[1]:g})"
 
 
-def rooms_from_model(model: RoomsModel) -> dict[str, Room]:
-    rooms = {}
-    for label, room in model.rooms.items():
-        anchor = room.anchor
-        pose = Pose2D(anchor.x, anchor.y, anchor.yaw) if anchor is not None else None
-        rooms[label] = Room(label, tuple((float(x), float(y)) for x, y in room.polygon), pose)
-    return rooms
+Loc = tuple[Any, ...]
+RoomProblem = tuple[Loc, str]  # (location inside the room, message)
+
+
+def room_problems(raw: Any) -> tuple[RoomModel | None, list[RoomProblem]]:
+    """One room's document checked: the model (None if invalid) and every problem, each
+    at its own key, in this tool's words."""
+    try:
+        model = RoomModel.model_validate(raw)
+    except ValidationError as exc:
+        return None, [_room_error(err) for err in exc.errors(include_url=False)]
+    problems: list[RoomProblem] = []
+    polygon = model.polygon
+    for i, p in enumerate(polygon):
+        if len(p) != 2:
+            problems.append(
+                (("polygon", i), f"polygon point {i} must be [x, y] (two numbers), got {list(p)}")
+            )
+    if problems:
+        return None, problems
+    area2 = sum(
+        x0 * y1 - x1 * y0
+        for (x0, y0), (x1, y1) in zip(polygon, polygon[1:] + polygon[:1], strict=True)
+    )
+    if abs(area2) < 1e-12:
+        return None, [(("polygon",), "the polygon has zero area (its points are on one line)")]
+    room = Room("", tuple((float(x), float(y)) for x, y in polygon))
+    crossing = room.self_intersection()
+    if crossing is not None:
+        i, j = crossing
+        problems.append(
+            (
+                ("polygon",),
+                f"polygon is not simple: edge {i} ({_point(polygon[i])} -> "
+                f"{_point(polygon[(i + 1) % len(polygon)])}) crosses edge {j}",
+            )
+        )
+    anchor = model.anchor
+    if anchor is not None and not room.contains(anchor.x, anchor.y):
+        problems.append(
+            (("anchor",), f"anchor ({anchor.x:g}, {anchor.y:g}) lies outside the room's polygon")
+        )
+    return (None if problems else model), problems
+
+
+def _room_error(err: Any) -> RoomProblem:
+    """A pydantic error inside one room, in the rooms file's words."""
+    loc: Loc = tuple(err["loc"])
+    kind = err["type"]
+    got = f", got {err['input']!r}" if "input" in err and kind != "missing" else ""
+    ctx = err.get("ctx") or {}
+    if loc[:1] == ("polygon",) and len(loc) >= 2:
+        what = f"polygon point {loc[1]}"
+        if kind == "missing" or kind in ("too_short", "too_long") or len(loc) == 2:
+            return loc[:2], f"{what} must be [x, y] (two numbers){got}"
+        return loc[:2], f"{what}: {'x' if loc[2] == 0 else 'y'} must be a finite number{got}"
+    if loc == ("polygon",):
+        if kind == "missing":
+            return (), "has no polygon (a room needs 'polygon': at least 3 [x, y] points)"
+        if kind == "too_short":
+            return (
+                loc,
+                f"a room's polygon needs at least 3 points, this one has {ctx.get('actual_length')}",
+            )
+        if kind == "too_long":
+            return loc, f"the polygon has more than {MAX_POLYGON_POINTS} points"
+        return loc, f"the polygon must be a list of [x, y] points{got}"
+    if kind == "extra_forbidden":
+        return loc, unknown_key(RoomModel, loc)
+    if loc[:1] == ("anchor",):
+        if len(loc) == 1:
+            return loc, f"the anchor must be a mapping {{x, y, yaw}}{got}"
+        if kind == "missing":
+            return loc[:1], f"the anchor has no {loc[1]!r} (an anchor is {{x, y, yaw}})"
+        return loc, f"anchor.{loc[1]} must be a finite number{got}"
+    if not loc:
+        return loc, f"a room must be a mapping with 'polygon' (and optionally 'anchor'){got}"
+    return loc, str(err["msg"]).removeprefix("Value error, ")
+
+
+def rooms_from_doc(
+    path: Path, rooms: Any, root: yaml.Node | None = None, prefix: Loc = ("rooms",)
+) -> dict[str, Room]:
+    """The rooms of a ``rooms:`` mapping (from a rooms file or a world file at ``path``),
+    or :class:`RoomsFileError` with every problem at its line (when ``root``, the file's
+    YAML node tree, is given)."""
+
+    def line(loc: Loc) -> int | None:
+        return node_line(root, loc) if root is not None else None
+
+    if not isinstance(rooms, dict):
+        what = "nothing" if rooms is None else type(rooms).__name__
+        raise RoomsFileError(
+            path, [(line(prefix), None, f"'rooms' must be a mapping of room labels, got {what}")]
+        )
+    found: dict[str, Room] = {}
+    problems: list[tuple[int | None, str | None, str]] = []
+    for label, raw in rooms.items():
+        if not isinstance(label, str):
+            problems.append((line(prefix), None, f"room label {label!r} must be text (quote it)"))
+            continue
+        model, errors = room_problems(raw)
+        for loc, message in errors:
+            problems.append((line((*prefix, label, *loc)), label, message))
+        if model is not None:
+            anchor = model.anchor
+            pose = Pose2D(anchor.x, anchor.y, anchor.yaw) if anchor is not None else None
+            found[label] = Room(label, tuple((float(x), float(y)) for x, y in model.polygon), pose)
+    if problems:
+        raise RoomsFileError(path, problems)
+    return found
 
 
 def load_rooms(path: str | os.PathLike[str]) -> dict[str, Room]:
@@ -149,7 +207,8 @@ def load_rooms(path: str | os.PathLike[str]) -> dict[str, Room]:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = mark.line + 1 if mark is not None else None
-        raise RoomsFileError(path, [(line, None, f"invalid YAML: {exc}")]) from exc
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise RoomsFileError(path, [(line, None, f"invalid YAML: {problem}")]) from exc
     duplicate = _duplicate_label(text)
     if duplicate is not None:
         raise RoomsFileError(path, [duplicate])
@@ -157,11 +216,14 @@ def load_rooms(path: str | os.PathLike[str]) -> dict[str, Room]:
         raise RoomsFileError(
             path, [(None, None, "a rooms file is a mapping with a top-level 'rooms' key")]
         )
-    try:
-        model = RoomsModel.model_validate(doc)
-    except ValidationError as exc:
-        raise RoomsFileError.from_validation(path, exc, text) from exc
-    return rooms_from_model(model)
+    root = compose_nodes(text)
+    extra = [key for key in doc if key != "rooms"]
+    if extra:
+        raise RoomsFileError(
+            path,
+            [(node_line(root, (key,)), None, unknown_key(RoomsModel, (key,))) for key in extra],
+        )
+    return rooms_from_doc(path, doc["rooms"], root)
 
 
 # --------------------------------------------------------------------------- line numbers
@@ -169,7 +231,7 @@ def load_rooms(path: str | os.PathLike[str]) -> dict[str, Room]:
 
 def _duplicate_label(text: str) -> tuple[int, str, str] | None:
     """A room label given twice under ``rooms`` (YAML would keep the last silently)."""
-    root = _compose(text)
+    root = compose_nodes(text)
     if not isinstance(root, yaml.MappingNode):
         return None
     rooms = next((v for k, v in root.value if getattr(k, "value", None) == "rooms"), None)
@@ -186,14 +248,14 @@ def _duplicate_label(text: str) -> tuple[int, str, str] | None:
     return None
 
 
-def _compose(text: str) -> yaml.Node | None:
+def compose_nodes(text: str) -> yaml.Node | None:
     try:
         return yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError:
         return None
 
 
-def _line_of(node: Any, loc: Sequence[str | int]) -> int | None:
+def node_line(node: Any, loc: Sequence[str | int]) -> int | None:
     """1-based line of the deepest YAML node along ``loc`` (a mapping entry: its key)."""
     line = node.start_mark.line + 1
     for part in loc:

@@ -117,9 +117,15 @@ def save_ros_map(grid: OccupancyGrid, stem_path: str | os.PathLike[str]) -> tupl
     return pgm_path, yaml_path
 
 
+# Keys only a map_server map YAML has (a world file has none of them).
+MAP_ONLY_KEYS = ("image", "origin", "negate", "occupied_thresh", "free_thresh", "mode")
+REQUIRED_KEYS = ("image", "resolution", "origin")
+
+
 def is_ros_map_yaml(meta: object) -> bool:
-    """True for a parsed YAML document that looks like a ``map_server`` map."""
-    return isinstance(meta, dict) and "image" in meta and "resolution" in meta
+    """True for a parsed YAML document meant as a ``map_server`` map: it has a key only a
+    map has (so a map without ``resolution`` is reported as a map lacking it)."""
+    return isinstance(meta, dict) and any(key in meta for key in MAP_ONLY_KEYS)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -157,9 +163,13 @@ def _number(yaml_path: Path, meta: dict, key: str, default: float | None = None)
 
 
 def _parse_meta(yaml_path: Path, meta: dict):
+    missing = [key for key in REQUIRED_KEYS if key not in meta]
+    if missing:
+        raise MapLoadError(
+            f"{yaml_path}: the map YAML lacks {' and '.join(repr(k) for k in missing)} "
+            f"(a map_server map needs {', '.join(REQUIRED_KEYS)})"
+        )
     image = meta.get("image")
-    if image is None:
-        raise MapLoadError(f"{yaml_path}: missing required key 'image'")
     if not isinstance(image, str) or not image.strip():
         raise MapLoadError(f"{yaml_path}: 'image' must be a file name, got {image!r}")
     image_path = input_path(image.strip(), yaml_path.parent)

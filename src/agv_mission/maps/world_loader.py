@@ -40,6 +40,7 @@ Anything else raises :class:`WorldError`, whose message lists the built-in names
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -54,9 +55,16 @@ from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
 from agv_mission.maps.rasterize import rasterize
 from agv_mission.maps.rooms import Room
-from agv_mission.maps.rooms_file import RoomsFileError, RoomsModel, load_rooms, rooms_from_model
+from agv_mission.maps.rooms_file import (
+    RoomsFileError,
+    compose_nodes,
+    load_rooms,
+    node_line,
+    rooms_from_doc,
+)
 from agv_mission.maps.ros_map import MapLoadError, is_ros_map_yaml, load_ros_map
 from agv_mission.maps.worlds import Box, Cylinder, World
+from agv_mission.suggest import unknown_key
 
 SPAWN_CLEARANCE = 0.3  # metres of free space the spawn of a ROS map must have around it
 DEFAULT_RESOLUTION = 0.05
@@ -64,7 +72,13 @@ DEFAULT_MARGIN = 0.5
 
 
 class WorldError(ValueError):
-    """A ``world:`` value that names no built-in world and no readable world/map file."""
+    """A ``world:`` value that names no built-in world and no readable world/map file.
+    ``problems`` holds one line a problem (``file:line: field: message``) when there are
+    several."""
+
+    def __init__(self, message: str, problems: Sequence[str] = ()) -> None:
+        super().__init__(message)
+        self.problems = list(problems)
 
 
 def builtin_names() -> list[str]:
@@ -87,7 +101,8 @@ def load_world(spec: str, base_dir: Path | str = ".") -> World:
             f"unknown world {spec!r}: not a built-in world ({names}) and no such file {path}"
         )
     try:
-        doc = yaml.safe_load(read_input_text(path))
+        text = read_input_text(path)
+        doc = yaml.safe_load(text)
     except InputFileError as exc:
         raise WorldError(f"{path}: world file: {exc}") from None
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
@@ -95,7 +110,7 @@ def load_world(spec: str, base_dir: Path | str = ".") -> World:
     if is_ros_map_yaml(doc):
         return world_from_ros_map(path)
     if isinstance(doc, dict):
-        return world_from_file(path, doc)
+        return world_from_file(path, doc, compose_nodes(text))
     raise WorldError(
         f"{path}: neither a ROS map YAML (image, resolution, origin) nor a world file "
         f"(spawn, boxes, cylinders, ...); built-in worlds are: {names}"
@@ -267,8 +282,11 @@ class WorldFileModel(_Strict):
     rooms: str | dict[str, Any] | None = None
 
 
-def world_from_file(path: Path, doc: dict[str, Any] | None = None) -> World:
-    """Build a world from a world file (already parsed as ``doc`` if given)."""
+def world_from_file(
+    path: Path, doc: dict[str, Any] | None = None, root: yaml.Node | None = None
+) -> World:
+    """Build a world from a world file (already parsed as ``doc`` if given; ``root``, its
+    YAML node tree, gives each problem its line)."""
     if doc is None:
         try:
             doc = yaml.safe_load(path.read_text(encoding="utf-8"))
@@ -277,12 +295,18 @@ def world_from_file(path: Path, doc: dict[str, Any] | None = None) -> World:
     try:
         model = WorldFileModel.model_validate(doc)
     except ValidationError as exc:
-        lines = [
-            f"  {'.'.join(str(p) for p in err['loc']) or '(top level)'}: "
-            + ("field required" if err["type"] == "missing" else err["msg"])
+        details = [
+            (
+                node_line(root, tuple(err["loc"])) if root is not None else None,
+                f"{'.'.join(str(p) for p in err['loc']) or '(top level)'}: "
+                + _world_file_message(err),
+            )
             for err in exc.errors()
         ]
-        raise WorldError(f"{path}: invalid world file:\n" + "\n".join(lines)) from exc
+        raise WorldError(
+            f"{path}: invalid world file:\n" + "\n".join(f"  {d}" for _, d in details),
+            [f"{path}:{line}: {d}" if line else f"{path}: {d}" for line, d in details],
+        ) from exc
 
     boxes = [b.to_box() for b in model.boxes]
     cylinders = [Cylinder(c.x, c.y, c.radius) for c in model.cylinders]
@@ -302,24 +326,30 @@ def world_from_file(path: Path, doc: dict[str, Any] | None = None) -> World:
         cylinders=cylinders,
         map=grid,
         spawn=spawn,
-        rooms=_rooms_of(path, model.rooms),
+        rooms=_rooms_of(path, model.rooms, root),
         wall_height=model.wall_height,
     )
 
 
-def _rooms_of(path: Path, rooms: str | dict[str, Any] | None) -> dict[str, Room]:
+def _world_file_message(err: Any) -> str:
+    if err["type"] == "missing":
+        return "field required"
+    if err["type"] == "extra_forbidden":
+        return unknown_key(WorldFileModel, tuple(err["loc"]))
+    return str(err["msg"]).removeprefix("Value error, ")
+
+
+def _rooms_of(
+    path: Path, rooms: str | dict[str, Any] | None, root: yaml.Node | None = None
+) -> dict[str, Room]:
     try:
         if rooms is None:
             return {}
         if isinstance(rooms, str):
             return load_rooms(input_path(rooms, path.parent))
-        try:
-            model = RoomsModel.model_validate({"rooms": rooms})
-        except ValidationError as exc:
-            raise RoomsFileError.from_validation(path, exc) from exc
-        return rooms_from_model(model)
+        return rooms_from_doc(path, rooms, root)
     except RoomsFileError as exc:
-        raise WorldError(str(exc)) from exc
+        raise WorldError(str(exc), exc.lines()) from exc
 
 
 def _geometry_bounds(

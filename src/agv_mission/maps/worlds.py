@@ -45,3 +45,33 @@ class World:
     spawn: Pose2D
     rooms: dict[str, Room] = field(default_factory=dict)
     wall_height: float = 0.5
+
+
+@dataclass(frozen=True)
+class RoomPoint:
+    """Where a room is visited: its anchor, or (``kind`` "inside") its inside point."""
+
+    label: str
+    point: Pose2D
+    kind: str  # "anchor" or "inside"
+
+
+@dataclass(frozen=True)
+class WorldDescription:
+    """What a user needs to write a mission for a world: its extent, spawn and rooms."""
+
+    name: str
+    extent: tuple[float, float, float, float]  # xmin, xmax, ymin, ymax of its map
+    spawn: Pose2D
+    rooms: list[RoomPoint]
+
+
+def describe(world: World) -> WorldDescription:
+    rooms = []
+    for label, room in world.rooms.items():
+        if room.anchor is not None:
+            rooms.append(RoomPoint(label, room.anchor, "anchor"))
+        else:
+            x, y = room.inside_point()
+            rooms.append(RoomPoint(label, Pose2D(x, y, 0.0), "inside"))
+    return WorldDescription(world.name, world.map.extent, world.spawn, rooms)

@@ -7,7 +7,7 @@ reported as :class:`MissionError` naming file, line and field.
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from importlib.resources import as_file, files
 from pathlib import Path
@@ -25,7 +25,7 @@ from agv_mission.maps.rooms_file import RoomsFileError, load_rooms
 from agv_mission.maps.world_loader import WorldError, builtin_names, load_world
 from agv_mission.maps.worlds import World
 from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.overrides import apply, parse_override
+from agv_mission.missions.overrides import Override, apply_overrides
 from agv_mission.missions.problems import (
     ProblemLog,
     kind_of,
@@ -82,7 +82,9 @@ class LoadedMission:
 DEMO_MISSION = "visit_rooms.yaml"  # what ``agv-mission run`` runs without a file
 
 
-def load_demo_mission(overrides: list[str] | None = None, seed: int | None = None) -> LoadedMission:
+def load_demo_mission(
+    overrides: Sequence[str | Override] | None = None, seed: int | None = None
+) -> LoadedMission:
     """The demo mission shipped in the package, loaded like a file."""
     with as_file(files("agv_mission") / "data" / "missions" / DEMO_MISSION) as demo:
         return load_mission(demo, overrides, seed)
@@ -90,7 +92,7 @@ def load_demo_mission(overrides: list[str] | None = None, seed: int | None = Non
 
 def load_mission(
     path: str | Path,
-    overrides: list[str] | None = None,
+    overrides: Sequence[str | Override] | None = None,
     seed: int | None = None,
     text: str | None = None,
     *,
@@ -101,7 +103,8 @@ def load_mission(
 
     With ``tasks_required=False`` a file without ``tasks`` is a :class:`Setup` (world,
     robot, start, stack) and resolves the same way; one with tasks is still checked whole.
-    ``path_guard`` is asked before any file the mission names is read (the service lets
+    ``overrides`` apply in order (a plain string is a ``--set`` item; an
+    :class:`Override` names its option, e.g. ``--sweep``). ``path_guard`` is asked before any file the mission names is read (the service lets
     missions read only files under its data directory).
     """
     path = Path(path)
@@ -128,15 +131,12 @@ def load_mission(
             ]
         )
     data = copy.deepcopy(data)
-    override_paths: dict[FieldPath, str] = {}
-    for item in overrides or []:
-        field_path, value = parse_override(file, item)
-        apply(data, field_path, value, file, item)
-        override_paths[field_path] = f"--set {item}"
+    applied = apply_overrides(data, overrides or [])
+    override_paths: dict[FieldPath, str] = dict(applied.paths)
     if seed is not None:
         data["seed"] = seed
         override_paths[("seed",)] = f"--seed {seed}"
-    log = ProblemLog(file, lines, override_paths)
+    log = ProblemLog(file, lines, override_paths, type_swaps=applied.type_swaps)
     bad_keys = non_string_keys(data)
     if bad_keys:
         raise MissionError(
@@ -193,8 +193,9 @@ def _resolve(
 
     try:
         world = load_world(mission.world, base_dir)
-    except WorldError as exc:
-        log.add(("world",), one_line(str(exc)))
+    except WorldError as exc:  # each of a world file's problems at its own line
+        for message in exc.problems or [one_line(str(exc))]:
+            log.add(("world",), message)
         raise MissionError(log.problems) from None
     except (OSError, ValueError, RuntimeError) as exc:  # a path the OS refuses
         log.add(("world",), f"cannot read world {mission.world!r}: {os_message(exc)}")
@@ -215,15 +216,18 @@ def _resolve(
             "(built-in: burger, waffle, rosbots)",
         )
     except RobotFileError as exc:
-        log.add(("robot",), f"invalid robot file {mission.robot!r}: {exc}")
+        for line, name, message in exc.problems:
+            where = (f"line {line}: " if line is not None else "") + (f"{name}: " if name else "")
+            log.add(("robot",), f"invalid robot file {mission.robot!r}: {where}{message}")
     except (OSError, ValueError, RuntimeError) as exc:
         log.add(("robot",), f"cannot read robot file {mission.robot!r}: {os_message(exc)}")
     rooms = dict(world.rooms)
     if mission.rooms is not None:
         try:
             rooms.update(load_rooms(input_path(mission.rooms, base_dir)))
-        except RoomsFileError as exc:  # names the file, the line and the room
-            log.add(("rooms",), one_line(str(exc)))
+        except RoomsFileError as exc:  # each problem names the file, its line and the room
+            for line in exc.lines():
+                log.add(("rooms",), line)
         except Exception as exc:
             log.add(("rooms",), f"cannot read rooms file {mission.rooms!r}: {os_message(exc)}")
     log.raise_if_any()

@@ -154,7 +154,7 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
     for room in loaded.rooms.values():
         poly = np.asarray(room.polygon + (room.polygon[0],))
         ax.plot(poly[:, 0], poly[:, 1], "--", lw=0.8, color="tab:purple", alpha=0.7)
-        cx, cy = room.centroid()
+        cx, cy = room.inside_point()
         ax.text(cx, cy, room.label, color="tab:purple", ha="center", fontsize=8, alpha=0.8)
     for i, p in enumerate(record.paths):
         ax.plot(

@@ -15,6 +15,7 @@ from agv_mission.missions.errors import MissionError, Problem
 from agv_mission.missions.schema import Mission, Setup
 from agv_mission.missions.yaml_lines import DocumentError, FieldPath, document_nodes, line_of
 from agv_mission.registry import registry
+from agv_mission.suggest import unknown_key
 
 
 @dataclass
@@ -26,15 +27,31 @@ class ProblemLog:
     lines: dict[FieldPath, int]
     override_paths: dict[FieldPath, str]
     problems: list[Problem] = field(default_factory=list)
+    type_swaps: dict[FieldPath, str] = field(default_factory=dict)  # block -> its --set type
 
     def at(self, field_path: FieldPath, message: str) -> Problem:
-        """The problem at ``field_path``; a value an override gave blames the override."""
+        """The problem at ``field_path``; a value an override gave blames the override
+        (the one that wrote it, else one that wrote inside it), and a key of a block whose
+        plugin an override chose also names that choice."""
         dotted = ".".join(spell(p) for p in field_path)
         spelled = tuple(map(str, field_path))  # --set tasks.0=... and stack.5=... alike
-        for opath, item in self.override_paths.items():
-            o = tuple(map(str, opath))
-            if spelled[: len(o)] == o or o[: len(spelled)] == spelled:
-                return Problem(self.file, None, dotted, f"{message} (from {item})")
+        above = [
+            (len(o), item)
+            for o, item in ((tuple(map(str, p)), i) for p, i in self.override_paths.items())
+            if spelled[: len(o)] == o
+        ]
+        below = [
+            item
+            for opath, item in self.override_paths.items()
+            if tuple(map(str, opath))[: len(spelled)] == spelled
+        ]
+        if above or below:
+            item = max(above)[1] if above else below[0]
+            for block, swap in self.type_swaps.items():
+                b = tuple(map(str, block))
+                if swap != item and len(spelled) > len(b) and spelled[: len(b)] == b:
+                    item += f"; the block's plugin from {swap}"
+            return Problem(self.file, None, dotted, f"{message} (from {item})")
         return Problem(self.file, line_of(field_path, self.lines), dotted, message)
 
     def add(self, field_path: FieldPath, message: str) -> None:
@@ -116,7 +133,7 @@ def error_message(err: dict, data: Any = None, model: type[Setup] = Mission) -> 
     if kind == "missing":
         return "required field is missing"
     if kind == "extra_forbidden":
-        return "unknown key (not allowed here)"
+        return unknown_key(model, tuple(err["loc"]))
     if kind == "union_tag_invalid":
         ctx = err.get("ctx", {})
         tag = ctx.get("tag")

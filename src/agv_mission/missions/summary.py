@@ -10,19 +10,22 @@ from typing import Any
 
 
 def task_rows(result: dict[str, Any]) -> list[tuple[str, str, str]]:
-    """``(task, status, detail)`` a task: waypoints or rooms reached, and the reason."""
+    """``(task, status, detail)`` a task: waypoints or rooms reached, and the reason, each
+    part separated by ``;`` (never run together)."""
     rows = []
     for task in result["tasks"]:
-        detail = task.get("reason") or ""
+        details = []
         if "waypoints" in task:
             reached = sum(w["status"] == "reached" for w in task["waypoints"])
             planned = task.get("waypoints_planned", len(task["waypoints"]))
-            detail = f"{reached}/{planned} waypoints reached " + detail
+            details.append(f"{reached}/{planned} waypoints reached")
         if "rooms" in task:
             reached = sum(r["status"] == "reached" for r in task["rooms"])
             recorded = sum(bool(r.get("recorded")) for r in task["rooms"])
-            detail = f"{reached}/{len(task['rooms'])} rooms reached, {recorded} recorded " + detail
-        rows.append((f"{task['index']}. {task['type']}", task["status"], detail))
+            details.append(f"{reached}/{len(task['rooms'])} rooms reached, {recorded} recorded")
+        if task.get("reason"):
+            details.append(str(task["reason"]))
+        rows.append((f"{task['index']}. {task['type']}", task["status"], "; ".join(details)))
     return rows
 
 

@@ -19,7 +19,7 @@ import numpy as np
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.grid import UNKNOWN
-from agv_mission.maps.rooms import Room, reachable_cells, visit_point
+from agv_mission.maps.rooms import Room, reachable_cells, room_point
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.missions.schema import Mission, Setup
 from agv_mission.missions.yaml_lines import FieldPath
@@ -27,6 +27,8 @@ from agv_mission.planners.configs import goal_margin
 from agv_mission.robots.description import RobotDescription
 
 MAX_GRID_CELLS = 16_000_000  # a costmap or SLAM grid: 16 M cells (e.g. 200 m x 200 m at 5 cm)
+
+START_MARGIN = 0.1  # m beyond the robot's radius: a room's start point, like its visit goal
 
 Report = Callable[[FieldPath, str], None]
 
@@ -65,7 +67,7 @@ def place_mission(
     report: Report,
 ) -> Placement:
     """Every pose and area the mission names, checked against the world's map."""
-    start = start_pose(mission, world, rooms, report)
+    start = start_pose(mission, world, rooms, costmap, report)
     _check_pose(start, costmap, ("start",), report)
     margin = goal_margin(mission.stack.global_planner)  # goals: as the navigator plans
     for i, task in enumerate(tasks_of(mission)):
@@ -92,8 +94,11 @@ def place_mission(
     return Placement(world, start, room_goals)
 
 
-def start_pose(mission: Setup, world: World, rooms: dict[str, Room], report: Report) -> Pose2D:
-    """``start`` as a pose: the world's spawn, a room's anchor (or centroid), or as given."""
+def start_pose(
+    mission: Setup, world: World, rooms: dict[str, Room], costmap: Costmap, report: Report
+) -> Pose2D:
+    """``start`` as a pose: the world's spawn, a room's anchor (or, without one, a free
+    point well inside it: :func:`room_point`), or as given."""
     if mission.start is None:
         return world.spawn
     if isinstance(mission.start, str):
@@ -106,8 +111,12 @@ def start_pose(mission: Setup, world: World, rooms: dict[str, Room], report: Rep
             )
             return world.spawn
         if room.anchor is None:
-            x, y = room.centroid()
-            return Pose2D(x, y, 0.0)
+            free = costmap.distance > costmap.robot_radius + START_MARGIN
+            point = room_point(room, costmap, free)
+            if point is None:
+                report(("start",), f"room {mission.start!r} has no free point to start from")
+                return world.spawn
+            return point
         return room.anchor
     return mission.start.to_pose2d()
 
@@ -171,7 +180,7 @@ def _room_goals(
                 continue
             if allowed is None:
                 allowed = reachable_cells(costmap, start, margin=0.1)
-            point = visit_point(room, costmap, allowed)
+            point = room_point(room, costmap, allowed)
             if point is None:
                 report(
                     ("tasks", i, "rooms", j),

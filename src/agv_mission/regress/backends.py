@@ -21,7 +21,7 @@ from typing import Any
 from agv_mission.messages import json_default
 from agv_mission.missions.errors import MissionError
 from agv_mission.missions.workers import forkserver_context
-from agv_mission.regress.plan import RegressError, ResultCallback
+from agv_mission.regress.plan import RegressError, ResultCallback, sweep_overrides
 
 # Signals this process was asked to stop with (Ctrl-C, SIGTERM): a run in progress ends
 # ``aborted`` before its next step, a job not started yet is not started.
@@ -72,7 +72,7 @@ def run_job(job: dict[str, Any]) -> dict[str, Any] | None:
     shipped = bool(job.get("ship_back"))  # on a remote worker: the run directory comes back
     output_root = Path(tempfile.mkdtemp(prefix="agv-regress-")) if shipped else None
     try:
-        loaded = load_mission(job["scenario"], job["overrides"], job["seed"])
+        loaded = load_mission(job["scenario"], sweep_overrides(job["overrides"]), job["seed"])
         run_dir = open_run_dir(output_root or Path(job["output_root"]), loaded, job["run_name"])
         record = run_mission(loaded, run_dir, control=_StopControl())
         doc = write_run(run_dir, loaded, record)

@@ -40,6 +40,7 @@ from typing import Any
 import yaml
 
 from agv_mission.missions.errors import MissionError, Problem
+from agv_mission.missions.overrides import Override
 
 # Result keys that come from the wall clock: they differ between any two runs.
 WALL_CLOCK_METRICS = (
@@ -135,6 +136,11 @@ def _split_values(raw: str) -> list[str]:
     return parts
 
 
+def sweep_overrides(items: Iterable[str]) -> list[Override]:
+    """A variant's ``KEY=VALUE`` items as overrides that say they came from ``--sweep``."""
+    return [Override(item, "--sweep") for item in items]
+
+
 def expand_variants(sweeps: Sequence[str]) -> list[Variant]:
     """The cartesian product of every ``--sweep``; one unnamed variant without sweeps."""
     if not sweeps:
@@ -193,7 +199,7 @@ def plan_jobs(
     for s_index, path in enumerate(scenarios):
         for v_index, variant in enumerate(variants):
             try:
-                loaded = load_mission(path, list(variant.overrides))
+                loaded = load_mission(path, sweep_overrides(variant.overrides))
             except MissionError as exc:
                 problems += exc.problems
                 continue

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -9,6 +10,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from agv_mission.atomic import InputFileError, input_path, read_input_text
+from agv_mission.suggest import unknown_key
 
 MAX_BEAMS = 8192  # more than any planar lidar sold; each beam is a ray cast per scan
 
@@ -110,10 +112,22 @@ BUILTIN_ROBOTS: dict[str, RobotDescription] = {
 class RobotFileError(ValueError):
     """A robot file that cannot be used; names the file, the line and the field."""
 
-    def __init__(self, path: Path, line: int | None, field: str, message: str) -> None:
+    def __init__(
+        self,
+        path: Path,
+        line: int | None,
+        field: str,
+        message: str,
+        more: Sequence[tuple[int | None, str, str]] = (),
+    ) -> None:
         self.path, self.line, self.field, self.message = path, line, field, message
-        where = f"line {line}: " if line is not None else ""
-        super().__init__(f"{where}{field + ': ' if field else ''}{message}")
+        self.problems = [(line, field, message), *more]  # every (line, field, message)
+        super().__init__(
+            "\n".join(
+                (f"line {ln}: " if ln is not None else "") + (f"{f}: " if f else "") + m
+                for ln, f, m in self.problems
+            )
+        )
 
 
 def load_robot(spec: str, base_dir: Path | None = None) -> RobotDescription:
@@ -150,15 +164,19 @@ def load_robot(spec: str, base_dir: Path | None = None) -> RobotDescription:
     try:
         return RobotDescription.model_validate(doc)
     except ValidationError as exc:
-        errors = exc.errors(include_url=False)
-        err = errors[0]
-        loc = tuple(err["loc"])
-        msg = "field required" if err["type"] == "missing" else err["msg"]
-        if "input" in err and not isinstance(err["input"], (dict, list)):
-            msg = f"{msg} (got {err['input']!r})"
-        more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
-        field = ".".join(map(str, loc))
-        raise RobotFileError(path, _line_of(root, loc), field, msg + more) from None
+        problems = [_robot_problem(root, err) for err in exc.errors(include_url=False)]
+        raise RobotFileError(path, *problems[0], more=problems[1:]) from None
+
+
+def _robot_problem(root: Any, err: Any) -> tuple[int | None, str, str]:
+    """One validation error as (line, field, message)."""
+    loc = tuple(err["loc"])
+    msg = "field required" if err["type"] == "missing" else err["msg"]
+    if err["type"] == "extra_forbidden":
+        msg = unknown_key(RobotDescription, loc)
+    elif "input" in err and not isinstance(err["input"], (dict, list)):
+        msg = f"{msg} (got {err['input']!r})"
+    return _line_of(root, loc), ".".join(map(str, loc)), msg.removeprefix("Value error, ")
 
 
 def _line_of(node: Any, loc: tuple[Any, ...]) -> int | None:

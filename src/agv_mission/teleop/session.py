@@ -37,7 +37,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TextIO
 
 import numpy as np
 import yaml
@@ -51,6 +51,7 @@ from agv_mission.maps.recorder import (
 from agv_mission.maps.rooms import room_at
 from agv_mission.missions.loader import LoadedMission, load_mission
 from agv_mission.missions.outputs import make_run_dir, write_trajectory
+from agv_mission.missions.overrides import Override
 from agv_mission.missions.runner import MissionRun, run_mission
 from agv_mission.missions.schema import MAX_SIM_SECONDS, Mission
 from agv_mission.missions.stack import CONTROL_PERIOD, open_recorders
@@ -81,17 +82,15 @@ def load_teleop_mission(
     """The mission to drive in: a mission file's world, robot, start and stack, or by
     default the built-in ``small_house`` (``world``/``robot`` override either). Raises
     :class:`~agv_mission.missions.errors.MissionError` on invalid input."""
-    sets = list(overrides or [])
+    sets: list[str | Override] = []
+    for option, value in (("--world", world), ("--robot", robot)):
+        if value is not None:  # errors in them name the option, not a file line
+            key = option.removeprefix("--")
+            sets.append(Override(f"{key}={json.dumps(value)}", option, f"{option} {value}"))
+    sets += overrides or []
     if mission is None:
-        doc: dict[str, Any] = {"name": "teleop", "world": world or DEFAULT_WORLD}
-        if robot is not None:
-            doc["robot"] = robot
-        text = yaml.safe_dump(doc, sort_keys=False)
+        text = yaml.safe_dump({"name": "teleop", "world": DEFAULT_WORLD}, sort_keys=False)
         return load_mission(Path("teleop.yaml"), sets, seed, text=text, tasks_required=False)
-    if robot is not None:
-        sets.insert(0, f"robot={json.dumps(robot)}")
-    if world is not None:
-        sets.insert(0, f"world={json.dumps(world)}")
     return load_mission(mission, sets, seed, tasks_required=False)
 
 

@@ -16,7 +16,7 @@ from pydantic import (
     model_validator,
 )
 from pydantic.json_schema import JsonSchemaValue
-from pydantic_core import CoreSchema
+from pydantic_core import CoreSchema, InitErrorDetails, PydanticCustomError, ValidationError
 
 from agv_mission.geometry import Pose2D, yaw_from_quaternion
 
@@ -67,10 +67,21 @@ class Pose(StrictModel):
             raise ValueError(
                 f"a ROS-style pose has only 'position' and 'orientation', not {sorted(extra, key=str)}"
             )
-        position = Position.model_validate(data.get("position", {"x": 0.0, "y": 0.0}), strict=True)
-        if "orientation" not in data:
-            return {"x": position.x, "y": position.y, "yaw": 0.0}
-        q = Orientation.model_validate(data["orientation"], strict=True)
+        for key in ("position", "orientation"):
+            if key not in data:  # geometry_msgs/Pose has both: no silent (0, 0) or yaw 0
+                raise _nested_error(
+                    key,
+                    PydanticCustomError(
+                        "ros_pose_incomplete",
+                        "a ROS-style pose needs both 'position' and 'orientation'",
+                    ),
+                    data,
+                )
+        details: list[InitErrorDetails] = []
+        position = _validate_part(Position, "position", data["position"], details)
+        q = _validate_part(Orientation, "orientation", data["orientation"], details)
+        if details:
+            raise ValidationError.from_exception_data("Pose", details)
         norm = math.sqrt(q.x**2 + q.y**2 + q.z**2 + q.w**2)
         if abs(norm - 1.0) > QUATERNION_TOLERANCE:
             raise ValueError(
@@ -101,6 +112,28 @@ class Pose(StrictModel):
         return schema
 
 
+def _nested_error(key: str, error: PydanticCustomError | str, data: Any) -> ValidationError:
+    return ValidationError.from_exception_data(
+        "Pose", [InitErrorDetails(type=error, loc=(key,), input=data)]
+    )
+
+
+def _validate_part(
+    model: type[StrictModel], key: str, value: Any, details: list[InitErrorDetails]
+) -> Any:
+    """``position``/``orientation`` validated with their errors (added to ``details``) at
+    their own key, so a quaternion without ``w`` is reported at ``...orientation.w``."""
+    try:
+        return model.model_validate(value, strict=True)
+    except ValidationError as exc:
+        for err in exc.errors(include_url=False):
+            detail = InitErrorDetails(type=err["type"], loc=(key, *err["loc"]), input=err["input"])
+            if "ctx" in err:
+                detail["ctx"] = err["ctx"]
+            details.append(detail)
+        return None
+
+
 def _number_object(required: list[str], optional: list[str]) -> dict[str, Any]:
     return {
         "type": "object",
@@ -118,7 +151,7 @@ ROS_POSE_SCHEMA: dict[str, Any] = {
         "position": _number_object(["x", "y"], ["z"]),
         "orientation": _number_object(["z", "w"], ["x", "y"]),
     },
-    "minProperties": 1,
+    "required": ["position", "orientation"],
     "additionalProperties": False,
 }
 

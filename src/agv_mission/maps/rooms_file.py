@@ -4,6 +4,8 @@
       livingroom:
         polygon: [[-2.3, -5.3], [4.6, -5.3], [4.6, 0.0], [-2.3, 0.0]]   # map frame, metres
         anchor: {x: 3.0, y: -2.0, yaw: 0.0}    # optional
+    docks:                                     # optional: chargers by name
+      charger: {x: 3.5, y: -5.1, yaw: -1.5708} # the docked robot's pose, facing the charger
 
 A polygon needs at least three [x, y] points and a non-zero area; the anchor is
 optional (``yaw`` defaults to 0). Errors name the file, the line, the room and the
@@ -30,6 +32,7 @@ from pydantic import (
 
 from agv_mission.atomic import InputFileError, read_input_text
 from agv_mission.geometry import Pose2D
+from agv_mission.maps.docks import Dock, DockModel
 from agv_mission.maps.rooms import Room
 
 Point = tuple[float, float]
@@ -59,7 +62,7 @@ class RoomsFileError(ValueError):
             loc = tuple(err["loc"])
             room = str(loc[1]) if len(loc) >= 2 and loc[0] == "rooms" else None
             field = ".".join(str(p) for p in (loc[2:] if room else loc))
-            line = _line_of(root, loc) if root is not None else None
+            line = line_of(root, loc) if root is not None else None
             msg = "field required" if err["type"] == "missing" else err["msg"]
             msg = msg.removeprefix("Value error, ")
             problems.append((line, room, f"{field}: {msg}" if field else msg))
@@ -118,7 +121,8 @@ class RoomModel(BaseModel):
 class RoomsModel(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    rooms: dict[str, RoomModel]
+    rooms: dict[str, RoomModel] = Field(default_factory=dict)
+    docks: dict[str, DockModel] = Field(default_factory=dict)
 
 
 def _point(p: Point) -> str:
@@ -134,8 +138,24 @@ def rooms_from_model(model: RoomsModel) -> dict[str, Room]:
     return rooms
 
 
+def docks_from_model(model: RoomsModel, path: Path, text: str | None) -> dict[str, Dock]:
+    """The model's docks, each knowing the file and line it was written on."""
+    root = _compose(text) if text is not None else None
+    docks = {}
+    for name, d in model.docks.items():
+        line = line_of(root, ("docks", name)) if root is not None else None
+        source = f"{path}:{line}" if line else str(path)
+        docks[name] = Dock(name, Pose2D(d.x, d.y, d.yaw), source)
+    return docks
+
+
 def load_rooms(path: str | os.PathLike[str]) -> dict[str, Room]:
     """Read a rooms file into ``{label: Room}`` (in file order)."""
+    return load_rooms_file(path)[0]
+
+
+def load_rooms_file(path: str | os.PathLike[str]) -> tuple[dict[str, Room], dict[str, Dock]]:
+    """Read a rooms file: its rooms and its docks (each in file order)."""
     path = Path(path)
     try:
         text = read_input_text(path)
@@ -153,15 +173,22 @@ def load_rooms(path: str | os.PathLike[str]) -> dict[str, Room]:
     duplicate = _duplicate_label(text)
     if duplicate is not None:
         raise RoomsFileError(path, [duplicate])
-    if not isinstance(doc, dict) or "rooms" not in doc:
+    if not isinstance(doc, dict) or not ("rooms" in doc or "docks" in doc):
         raise RoomsFileError(
-            path, [(None, None, "a rooms file is a mapping with a top-level 'rooms' key")]
+            path,
+            [
+                (
+                    None,
+                    None,
+                    "a rooms file is a mapping with a top-level 'rooms' key (and/or 'docks')",
+                )
+            ],
         )
     try:
         model = RoomsModel.model_validate(doc)
     except ValidationError as exc:
         raise RoomsFileError.from_validation(path, exc, text) from exc
-    return rooms_from_model(model)
+    return rooms_from_model(model), docks_from_model(model, path, text)
 
 
 # --------------------------------------------------------------------------- line numbers
@@ -193,7 +220,7 @@ def _compose(text: str) -> yaml.Node | None:
         return None
 
 
-def _line_of(node: Any, loc: Sequence[str | int]) -> int | None:
+def line_of(node: Any, loc: Sequence[str | int]) -> int | None:
     """1-based line of the deepest YAML node along ``loc`` (a mapping entry: its key)."""
     line = node.start_mark.line + 1
     for part in loc:

@@ -30,6 +30,8 @@
          kitchen:
            polygon: [[0, 0], [2, 0], [2, 2], [0, 2]]
            anchor: {x: 1.0, y: 1.0, yaw: 0.0}
+       docks:                      # optional: chargers, the docked robot's pose
+         charger: {x: 0.0, y: -2.2, yaw: -1.5708}
 
    The robot's map is rasterised from the geometry
    (:func:`agv_mission.maps.rasterize.rasterize`): free where the spawn can reach.
@@ -51,10 +53,17 @@ from scipy import ndimage
 from agv_mission.atomic import InputFileError, input_path, read_input_text
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
+from agv_mission.maps.docks import Dock, DockModel, dock_problem
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
 from agv_mission.maps.rasterize import rasterize
 from agv_mission.maps.rooms import Room
-from agv_mission.maps.rooms_file import RoomsFileError, RoomsModel, load_rooms, rooms_from_model
+from agv_mission.maps.rooms_file import (
+    RoomsFileError,
+    RoomsModel,
+    line_of,
+    load_rooms_file,
+    rooms_from_model,
+)
 from agv_mission.maps.ros_map import MapLoadError, is_ros_map_yaml, load_ros_map
 from agv_mission.maps.worlds import Box, Cylinder, World
 
@@ -265,6 +274,7 @@ class WorldFileModel(_Strict):
     boxes: list[_BoxModel] = Field(default_factory=list)
     cylinders: list[_CylinderModel] = Field(default_factory=list)
     rooms: str | dict[str, Any] | None = None
+    docks: dict[str, DockModel] = Field(default_factory=dict)
 
 
 def world_from_file(path: Path, doc: dict[str, Any] | None = None) -> World:
@@ -277,11 +287,15 @@ def world_from_file(path: Path, doc: dict[str, Any] | None = None) -> World:
     try:
         model = WorldFileModel.model_validate(doc)
     except ValidationError as exc:
-        lines = [
-            f"  {'.'.join(str(p) for p in err['loc']) or '(top level)'}: "
-            + ("field required" if err["type"] == "missing" else err["msg"])
-            for err in exc.errors()
-        ]
+        root = _compose_file(path)
+        lines = []
+        for err in exc.errors():
+            line = line_of(root, tuple(err["loc"])) if root is not None else None
+            lines.append(
+                f"  {f'line {line}: ' if line else ''}"
+                f"{'.'.join(str(p) for p in err['loc']) or '(top level)'}: "
+                + ("field required" if err["type"] == "missing" else err["msg"])
+            )
         raise WorldError(f"{path}: invalid world file:\n" + "\n".join(lines)) from exc
 
     boxes = [b.to_box() for b in model.boxes]
@@ -296,28 +310,49 @@ def world_from_file(path: Path, doc: dict[str, Any] | None = None) -> World:
         grid = rasterize(boxes, cylinders, bounds, model.resolution, spawn)
     except ValueError as exc:
         raise WorldError(f"{path}: {exc}") from exc
+    rooms, docks = _rooms_of(path, model.rooms)
+    root = _compose_file(path) if model.docks else None
+    for name, d in model.docks.items():
+        line = line_of(root, ("docks", name)) if root is not None else None
+        docks[name] = Dock(name, Pose2D(d.x, d.y, d.yaw), f"{path}:{line}" if line else str(path))
+    for dock in docks.values():
+        problem = dock_problem(dock.pose, grid)
+        if problem is not None:
+            raise WorldError(f"{dock.source}: docks.{dock.name}: {problem}")
     return World(
         name=model.name or path.stem,
         boxes=boxes,
         cylinders=cylinders,
         map=grid,
         spawn=spawn,
-        rooms=_rooms_of(path, model.rooms),
+        rooms=rooms,
         wall_height=model.wall_height,
+        docks=docks,
     )
 
 
-def _rooms_of(path: Path, rooms: str | dict[str, Any] | None) -> dict[str, Room]:
+def _compose_file(path: Path) -> yaml.Node | None:
+    """The file's YAML node tree, for line numbers (None when it cannot be read again)."""
+    try:
+        return yaml.compose(read_input_text(path), Loader=yaml.SafeLoader)
+    except (InputFileError, OSError, UnicodeDecodeError, yaml.YAMLError):
+        return None
+
+
+def _rooms_of(
+    path: Path, rooms: str | dict[str, Any] | None
+) -> tuple[dict[str, Room], dict[str, Dock]]:
+    """The world's rooms, and the docks of its rooms file when it names one."""
     try:
         if rooms is None:
-            return {}
+            return {}, {}
         if isinstance(rooms, str):
-            return load_rooms(input_path(rooms, path.parent))
+            return load_rooms_file(input_path(rooms, path.parent))
         try:
             model = RoomsModel.model_validate({"rooms": rooms})
         except ValidationError as exc:
             raise RoomsFileError.from_validation(path, exc) from exc
-        return rooms_from_model(model)
+        return rooms_from_model(model), {}
     except RoomsFileError as exc:
         raise WorldError(str(exc)) from exc
 

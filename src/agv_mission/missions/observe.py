@@ -96,6 +96,9 @@ class StepSample:
     tree_nodes: list[TreeNode] | None  # all nodes when any status changed this step
     task_index: int | None  # 0-based index of the running task
     task_type: str | None
+    battery: float | None = None  # the level 0..1; None: not modelled
+    charging: bool = False
+    docked: str | None = None  # the dock the robot stands on
 
 
 class RunObserver(Protocol):

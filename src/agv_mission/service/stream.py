@@ -170,6 +170,9 @@ class StreamObserver:
             "status": self.status,
             "task": self.task,
             "progress": self.progress(),
+            "battery": None if s.battery is None else round(s.battery, 5),
+            "charging": s.charging,
+            "docked": s.docked,
         }
 
     def on_end(self, record: Any) -> None:

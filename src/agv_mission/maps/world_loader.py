@@ -292,9 +292,9 @@ def world_from_file(path: Path, doc: dict[str, Any] | None = None) -> World:
         for err in exc.errors():
             line = line_of(root, tuple(err["loc"])) if root is not None else None
             lines.append(
-                f"  {f'line {line}: ' if line else ''}"
-                f"{'.'.join(str(p) for p in err['loc']) or '(top level)'}: "
+                f"  {'.'.join(str(p) for p in err['loc']) or '(top level)'}: "
                 + ("field required" if err["type"] == "missing" else err["msg"])
+                + (f" (line {line})" if line else "")
             )
         raise WorldError(f"{path}: invalid world file:\n" + "\n".join(lines)) from exc
 

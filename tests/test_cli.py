@@ -75,9 +75,7 @@ def test_run_writes_a_complete_run_directory(tmp_path: Path) -> None:
     header = (run_dir / "trajectory.csv").read_text().splitlines()[0]
     # The contract's nine columns, the estimate's covariance (amcl reports one), then the
     # battery's level (the burger has one), last.
-    assert header == (
-        "t,x,y,yaw,est_x,est_y,est_yaw,v,w,cov_xx,cov_xy,cov_yy,cov_yawyaw,battery"
-    )
+    assert header == ("t,x,y,yaw,est_x,est_y,est_yaw,v,w,cov_xx,cov_xy,cov_yy,cov_yawyaw,battery")
     last = (run_dir / "trajectory.csv").read_text().splitlines()[-1].split(",")
     battery = result["metrics"]["battery"]
     assert float(last[-1]) == pytest.approx(battery["end"], abs=1e-5)

@@ -184,6 +184,20 @@
     if (cursor) lines.push(`cursor x${num(cursor[0], 7, 2)} y${num(cursor[1], 7, 2)}`);
     const text = lines.join("\n");
     if ($("hud").textContent !== text) $("hud").textContent = text;
+    updateBattery(st);
+  }
+
+  // The battery's level (0..1, null when the robot has none), charging or not, docked where.
+  function updateBattery(st) {
+    const box = $("battery");
+    const level = st && typeof st.battery === "number" ? st.battery : null;
+    box.hidden = level === null;
+    if (level === null) return;
+    $("batterymeter").value = level;
+    const text = `${(level * 100).toFixed(1)} %` + (st.docked ? ` · docked at ${st.docked}` : "");
+    if ($("batterytext").textContent !== text) $("batterytext").textContent = text;
+    box.classList.toggle("charging", !!st.charging);
+    box.classList.toggle("low", level <= 0.2);
   }
 
   function renderTree() {

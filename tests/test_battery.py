@@ -7,15 +7,19 @@ import json
 import math
 from pathlib import Path
 
+import py_trees
 import pytest
 from py_trees.common import Status
 
 from agv_mission.behaviors.battery import (
     Charge,
+    Dock,
     IsBatteryCharging,
     IsBatteryLow,
     Undock,
 )
+from agv_mission.behaviors.navigate import NavigateToPose
+from agv_mission.geometry import Pose2D
 from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.rooms_file import RoomsFileError, load_rooms_file
@@ -25,6 +29,8 @@ from agv_mission.missions.expectations import Expectations, check
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.outputs import make_run_dir, write_run
 from agv_mission.missions.runner import MissionRun, run_mission
+from agv_mission.missions.tree import MissionTree
+from agv_mission.navigation.navigator import NavStatus
 from agv_mission.robots.battery import WH, Battery, BatterySpec, battery_for
 from agv_mission.robots.description import BUILTIN_ROBOTS, RobotFileError, load_robot
 
@@ -319,3 +325,53 @@ def test_flat_battery_stops_the_robot_and_fails_the_mission(tmp_path: Path) -> N
     assert doc["metrics"]["battery"]["end"] == 0.0 == record.battery[-1]
     assert record.trajectory[-1, 7] == 0.0 and record.trajectory[-1, 8] == 0.0
     assert 15.0 < record.sim_time < 22.0
+
+
+def test_a_halted_dock_stops_the_robot_and_cancels_its_goal(tmp_path: Path) -> None:
+    run = MissionRun(mission(tmp_path, "  - {type: dock}\n"), None)
+    for _ in range(30):
+        assert run.step()
+    dock = run.tree.tasks[0]
+    assert dock.status is Status.RUNNING and run.navigator.goal is not None
+    assert run.handle.command != (0.0, 0.0)
+    run.tree.root.stop(Status.INVALID)  # a reactive parent halting it
+    assert run.handle.command == (0.0, 0.0)
+    assert run.navigator.status is NavStatus.IDLE
+
+
+def test_a_reactive_tree_patrols_docks_when_low_charges_and_patrols_on(tmp_path: Path) -> None:
+    """The battery-aware patrol as a hand-built py_trees tree (what ``tree:`` expresses):
+    a fallback that re-checks IsBatteryLow every tick, over a patrol it halts."""
+    run = MissionRun(mission(tmp_path, "  - {type: undock}\n", level=0.1012, limit=400), None)
+    handle = run.handle
+    recharge = py_trees.composites.Sequence(
+        "recharge",
+        memory=True,
+        children=[
+            IsBatteryLow("low?", handle, min_battery=0.1),
+            Dock("dock", handle, dock="charger"),
+            Charge("charge", handle, until=0.105),
+            Undock("undock", handle),
+        ],
+    )
+    goals = [Pose2D(0.55, -1.95, 0.0), Pose2D(-2.0, -0.5, 0.0)]
+    patrol = py_trees.composites.Sequence(
+        "patrol",
+        memory=True,
+        children=[NavigateToPose(f"go {i}", handle, g) for i, g in enumerate(goals)],
+    )
+    guard = py_trees.composites.Selector("battery guard", memory=False, children=[recharge, patrol])
+    root = py_trees.decorators.Repeat("forever", guard, num_success=-1)
+    run.tree = MissionTree(root, [root])
+    run.task_status = ["not_run"]
+    while run.step():
+        pass
+    events = [e["event"] for e in handle.events]
+    assert run.status == "failed" and "time limit" in str(run.reason), run.reason
+    # low after ~11 s: docks, charges, patrols on until low again, and again
+    assert events[:5] == ["dock_staged", "docked", "charging", "charged", "undocked"]
+    assert events.count("docked") >= 3 and events.count("undocked") >= 3
+    second_dock = events.index("dock_staged", 1)
+    assert events[5:second_dock].count("goal_reached") >= 2  # patrolled on after charging
+    # never lower than the guard's 10 % less what docking takes (about 0.4 %)
+    assert run.battery.minimum > 0.095 and run.battery.charging_time > 60.0

@@ -110,6 +110,7 @@ class Dock(py_trees.behaviour.Behaviour):
         self.handle = handle
         self.dock = dock
         self._target: DockPose | None = None
+        self._staging: Pose2D | None = None
         self._approaching = False
         self._deadline = 0.0
 
@@ -121,7 +122,8 @@ class Dock(py_trees.behaviour.Behaviour):
         if self._target is None or handle.docked is self._target:
             return
         handle.docked = None
-        handle.navigator.start(self._target.staging(), handle.state)
+        self._staging = self._target.staging()
+        handle.navigator.start(self._staging, handle.state)
 
     def update(self) -> Status:
         handle, target = self.handle, self._target
@@ -134,6 +136,8 @@ class Dock(py_trees.behaviour.Behaviour):
         state = handle.state
         if not self._approaching:
             nav = handle.navigator
+            if nav.goal is not self._staging:  # a halted node cancelled it: go on
+                nav.start(self._staging, state)
             cmd = nav.update(state)
             handle.drive(cmd.v, cmd.w)
             if nav.status is NavStatus.FAILED:
@@ -171,7 +175,9 @@ class Dock(py_trees.behaviour.Behaviour):
 
     def terminate(self, new_status: Status) -> None:
         if new_status is Status.INVALID:
-            self.handle.navigator.cancel()
+            nav = self.handle.navigator
+            if self._staging is not None and nav.goal is self._staging:
+                nav.cancel()
             self.handle.stop()
 
 

@@ -375,6 +375,8 @@ def test_run_page_shows_the_battery_level_and_charging(
     page.wait_for_selector("#battery:not([hidden])", timeout=60_000)
     page.wait_for_selector("#battery.charging", timeout=120_000)
     page.screenshot(path=str(shots / "run-battery-charging.png"))
+    docks = page.evaluate("() => window.agvView.scene.docks")
+    assert [(d["name"], d["x"], d["y"]) for d in docks] == [("charger", 0.55, -2.2)]
     wait_status(page, "succeeded", timeout_s=180)
     seen = page.evaluate("() => window.__battery")
     values = [s["value"] for s in seen]

@@ -205,6 +205,7 @@ class MissionRun:
             rooms=loaded.rooms,
             start=loaded.start,
             tree_nodes=tree_nodes(self.tree.root),
+            docks=loaded.docks,
         )
         for observer in self.observers:
             observer.on_start(start)

@@ -78,7 +78,7 @@ class StreamObserver:
 
     def on_start(self, start: RunStart) -> None:
         self.emit(msg.map_message(start.world_map))
-        self.emit(msg.rooms_message(start.rooms))
+        self.emit(msg.rooms_message(start.rooms, start.docks))
         self.emit(msg.recorded_message(self.recorded))
         self.nodes = start.tree_nodes
         self.emit(msg.tree_message(start.tree_nodes))

@@ -113,7 +113,7 @@
     const s = view.scene;
     switch (msg.type) {
       case "map": view.setMap(msg); break;
-      case "rooms": s.rooms = msg.rooms || []; break;
+      case "rooms": s.rooms = msg.rooms || []; s.docks = msg.docks || []; break;
       case "recorded": s.recorded = Object.assign({}, msg.entries || {}); break;
       case "tree": treeNodes = msg.nodes || []; treeDirty = true; break;
       case "plan": s.plan = msg.path; break;

@@ -375,3 +375,40 @@ def test_a_reactive_tree_patrols_docks_when_low_charges_and_patrols_on(tmp_path:
     assert events[5:second_dock].count("goal_reached") >= 2  # patrolled on after charging
     # never lower than the guard's 10 % less what docking takes (about 0.4 %)
     assert run.battery.minimum > 0.095 and run.battery.charging_time > 60.0
+
+
+def test_the_battery_patrol_is_a_dashboard_template_and_validates() -> None:
+    packaged = REPO / "src" / "agv_mission" / "data" / "missions" / "battery_patrol.yaml"
+    example = REPO / "missions" / "battery_patrol.yaml"
+    assert packaged.read_bytes() == example.read_bytes()
+    loaded = load_mission(example)
+    assert [t.type for t in loaded.mission.tasks] == [
+        "patrol",
+        "dock",
+        "charge",
+        "undock",
+        "patrol",
+    ]
+    assert loaded.mission.simulation.battery_level == 0.3
+
+
+def test_a_dock_the_robot_does_not_fit_on_is_refused(tmp_path: Path) -> None:
+    """0.15 m from the south wall's face: a free cell, but a waffle (r = 0.22 m) cannot
+    stand there; the burger (r = 0.105 m) can."""
+    rooms = tmp_path / "rooms.yaml"
+    rooms.write_text("docks:\n  tight: {x: 0.55, y: -2.35, yaw: -1.5708}\n")
+    for robot, ok in (("waffle", False), ("burger", True)):
+        text = SETUP.format(name=robot, robot=robot, level=1.0, limit=10)
+        path = tmp_path / f"{robot}.yaml"
+        path.write_text(text.replace("seed: 3", "seed: 3\nrooms: rooms.yaml"))
+        path.write_text(path.read_text() + "  - {type: dock, dock: tight}\n")
+        if ok:
+            assert load_mission(path).docks["tight"].source == f"{rooms}:2"
+            continue
+        with pytest.raises(MissionError) as exc:
+            load_mission(path)
+        [problem] = exc.value.problems
+        assert problem.field == "tasks.0.dock"
+        assert "dock 'tight' at (0.55, -2.35) is inside or too close to an obstacle" in (
+            problem.message
+        )

@@ -412,3 +412,23 @@ def test_a_dock_the_robot_does_not_fit_on_is_refused(tmp_path: Path) -> None:
         assert "dock 'tight' at (0.55, -2.35) is inside or too close to an obstacle" in (
             problem.message
         )
+
+
+@pytest.mark.parametrize("world", sorted(BUILTIN_WORLDS))
+def test_every_builtin_charger_is_reachable_by_the_waffle_with_amcl(
+    tmp_path: Path, world: str
+) -> None:
+    path = tmp_path / "dock.yaml"
+    path.write_text(
+        f"name: dock-{world}\nworld: {world}\nrobot: waffle\nseed: 2\n"
+        "stack: {localization: {type: amcl}}\nlimits: {time: 200}\n"
+        "tasks: [{type: dock}, {type: undock}]\n"
+    )
+    loaded = load_mission(path)
+    record = run_mission(loaded)
+    assert record.status == "succeeded", record.reason
+    assert record.metrics["collisions"] == 0
+    dock = loaded.docks["charger"]
+    [docked] = [e for e in record.events if e["event"] == "docked"]
+    row = record.trajectory[abs(record.trajectory[:, 0] - docked["t"]).argmin()]
+    assert math.hypot(row[1] - dock.pose.x, row[2] - dock.pose.y) < 0.06  # the true pose

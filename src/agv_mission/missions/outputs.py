@@ -170,6 +170,10 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
         ax.plot(poly[:, 0], poly[:, 1], "--", lw=0.8, color="tab:purple", alpha=0.7)
         cx, cy = room.centroid()
         ax.text(cx, cy, room.label, color="tab:purple", ha="center", fontsize=8, alpha=0.8)
+    for i, dock in enumerate(loaded.docks.values()):
+        d = dock.pose
+        ax.plot(d.x, d.y, "s", color="goldenrod", ms=6, label="docks" if i == 0 else None)
+        ax.annotate(dock.name, (d.x, d.y), fontsize=7, color="goldenrod")
     for i, p in enumerate(record.paths):
         ax.plot(
             p[:, 0],
@@ -231,7 +235,12 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"{loaded.name}: {record.status}  (sim {record.sim_time:.1f} s)")
+    title = f"{loaded.name}: {record.status}  (sim {record.sim_time:.1f} s)"
+    battery = record.metrics.get("battery")
+    if battery:
+        title += f"  battery {battery['start']:.0%} -> {battery['end']:.0%}"
+        title += f" (min {battery['minimum']:.0%})"
+    ax.set_title(title)
     if ax.get_legend_handles_labels()[0]:  # a run that ended before its first row has none
         ax.legend(loc="upper right", fontsize=7)
     buf = io.BytesIO()

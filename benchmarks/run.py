@@ -34,6 +34,7 @@ MODULES = [
     "bench_bags",
     "bench_service",
     "bench_dashboard",
+    "bench_battery",
 ]
 
 # metric -> (comparison, target) from the issues
@@ -78,6 +79,7 @@ TARGETS = {
     "bags.round_trip.aws_small_house.free_iou.offline": (">=", 0.95),
     "bags.round_trip.aws_small_house.x_bag_duration": (">=", 20.0),
     "service.throughput_ratio": (">=", 1.8),
+    "battery.patrol.cost_ratio_with_over_without": ("<=", 1.05),  # issue 23: cheap in the loop
     "service.slowdown_50_subscribers": ("<=", 0.10),
     "service.lost": ("<=", 0.0),
     "service.control_ms.pause_p50": ("<=", 200.0),

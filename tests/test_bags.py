@@ -36,6 +36,7 @@ CONTRACT = {
     "/ground_truth": "nav_msgs/msg/Odometry",
     "/rooms": "visualization_msgs/msg/MarkerArray",
     "/events": "std_msgs/msg/String",
+    "/battery_state": "sensor_msgs/msg/BatteryState",  # behaviour-trees.md
 }
 
 
@@ -72,6 +73,26 @@ def test_contract_topics_and_types(patrol_run):
     assert len(list((run_dir / "bag").glob("*.mcap"))) == 1
     for topic in CONTRACT:
         assert messages.get(topic), f"{topic} is empty"
+
+
+def test_battery_state_matches_trajectory_csv(patrol_run):
+    """/battery_state once per simulated second, its percentage the trajectory's battery
+    column at that stamp, discharging, with the burger's 11.1 V 1.8 Ah pack."""
+    loaded, run_dir, record, _, messages = patrol_run
+    with open(run_dir / "trajectory.csv", newline="") as f:
+        rows = {round(float(r["t"]), 6): float(r["battery"]) for r in csv.DictReader(f)}
+    states = [m for _, m in messages["/battery_state"]]
+    assert len(states) == math.floor(record.sim_time) + 1
+    for m in states:
+        assert m.percentage == pytest.approx(rows[round(_t(m.header.stamp), 6)], abs=1e-6)
+        assert m.power_supply_status == rm.POWER_SUPPLY_STATUS_DISCHARGING
+        assert (m.voltage, m.capacity) == pytest.approx((11.1, 1.8))
+        assert m.charge == pytest.approx(m.percentage * 1.8, rel=1e-5)
+    levels = [m.percentage for m in states]
+    assert levels[0] == 1.0 and all(b < a for a, b in zip(levels, levels[1:], strict=False))
+    assert record.battery is not None and record.battery[-1] == pytest.approx(
+        json.loads((run_dir / "result.json").read_text())["metrics"]["battery"]["end"]
+    )
 
 
 def test_stamps_are_monotonic_simulated_time(patrol_run):

@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[1]
 EXE = [sys.executable, "-m", "agv_mission.cli"]
 
@@ -71,8 +73,13 @@ def test_run_writes_a_complete_run_directory(tmp_path: Path) -> None:
     assert result["status"] == "succeeded" and result["reason"] is None
     assert result["tasks"][0]["status"] == "succeeded"
     header = (run_dir / "trajectory.csv").read_text().splitlines()[0]
-    # The contract's nine columns, then the estimate's covariance (amcl reports one).
-    assert header == "t,x,y,yaw,est_x,est_y,est_yaw,v,w,cov_xx,cov_xy,cov_yy,cov_yawyaw"
+    # The contract's nine columns, the estimate's covariance (amcl reports one), then the
+    # battery's level (the burger has one), last.
+    assert header == ("t,x,y,yaw,est_x,est_y,est_yaw,v,w,cov_xx,cov_xy,cov_yy,cov_yawyaw,battery")
+    last = (run_dir / "trajectory.csv").read_text().splitlines()[-1].split(",")
+    battery = result["metrics"]["battery"]
+    assert float(last[-1]) == pytest.approx(battery["end"], abs=1e-5)
+    assert 0.99 < battery["end"] < battery["start"] == 1.0
 
 
 def test_failed_mission_exits_1_with_reason(tmp_path: Path) -> None:

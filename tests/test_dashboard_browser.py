@@ -343,3 +343,50 @@ def test_phone_layout_has_no_sideways_scroll(browser: Any, base_url: str, shots:
             page.screenshot(path=str(shots / f"{name}.png"), full_page=True)
     finally:
         context.close()
+
+
+BATTERY_SAMPLER = """
+window.__battery = [];
+setInterval(() => {
+  const box = document.getElementById("battery");
+  if (!box || box.hidden) return;
+  window.__battery.push({
+    value: document.getElementById("batterymeter").value,
+    text: document.getElementById("batterytext").textContent,
+    charging: box.classList.contains("charging"),
+  });
+}, 100);
+"""
+
+
+def test_run_page_shows_the_battery_level_and_charging(
+    page: Any, base_url: str, shots: Path
+) -> None:
+    mission = (
+        "name: dock-and-charge\nworld: turtlebot3_world\nrobot: burger\n"
+        "start: {x: -2.0, y: -0.5, yaw: 0.0}\nsimulation: {battery_level: 0.5}\n"
+        "stack: {localization: {type: ground_truth}}\n"
+        "tasks:\n  - {type: dock}\n  - {type: charge, until: 0.6}\n  - {type: undock}\n"
+    )
+    answer = httpx.post(base_url + "/api/runs", json={"mission": mission}, timeout=30)
+    assert answer.status_code == 201, answer.text
+    page.add_init_script(BATTERY_SAMPLER)
+    page.goto(f"{base_url}/runs/{answer.json()['id']}")
+    page.wait_for_selector("#battery:not([hidden])", timeout=60_000)
+    page.wait_for_selector("#battery.charging", timeout=120_000)
+    page.screenshot(path=str(shots / "run-battery-charging.png"))
+    docks = page.evaluate("() => window.agvView.scene.docks")
+    assert [(d["name"], d["x"], d["y"]) for d in docks] == [("charger", 0.55, -2.2)]
+    wait_status(page, "succeeded", timeout_s=180)
+    seen = page.evaluate("() => window.__battery")
+    values = [s["value"] for s in seen]
+    assert all(0.45 < v <= 0.61 for v in values)
+    assert values[0] == pytest.approx(0.5, abs=0.005)  # the start: 50 %
+    assert re.fullmatch(r"\d+\.\d %( · docked at charger)?", seen[-1]["text"])
+    charging = [s["value"] for s in seen if s["charging"]]
+    assert all("docked at charger" in s["text"] for s in seen if s["charging"])
+    assert charging and max(charging) > min(charging)  # it rose while charging
+    final = run_state(page)["state"]
+    assert final["battery"] == pytest.approx(
+        page.evaluate("() => +document.getElementById('batterymeter').value")
+    )

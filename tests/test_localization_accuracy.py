@@ -259,7 +259,7 @@ def test_real_aws_house_short_patrol_is_centimetre_accurate(tmp_path, ros_maps, 
     assert set(final) == {"xx", "xy", "yy", "yawyaw"} and final["xx"] > 0.0
     with (tmp_path / "trajectory.csv").open() as f:
         rows = list(csv.reader(f))
-    assert tuple(rows[0]) == TRAJECTORY_COLUMNS + COVARIANCE_COLUMNS
+    assert tuple(rows[0]) == TRAJECTORY_COLUMNS + COVARIANCE_COLUMNS + ("battery",)
     assert float(rows[-1][9]) == pytest.approx(final["xx"], rel=1e-3)
 
 

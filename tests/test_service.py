@@ -53,6 +53,15 @@ def test_submit_follow_files(server: Server, client: httpx.Client) -> None:
         assert key in states[0]
     sim_end = messages[-1]["result"]["sim_time"]
     assert len(states) >= 5 * sim_end * 0.9  # at least 5 per simulated second
+    # the battery (the burger's): draining, its last level the result's end level
+    levels = [m["battery"] for m in states]
+    assert 0.99 < levels[0] <= 1.0  # a client that connects late starts at the current state
+    assert all(b <= a for a, b in zip(levels, levels[1:], strict=False))
+    end = messages[-1]["result"]["metrics"]["battery"]["end"]
+    assert levels[-1] == pytest.approx(end, abs=1e-4) and levels[-1] < 1.0  # within 0.5 s
+    assert not any(m["charging"] for m in states) and states[-1]["docked"] is None
+    [rooms] = [m for m in messages if m["type"] == "rooms"]
+    assert [d["name"] for d in rooms["docks"]] == ["charger"]
     assert any(m["type"] == "event" and m["event"] == "goal_reached" for m in messages)
 
     final = client.get(f"/api/runs/{run['id']}").json()

@@ -164,6 +164,8 @@ def test_piped_session_records_and_quits(tmp_path: Path) -> None:
     doc = yaml.safe_load((run_dir / RECORDER_FILENAME).read_text())
     assert list(doc) == ["bedroom", "livingroom"]
     assert (run_dir / "trajectory.csv").exists() and (run_dir / "mission.yaml").exists()
+    header = (run_dir / "trajectory.csv").read_text().splitlines()[0]
+    assert header.endswith(",v,w,battery")
     # end of input quits too; a bad --append file is invalid input
     bad = tmp_path / "bad.yaml"
     bad.write_text("kitchen: 3\n")

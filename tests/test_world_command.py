@@ -33,7 +33,9 @@ def test_world_prints_extent_spawn_and_rooms_and_saves_its_map(tmp_path: Path) -
     for label, room in house.rooms.items():
         row = next(line for line in r.stdout.splitlines() if line.split()[:1] == [label])
         assert row.split()[1:3] == [f"{room.anchor.x:.2f}", f"{room.anchor.y:.2f}"]
-    assert "docks: none" in r.stdout
+    for dock in house.docks.values():
+        assert f"dock {dock.name}: x {dock.pose.x:.2f}, y {dock.pose.y:.2f}" in r.stdout
+    assert house.docks and "docks: none" not in r.stdout
     saved = load_ros_map(tmp_path / "house.yaml")
     assert (saved.width, saved.height, saved.resolution) == (
         house.map.width,

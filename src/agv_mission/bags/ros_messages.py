@@ -29,6 +29,13 @@ POSE_ARRAY = "geometry_msgs/msg/PoseArray"
 PATH = "nav_msgs/msg/Path"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 STRING = "std_msgs/msg/String"
+BATTERY_STATE = "sensor_msgs/msg/BatteryState"
+
+# sensor_msgs/BatteryState constants
+POWER_SUPPLY_STATUS_CHARGING, POWER_SUPPLY_STATUS_DISCHARGING = 1, 2
+POWER_SUPPLY_STATUS_FULL = 4
+POWER_SUPPLY_HEALTH_GOOD = 1
+POWER_SUPPLY_TECHNOLOGY_LIPO = 3
 
 
 @cache
@@ -181,6 +188,37 @@ def path(t: float, points: np.ndarray, frame: str = "map") -> Any:
         for (x, y), a in zip(pts[:, :2], yaws, strict=True)
     ]
     return types[PATH](header=header(t, frame), poses=poses)
+
+
+def battery_state(
+    t: float, level: float, charging: bool, capacity_wh: float, voltage: float | None
+) -> Any:
+    """The battery's state: ``percentage`` 0..1, charge and capacity in Ah when the
+    nominal ``voltage`` is known (NaN otherwise, as the message says for unmeasured)."""
+    nan = math.nan
+    capacity = capacity_wh / voltage if voltage else nan
+    if charging:
+        status = POWER_SUPPLY_STATUS_FULL if level >= 1.0 else POWER_SUPPLY_STATUS_CHARGING
+    else:
+        status = POWER_SUPPLY_STATUS_DISCHARGING
+    return typestore().types[BATTERY_STATE](
+        header=header(t, ""),
+        voltage=float(voltage) if voltage else nan,
+        temperature=nan,
+        current=nan,
+        charge=float(level * capacity),
+        capacity=float(capacity),
+        design_capacity=float(capacity),
+        percentage=float(level),
+        power_supply_status=status,
+        power_supply_health=POWER_SUPPLY_HEALTH_GOOD,
+        power_supply_technology=POWER_SUPPLY_TECHNOLOGY_LIPO,
+        present=True,
+        cell_voltage=np.zeros(0, np.float32),
+        cell_temperature=np.zeros(0, np.float32),
+        location="",
+        serial_number="",
+    )
 
 
 def string(text: str) -> Any:

@@ -66,6 +66,7 @@ TOPICS: dict[str, tuple[str, bool]] = {
     "/ground_truth": (rm.ODOMETRY, False),
     "/rooms": (rm.MARKER_ARRAY, True),
     "/events": (rm.STRING, False),
+    "/battery_state": (rm.BATTERY_STATE, False),
 }
 
 
@@ -89,7 +90,9 @@ class BagWriter:
     simulated seconds of at most ``max_particles`` poses (every k-th particle): a filter
     with thousands of particles updating at 10 Hz would otherwise be 95 % of the bag
     (30 MB per 40 s). A growing SLAM map goes to ``/map`` at most every ``map_period``
-    simulated seconds (gmapping's ``map_update_interval``), its last state always. The bag is closed by :meth:`on_end` (or :meth:`close`), so it is complete
+    simulated seconds (gmapping's ``map_update_interval``), its last state always.
+    ``/battery_state`` goes out every ``battery_period`` simulated seconds and when
+    charging starts or stops. The bag is closed by :meth:`on_end` (or :meth:`close`), so it is complete
     even when the run ends aborted or in error.
     """
 
@@ -99,11 +102,16 @@ class BagWriter:
         particle_period: float = 0.5,
         max_particles: int = 1000,
         map_period: float = 2.0,
+        battery_period: float = 1.0,
     ) -> None:
         self.path = path
         self.particle_period = particle_period
         self.max_particles = max_particles
         self.map_period = map_period
+        self.battery_period = battery_period
+        self._battery: Any = None  # the robot's BatterySpec
+        self._next_battery = 0.0
+        self._charging = False
         self._next_particles = 0.0
         self._next_map = 0.0
         self._pending_map: tuple[float, Any] | None = None
@@ -153,6 +161,7 @@ class BagWriter:
                 offered_qos_profiles=[LATCHED] if latched else [],
             )
         robot = start.robot
+        self._battery = robot.battery
         self._scan_time = 1.0 / float(robot.lidar.rate)
         offset, height = lidar_mount(robot)
         t0 = 0.0
@@ -205,6 +214,15 @@ class BagWriter:
             self._flush_map()
         for event in sample.events:
             self._write("/events", t, rm.string(json.dumps(event, default=_jsonable)))
+        spec = self._battery
+        due = t >= self._next_battery - 1e-9 or sample.charging != self._charging
+        if spec is not None and sample.battery is not None and due:
+            self._next_battery = t + self.battery_period
+            self._charging = sample.charging
+            state = rm.battery_state(
+                t, sample.battery, sample.charging, spec.capacity, spec.voltage
+            )
+            self._write("/battery_state", t, state)
 
     def on_end(self, record: Any) -> None:
         self.close()

@@ -50,5 +50,8 @@ class NavigateToPose(py_trees.behaviour.Behaviour):
         return Status.RUNNING
 
     def terminate(self, new_status: Status) -> None:
-        if new_status is Status.INVALID:
-            self.handle.navigator.cancel()
+        # Halted: give up the goal, unless another node has already taken the navigator
+        # (a reactive parent halts this one after the higher-priority child started).
+        nav = self.handle.navigator
+        if new_status is Status.INVALID and nav.goal is self.goal:
+            nav.cancel()

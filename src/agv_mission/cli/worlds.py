@@ -50,7 +50,14 @@ def world(
         out.print(table)
     else:
         out.print("rooms: none (give the mission a rooms file)", highlight=False)
-    out.print("docks: none", highlight=False)
+    if loaded.docks:
+        for dock in loaded.docks.values():
+            d = dock.pose
+            out.print(
+                f"dock {dock.name}: x {d.x:.2f}, y {d.y:.2f}, yaw {d.yaw:.2f}", highlight=False
+            )
+    else:
+        out.print("docks: none", highlight=False)
     if save_map is not None:
         try:
             pgm, yaml_path = save_ros_map(grid, save_map)

@@ -35,6 +35,13 @@ world agree exactly. Walls are thin boxes (0.1 m).
     An open 30 x 15 m depot hall (x in [-15, 15], y in [-7.5, 7.5]) with eight 0.4 m
     building columns on a 6 x 5 m grid, a parked container and pallet stacks along the
     walls: long stretches of open floor. Spawn (-12, 0, 0) at the west gate.
+
+Every world has a dock named ``charger`` by a wall: the docked robot's centre stands
+:data:`DOCK_WALL_GAP` from the wall's face, facing it, so a waffle (r = 0.22 m) fits, with
+its staging pose 0.7 m further out in open floor. turtlebot3_world: the south wall,
+0.55 m east of the middle; small_house: the living room's south wall, east of the TV;
+warehouse: in front of the charger block on the west wall of the dock zone; depot: the
+south wall by the west gate.
 """
 
 from __future__ import annotations
@@ -43,12 +50,19 @@ import math
 from collections.abc import Callable
 
 from agv_mission.geometry import Pose2D
+from agv_mission.maps.docks import Dock
 from agv_mission.maps.rasterize import rasterize
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.worlds import Box, Cylinder, World
 
 RESOLUTION = 0.05
 WALL_THICKNESS = 0.1
+DOCK_WALL_GAP = 0.3  # m from a wall's face to a docked robot's centre
+
+
+def _charger(x: float, y: float, yaw: float) -> dict[str, Dock]:
+    return {"charger": Dock("charger", Pose2D(x, y, yaw), "built-in")}
+
 
 # --------------------------------------------------------------------------- TurtleBot3
 
@@ -132,6 +146,7 @@ def turtlebot3_world() -> World:
         map=grid,
         spawn=TB3_SPAWN,
         rooms=_turtlebot3_rooms(),
+        docks=_charger(0.55, -TB3_INNER_APOTHEM + DOCK_WALL_GAP, -math.pi / 2.0),
     )
 
 
@@ -244,6 +259,7 @@ def small_house() -> World:
         map=grid,
         spawn=HOUSE_SPAWN,
         rooms=rooms,
+        docks=_charger(3.5, _Y_SOUTH + WALL_THICKNESS / 2.0 + DOCK_WALL_GAP, -math.pi / 2.0),
     )
 
 
@@ -317,7 +333,9 @@ def warehouse() -> World:
     rooms = {
         label: Room(label, polygon, anchor) for label, (polygon, anchor) in WAREHOUSE_ROOMS.items()
     }
-    return World("warehouse", boxes, [], grid, WAREHOUSE_SPAWN, rooms)
+    x0, x1, y0, y1 = WAREHOUSE_PALLETS["charger"]
+    docks = _charger(x1 + DOCK_WALL_GAP, (y0 + y1) / 2.0, math.pi)
+    return World("warehouse", boxes, [], grid, WAREHOUSE_SPAWN, rooms, docks=docks)
 
 
 # --------------------------------------------------------------------------- depot
@@ -348,7 +366,8 @@ def depot() -> World:
     rooms = {
         label: Room(label, polygon, anchor) for label, (polygon, anchor) in DEPOT_ROOMS.items()
     }
-    return World("depot", boxes, [], grid, DEPOT_SPAWN, rooms)
+    docks = _charger(-13.0, -_DEPOT_Y + DOCK_WALL_GAP, -math.pi / 2.0)
+    return World("depot", boxes, [], grid, DEPOT_SPAWN, rooms, docks=docks)
 
 
 BUILTIN_WORLDS: dict[str, Callable[[], World]] = {

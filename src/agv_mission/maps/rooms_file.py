@@ -4,6 +4,8 @@
       livingroom:
         polygon: [[-2.3, -5.3], [4.6, -5.3], [4.6, 0.0], [-2.3, 0.0]]   # map frame, metres
         anchor: {x: 3.0, y: -2.0, yaw: 0.0}    # optional
+    docks:                                     # optional: chargers by name
+      charger: {x: 3.5, y: -5.1, yaw: -1.5708} # the docked robot's pose, facing the charger
 
 A polygon needs at least three [x, y] points and a non-zero area; the anchor is
 optional (``yaw`` defaults to 0). Errors name the file, the line, the room and the
@@ -22,6 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from agv_mission.atomic import InputFileError, read_input_text
 from agv_mission.geometry import Pose2D
+from agv_mission.maps.docks import Dock, DockModel
 from agv_mission.maps.rooms import Room
 from agv_mission.suggest import unknown_key
 
@@ -72,7 +75,8 @@ class RoomModel(BaseModel):
 class RoomsModel(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    rooms: dict[str, RoomModel]
+    rooms: dict[str, RoomModel] = Field(default_factory=dict)
+    docks: dict[str, DockModel] = Field(default_factory=dict)
 
 
 def _point(p: Sequence[float]) -> str:
@@ -192,8 +196,55 @@ def rooms_from_doc(
     return found
 
 
+def docks_from_doc(
+    path: Path, docks: Any, root: yaml.Node | None = None, prefix: Loc = ("docks",)
+) -> dict[str, Dock]:
+    """The docks of a ``docks:`` mapping, each knowing the file and line it was written
+    on, or :class:`RoomsFileError` with every problem at its line."""
+
+    def line(loc: Loc) -> int | None:
+        return node_line(root, loc) if root is not None else None
+
+    if not isinstance(docks, dict):
+        what = "nothing" if docks is None else type(docks).__name__
+        raise RoomsFileError(
+            path, [(line(prefix), None, f"'docks' must be a mapping of dock names, got {what}")]
+        )
+    found: dict[str, Dock] = {}
+    problems: list[tuple[int | None, str | None, str]] = []
+    for name, raw in docks.items():
+        try:
+            d = DockModel.model_validate(raw)
+        except ValidationError as exc:
+            for err in exc.errors(include_url=False):
+                loc = tuple(err["loc"])
+                key = ".".join(str(p) for p in loc)
+                if err["type"] == "missing":
+                    msg = f"dock {name!r} has no {key!r} (a dock is {{x, y, yaw}})"
+                elif err["type"] == "extra_forbidden":
+                    msg = f"dock {name!r}: {unknown_key(DockModel, loc)}"
+                else:
+                    msg = f"dock {name!r}: {key or 'the dock'} must be a finite number" + (
+                        f", got {err['input']!r}" if loc else " mapping {x, y, yaw}"
+                    )
+                problems.append((line((*prefix, name, *loc)), None, msg))
+            continue
+        where = line((*prefix, name))
+        found[str(name)] = Dock(
+            str(name), Pose2D(d.x, d.y, d.yaw), f"{path}:{where}" if where else str(path)
+        )
+    if problems:
+        raise RoomsFileError(path, problems)
+    return found
+
+
 def load_rooms(path: str | os.PathLike[str]) -> dict[str, Room]:
     """Read a rooms file into ``{label: Room}`` (in file order)."""
+    return load_rooms_file(path)[0]
+
+
+def load_rooms_file(path: str | os.PathLike[str]) -> tuple[dict[str, Room], dict[str, Dock]]:
+    """Read a rooms file: its rooms and its docks (each in file order)."""
     path = Path(path)
     try:
         text = read_input_text(path)
@@ -212,18 +263,27 @@ def load_rooms(path: str | os.PathLike[str]) -> dict[str, Room]:
     duplicate = _duplicate_label(text)
     if duplicate is not None:
         raise RoomsFileError(path, [duplicate])
-    if not isinstance(doc, dict) or "rooms" not in doc:
+    if not isinstance(doc, dict) or not ("rooms" in doc or "docks" in doc):
         raise RoomsFileError(
-            path, [(None, None, "a rooms file is a mapping with a top-level 'rooms' key")]
+            path,
+            [
+                (
+                    None,
+                    None,
+                    "a rooms file is a mapping with a top-level 'rooms' key (and/or 'docks')",
+                )
+            ],
         )
     root = compose_nodes(text)
-    extra = [key for key in doc if key != "rooms"]
+    extra = [key for key in doc if key not in ("rooms", "docks")]
     if extra:
         raise RoomsFileError(
             path,
             [(node_line(root, (key,)), None, unknown_key(RoomsModel, (key,))) for key in extra],
         )
-    return rooms_from_doc(path, doc["rooms"], root)
+    rooms = rooms_from_doc(path, doc["rooms"], root) if "rooms" in doc else {}
+    docks = docks_from_doc(path, doc["docks"], root) if "docks" in doc else {}
+    return rooms, docks
 
 
 # --------------------------------------------------------------------------- line numbers

@@ -30,6 +30,8 @@
          kitchen:
            polygon: [[0, 0], [2, 0], [2, 2], [0, 2]]
            anchor: {x: 1.0, y: 1.0, yaw: 0.0}
+       docks:                      # optional: chargers, the docked robot's pose
+         charger: {x: 0.0, y: -2.2, yaw: -1.5708}
 
    The robot's map is rasterised from the geometry
    (:func:`agv_mission.maps.rasterize.rasterize`): free where the spawn can reach.
@@ -52,13 +54,14 @@ from scipy import ndimage
 from agv_mission.atomic import InputFileError, input_path, read_input_text
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
+from agv_mission.maps.docks import Dock, DockModel, dock_problem
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
 from agv_mission.maps.rasterize import rasterize
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.rooms_file import (
     RoomsFileError,
     compose_nodes,
-    load_rooms,
+    load_rooms_file,
     node_line,
     rooms_from_doc,
 )
@@ -280,6 +283,7 @@ class WorldFileModel(_Strict):
     boxes: list[_BoxModel] = Field(default_factory=list)
     cylinders: list[_CylinderModel] = Field(default_factory=list)
     rooms: str | dict[str, Any] | None = None
+    docks: dict[str, DockModel] = Field(default_factory=dict)
 
 
 def world_from_file(
@@ -320,14 +324,23 @@ def world_from_file(
         grid = rasterize(boxes, cylinders, bounds, model.resolution, spawn)
     except ValueError as exc:
         raise WorldError(f"{path}: {exc}") from exc
+    rooms, docks = _rooms_of(path, model.rooms, root)
+    for name, d in model.docks.items():
+        line = node_line(root, ("docks", name)) if root is not None else None
+        docks[name] = Dock(name, Pose2D(d.x, d.y, d.yaw), f"{path}:{line}" if line else str(path))
+    for dock in docks.values():
+        problem = dock_problem(dock.pose, grid)
+        if problem is not None:
+            raise WorldError(f"{dock.source}: docks.{dock.name}: {problem}")
     return World(
         name=model.name or path.stem,
         boxes=boxes,
         cylinders=cylinders,
         map=grid,
         spawn=spawn,
-        rooms=_rooms_of(path, model.rooms, root),
+        rooms=rooms,
         wall_height=model.wall_height,
+        docks=docks,
     )
 
 
@@ -341,13 +354,14 @@ def _world_file_message(err: Any) -> str:
 
 def _rooms_of(
     path: Path, rooms: str | dict[str, Any] | None, root: yaml.Node | None = None
-) -> dict[str, Room]:
+) -> tuple[dict[str, Room], dict[str, Dock]]:
+    """The world's rooms, and the docks of its rooms file when it names one."""
     try:
         if rooms is None:
-            return {}
+            return {}, {}
         if isinstance(rooms, str):
-            return load_rooms(input_path(rooms, path.parent))
-        return rooms_from_doc(path, rooms, root)
+            return load_rooms_file(input_path(rooms, path.parent))
+        return rooms_from_doc(path, rooms, root), {}
     except RoomsFileError as exc:
         raise WorldError(str(exc), exc.lines()) from exc
 

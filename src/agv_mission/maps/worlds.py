@@ -2,7 +2,7 @@
 
 A :class:`World` is pure data: wall boxes and cylinders (what MuJoCo simulates), the
 occupancy grid the robot is given (rasterised from the geometry, or a ROS map), a spawn
-pose and named rooms.
+pose, named rooms and named docks (chargers).
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from agv_mission.geometry import Pose2D
+from agv_mission.maps.docks import Dock
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.rooms import Room
 
@@ -45,6 +46,7 @@ class World:
     spawn: Pose2D
     rooms: dict[str, Room] = field(default_factory=dict)
     wall_height: float = 0.5
+    docks: dict[str, Dock] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

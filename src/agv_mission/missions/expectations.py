@@ -33,6 +33,9 @@ class Expectations(BaseModel):
         "from the 1-based task index to its status",
     )
     sim_time_max: float | None = Field(None, ge=0.0, description="simulated seconds, at most")
+    sim_time_min: float | None = Field(
+        None, ge=0.0, description="simulated seconds, at least (a shift that must last)"
+    )
     collisions_max: int | None = Field(None, ge=0, description="collisions, at most")
     min_clearance_min: float | None = Field(
         None, description="metres between the robot's footprint and obstacles, at least"
@@ -90,6 +93,16 @@ class Expectations(BaseModel):
     waypoints_reached: int | None = Field(
         None, ge=0, description="patrol waypoints reached over all patrol tasks and loops, at least"
     )
+    battery_min_min: float | None = Field(
+        None, ge=0.0, le=1.0, description="lowest battery level of the run (0..1), at least"
+    )
+    battery_end_min: float | None = Field(
+        None, ge=0.0, le=1.0, description="battery level at the end (0..1), at least"
+    )
+    battery_energy_used_max: float | None = Field(
+        None, ge=0.0, description="energy drawn from the battery, Wh, at most"
+    )
+    dockings_min: int | None = Field(None, ge=0, description="times the robot docked, at least")
 
 
 DEFAULT_EXPECTATIONS = Expectations(status="succeeded")
@@ -153,6 +166,7 @@ def check(expect: Expectations | None, result: dict[str, Any]) -> list[Failure]:
             failures.append(Failure(key, f">= {_num(bound)}", actual, bound - actual))
 
     at_most("sim_time_max", e.sim_time_max, result.get("sim_time"))
+    at_least("sim_time_min", e.sim_time_min, result.get("sim_time"))
     at_most("collisions_max", e.collisions_max, metrics.get("collisions"))
     at_least("min_clearance_min", e.min_clearance_min, metrics.get("min_clearance"))
     at_most("distance_driven_max", e.distance_driven_max, metrics.get("distance_driven"))
@@ -188,6 +202,11 @@ def check(expect: Expectations | None, result: dict[str, Any]) -> list[Failure]:
             failures.append(Failure(key, f">= {_num(bound)}", "no map reported"))
         for value in values:
             at_least(key, bound, value)
+    battery = metrics.get("battery") or {}
+    at_least("battery_min_min", e.battery_min_min, battery.get("minimum"))
+    at_least("battery_end_min", e.battery_end_min, battery.get("end"))
+    at_most("battery_energy_used_max", e.battery_energy_used_max, battery.get("energy_used"))
+    at_least("dockings_min", e.dockings_min, battery.get("dockings"))
     if e.rooms_recorded is not None:
         recorded = set(result.get("rooms_recorded") or {})
         missing = [r for r in e.rooms_recorded if r not in recorded]

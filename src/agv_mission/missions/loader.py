@@ -19,9 +19,10 @@ from pydantic import ValidationError
 from agv_mission.atomic import InputFileError, input_path, read_input_bytes
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
+from agv_mission.maps.docks import Dock
 from agv_mission.maps.recorder import RecorderFileError, load_entries
 from agv_mission.maps.rooms import Room
-from agv_mission.maps.rooms_file import RoomsFileError, load_rooms
+from agv_mission.maps.rooms_file import RoomsFileError, load_rooms_file
 from agv_mission.maps.world_loader import WorldError, builtin_names, load_world
 from agv_mission.maps.worlds import World
 from agv_mission.missions.errors import MissionError, Problem
@@ -43,7 +44,7 @@ from agv_mission.missions.schema import (
     Setup,
     with_default_plugin_types,
 )
-from agv_mission.missions.world_checks import costmap_fits, place_mission
+from agv_mission.missions.world_checks import check_docks, costmap_fits, place_mission
 from agv_mission.missions.yaml_lines import FieldPath, load_with_lines
 from agv_mission.robots.description import (
     BUILTIN_ROBOTS,
@@ -71,6 +72,7 @@ class LoadedMission:
     costmap: Costmap
     room_goals: dict[str, Pose2D] = field(default_factory=dict)  # where each visit goes
     recorder: Path | None = None  # an existing recorder file to append to
+    docks: dict[str, Dock] = field(default_factory=dict)  # the world's and rooms file's
 
     def resolved(self) -> dict[str, Any]:
         """The mission as it runs: defaults filled in and overrides applied."""
@@ -222,9 +224,13 @@ def _resolve(
     except (OSError, ValueError, RuntimeError) as exc:
         log.add(("robot",), f"cannot read robot file {mission.robot!r}: {os_message(exc)}")
     rooms = dict(world.rooms)
+    docks = dict(world.docks)
+    rooms_docks: dict[str, Dock] = {}
     if mission.rooms is not None:
         try:
-            rooms.update(load_rooms(input_path(mission.rooms, base_dir)))
+            file_rooms, rooms_docks = load_rooms_file(input_path(mission.rooms, base_dir))
+            rooms.update(file_rooms)
+            docks.update(rooms_docks)
         except RoomsFileError as exc:  # each problem names the file, its line and the room
             for line in exc.lines():
                 log.add(("rooms",), line)
@@ -236,6 +242,7 @@ def _resolve(
         raise MissionError(log.problems)
     costmap = Costmap.from_grid(world.map, robot.footprint_radius, mission.stack.costmap)
     placed = place_mission(mission, world, robot, rooms, costmap, log.add)
+    check_docks(mission, robot, docks, rooms_docks, costmap, log.add)
     recorder = None
     if mission.recorder is not None:
         try:
@@ -260,6 +267,7 @@ def _resolve(
         costmap=costmap,
         room_goals=placed.room_goals,
         recorder=recorder,
+        docks=docks,
     )
 
 

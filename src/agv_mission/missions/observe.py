@@ -9,7 +9,7 @@ nothing for them.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -18,6 +18,7 @@ import py_trees
 from py_trees.common import Status
 
 from agv_mission.geometry import Pose2D
+from agv_mission.maps.docks import Dock
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.rooms import Room
 from agv_mission.messages import LaserScan
@@ -73,6 +74,7 @@ class RunStart:
     rooms: dict[str, Room]  # label -> Room (polygon, anchor)
     start: Pose2D
     tree_nodes: list[TreeNode]  # pre-order
+    docks: dict[str, Dock] = field(default_factory=dict)  # chargers by name
 
 
 @dataclass
@@ -96,6 +98,9 @@ class StepSample:
     tree_nodes: list[TreeNode] | None  # all nodes when any status changed this step
     task_index: int | None  # 0-based index of the running task
     task_type: str | None
+    battery: float | None = None  # the level 0..1; None: not modelled
+    charging: bool = False
+    docked: str | None = None  # the dock the robot stands on
 
 
 class RunObserver(Protocol):

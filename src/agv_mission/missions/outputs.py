@@ -19,6 +19,9 @@ from agv_mission.missions.loader import LoadedMission
 from agv_mission.missions.run_report import COVARIANCE_COLUMNS
 from agv_mission.missions.runner import TRAJECTORY_COLUMNS, RunRecord
 
+#: The last column of trajectory.csv: the battery's level (0..1) at each step.
+BATTERY_COLUMNS = ("battery",)
+
 
 def make_run_dir(output_root: Path, name: str) -> Path:
     """``OUTPUT/<name>-<UTC timestamp>/``, unique even for runs started in the same second."""
@@ -83,7 +86,10 @@ def write_run(run_dir: Path, loaded: LoadedMission, record: RunRecord) -> dict[s
     write_json(run_dir / "result.json", result)
     errors: list[str] = []
     for name, write in (
-        ("trajectory.csv", lambda p: write_trajectory(p, record.trajectory, record.covariance)),
+        (
+            "trajectory.csv",
+            lambda p: write_trajectory(p, record.trajectory, record.covariance, record.battery),
+        ),
         ("tree.txt", lambda p: atomic_write_text(p, strip_ansi(record.tree_text) + "\n")),
         ("run.png", lambda p: plot_run(p, loaded, record)),
     ):
@@ -111,19 +117,27 @@ def write_json(path: Path, doc: dict[str, Any]) -> None:
 
 
 def write_trajectory(
-    path: Path, trajectory: np.ndarray, covariance: np.ndarray | None = None
+    path: Path,
+    trajectory: np.ndarray,
+    covariance: np.ndarray | None = None,
+    battery: np.ndarray | None = None,
 ) -> None:
-    """The contract's nine columns, then the estimate's covariance when the localiser has one."""
+    """The contract's nine columns, then the estimate's covariance when the localiser has
+    one, then the battery's level (``battery``, nan for a robot without one)."""
     buf = io.StringIO()
     columns = TRAJECTORY_COLUMNS
+    fmt = ["%.6f"] * len(TRAJECTORY_COLUMNS)
     if covariance is not None and len(covariance) == len(trajectory):
         columns = TRAJECTORY_COLUMNS + COVARIANCE_COLUMNS
         trajectory = np.hstack([trajectory, covariance])
+        fmt += ["%.6g"] * len(COVARIANCE_COLUMNS)
+    columns += BATTERY_COLUMNS
+    if battery is None or len(battery) != len(trajectory):  # not modelled: nan
+        battery = np.full(len(trajectory), np.nan)
+    trajectory = np.hstack([trajectory, battery.reshape(-1, 1)])
+    fmt += ["%.6f"]
     buf.write(",".join(columns) + "\n")
     if trajectory.size:
-        fmt = ["%.6f"] * len(TRAJECTORY_COLUMNS) + ["%.6g"] * (
-            len(columns) - len(TRAJECTORY_COLUMNS)
-        )
         np.savetxt(buf, trajectory, delimiter=",", fmt=fmt)
     atomic_write_text(path, buf.getvalue())
 
@@ -156,6 +170,10 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
         ax.plot(poly[:, 0], poly[:, 1], "--", lw=0.8, color="tab:purple", alpha=0.7)
         cx, cy = room.inside_point()
         ax.text(cx, cy, room.label, color="tab:purple", ha="center", fontsize=8, alpha=0.8)
+    for i, dock in enumerate(loaded.docks.values()):
+        d = dock.pose
+        ax.plot(d.x, d.y, "s", color="goldenrod", ms=6, label="docks" if i == 0 else None)
+        ax.annotate(dock.name, (d.x, d.y), fontsize=7, color="goldenrod")
     for i, p in enumerate(record.paths):
         ax.plot(
             p[:, 0],
@@ -217,7 +235,12 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"{loaded.name}: {record.status}  (sim {record.sim_time:.1f} s)")
+    title = f"{loaded.name}: {record.status}  (sim {record.sim_time:.1f} s)"
+    battery = record.metrics.get("battery")
+    if battery:
+        title += f"  battery {battery['start']:.0%} -> {battery['end']:.0%}"
+        title += f" (min {battery['minimum']:.0%})"
+    ax.set_title(title)
     if ax.get_legend_handles_labels()[0]:  # a run that ended before its first row has none
         ax.legend(loc="upper right", fontsize=7)
     buf = io.BytesIO()

@@ -33,6 +33,7 @@ class RunRecord:
     particle_snapshots: list[tuple[float, np.ndarray]] = field(default_factory=list)
     built_map: OccupancyGrid | None = None  # the last map a map_area task saved
     covariance: np.ndarray | None = None  # (steps, len(COVARIANCE_COLUMNS)), NaN: none
+    battery: np.ndarray | None = None  # (steps,) the level 0..1; None: not modelled
 
 
 def bare_record(
@@ -47,6 +48,7 @@ def bare_record(
     trajectory = np.zeros((0, len(TRAJECTORY_COLUMNS)))
     metrics = run_metrics(trajectory, None, 0, math.inf, sim_time, wall_time)
     metrics["navigation"]["recoveries"] = {}
+    metrics["battery"] = None
     return RunRecord(
         status=status,
         reason=reason,

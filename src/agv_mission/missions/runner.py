@@ -51,6 +51,7 @@ from agv_mission.missions.stack import (
 from agv_mission.missions.tree import build_tree
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.state import RobotState
+from agv_mission.robots.battery import Battery, battery_for
 
 __all__ = [
     "CONTROL_PERIOD",
@@ -143,14 +144,26 @@ class MissionRun:
         self.stack = stack = RobotStack(loaded)
         self.sim, self.odometry, self.limits = stack.sim, stack.odometry, stack.limits
         self.navigator = stack.build_navigator()
+        self.battery: Battery | None = None
+        if robot.battery is not None:
+            self.battery = battery_for(
+                robot.battery,
+                robot.mass,
+                robot.footprint_radius,
+                robot.wheel_separation,
+                mission.simulation.battery_level,
+            )
         self.handle = RobotHandle(
             RobotState(time=0.0, estimate=loaded.start),
             self.navigator,
             rooms=loaded.rooms,
             recorders=open_recorders(loaded, run_dir),
+            battery=self.battery,
+            docks=loaded.docks,
         )
         self.run_dir = run_dir
         self.rows: list[tuple[float, ...]] = []
+        self.levels: list[float] = []  # the battery's level at each step
         self.covs: list[tuple[float, ...]] = []
         self.mapper = MapBuilder(stack, self.navigator, self.handle, run_dir, self.rows)
         self.tree = build_tree(mission, self.handle, robot, loaded.room_goals, self.mapper)
@@ -192,6 +205,7 @@ class MissionRun:
             rooms=loaded.rooms,
             start=loaded.start,
             tree_nodes=tree_nodes(self.tree.root),
+            docks=loaded.docks,
         )
         for observer in self.observers:
             observer.on_start(start)
@@ -259,6 +273,16 @@ class MissionRun:
             if subtree.status is not Status.INVALID:
                 self.task_status[i] = status_name(subtree.status)
         v, w = smoother(*handle.command)
+        battery = self.battery
+        if battery is not None:
+            self.levels.append(battery.level)
+            if battery.level <= 0.0 and self.status is None:
+                v = w = 0.0
+                self.end(
+                    "failed",
+                    f"battery empty at t={now:.1f} s "
+                    f"({battery.energy_used / 3600.0:.2f} Wh used): the robot stopped",
+                )
         self.rows.append(
             (now, truth.x, truth.y, truth.yaw, estimate.x, estimate.y, estimate.yaw, v, w)
         )
@@ -282,6 +306,8 @@ class MissionRun:
         if self.status is not None:
             return False
         sim.set_command(v, w)
+        if battery is not None:
+            battery.step(v, w, CONTROL_PERIOD)
         sim.advance(CONTROL_PERIOD)
         return True
 
@@ -366,6 +392,7 @@ class MissionRun:
             if e["event"] == "recovery":
                 recoveries[e["kind"]] = recoveries.get(e["kind"], 0) + 1
         metrics["navigation"]["recoveries"] = recoveries
+        metrics["battery"] = self._battery_metrics()
         metrics["localization"].update(covariance_metrics(trajectory, covariance))
         refine = getattr(self.localizer, "refine_stats", None)
         if refine and refine.get("scans"):
@@ -403,4 +430,13 @@ class MissionRun:
             extras=extras,
             particle_snapshots=list(diagnostics.snapshots),
             built_map=self.mapper.built_map,
+            battery=np.asarray(self.levels, dtype=float) if self.battery is not None else None,
         )
+
+    def _battery_metrics(self) -> dict[str, Any] | None:
+        """``metrics.battery``: levels, energy, charging time, and how often it docked."""
+        if self.battery is None:
+            return None
+        report: dict[str, Any] = self.battery.report()
+        report["dockings"] = sum(1 for e in self.handle.events if e["event"] == "docked")
+        return report

@@ -73,6 +73,7 @@ class StepSampler:
             self._behaviours = list(run.tree.root.iterate())
             self._statuses = [node.status for node in self._behaviours]
         task = next((i for i, s in enumerate(run.task_status) if s == "running"), None)
+        battery = run.battery
         return StepSample(
             t=sensing.time,
             truth=sensing.truth,
@@ -91,4 +92,7 @@ class StepSampler:
             tree_nodes=self.nodes if changed else None,
             task_index=task,
             task_type=run.mission.tasks[task].type if task is not None else None,
+            battery=battery.level if battery is not None else None,
+            charging=battery is not None and battery.charging,
+            docked=handle.docked.name if handle.docked is not None else None,
         )

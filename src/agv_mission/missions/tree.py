@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import py_trees
 
+from agv_mission.behaviors.battery import Charge, Dock, Undock
 from agv_mission.behaviors.explore import MapArea, Mapper
 from agv_mission.behaviors.motion import Dwell, Wander
 from agv_mission.behaviors.navigate import NavigateToPose
@@ -21,6 +22,8 @@ from agv_mission.behaviors.rooms import InRoom, RecordRoom, SettleLocalization
 from agv_mission.behaviors.teleop import RemoteControl
 from agv_mission.geometry import Pose2D
 from agv_mission.missions.schema import (
+    ChargeTask,
+    DockTask,
     FailurePolicy,
     GoToTask,
     MapAreaTask,
@@ -28,6 +31,7 @@ from agv_mission.missions.schema import (
     PatrolTask,
     RecordRoomTask,
     TeleopTask,
+    UndockTask,
     VisitRoomsTask,
     WanderTask,
 )
@@ -145,6 +149,12 @@ class _Builder:
             )
         if isinstance(task, TeleopTask):
             return RemoteControl(label, self.handle, task.duration, task=index)
+        if isinstance(task, DockTask):
+            return Dock(f"{label} ({task.dock})", self.handle, dock=task.dock)
+        if isinstance(task, UndockTask):
+            return Undock(label, self.handle)
+        if isinstance(task, ChargeTask):
+            return Charge(f"{label} (to {task.until:g})", self.handle, until=task.until)
         raise TypeError(f"no behaviour for task type {type(task).__name__}")
 
     def settle(self, duration: float) -> Behaviour:

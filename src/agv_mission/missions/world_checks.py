@@ -18,6 +18,7 @@ import numpy as np
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
+from agv_mission.maps.docks import Dock, dock_problem
 from agv_mission.maps.grid import UNKNOWN
 from agv_mission.maps.rooms import Room, reachable_cells, room_point
 from agv_mission.maps.worlds import Box, Cylinder, World
@@ -92,6 +93,42 @@ def place_mission(
     _check_map_areas(mission, world.map.extent, report)
     room_goals = _room_goals(mission, rooms, costmap, start, report)
     return Placement(world, start, room_goals)
+
+
+def check_docks(
+    mission: Setup,
+    robot: RobotDescription,
+    docks: dict[str, Dock],
+    file_docks: dict[str, Dock],
+    costmap: Costmap,
+    report: Report,
+) -> None:
+    """The rooms file's docks on the map and free; each docking task names a dock the robot
+    fits on, with a staging pose it can plan to; charging needs a battery."""
+    for dock in file_docks.values():
+        problem = dock_problem(dock.pose, costmap.grid)
+        if problem is not None:
+            report(("rooms",), f"{dock.source}: docks.{dock.name}: {problem}")
+    margin = goal_margin(mission.stack.global_planner)
+    for i, task in enumerate(tasks_of(mission)):
+        if task.type == "charge" and robot.battery is None:
+            report(("tasks", i), f"robot {robot.name!r} has no battery (give it `battery:`)")
+        if task.type != "dock":
+            continue
+        dock = docks.get(task.dock)
+        if dock is None:
+            known = ", ".join(sorted(docks)) or "(none: list `docks:` in a world or rooms file)"
+            report(("tasks", i, "dock"), f"unknown dock {task.dock!r}; known docks: {known}")
+            continue
+        where = ("tasks", i, "dock")
+        named = f"dock {task.dock!r}"
+        _check_pose(dock.pose, costmap, where, _prefixed(report, f"{named} at "))
+        staging = dock.staging()
+        _check_pose(staging, costmap, where, _prefixed(report, f"{named}'s staging pose "), margin)
+
+
+def _prefixed(report: Report, prefix: str) -> Report:
+    return lambda path, message: report(path, prefix + message)
 
 
 def start_pose(

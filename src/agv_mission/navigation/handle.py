@@ -6,10 +6,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from agv_mission.geometry import Pose2D
+from agv_mission.maps.docks import Dock
 from agv_mission.maps.recorder import LocationRecorder
 from agv_mission.maps.rooms import Room
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.navigation.state import RobotState
+from agv_mission.robots.battery import Battery
 
 
 @dataclass
@@ -27,6 +29,9 @@ class RobotHandle:
     nomotion_update: bool = False  # ask the localiser to update with the next scan
     remote_command: tuple[float, float] | None = None  # (v, w) a remote driver sends
     remote_goal: Pose2D | None = None  # a teleop task drives here first ("2D Nav Goal")
+    battery: Battery | None = None  # None: the robot's battery is not modelled
+    docks: dict[str, Dock] = field(default_factory=dict)  # the world's and rooms file's
+    docked: Dock | None = None  # the dock the robot stands on (Dock sets, Undock clears)
 
     def drive(self, v: float, w: float) -> None:
         self.command = (float(v), float(w))

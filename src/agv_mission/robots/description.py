@@ -10,6 +10,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from agv_mission.atomic import InputFileError, input_path, read_input_text
+from agv_mission.robots.battery import BatterySpec
 from agv_mission.suggest import unknown_key
 
 MAX_BEAMS = 8192  # more than any planar lidar sold; each beam is a ray cast per scan
@@ -56,6 +57,17 @@ class RobotDescription(BaseModel):
     mass: float = Field(1.0, gt=0, description="kg")
     encoder: EncoderSpec
     lidar: LidarSpec = LidarSpec()
+    battery: BatterySpec | None = Field(
+        None, description="capacity, level, idle and charge power; none: not modelled"
+    )
+
+
+# TurtleBot3 burger and waffle (pi): ROBOTIS' e-Manual specification table, "Battery:
+# Lithium polymer 11.1V 1800mAh / 19.98Wh 5C" and "Expected operating time: 2h 30m"
+# (burger) / "2h" (waffle pi). The idle load is that mean power (19.98 Wh / 2.5 h = 8.0 W,
+# / 2 h = 10.0 W) less what the motion model draws at full speed (0.1 W, 0.3 W); the
+# charger delivers 1C (1.8 A at 11.1 V), the usual limit for charging a LiPo.
+TB3_BATTERY_WH = 11.1 * 1.8
 
 
 def _ticks_per_meter(ticks_per_rev: float, wheel_radius: float) -> float:
@@ -78,6 +90,13 @@ BUILTIN_ROBOTS: dict[str, RobotDescription] = {
         # Dynamixel XL430: 4096 ticks per revolution
         encoder=EncoderSpec(ticks_per_meter=_ticks_per_meter(4096, 0.033)),
         lidar=LidarSpec(beams=360, range_min=0.12, range_max=3.5, rate=5.0, height=0.17),
+        battery=BatterySpec(
+            capacity=TB3_BATTERY_WH,
+            voltage=11.1,
+            initial_level=1.0,
+            idle_power=7.9,
+            charge_power=19.98,
+        ),
     ),
     "waffle": RobotDescription(
         name="waffle",
@@ -91,6 +110,13 @@ BUILTIN_ROBOTS: dict[str, RobotDescription] = {
         mass=1.8,
         encoder=EncoderSpec(ticks_per_meter=_ticks_per_meter(4096, 0.033)),
         lidar=LidarSpec(beams=360, range_min=0.12, range_max=3.5, rate=5.0, height=0.12),
+        battery=BatterySpec(
+            capacity=TB3_BATTERY_WH,
+            voltage=11.1,
+            initial_level=1.0,
+            idle_power=9.7,
+            charge_power=19.98,
+        ),
     ),
     # The seed's home-built robot: RPLidar A1 (12 m), 190 encoder ticks per metre.
     "rosbots": RobotDescription(
@@ -105,6 +131,12 @@ BUILTIN_ROBOTS: dict[str, RobotDescription] = {
         mass=0.8,
         encoder=EncoderSpec(ticks_per_meter=190.0),
         lidar=LidarSpec(beams=360, range_min=0.15, range_max=12.0, rate=5.5, height=0.15),
+        # The seed names no battery: a 2S LiPo of 7.4 V 2200 mAh (16.3 Wh), the common pack
+        # of such kits; idle: a Raspberry Pi 3 (~2.5 W) and an RPLidar A1 (5 V, ~0.5 A);
+        # charged at 1C.
+        battery=BatterySpec(
+            capacity=7.4 * 2.2, voltage=7.4, initial_level=1.0, idle_power=5.0, charge_power=16.28
+        ),
     ),
 }
 

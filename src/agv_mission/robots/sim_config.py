@@ -24,3 +24,9 @@ class SimConfig(BaseModel):
     lidar_noise: float | None = Field(
         None, ge=0, description="range noise std override, m (None: the robot's LidarSpec)"
     )
+    battery_level: float | None = Field(
+        None,
+        ge=0,
+        le=1,
+        description="the battery's level at the start, 0..1 (None: the robot's initial_level)",
+    )

@@ -15,6 +15,7 @@ import numpy as np
 from PIL import Image
 
 from agv_mission.geometry import Pose2D
+from agv_mission.maps.docks import Dock
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.rooms import Room
 from agv_mission.messages import json_default
@@ -67,7 +68,8 @@ def map_message(grid: OccupancyGrid) -> dict[str, Any]:
     }
 
 
-def rooms_message(rooms: dict[str, Room]) -> dict[str, Any]:
+def rooms_message(rooms: dict[str, Room], docks: dict[str, Dock] | None = None) -> dict[str, Any]:
+    """The rooms, and the docks (chargers) as ``{name, x, y, yaw}``."""
     return {
         "type": "rooms",
         "rooms": [
@@ -78,6 +80,7 @@ def rooms_message(rooms: dict[str, Room]) -> dict[str, Any]:
             }
             for r in rooms.values()
         ],
+        "docks": [{"name": d.name, **pose(d.pose)} for d in (docks or {}).values()],
     }
 
 

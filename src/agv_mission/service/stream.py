@@ -78,7 +78,7 @@ class StreamObserver:
 
     def on_start(self, start: RunStart) -> None:
         self.emit(msg.map_message(start.world_map))
-        self.emit(msg.rooms_message(start.rooms))
+        self.emit(msg.rooms_message(start.rooms, start.docks))
         self.emit(msg.recorded_message(self.recorded))
         self.nodes = start.tree_nodes
         self.emit(msg.tree_message(start.tree_nodes))
@@ -170,6 +170,9 @@ class StreamObserver:
             "status": self.status,
             "task": self.task,
             "progress": self.progress(),
+            "battery": None if s.battery is None else round(s.battery, 5),
+            "charging": s.charging,
+            "docked": s.docked,
         }
 
     def on_end(self, record: Any) -> None:

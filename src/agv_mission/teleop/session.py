@@ -139,6 +139,7 @@ class TeleopResult:
     recorded: list[str] = field(default_factory=list)  # labels recorded in this session
     trajectory: np.ndarray = field(default_factory=lambda: np.zeros((0, 9)))
     signum: int | None = None
+    battery: np.ndarray | None = None  # the level at each step; None: not modelled
 
     @property
     def exit_code(self) -> int:
@@ -204,6 +205,7 @@ def run_teleop(
         recorded=control.recorded,
         trajectory=record.trajectory if record is not None else np.zeros((0, 9)),
         signum=control.signum,
+        battery=record.battery if record is not None else None,
     )
 
 
@@ -378,4 +380,4 @@ def write_teleop_outputs(run_dir: Path, loaded: LoadedMission, result: TeleopRes
     atomic_write_text(
         run_dir / "mission.yaml", yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
     )
-    write_trajectory(run_dir / "trajectory.csv", result.trajectory)
+    write_trajectory(run_dir / "trajectory.csv", result.trajectory, battery=result.battery)

@@ -52,6 +52,8 @@ from agv_mission.missions.schema.stack import (
 )
 from agv_mission.missions.schema.tasks import (
     AreaBounds,
+    ChargeTask,
+    DockTask,
     FailurePolicy,
     GoToTask,
     MapAreaTask,
@@ -60,6 +62,7 @@ from agv_mission.missions.schema.tasks import (
     SettleBeforeRecording,
     Task,
     TeleopTask,
+    UndockTask,
     VisitRoomsTask,
     WanderTask,
 )
@@ -80,7 +83,9 @@ __all__ = [
     "ROS_POSE_SCHEMA",
     "AreaBounds",
     "BoxObstacle",
+    "ChargeTask",
     "CylinderObstacle",
+    "DockTask",
     "FailurePolicy",
     "Fault",
     "GlobalPlannerConfig",
@@ -108,6 +113,7 @@ __all__ = [
     "StrictModel",
     "Task",
     "TeleopTask",
+    "UndockTask",
     "VisitRoomsTask",
     "WanderTask",
     "WheelSlipFault",

@@ -143,9 +143,38 @@ class TeleopTask(StrictModel):
     )
 
 
+class DockTask(StrictModel):
+    """Drive to the dock's staging pose, then straight and slowly onto the dock."""
+
+    type: Literal["dock"]
+    dock: str = Field("charger", min_length=1, description="a dock of the world or rooms file")
+
+
+class UndockTask(StrictModel):
+    """Back out of the dock to its staging pose."""
+
+    type: Literal["undock"]
+
+
+class ChargeTask(StrictModel):
+    """Charge on the dock (the robot must be docked) until the level reaches ``until``."""
+
+    type: Literal["charge"]
+    until: float = Field(1.0, gt=0.0, le=1.0, description="battery level to charge to, 0..1")
+
+
 Task = Annotated[
     Union[  # noqa: UP007
-        GoToTask, PatrolTask, WanderTask, VisitRoomsTask, RecordRoomTask, MapAreaTask, TeleopTask
+        GoToTask,
+        PatrolTask,
+        WanderTask,
+        VisitRoomsTask,
+        RecordRoomTask,
+        MapAreaTask,
+        TeleopTask,
+        DockTask,
+        UndockTask,
+        ChargeTask,
     ],
     Field(discriminator="type"),
 ]

@@ -9,7 +9,7 @@ const MAP_PALETTE = {
 };
 const LAYER_STYLE = {
   truth: "#4aa3ff", estimate: "#ffb020", scan: "#ff2e63", particles: "#b58cff",
-  plan: "#3ecf8e", horizon: "#ffe066", goal: "#ff7ad9", rooms: "#8fa3bf", recorded: "#3ecf8e",
+  plan: "#3ecf8e", horizon: "#ffe066", goal: "#ff7ad9", rooms: "#8fa3bf", recorded: "#3ecf8e", dock: "#ffd43b",
 };
 const ROOM_HUES = [205, 140, 30, 280, 350, 60, 180, 100, 320, 240];
 
@@ -75,7 +75,7 @@ class MapView {
   setAlwaysDraw(on) { this.alwaysDraw = on; if (on) this.schedule(); }
 
   emptyScene() {
-    return { map: null, rooms: [], recorded: {}, truth: null, estimate: null, covariance: null,
+    return { map: null, rooms: [], docks: [], recorded: {}, truth: null, estimate: null, covariance: null,
       truthTrail: [], estTrail: [], scan: null, particles: null, plan: null, horizon: null, goal: null,
       pendingGoal: null };
   }
@@ -311,6 +311,7 @@ class MapView {
     if (L.goal && s.goal) this.drawArrow(ctx, P, s.goal, LAYER_STYLE.goal, 0.5, true);
     if (s.pendingGoal) this.drawArrow(ctx, P, s.pendingGoal, "#ffffff", 0.6, true);
     if (L.rooms) this.drawRoomLabels(ctx, P);
+    if (L.rooms) this.drawDocks(ctx, P);
     if (L.recorded) this.drawRecorded(ctx, P);
     if (L.estimate && s.estimate) {
       if (s.covariance) this.drawCovariance(ctx, P, s.estimate, s.covariance);
@@ -405,6 +406,21 @@ class MapView {
       ctx.fillStyle = `hsl(${ROOM_HUES[i % ROOM_HUES.length]}, 70%, 72%)`;
       ctx.fillText(room.label, lx, ly);
     });
+  }
+
+  // A dock: the charger as a bar across its axis 0.2 m ahead of the docked pose, and its name.
+  drawDocks(ctx, P) {
+    ctx.font = "600 11px system-ui, sans-serif";
+    ctx.textAlign = "center"; ctx.textBaseline = "middle";
+    for (const d of this.scene.docks || []) {
+      const c = Math.cos(d.yaw || 0), s = Math.sin(d.yaw || 0);
+      const fx = d.x + 0.2 * c, fy = d.y + 0.2 * s;
+      const [ax, ay] = P(fx - 0.12 * s, fy + 0.12 * c), [bx, by] = P(fx + 0.12 * s, fy - 0.12 * c);
+      ctx.strokeStyle = LAYER_STYLE.dock; ctx.lineWidth = 4;
+      ctx.beginPath(); ctx.moveTo(ax, ay); ctx.lineTo(bx, by); ctx.stroke();
+      const [lx, ly] = P(d.x - 0.35 * c, d.y - 0.35 * s);
+      ctx.fillStyle = LAYER_STYLE.dock; ctx.fillText("⚡ " + d.name, lx, ly);
+    }
   }
 
   drawRecorded(ctx, P) {

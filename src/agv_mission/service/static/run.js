@@ -114,7 +114,7 @@
     const s = view.scene;
     switch (msg.type) {
       case "map": view.setMap(msg); break;
-      case "rooms": s.rooms = msg.rooms || []; break;
+      case "rooms": s.rooms = msg.rooms || []; s.docks = msg.docks || []; break;
       case "recorded": s.recorded = Object.assign({}, msg.entries || {}); break;
       case "tree": treeNodes = msg.nodes || []; treeDirty = true; break;
       case "plan": s.plan = msg.path; break;
@@ -191,6 +191,20 @@
     if (cursor) lines.push(`cursor x${num(cursor[0], 7, 2)} y${num(cursor[1], 7, 2)}`);
     const text = lines.join("\n");
     if ($("hud").textContent !== text) $("hud").textContent = text;
+    updateBattery(st);
+  }
+
+  // The battery's level (0..1, null when the robot has none), charging or not, docked where.
+  function updateBattery(st) {
+    const box = $("battery");
+    const level = st && typeof st.battery === "number" ? st.battery : null;
+    box.hidden = level === null;
+    if (level === null) return;
+    $("batterymeter").value = level;
+    const text = `${(level * 100).toFixed(1)} %` + (st.docked ? ` · docked at ${st.docked}` : "");
+    if ($("batterytext").textContent !== text) $("batterytext").textContent = text;
+    box.classList.toggle("charging", !!st.charging);
+    box.classList.toggle("low", level <= 0.2);
   }
 
   function renderTree() {

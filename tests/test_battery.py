@@ -188,8 +188,9 @@ def test_world_file_docks_are_checked_with_file_and_line(tmp_path: Path) -> None
     world = load_world(str(path))
     assert world.docks["charger"].pose.y == 1.7
     path.write_text(WORLD.replace("yaw: 1.5708}", "yaw: east}"))
-    with pytest.raises(WorldError, match=r"docks.charger.yaw: .*\(line 8\)"):
+    with pytest.raises(WorldError) as exc:
         load_world(str(path))
+    assert any(p.startswith(f"{path}:8: docks.charger.yaw: ") for p in exc.value.problems)
 
 
 def test_rooms_file_docks_and_their_problems(tmp_path: Path) -> None:

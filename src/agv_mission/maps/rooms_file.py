@@ -218,15 +218,15 @@ def docks_from_doc(
         except ValidationError as exc:
             for err in exc.errors(include_url=False):
                 loc = tuple(err["loc"])
-                key = ".".join(str(p) for p in loc)
+                field = ".".join(str(p) for p in (*prefix, name, *loc))
                 if err["type"] == "missing":
-                    msg = f"dock {name!r} has no {key!r} (a dock is {{x, y, yaw}})"
+                    msg = f"{field}: missing (a dock is {{x, y, yaw}})"
                 elif err["type"] == "extra_forbidden":
-                    msg = f"dock {name!r}: {unknown_key(DockModel, loc)}"
+                    msg = f"{field}: {unknown_key(DockModel, loc)}"
+                elif loc:
+                    msg = f"{field}: must be a finite number, got {err['input']!r}"
                 else:
-                    msg = f"dock {name!r}: {key or 'the dock'} must be a finite number" + (
-                        f", got {err['input']!r}" if loc else " mapping {x, y, yaw}"
-                    )
+                    msg = f"{field}: a dock is a mapping {{x, y, yaw}}, got {err['input']!r}"
                 problems.append((line((*prefix, name, *loc)), None, msg))
             continue
         where = line((*prefix, name))

@@ -73,6 +73,14 @@ def test_run_writes_a_complete_run_directory(tmp_path: Path) -> None:
     header = (run_dir / "trajectory.csv").read_text().splitlines()[0]
     # The contract's nine columns, then the estimate's covariance (amcl reports one).
     assert header == "t,x,y,yaw,est_x,est_y,est_yaw,v,w,cov_xx,cov_xy,cov_yy,cov_yawyaw"
+    # the leg table: planned, shortest and driven length and the two ratios
+    [leg] = result["metrics"]["navigation"]["legs"]
+    assert "/shortest" in r.stdout and "shortest m" in r.stdout
+    row = f"-1.60,-0.50 succeeded {leg['planned']:.2f} {leg['shortest']:.2f} {leg['driven']:.2f}"
+    assert row in " ".join(r.stdout.split()), r.stdout
+    nav = result["metrics"]["navigation"]
+    assert nav["planned_length"] == leg["planned"] and nav["shortest_length"] == leg["shortest"]
+    assert "path_length_total" not in nav
 
 
 def test_failed_mission_exits_1_with_reason(tmp_path: Path) -> None:

@@ -253,7 +253,6 @@ class MissionRun:
 
         handle.stop()
         self.navigator.horizon = None  # set again if the tick drives the local planner
-        events_before = len(handle.events)
         self.tree.root.tick_once()
         for i, subtree in enumerate(self.tree.tasks):
             if subtree.status is not Status.INVALID:
@@ -274,9 +273,7 @@ class MissionRun:
             elif now >= self.mission.limits.time - 1e-9:
                 self.end("failed", self._timeout())
         if self._sampler is not None:
-            sample = self._sampler.sample(
-                sensing, estimate, v, w, events_before, covariance, diagnostics
-            )
+            sample = self._sampler.sample(sensing, estimate, v, w, covariance, diagnostics)
             for observer in self.observers:
                 observer.on_step(sample)
         if self.status is not None:

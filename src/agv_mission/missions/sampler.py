@@ -81,6 +81,7 @@ class StepSampler:
             self._behaviours = list(run.tree.root.iterate())
             self._statuses = [node.status for node in self._behaviours]
         task = next((i for i, s in enumerate(run.task_status) if s == "running"), None)
+        scans = sensing.scans
         return StepSample(
             t=sensing.time,
             truth=sensing.truth,
@@ -89,7 +90,8 @@ class StepSampler:
             odom=sensing.odom,
             v=v,
             w=w,
-            scan=sensing.scan,
+            scan=scans[-1] if scans else None,
+            scans=scans,
             particles=particles,
             plan=plan,
             horizon=navigator.horizon,

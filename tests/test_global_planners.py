@@ -165,7 +165,6 @@ def test_path_through_the_door_is_free(room: Costmap, make, margin: float) -> No
     assert_joins(path, START, GOAL)
     assert_path_free(room, path, margin)
     assert path.length > 5.0  # went round through the door, not through the wall
-    assert path.planning_time > 0.0
 
 
 @pytest.mark.parametrize(("make", "margin"), PLANNERS)

@@ -69,7 +69,8 @@ from agv_mission.planners.configs import CostGridConfig, OmplPlannerConfig
 from agv_mission.planners.cost_grid import CostGridPlanner
 from agv_mission.planners.free_space import FreeSpace, FreeSpacePlanner, cost_factor
 
-# Anytime planners that optimise the objective: worth running past their first solution.
+# Anytime planners, worth running past their first solution: they improve it on the
+# objective (AORRTC: on path length, which the simplifier then weighs by the objective).
 OPTIMIZING_PLANNERS = frozenset(
     {"RRTstar", "InformedRRTstar", "SORRTstar", "BITstar", "PRMstar", "AORRTC"}
 )

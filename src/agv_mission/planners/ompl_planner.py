@@ -81,6 +81,12 @@ VECTORISE_FROM = 24  # samples beyond which numpy beats a Python loop
 COST_CACHE = 4  # cost-factor tables kept (one per costmap content and weight)
 
 
+def _pieces(length: float, piece: float) -> int:
+    """How many equal pieces of at most ``piece`` metres ``length`` takes (1 when
+    ``piece`` is not positive: no quick test applies)."""
+    return max(1, math.ceil(length / piece)) if piece > 0.0 else 1
+
+
 class CostIntegral:
     """The cost a motion pays over the costmap: the integral of ``1 + weight * cost / 252``
     (:func:`free_space.cost_factor`) along it, by the midpoint rule every half cell.
@@ -103,6 +109,9 @@ class CostIntegral:
         # How far from an obstacle the distance field is exact: the obstacle layer
         # recomputes it within the footprint plus inflation plus 0.5 m of its marks.
         self.exact_within = space.comfort + 0.5
+        # The longest pieces :meth:`clear` can judge: longer motions are judged by pieces.
+        self.cost_piece = 2.0 * (self.exact_within - self.comfort - 1.5 * self.res)
+        self.free_piece = 2.0 * (self.exact_within - self.required - 1.5 * self.res)
 
     def _cell(self, px: float, py: float) -> int:
         """Flat index of the cell holding a local point (clamped to the grid)."""
@@ -127,9 +136,14 @@ class CostIntegral:
         w, h = self.width * self.res, self.height * self.res
         if not (0.0 <= ax < w and 0.0 <= bx < w and 0.0 <= ay < h and 0.0 <= by < h):
             return None
-        if self.clear(ax, ay, bx, by, math.hypot(bx - ax, by - ay), self.required):
-            return True
-        return None
+        length = math.hypot(bx - ax, by - ay)
+        k = _pieces(length, self.free_piece)
+        dx, dy, step = (bx - ax) / k, (by - ay) / k, length / k
+        for i in range(k):
+            x, y = ax + i * dx, ay + i * dy
+            if not self.clear(x, y, x + dx, y + dy, step, self.required):
+                return None
+        return True
 
     def state(self, px: float, py: float) -> float:
         """The integrand at a local point."""
@@ -138,7 +152,13 @@ class CostIntegral:
     def motion(self, ax: float, ay: float, bx: float, by: float) -> float:
         """The cost of the straight motion from ``a`` to ``b`` (local frame)."""
         length = math.hypot(bx - ax, by - ay)
-        if self.clear(ax, ay, bx, by, length, self.comfort):
+        k = _pieces(length, self.cost_piece)
+        dx, dy, step = (bx - ax) / k, (by - ay) / k, length / k
+        for i in range(k):  # (a long motion piece by piece)
+            x, y = ax + i * dx, ay + i * dy
+            if not self.clear(x, y, x + dx, y + dy, step, self.comfort):
+                break
+        else:
             return length  # outside the inflation zone: the common case, and quick
         n = max(1, math.ceil(length * SAMPLES_PER_CELL / self.res))
         if n > VECTORISE_FROM:

@@ -319,3 +319,50 @@ def test_run_command_writes_bag_unless_told_not_to(tmp_path, monkeypatch, output
     (run_dir,) = (tmp_path / "runs").iterdir()
     assert (run_dir / "result.json").exists()
     assert (run_dir / "bag" / "metadata.yaml").exists() is bag
+
+
+class _Collector:
+    """A RunObserver that keeps the events each step hands it (as the live stream does)."""
+
+    def __init__(self) -> None:
+        self.events: list[dict] = []
+
+    def on_start(self, start) -> None:
+        pass
+
+    def on_step(self, sample) -> None:
+        self.events += sample.events
+
+    def on_end(self, record) -> None:
+        pass
+
+
+def test_fault_events_reach_every_observer(tmp_path):
+    """Faults are logged before the behaviour tree ticks (and a dropout while sensing):
+    they reach the bag's /events and every other observer as they reach result.json."""
+    text = (
+        "name: faulty\nworld: turtlebot3_world\nstart: {x: -2.0, y: -0.5, yaw: 0}\nseed: 3\n"
+        "stack: {localization: {type: ground_truth}}\n"
+        "faults:\n  - {type: lidar_dropout, rate: 0.5}\n  - {type: wheel_slip, factor: 0.1}\n"
+        "  - {type: kidnap, time: 1.0, pose: {x: -2.0, y: -0.3, yaw: 0.0}}\n"
+        "tasks: [{type: go_to, pose: {x: -1.6, y: -0.5, yaw: 0}}]\nlimits: {time: 3}\n"
+    )
+    (tmp_path / "faulty.yaml").write_text(text)
+    loaded = load_mission(tmp_path / "faulty.yaml")
+    run_dir = make_run_dir(tmp_path / "runs", loaded.name)
+    collector = _Collector()
+    record = run_mission(loaded, run_dir, observers=[BagWriter(), collector])
+    write_run(run_dir, loaded, record)
+    result = json.loads((run_dir / "result.json").read_text())
+    faults = [e for e in result["events"] if e["event"] == "fault"]
+    assert {e["kind"] for e in faults} == {"lidar_dropout", "wheel_slip", "kidnap"}
+    with AnyReader([run_dir / "bag"]) as reader:
+        [conn] = [c for c in reader.connections if c.topic == "/events"]
+        bagged = [
+            (log_time * 1e-9, json.loads(reader.deserialize(raw, conn.msgtype).data))
+            for _, log_time, raw in reader.messages(connections=[conn])
+        ]
+    assert [e for _, e in bagged] == result["events"]
+    assert collector.events == json.loads(json.dumps(record.events))
+    for stamp, event in bagged:  # each in the step it was logged in
+        assert stamp == pytest.approx(event["t"], abs=0.051)

@@ -80,6 +80,14 @@ def test_run_writes_a_complete_run_directory(tmp_path: Path) -> None:
     battery = result["metrics"]["battery"]
     assert float(last[-1]) == pytest.approx(battery["end"], abs=1e-5)
     assert 0.99 < battery["end"] < battery["start"] == 1.0
+    # the leg table: planned, shortest and driven length and the two ratios
+    [leg] = result["metrics"]["navigation"]["legs"]
+    assert "/shortest" in r.stdout and "shortest m" in r.stdout
+    row = f"-1.60,-0.50 succeeded {leg['planned']:.2f} {leg['shortest']:.2f} {leg['driven']:.2f}"
+    assert row in " ".join(r.stdout.split()), r.stdout
+    nav = result["metrics"]["navigation"]
+    assert nav["planned_length"] == leg["planned"] and nav["shortest_length"] == leg["shortest"]
+    assert "path_length_total" not in nav
 
 
 def test_failed_mission_exits_1_with_reason(tmp_path: Path) -> None:

@@ -300,7 +300,7 @@ def test_sweep_comparison(tmp_path: Path) -> None:
     for row in rows:
         assert row["runs"] == 2 and row["success_rate"] == 1.0
         assert row["sim_time_mean"] > 0 and row["sim_time_p95"] >= row["sim_time_mean"] - 1e-9
-        assert row["path_length_mean"] > 0 and row["min_clearance_min"] is not None
+        assert row["driven_length_mean"] > 0 and row["min_clearance_min"] is not None
         assert row["solve_ms_p50_mean"] is not None
     from rich.console import Console
 
@@ -405,3 +405,38 @@ def test_run_ignores_expect(tmp_path: Path) -> None:
     scenario.write_text(text.replace("sim_time_max: 20.0", "sim_time_max: 0.0"))
     r = cli("run", str(scenario), "--output", str(tmp_path / "runs"))
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_sweep_over_planners_compares_them_as_they_are(tmp_path: Path) -> None:
+    """cost_grid and three OMPL planners give four different rows, each with planned /
+    shortest and driven / shortest per leg (the OMPL plans are OMPL's own)."""
+    planners = "{type: cost_grid},{type: ompl, planner: RRTConnect},"
+    planners += "{type: ompl, planner: RRTstar},{type: ompl, planner: BITstar}"
+    plan = planning.plan_jobs(
+        [SCENARIOS / "patrol_tb3_pure_pursuit.yaml"],
+        [f"stack.global_planner={planners}"],
+        seeds=1,
+        output_root=tmp_path,
+    )
+    results = backends.run_jobs(plan.jobs, "local", 2)
+    rows = report.compare(results)
+    assert len(rows) == 4
+    ratios = [row["planned_vs_shortest_mean"] for row in rows]
+    assert all(r is not None and r >= 0.99 for r in ratios)
+    assert len(set(ratios)) == 4  # no planner's plan is another's
+    assert all(row["driven_vs_shortest_max"] >= row["driven_vs_shortest_mean"] for row in rows)
+    for r in results:  # per leg, in each run: planned, shortest and driven lengths
+        legs = r["metrics"]["navigation"]["legs"]
+        assert legs and all(leg["shortest"] > 0 and leg["planned"] > 0 for leg in legs)
+        assert r["metrics"]["navigation"]["planned_length"] == pytest.approx(
+            sum(leg["planned"] for leg in legs), abs=1e-3
+        )
+    from rich.console import Console
+
+    console = Console(width=250, record=True)
+    console.print(report.comparison_table(rows))
+    console.print(report.results_table(results, variants=4))
+    text = console.export_text()
+    assert text.count("planned/shortest") == 2 and "driven/shortest" in text
+    for row in rows:
+        assert f"{row['planned_vs_shortest_mean']:.3f}" in text

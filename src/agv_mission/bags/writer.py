@@ -180,6 +180,8 @@ class BagWriter:
         est, odom = sample.estimate, sample.odom
         map_to_odom = est.compose(Pose2D(0.0, 0.0, 0.0).relative_to(odom))
         raw = self._write_raw
+        for scan in sample.scans:  # (a lidar faster than the loop: several, each at its time)
+            raw("/scan", float(scan.time), cdr.laser_scan_cdr(scan, SCAN_FRAME, self._scan_time))
         raw("/clock", t, cdr.clock_cdr(t))
         raw(
             "/tf",
@@ -196,9 +198,6 @@ class BagWriter:
         )
         raw("/cmd_vel", t, cdr.twist_cdr(sample.v, sample.w))
         raw("/amcl_pose", t, cdr.pose_with_covariance_cdr(t, MAP_FRAME, est, sample.covariance))
-        if sample.scan is not None:
-            scan = sample.scan
-            raw("/scan", float(scan.time), cdr.laser_scan_cdr(scan, SCAN_FRAME, self._scan_time))
         particles = sample.particles
         if particles is not None and len(particles) and t >= self._next_particles - 1e-9:
             self._next_particles = t + self.particle_period

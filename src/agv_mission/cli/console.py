@@ -98,7 +98,7 @@ def progress_bar(counter: str) -> Progress:
 
 def print_summary(result: dict) -> None:
     """A run's result document as a status line, a task table and the metrics."""
-    from agv_mission.missions.summary import metrics_line, task_rows
+    from agv_mission.missions.summary import LEG_COLUMNS, leg_rows, metrics_line, task_rows
 
     ok = result["status"] == "succeeded"
     colour = "green" if ok else "red"
@@ -112,5 +112,15 @@ def print_summary(result: dict) -> None:
     for row in task_rows(result):
         table.add_row(*row)
     out.print(table)
+    legs = leg_rows(result)
+    if legs:
+        table = Table(
+            show_header=True, header_style="bold", box=None, collapse_padding=True, pad_edge=False
+        )
+        for i, column in enumerate(LEG_COLUMNS):
+            table.add_column(column, justify="left" if i in (1, 2) else "right", no_wrap=True)
+        for row in legs:
+            table.add_row(*row)
+        out.print(table)
     out.print(metrics_line(result), highlight=False)
     out.print(f"run directory: {result['run_dir']}", highlight=False)

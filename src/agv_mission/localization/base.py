@@ -30,8 +30,10 @@ class Localizer(Protocol):
 
     Plugins are constructed as ``cls(config, grid=..., rng=...)`` and fed once per control
     step with the odometry pose (odom frame), the newest scan (``None`` when no new scan
-    arrived) and the true pose. Only ``ground_truth`` may look at the true pose; it is
-    passed to all so the runner stays plugin-agnostic.
+    arrived) and the true pose; a lidar faster than the control loop feeds them also
+    once per scan taken between steps, with the odometry and the time of that scan.
+    Only ``ground_truth`` may look at the true pose; it is passed to all so the runner
+    stays plugin-agnostic.
     """
 
     def reset(self, pose: Pose2D, odom: Pose2D) -> None: ...

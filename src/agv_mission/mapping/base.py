@@ -14,7 +14,7 @@ from agv_mission.messages import LaserScan
 class Slam(Protocol):
     """Builds a map while estimating the pose in it. Built as ``cls(config, bounds=...,
     rng=...)`` and fed like a localiser: once per control step, odometry and the newest
-    scan (``None`` when none arrived)."""
+    scan (``None`` when none arrived), and once per scan a faster lidar took between."""
 
     integrations: int  # scans added to the map so far
     trajectory: list[tuple[float, float, float, float]]  # (t, x, y, yaw) per scan

@@ -88,7 +88,8 @@ class StepSample:
     odom: Pose2D  # dead-reckoned pose in the odom frame
     v: float  # command sent this step (after smoothing)
     w: float
-    scan: LaserScan | None  # the lidar scan when a new one arrived this step
+    scan: LaserScan | None  # the newest lidar scan when one arrived this step
+    scans: tuple[LaserScan, ...]  # every scan since the last step, oldest first (own stamps)
     particles: np.ndarray | None  # (n, 3) x, y, yaw when a particle filter updated this step
     plan: np.ndarray | None  # (k, 2+) a new global path made this step, else None
     horizon: np.ndarray | None  # (k, 2+) the local controller's predicted path, if any

@@ -120,7 +120,6 @@ def run_metrics(
             "plans": stats.plans if stats else 0,
             "replans": stats.replans if stats else 0,
             "planning_time_ms_mean": round(float(plan_ms.mean()), 3) if plan_ms.size else None,
-            "path_length_total": round(float(np.sum(stats.path_lengths)), 4) if stats else 0.0,
             "controller_solve_ms_p50": round(float(np.percentile(solve_ms, 50)), 3)
             if solve_ms.size
             else None,

@@ -2,8 +2,10 @@
 
 One control step every ``CONTROL_PERIOD`` simulated seconds: read encoders and (when due)
 the lidar, update odometry and the localiser, tick the tree once, smooth the command
-within the robot's acceleration limits, and advance the physics. The wall clock is read
-only to report speed.
+within the robot's acceleration limits, and advance the physics. A lidar faster than the
+loop scans at its own times while the physics advances; each of those scans reaches the
+localiser (with the odometry at its time), the obstacle layer and the observers at the
+next step. The wall clock is read only to report speed.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from agv_mission.behaviors.outcome import failure_reason
 from agv_mission.geometry import Pose2D
 from agv_mission.localization.base import Localizer, LocalizerDiagnostics
 from agv_mission.maps.obstacle_layer import ObstacleLayer
+from agv_mission.messages import LaserScan
 from agv_mission.missions.faults import FaultInjector
 from agv_mission.missions.loader import LoadedMission
 from agv_mission.missions.map_building import MapBuilder
@@ -45,6 +48,7 @@ from agv_mission.missions.sampler import StepSampler
 from agv_mission.missions.stack import (
     CONTROL_PERIOD,
     RobotStack,
+    Sensing,
     VelocitySmoother,
     open_recorders,
 )
@@ -244,30 +248,17 @@ class MissionRun:
         now = sim.time
         state.time = now
         self.faults.apply(now, handle)
-        sensing = self.stack.sense(lambda t, scan: self.faults.filter_scan(t, scan, handle))
-        odom_pose, scan, truth = sensing.odom, sensing.scan, sensing.truth
-        mapping = self.mapper.session
-        if mapping is not None:
-            estimate = mapping.update(odom_pose, scan, truth, now)
-            costmap = mapping.refreshed_costmap(now)
-            if costmap is not None:
-                self.navigator.layer = ObstacleLayer(costmap, costmap.config.obstacles)
-        else:
-            if handle.nomotion_update:  # the localiser holds it until a scan comes
-                self.localizer.request_nomotion_update()
-                handle.nomotion_update = False
-            estimate = self.localizer.update(odom_pose, scan, truth, now)
+        sensing = self.stack.sense(self._scan_filter)
+        truth = sensing.truth
+        for earlier in sensing.earlier:  # a lidar faster than the loop: each at its time
+            self._perceive(earlier)
+        estimate = self._perceive(sensing)
         state.time, state.estimate = now, estimate
         smoother = self.stack.smoother
         state.velocity = (smoother.v, smoother.w)
-        if scan is not None:
-            state.scan = scan
-            state.obstacles = scan.points(estimate)
-            self.navigator.observe(estimate, scan)
 
         handle.stop()
         self.navigator.horizon = None  # set again if the tick drives the local planner
-        events_before = len(handle.events)
         self.tree.root.tick_once()
         for i, subtree in enumerate(self.tree.tasks):
             if subtree.status is not Status.INVALID:
@@ -298,9 +289,7 @@ class MissionRun:
             elif now >= self.mission.limits.time - 1e-9:
                 self.end("failed", self._timeout())
         if self._sampler is not None:
-            sample = self._sampler.sample(
-                sensing, estimate, v, w, events_before, covariance, diagnostics
-            )
+            sample = self._sampler.sample(sensing, estimate, v, w, covariance, diagnostics)
             for observer in self.observers:
                 observer.on_step(sample)
         if self.status is not None:
@@ -308,8 +297,32 @@ class MissionRun:
         sim.set_command(v, w)
         if battery is not None:
             battery.step(v, w, CONTROL_PERIOD)
-        sim.advance(CONTROL_PERIOD)
+        self.stack.advance(self._scan_filter)
         return True
+
+    def _scan_filter(self, t: float, scan: LaserScan) -> LaserScan | None:
+        return self.faults.filter_scan(t, scan, self.handle)
+
+    def _perceive(self, sensing: Sensing) -> Pose2D:
+        """Odometry and a scan (if any) into the localiser or the SLAM session, and the
+        scan into the obstacle layer, at the sensing's own time; the estimate then."""
+        handle, scan, t = self.handle, sensing.scan, sensing.time
+        mapping = self.mapper.session
+        if mapping is not None:
+            estimate = mapping.update(sensing.odom, scan, sensing.truth, t)
+            costmap = mapping.refreshed_costmap(t)
+            if costmap is not None:
+                self.navigator.layer = ObstacleLayer(costmap, costmap.config.obstacles)
+        else:
+            if handle.nomotion_update:  # the localiser holds it until a scan comes
+                self.localizer.request_nomotion_update()
+                handle.nomotion_update = False
+            estimate = self.localizer.update(sensing.odom, scan, sensing.truth, t)
+        if scan is not None:
+            handle.state.scan = scan
+            handle.state.obstacles = scan.points(estimate)
+            self.navigator.observe(estimate, scan)
+        return estimate
 
     def end(self, status: str, reason: str | None) -> bool:
         if self.status is None:

@@ -28,9 +28,18 @@ class StepSampler:
         self.filter_updates = -1
         self.map_integrations = -1
         self.built_map: OccupancyGrid | None = None
+        self.events_sent = 0  # handle.events handed to the observers so far
         self.nodes: list[TreeNode] = tree_nodes(run.tree.root)
         self._behaviours = list(run.tree.root.iterate())
         self._statuses = [node.status for node in self._behaviours]
+
+    def _new_events(self, events: list[dict]) -> list[dict]:
+        """Every event logged since the last sample, wherever in the step it was logged
+        (a fault before the tick, a scan filter while sensing, the tree, the end): the
+        observers see each event of ``result.json`` exactly once."""
+        new = events[self.events_sent :]
+        self.events_sent = len(events)
+        return new
 
     def sample(
         self,
@@ -38,7 +47,6 @@ class StepSampler:
         estimate: Pose2D,
         v: float,
         w: float,
-        events_from: int,
         covariance: np.ndarray | None,
         diagnostics: LocalizerDiagnostics | None,
     ) -> StepSample:
@@ -74,6 +82,7 @@ class StepSampler:
             self._statuses = [node.status for node in self._behaviours]
         task = next((i for i, s in enumerate(run.task_status) if s == "running"), None)
         battery = run.battery
+        scans = sensing.scans
         return StepSample(
             t=sensing.time,
             truth=sensing.truth,
@@ -82,13 +91,14 @@ class StepSampler:
             odom=sensing.odom,
             v=v,
             w=w,
-            scan=sensing.scan,
+            scan=scans[-1] if scans else None,
+            scans=scans,
             particles=particles,
             plan=plan,
             horizon=navigator.horizon,
             goal=navigator.goal,
             grid=grid,
-            events=handle.events[events_from:],
+            events=self._new_events(handle.events),
             tree_nodes=self.nodes if changed else None,
             task_index=task,
             task_type=run.mission.tasks[task].type if task is not None else None,

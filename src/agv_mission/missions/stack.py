@@ -66,12 +66,22 @@ def velocity_limits(robot: RobotDescription) -> VelocityLimits:
 
 @dataclass
 class Sensing:
-    """What one control step reads: odometry, the lidar scan when one is due, the truth."""
+    """What one control step reads: odometry, the lidar scan when one is due, the truth;
+    and, from a lidar faster than the control loop, the scans taken within the control
+    period before it (``earlier``, oldest first), each with the odometry and the truth at
+    its own time."""
 
     time: float
     odom: Pose2D
     scan: LaserScan | None
     truth: Pose2D
+    earlier: tuple[Sensing, ...] = ()
+
+    @property
+    def scans(self) -> tuple[LaserScan, ...]:
+        """Every scan this step brings, oldest first."""
+        found = [s.scan for s in self.earlier] + [self.scan]
+        return tuple(scan for scan in found if scan is not None)
 
 
 ScanFilter = Callable[[float, LaserScan], LaserScan | None]
@@ -97,6 +107,7 @@ class RobotStack:
         self.smoother = VelocitySmoother(self.limits, CONTROL_PERIOD)
         self.scan_period = 1.0 / robot.lidar.rate
         self.next_scan = 0.0
+        self._between: list[Sensing] = []  # scans taken within the last control period
         self.odom = self.odometry.update(*self.sim.encoder_ticks())
         self.odom_start = self.odom
         self.localizer: Localizer = self.new_localizer(loaded.world.map)
@@ -135,7 +146,8 @@ class RobotStack:
         )
 
     def sense(self, scan_filter: ScanFilter | None = None) -> Sensing:
-        """Read the encoders into odometry and, when one is due, a lidar scan."""
+        """Read the encoders into odometry and, when one is due, a lidar scan; with the
+        scans :meth:`advance` took since the last call."""
         sim = self.sim
         now = sim.time
         self.odom = self.odometry.update(*sim.encoder_ticks())
@@ -145,7 +157,8 @@ class RobotStack:
             scan = sim.scan()
             if scan_filter is not None:
                 scan = scan_filter(now, scan)
-        return Sensing(now, self.odom, scan, sim.true_pose())
+        earlier, self._between = tuple(self._between), []
+        return Sensing(now, self.odom, scan, sim.true_pose(), earlier)
 
     def has_moved(self) -> bool:
         """Whether odometry saw the robot move since the start."""
@@ -158,9 +171,30 @@ class RobotStack:
         self.sim.set_command(v, w)
         return v, w
 
-    def advance(self) -> None:
-        """Let physics run one control period."""
-        self.sim.advance(CONTROL_PERIOD)
+    def advance(self, scan_filter: ScanFilter | None = None) -> None:
+        """Let physics run one control period. A lidar faster than the control loop scans
+        at its own times within it (to the physics step), each scan with the odometry and
+        the truth at that time, for the next :meth:`sense`; scans due at the period's ends
+        are :meth:`sense`'s, so a lidar at 10 Hz or slower runs as one sense a step."""
+        sim = self.sim
+        dt = sim.dt
+        steps, done = int(round(CONTROL_PERIOD / dt)), 0
+        t0 = sim.time
+        while True:
+            if self.next_scan >= t0 + CONTROL_PERIOD - 1e-9:
+                break
+            k = max(1, int(round((self.next_scan - t0) / dt)))
+            if k >= steps:  # within half a physics step of the end: sense() takes it
+                break
+            sim.advance((k - done) * dt)
+            done = k
+            self.next_scan += self.scan_period
+            odom = self.odometry.update(*sim.encoder_ticks())
+            scan = sim.scan()
+            if scan_filter is not None:
+                scan = scan_filter(sim.time, scan)
+            self._between.append(Sensing(sim.time, odom, scan, sim.true_pose()))
+        sim.advance((steps - done) * dt)
 
 
 def open_recorders(

@@ -40,3 +40,39 @@ def metrics_line(result: dict[str, Any]) -> str:
         "position RMSE "
         + (f"{loc['position_rmse']:.3f} m" if loc["position_rmse"] is not None else "n/a")
     )
+
+
+def leg_rows(result: dict[str, Any]) -> list[tuple[str, ...]]:
+    """``(leg, goal, status, planned m, shortest m, driven m, planned/shortest,
+    driven/shortest)`` a leg (each goal pursued), from ``metrics.navigation.legs``."""
+
+    def num(value: Any, digits: int) -> str:
+        return "-" if value is None else f"{value:.{digits}f}"
+
+    legs = ((result.get("metrics") or {}).get("navigation") or {}).get("legs") or []
+    return [
+        (
+            str(i),
+            f"{leg['goal'][0]:.2f},{leg['goal'][1]:.2f}",
+            leg["status"],
+            num(leg["planned"], 2),
+            num(leg["shortest"], 2),
+            num(leg["driven"], 2),
+            num(leg["planned_vs_shortest"], 3),
+            num(leg["driven_vs_shortest"], 3),
+        )
+        for i, leg in enumerate(legs, 1)
+    ]
+
+
+#: The columns of :func:`leg_rows`.
+LEG_COLUMNS = (
+    "leg",
+    "goal",
+    "status",
+    "planned m",
+    "shortest m",
+    "driven m",
+    "planned\n/shortest",
+    "driven\n/shortest",
+)

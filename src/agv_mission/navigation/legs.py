@@ -39,7 +39,6 @@ class NavigationStats:
     planning_times: list[float] = field(default_factory=list)
     solve_times: list[float] = field(default_factory=list)
     solver_failures: int = 0
-    path_lengths: list[float] = field(default_factory=list)
     legs: list[Leg] = field(default_factory=list)
 
 
@@ -83,6 +82,10 @@ def leg_report(
         values = [r[key] for r in done if r[key] is not None]
         report[f"{key}_max"] = max(values) if values else None
     report["stops"] = sum(r["stops"] for r in done)
+    # Totals over the legs that have each length: what was planned (first plans) and
+    # what was shortest; the distance driven is ``metrics.distance_driven``.
+    report["planned_length"] = _r(sum(leg.planned for leg in legs if leg.planned is not None))
+    report["shortest_length"] = _r(sum(leg.shortest for leg in legs if leg.shortest is not None))
     return report
 
 

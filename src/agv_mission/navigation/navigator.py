@@ -284,7 +284,6 @@ class Navigator:
         self.path = path
         self.paths.append(path.points.copy())
         self.stats.planning_times.append(path.planning_time)
-        self.stats.path_lengths.append(path.length)
         return True
 
     def _connected(self, start: Pose2D, goal: Pose2D) -> bool:

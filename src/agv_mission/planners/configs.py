@@ -38,7 +38,10 @@ class OmplPlannerConfig(PluginConfig):
 
     type: Literal["ompl"] = "ompl"
     planner: str = Field(
-        "RRTConnect", description="OMPL geometric planner class, e.g. RRTConnect, BITstar"
+        "RRTConnect",
+        description="OMPL geometric planner class, one the installed OMPL binds (OMPL 2.0.1: "
+        "AORRTC, BFMT, BITstar, BKPIECE1, FMT, InformedRRTstar, KPIECE1, LBKPIECE1, PRM, "
+        "PRMstar, RRT, RRTConnect, RRTstar, SORRTstar)",
     )
     iterations: int = Field(
         20000,
@@ -55,15 +58,18 @@ class OmplPlannerConfig(PluginConfig):
         "fails (and that run is not reproducible); PRM-family planners (which grow their "
         "roadmap in a second thread) run on this clock",
     )
-    simplify: bool = Field(True, description="shortcut + smooth the solution (deterministic)")
-    refine: bool = Field(
+    simplify: bool = Field(
         True,
-        description="make the solution cost-aware: the cheapest path over the costmap's "
-        "inflation cost within a band around it, shortcut and filleted (as cost_grid does); "
-        "without it the inflation cost plays no part in OMPL's plans",
+        description="OMPL's path simplifier (shortcuts, B-spline smoothing) over the same "
+        "objective: no shortcut makes the cost worse (deterministic)",
     )
     cost_weight: float = Field(
-        1.0, ge=0, le=100.0, description="refinement: weight of the inflation cost (see cost_grid)"
+        1.0,
+        ge=0,
+        le=100.0,
+        description="the objective: a motion costs the integral of 1 + cost_weight * "
+        "cost / 252 along it (the costmap's inflation cost, as cost_grid's step cost); "
+        "0: path length",
     )
     clearance: float = Field(
         0.05, ge=0, le=5.0, description="metres of margin beyond the robot radius a path must keep"
@@ -81,8 +87,9 @@ class OmplPlannerConfig(PluginConfig):
         1.05,
         ge=1.0,
         le=100.0,
-        description="optimising planners stop once the path is no longer than this multiple "
-        "of the smoothed shortest grid path; None: always use the whole iteration budget",
+        description="optimising planners stop once the path costs no more than this multiple "
+        "of the cost (same objective) of the path cost_grid would plan, a yardstick only; "
+        "None: always use the whole iteration budget",
     )
     round_iterations: int = Field(
         200,

@@ -188,27 +188,6 @@ class CostGridPlanner(FreeSpacePlanner[CostGridConfig]):
         """Cells per side of a coarse block."""
         return max(1, round(self.config.coarse_resolution / space.res))
 
-    def refine(
-        self,
-        space: FreeSpace,
-        start: tuple[float, float],
-        goal: tuple[float, float],
-        path: np.ndarray,
-    ) -> np.ndarray | None:
-        """``path`` (local frame, e.g. a sampling planner's) made cost-aware and smooth:
-        the cheapest path within ``band`` blocks of it, then shortcuts and fillets. None
-        when the band holds no path."""
-        if len(path) == 2 and self._straight_is_best(space, start, goal):
-            return np.array([start, goal], dtype=float)
-        weight = self.config.cost_weight
-        s_cell, g_cell = space.cell_index(start), space.cell_index(goal)
-        factor = cost_factor(space.costmap.cost, weight)
-        k = self._block(space)
-        cells = self._along_prior(space, path, k, factor, s_cell, g_cell, local=True)
-        if cells is None:
-            return None
-        return self._smooth(space, start, goal, cells, weight)
-
     def _along_prior(
         self,
         space: FreeSpace,
@@ -217,12 +196,10 @@ class CostGridPlanner(FreeSpacePlanner[CostGridConfig]):
         factor: np.ndarray,
         s_cell: int,
         g_cell: int,
-        local: bool = False,
     ) -> np.ndarray | None:
-        """The cheapest path within ``band`` blocks of ``prior`` (map frame unless
-        ``local``); None when the band holds none (the way is blocked)."""
-        if not local:
-            prior = np.array([space.to_local(float(x), float(y)) for x, y in prior[:, :2]])
+        """The cheapest path within ``band`` blocks of ``prior`` (map frame); None when
+        the band holds none (the way is blocked)."""
+        prior = np.array([space.to_local(float(x), float(y)) for x, y in prior[:, :2]])
         blocks = blocks_along(space, prior, k)
         return corridor_path(space, blocks, k, self.config.band, factor, s_cell, g_cell)
 

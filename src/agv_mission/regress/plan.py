@@ -24,8 +24,11 @@ runs every job in its own process:
 Jobs are started longest first (by ``limits.time``) so a pool finishes together.
 Each job writes an ordinary run directory under the output root. The results feed a
 table, a JUnit XML file, a JSON summary and, with variants or seeds, a comparison
-table per variant: success rate, mean and p95 sim time, path length, clearance and
-planner / controller solve times (time and path length over the succeeded runs only).
+table per variant: success rate, mean and p95 sim time, distance driven, planned /
+shortest and driven / shortest per leg (the shortest path through the costmap between a
+leg's start and goal, computed once per leg; mean and worst over the legs that
+succeeded), clearance and planner / controller solve times (time and distance driven
+over the succeeded runs only).
 """
 
 from __future__ import annotations

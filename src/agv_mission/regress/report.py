@@ -77,6 +77,19 @@ def compare(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     return [_stats(name, variant, rs) for (name, variant), rs in groups.items()]
 
 
+def leg_values(results: Sequence[dict[str, Any]], key: str) -> list[float]:
+    """``key`` (a ratio of ``metrics.navigation.legs``) of every leg that succeeded, over
+    ``results``: each leg's shortest path is computed once, when the leg begins."""
+    out = []
+    for r in results:
+        nav = (r.get("metrics") or {}).get("navigation") or {}
+        for leg in nav.get("legs") or []:
+            value = leg.get(key)
+            if leg.get("status") == "succeeded" and isinstance(value, (int, float)):
+                out.append(float(value))
+    return out
+
+
 def _stats(name: str, variant: str, rs: list[dict[str, Any]]) -> dict[str, Any]:
     ok = [r for r in rs if r["status"] == "succeeded"]
     ran = [r for r in rs if r["status"] != "error"]
@@ -96,6 +109,8 @@ def _stats(name: str, variant: str, rs: list[dict[str, Any]]) -> dict[str, Any]:
 
     times = values(ok, "sim_time")
     clear = values(ran, "metrics.min_clearance")
+    planned_ratio = leg_values(ran, "planned_vs_shortest")
+    driven_ratio = leg_values(ran, "driven_vs_shortest")
     return {
         "scenario": name,
         "variant": variant,
@@ -105,7 +120,12 @@ def _stats(name: str, variant: str, rs: list[dict[str, Any]]) -> dict[str, Any]:
         "passed": sum(r["passed"] for r in rs),
         "sim_time_mean": mean(times),
         "sim_time_p95": round(float(np.percentile(times, 95)), 4) if times else None,
-        "path_length_mean": mean(values(ok, "metrics.distance_driven")),
+        "driven_length_mean": mean(values(ok, "metrics.distance_driven")),
+        "planned_length_mean": mean(values(ok, "metrics.navigation.planned_length")),
+        "planned_vs_shortest_mean": mean(planned_ratio),
+        "planned_vs_shortest_max": max(planned_ratio, default=None),
+        "driven_vs_shortest_mean": mean(driven_ratio),
+        "driven_vs_shortest_max": max(driven_ratio, default=None),
         "min_clearance_mean": mean(clear),
         "min_clearance_min": round(min(clear), 4) if clear else None,
         "collisions": int(sum(values(ran, "metrics.collisions"))),
@@ -127,7 +147,9 @@ def results_table(results: Sequence[dict[str, Any]], variants: int = 1, seeds: i
         ("status", "left"),
         ("sim s", "right"),
         ("wall s", "right"),
-        ("dist m", "right"),
+        ("driven m", "right"),
+        ("planned/shortest", "right"),
+        ("driven/shortest", "right"),
         ("coll", "right"),
         ("clear m", "right"),
         ("rmse m", "right"),
@@ -145,6 +167,8 @@ def results_table(results: Sequence[dict[str, Any]], variants: int = 1, seeds: i
             _fmt(r["sim_time"], 1),
             _fmt(r["wall_time"], 1),
             _fmt(m.get("distance_driven"), 2),
+            _ratios(leg_values([r], "planned_vs_shortest")),
+            _ratios(leg_values([r], "driven_vs_shortest")),
             _fmt(m.get("collisions"), 0),
             _fmt(m.get("min_clearance"), 3),
             _fmt(loc.get("position_rmse"), 3),
@@ -158,7 +182,8 @@ def comparison_table(rows: Sequence[dict[str, Any]]) -> Any:
     from rich.table import Table
 
     table = Table(
-        title="comparison per variant (time and path over succeeded runs)",
+        title="comparison per variant (time and driven length over succeeded runs; "
+        "planned|driven / shortest per succeeded leg: mean (worst))",
         show_header=True,
         header_style="bold",
         box=None,
@@ -171,7 +196,9 @@ def comparison_table(rows: Sequence[dict[str, Any]]) -> Any:
         ("success", "right"),
         ("mean s", "right"),
         ("p95 s", "right"),
-        ("path m", "right"),
+        ("driven m", "right"),
+        ("planned/shortest", "right"),
+        ("driven/shortest", "right"),
         ("clear m", "right"),
         ("min clear", "right"),
         ("coll", "right"),
@@ -190,7 +217,9 @@ def comparison_table(rows: Sequence[dict[str, Any]]) -> Any:
             f"{rate:.0%}" if rate is not None else "-",
             _fmt(s["sim_time_mean"], 1),
             _fmt(s["sim_time_p95"], 1),
-            _fmt(s["path_length_mean"], 2),
+            _fmt(s["driven_length_mean"], 2),
+            _mean_max(s["planned_vs_shortest_mean"], s["planned_vs_shortest_max"]),
+            _mean_max(s["driven_vs_shortest_mean"], s["driven_vs_shortest_max"]),
             _fmt(s["min_clearance_mean"], 3),
             _fmt(s["min_clearance_min"], 3),
             str(s["collisions"]),
@@ -199,6 +228,17 @@ def comparison_table(rows: Sequence[dict[str, Any]]) -> Any:
             _fmt(s["solve_ms_p99_max"], 2),
         )
     return table
+
+
+def _ratios(values: list[float]) -> str:
+    """Per-leg ratios of one run: their mean and, in brackets, the worst."""
+    if not values:
+        return "-"
+    return _mean_max(float(np.mean(values)), max(values))
+
+
+def _mean_max(mean: float | None, worst: float | None) -> str:
+    return "-" if mean is None or worst is None else f"{mean:.3f} ({worst:.3f})"
 
 
 def _fmt(v: Any, digits: int) -> str:

@@ -38,8 +38,11 @@ class GridSlamConfig(PluginConfig):
     max_range: float | None = Field(
         None, gt=0, description="returns beyond this (m) are not integrated; None: range_max"
     )
-    clear_no_return: bool = Field(
-        True, description="beams without a return clear free space up to the max range"
+    missing_data_ray_length: float = Field(
+        5.0,
+        ge=0,
+        description="m of free space a beam without a return (+inf) clears (Cartographer's "
+        "missing_data_ray_length): not through doors and windows to the max range; 0: none",
     )
     hit_memory: int = Field(
         20, ge=1, description="end points averaged per cell anchor (older ones fade out)"

@@ -4,9 +4,11 @@ seen from, and the matcher's likelihood field, all kept up to date per integrate
 Each integration adds ``log_odds_occupied`` once to every cell holding a beam end point
 and ``log_odds_free`` once to every other cell a beam crosses (beams sampled every half
 cell; a cell hit by one beam of a scan is not also cleared by that scan), clamped to
-``[log_odds_min, log_odds_max]``. Beams without a return clear up to the max range minus
-two cells when ``clear_no_return`` is set. Each cell also keeps the mean of the end
-points that fell in it (the last ``hit_memory`` weigh most), its *anchor*, and the sum of
+``[log_odds_min, log_odds_max]``. Beams without a return (+inf) clear only
+``missing_data_ray_length`` (Cartographer's name and 5 m default; gmapping's ``maxUrange``
+plays the same part): "nothing within range" is no evidence that all of it is free: an
+open door or window would clear a starburst of free space outside the building. Each
+cell also keeps the mean of the end points that fell in it (the last ``hit_memory`` weigh most), its *anchor*, and the sum of
 the directions from its end points back to the scanner, the side it was seen from (see
 :mod:`slam`). The likelihood field (cells above ``field_threshold`` log-odds count as
 obstacles) and the nearest-obstacle tables are refreshed around each integrated scan.
@@ -122,7 +124,7 @@ class LogOddsMap:
         max_range = min(scan.range_max, c.max_range) if c.max_range else scan.range_max
         finite = np.isfinite(r)
         hit = finite & (r >= scan.range_min) & (r <= max_range)
-        clear = max(max_range - 2.0 * res, 0.0) if c.clear_no_return else 0.0
+        clear = min(c.missing_data_ray_length, max(max_range - 2.0 * res, 0.0))
         # +inf is "no return" (clears); nan is an invalid reading (clears nothing).
         no_return = np.where(np.isposinf(r), clear, 0.0)
         length = np.where(hit, r, np.where(finite & (r > max_range), max_range, no_return))

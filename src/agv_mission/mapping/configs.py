@@ -92,6 +92,21 @@ class GridSlamConfig(PluginConfig):
     match_max_range: float | None = Field(
         None, gt=0, description="points farther than this (m) are not matched; None: all"
     )
+    search_max_range: float | None = Field(
+        None,
+        gt=0,
+        description="m: only points this close (one per cell) are scored by the correlative "
+        "search, the refinement uses all; None: all (a real lidar's 40 m returns make the "
+        "search window and its angular steps huge)",
+    )
+    fast_match_score: float | None = Field(
+        None,
+        gt=0,
+        le=1,
+        description="when the refinement alone, from the odometry prediction, lands within "
+        "a quarter of the window with at least this mean field value, the correlative search "
+        "is skipped; None: always search",
+    )
     min_points: int = Field(20, ge=1, description="fewer valid points: odometry only")
     min_score: float = Field(
         0.1, ge=0, le=1, description="matches scoring below this are rejected (odometry only)"

@@ -62,6 +62,7 @@ class GraphSlam(GridSlam):
             iterations=c.refine_iterations,
             point_sigma=c.point_sigma,
             scan_sigma=c.scan_sigma,
+            search_max_range=c.search_max_range,
         )
         self._clear_graph()
 

@@ -31,6 +31,11 @@ from agv_mission.mapping.likelihood_field import LikelihoodField, field_values
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.messages import LaserScan
 
+#: Side (cells) of the tiles the field is refreshed in after a scan.
+REFRESH_TILE = 64
+#: An anchor that moved less than this (cells) does not refresh the field around it.
+ANCHOR_REFRESH = 0.1
+
 
 def _logit(p: float) -> float:
     return math.log(p / (1.0 - p))
@@ -142,64 +147,80 @@ class LogOddsMap:
             max(ey.max(), pose.y),
         )
         ox, oy = self.ox, self.oy
-
-        # The window of the map this scan touches.
+        h, w = self.logodds.shape
         cols_e = np.floor((ex - ox) / res).astype(np.int64)
         rows_e = np.floor((ey - oy) / res).astype(np.int64)
-        pr, pc = int(math.floor((pose.y - oy) / res)), int(math.floor((pose.x - ox) / res))
-        r0, r1 = min(int(rows_e.min()), pr), max(int(rows_e.max()), pr) + 1
-        c0, c1 = min(int(cols_e.min()), pc), max(int(cols_e.max()), pc) + 1
-        wh, ww = r1 - r0, c1 - c0
-        n = wh * ww
 
-        # Free cells: every half cell along each beam, short of its end point.
+        # Free cells: every half cell along each beam, short of its end point; only the
+        # samples each beam needs (a few long beams do not inflate the short ones).
         step = 0.5 * res
-        t = np.arange(int(math.ceil(length.max() / step)) + 1) * step
-        along = t[None, :] < length[:, None]
-        fc = np.floor(((pose.x - ox) + ca[:, None] * t[None, :])[along] / res).astype(np.int64)
-        fr = np.floor(((pose.y - oy) + sa[:, None] * t[None, :])[along] / res).astype(np.int64)
-        np.clip(fc - c0, 0, ww - 1, out=fc)
-        np.clip(fr - r0, 0, wh - 1, out=fr)
-        free = np.zeros(n, bool)
-        free[fr * ww + fc] = True
-        occ = np.zeros(n, bool)
-        hit_idx = (rows_e[hit] - r0) * ww + (cols_e[hit] - c0)
-        occ[hit_idx] = True
-        free &= ~occ
+        counts = np.ceil(length / step).astype(np.int64)
+        beam = np.repeat(np.arange(len(length)), counts)
+        first = np.cumsum(counts) - counts
+        t = (np.arange(int(counts.sum())) - np.repeat(first, counts)) * step
+        fc = np.floor(((pose.x - ox) + ca[beam] * t) / res).astype(np.int64)
+        fr = np.floor(((pose.y - oy) + sa[beam] * t) / res).astype(np.int64)
+        np.clip(fc, 0, w - 1, out=fc)
+        np.clip(fr, 0, h - 1, out=fr)
+        free_idx = fr * w + fc
+        hit_idx = rows_e[hit] * w + cols_e[hit]
+        # A cell hit by this scan is not also cleared by it.
+        mark = np.zeros(h * w, bool)
+        mark[hit_idx] = True
+        free_idx = free_idx[~mark[free_idx]]
 
-        window = self.logodds[r0:r1, c0:c1]
-        update = np.where(occ, np.float32(c.log_odds_occupied), np.float32(0.0))
-        update[free] = c.log_odds_free
-        window += update.reshape(wh, ww)
-        np.clip(window, c.log_odds_min, c.log_odds_max, out=window)
+        # Each touched cell once: fancy-index updates with repeated indices apply once.
+        flat = self.logodds.reshape(-1)
+        threshold = c.field_threshold
+        touched = np.concatenate([free_idx, hit_idx])
+        was = flat[touched] > threshold
+        flat[free_idx] += np.float32(c.log_odds_free)
+        flat[hit_idx] += np.float32(c.log_odds_occupied)
+        flat[touched] = np.clip(flat[touched], c.log_odds_min, c.log_odds_max)
+        changed = [touched[was != (flat[touched] > threshold)]]
 
         if len(hit_idx):
             # Anchors: running means of where the end points fell in their cells.
+            cells, inverse = np.unique(hit_idx, return_inverse=True)
             offx = ex[hit] - (ox + (cols_e[hit] + 0.5) * res)
             offy = ey[hit] - (oy + (rows_e[hit] + 0.5) * res)
-            hx, hy = self.hx[r0:r1, c0:c1], self.hy[r0:r1, c0:c1]
-            hn = self.hn[r0:r1, c0:c1]
-            hx += np.bincount(hit_idx, offx, n).reshape(wh, ww).astype(np.float32)
-            hy += np.bincount(hit_idx, offy, n).reshape(wh, ww).astype(np.float32)
-            hn += np.bincount(hit_idx, None, n).reshape(wh, ww).astype(np.float32)
+            k = len(cells)
+            hx, hy, hn = (a.reshape(-1) for a in (self.hx, self.hy, self.hn))
+            vx, vy = self.vx.reshape(-1), self.vy.reshape(-1)
+            ax, ay = self.ax.reshape(-1), self.ay.reshape(-1)
+            sx = hx[cells] + np.bincount(inverse, offx, k).astype(np.float32)
+            sy = hy[cells] + np.bincount(inverse, offy, k).astype(np.float32)
+            sn = hn[cells] + np.bincount(inverse, None, k).astype(np.float32)
             # Which side the cell was seen from (a thin wall has two faces).
-            vx, vy = self.vx[r0:r1, c0:c1], self.vy[r0:r1, c0:c1]
-            vx -= np.bincount(hit_idx, ca[hit], n).reshape(wh, ww).astype(np.float32)
-            vy -= np.bincount(hit_idx, sa[hit], n).reshape(wh, ww).astype(np.float32)
-            over = hn > c.hit_memory
-            if over.any():
-                scale = c.hit_memory / hn[over]
-                hx[over] *= scale
-                hy[over] *= scale
-                vx[over] *= scale
-                vy[over] *= scale
-                hn[over] = c.hit_memory
-            seen = hn > 0
-            self.ax[r0:r1, c0:c1][seen] = hx[seen] / hn[seen]
-            self.ay[r0:r1, c0:c1][seen] = hy[seen] / hn[seen]
+            svx = vx[cells] - np.bincount(inverse, ca[hit], k).astype(np.float32)
+            svy = vy[cells] - np.bincount(inverse, sa[hit], k).astype(np.float32)
+            scale = np.where(sn > c.hit_memory, c.hit_memory / sn, 1.0).astype(np.float32)
+            hx[cells], hy[cells], hn[cells] = sx * scale, sy * scale, sn * scale
+            vx[cells], vy[cells] = svx * scale, svy * scale
+            nax, nay = sx / sn, sy / sn
+            moved = np.hypot(nax - ax[cells], nay - ay[cells]) > ANCHOR_REFRESH * res
+            ax[cells], ay[cells] = nax, nay
+            changed.append(cells[moved])
 
-        self.refresh_field(r0, r1, c0, c1)
+        self._refresh_cells(np.concatenate(changed))
         return True
+
+    def _refresh_cells(self, cells: np.ndarray) -> None:
+        """Refresh the field around flat cell indices ``cells`` (whose obstacle status or
+        anchor changed), tile by tile over each tile's box of changes, so that a scan of
+        walls already mapped costs little."""
+        if not len(cells):
+            return
+        w = self.logodds.shape[1]
+        rows, cols = np.divmod(cells, w)
+        key = (rows // REFRESH_TILE) * (w // REFRESH_TILE + 1) + cols // REFRESH_TILE
+        order = np.argsort(key, kind="stable")
+        key, rows, cols = key[order], rows[order], cols[order]
+        starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        r0s, r1s = np.minimum.reduceat(rows, starts), np.maximum.reduceat(rows, starts)
+        c0s, c1s = np.minimum.reduceat(cols, starts), np.maximum.reduceat(cols, starts)
+        for r0, r1, c0, c1 in zip(r0s, r1s, c0s, c1s, strict=True):
+            self.refresh_field(int(r0), int(r1) + 1, int(c0), int(c1) + 1)
 
     def refresh_field(self, r0: int, r1: int, c0: int, c1: int) -> None:
         """Recompute the field and nearest-obstacle tables where cells [r0:r1, c0:c1] may

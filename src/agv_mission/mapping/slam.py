@@ -93,6 +93,8 @@ class GridSlam:
             iterations=c.refine_iterations,
             point_sigma=c.point_sigma,
             scan_sigma=c.scan_sigma,
+            search_max_range=c.search_max_range,
+            fast_score=c.fast_match_score,
         )
         #: (time, x, y, yaw) of every processed scan, in the map frame.
         self.trajectory: list[tuple[float, float, float, float]] = []

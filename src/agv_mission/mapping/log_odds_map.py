@@ -122,8 +122,10 @@ class LogOddsMap:
         self.ox -= left * res
         self.oy -= down * res
 
-    def integrate(self, scan: LaserScan, pose: Pose2D) -> bool:
-        """Add ``scan`` seen from ``pose``; False when no beam had anything to add."""
+    def integrate(self, scan: LaserScan, pose: Pose2D, refresh: bool = True) -> bool:
+        """Add ``scan`` seen from ``pose``; False when no beam had anything to add. Without
+        ``refresh`` the likelihood field is left stale (a rebuild refreshes it once, with
+        :meth:`refresh_all`, after all its scans)."""
         c, res = self.config, self.resolution
         r = scan.ranges.astype(np.float64)
         max_range = min(scan.range_max, c.max_range) if c.max_range else scan.range_max
@@ -202,8 +204,14 @@ class LogOddsMap:
             ax[cells], ay[cells] = nax, nay
             changed.append(cells[moved])
 
-        self._refresh_cells(np.concatenate(changed))
+        if refresh:
+            self._refresh_cells(np.concatenate(changed))
         return True
+
+    def refresh_all(self) -> None:
+        """Recompute the whole likelihood field and nearest-obstacle tables."""
+        h, w = self.logodds.shape
+        self.refresh_field(0, h, 0, w)
 
     def _refresh_cells(self, cells: np.ndarray) -> None:
         """Refresh the field around flat cell indices ``cells`` (whose obstacle status or

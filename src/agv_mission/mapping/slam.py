@@ -263,9 +263,9 @@ class GridSlam:
         self.map = LogOddsMap(self.config, self.bounds, start)
         self._grid_cache = None
 
-    def _integrate(self, scan: LaserScan, pose: Pose2D) -> None:
+    def _integrate(self, scan: LaserScan, pose: Pose2D, refresh: bool = True) -> None:
         t0 = perf_counter()
-        if self.map.integrate(scan, pose):
+        if self.map.integrate(scan, pose, refresh):
             self.integrations += 1
             self.integrate_times.append(perf_counter() - t0)
         self._last_integrated = pose

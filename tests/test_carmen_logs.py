@@ -243,3 +243,21 @@ def test_real_carmen_log_first_scans(tmp_path):
     assert r["relative_pose_error"]["translation_m"] < 0.02
     canvas = r["map"]["canvas"]
     assert r["map"]["width"] * r["map"]["height"] < canvas[0] * canvas[1]  # cropped
+
+
+def test_tile_refresh_keeps_the_field_of_a_full_refresh():
+    """The field refreshed only where obstacles or anchors changed matches one computed
+    over the whole map (to the anchor tolerance)."""
+    drive = simulated_drive(30.0)
+    grid_map = LogOddsMap(GridSlamConfig(), None, Pose2D(*drive.truth[0]))
+    angles = -math.pi + 2 * math.pi / 360 * np.arange(360)
+    for k in range(0, len(drive.t), 10):
+        pose = Pose2D(*drive.truth[k])
+        r = ray_march(drive.world, pose, angles + pose.yaw, 3.5)
+        grid_map.integrate(LaserScan(r, -math.pi, 2 * math.pi / 360, 0.1, 3.5, 0.0), pose)
+    incremental = grid_map.field.copy()
+    near = grid_map.near_r.copy()
+    grid_map.refresh_all()
+    assert (grid_map.field > 0).sum() > 1000
+    assert np.abs(incremental - grid_map.field).max() < 0.05
+    assert np.mean(near == grid_map.near_r) > 0.99

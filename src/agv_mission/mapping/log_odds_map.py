@@ -33,7 +33,8 @@ from agv_mission.messages import LaserScan
 
 #: Side (cells) of the tiles the field is refreshed in after a scan.
 REFRESH_TILE = 64
-#: An anchor that moved less than this (cells) does not refresh the field around it.
+#: An anchor that moved less than this (cells) since the field was built around it does
+#: not refresh the field.
 ANCHOR_REFRESH = 0.1
 
 
@@ -75,6 +76,8 @@ class LogOddsMap:
         self.vy = np.zeros(shape, np.float32)
         self.ax = np.zeros(shape, np.float32)  # anchors: mean offsets
         self.ay = np.zeros(shape, np.float32)
+        self.fax = np.zeros(shape, np.float32)  # the anchors the field was last built with
+        self.fay = np.zeros(shape, np.float32)
         self._occ_l = _logit(c.occupied_threshold)
         self._free_l = _logit(c.free_threshold)
 
@@ -113,7 +116,7 @@ class LogOddsMap:
         if not (left or right or down or up):
             return
         pad = ((down, up), (left, right))
-        for name in ("logodds", "field", "hx", "hy", "hn", "ax", "ay", "vx", "vy"):
+        for name in ("logodds", "field", "hx", "hy", "hn", "ax", "ay", "fax", "fay", "vx", "vy"):
             setattr(self, name, np.pad(getattr(self, name), pad))
         for name, shift in (("near_r", down), ("near_c", left)):
             arr = getattr(self, name)
@@ -200,9 +203,12 @@ class LogOddsMap:
             hx[cells], hy[cells], hn[cells] = sx * scale, sy * scale, sn * scale
             vx[cells], vy[cells] = svx * scale, svy * scale
             nax, nay = sx / sn, sy / sn
-            moved = np.hypot(nax - ax[cells], nay - ay[cells]) > ANCHOR_REFRESH * res
+            fax, fay = self.fax.reshape(-1), self.fay.reshape(-1)
+            moved = cells[np.hypot(nax - fax[cells], nay - fay[cells]) > ANCHOR_REFRESH * res]
             ax[cells], ay[cells] = nax, nay
-            changed.append(cells[moved])
+            if refresh:
+                fax[moved], fay[moved] = ax[moved], ay[moved]
+            changed.append(moved)
 
         if refresh:
             self._refresh_cells(np.concatenate(changed))
@@ -212,6 +218,7 @@ class LogOddsMap:
         """Recompute the whole likelihood field and nearest-obstacle tables."""
         h, w = self.logodds.shape
         self.refresh_field(0, h, 0, w)
+        self.fax[:], self.fay[:] = self.ax, self.ay
 
     def _refresh_cells(self, cells: np.ndarray) -> None:
         """Refresh the field around flat cell indices ``cells`` (whose obstacle status or

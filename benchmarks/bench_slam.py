@@ -32,6 +32,7 @@ import numpy as np
 
 from agv_mission.bags.offline import map_bag, slam_config
 from agv_mission.bags.reader import read_bag
+from agv_mission.geometry import Pose2D
 from agv_mission.mapping.frontiers import find_frontiers
 from agv_mission.mapping.quality import reference_agreement, relative_pose_error
 from agv_mission.mapping.slam import trajectory_rmse
@@ -100,7 +101,13 @@ def real_logs() -> dict[str, float]:
             wall, cpu = time.perf_counter() - t0, time.process_time() - c0
             truth = read_bag(source, truth_topic=truth_topic).truth
             rpe = relative_pose_error(result.trajectory, truth)
-            agree = reference_agreement(result.grid, load_ros_map(work / "reference.yaml"))
+            # The reference is in the first corrected pose's frame, a log in its own.
+            frame = Pose2D(0.0, 0.0, 0.0) if route == "bag" else Pose2D(*truth[0, 1:])
+            agree = reference_agreement(
+                result.grid,
+                load_ros_map(work / "reference.yaml"),
+                frame=Pose2D(0.0, 0.0, 0.0).relative_to(frame),
+            )
             duration = result.report["bag_duration"]
             key = f"slam.real_logs.{name}"
             out |= {

@@ -257,7 +257,9 @@ def report_lines(result: OfflineMap, paths: dict[str, Path]) -> list[str]:
 #: SLAM's slipping-wheel one: over a metre a real robot's odometry beats a scan match,
 #: and trusting it less made the relative pose error on the Freiburg 079 log 0.028 m
 #: instead of 0.021 m; loops are searched every fourth keyframe (as accurate, 15 % less
-#: time).
+#: time); a scan is integrated every 0.2 m / 0.2 rad (a real log's scans overlap: 1.4x
+#: faster, free cells agree better with the reference, walls 97 % instead of 99 % within
+#: 0.15 m).
 DEFAULT_SLAM: dict[str, Any] = {
     "type": "graph",
     "match_min_d": 0.05,
@@ -269,6 +271,8 @@ DEFAULT_SLAM: dict[str, Any] = {
     "odom_rotation_per_metre": 0.03,
     "odom_rotation_noise": 0.05,
     "loop_check_every": 4,
+    "update_min_d": 0.2,
+    "update_min_a": 0.2,
 }
 
 

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy import ndimage
 
-from agv_mission.geometry import Bounds
+from agv_mission.geometry import Bounds, Pose2D
 from agv_mission.mapping.frontiers import bounds_mask
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
 
@@ -60,17 +60,25 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def reference_agreement(
-    built: OccupancyGrid, reference: OccupancyGrid, wall_tolerance: float = 0.15
+    built: OccupancyGrid,
+    reference: OccupancyGrid,
+    wall_tolerance: float = 0.15,
+    frame: Pose2D | None = None,
 ) -> dict[str, float]:
     """How far a built map can be trusted against a reference map of the same place.
 
     ``free_in_reference``: the share of the built map's FREE cells (their centres) that
     the reference shows FREE (a cell cleared through a window, outside the building, is
     not); ``walls_within``: the share of its OCCUPIED cells whose centre lies within
-    ``wall_tolerance`` metres of a reference OCCUPIED cell. Both frames must agree.
+    ``wall_tolerance`` metres of a reference OCCUPIED cell. ``frame``: the built map's
+    frame in the reference's (None: the same frame).
     """
     rows, cols = np.indices(built.data.shape)
     centres = built.cell_to_world(rows, cols)
+    if frame is not None:
+        c, s = np.cos(frame.yaw), np.sin(frame.yaw)
+        x, y = centres[..., 0], centres[..., 1]
+        centres = np.stack([frame.x + c * x - s * y, frame.y + s * x + c * y], axis=-1)
     free = built.data == FREE
     occ = built.data == OCCUPIED
     ref_at = reference.value_at(centres)

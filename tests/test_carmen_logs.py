@@ -261,3 +261,20 @@ def test_tile_refresh_keeps_the_field_of_a_full_refresh():
     assert (grid_map.field > 0).sum() > 1000
     assert np.abs(incremental - grid_map.field).max() < 0.05
     assert np.mean(near == grid_map.near_r) > 0.99
+
+
+def test_reference_agreement_of_a_shifted_map():
+    from agv_mission.mapping.quality import reference_agreement
+
+    data = np.full((100, 100), UNKNOWN, np.int8)
+    data[20:80, 20:80] = FREE
+    data[20:80, 20] = OCCUPIED
+    data[20:80, 79] = OCCUPIED
+    ref = OccupancyGrid(data, 0.05, Pose2D(0.0, 0.0, 0.0))
+    same = reference_agreement(ref, ref)
+    assert same["free_in_reference"] == 1.0 and same["walls_within"] == 1.0
+    # 0.3 m off: the walls are beyond 0.15 m, some free cells fall outside the room.
+    moved = reference_agreement(ref, ref, frame=Pose2D(0.3, 0.0, 0.0))
+    assert moved["walls_within"] < 0.6 and moved["free_in_reference"] < 0.95
+    # 0.1 m off: within the tolerance.
+    assert reference_agreement(ref, ref, frame=Pose2D(0.1, 0.0, 0.0))["walls_within"] == 1.0

@@ -259,7 +259,7 @@ def report_lines(result: OfflineMap, paths: dict[str, Path]) -> list[str]:
 #: instead of 0.021 m; loops are searched every fourth keyframe (as accurate, 15 % less
 #: time); a scan is integrated every 0.2 m / 0.2 rad (a real log's scans overlap: 1.4x
 #: faster, free cells agree better with the reference, walls 97 % instead of 99 % within
-#: 0.15 m).
+#: 0.15 m); a cell is FREE below 0.196, map_saver's ``free_thresh``.
 DEFAULT_SLAM: dict[str, Any] = {
     "type": "graph",
     "match_min_d": 0.05,
@@ -273,6 +273,7 @@ DEFAULT_SLAM: dict[str, Any] = {
     "loop_check_every": 4,
     "update_min_d": 0.2,
     "update_min_a": 0.2,
+    "free_threshold": 0.196,
 }
 
 

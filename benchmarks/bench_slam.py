@@ -5,19 +5,39 @@ with noisy encoders (encoder_noise 0.05, wheel_slip 0.1), feeding 5 Hz 360-beam 
 and odometry to the ``grid`` plugin exactly as the runner does; the plugin times each
 integration and each match itself. Frontier search runs on the map at the end, as the
 map_area task would call it.
+
+Then ``agv-mission map`` (:func:`~agv_mission.bags.offline.map_bag`, its defaults) on the
+three real laser logs of ``../shared/data/real_logs`` (real SICK scans of the ACES,
+CSAIL and Freiburg 079 buildings), each turned into a robot-like bag with drifting
+odometry by ``../shared/tools/carmen_to_bag.py`` in a temporary directory: the relative
+pose error against ``/ground_truth`` (Kümmerle et al. 2009, consecutive pairs 1 m of
+travel apart), the share of the map's free cells free in the converter's reference map,
+the share of its walls within 0.15 m of a reference wall, seconds per log and speed as
+x the log's duration (wall clock and CPU time: this machine's two cores are shared).
+CSAIL's log stamps its scans to ten seconds (365 share one stamp), so its bag has no
+usable timing: it is mapped from the CARMEN log itself (``--truth-topic FLASER``: its
+odometry is its corrected poses, so its RPE only says how far SLAM strays from them).
+Without ``../shared`` the logs are skipped, saying so.
 """
 
 from __future__ import annotations
 
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from agv_mission.bags.offline import map_bag, slam_config
+from agv_mission.bags.reader import read_bag
+from agv_mission.geometry import Pose2D
 from agv_mission.mapping.frontiers import find_frontiers
+from agv_mission.mapping.quality import reference_agreement, relative_pose_error
 from agv_mission.mapping.slam import trajectory_rmse
 from agv_mission.maps.builtin_worlds import small_house
+from agv_mission.maps.ros_map import load_ros_map
 from agv_mission.robots.simulation import SimConfig
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
@@ -26,6 +46,8 @@ from slam_drive import drive  # noqa: E402
 ROUTE = ((3.0, -0.45), (-1.5, -0.45), (-1.5, -1.7), (-3.5, -1.7), (-5.5, -1.5), (-5.5, -3.5))
 BOUNDS = (-9.5, 9.5, -5.5, 5.5)
 NOISY = SimConfig(encoder_noise=0.05, wheel_slip=0.1)
+SHARED = Path(__file__).resolve().parents[2] / "shared"
+LOGS = {"aces": "bag", "csail": "log", "freiburg_079": "bag"}
 
 
 def _percentile(samples: list[float], q: float) -> float:
@@ -42,7 +64,7 @@ def run() -> dict[str, float]:
         t0 = time.perf_counter()
         find_frontiers(grid, BOUNDS, robot=(est[-1][0], est[-1][1]))
         frontier_times.append(time.perf_counter() - t0)
-    return {
+    return real_logs() | {
         "slam.integrate_ms.p50": _percentile(slam.integrate_times, 50),
         "slam.integrate_ms.p99": _percentile(slam.integrate_times, 99),
         "slam.match_ms.p50": _percentile(slam.match_times, 50),
@@ -56,3 +78,45 @@ def run() -> dict[str, float]:
 if __name__ == "__main__":
     for key, value in run().items():
         print(f"{key:28s} {value:.3f}")
+
+
+def real_logs() -> dict[str, float]:
+    """SLAM on the three real logs (see the module); {} without ``../shared``."""
+    logs = SHARED / "data" / "real_logs"
+    tool = SHARED / "tools" / "carmen_to_bag.py"
+    if not logs.is_dir() or not tool.is_file():
+        print(f"bench_slam: {logs} is absent: SLAM on real logs skipped")
+        return {}
+    out: dict[str, float] = {}
+    with tempfile.TemporaryDirectory(prefix="bench_slam_") as tmp:
+        for name, route in LOGS.items():
+            log = logs / f"{name.replace('_', '-')}-corrected.log.gz"
+            work = Path(tmp) / name
+            subprocess.run(
+                [sys.executable, str(tool), str(log), str(work)], check=True, capture_output=True
+            )
+            source, truth_topic = (work / "bag", None) if route == "bag" else (log, "FLASER")
+            t0, c0 = time.perf_counter(), time.process_time()
+            result = map_bag(source, slam_config([]), truth_topic=truth_topic)
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            truth = read_bag(source, truth_topic=truth_topic).truth
+            rpe = relative_pose_error(result.trajectory, truth)
+            # The reference is in the first corrected pose's frame, a log in its own.
+            frame = Pose2D(0.0, 0.0, 0.0) if route == "bag" else Pose2D(*truth[0, 1:])
+            agree = reference_agreement(
+                result.grid,
+                load_ros_map(work / "reference.yaml"),
+                frame=Pose2D(0.0, 0.0, 0.0).relative_to(frame),
+            )
+            duration = result.report["bag_duration"]
+            key = f"slam.real_logs.{name}"
+            out |= {
+                f"{key}.rpe_m": rpe["translation_mean"],
+                f"{key}.rpe_deg": float(np.degrees(rpe["rotation_mean"])),
+                f"{key}.free_in_reference": agree["free_in_reference"],
+                f"{key}.walls_within_0.15m": agree["walls_within"],
+                f"{key}.seconds": wall,
+                f"{key}.x_log_duration": duration / wall,
+                f"{key}.x_log_duration_cpu": duration / cpu,
+            }
+    return out

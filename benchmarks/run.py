@@ -85,6 +85,11 @@ TARGETS = {
     "service.control_ms.pause_p50": ("<=", 200.0),
     "dashboard.watched_rtf_ratio": (">=", 0.9),
     "dashboard.fps_30x50": (">=", 20.0),
+    # issue 22: SLAM on real logs (the Freiburg 079 log is the class of the hidden one)
+    "slam.real_logs.freiburg_079.rpe_m": ("<=", 0.025),
+    "slam.real_logs.freiburg_079.free_in_reference": (">=", 0.85),
+    "slam.real_logs.freiburg_079.walls_within_0.15m": (">=", 0.95),
+    "slam.real_logs.freiburg_079.x_log_duration": (">=", 40.0),
 }
 # metric name suffix -> (comparison, target), for keys of every map (issue 15)
 SUFFIX_TARGETS = {

@@ -1,7 +1,8 @@
 """Reading a robot's recording: scans, odometry, the lidar mount and ground truth.
 
 Any bag ``rosbags``' ``AnyReader`` opens: ROS 1 ``.bag``, ROS 2 bag directories (SQLite
-or MCAP) and bare ``.mcap`` files. Real recordings differ from ours, and each difference
+or MCAP) and bare ``.mcap`` files; CARMEN logs (``.log``, ``.log.gz``) through
+:mod:`agv_mission.bags.carmen`. Real recordings differ from ours, and each difference
 is handled here, once:
 
 * topics are found by type (``sensor_msgs/LaserScan``; ``nav_msgs/Odometry`` or, without
@@ -80,6 +81,7 @@ class BagData:
     truth_topic: str | None = None
     topics: dict[str, str] = field(default_factory=dict)  # topic -> type
     duration: float = 0.0
+    notes: dict[str, Any] = field(default_factory=dict)  # what the report should say
 
 
 def _matrix(x: float, y: float, z: float, qx: float, qy: float, qz: float, qw: float) -> np.ndarray:
@@ -138,7 +140,11 @@ def read_bag(
     odom_topic: str | None = None,
     truth_topic: str | None = None,
 ) -> BagData:
-    """Scans, odometry, mount and ground truth of the bag at ``path``."""
+    """Scans, odometry, mount and ground truth of the bag (or CARMEN log) at ``path``."""
+    from agv_mission.bags.carmen import is_carmen_log, read_carmen
+
+    if is_carmen_log(path):
+        return read_carmen(path, scan_topic, odom_topic, truth_topic)
     reader = open_reader(path)
     try:
         return _read(reader, path, scan_topic, odom_topic, truth_topic)

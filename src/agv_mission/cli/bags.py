@@ -12,7 +12,12 @@ from agv_mission.missions.errors import MissionError
 
 
 def map_(
-    bag: Annotated[Path, typer.Argument(help="ROS 1 .bag, ROS 2 bag directory or .mcap file")],
+    bag: Annotated[
+        Path,
+        typer.Argument(
+            help="ROS 1 .bag, ROS 2 bag directory, .mcap file or CARMEN log (.log, .log.gz)"
+        ),
+    ],
     save_map: Annotated[
         Path, typer.Option("--save-map", help="map_saver stem: writes PATH.pgm + PATH.yaml")
     ] = Path("map"),
@@ -21,17 +26,26 @@ def map_(
     ] = None,
     odom_topic: Annotated[
         Optional[str],  # noqa: UP007, UP045
-        typer.Option("--odom-topic", help="default: the nav_msgs/Odometry topic, else /tf"),
+        typer.Option(
+            "--odom-topic",
+            help="default: the nav_msgs/Odometry topic, else /tf (CARMEN: the scans' own "
+            "odometry; ODOM: the ODOM lines)",
+        ),
     ] = None,
     truth_topic: Annotated[
         Optional[str],  # noqa: UP007, UP045
-        typer.Option("--truth-topic", help="ground truth for the report's RMSE"),
+        typer.Option(
+            "--truth-topic",
+            help="ground truth for the report's RMSE and relative pose error (CARMEN: "
+            "FLASER / ROBOTLASER1 / ODOM, the poses those lines carry: a corrected log's)",
+        ),
     ] = None,
     set_: Annotated[
         list[str], typer.Option("--set", help="SLAM KEY=VALUE (stack.slam.KEY or KEY)")
     ] = [],  # noqa: B006
 ) -> None:
-    """Build an occupancy grid map from a recorded bag (map_saver format + a report)."""
+    """Build an occupancy grid map from a recorded bag or CARMEN log (map_saver format,
+    cropped to what was seen, + a report)."""
     from agv_mission.bags.offline import (
         MappingFailed,
         map_bag,

@@ -38,8 +38,11 @@ class GridSlamConfig(PluginConfig):
     max_range: float | None = Field(
         None, gt=0, description="returns beyond this (m) are not integrated; None: range_max"
     )
-    clear_no_return: bool = Field(
-        True, description="beams without a return clear free space up to the max range"
+    missing_data_ray_length: float = Field(
+        5.0,
+        ge=0,
+        description="m of free space a beam without a return (+inf) clears (Cartographer's "
+        "missing_data_ray_length): not through doors and windows to the max range; 0: none",
     )
     hit_memory: int = Field(
         20, ge=1, description="end points averaged per cell anchor (older ones fade out)"
@@ -88,6 +91,21 @@ class GridSlamConfig(PluginConfig):
     )
     match_max_range: float | None = Field(
         None, gt=0, description="points farther than this (m) are not matched; None: all"
+    )
+    search_max_range: float | None = Field(
+        None,
+        gt=0,
+        description="m: only points this close (one per cell) are scored by the correlative "
+        "search, the refinement uses all; None: all (a real lidar's 40 m returns make the "
+        "search window and its angular steps huge)",
+    )
+    fast_match_score: float | None = Field(
+        None,
+        gt=0,
+        le=1,
+        description="when the refinement alone, from the odometry prediction, lands within "
+        "a quarter of the window with at least this mean field value, the correlative search "
+        "is skipped; None: always search",
     )
     min_points: int = Field(20, ge=1, description="fewer valid points: odometry only")
     min_score: float = Field(

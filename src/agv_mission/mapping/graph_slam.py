@@ -62,6 +62,7 @@ class GraphSlam(GridSlam):
             iterations=c.refine_iterations,
             point_sigma=c.point_sigma,
             scan_sigma=c.scan_sigma,
+            search_max_range=c.search_max_range,
         )
         self._clear_graph()
 
@@ -261,8 +262,9 @@ class GraphSlam(GridSlam):
         self._stale = False
         self._allocate(Pose2D(*self.nodes[0]))
         integrations, timed = self.integrations, len(self.integrate_times)
-        for scan, k, offset in self._integrated:
-            self._integrate(scan, Pose2D(*self.nodes[k]).compose(offset))
+        for scan, k, offset in self._integrated:  # the field once at the end
+            self._integrate(scan, Pose2D(*self.nodes[k]).compose(offset), refresh=False)
+        self.map.refresh_all()
         self.integrations = integrations + 1  # the grid changed: map users refresh
         del self.integrate_times[timed:]  # front-end timings only
         self._grid_cache = None

@@ -4,9 +4,11 @@ seen from, and the matcher's likelihood field, all kept up to date per integrate
 Each integration adds ``log_odds_occupied`` once to every cell holding a beam end point
 and ``log_odds_free`` once to every other cell a beam crosses (beams sampled every half
 cell; a cell hit by one beam of a scan is not also cleared by that scan), clamped to
-``[log_odds_min, log_odds_max]``. Beams without a return clear up to the max range minus
-two cells when ``clear_no_return`` is set. Each cell also keeps the mean of the end
-points that fell in it (the last ``hit_memory`` weigh most), its *anchor*, and the sum of
+``[log_odds_min, log_odds_max]``. Beams without a return (+inf) clear only
+``missing_data_ray_length`` (Cartographer's name and 5 m default; gmapping's ``maxUrange``
+plays the same part): "nothing within range" is no evidence that all of it is free: an
+open door or window would clear a starburst of free space outside the building. Each
+cell also keeps the mean of the end points that fell in it (the last ``hit_memory`` weigh most), its *anchor*, and the sum of
 the directions from its end points back to the scanner, the side it was seen from (see
 :mod:`slam`). The likelihood field (cells above ``field_threshold`` log-odds count as
 obstacles) and the nearest-obstacle tables are refreshed around each integrated scan.
@@ -28,6 +30,12 @@ from agv_mission.mapping.configs import GridSlamConfig
 from agv_mission.mapping.likelihood_field import LikelihoodField, field_values
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.messages import LaserScan
+
+#: Side (cells) of the tiles the field is refreshed in after a scan.
+REFRESH_TILE = 64
+#: An anchor that moved less than this (cells) since the field was built around it does
+#: not refresh the field.
+ANCHOR_REFRESH = 0.1
 
 
 def _logit(p: float) -> float:
@@ -68,6 +76,8 @@ class LogOddsMap:
         self.vy = np.zeros(shape, np.float32)
         self.ax = np.zeros(shape, np.float32)  # anchors: mean offsets
         self.ay = np.zeros(shape, np.float32)
+        self.fax = np.zeros(shape, np.float32)  # the anchors the field was last built with
+        self.fay = np.zeros(shape, np.float32)
         self._occ_l = _logit(c.occupied_threshold)
         self._free_l = _logit(c.free_threshold)
 
@@ -106,7 +116,7 @@ class LogOddsMap:
         if not (left or right or down or up):
             return
         pad = ((down, up), (left, right))
-        for name in ("logodds", "field", "hx", "hy", "hn", "ax", "ay", "vx", "vy"):
+        for name in ("logodds", "field", "hx", "hy", "hn", "ax", "ay", "fax", "fay", "vx", "vy"):
             setattr(self, name, np.pad(getattr(self, name), pad))
         for name, shift in (("near_r", down), ("near_c", left)):
             arr = getattr(self, name)
@@ -115,14 +125,16 @@ class LogOddsMap:
         self.ox -= left * res
         self.oy -= down * res
 
-    def integrate(self, scan: LaserScan, pose: Pose2D) -> bool:
-        """Add ``scan`` seen from ``pose``; False when no beam had anything to add."""
+    def integrate(self, scan: LaserScan, pose: Pose2D, refresh: bool = True) -> bool:
+        """Add ``scan`` seen from ``pose``; False when no beam had anything to add. Without
+        ``refresh`` the likelihood field is left stale (a rebuild refreshes it once, with
+        :meth:`refresh_all`, after all its scans)."""
         c, res = self.config, self.resolution
         r = scan.ranges.astype(np.float64)
         max_range = min(scan.range_max, c.max_range) if c.max_range else scan.range_max
         finite = np.isfinite(r)
         hit = finite & (r >= scan.range_min) & (r <= max_range)
-        clear = max(max_range - 2.0 * res, 0.0) if c.clear_no_return else 0.0
+        clear = min(c.missing_data_ray_length, max(max_range - 2.0 * res, 0.0))
         # +inf is "no return" (clears); nan is an invalid reading (clears nothing).
         no_return = np.where(np.isposinf(r), clear, 0.0)
         length = np.where(hit, r, np.where(finite & (r > max_range), max_range, no_return))
@@ -140,64 +152,90 @@ class LogOddsMap:
             max(ey.max(), pose.y),
         )
         ox, oy = self.ox, self.oy
-
-        # The window of the map this scan touches.
+        h, w = self.logodds.shape
         cols_e = np.floor((ex - ox) / res).astype(np.int64)
         rows_e = np.floor((ey - oy) / res).astype(np.int64)
-        pr, pc = int(math.floor((pose.y - oy) / res)), int(math.floor((pose.x - ox) / res))
-        r0, r1 = min(int(rows_e.min()), pr), max(int(rows_e.max()), pr) + 1
-        c0, c1 = min(int(cols_e.min()), pc), max(int(cols_e.max()), pc) + 1
-        wh, ww = r1 - r0, c1 - c0
-        n = wh * ww
 
-        # Free cells: every half cell along each beam, short of its end point.
+        # Free cells: every half cell along each beam, short of its end point; only the
+        # samples each beam needs (a few long beams do not inflate the short ones).
         step = 0.5 * res
-        t = np.arange(int(math.ceil(length.max() / step)) + 1) * step
-        along = t[None, :] < length[:, None]
-        fc = np.floor(((pose.x - ox) + ca[:, None] * t[None, :])[along] / res).astype(np.int64)
-        fr = np.floor(((pose.y - oy) + sa[:, None] * t[None, :])[along] / res).astype(np.int64)
-        np.clip(fc - c0, 0, ww - 1, out=fc)
-        np.clip(fr - r0, 0, wh - 1, out=fr)
-        free = np.zeros(n, bool)
-        free[fr * ww + fc] = True
-        occ = np.zeros(n, bool)
-        hit_idx = (rows_e[hit] - r0) * ww + (cols_e[hit] - c0)
-        occ[hit_idx] = True
-        free &= ~occ
+        counts = np.ceil(length / step).astype(np.int64)
+        beam = np.repeat(np.arange(len(length)), counts)
+        first = np.cumsum(counts) - counts
+        t = (np.arange(int(counts.sum())) - np.repeat(first, counts)) * step
+        fc = np.floor(((pose.x - ox) + ca[beam] * t) / res).astype(np.int64)
+        fr = np.floor(((pose.y - oy) + sa[beam] * t) / res).astype(np.int64)
+        np.clip(fc, 0, w - 1, out=fc)
+        np.clip(fr, 0, h - 1, out=fr)
+        free_idx = fr * w + fc
+        hit_idx = rows_e[hit] * w + cols_e[hit]
+        # A cell hit by this scan is not also cleared by it.
+        mark = np.zeros(h * w, bool)
+        mark[hit_idx] = True
+        free_idx = free_idx[~mark[free_idx]]
 
-        window = self.logodds[r0:r1, c0:c1]
-        update = np.where(occ, np.float32(c.log_odds_occupied), np.float32(0.0))
-        update[free] = c.log_odds_free
-        window += update.reshape(wh, ww)
-        np.clip(window, c.log_odds_min, c.log_odds_max, out=window)
+        # Each touched cell once: fancy-index updates with repeated indices apply once.
+        flat = self.logodds.reshape(-1)
+        threshold = c.field_threshold
+        touched = np.concatenate([free_idx, hit_idx])
+        was = flat[touched] > threshold
+        flat[free_idx] += np.float32(c.log_odds_free)
+        flat[hit_idx] += np.float32(c.log_odds_occupied)
+        flat[touched] = np.clip(flat[touched], c.log_odds_min, c.log_odds_max)
+        changed = [touched[was != (flat[touched] > threshold)]]
 
         if len(hit_idx):
             # Anchors: running means of where the end points fell in their cells.
+            cells, inverse = np.unique(hit_idx, return_inverse=True)
             offx = ex[hit] - (ox + (cols_e[hit] + 0.5) * res)
             offy = ey[hit] - (oy + (rows_e[hit] + 0.5) * res)
-            hx, hy = self.hx[r0:r1, c0:c1], self.hy[r0:r1, c0:c1]
-            hn = self.hn[r0:r1, c0:c1]
-            hx += np.bincount(hit_idx, offx, n).reshape(wh, ww).astype(np.float32)
-            hy += np.bincount(hit_idx, offy, n).reshape(wh, ww).astype(np.float32)
-            hn += np.bincount(hit_idx, None, n).reshape(wh, ww).astype(np.float32)
+            k = len(cells)
+            hx, hy, hn = (a.reshape(-1) for a in (self.hx, self.hy, self.hn))
+            vx, vy = self.vx.reshape(-1), self.vy.reshape(-1)
+            ax, ay = self.ax.reshape(-1), self.ay.reshape(-1)
+            sx = hx[cells] + np.bincount(inverse, offx, k).astype(np.float32)
+            sy = hy[cells] + np.bincount(inverse, offy, k).astype(np.float32)
+            sn = hn[cells] + np.bincount(inverse, None, k).astype(np.float32)
             # Which side the cell was seen from (a thin wall has two faces).
-            vx, vy = self.vx[r0:r1, c0:c1], self.vy[r0:r1, c0:c1]
-            vx -= np.bincount(hit_idx, ca[hit], n).reshape(wh, ww).astype(np.float32)
-            vy -= np.bincount(hit_idx, sa[hit], n).reshape(wh, ww).astype(np.float32)
-            over = hn > c.hit_memory
-            if over.any():
-                scale = c.hit_memory / hn[over]
-                hx[over] *= scale
-                hy[over] *= scale
-                vx[over] *= scale
-                vy[over] *= scale
-                hn[over] = c.hit_memory
-            seen = hn > 0
-            self.ax[r0:r1, c0:c1][seen] = hx[seen] / hn[seen]
-            self.ay[r0:r1, c0:c1][seen] = hy[seen] / hn[seen]
+            svx = vx[cells] - np.bincount(inverse, ca[hit], k).astype(np.float32)
+            svy = vy[cells] - np.bincount(inverse, sa[hit], k).astype(np.float32)
+            scale = np.where(sn > c.hit_memory, c.hit_memory / sn, 1.0).astype(np.float32)
+            hx[cells], hy[cells], hn[cells] = sx * scale, sy * scale, sn * scale
+            vx[cells], vy[cells] = svx * scale, svy * scale
+            nax, nay = sx / sn, sy / sn
+            fax, fay = self.fax.reshape(-1), self.fay.reshape(-1)
+            moved = cells[np.hypot(nax - fax[cells], nay - fay[cells]) > ANCHOR_REFRESH * res]
+            ax[cells], ay[cells] = nax, nay
+            if refresh:
+                fax[moved], fay[moved] = ax[moved], ay[moved]
+            changed.append(moved)
 
-        self.refresh_field(r0, r1, c0, c1)
+        if refresh:
+            self._refresh_cells(np.concatenate(changed))
         return True
+
+    def refresh_all(self) -> None:
+        """Recompute the whole likelihood field and nearest-obstacle tables."""
+        h, w = self.logodds.shape
+        self.refresh_field(0, h, 0, w)
+        self.fax[:], self.fay[:] = self.ax, self.ay
+
+    def _refresh_cells(self, cells: np.ndarray) -> None:
+        """Refresh the field around flat cell indices ``cells`` (whose obstacle status or
+        anchor changed), tile by tile over each tile's box of changes, so that a scan of
+        walls already mapped costs little."""
+        if not len(cells):
+            return
+        w = self.logodds.shape[1]
+        rows, cols = np.divmod(cells, w)
+        key = (rows // REFRESH_TILE) * (w // REFRESH_TILE + 1) + cols // REFRESH_TILE
+        order = np.argsort(key, kind="stable")
+        key, rows, cols = key[order], rows[order], cols[order]
+        starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        r0s, r1s = np.minimum.reduceat(rows, starts), np.maximum.reduceat(rows, starts)
+        c0s, c1s = np.minimum.reduceat(cols, starts), np.maximum.reduceat(cols, starts)
+        for r0, r1, c0, c1 in zip(r0s, r1s, c0s, c1s, strict=True):
+            self.refresh_field(int(r0), int(r1) + 1, int(c0), int(c1) + 1)
 
     def refresh_field(self, r0: int, r1: int, c0: int, c1: int) -> None:
         """Recompute the field and nearest-obstacle tables where cells [r0:r1, c0:c1] may

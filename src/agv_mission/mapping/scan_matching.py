@@ -103,6 +103,8 @@ class CorrelativeMatcher:
         huber: float = 0.03,
         max_correspondence: float = 0.15,
         scan_sigma: float = 0.1,
+        search_max_range: float | None = None,
+        fast_score: float | None = None,
     ) -> None:
         if coarse_block & (coarse_block - 1) or coarse_block < 1:
             raise ValueError(f"coarse_block must be a power of two, got {coarse_block}")
@@ -118,6 +120,8 @@ class CorrelativeMatcher:
         self.huber = float(huber)
         self.max_correspondence = float(max_correspondence)
         self.scan_sigma = float(scan_sigma)
+        self.search_max_range = search_max_range
+        self.fast_score = fast_score
 
     # ------------------------------------------------------------------ public
 
@@ -140,11 +144,16 @@ class CorrelativeMatcher:
         res = field.resolution
         if len(points) == 0:
             return MatchResult(guess.copy(), 0.0, guess.copy(), False, 0)
-        reach = float(np.sqrt((points**2).sum(axis=1)).max())
+        if self.fast_score is not None and prior_cov is not None:
+            fast = self._fast(field, points, guess, prior_cov)
+            if fast is not None:
+                return fast
+        search = self._search_points(points, res)
+        reach = float(np.sqrt((search**2).sum(axis=1)).max())
         step = self.angular_step
         if step is None:
             step = math.acos(max(-1.0, 1.0 - res * res / (2.0 * max(reach, res) ** 2)))
-        coarse_pose, near_guess, evaluated = self._search(field, points, guess, reach, step)
+        coarse_pose, near_guess, evaluated = self._search(field, search, guess, reach, step)
         pose, refined, cov = self._refine(
             field, points, guess, coarse_pose, near_guess, step, prior_cov
         )
@@ -152,6 +161,54 @@ class CorrelativeMatcher:
         pose[2] = wrap_angle(pose[2])
         score = self.score(field, points, pose)
         return MatchResult(pose, score, coarse_pose, refined, evaluated, cov)
+
+    def _fast(
+        self, field: LikelihoodField, points: np.ndarray, guess: np.ndarray, prior_cov: np.ndarray
+    ) -> MatchResult | None:
+        """The refinement alone from the prediction, when it lands well: converged, a
+        small correction (a quarter of the window) and a mean field value of at least
+        ``fast_score``. Most scans of a real log are such; the rest get the search."""
+        if self.refinement != "icp" or field.nearest is None or field.anchor is None:
+            return None
+        cand, cov = icp(
+            field,
+            points,
+            guess,
+            PosePrior.of(guess, prior_cov),
+            self.iterations,
+            self.point_sigma,
+            self.huber,
+            self.max_correspondence,
+        )
+        if cand is None:
+            return None
+        small = (
+            math.hypot(cand[0] - guess[0], cand[1] - guess[1]) <= 0.25 * self.linear_window
+            and abs(wrap_angle(cand[2] - guess[2])) <= 0.25 * self.angular_window
+        )
+        if not small:
+            return None
+        pose = cand.copy()
+        pose[2] = wrap_angle(pose[2])
+        score = self.score(field, points, pose)
+        if score < self.fast_score:
+            return None
+        return MatchResult(pose, score, guess.copy(), True, 0, cov)
+
+    def _search_points(self, points: np.ndarray, res: float) -> np.ndarray:
+        """The points the correlative search scores: those within ``search_max_range``
+        (all of them when fewer than 50 are), one per cell. Far points of a real
+        lidar (40 m down a corridor) would make the search window and its angular steps
+        huge for a cell-level result the refinement, which uses every point, improves
+        anyway."""
+        if self.search_max_range is None:
+            return points
+        near = points[(points**2).sum(axis=1) <= self.search_max_range**2]
+        if len(near) < 50:
+            return points
+        cells = np.floor(near / res).astype(np.int64)
+        _, first = np.unique(cells[:, 0] * 1_000_003 + cells[:, 1], return_index=True)
+        return near[np.sort(first)]
 
     def _search(
         self,

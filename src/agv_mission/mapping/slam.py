@@ -93,6 +93,8 @@ class GridSlam:
             iterations=c.refine_iterations,
             point_sigma=c.point_sigma,
             scan_sigma=c.scan_sigma,
+            search_max_range=c.search_max_range,
+            fast_score=c.fast_match_score,
         )
         #: (time, x, y, yaw) of every processed scan, in the map frame.
         self.trajectory: list[tuple[float, float, float, float]] = []
@@ -261,9 +263,9 @@ class GridSlam:
         self.map = LogOddsMap(self.config, self.bounds, start)
         self._grid_cache = None
 
-    def _integrate(self, scan: LaserScan, pose: Pose2D) -> None:
+    def _integrate(self, scan: LaserScan, pose: Pose2D, refresh: bool = True) -> None:
         t0 = perf_counter()
-        if self.map.integrate(scan, pose):
+        if self.map.integrate(scan, pose, refresh):
             self.integrations += 1
             self.integrate_times.append(perf_counter() - t0)
         self._last_integrated = pose

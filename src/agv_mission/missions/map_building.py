@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from agv_mission.geometry import Bounds, Pose2D
+from agv_mission.mapping.crop import crop_to_known
 from agv_mission.mapping.quality import map_quality
 from agv_mission.mapping.session import MappingSession
 from agv_mission.maps.costmap import Costmap
@@ -69,7 +70,7 @@ class MapBuilder:
         session = self.session
         assert session is not None, "end() without begin()"
         loaded = self.stack.loaded
-        grid = session.grid
+        grid = crop_to_known(session.grid)  # what was seen, not SLAM's canvas
         summary: dict[str, Any] = {"map": stem}
         if self.run_dir is not None:
             save_ros_map(grid, self.run_dir / stem)

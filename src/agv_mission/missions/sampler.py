@@ -90,5 +90,5 @@ class StepSampler:
             events=handle.events[events_from:],
             tree_nodes=self.nodes if changed else None,
             task_index=task,
-            task_type=run.mission.tasks[task].type if task is not None else None,
+            task_type=run.tree.task_nodes[task].type if task is not None else None,
         )

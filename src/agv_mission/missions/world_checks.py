@@ -10,18 +10,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from agv_mission.behaviors.ports import NodePorts
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.grid import UNKNOWN
 from agv_mission.maps.rooms import Room, reachable_cells, visit_point
 from agv_mission.maps.worlds import Box, Cylinder, World
-from agv_mission.missions.schema import Mission, Setup
+from agv_mission.missions.schema import Setup
 from agv_mission.missions.yaml_lines import FieldPath
 from agv_mission.planners.configs import goal_margin
 from agv_mission.robots.description import RobotDescription
@@ -29,6 +30,8 @@ from agv_mission.robots.description import RobotDescription
 MAX_GRID_CELLS = 16_000_000  # a costmap or SLAM grid: 16 M cells (e.g. 200 m x 200 m at 5 cm)
 
 Report = Callable[[FieldPath, str], None]
+#: A node of the mission's tree: its field path, its ports, and where to report.
+NodeCheck = tuple[FieldPath, NodePorts, Report]
 
 
 @dataclass
@@ -63,17 +66,16 @@ def place_mission(
     rooms: dict[str, Room],
     costmap: Costmap,
     report: Report,
+    nodes: Sequence[NodeCheck] = (),
 ) -> Placement:
-    """Every pose and area the mission names, checked against the world's map."""
+    """Every pose and area the mission (and each node of its tree) names, checked
+    against the world's map."""
     start = start_pose(mission, world, rooms, report)
     _check_pose(start, costmap, ("start",), report)
     margin = goal_margin(mission.stack.global_planner)  # goals: as the navigator plans
-    for i, task in enumerate(tasks_of(mission)):
-        if task.type == "go_to":
-            _check_pose(task.pose.to_pose2d(), costmap, ("tasks", i, "pose"), report, margin)
-        elif task.type == "patrol":
-            for j, wp in enumerate(task.waypoints):
-                _check_pose(wp.to_pose2d(), costmap, ("tasks", i, "waypoints", j), report, margin)
+    for path, ports, node_report in nodes:
+        for sub, pose in ports.goal_poses():
+            _check_pose(pose.to_pose2d(), costmap, path + sub, node_report, margin)
     for i, fault in enumerate(mission.faults):
         if fault.type == "kidnap":
             _check_pose(fault.pose.to_pose2d(), costmap, ("faults", i, "pose"), report)
@@ -87,8 +89,8 @@ def place_mission(
                     f"the robot's start ({start.x:g}, {start.y:g}) "
                     f"lies within {robot.footprint_radius:g} m of this obstacle",
                 )
-    _check_map_areas(mission, world.map.extent, report)
-    room_goals = _room_goals(mission, rooms, costmap, start, report)
+    _check_map_areas(mission, world.map.extent, nodes)
+    room_goals = _room_goals(mission, rooms, costmap, start, nodes)
     return Placement(world, start, room_goals)
 
 
@@ -110,11 +112,6 @@ def start_pose(mission: Setup, world: World, rooms: dict[str, Room], report: Rep
             return Pose2D(x, y, 0.0)
         return room.anchor
     return mission.start.to_pose2d()
-
-
-def tasks_of(mission: Setup) -> list[Any]:
-    """The tasks of a mission; none for a setup."""
-    return mission.tasks if isinstance(mission, Mission) else []
 
 
 def grid_cells(extent: tuple[float, float, float, float], resolution: float) -> float:
@@ -145,68 +142,66 @@ def _distance_to_obstacle(o: Any, x: float, y: float) -> float:
 
 
 def _room_goals(
-    mission: Setup, rooms: dict[str, Room], costmap: Costmap, start: Pose2D, report: Report
+    mission: Setup,
+    rooms: dict[str, Room],
+    costmap: Costmap,
+    start: Pose2D,
+    nodes: Sequence[NodeCheck],
 ) -> dict[str, Pose2D]:
     """Where each visited room is entered: its anchor, or a reachable point well inside."""
     goals: dict[str, Pose2D] = {}
     allowed: np.ndarray | None = None
-    for i, task in enumerate(tasks_of(mission)):
-        if task.type != "visit_rooms":
-            continue
-        for j, label in enumerate(task.rooms):
-            if label in goals:
-                continue
-            room = rooms.get(label)
-            if room is None:
+    for path, ports, report in nodes:
+        for sub, label in ports.rooms_named():
+            if label not in rooms:
                 report(
-                    ("tasks", i, "rooms", j),
+                    path + sub,
                     f"unknown room {label!r}; known rooms: "
                     f"{', '.join(sorted(rooms)) or '(none: give a rooms file)'}",
                 )
+        for sub, label in ports.rooms_visited():
+            room = rooms.get(label)
+            if label in goals or room is None:
                 continue
             if room.anchor is not None:
                 margin = goal_margin(mission.stack.global_planner)
-                _check_pose(room.anchor, costmap, ("tasks", i, "rooms", j), report, margin)
+                _check_pose(room.anchor, costmap, path + sub, report, margin)
                 goals[label] = room.anchor
                 continue
             if allowed is None:
                 allowed = reachable_cells(costmap, start, margin=0.1)
             point = visit_point(room, costmap, allowed)
             if point is None:
-                report(
-                    ("tasks", i, "rooms", j),
-                    f"room {label!r} has no free point the robot can reach",
-                )
+                report(path + sub, f"room {label!r} has no free point the robot can reach")
             else:
                 goals[label] = point
     return goals
 
 
 def _check_map_areas(
-    mission: Setup, extent: tuple[float, float, float, float], report: Report
+    mission: Setup, extent: tuple[float, float, float, float], nodes: Sequence[NodeCheck]
 ) -> None:
-    """``map_area`` bounds overlap the world's map, and SLAM's grid over them fits."""
+    """Areas to map overlap the world's map, and SLAM's grid over them fits."""
     xmin, xmax, ymin, ymax = extent
     resolution = float(getattr(mission.stack.slam, "resolution", 0.05))
-    for i, task in enumerate(tasks_of(mission)):
-        if task.type != "map_area":
-            continue
-        bounds = task.bounds.as_tuple() if task.bounds is not None else extent
-        bx0, bx1, by0, by1 = bounds
-        if bx1 <= xmin or bx0 >= xmax or by1 <= ymin or by0 >= ymax:
-            report(
-                ("tasks", i, "bounds"),
-                f"(x {bx0:g}..{bx1:g}, y {by0:g}..{by1:g}) do not overlap the map "
-                f"(x {xmin:g}..{xmax:g}, y {ymin:g}..{ymax:g})",
-            )
-            continue
-        cells = grid_cells(bounds, resolution)
-        if cells > MAX_GRID_CELLS:
-            report(
-                ("tasks", i, "bounds"),
-                f"a SLAM map of these bounds at {resolution:g} m has {cells:.3g} cells; at "
-                f"most {MAX_GRID_CELLS:.3g} (smaller bounds or a coarser stack.slam.resolution)",
-            )
+    for path, ports, report in nodes:
+        for sub, area in ports.map_bounds():
+            bounds = area.as_tuple() if area is not None else extent
+            bx0, bx1, by0, by1 = bounds
+            if bx1 <= xmin or bx0 >= xmax or by1 <= ymin or by0 >= ymax:
+                report(
+                    path + sub,
+                    f"(x {bx0:g}..{bx1:g}, y {by0:g}..{by1:g}) do not overlap the map "
+                    f"(x {xmin:g}..{xmax:g}, y {ymin:g}..{ymax:g})",
+                )
+                continue
+            cells = grid_cells(bounds, resolution)
+            if cells > MAX_GRID_CELLS:
+                report(
+                    path + sub,
+                    f"a SLAM map of these bounds at {resolution:g} m has {cells:.3g} cells; at "
+                    f"most {MAX_GRID_CELLS:.3g} (smaller bounds or a coarser stack.slam.resolution)",
+                )
 
 
 def _check_pose(

@@ -99,3 +99,21 @@ class Log(py_trees.behaviour.Behaviour):
     def update(self) -> Status:
         self.handle.log("log", message=self.message, node=self.name)
         return Status.SUCCESS
+
+
+from agv_mission.behaviors.ports import (  # noqa: E402
+    DrivePorts,
+    LogPorts,
+    SetBlackboardPorts,
+    SpinPorts,
+    StopPorts,
+    WaitPorts,
+)
+
+# The ports of each node type this module's behaviours are (registry slot `behavior`).
+Drive.Config = DrivePorts
+Log.Config = LogPorts
+SetBlackboard.Config = SetBlackboardPorts
+SpinBy.Config = SpinPorts
+Stop.Config = StopPorts
+WaitFor.Config = WaitPorts

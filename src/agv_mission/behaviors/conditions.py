@@ -162,3 +162,23 @@ class IsPathClear(Condition):
         if costmap.grid.in_bounds(r, c) and cells.any() and bool(cells[int(r), int(c)]):
             return None
         return f"no free way to ({self.goal.x:.2f}, {self.goal.y:.2f})"
+
+
+from agv_mission.behaviors.ports import (  # noqa: E402
+    AtPosePorts,
+    CheckBlackboardPorts,
+    InRoomPorts,
+    IsPathClearPorts,
+    PersonNearPorts,
+    RangeAheadBelowPorts,
+    TimeElapsedPorts,
+)
+
+# The ports of each node type this module's behaviours are (registry slot `behavior`).
+AtPose.Config = AtPosePorts
+CheckBlackboard.Config = CheckBlackboardPorts
+InRoomCondition.Config = InRoomPorts
+IsPathClear.Config = IsPathClearPorts
+PersonNear.Config = PersonNearPorts
+RangeAheadBelow.Config = RangeAheadBelowPorts
+TimeElapsed.Config = TimeElapsedPorts

@@ -194,3 +194,25 @@ class Recovery(_Control):
                 self._current = 0
                 # the action runs again next tick: a node that ended restarts on its tick
                 return Status.RUNNING
+
+
+from agv_mission.behaviors.ports import (  # noqa: E402
+    FallbackPorts,
+    ParallelPorts,
+    PipelineSequencePorts,
+    ReactiveFallbackPorts,
+    ReactiveSequencePorts,
+    RecoveryPorts,
+    RoundRobinPorts,
+    SequencePorts,
+)
+
+# The ports of each node type this module's behaviours are (registry slot `behavior`).
+Fallback.Config = FallbackPorts
+Parallel.Config = ParallelPorts
+PipelineSequence.Config = PipelineSequencePorts
+ReactiveFallback.Config = ReactiveFallbackPorts
+ReactiveSequence.Config = ReactiveSequencePorts
+Recovery.Config = RecoveryPorts
+RoundRobin.Config = RoundRobinPorts
+Sequence.Config = SequencePorts

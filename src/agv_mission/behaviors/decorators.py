@@ -190,3 +190,29 @@ class SubTree(py_trees.decorators.Decorator):
         if self.decorated.status is Status.FAILURE:
             self.feedback_message = self.decorated.feedback_message
         return self.decorated.status
+
+
+from agv_mission.behaviors.ports import (  # noqa: E402
+    DelayPorts,
+    ForceFailurePorts,
+    ForceSuccessPorts,
+    InverterPorts,
+    KeepRunningUntilFailurePorts,
+    RateControllerPorts,
+    RepeatPorts,
+    RetryPorts,
+    RunOncePorts,
+    TimeoutPorts,
+)
+
+# The ports of each node type this module's behaviours are (registry slot `behavior`).
+Delay.Config = DelayPorts
+ForceFailure.Config = ForceFailurePorts
+ForceSuccess.Config = ForceSuccessPorts
+Inverter.Config = InverterPorts
+KeepRunningUntilFailure.Config = KeepRunningUntilFailurePorts
+RateController.Config = RateControllerPorts
+Repeat.Config = RepeatPorts
+Retry.Config = RetryPorts
+RunOnce.Config = RunOncePorts
+Timeout.Config = TimeoutPorts

@@ -151,6 +151,9 @@ class NodePorts(PluginConfig):
     kind: ClassVar[NodeKind] = "action"
     #: A task of ``mission-format.md``: reported per task in ``result.json``.
     task: ClassVar[bool] = False
+    #: Ports the conformance check builds the node with (None: it needs a run's mapper,
+    #: checked statically only).
+    example: ClassVar[dict[str, Any] | None] = {}
 
     # ---- what the world checks ask of a node before it runs (paths relative to it)
 
@@ -218,6 +221,7 @@ class GoToTask(TaskPorts, FailurePolicy):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.tasks:GoTo"
     type: Literal["go_to"]
+    example: ClassVar[dict[str, Any] | None] = {"pose": {"x": 2.0, "y": 2.0}}
     pose: Pose
 
     def goal_poses(self) -> list[tuple[FieldPath, Pose]]:
@@ -235,6 +239,7 @@ class PatrolTask(TaskPorts, FailurePolicy):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.tasks:Patrol"
     type: Literal["patrol"]
+    example: ClassVar[dict[str, Any] | None] = {"waypoints": [{"x": 2.0, "y": 1.0}]}
     waypoints: list[Pose] = Field(min_length=1, max_length=MAX_WAYPOINTS)
     loops: int = Field(1, ge=1, le=MAX_LOOPS, description="rounds; each is built when it starts")
     dwell: float = Field(
@@ -261,6 +266,7 @@ class WanderTask(TaskPorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.tasks:WanderTaskNode"
     type: Literal["wander"]
+    example: ClassVar[dict[str, Any] | None] = {"duration": 1.0}
     duration: float = Field(gt=0.0, le=MAX_SIM_SECONDS, description="simulated seconds")
     min_range: float = Field(0.8, gt=0.0, description="metres")
     speed: float | None = Field(None, gt=0.0, description="m/s; default: the robot's maximum")
@@ -286,6 +292,7 @@ class VisitRoomsTask(TaskPorts, FailurePolicy, SettleBeforeRecording):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.tasks:VisitRooms"
     type: Literal["visit_rooms"]
+    example: ClassVar[dict[str, Any] | None] = {"rooms": ["room"]}
     rooms: list[str] = Field(
         min_length=1, max_length=MAX_ROOMS, description="room labels, visited in this order"
     )
@@ -325,6 +332,7 @@ class RecordRoomTask(TaskPorts, SettleBeforeRecording):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.tasks:RecordRoomTaskNode"
     type: Literal["record_room"]
+    example: ClassVar[dict[str, Any] | None] = {"room": "room"}
     room: str = Field(min_length=1, description="the label to record under")
 
 
@@ -354,6 +362,7 @@ class MapAreaTask(TaskPorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.tasks:MapAreaTaskNode"
     type: Literal["map_area"]
+    example: ClassVar[dict[str, Any] | None] = None
     bounds: AreaBounds | None = Field(None, description="default: the whole world map")
     save_map: str = Field("map", description="writes <save_map>.pgm + .yaml in the run directory")
     coverage: float | None = Field(
@@ -384,6 +393,7 @@ class TeleopTask(TaskPorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.tasks:Teleop"
     type: Literal["teleop"]
+    example: ClassVar[dict[str, Any] | None] = {"duration": 0.5}
     duration: float | None = Field(
         None, gt=0.0, description="simulated seconds; None: until the run is cancelled"
     )
@@ -487,6 +497,7 @@ class RetryPorts(DecoratorPorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.decorators:Retry"
     type: Literal["retry"]
+    example: ClassVar[dict[str, Any] | None] = {"num_attempts": 2}
     num_attempts: int = Field(ge=-1, description="tries in all (-1: until it succeeds)")
 
 
@@ -495,6 +506,7 @@ class RepeatPorts(DecoratorPorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.decorators:Repeat"
     type: Literal["repeat"]
+    example: ClassVar[dict[str, Any] | None] = {"num_cycles": 2}
     num_cycles: int = Field(ge=-1, description="successes to run (-1: until the time limit)")
 
 
@@ -503,6 +515,7 @@ class TimeoutPorts(DecoratorPorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.decorators:Timeout"
     type: Literal["timeout"]
+    example: ClassVar[dict[str, Any] | None] = {"seconds": 1.0}
     seconds: float = Field(gt=0.0, le=MAX_SIM_SECONDS, description="simulated seconds")
 
 
@@ -511,6 +524,7 @@ class DelayPorts(DecoratorPorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.decorators:Delay"
     type: Literal["delay"]
+    example: ClassVar[dict[str, Any] | None] = {"seconds": 0.2}
     seconds: float = Field(ge=0.0, le=MAX_SIM_SECONDS, description="simulated seconds")
 
 
@@ -520,6 +534,7 @@ class RateControllerPorts(DecoratorPorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.decorators:RateController"
     type: Literal["rate_controller"]
+    example: ClassVar[dict[str, Any] | None] = {"hz": 5.0}
     hz: float = Field(gt=0.0, description="ticks per simulated second")
 
 
@@ -546,6 +561,7 @@ class InRoomPorts(ConditionPorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.conditions:InRoomCondition"
     type: Literal["in_room"]
+    example: ClassVar[dict[str, Any] | None] = {"room": "room"}
     room: str = Field(min_length=1, description="a room label")
 
     def rooms_named(self) -> list[tuple[FieldPath, str]]:
@@ -557,6 +573,7 @@ class AtPosePorts(ConditionPorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.conditions:AtPose"
     type: Literal["at_pose"]
+    example: ClassVar[dict[str, Any] | None] = {"pose": {"x": 1.0, "y": 1.0}}
     pose: Goal = Field(description="a pose or a room label")
     tolerance: float = Field(0.25, gt=0.0, description="m")
 
@@ -567,6 +584,7 @@ class RangeAheadBelowPorts(ConditionPorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.conditions:RangeAheadBelow"
     type: Literal["range_ahead_below"]
+    example: ClassVar[dict[str, Any] | None] = {"distance": 0.5}
     distance: float = Field(gt=0.0, description="m")
     fov: float = Field(0.35, gt=0.0, le=math.pi, description="the cone's half-width, rad")
 
@@ -576,6 +594,7 @@ class PersonNearPorts(ConditionPorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.conditions:PersonNear"
     type: Literal["person_near"]
+    example: ClassVar[dict[str, Any] | None] = {"distance": 1.0}
     distance: float = Field(gt=0.0, description="m")
 
 
@@ -584,6 +603,7 @@ class TimeElapsedPorts(ConditionPorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.conditions:TimeElapsed"
     type: Literal["time_elapsed"]
+    example: ClassVar[dict[str, Any] | None] = {"seconds": 0.0}
     seconds: float = Field(ge=0.0, description="simulated seconds")
 
 
@@ -592,6 +612,7 @@ class CheckBlackboardPorts(ConditionPorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.conditions:CheckBlackboard"
     type: Literal["check_blackboard"]
+    example: ClassVar[dict[str, Any] | None] = {"key": "k", "equals": 1}
     key: str = Field(min_length=1, description="the entry (a name, or {name})")
     equals: Any = Field(None, description="succeed when the entry equals this")
     less: float | None = Field(None, description="succeed when the entry is below this")
@@ -610,6 +631,7 @@ class IsPathClearPorts(ConditionPorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.conditions:IsPathClear"
     type: Literal["is_path_clear"]
+    example: ClassVar[dict[str, Any] | None] = {"goal": {"x": 3.0, "y": 3.0}}
     goal: Goal = Field(description="a pose or a room label")
 
 
@@ -621,6 +643,7 @@ class NavigateToPosePorts(NodePorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.tasks:NavigateToGoal"
     type: Literal["navigate_to_pose"]
+    example: ClassVar[dict[str, Any] | None] = {"goal": {"x": 2.0, "y": 2.0}}
     goal: Goal = Field(description="a pose, a room label, or {key}")
     recoveries: list[Literal["clear_costmap", "spin", "wait", "back_up"]] | None = Field(
         None, description="between attempts; default: stack.navigation.recoveries"
@@ -638,6 +661,7 @@ class DrivePorts(NodePorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.actions:Drive"
     type: Literal["drive"]
+    example: ClassVar[dict[str, Any] | None] = {"seconds": 0.5, "v": 0.1}
     v: float = Field(0.0, description="m/s, clipped to the robot's limits")
     w: float = Field(0.0, description="rad/s, clipped to the robot's limits")
     seconds: float = Field(gt=0.0, le=MAX_SIM_SECONDS, description="simulated seconds")
@@ -655,6 +679,7 @@ class WaitPorts(NodePorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.actions:WaitFor"
     type: Literal["wait"]
+    example: ClassVar[dict[str, Any] | None] = {"seconds": 0.2}
     seconds: float = Field(ge=0.0, le=MAX_SIM_SECONDS, description="simulated seconds")
 
 
@@ -663,6 +688,7 @@ class SpinPorts(NodePorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.actions:SpinBy"
     type: Literal["spin"]
+    example: ClassVar[dict[str, Any] | None] = {"angle": 1.0}
     angle: float = Field(description="rad, counter-clockwise positive")
     rate: float = Field(1.0, gt=0.0, description="rad/s, clipped to the robot's limit")
 
@@ -688,6 +714,7 @@ class SetBlackboardPorts(NodePorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.actions:SetBlackboard"
     type: Literal["set_blackboard"]
+    example: ClassVar[dict[str, Any] | None] = {"key": "k", "value": 1}
     key: str = output_port("the entry written (a name, or {name})")
     value: Any = Field(description="any YAML value")
 
@@ -697,4 +724,5 @@ class LogPorts(NodePorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.actions:Log"
     type: Literal["log"]
+    example: ClassVar[dict[str, Any] | None] = {"message": "hello"}
     message: str = Field(description="the event's message")

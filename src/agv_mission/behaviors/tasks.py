@@ -237,3 +237,25 @@ class NavigateToGoal(py_trees.decorators.Decorator):
         if self.decorated.status is Status.FAILURE:
             self.feedback_message = self.decorated.feedback_message
         return self.decorated.status
+
+
+from agv_mission.behaviors.ports import (  # noqa: E402
+    GoToTask,
+    MapAreaTask,
+    NavigateToPosePorts,
+    PatrolTask,
+    RecordRoomTask,
+    TeleopTask,
+    VisitRoomsTask,
+    WanderTask,
+)
+
+# The ports of each node type this module's behaviours are (registry slot `behavior`).
+GoTo.Config = GoToTask
+MapAreaTaskNode.Config = MapAreaTask
+NavigateToGoal.Config = NavigateToPosePorts
+Patrol.Config = PatrolTask
+RecordRoomTaskNode.Config = RecordRoomTask
+Teleop.Config = TeleopTask
+VisitRooms.Config = VisitRoomsTask
+WanderTaskNode.Config = WanderTask

@@ -158,6 +158,12 @@ def load_mission(
 
     wants = tasks_required or "tasks" in data or "tree" in data
     model: type[Setup] = Mission if wants else Setup
+    if model is Mission and ("tasks" in data) == ("tree" in data):
+        both = "tasks" in data
+        message = (
+            "a mission has `tasks` or `tree`, not both" if both else "required field is missing"
+        )
+        raise MissionError([log.at(("tree",) if both else ("tasks",), message)])
     try:
         mission = model.model_validate(data, strict=True)
     except ValidationError as exc:

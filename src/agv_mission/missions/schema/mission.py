@@ -107,13 +107,13 @@ class Setup(StrictModel):
 class Mission(Setup):
     """A mission file: a setup and what to do in it, as ``tasks`` or as a ``tree``."""
 
-    tasks: list[Task] | None = Field(
+    tasks: list[Task] = Field(  # type: ignore[assignment]  (absent: None, given: a list)
         None,
         min_length=1,
         max_length=MAX_TASKS,
         description="shorthand for a tree: a sequence of these task nodes",
     )
-    tree: dict[str, Any] | str | None = Field(
+    tree: dict[str, Any] | str = Field(  # type: ignore[assignment]
         None,
         description="the behaviour tree (behaviour-trees.md): a node {type, name, ports..., "
         "children | child}, or a BT.CPP v4 XML file (a path ending in .xml); "

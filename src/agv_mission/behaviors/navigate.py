@@ -50,5 +50,7 @@ class NavigateToPose(py_trees.behaviour.Behaviour):
         return Status.RUNNING
 
     def terminate(self, new_status: Status) -> None:
-        if new_status is Status.INVALID:
+        # Halted while driving: let go of the navigator. A goal that already ended leaves
+        # it alone (another node may be driving it by now).
+        if new_status is Status.INVALID and self.status is Status.RUNNING:
             self.handle.navigator.cancel()

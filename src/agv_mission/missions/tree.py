@@ -425,6 +425,7 @@ class NodeRecord:
     started: int = 0
     running: float = 0.0
     since: float | None = None
+    last: str = "not_run"  # how it last ended: succeeded, failed or halted
 
 
 @dataclass
@@ -450,7 +451,7 @@ class MissionTree:
                 "path": rec.path,
                 "type": rec.node.type,
                 "name": rec.behaviour.name,
-                "status": _status_name(rec.behaviour.status),
+                "status": _final_status(rec),
                 "started": rec.started,
                 "running_time": round(running, 3),
                 "source": ".".join(map(str, rec.node.where.path)),
@@ -459,13 +460,12 @@ class MissionTree:
         return out
 
 
-def _status_name(status: Status) -> str:
-    return {
-        Status.SUCCESS: "succeeded",
-        Status.FAILURE: "failed",
-        Status.RUNNING: "running",
-        Status.INVALID: "not_run",
-    }[status]
+def _final_status(record: NodeRecord) -> str:
+    """Its status now, or how it last ended when its parent has reset it since."""
+    status = record.behaviour.status
+    if status is Status.INVALID:
+        return record.last
+    return {Status.SUCCESS: "succeeded", Status.FAILURE: "failed"}.get(status, "running")
 
 
 def build_tree(spec: TreeSpec, context: TreeContext) -> MissionTree:
@@ -564,6 +564,12 @@ def _instrument(record: NodeRecord, context: TreeContext) -> None:
         initialise()
 
     def timed_stop(new_status: Status = Status.INVALID) -> None:
+        if new_status is Status.SUCCESS:
+            record.last = "succeeded"
+        elif new_status is Status.FAILURE:
+            record.last = "failed"
+        elif node.status is Status.RUNNING:
+            record.last = "halted"
         if record.since is not None:
             record.running += context.handle.state.time - record.since
             record.since = None

@@ -331,7 +331,7 @@ class _Assembly:
                 port = str(loc[0]) if loc else None
                 detail = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc[1:])
                 msg = err["msg"].removeprefix("Value error, ")
-                if err["type"] == "missing":
+                if err["type"] == "missing" and len(loc) == 1:
                     msg = f"missing port {port!r} of {spec.type}"
                 self.problems.append(
                     spec.where.problem(

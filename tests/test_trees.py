@@ -366,3 +366,23 @@ def test_registry_lists_every_contract_node_type() -> None:
         "visit_rooms", "record_room", "wander", "map_area", "teleop", "navigate_to_pose",
         "drive", "stop", "wait", "spin", "back_up", "clear_costmap", "set_blackboard", "log",
     } <= names  # fmt: skip
+
+
+def test_the_dashboard_stream_shows_the_users_node_names_and_statuses() -> None:
+    from agv_mission.missions.observe import tree_nodes
+
+    ctx = sample_context()
+    tree = _tree(
+        """
+type: sequence
+name: errand
+children:
+  - {type: wait, name: pause, seconds: 0.1}
+  - {type: drive, name: creep forward, v: 0.05, seconds: 1}
+""",
+        ctx,
+    )
+    _tick(tree, ctx, 4)
+    shown = {(n.name, n.depth, n.status) for n in tree_nodes(tree.root)}
+    assert {("errand", 0, "RUNNING"), ("pause", 1, "SUCCESS")} <= shown
+    assert ("creep forward", 1, "RUNNING") in shown

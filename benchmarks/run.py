@@ -34,6 +34,7 @@ MODULES = [
     "bench_bags",
     "bench_service",
     "bench_dashboard",
+    "bench_trees",
 ]
 
 # metric -> (comparison, target) from the issues
@@ -83,6 +84,10 @@ TARGETS = {
     "service.control_ms.pause_p50": ("<=", 200.0),
     "dashboard.watched_rtf_ratio": (">=", 0.9),
     "dashboard.fps_30x50": (">=", 20.0),
+    "trees.patrol.tree_over_tasks_cost": ("<=", 1.05),  # issue 23
+    "trees.patrol_tree.tree_ms_per_sim_s": ("<=", 1.5),
+    "trees.patrol_tasks.tree_ms_per_sim_s": ("<=", 1.5),
+    "trees.wander_tree.tree_ms_per_sim_s": ("<=", 1.5),
 }
 # metric name suffix -> (comparison, target), for keys of every map (issue 15)
 SUFFIX_TARGETS = {

@@ -263,7 +263,7 @@ tree:
     - {GO}
     - {{type: set_blackboard, key: "{{back}}", value: true}}
     - {{type: navigate_to_pose, name: home, goal: "{{home}}"}}
-    - {{type: check_blackboard, key: back, equals: true}}
+    - {{type: check_blackboard, key: "{{back}}", equals: true}}
 """,
     )
     record = run_mission(load_mission(mission_file(tmp_path, text)))

@@ -142,6 +142,12 @@ def output_port(description: str, default: Any = ...) -> Any:
     return Field(default, description=description, json_schema_extra={"direction": "output"})
 
 
+def entry_port(description: str, default: Any = ...) -> Any:
+    """An input port whose value names the blackboard entry the node reads (``name`` or
+    ``{name}``), rather than carrying the value."""
+    return Field(default, min_length=1, description=description, json_schema_extra={"entry": True})
+
+
 class NodePorts(PluginConfig):
     """The ports of one node type (a plugin config of the ``behavior`` slot)."""
 
@@ -613,7 +619,7 @@ class CheckBlackboardPorts(ConditionPorts):
     plugin: ClassVar[str] = "agv_mission.behaviors.conditions:CheckBlackboard"
     type: Literal["check_blackboard"]
     example: ClassVar[dict[str, Any] | None] = {"key": "k", "equals": 1}
-    key: str = Field(min_length=1, description="the entry (a name, or {name})")
+    key: str = entry_port("the entry read (a name, or {name})")
     equals: Any = Field(None, description="succeed when the entry equals this")
     less: float | None = Field(None, description="succeed when the entry is below this")
     greater: float | None = Field(None, description="succeed when the entry is above this")

@@ -288,9 +288,12 @@ class _Assembly:
                     raw, key = target, blackboard_key(target)
                 else:
                     key = target
-            if direction == "output":
+            if direction == "output" or extra.get("entry"):
                 name = key if key is not None else str(raw)
-                self.writes.add(name)
+                if direction == "output":
+                    self.writes.add(name)
+                else:
+                    self.reads.append((name, spec.where, port))
                 literal[port] = name
                 continue
             if key is not None:
@@ -316,8 +319,6 @@ class _Assembly:
                     )
                     ok = False
                     continue
-            if port == "key" and spec.type == "check_blackboard":
-                self.reads.append((blackboard_key(raw) or str(raw), spec.where, port))
             literal[port] = raw
         if not ok:
             return None, bound

@@ -79,6 +79,12 @@ class LoadedMission:
         """The mission as it runs: defaults filled in and overrides applied."""
         doc = self.mission.model_dump(mode="json")
         doc["name"] = self.name
+        for key in ("tasks", "tree", "trees", "blackboard"):  # what the user did not write
+            if key in doc and doc[key] in (None, {}):
+                del doc[key]
+        if isinstance(doc.get("tree"), str) and self.source is not None:
+            # the copy in a run directory still finds the XML file
+            doc["tree"] = str(input_path(doc["tree"].strip(), self.source.parent).resolve())
         return {k: doc[k] for k in FIELD_ORDER if k in doc}
 
 

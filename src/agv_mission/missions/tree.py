@@ -7,6 +7,11 @@ checked against each node type's port model from the registry's ``behavior`` slo
 subtrees inlined with their ports remapped, blackboard reads checked against writes),
 then one py_trees tree (:func:`build_tree`). Node types are found the way a third-party
 node is: by name in the registry.
+
+The blackboard is a dict per tree (:class:`~agv_mission.behaviors.context.TreeContext`),
+not py_trees' ``PortsMixin`` and its blackboard: that storage is process-global, and one
+process (the service's worker, regress's fork server) runs several missions. The BT.CPP
+parser is ours too (``tree_xml``): py_trees' experimental one keeps no source lines.
 """
 
 from __future__ import annotations
@@ -496,8 +501,10 @@ class _Builder:
             config = registry.config(SLOT, node.type)
             cls = registry.get(SLOT, node.type)
             name = node.name
-            if config.task and node.name == node.type:
-                name = f"task {self.context.tasks + 1}: {node.type}"
+            if config.task:  # numbered in tree order, whether or not the node counts itself
+                self.context.tasks = len(self.tasks)
+                if node.name == node.type:
+                    name = f"task {len(self.tasks) + 1}: {node.type}"
             if node.bound:
                 behaviour = BlackboardPorts(name, cls, node, self.context)
             else:

@@ -386,3 +386,16 @@ children:
     shown = {(n.name, n.depth, n.status) for n in tree_nodes(tree.root)}
     assert {("errand", 0, "RUNNING"), ("pause", 1, "SUCCESS")} <= shown
     assert ("creep forward", 1, "RUNNING") in shown
+
+
+def test_a_tree_that_repeats_forever_succeeds_at_the_time_limit(tmp_path: Path) -> None:
+    forever = tb3_mission(GO, limits="{time: 3.0}").replace(
+        f"tasks:\n  - {GO}\n",
+        "tree: {type: repeat, num_cycles: -1, child: {type: wait, seconds: 0.5}}\n",
+    )
+    record = run_mission(load_mission(mission_file(tmp_path, forever, "forever")))
+    assert record.status == "succeeded" and record.sim_time == pytest.approx(3.0)
+    assert record.extras["tree"][1]["started"] == 6
+    bounded = forever.replace("num_cycles: -1", "num_cycles: 100")
+    record = run_mission(load_mission(mission_file(tmp_path, bounded, "bounded")))
+    assert record.status == "failed" and "time limit" in (record.reason or "")

@@ -282,7 +282,11 @@ class MissionRun:
             elif self.tree.root.status is Status.FAILURE:
                 self.end("failed", self._failure())
             elif now >= self.mission.limits.time - 1e-9:
-                self.end("failed", self._timeout())
+                if self.tree.repeats_until_the_limit():
+                    handle.log("time_limit", reason="the tree repeats until the time limit")
+                    self.end("succeeded", None)
+                else:
+                    self.end("failed", self._timeout())
         if self._sampler is not None:
             sample = self._sampler.sample(
                 sensing, estimate, v, w, events_before, covariance, diagnostics

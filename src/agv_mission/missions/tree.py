@@ -447,6 +447,20 @@ class MissionTree:
     def render(self) -> str:
         return py_trees.display.unicode_tree(self.root, show_status=True)
 
+    def repeats_until_the_limit(self) -> bool:
+        """Whether a node meant to run until the mission's time limit (``repeat`` with
+        ``num_cycles: -1``, ``keep_running_until_failure``) is running: the limit then
+        ends the tree as it was written to end."""
+        for rec in self.records:
+            node = rec.node
+            if rec.behaviour.status is not Status.RUNNING:
+                continue
+            if node.type == "keep_running_until_failure":
+                return True
+            if node.type == "repeat" and node.ports is not None and node.ports.num_cycles < 0:
+                return True
+        return False
+
     def report(self) -> list[dict[str, Any]]:
         """``result.json``'s ``tree``: every node the user's tree holds, pre-order."""
         now = self.context.handle.state.time

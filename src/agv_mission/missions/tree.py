@@ -177,6 +177,11 @@ def tasks_spec(tasks: list[dict[str, Any]], file: str, lines: dict[FieldPath, in
                     {}, children)  # fmt: skip
 
 
+def tasks_tree(tasks: list[dict[str, Any]], file: str = "<tasks>") -> TreeSpec:
+    """The tree of a ``tasks:`` list built in code (e.g. teleop's one task)."""
+    return assemble(TreeSource(tasks_spec(tasks, file, {})))
+
+
 # --------------------------------------------------------------------- validation
 
 

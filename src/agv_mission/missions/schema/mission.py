@@ -118,16 +118,6 @@ class Mission(Setup):
         description="the behaviour tree (behaviour-trees.md): a node {type, name, ports..., "
         "children | child}, or a BT.CPP v4 XML file (a path ending in .xml); "
         "`agv-mission tree nodes` lists the node types",
-        json_schema_extra={
-            "anyOf": [
-                {
-                    "type": "object",
-                    "required": ["type"],
-                    "properties": {"type": {"type": "string"}},
-                },
-                {"type": "string", "pattern": r"\.xml$"},
-            ]
-        },
     )
     trees: dict[str, dict[str, Any]] = Field(
         default_factory=dict,

@@ -7,26 +7,16 @@ A node type whose constructor takes a ``context`` keyword gets the tree's
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from typing import Any
 
+from agv_mission.behaviors.ports import BLACKBOARD_REF, blackboard_key
 from agv_mission.geometry import Pose2D
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.robots.description import RobotDescription
 
-#: A port value that names a blackboard entry (BT.CPP's convention).
-BLACKBOARD_REF = re.compile(r"^\{([A-Za-z_][\w.#/-]*)\}$")
-
-
-def blackboard_key(value: Any) -> str | None:
-    """The entry ``"{key}"`` names, or None for a literal."""
-    if isinstance(value, str):
-        m = BLACKBOARD_REF.match(value)
-        if m:
-            return m.group(1)
-    return None
+__all__ = ["BLACKBOARD_REF", "TreeContext", "blackboard_key"]
 
 
 @dataclass

@@ -16,6 +16,7 @@ and reported of them in ``result.json`` is written here, beside their ports.
 from __future__ import annotations
 
 import math
+import re
 from typing import Annotated, Any, ClassVar, Literal, Union
 
 from pydantic import (
@@ -39,6 +40,20 @@ MAX_ROOMS = 1000
 MAX_SIM_SECONDS = 86_400.0  # one simulated day
 
 FieldPath = tuple[str | int, ...]
+
+#: A port value that names a blackboard entry (BT.CPP's convention).
+BLACKBOARD_REF = re.compile(r"^\{([A-Za-z_][\w.#/-]*)\}$")
+
+
+def blackboard_key(value: Any) -> str | None:
+    """The entry ``"{key}"`` names, or None for a literal."""
+    if isinstance(value, str):
+        m = BLACKBOARD_REF.match(value)
+        if m:
+            return m.group(1)
+    return None
+
+
 NodeKind = Literal["action", "condition", "control", "decorator"]
 
 

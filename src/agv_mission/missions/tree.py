@@ -22,19 +22,21 @@ import types
 import typing
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import py_trees
 import yaml
 from py_trees.common import Status
 from pydantic import ValidationError
 
-from agv_mission.behaviors.context import TreeContext, blackboard_key
-from agv_mission.behaviors.ports import NodePorts
+from agv_mission.behaviors.ports import NodePorts, blackboard_key
 from agv_mission.missions.errors import MissionError, Problem
 from agv_mission.missions.schema.base import MAX_TREE_NODES
 from agv_mission.missions.yaml_lines import FieldPath
 from agv_mission.registry import UnknownPluginError, registry
+
+if TYPE_CHECKING:  # the behaviours' modules load only when a tree is built
+    from agv_mission.behaviors.context import TreeContext
 
 Behaviour = py_trees.behaviour.Behaviour
 SLOT = "behavior"

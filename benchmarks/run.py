@@ -35,6 +35,7 @@ MODULES = [
     "bench_service",
     "bench_dashboard",
     "bench_battery",
+    "bench_trees",
 ]
 
 # metric -> (comparison, target) from the issues
@@ -90,6 +91,10 @@ TARGETS = {
     "slam.real_logs.freiburg_079.free_in_reference": (">=", 0.85),
     "slam.real_logs.freiburg_079.walls_within_0.15m": (">=", 0.95),
     "slam.real_logs.freiburg_079.x_log_duration": (">=", 40.0),
+    "trees.patrol.tree_over_tasks_cost": ("<=", 1.05),  # issue 23
+    "trees.patrol_tree.tree_ms_per_sim_s": ("<=", 1.5),
+    "trees.patrol_tasks.tree_ms_per_sim_s": ("<=", 1.5),
+    "trees.wander_tree.tree_ms_per_sim_s": ("<=", 1.5),
 }
 # metric name suffix -> (comparison, target), for keys of every map (issue 15)
 SUFFIX_TARGETS = {

@@ -20,7 +20,7 @@ FLOORS = {
     "missions": 6,
     "behaviors": 5,
     "navigation": 4,
-    "plugin_check": 4,  # drives a plugin of any floor-3 slot, like the navigator does
+    "plugin_check": 6,  # drives a plugin of any slot: floor-3 ones, and behaviour nodes (5)
     "robots": 3,
     "planners": 3,
     "localization": 3,

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from agv_mission.behaviors.check import NodeCheckError, check_node
 from agv_mission.geometry import Pose2D
 from agv_mission.localization.base import Localizer, LocalizerDiagnostics
 from agv_mission.mapping.base import Slam
@@ -57,6 +58,9 @@ def check_plugin(cls: type, slot: str | None = None, config: PluginConfig | None
     ``config``: the configuration to drive it with (default: ``cls.Config()``).
     """
     slot = slot or _infer_slot(cls)
+    if slot == "behavior":
+        _check_node(cls, config)
+        return
     if slot not in SLOTS:
         raise ValueError(f"unknown slot {slot!r}; slots are {', '.join(SLOTS)}")
     problems = _static_problems(cls, slot)
@@ -72,6 +76,13 @@ def check_plugin(cls: type, slot: str | None = None, config: PluginConfig | None
         raise PluginCheckError(_message(cls, slot, [problem])) from exc
 
 
+def _check_node(cls: type, config: PluginConfig | None) -> None:
+    try:
+        check_node(cls, config)  # type: ignore[arg-type]
+    except NodeCheckError as exc:
+        raise PluginCheckError(str(exc)) from None
+
+
 def _message(cls: type, slot: str, problems: list[str]) -> str:
     return f"{cls.__qualname__} is not a working {slot} plugin:\n" + "\n".join(
         f"  - {p}" for p in problems
@@ -79,6 +90,8 @@ def _message(cls: type, slot: str, problems: list[str]) -> str:
 
 
 def _infer_slot(cls: type) -> str:
+    if isinstance(getattr(cls, "Config", None), type) and hasattr(cls.Config, "kind"):
+        return "behavior"
     for slot, methods in (
         ("global_planner", ("plan",)),
         ("local_planner", ("compute",)),

@@ -27,7 +27,7 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel, ConfigDict
 
-SLOTS = ("localization", "slam", "global_planner", "local_planner")
+SLOTS = ("localization", "slam", "global_planner", "local_planner", "behavior")
 ENTRY_POINT_GROUP = "agv_mission.plugins"
 
 T = TypeVar("T", bound=type)

@@ -273,3 +273,18 @@ class Charge(py_trees.behaviour.Behaviour):
             battery.charging = False
         if new_status is Status.INVALID:
             self.handle.stop()
+
+
+from agv_mission.behaviors.ports import (  # noqa: E402
+    ChargeTask,
+    DockTask,
+    IsBatteryChargingPorts,
+    IsBatteryLowPorts,
+    UndockTask,
+)
+
+IsBatteryLow.Config = IsBatteryLowPorts  # type: ignore[attr-defined]
+IsBatteryCharging.Config = IsBatteryChargingPorts  # type: ignore[attr-defined]
+Dock.Config = DockTask  # type: ignore[attr-defined]
+Undock.Config = UndockTask  # type: ignore[attr-defined]
+Charge.Config = ChargeTask  # type: ignore[attr-defined]

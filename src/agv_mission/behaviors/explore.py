@@ -154,6 +154,17 @@ class MapArea(py_trees.behaviour.Behaviour):
         handle.drive(cmd.v, cmd.w)
         return Status.RUNNING
 
+    def terminate(self, new_status: Status) -> None:
+        """Halted while exploring: stop, let go of the navigator and end the mapping
+        session (the map so far is saved), so localisation takes over again."""
+        if new_status is not Status.INVALID or self.mapping is None:
+            return
+        self.handle.navigator.cancel()
+        self.handle.stop()
+        self.mapping = None
+        summary = self.mapper.end(self.save_map)
+        self.handle.log("map_saved", reason="halted", frontiers=self.frontiers_visited, **summary)
+
     def _done(self, now: float) -> str | None:
         if now >= self._deadline:
             return "time limit of the task reached"

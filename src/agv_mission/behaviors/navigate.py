@@ -50,8 +50,8 @@ class NavigateToPose(py_trees.behaviour.Behaviour):
         return Status.RUNNING
 
     def terminate(self, new_status: Status) -> None:
-        # Halted: give up the goal, unless another node has already taken the navigator
-        # (a reactive parent halts this one after the higher-priority child started).
+        # Halted while driving: give up the goal, unless another node has already taken the
+        # navigator (a reactive parent halts this one after the higher-priority child started).
         nav = self.handle.navigator
-        if new_status is Status.INVALID and nav.goal is self.goal:
+        if new_status is Status.INVALID and self.status is Status.RUNNING and nav.goal is self.goal:
             nav.cancel()

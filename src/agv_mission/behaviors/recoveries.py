@@ -159,3 +159,10 @@ class BackUp(py_trees.behaviour.Behaviour):
             self.handle.log("recovery", kind="back_up")
         self.handle.drive(-self.speed, 0.0)
         return Status.RUNNING
+
+
+from agv_mission.behaviors.ports import BackUpPorts, ClearCostmapPorts  # noqa: E402
+
+# The ports of each node type this module's behaviours are (registry slot `behavior`).
+BackUp.Config = BackUpPorts
+ClearCostmap.Config = ClearCostmapPorts

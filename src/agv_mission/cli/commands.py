@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from agv_mission.cli import bags, regress, runs, service, teleop, worlds
+from agv_mission.cli import bags, regress, runs, service, teleop, trees, worlds
 from agv_mission.cli.startup import started
 
 app = typer.Typer(
@@ -17,6 +17,7 @@ app.callback()(started)
 app.command()(runs.run)
 app.command()(runs.validate)
 app.command()(runs.schema)
+app.add_typer(trees.app, name="tree")
 app.command()(teleop.teleop)
 app.command("map")(bags.map_)
 app.command()(worlds.world)

@@ -64,7 +64,8 @@ def run(
         where = "--output" if output is not None else f"{loaded.source}: output"
         raise failure("invalid input", f"{where} {exc}") from None
     out.print(
-        f"[bold]{loaded.name}[/]: {len(loaded.mission.tasks)} task(s) in "
+        f"[bold]{loaded.name}[/]: {loaded.tree.count if loaded.tree else 0} tree node(s), "
+        f"{len(loaded.tree.task_types()) if loaded.tree else 0} task(s) in "
         f"{loaded.world.name} with {loaded.robot.name}, seed {loaded.mission.seed}"
     )
     with progress_bar("{task.completed:.1f}/{task.total:.0f} sim s") as bar:

@@ -103,6 +103,11 @@ class Expectations(BaseModel):
         None, ge=0.0, description="energy drawn from the battery, Wh, at most"
     )
     dockings_min: int | None = Field(None, ge=0, description="times the robot docked, at least")
+    nodes: dict[str, Literal["succeeded", "failed", "running", "not_run"]] | None = Field(
+        None,
+        description="final status of tree nodes, by name or path (result.json `tree`); a "
+        "name several nodes share must hold for each",
+    )
 
 
 DEFAULT_EXPECTATIONS = Expectations(status="succeeded")
@@ -148,6 +153,13 @@ def check(expect: Expectations | None, result: dict[str, Any]) -> list[Failure]:
         )
     if e.tasks is not None:
         failures += _check_tasks(e.tasks, result.get("tasks") or [])
+    for key, want in (e.nodes or {}).items():
+        found = [n for n in result.get("tree") or [] if key in (n.get("name"), n.get("path"))]
+        if not found:
+            failures.append(Failure(f"nodes.{key}", want, "no such node in the tree"))
+        for node in found:
+            if node.get("status") != want:
+                failures.append(Failure(f"nodes.{key}", want, node.get("status")))
 
     def at_most(key: str, bound: float | None, actual: Any) -> None:
         if bound is None:

@@ -44,6 +44,8 @@ from agv_mission.missions.schema import (
     Setup,
     with_default_plugin_types,
 )
+from agv_mission.missions.tree import TreeSource, TreeSpec, assemble, tasks_spec, yaml_spec
+from agv_mission.missions.tree_xml import parse_xml
 from agv_mission.missions.world_checks import check_docks, costmap_fits, place_mission
 from agv_mission.missions.yaml_lines import FieldPath, load_with_lines
 from agv_mission.robots.description import (
@@ -72,12 +74,19 @@ class LoadedMission:
     costmap: Costmap
     room_goals: dict[str, Pose2D] = field(default_factory=dict)  # where each visit goes
     recorder: Path | None = None  # an existing recorder file to append to
+    tree: TreeSpec | None = None  # what the robot does (None for a setup)
     docks: dict[str, Dock] = field(default_factory=dict)  # the world's and rooms file's
 
     def resolved(self) -> dict[str, Any]:
         """The mission as it runs: defaults filled in and overrides applied."""
         doc = self.mission.model_dump(mode="json")
         doc["name"] = self.name
+        for key in ("tasks", "tree", "trees", "blackboard"):  # what the user did not write
+            if key in doc and doc[key] in (None, {}):
+                del doc[key]
+        if isinstance(doc.get("tree"), str) and self.source is not None:
+            # the copy in a run directory still finds the XML file
+            doc["tree"] = str(input_path(doc["tree"].strip(), self.source.parent).resolve())
         return {k: doc[k] for k in FIELD_ORDER if k in doc}
 
 
@@ -155,7 +164,18 @@ def load_mission(
             ]
         )
 
-    model: type[Setup] = Mission if tasks_required or "tasks" in data else Setup
+    wants = tasks_required or "tasks" in data or "tree" in data
+    model: type[Setup] = Mission if wants else Setup
+    tree_file = data.get("tree")
+    if isinstance(tree_file, str) and not tree_file.strip().endswith(".xml"):
+        message = f"a string names a BT.CPP XML file (ending in .xml), not {tree_file!r}"
+        raise MissionError([log.at(("tree",), message)])
+    if model is Mission and ("tasks" in data) == ("tree" in data):
+        both = "tasks" in data
+        message = (
+            "a mission has `tasks` or `tree`, not both" if both else "required field is missing"
+        )
+        raise MissionError([log.at(("tree",) if both else ("tasks",), message)])
     try:
         mission = model.model_validate(data, strict=True)
     except ValidationError as exc:
@@ -166,9 +186,51 @@ def load_mission(
         ) from None
 
     base_dir = path.parent if path.name else Path.cwd()
-    loaded = _resolve(mission, base_dir, path.stem or "mission", log, path_guard)
+    tree = None
+    if isinstance(mission, Mission):
+        tree = assemble(tree_source(mission, data, log, base_dir, path_guard))
+    loaded = _resolve(mission, base_dir, path.stem or "mission", log, path_guard, tree)
     loaded.source = path
     return loaded
+
+
+def tree_source(
+    mission: Mission,
+    data: dict[str, Any],
+    log: ProblemLog,
+    base_dir: Path,
+    path_guard: PathGuard | None = None,
+) -> TreeSource:
+    """What the mission says to do, as written: tasks, a YAML tree, or a BT.CPP file."""
+    file, lines = log.file, log.lines
+    trees = {
+        tree_id: yaml_spec(body, ("trees", tree_id), file, lines)
+        for tree_id, body in (data.get("trees") or {}).items()
+    }
+    if mission.tasks is not None:
+        main = tasks_spec(data["tasks"], file, lines)
+        return TreeSource(main, trees, dict(mission.blackboard))
+    if isinstance(mission.tree, dict):
+        main = yaml_spec(data["tree"], ("tree",), file, lines)
+        return TreeSource(main, trees, dict(mission.blackboard))
+    assert isinstance(mission.tree, str)
+    xml_path = input_path(mission.tree.strip(), base_dir)
+    refused = path_guard("tree", xml_path) if path_guard is not None else None
+    if refused:
+        log.add(("tree",), refused)
+        log.raise_if_any()
+    try:
+        text = read_input_bytes(xml_path).decode("utf-8")
+    except InputFileError as exc:
+        log.add(("tree",), f"cannot read {mission.tree!r}: {exc}")
+        raise MissionError(log.problems) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        log.add(("tree",), f"cannot read {mission.tree!r}: {os_message(exc)}")
+        raise MissionError(log.problems) from None
+    source = parse_xml(text, str(xml_path))
+    source.trees = {**trees, **source.trees}
+    source.blackboard = dict(mission.blackboard)
+    return source
 
 
 def _resolve(
@@ -177,6 +239,7 @@ def _resolve(
     stem: str,
     log: ProblemLog,
     path_guard: PathGuard | None = None,
+    tree: TreeSpec | None = None,
 ) -> LoadedMission:
     """Load what the mission names (world, robot, rooms, recorder) and check the mission
     against them; every problem found is raised together."""
@@ -241,8 +304,9 @@ def _resolve(
     if not costmap_fits(mission, world, log.add):
         raise MissionError(log.problems)
     costmap = Costmap.from_grid(world.map, robot.footprint_radius, mission.stack.costmap)
-    placed = place_mission(mission, world, robot, rooms, costmap, log.add)
-    check_docks(mission, robot, docks, rooms_docks, costmap, log.add)
+    node_checks = _node_checks(tree, log)
+    placed = place_mission(mission, world, robot, rooms, costmap, log.add, node_checks)
+    check_docks(mission, robot, docks, rooms_docks, costmap, log.add, node_checks)
     recorder = None
     if mission.recorder is not None:
         try:
@@ -267,8 +331,37 @@ def _resolve(
         costmap=costmap,
         room_goals=placed.room_goals,
         recorder=recorder,
+        tree=tree,
         docks=docks,
     )
+
+
+def _node_checks(tree: TreeSpec | None, log: ProblemLog) -> list[Any]:
+    """Each node with literal ports, once, with where to report what the world checks
+    find (the mission file's line, or an XML file's element)."""
+    if tree is None:
+        return []
+    out = []
+    seen: set[tuple[str, FieldPath]] = set()
+    for _, node in tree.nodes():
+        where = node.where
+        if node.ports is None or (where.file, where.path) in seen:
+            continue
+        seen.add((where.file, where.path))
+        if where.file == log.file:
+            out.append((where.path, node.ports, log.add))
+        else:
+            out.append((where.path, node.ports, _xml_report(where, log)))
+    return out
+
+
+def _xml_report(where: Any, log: ProblemLog) -> Any:
+    def report(field_path: FieldPath, message: str) -> None:
+        sub = field_path[len(where.path) :]
+        port = ".".join(map(str, sub)) or None
+        log.problems.append(where.problem(message, port))
+
+    return report
 
 
 def _read_text(path: Path, file: str) -> str:

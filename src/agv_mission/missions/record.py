@@ -41,9 +41,10 @@ def bare_record(
 ) -> RunRecord:
     """The record of a run that ended before (or without) its loop: every task not run,
     no trajectory, the metrics' keys with nothing measured."""
+    types = loaded.tree.task_types() if loaded.tree is not None else []
     tasks = [
-        {"index": i + 1, "type": task.type, "status": "not_run", "reason": None}
-        for i, task in enumerate(loaded.mission.tasks)
+        {"index": i + 1, "type": task_type, "status": "not_run", "reason": None}
+        for i, task_type in enumerate(types)
     ]
     trajectory = np.zeros((0, len(TRAJECTORY_COLUMNS)))
     metrics = run_metrics(trajectory, None, 0, math.inf, sim_time, wall_time)

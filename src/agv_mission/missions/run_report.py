@@ -18,42 +18,39 @@ COVARIANCE_COLUMNS = ("cov_xx", "cov_xy", "cov_yy", "cov_yawyaw")
 #: Localisation errors are also summarised after the estimate has had this long to settle.
 SETTLE_TIME = 10.0
 
-_OUTCOMES = {"goal_reached": "reached", "goal_failed": "failed", "goal_skipped": "skipped"}
-
 
 def task_reports(
-    mission: Any, tree: MissionTree, task_status: list[str], events: list[dict[str, Any]]
+    tree: MissionTree, task_status: list[str], events: list[dict[str, Any]]
 ) -> list[dict[str, Any]]:
-    """Per-task status and reason, with per-waypoint and per-room outcomes."""
+    """Per-task status and reason, with what each task node's ports model adds from its
+    events (a patrol's waypoints, a visit's rooms)."""
     reports = []
-    for i, (task, subtree) in enumerate(zip(mission.tasks, tree.tasks, strict=True)):
-        mine = [e for e in events if e.get("task") == i]
+    by_task: dict[int, list[dict[str, Any]]] = {}
+    for e in events:
+        if "task" in e:
+            by_task.setdefault(e["task"], []).append(e)
+    for i, (node, behaviour) in enumerate(zip(tree.task_nodes, tree.tasks, strict=True)):
+        mine = by_task.get(i, [])
         status = task_status[i]
-        skips = [e for e in mine if e["event"] == "goal_skipped"]
-        if status == "succeeded" and skips:
-            status = "skipped" if task.type == "go_to" else "partial"
+        ports = node.ports or _started_ports(behaviour)
+        extra = ports.report(status, mine) if ports is not None else {"status": status}
         report: dict[str, Any] = {
             "index": i + 1,
-            "type": task.type,
-            "status": status,
-            "reason": None,
+            "type": node.type,
+            "status": extra.pop("status"),
+            "reason": extra.pop("reason", None),
         }
         if status == "failed":
-            report["reason"] = failure_reason(subtree)
-        elif skips:
-            report["reason"] = "; ".join(sorted({e["reason"] for e in skips}))
-        if task.type == "patrol":
-            report["waypoints_planned"] = task.loops * len(task.waypoints)
-            report["waypoints"] = [
-                {k: e[k] for k in ("loop", "waypoint", "t", "x", "y", "yaw", "reason") if k in e}
-                | {"status": _OUTCOMES[e["event"]]}
-                for e in mine
-                if e["event"] in _OUTCOMES
-            ]
-        if task.type == "visit_rooms":
-            report["rooms"] = [_room_report(room, mine) for room in task.rooms]
+            report["reason"] = failure_reason(behaviour)
+        report.update(extra)
         reports.append(report)
     return reports
+
+
+def _started_ports(behaviour: Any) -> Any:
+    """The ports a node bound to the blackboard started with last (None: never started)."""
+    inner = getattr(behaviour, "inner", None)
+    return getattr(inner, "ports_model", None)
 
 
 def add_true_errors(tasks: list[dict[str, Any]], trajectory: np.ndarray) -> None:
@@ -67,26 +64,6 @@ def add_true_errors(tasks: list[dict[str, Any]], trajectory: np.ndarray) -> None
             row = trajectory[int(np.argmin(np.abs(trajectory[:, 0] - wp["t"])))]
             wp["true_x"], wp["true_y"] = round(float(row[1]), 4), round(float(row[2]), 4)
             wp["estimate_error"] = round(float(np.hypot(row[1] - wp["x"], row[2] - wp["y"])), 4)
-
-
-def _room_report(room: str, events: list[dict[str, Any]]) -> dict[str, Any]:
-    outcome = next(
-        (
-            e
-            for e in events
-            if e.get("room") == room and e["event"] in ("goal_failed", "goal_skipped")
-        ),
-        None,
-    )
-    reached = any(e["event"] == "goal_reached" and e.get("room") == room for e in events)
-    report: dict[str, Any] = {
-        "room": room,
-        "status": _OUTCOMES[outcome["event"]] if outcome else ("reached" if reached else "not_run"),
-        "recorded": any(e["event"] == "room_recorded" and e.get("room") == room for e in events),
-    }
-    if outcome:
-        report["reason"] = outcome["reason"]
-    return report
 
 
 def run_metrics(

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 from py_trees.common import Status
 
+from agv_mission.behaviors.context import TreeContext
 from agv_mission.behaviors.outcome import failure_reason
 from agv_mission.geometry import Pose2D
 from agv_mission.localization.base import Localizer, LocalizerDiagnostics
@@ -170,7 +171,16 @@ class MissionRun:
         self.levels: list[float] = []  # the battery's level at each step
         self.covs: list[tuple[float, ...]] = []
         self.mapper = MapBuilder(stack, self.navigator, self.handle, run_dir, self.rows)
-        self.tree = build_tree(mission, self.handle, robot, loaded.room_goals, self.mapper)
+        assert loaded.tree is not None, "a mission to run has a tree"
+        context = TreeContext(
+            self.handle,
+            robot,
+            mission.stack.navigation,
+            loaded.room_goals,
+            self.mapper,
+            blackboard=dict(loaded.tree.source.blackboard),
+        )
+        self.tree = build_tree(loaded.tree, context)
         self.faults = FaultInjector(mission.faults, self.sim, stack.fault_rng)
         self.task_status = ["not_run"] * len(self.tree.tasks)
         self.collisions: list[dict[str, float]] = []
@@ -287,7 +297,11 @@ class MissionRun:
             elif self.tree.root.status is Status.FAILURE:
                 self.end("failed", self._failure())
             elif now >= self.mission.limits.time - 1e-9:
-                self.end("failed", self._timeout())
+                if self.tree.repeats_until_the_limit():
+                    handle.log("time_limit", reason="the tree repeats until the time limit")
+                    self.end("succeeded", None)
+                else:
+                    self.end("failed", self._timeout())
         if self._sampler is not None:
             sample = self._sampler.sample(sensing, estimate, v, w, covariance, diagnostics)
             for observer in self.observers:
@@ -358,9 +372,9 @@ class MissionRun:
     def _failure(self) -> str:
         i = next((i for i, s in enumerate(self.task_status) if s == "failed"), None)
         if i is None:
-            return "mission failed"
+            return f"the tree failed: {failure_reason(self.tree.root)}"
         return (
-            f"task {i + 1} ({self.mission.tasks[i].type}) failed: "
+            f"task {i + 1} ({self.tree.task_nodes[i].type}) failed: "
             f"{failure_reason(self.tree.tasks[i])}"
         )
 
@@ -372,7 +386,8 @@ class MissionRun:
         self.task_status[i] = "failed"
         self.tree.tasks[i].feedback_message = "time limit reached"
         return (
-            f"time limit of {limit:g} s reached during task {i + 1} ({self.mission.tasks[i].type})"
+            f"time limit of {limit:g} s reached during task {i + 1} "
+            f"({self.tree.task_nodes[i].type})"
         )
 
     def record(self) -> RunRecord:
@@ -389,7 +404,7 @@ class MissionRun:
                 if s == "running":
                     self.task_status[i] = "failed"
                     self.tree.tasks[i].feedback_message = self.reason or "mission failed"
-        tasks = task_reports(self.mission, self.tree, self.task_status, self.handle.events)
+        tasks = task_reports(self.tree, self.task_status, self.handle.events)
         add_true_errors(tasks, trajectory)
         covariance = np.asarray(self.covs, dtype=float).reshape(-1, len(COVARIANCE_COLUMNS))
         metrics = run_metrics(
@@ -410,7 +425,11 @@ class MissionRun:
         refine = getattr(self.localizer, "refine_stats", None)
         if refine and refine.get("scans"):
             metrics["localization"]["refinement"] = dict(refine)
-        extras: dict[str, Any] = {"collisions": self.collisions, "faults": self.faults.report()}
+        extras: dict[str, Any] = {
+            "collisions": self.collisions,
+            "faults": self.faults.report(),
+            "tree": self.tree.report(),
+        }
         if self.mapper.maps:
             extras["maps"] = self.mapper.maps
         if self.handle.recorded:

@@ -101,7 +101,7 @@ class StepSampler:
             events=self._new_events(handle.events),
             tree_nodes=self.nodes if changed else None,
             task_index=task,
-            task_type=run.mission.tasks[task].type if task is not None else None,
+            task_type=run.tree.task_nodes[task].type if task is not None else None,
             battery=battery.level if battery is not None else None,
             charging=battery is not None and battery.charging,
             docked=handle.docked.name if handle.docked is not None else None,

@@ -10,19 +10,20 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from agv_mission.behaviors.ports import NodePorts
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.docks import Dock, dock_problem
 from agv_mission.maps.grid import UNKNOWN
 from agv_mission.maps.rooms import Room, reachable_cells, room_point
 from agv_mission.maps.worlds import Box, Cylinder, World
-from agv_mission.missions.schema import Mission, Setup
+from agv_mission.missions.schema import Setup
 from agv_mission.missions.yaml_lines import FieldPath
 from agv_mission.planners.configs import goal_margin
 from agv_mission.robots.description import RobotDescription
@@ -32,6 +33,8 @@ MAX_GRID_CELLS = 16_000_000  # a costmap or SLAM grid: 16 M cells (e.g. 200 m x 
 START_MARGIN = 0.1  # m beyond the robot's radius: a room's start point, like its visit goal
 
 Report = Callable[[FieldPath, str], None]
+#: A node of the mission's tree: its field path, its ports, and where to report.
+NodeCheck = tuple[FieldPath, NodePorts, Report]
 
 
 @dataclass
@@ -66,17 +69,16 @@ def place_mission(
     rooms: dict[str, Room],
     costmap: Costmap,
     report: Report,
+    nodes: Sequence[NodeCheck] = (),
 ) -> Placement:
-    """Every pose and area the mission names, checked against the world's map."""
+    """Every pose and area the mission (and each node of its tree) names, checked
+    against the world's map."""
     start = start_pose(mission, world, rooms, costmap, report)
     _check_pose(start, costmap, ("start",), report)
     margin = goal_margin(mission.stack.global_planner)  # goals: as the navigator plans
-    for i, task in enumerate(tasks_of(mission)):
-        if task.type == "go_to":
-            _check_pose(task.pose.to_pose2d(), costmap, ("tasks", i, "pose"), report, margin)
-        elif task.type == "patrol":
-            for j, wp in enumerate(task.waypoints):
-                _check_pose(wp.to_pose2d(), costmap, ("tasks", i, "waypoints", j), report, margin)
+    for path, ports, node_report in nodes:
+        for sub, pose in ports.goal_poses():
+            _check_pose(pose.to_pose2d(), costmap, path + sub, node_report, margin)
     for i, fault in enumerate(mission.faults):
         if fault.type == "kidnap":
             _check_pose(fault.pose.to_pose2d(), costmap, ("faults", i, "pose"), report)
@@ -90,8 +92,8 @@ def place_mission(
                     f"the robot's start ({start.x:g}, {start.y:g}) "
                     f"lies within {robot.footprint_radius:g} m of this obstacle",
                 )
-    _check_map_areas(mission, world.map.extent, report)
-    room_goals = _room_goals(mission, rooms, costmap, start, report)
+    _check_map_areas(mission, world.map.extent, nodes)
+    room_goals = _room_goals(mission, rooms, costmap, start, nodes)
     return Placement(world, start, room_goals)
 
 
@@ -102,29 +104,32 @@ def check_docks(
     file_docks: dict[str, Dock],
     costmap: Costmap,
     report: Report,
+    nodes: Sequence[NodeCheck] = (),
 ) -> None:
-    """The rooms file's docks on the map and free; each docking task names a dock the robot
-    fits on, with a staging pose it can plan to; charging needs a battery."""
+    """The rooms file's docks on the map and free; each ``dock`` node names a dock the
+    robot fits on, with a staging pose it can plan to; ``charge`` needs a battery."""
     for dock in file_docks.values():
         problem = dock_problem(dock.pose, costmap.grid)
         if problem is not None:
             report(("rooms",), f"{dock.source}: docks.{dock.name}: {problem}")
     margin = goal_margin(mission.stack.global_planner)
-    for i, task in enumerate(tasks_of(mission)):
-        if task.type == "charge" and robot.battery is None:
-            report(("tasks", i), f"robot {robot.name!r} has no battery (give it `battery:`)")
-        if task.type != "dock":
+    for path, ports, node_report in nodes:
+        if ports.type == "charge" and robot.battery is None:
+            node_report(path, f"robot {robot.name!r} has no battery (give it `battery:`)")
+        if ports.type != "dock":
             continue
-        dock = docks.get(task.dock)
+        dock = docks.get(ports.dock)
+        where = (*path, "dock")
         if dock is None:
             known = ", ".join(sorted(docks)) or "(none: list `docks:` in a world or rooms file)"
-            report(("tasks", i, "dock"), f"unknown dock {task.dock!r}; known docks: {known}")
+            node_report(where, f"unknown dock {ports.dock!r}; known docks: {known}")
             continue
-        where = ("tasks", i, "dock")
-        named = f"dock {task.dock!r}"
-        _check_pose(dock.pose, costmap, where, _prefixed(report, f"{named} at "))
+        named = f"dock {ports.dock!r}"
+        _check_pose(dock.pose, costmap, where, _prefixed(node_report, f"{named} at "))
         staging = dock.staging()
-        _check_pose(staging, costmap, where, _prefixed(report, f"{named}'s staging pose "), margin)
+        _check_pose(
+            staging, costmap, where, _prefixed(node_report, f"{named}'s staging pose "), margin
+        )
 
 
 def _prefixed(report: Report, prefix: str) -> Report:
@@ -158,11 +163,6 @@ def start_pose(
     return mission.start.to_pose2d()
 
 
-def tasks_of(mission: Setup) -> list[Any]:
-    """The tasks of a mission; none for a setup."""
-    return mission.tasks if isinstance(mission, Mission) else []
-
-
 def grid_cells(extent: tuple[float, float, float, float], resolution: float) -> float:
     """Cells of a grid covering ``extent`` at ``resolution`` (a float: it may be huge)."""
     xmin, xmax, ymin, ymax = extent
@@ -191,68 +191,66 @@ def _distance_to_obstacle(o: Any, x: float, y: float) -> float:
 
 
 def _room_goals(
-    mission: Setup, rooms: dict[str, Room], costmap: Costmap, start: Pose2D, report: Report
+    mission: Setup,
+    rooms: dict[str, Room],
+    costmap: Costmap,
+    start: Pose2D,
+    nodes: Sequence[NodeCheck],
 ) -> dict[str, Pose2D]:
     """Where each visited room is entered: its anchor, or a reachable point well inside."""
     goals: dict[str, Pose2D] = {}
     allowed: np.ndarray | None = None
-    for i, task in enumerate(tasks_of(mission)):
-        if task.type != "visit_rooms":
-            continue
-        for j, label in enumerate(task.rooms):
-            if label in goals:
-                continue
-            room = rooms.get(label)
-            if room is None:
+    for path, ports, report in nodes:
+        for sub, label in ports.rooms_named():
+            if label not in rooms:
                 report(
-                    ("tasks", i, "rooms", j),
+                    path + sub,
                     f"unknown room {label!r}; known rooms: "
                     f"{', '.join(sorted(rooms)) or '(none: give a rooms file)'}",
                 )
+        for sub, label in ports.rooms_visited():
+            room = rooms.get(label)
+            if label in goals or room is None:
                 continue
             if room.anchor is not None:
                 margin = goal_margin(mission.stack.global_planner)
-                _check_pose(room.anchor, costmap, ("tasks", i, "rooms", j), report, margin)
+                _check_pose(room.anchor, costmap, path + sub, report, margin)
                 goals[label] = room.anchor
                 continue
             if allowed is None:
                 allowed = reachable_cells(costmap, start, margin=0.1)
             point = room_point(room, costmap, allowed)
             if point is None:
-                report(
-                    ("tasks", i, "rooms", j),
-                    f"room {label!r} has no free point the robot can reach",
-                )
+                report(path + sub, f"room {label!r} has no free point the robot can reach")
             else:
                 goals[label] = point
     return goals
 
 
 def _check_map_areas(
-    mission: Setup, extent: tuple[float, float, float, float], report: Report
+    mission: Setup, extent: tuple[float, float, float, float], nodes: Sequence[NodeCheck]
 ) -> None:
-    """``map_area`` bounds overlap the world's map, and SLAM's grid over them fits."""
+    """Areas to map overlap the world's map, and SLAM's grid over them fits."""
     xmin, xmax, ymin, ymax = extent
     resolution = float(getattr(mission.stack.slam, "resolution", 0.05))
-    for i, task in enumerate(tasks_of(mission)):
-        if task.type != "map_area":
-            continue
-        bounds = task.bounds.as_tuple() if task.bounds is not None else extent
-        bx0, bx1, by0, by1 = bounds
-        if bx1 <= xmin or bx0 >= xmax or by1 <= ymin or by0 >= ymax:
-            report(
-                ("tasks", i, "bounds"),
-                f"(x {bx0:g}..{bx1:g}, y {by0:g}..{by1:g}) do not overlap the map "
-                f"(x {xmin:g}..{xmax:g}, y {ymin:g}..{ymax:g})",
-            )
-            continue
-        cells = grid_cells(bounds, resolution)
-        if cells > MAX_GRID_CELLS:
-            report(
-                ("tasks", i, "bounds"),
-                f"a SLAM map of these bounds at {resolution:g} m has {cells:.3g} cells; at "
-                f"most {MAX_GRID_CELLS:.3g} (smaller bounds or a coarser stack.slam.resolution)",
-            )
+    for path, ports, report in nodes:
+        for sub, area in ports.map_bounds():
+            bounds = area.as_tuple() if area is not None else extent
+            bx0, bx1, by0, by1 = bounds
+            if bx1 <= xmin or bx0 >= xmax or by1 <= ymin or by0 >= ymax:
+                report(
+                    path + sub,
+                    f"(x {bx0:g}..{bx1:g}, y {by0:g}..{by1:g}) do not overlap the map "
+                    f"(x {xmin:g}..{xmax:g}, y {ymin:g}..{ymax:g})",
+                )
+                continue
+            cells = grid_cells(bounds, resolution)
+            if cells > MAX_GRID_CELLS:
+                report(
+                    path + sub,
+                    f"a SLAM map of these bounds at {resolution:g} m has {cells:.3g} cells; at "
+                    f"most {MAX_GRID_CELLS:.3g} (smaller bounds or a coarser stack.slam.resolution)",
+                )
 
 
 def _check_pose(

@@ -19,7 +19,15 @@ STATIC_DIR = Path(__file__).resolve().parent / "static"
 router = APIRouter()
 
 # The demo missions offered as templates, in this order (others follow alphabetically).
-_TEMPLATE_ORDER = ("patrol", "visit_rooms", "teleop")
+_TEMPLATE_ORDER = (
+    "patrol",
+    "visit_rooms",
+    "teleop",
+    "patrol_subtree",
+    "wander_tree",
+    "kitchen_or_bedroom",
+    "red_light_green_light",
+)
 
 
 def _page(name: str) -> FileResponse:

@@ -55,6 +55,7 @@ from agv_mission.missions.overrides import Override
 from agv_mission.missions.runner import MissionRun, run_mission
 from agv_mission.missions.schema import MAX_SIM_SECONDS, Mission
 from agv_mission.missions.stack import CONTROL_PERIOD, open_recorders
+from agv_mission.missions.tree import tasks_tree
 from agv_mission.teleop.terminal import (
     HELP,
     KeyInput,
@@ -103,10 +104,11 @@ TELEOP_TIME_LIMIT = MAX_SIM_SECONDS  # a session ends when its driver says so (a
 def teleop_mission(loaded: LoadedMission) -> LoadedMission:
     """``loaded``'s setup with one ``teleop`` task: the same task the service runs, so the
     terminal is one more client of it, not a second implementation."""
-    doc = loaded.mission.model_dump(exclude={"tasks", "expect"})
+    doc = loaded.mission.model_dump(exclude={"tasks", "tree", "trees", "blackboard", "expect"})
     doc["tasks"] = [{"type": "teleop"}]
     doc["limits"] = {**doc.get("limits", {}), "time": TELEOP_TIME_LIMIT}
-    return dataclasses.replace(loaded, mission=Mission.model_validate(doc))
+    mission = Mission.model_validate(doc)
+    return dataclasses.replace(loaded, mission=mission, tree=tasks_tree(doc["tasks"]))
 
 
 def status_line(run: MissionRun, keys: TeleopKeys) -> str:
@@ -375,7 +377,8 @@ def session_report(
 def write_teleop_outputs(run_dir: Path, loaded: LoadedMission, result: TeleopResult) -> None:
     """``mission.yaml`` (without tasks) and ``trajectory.csv`` of the session."""
     doc = loaded.resolved()
-    doc.pop("tasks", None)
+    for key in ("tasks", "tree", "trees", "blackboard"):
+        doc.pop(key, None)
     doc["teleop"] = {"reason": result.reason, "sim_time": result.sim_time}
     atomic_write_text(
         run_dir / "mission.yaml", yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)

@@ -3,157 +3,29 @@ bounds on what scales memory or time, and ``start`` (a pose or a room label)."""
 
 from __future__ import annotations
 
-import math
-from typing import Annotated, Any, Union
+from typing import Annotated, Union
 
-from pydantic import (
-    BaseModel,
-    ConfigDict,
-    Discriminator,
-    Field,
-    GetJsonSchemaHandler,
-    Tag,
-    model_validator,
+from pydantic import Discriminator, Tag
+
+from agv_mission.behaviors.ports import (  # noqa: F401 (the schema's names)
+    MAX_LOOPS,
+    MAX_ROOMS,
+    MAX_SIM_SECONDS,
+    MAX_WAYPOINTS,
+    QUATERNION_TOLERANCE,
+    ROS_POSE_SCHEMA,
+    Orientation,
+    Pose,
+    Position,
+    StrictModel,
 )
-from pydantic.json_schema import JsonSchemaValue
-from pydantic_core import CoreSchema, InitErrorDetails, PydanticCustomError, ValidationError
-
-from agv_mission.geometry import Pose2D, yaw_from_quaternion
-
-QUATERNION_TOLERANCE = 1e-3
 
 # Bounds on what scales memory or time (a mission over them is refused, not run).
 MAX_TASKS = 1000
-MAX_WAYPOINTS = 10_000
-MAX_LOOPS = 1_000_000
-MAX_ROOMS = 1000
 MAX_OBSTACLES = 1000
 MAX_FAULTS = 100
-MAX_SIM_SECONDS = 86_400.0  # one simulated day
 MAX_NAME_LENGTH = 100  # a path component of the run directory, with a timestamp after it
-
-
-class StrictModel(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-
-class Position(StrictModel):
-    x: float
-    y: float
-    z: float = 0.0
-
-
-class Orientation(StrictModel):
-    x: float = 0.0
-    y: float = 0.0
-    z: float
-    w: float
-
-
-class Pose(StrictModel):
-    """A planar pose: ``{x, y, yaw}`` or ROS style ``{position: {...}, orientation: {...}}``."""
-
-    x: float = Field(description="metres, map frame")
-    y: float = Field(description="metres, map frame")
-    yaw: float = Field(0.0, description="radians, counter-clockwise from +x")
-
-    @model_validator(mode="before")
-    @classmethod
-    def _from_ros(cls, data: Any) -> Any:
-        if not isinstance(data, dict) or ("position" not in data and "orientation" not in data):
-            return data
-        extra = set(data) - {"position", "orientation"}
-        if extra:
-            raise ValueError(
-                f"a ROS-style pose has only 'position' and 'orientation', not {sorted(extra, key=str)}"
-            )
-        for key in ("position", "orientation"):
-            if key not in data:  # geometry_msgs/Pose has both: no silent (0, 0) or yaw 0
-                raise _nested_error(
-                    key,
-                    PydanticCustomError(
-                        "ros_pose_incomplete",
-                        "a ROS-style pose needs both 'position' and 'orientation'",
-                    ),
-                    data,
-                )
-        details: list[InitErrorDetails] = []
-        position = _validate_part(Position, "position", data["position"], details)
-        q = _validate_part(Orientation, "orientation", data["orientation"], details)
-        if details:
-            raise ValidationError.from_exception_data("Pose", details)
-        norm = math.sqrt(q.x**2 + q.y**2 + q.z**2 + q.w**2)
-        if abs(norm - 1.0) > QUATERNION_TOLERANCE:
-            raise ValueError(
-                f"orientation quaternion has length {norm:.6f}; expected unit length (within 1e-3)"
-            )
-        if abs(q.x) > QUATERNION_TOLERANCE or abs(q.y) > QUATERNION_TOLERANCE:
-            raise ValueError(
-                "orientation tilts out of the plane (x and y must be 0 for a planar robot)"
-            )
-        return {"x": position.x, "y": position.y, "yaw": yaw_from_quaternion(q.x, q.y, q.z, q.w)}
-
-    def to_pose2d(self) -> Pose2D:
-        return Pose2D(self.x, self.y, self.yaw)
-
-    @classmethod
-    def __get_pydantic_json_schema__(
-        cls, core_schema: CoreSchema, handler: GetJsonSchemaHandler
-    ) -> JsonSchemaValue:
-        """Either spelling, as the validator takes them (the quaternion's unit length and
-        planarity are checks the schema cannot express)."""
-        schema = handler.resolve_ref_schema(handler(core_schema))
-        planar = {
-            k: schema.pop(k)
-            for k in ("type", "properties", "required", "additionalProperties")
-            if k in schema
-        }
-        schema["anyOf"] = [planar, ROS_POSE_SCHEMA]
-        return schema
-
-
-def _nested_error(key: str, error: PydanticCustomError | str, data: Any) -> ValidationError:
-    return ValidationError.from_exception_data(
-        "Pose", [InitErrorDetails(type=error, loc=(key,), input=data)]
-    )
-
-
-def _validate_part(
-    model: type[StrictModel], key: str, value: Any, details: list[InitErrorDetails]
-) -> Any:
-    """``position``/``orientation`` validated with their errors (added to ``details``) at
-    their own key, so a quaternion without ``w`` is reported at ``...orientation.w``."""
-    try:
-        return model.model_validate(value, strict=True)
-    except ValidationError as exc:
-        for err in exc.errors(include_url=False):
-            detail = InitErrorDetails(type=err["type"], loc=(key, *err["loc"]), input=err["input"])
-            if "ctx" in err:
-                detail["ctx"] = err["ctx"]
-            details.append(detail)
-        return None
-
-
-def _number_object(required: list[str], optional: list[str]) -> dict[str, Any]:
-    return {
-        "type": "object",
-        "properties": {k: {"type": "number"} for k in required + optional},
-        "required": required,
-        "additionalProperties": False,
-    }
-
-
-ROS_POSE_SCHEMA: dict[str, Any] = {
-    "type": "object",
-    "title": "ROS-style pose",
-    "description": "geometry_msgs/Pose: position (z ignored) and a unit quaternion about +z",
-    "properties": {
-        "position": _number_object(["x", "y"], ["z"]),
-        "orientation": _number_object(["z", "w"], ["x", "y"]),
-    },
-    "required": ["position", "orientation"],
-    "additionalProperties": False,
-}
+MAX_TREE_NODES = 10_000  # a tree's nodes once its subtrees are expanded
 
 
 StartSpec = Annotated[

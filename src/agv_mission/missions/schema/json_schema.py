@@ -6,6 +6,7 @@ from typing import Any
 
 from agv_mission.missions.schema.mission import Mission
 from agv_mission.missions.schema.stack import DEFAULT_PLUGINS
+from agv_mission.registry import registry
 
 JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 
@@ -36,4 +37,32 @@ def mission_json_schema() -> dict[str, Any]:
         "description": output["description"],
         "anyOf": [{"type": "string"}, {"$ref": output["$ref"]}],
     }
+    _tree_nodes(schema)
     return {"$schema": JSON_SCHEMA_DIALECT, **schema}
+
+
+def _tree_nodes(schema: dict[str, Any]) -> None:
+    """``tree`` and ``trees`` as nodes whose ``type`` is a registered node type (their
+    ports are each type's; ``agv-mission tree nodes`` lists them)."""
+    types = [*registry.names("behavior"), "subtree"]
+    schema["$defs"]["TreeNode"] = {
+        "type": "object",
+        "description": "a node: type, optional name, its ports, and children (controls) or "
+        "child (decorators)",
+        "required": ["type"],
+        "properties": {
+            "type": {"enum": types},
+            "name": {"type": "string"},
+            "children": {"type": "array", "items": {"$ref": "#/$defs/TreeNode"}},
+            "child": {"$ref": "#/$defs/TreeNode"},
+        },
+    }
+    props = schema["properties"]
+    props["tree"] = {
+        "description": props["tree"]["description"],
+        "anyOf": [
+            {"$ref": "#/$defs/TreeNode"},
+            {"type": "string", "pattern": r"\.xml\s*$"},
+        ],
+    }
+    props["trees"]["additionalProperties"] = {"$ref": "#/$defs/TreeNode"}

@@ -105,15 +105,42 @@ class Setup(StrictModel):
 
 
 class Mission(Setup):
-    """A mission file: a setup and the tasks to carry out in it."""
+    """A mission file: a setup and what to do in it, as ``tasks`` or as a ``tree``."""
 
-    tasks: list[Task] = Field(min_length=1, max_length=MAX_TASKS)
+    tasks: list[Task] = Field(  # type: ignore[assignment]  (absent: None, given: a list)
+        None,
+        min_length=1,
+        max_length=MAX_TASKS,
+        description="shorthand for a tree: a sequence of these task nodes",
+    )
+    tree: dict[str, Any] | str = Field(  # type: ignore[assignment]
+        None,
+        description="the behaviour tree (behaviour-trees.md): a node {type, name, ports..., "
+        "children | child}, or a BT.CPP v4 XML file (a path ending in .xml); "
+        "`agv-mission tree nodes` lists the node types",
+    )
+    trees: dict[str, dict[str, Any]] = Field(
+        default_factory=dict,
+        description="named subtrees (BT.CPP <BehaviorTree ID>), used as {type: subtree, id}",
+    )
+    blackboard: dict[str, Any] = Field(
+        default_factory=dict, description="initial blackboard entries, read by ports as {key}"
+    )
     expect: Expectations | None = Field(
         None,
         description="what `agv-mission regress` checks of the run (ignored by `run`): final "
         "and per-task status, time, collisions, clearance, localisation, map IoU, rooms, "
         "waypoints",
     )
+
+    @model_validator(mode="after")
+    def _tree_or_tasks(self) -> Mission:
+        if (self.tasks is None) == (self.tree is None):
+            raise ValueError("a mission has `tasks` or `tree`, not both" if self.tasks else
+                             "a mission needs `tasks` or a `tree`")  # fmt: skip
+        if isinstance(self.tree, str) and not self.tree.strip().endswith(".xml"):
+            raise ValueError("tree: a string names a BT.CPP XML file (ending in .xml)")
+        return self
 
 
 # The order a resolved mission is written in (mission.yaml): what to do after the stack.
@@ -126,6 +153,9 @@ FIELD_ORDER = (
     "seed",
     "stack",
     "simulation",
+    "blackboard",
+    "trees",
+    "tree",
     "tasks",
     "limits",
     "obstacles",

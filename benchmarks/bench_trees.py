@@ -1,0 +1,143 @@
+"""Behaviour trees: what a tree costs beside the same mission as ``tasks:``.
+
+* ``trees.patrol.tree_over_tasks_cost``: CPU seconds of a patrol (turtlebot3_world,
+  ground truth, cost_grid, pure pursuit, two rounds) written as a hand-built tree
+  (repeat > sequence > subtree calls of navigate_to_pose + wait) over the same patrol as
+  a ``tasks:`` list; runs alternate A B A B A B and each kind keeps its fastest (the
+  machine is shared). Both runs must drive the same trajectory (``same_trajectory``).
+* ``trees.<mission>.tree_ms_per_sim_s``: the tree's own CPU per simulated second: the time
+  inside the root's tick minus the navigator's (planning and the local planner are the
+  stack's cost, whoever calls them), per simulated second.
+* ``trees.assemble_10k_nodes_ms``: validating and expanding a tree of 8 200 nodes (subtree
+  fan-out), near the 10 000 a mission may hold.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agv_mission.missions.loader import load_mission
+from agv_mission.missions.runner import MissionRun
+
+REPO = Path(__file__).resolve().parents[1]
+HEAD = """\
+world: turtlebot3_world
+robot: burger
+start: {x: -2.0, y: -0.5, yaw: 0.0}
+seed: 2
+stack:
+  localization: {type: ground_truth}
+  global_planner: {type: cost_grid}
+  local_planner: {type: pure_pursuit}
+limits: {time: 200.0}
+"""
+WAYPOINTS = ["{x: 0.5, y: -1.6, yaw: 0.0}", "{x: -2.0, y: 0.6, yaw: 1.57}"]
+TASKS = (
+    HEAD
+    + f"""\
+tasks:
+  - type: patrol
+    waypoints: [{", ".join(WAYPOINTS)}]
+    loops: 2
+    dwell: 1.0
+"""
+)
+TREE = (
+    HEAD
+    + f"""\
+blackboard: {{first: {WAYPOINTS[0]}, second: {WAYPOINTS[1]}}}
+trees:
+  VisitAndWait:
+    type: sequence
+    children:
+      - {{type: navigate_to_pose, name: go, goal: "{{goal}}"}}
+      - {{type: wait, name: dwell, seconds: 1.0}}
+tree:
+  type: repeat
+  num_cycles: 2
+  child:
+    type: sequence
+    children:
+      - {{type: subtree, id: VisitAndWait, goal: "{{first}}"}}
+      - {{type: subtree, id: VisitAndWait, goal: "{{second}}"}}
+"""
+)
+
+
+def _timed(fn: Any, totals: list[float]) -> Any:
+    def wrapped(*args: Any, **kwargs: Any) -> Any:
+        t = time.process_time()
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            totals[0] += time.process_time() - t
+
+    return wrapped
+
+
+def _run(path: Path) -> tuple[float, float, np.ndarray, str]:
+    """(CPU s of the whole run, the tree's own CPU s, trajectory, status)."""
+    loaded = load_mission(path)
+    start = time.process_time()
+    run = MissionRun(loaded, None)
+    tick, nav = [0.0], [0.0]
+    run.tree.root.tick_once = _timed(run.tree.root.tick_once, tick)  # type: ignore[method-assign]
+    for name in ("update", "start", "cancel"):
+        setattr(run.navigator, name, _timed(getattr(run.navigator, name), nav))
+    run.drive()
+    cpu = time.process_time() - start
+    record = run.record()
+    return cpu, tick[0] - nav[0], record.trajectory, record.status
+
+
+def run(tmp: Path | None = None) -> dict[str, float]:
+    import tempfile
+
+    from agv_mission.missions.tree import TreeSource, assemble, yaml_spec
+
+    results: dict[str, float] = {}
+    with tempfile.TemporaryDirectory() as folder:
+        base = Path(folder)
+        (base / "tasks.yaml").write_text(TASKS)
+        (base / "tree.yaml").write_text(TREE)
+        best = {"tasks": np.inf, "tree": np.inf}
+        own = {"tasks": np.inf, "tree": np.inf}
+        trajectories: dict[str, np.ndarray] = {}
+        sim = 0.0
+        for _ in range(3):
+            for kind in ("tasks", "tree"):
+                cpu, tree_cpu, traj, status = _run(base / f"{kind}.yaml")
+                assert status == "succeeded", (kind, status)
+                best[kind] = min(best[kind], cpu)
+                sim = float(traj[-1, 0])
+                own[kind] = min(own[kind], tree_cpu / sim)
+                trajectories[kind] = traj
+        results["trees.patrol.tree_over_tasks_cost"] = round(best["tree"] / best["tasks"], 4)
+        results["trees.patrol.same_trajectory"] = float(
+            np.array_equal(trajectories["tasks"], trajectories["tree"])
+        )
+        results["trees.patrol.sim_time_s"] = round(sim, 2)
+        for kind in ("tasks", "tree"):
+            results[f"trees.patrol_{kind}.tree_ms_per_sim_s"] = round(own[kind] * 1e3, 4)
+        cpu, tree_cpu, traj, status = _run(REPO / "missions" / "wander_tree.yaml")
+        results["trees.wander_tree.tree_ms_per_sim_s"] = round(tree_cpu / traj[-1, 0] * 1e3, 4)
+
+    fan = {"type": "sequence", "children": [{"type": "subtree", "id": "L1"}] * 9}
+    trees = {
+        f"L{i}": {"type": "sequence", "children": [{"type": "subtree", "id": f"L{i + 1}"}] * 9}
+        for i in range(1, 3)
+    }
+    trees["L3"] = {"type": "sequence", "children": [{"type": "stop"}] * 9}
+    start = time.perf_counter()
+    source = TreeSource(
+        yaml_spec(fan, ("tree",), "m.yaml", {}),
+        {k: yaml_spec(v, ("trees", k), "m.yaml", {}) for k, v in trees.items()},
+    )
+    spec = assemble(source)
+    results["trees.assemble_10k_nodes_ms"] = round((time.perf_counter() - start) * 1e3, 1)
+    results["trees.assemble_10k_nodes_count"] = float(spec.count)
+    return results

@@ -1,0 +1,218 @@
+"""Decorators with BT.CPP semantics; every time is simulated time (the handle's clock),
+never the wall clock (py_trees' own Timeout reads the wall clock)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+
+import py_trees
+from py_trees.common import Status
+
+from agv_mission.navigation.handle import RobotHandle
+
+Behaviour = py_trees.behaviour.Behaviour
+
+
+class Inverter(py_trees.decorators.Inverter):
+    """Success becomes failure and failure success."""
+
+    def __init__(self, name: str, child: Behaviour):
+        super().__init__(name=name, child=child)
+
+
+class ForceSuccess(py_trees.decorators.Decorator):
+    """Succeeds whenever its child ends."""
+
+    def update(self) -> Status:
+        return Status.RUNNING if self.decorated.status is Status.RUNNING else Status.SUCCESS
+
+
+class ForceFailure(py_trees.decorators.Decorator):
+    """Fails whenever its child ends."""
+
+    def update(self) -> Status:
+        if self.decorated.status is Status.RUNNING:
+            return Status.RUNNING
+        self.feedback_message = "forced failure"
+        return Status.FAILURE
+
+
+class Retry(py_trees.decorators.Retry):
+    """Runs its child again after a failure, ``num_attempts`` tries in all (-1: forever)."""
+
+    def __init__(self, name: str, child: Behaviour, num_attempts: int):
+        super().__init__(name=name, child=child, num_failures=num_attempts)
+
+    def update(self) -> Status:
+        status = super().update()
+        if status is Status.FAILURE:
+            self.feedback_message = self.decorated.feedback_message or "failed"
+        return status
+
+
+class Repeat(py_trees.decorators.Repeat):
+    """Runs its child again after each success, ``num_cycles`` times (-1: until the
+    mission's time limit); fails when the child fails."""
+
+    def __init__(self, name: str, child: Behaviour, num_cycles: int):
+        super().__init__(name=name, child=child, num_success=num_cycles)
+
+    def update(self) -> Status:
+        status = super().update()
+        if status is Status.FAILURE:
+            self.feedback_message = self.decorated.feedback_message or "failed"
+        return status
+
+
+class KeepRunningUntilFailure(py_trees.decorators.Decorator):
+    """Runs its child again after every success; fails when it fails."""
+
+    def update(self) -> Status:
+        if self.decorated.status is Status.FAILURE:
+            self.feedback_message = self.decorated.feedback_message or "failed"
+            return Status.FAILURE
+        return Status.RUNNING
+
+
+class _Gate(py_trees.decorators.Decorator):
+    """A decorator that decides, each tick, whether its child is ticked at all."""
+
+    def tick(self) -> Iterator[Behaviour]:
+        if self.status is not Status.RUNNING:
+            self.initialise()
+        status = self.gate()
+        if status is None:
+            yield from self.decorated.tick()
+            status = self.update()
+        if status is not Status.RUNNING:
+            self.stop(status)
+        self.status = status
+        yield self
+
+    def gate(self) -> Status | None:
+        """A status to return without ticking the child, or None to tick it."""
+        return None
+
+    def update(self) -> Status:
+        return self.decorated.status
+
+
+class Timeout(_Gate):
+    """Halts its child and fails once ``seconds`` of simulated time have passed."""
+
+    def __init__(self, name: str, child: Behaviour, seconds: float, handle: RobotHandle):
+        super().__init__(name=name, child=child)
+        self.seconds = seconds
+        self.handle = handle
+        self._until = math.inf
+
+    def initialise(self) -> None:
+        self._until = self.handle.state.time + self.seconds
+
+    def gate(self) -> Status | None:
+        if self.handle.state.time >= self._until - 1e-9:
+            self.feedback_message = f"timed out after {self.seconds:g} s"
+            return Status.FAILURE
+        return None
+
+
+class Delay(_Gate):
+    """Stands still ``seconds`` of simulated time, then runs its child."""
+
+    def __init__(self, name: str, child: Behaviour, seconds: float, handle: RobotHandle):
+        super().__init__(name=name, child=child)
+        self.seconds = seconds
+        self.handle = handle
+        self._until = 0.0
+
+    def initialise(self) -> None:
+        self._until = self.handle.state.time + self.seconds
+
+    def gate(self) -> Status | None:
+        if self.handle.state.time < self._until - 1e-9:
+            self.handle.stop()
+            return Status.RUNNING
+        return None
+
+
+class RateController(_Gate):
+    """Ticks its child at most ``hz`` times per simulated second; between, it returns the
+    child's last status (a running child keeps its last command: the robot stops)."""
+
+    def __init__(self, name: str, child: Behaviour, hz: float, handle: RobotHandle):
+        super().__init__(name=name, child=child)
+        self.period = 1.0 / hz
+        self.handle = handle
+        self._next = -math.inf
+
+    def initialise(self) -> None:
+        self._next = -math.inf
+
+    def gate(self) -> Status | None:
+        now = self.handle.state.time
+        if now < self._next - 1e-9 and self.decorated.status is Status.RUNNING:
+            return Status.RUNNING
+        self._next = now + self.period
+        return None
+
+
+class RunOnce(_Gate):
+    """Runs its child once; afterwards succeeds at once (``then_skip``) or repeats the
+    child's result without ticking it."""
+
+    def __init__(self, name: str, child: Behaviour, then_skip: bool = True):
+        super().__init__(name=name, child=child)
+        self.then_skip = then_skip
+        self._result: Status | None = None
+
+    def gate(self) -> Status | None:
+        if self._result is None:
+            return None
+        return Status.SUCCESS if self.then_skip else self._result
+
+    def update(self) -> Status:
+        status = self.decorated.status
+        if status is not Status.RUNNING:
+            self._result = status
+        return status
+
+
+class SubTree(py_trees.decorators.Decorator):
+    """A named subtree (BT.CPP ``<SubTree ID>``), expanded in place: its status is its
+    root's."""
+
+    def __init__(self, name: str, child: Behaviour, tree_id: str):
+        super().__init__(name=name, child=child)
+        self.tree_id = tree_id
+
+    def update(self) -> Status:
+        if self.decorated.status is Status.FAILURE:
+            self.feedback_message = self.decorated.feedback_message
+        return self.decorated.status
+
+
+from agv_mission.behaviors.ports import (  # noqa: E402
+    DelayPorts,
+    ForceFailurePorts,
+    ForceSuccessPorts,
+    InverterPorts,
+    KeepRunningUntilFailurePorts,
+    RateControllerPorts,
+    RepeatPorts,
+    RetryPorts,
+    RunOncePorts,
+    TimeoutPorts,
+)
+
+# The ports of each node type this module's behaviours are (registry slot `behavior`).
+Delay.Config = DelayPorts
+ForceFailure.Config = ForceFailurePorts
+ForceSuccess.Config = ForceSuccessPorts
+Inverter.Config = InverterPorts
+KeepRunningUntilFailure.Config = KeepRunningUntilFailurePorts
+RateController.Config = RateControllerPorts
+Repeat.Config = RepeatPorts
+Retry.Config = RetryPorts
+RunOnce.Config = RunOncePorts
+Timeout.Config = TimeoutPorts

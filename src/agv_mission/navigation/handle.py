@@ -27,6 +27,8 @@ class RobotHandle:
     nomotion_update: bool = False  # ask the localiser to update with the next scan
     remote_command: tuple[float, float] | None = None  # (v, w) a remote driver sends
     remote_goal: Pose2D | None = None  # a teleop task drives here first ("2D Nav Goal")
+    remote_goal_tolerance: tuple[float | None, float | None] = (None, None)  # xy m, yaw rad
+    remote_speed_limit: float | None = None  # m/s cap while driving to ``remote_goal``
 
     def drive(self, v: float, w: float) -> None:
         self.command = (float(v), float(w))

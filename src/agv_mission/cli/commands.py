@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from agv_mission.cli import bags, regress, runs, service, teleop
+from agv_mission.cli import bags, regress, runs, service, teleop, vda5050
 from agv_mission.cli.startup import started
 
 app = typer.Typer(
@@ -22,3 +22,4 @@ app.command("map")(bags.map_)
 app.command()(regress.regress)
 app.command()(service.serve)
 app.command()(service.submit)
+app.add_typer(vda5050.app, name="vda5050")

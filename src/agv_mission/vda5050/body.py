@@ -244,6 +244,11 @@ class SimulatedBody:
             handle.remote_goal = self._goal[0]
 
     def _reset_pose(self, run: MissionRun, pose: Pose2D) -> None:
+        """A localiser's belief is reset (a real AGV's initPosition); with ``ground_truth``
+        localisation the belief is the truth, so the simulated robot is placed there."""
+        run.handle.navigator.cancel()
+        if run.mission.stack.localization.type == "ground_truth":
+            run.sim.teleport(pose)
         run.localizer.reset(pose, run.stack.odom)
         run.handle.state.estimate = pose
 

@@ -249,6 +249,8 @@ class MiniVehicle:
         self.last_node, self.last_seq = "", 0
         self.lock = threading.Lock()
         self.stopped = threading.Event()
+        self.log: list[tuple[float, str, str]] = []  # (time, "released" | "reached", nodeId)
+        self._seen: list[tuple[int, str]] = []
         c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"mini-{serial}-{port}")
         c.will_set(
             f"{self.base}/connection",
@@ -295,6 +297,14 @@ class MiniVehicle:
                 base = [n for n in self.nodes if n["released"]]
                 self.nodes = base + doc["nodes"][1:]
                 self.edges = [e for e in self.edges if e["released"]] + doc["edges"]
+            else:
+                return
+            for n in self.nodes:
+                if n["released"] and not any(
+                    e == (n["sequenceId"], doc["orderId"]) for e in self._seen
+                ):
+                    self._seen.append((n["sequenceId"], doc["orderId"]))
+                    self.log.append((time.monotonic(), "released", n["nodeId"]))
 
     def _state(self, driving: bool) -> dict[str, Any]:
         return self.header(
@@ -343,6 +353,7 @@ class MiniVehicle:
                         if self.edges:
                             self.edges.pop(0)
                         self.last_node, self.last_seq = done["nodeId"], done["sequenceId"]
+                        self.log.append((time.monotonic(), "reached", done["nodeId"]))
                         n = 0
                     else:
                         self.x += step * dx / dist

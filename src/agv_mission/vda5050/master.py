@@ -33,6 +33,8 @@ from agv_mission.vda5050.messages import split_topic
 from agv_mission.vda5050.transport import BrokerUrl, MqttLink
 
 ORDER_ERRORS = ("validationError", "orderError", "orderUpdateError", "noRouteError")
+RESEND_AFTER = 2.0  # s: an order (update) the state does not show by then is sent again
+ORDER_TIMEOUT = 15.0  # s: an order the vehicle has not taken by then fails its task
 START_DEVIATION = 0.5  # m: the first node is where the vehicle stands, within this
 
 
@@ -195,6 +197,8 @@ class ActiveOrder:
     update_id: int = 0
     released: int = 0  # index of the decision point (last released node)
     sent_at: float = 0.0
+    last_first: int = 0  # the first node index of the message last sent
+    last_sent: float = 0.0
 
 
 @dataclass
@@ -373,6 +377,9 @@ class Master:
         """``peer``'s tasks (running and queued) go back to the pool (or fail)."""
         tasks = ([peer.order.task] if peer.order is not None else []) + peer.queue
         peer.order, peer.queue = None, []
+        # held while it was away; now only where it was last seen stays its own
+        last = (peer.state or {}).get("lastNodeId")
+        self.traffic.keep_only(peer.serial, {last} if last else set())
         others = [p for p in self.peers.values() if p is not peer and p.online]
         for task in tasks:
             task.status, task.assigned = "pending", None
@@ -403,13 +410,19 @@ class Master:
             return
         state = peer.state
         if state is None or state.get("orderId") != order.order_id:
-            if self.now() - order.sent_at > 5.0 and state is not None:
-                error = self._order_error(state, order)
-                if error is not None:
-                    self._finish(peer, "failed", error)
-                elif self.now() - order.sent_at > 15.0:
-                    self._finish(peer, "failed", "the vehicle did not take the order")
+            error = self._order_error(state, order) if state is not None else None
+            if error is not None:
+                self._finish(peer, "failed", error)
+            elif self.now() - order.sent_at > ORDER_TIMEOUT:
+                self._finish(peer, "failed", "the vehicle did not take the order")
+            elif self.now() - order.last_sent > RESEND_AFTER:  # lost on the way (QoS 0)
+                self._publish_order(peer, order, order.last_first)
             return
+        if (
+            int(state.get("orderUpdateId", 0)) < order.update_id
+            and self.now() - order.last_sent > RESEND_AFTER
+        ):
+            self._publish_order(peer, order, order.last_first)
         error = self._order_error(state, order)
         last_seq = int(state.get("lastNodeSequenceId", -1))
         final_seq = 2 * (len(order.nodes) - 1)
@@ -533,6 +546,7 @@ class Master:
                         "actions": [],
                     }
                 )
+        order.last_first, order.last_sent = first, self.now()
         body = {
             "orderId": order.order_id,
             "orderUpdateId": order.update_id,

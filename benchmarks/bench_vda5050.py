@@ -229,16 +229,16 @@ def _measure(n: int, folder: Path) -> dict[str, float]:
     viz = [counting.get((s, "visualization"), 0) / wall for s in serials]
     lat_ms = np.array(lat) * 1000.0 if lat else np.array([np.nan])
     return {
-        f"n{n}.broker_is_mosquitto": float(kind == "mosquitto"),
-        f"n{n}.state_hz.min": round(min(state), 3),
-        f"n{n}.state_hz.mean": round(statistics.fmean(state), 3),
-        f"n{n}.visualization_hz.min": round(min(viz), 3),
-        f"n{n}.visualization_hz.mean": round(statistics.fmean(viz), 3),
-        f"n{n}.messages_lost": float(lost),
-        f"n{n}.order_to_motion_ms.p50": round(float(np.percentile(lat_ms, 50)), 1),
-        f"n{n}.order_to_motion_ms.p99": round(float(np.percentile(lat_ms, 99)), 1),
-        f"n{n}.orders_timed": float(len(lat)),
-        f"n{n}.vehicles_cpu_cores": round(cpu / wall, 3),
+        f"vda5050.n{n}.broker_is_mosquitto": float(kind == "mosquitto"),
+        f"vda5050.n{n}.state_hz.min": round(min(state), 3),
+        f"vda5050.n{n}.state_hz.mean": round(statistics.fmean(state), 3),
+        f"vda5050.n{n}.visualization_hz.min": round(min(viz), 3),
+        f"vda5050.n{n}.visualization_hz.mean": round(statistics.fmean(viz), 3),
+        f"vda5050.n{n}.messages_lost": float(lost),
+        f"vda5050.n{n}.order_to_motion_ms.p50": round(float(np.percentile(lat_ms, 50)), 1),
+        f"vda5050.n{n}.order_to_motion_ms.p99": round(float(np.percentile(lat_ms, 99)), 1),
+        f"vda5050.n{n}.orders_timed": float(len(lat)),
+        f"vda5050.n{n}.vehicles_cpu_cores": round(cpu / wall, 3),
     }
 
 

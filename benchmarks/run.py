@@ -34,6 +34,7 @@ MODULES = [
     "bench_bags",
     "bench_service",
     "bench_dashboard",
+    "bench_vda5050",
 ]
 
 # metric -> (comparison, target) from the issues
@@ -83,6 +84,11 @@ TARGETS = {
     "service.control_ms.pause_p50": ("<=", 200.0),
     "dashboard.watched_rtf_ratio": (">=", 0.9),
     "dashboard.fps_30x50": (">=", 20.0),
+    # issue 26: 20 vehicles at time scale 1 on one broker
+    "vda5050.n20.state_hz.min": (">=", 1.0),
+    "vda5050.n20.visualization_hz.min": (">=", 9.0),
+    "vda5050.n20.messages_lost": ("<=", 0.0),
+    "vda5050.n20.order_to_motion_ms.p99": ("<=", 200.0),
 }
 # metric name suffix -> (comparison, target), for keys of every map (issue 15)
 SUFFIX_TARGETS = {

@@ -24,7 +24,7 @@ from urllib.parse import urlsplit
 
 import paho.mqtt.client as mqtt
 
-from agv_mission.vda5050.messages import VERSION, timestamp, topic
+from agv_mission.vda5050.messages import TOPIC_MODELS, VERSION, timestamp, topic
 
 DEFAULT_HOST, DEFAULT_PORT = "127.0.0.1", 1883
 KEEPALIVE = 15  # seconds; the standard suggests "around 15 seconds" for the heartbeat (6.14)
@@ -207,8 +207,9 @@ class MqttLink:
         retain: bool = False,
         serial: str | None = None,
     ) -> dict[str, Any]:
-        """Stamp ``body`` with its header and publish it on topic ``name``; the message."""
-        doc = self.stamp(name, body, serial)
+        """Stamp ``body`` with its header, build it through the topic's model (so what goes
+        out has the schema's shape) and publish it on topic ``name``; the message."""
+        doc = TOPIC_MODELS[name].model_validate(self.stamp(name, body, serial)).doc()
         self.client.publish(self.topic(name, serial), json.dumps(doc), qos=qos, retain=retain)
         return doc
 

@@ -238,3 +238,42 @@ def test_dispatch_cli_bad_input_exits_2(tmp_path: Path) -> None:
     )
     assert r.returncode == 2 and "missing.yaml" in r.stderr
     assert time.monotonic() > 0
+
+
+def test_master_rides_out_a_broker_restart(mosquitto: Mosquitto, tmp_path: Path) -> None:
+    mission = {
+        **WAREHOUSE,
+        "tasks": [
+            {
+                "type": "patrol",
+                "waypoints": [{"x": -3.0, "y": 0.0}, {"x": -3.0, "y": -22.0}],
+                "robot": "agv1",
+            }
+        ],
+    }
+    plan = load_plan(write(tmp_path / "r.yaml", mission))
+    vehicles = [
+        MiniVehicle(mosquitto.port, name, x, -22.0, "warehouse", speed=4.0)
+        for name, x in (("agv1", -3.0), ("agv2", 3.0))
+    ]
+    master = Master(
+        plan, BrokerUrl("127.0.0.1", mosquitto.port), reassign_timeout=30.0, lookahead=1
+    )
+
+    def restart() -> None:
+        mosquitto.stop()
+        time.sleep(0.5)
+        mosquitto.start()
+
+    bounce = threading.Timer(2.0, restart)
+    bounce.start()
+    try:
+        result = master.run()
+    finally:
+        bounce.cancel()
+        for v in vehicles:
+            v.close()
+    assert result["status"] == "succeeded", result["fleet"]["events"]
+    assert master.link.connects >= 2
+    assert not any(e["event"] == "task_redispatched" for e in result["fleet"]["events"])
+    assert all(not v.invalid for v in vehicles)

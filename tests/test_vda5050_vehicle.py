@@ -359,6 +359,12 @@ def test_instant_actions(rig, tmp_path: Path) -> None:
         and not cancelled["driving"]
         and cancelled["orderId"] == "o-pause"
     )
+    # an update of the cancelled order: rejected, a new order is needed (6.6.3.1)
+    t_upd = time.monotonic()
+    master.send(SERIAL, "order", orderId="o-pause", orderUpdateId=1, nodes=[b], edges=[])
+    upd = master.wait(SERIAL, "state", lambda s: errors_of(s, "orderUpdateError"), 10, t_upd)
+    assert upd["nodeStates"] == []
+    assert ref(errors_of(upd, "orderUpdateError")[-1], "orderId") == "o-pause"
     master.send(SERIAL, "instantActions", actions=[action("cancel2", "cancelOrder")])
     none = master.wait(SERIAL, "state", lambda s: errors_of(s, "noOrderToCancel"), 10, t0)
     assert ref(errors_of(none, "noOrderToCancel")[0], "actionId") == "cancel2"

@@ -353,7 +353,7 @@ class Vehicle:
         busy = bool(o.nodes) or any(
             a.status not in FINAL for a in self.actions.values() if a.node_seq is not None
         )
-        if order.orderId != o.order_id or o.cancelled and order.orderId != o.order_id:
+        if order.orderId != o.order_id:
             if busy:
                 self._error(
                     "orderUpdateError",
@@ -384,6 +384,14 @@ class Vehicle:
             return
         if order.orderUpdateId == o.update_id:
             return  # received twice: ignored (6.6.4.3)
+        if o.cancelled:
+            self._error(
+                "orderUpdateError",
+                f"order {order.orderId} was cancelled: send a new order",
+                orderId=order.orderId,
+                orderUpdateId=order.orderUpdateId,
+            )
+            return
         first = order.nodes[0]
         base = [n for n in o.nodes if n.released]
         decision = (

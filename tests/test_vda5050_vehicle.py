@@ -103,7 +103,8 @@ def test_connection_factsheet_and_headers(rig) -> None:
         conn = late.wait(SERIAL, "connection", lambda d: True, 10)
         assert conn["connectionState"] == "ONLINE"
         fact = late.wait(SERIAL, "factsheet", lambda d: True, 10)
-        assert any(m[3] for m in late.messages if m[1].endswith("/factsheet"))  # retained
+        facts = [(m[3], m[2]["headerId"]) for m in late.messages if m[1].endswith("/factsheet")]
+        assert any(r for r, _ in facts), (facts, vehicle.link.connects)  # retained
     finally:
         late.close()
     assert fact["physicalParameters"]["speedMax"] == pytest.approx(0.22)  # burger

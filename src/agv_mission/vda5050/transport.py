@@ -235,9 +235,9 @@ class MqttLink:
         for sub, qos in self._subs:
             client.subscribe(sub, qos)
         self.connects += 1
-        self.connected.set()
         if self._on_connect_cb is not None:
-            self._on_connect_cb()
+            self._on_connect_cb()  # before ``connected``: what it publishes goes out first
+        self.connected.set()
 
     def _disconnected(self, *_args: Any) -> None:
         self.connected.clear()

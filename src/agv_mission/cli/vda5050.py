@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import signal
 import threading
+import time
 from pathlib import Path
 from typing import Annotated, Any, Optional
 
 import typer
+from rich.markup import escape
 
 from agv_mission.cli.console import EXIT_CODES, Overrides, Seed, failure, invalid, out
 from agv_mission.missions.errors import MissionError
@@ -101,14 +103,18 @@ def vehicles(
             markup=False,
         )
     code = 0
+    end = None if duration is None else time.monotonic() + duration
     try:
-        stop.wait(duration)
-        while not stop.is_set() and duration is None:
-            stop.wait(1.0)
-        problem = fleet.failed()
-        if problem:
-            out.print(problem, highlight=False, markup=False)
-            code = 3
+        while not stop.is_set():
+            problem = fleet.failed()
+            if problem:  # a simulation that stopped must not go on answering as a vehicle
+                out.print(problem, highlight=False, markup=False)
+                code = 3
+                break
+            left = 1.0 if end is None else min(1.0, end - time.monotonic())
+            if left <= 0:
+                break
+            stop.wait(left)
     finally:
         fleet.stop()
         if embedded is not None:
@@ -163,10 +169,8 @@ def dispatch(
             embedded.stop()
     write_outputs(run_dir, master, result)
     colour = "green" if result["status"] == "succeeded" else "red"
-    out.print(
-        f"[bold {colour}]{result['status']}[/]"
-        + (f": {result['reason']}" if result["reason"] else "")
-    )
+    reason = f": {escape(result['reason'])}" if result["reason"] else ""
+    out.print(f"[bold {colour}]{result['status']}[/]{reason}", highlight=False)
     for task in result["tasks"]:
         out.print(
             f"  task {task['index']} {task['type']} on {task['robot']}: {task['status']}"

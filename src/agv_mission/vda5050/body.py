@@ -40,6 +40,7 @@ class BodySnapshot:
     reason: str | None  # why it failed
     goal_id: int  # which navigate_to the state belongs to
     paused: bool
+    fault: str | None = None  # why the simulation stopped, once it has
 
 
 class VehicleBody(Protocol):
@@ -126,12 +127,18 @@ class SimulatedBody:
             self._thread.join(timeout)
 
     def _run(self) -> None:
+        fault = "the simulation stopped"
         try:
             self.record = run_mission(remote_controlled(self.loaded), None, control=self)
+            fault = f"the simulation ended ({self.record.status}): {self.record.reason}"
             if self.record.status == "error":
                 self.error = self.record.reason
         finally:
+            with self._lock:
+                self._snap = replace(self._snap, fault=fault, v=0.0, w=0.0)
             self.ready.set()
+            if self.on_change is not None:
+                self.on_change()
 
     # ---------------------------------------------------------------- the interface
 

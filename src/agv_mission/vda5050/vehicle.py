@@ -102,6 +102,7 @@ class Vehicle:
         self.paused = False
         self.charging = False
         self._prev_driving = False
+        self._faulted = False
         self._load_count = 0
         self._stop = threading.Event()
         self._wake = threading.Event()
@@ -161,6 +162,9 @@ class Vehicle:
             now = time.monotonic()
             snap = self.body.snapshot()
             with self._lock:
+                if snap.fault and not self._faulted:
+                    self._faulted = True
+                    self._error("simulationError", snap.fault, "FATAL")
                 changed = self._advance(snap)
                 driving = self._driving(snap)
                 if driving != self._prev_driving:
@@ -491,7 +495,7 @@ class Vehicle:
         self.errors = [e for e in self.errors if e["errorType"] not in ORDER_ERRORS]
 
     def _accept_new(self, order: Order) -> None:
-        self._clear_order_errors()
+        self.errors = []  # warnings of the last order and of actions: a new start
         self.body.cancel()
         self.actions = {
             k: a for k, a in self.actions.items() if a.node_seq is None and a.status not in FINAL

@@ -512,7 +512,7 @@ def test_broker_restart_vehicle_keeps_driving_its_base(tmp_path: Path) -> None:
         master.send(
             SERIAL, "order", orderId="o-restart", orderUpdateId=0, nodes=[a, b], edges=[edge(a, b)]
         )
-        master.wait(SERIAL, "state", lambda s: s["orderId"] == "o-restart" and s["driving"], 30, t0)
+        master.wait(SERIAL, "state", lambda s: s["orderId"] == "o-restart" and s["driving"], 90, t0)
         mq.stop()
         time.sleep(0.5)
         t1 = time.monotonic()

@@ -36,6 +36,7 @@ MODULES = [
     "bench_dashboard",
     "bench_battery",
     "bench_trees",
+    "bench_vda5050",
 ]
 
 # metric -> (comparison, target) from the issues
@@ -95,6 +96,11 @@ TARGETS = {
     "trees.patrol_tree.tree_ms_per_sim_s": ("<=", 1.5),
     "trees.patrol_tasks.tree_ms_per_sim_s": ("<=", 1.5),
     "trees.wander_tree.tree_ms_per_sim_s": ("<=", 1.5),
+    # issue 26: 20 vehicles at time scale 1 on one broker
+    "vda5050.n20.state_hz.min": (">=", 1.0),
+    "vda5050.n20.visualization_hz.min": (">=", 9.0),
+    "vda5050.n20.messages_lost": ("<=", 0.0),
+    "vda5050.n20.order_to_motion_ms.p99": ("<=", 200.0),
 }
 # metric name suffix -> (comparison, target), for keys of every map (issue 15)
 SUFFIX_TARGETS = {

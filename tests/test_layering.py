@@ -17,6 +17,7 @@ FLOORS = {
     "regress": 7,
     "teleop": 7,
     "bags": 7,
+    "vda5050": 7,
     "missions": 6,
     "behaviors": 5,
     "navigation": 4,

@@ -54,7 +54,7 @@ class RemoteControl(py_trees.behaviour.Behaviour):
         goal = handle.remote_goal
         assert goal is not None
         if not self._goal_active or nav.goal is None or nav.goal != goal:
-            nav.start(goal, handle.state)
+            nav.start(goal, handle.state, *handle.remote_goal_tolerance)
             self._goal_active = True
             handle.log(
                 "goal_sent",
@@ -64,7 +64,8 @@ class RemoteControl(py_trees.behaviour.Behaviour):
                 **self.log_details,
             )
         cmd = nav.update(handle.state)
-        handle.drive(cmd.v, cmd.w)
+        cap = handle.remote_speed_limit
+        handle.drive(cmd.v if cap is None else max(-cap, min(cap, cmd.v)), cmd.w)
         self.feedback_message = f"to goal ({goal.x:.2f}, {goal.y:.2f})"
         if nav.status is NavStatus.SUCCEEDED or nav.status is NavStatus.FAILED:
             est = handle.state.estimate

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from agv_mission.cli import bags, regress, runs, service, teleop, trees, worlds
+from agv_mission.cli import bags, regress, runs, service, teleop, trees, vda5050, worlds
 from agv_mission.cli.startup import started
 
 app = typer.Typer(
@@ -24,3 +24,4 @@ app.command()(worlds.world)
 app.command()(regress.regress)
 app.command()(service.serve)
 app.command()(service.submit)
+app.add_typer(vda5050.app, name="vda5050")

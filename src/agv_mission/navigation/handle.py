@@ -32,6 +32,8 @@ class RobotHandle:
     battery: Battery | None = None  # None: the robot's battery is not modelled
     docks: dict[str, Dock] = field(default_factory=dict)  # the world's and rooms file's
     docked: Dock | None = None  # the dock the robot stands on (Dock sets, Undock clears)
+    remote_goal_tolerance: tuple[float | None, float | None] = (None, None)  # xy m, yaw rad
+    remote_speed_limit: float | None = None  # m/s cap while driving to ``remote_goal``
 
     def drive(self, v: float, w: float) -> None:
         self.command = (float(v), float(w))

@@ -1,0 +1,660 @@
+"""The master: a mission's tasks as VDA 5050 orders to any vehicles, followed to a result.
+
+Each task becomes one order (``go_to`` one node, ``patrol`` its waypoints loop by loop,
+``visit_rooms`` its rooms' goals), starting at the vehicle's current position under its
+``lastNodeId`` (6.6.3.1). Nodes are released through :class:`NodeReservations`, the
+stand-in for the fleet layer's traffic control: a node is granted to one vehicle at a time,
+at most ``lookahead`` nodes past the vehicle's last node; the rest of the route is horizon,
+extended by order updates as the vehicle moves on (6.6.2). A vehicle that goes
+``CONNECTIONBROKEN`` (or never comes online) keeps its reservations; after
+``reassign_timeout`` its tasks go to another vehicle, an event in the result.
+
+One thread decides: MQTT callbacks only queue messages.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import queue
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from agv_mission.atomic import atomic_write_text
+from agv_mission.missions.errors import MissionError, Problem
+from agv_mission.missions.loader import LoadedMission, load_mission
+from agv_mission.missions.outputs import make_run_dir, write_json
+from agv_mission.vda5050.messages import split_topic
+from agv_mission.vda5050.transport import BrokerUrl, MqttLink
+
+ORDER_ERRORS = ("validationError", "orderError", "orderUpdateError", "noRouteError")
+RESEND_AFTER = 2.0  # s: an order (update) the state does not show by then is sent again
+ORDER_TIMEOUT = 15.0  # s: an order the vehicle has not taken by then fails its task
+START_DEVIATION = 0.5  # m: the first node is where the vehicle stands, within this
+
+
+@dataclass(frozen=True)
+class RouteNode:
+    node_id: str
+    x: float
+    y: float
+    theta: float | None
+
+
+@dataclass
+class TaskRoute:
+    """One task as the nodes an order visits."""
+
+    index: int
+    type: str
+    nodes: list[RouteNode]
+    robot: str | None = None  # the vehicle the mission assigns, if any
+    retries: int = 0  # extra attempts left (on_failure: retry)
+    on_failure: str = "abort"
+    status: str = "pending"  # pending | running | succeeded | failed | skipped
+    reason: str | None = None
+    assigned: str | None = None
+
+
+@dataclass
+class MasterPlan:
+    """What ``dispatch`` drives: vehicles by serial number, tasks, the map, tolerances."""
+
+    name: str
+    robots: list[str]
+    tasks: list[TaskRoute]
+    map_id: str
+    xy_tolerance: float
+    yaw_tolerance: float
+    time_limit: float  # wall seconds
+    output: Path
+    resolved: dict[str, Any] = field(default_factory=dict)
+
+
+def _route(task: Any, index: int, loaded: LoadedMission) -> TaskRoute:
+    kind = task.type
+    nodes: list[RouteNode] = []
+    if kind == "go_to":
+        nodes = [RouteNode(f"goal{index + 1}", task.pose.x, task.pose.y, task.pose.yaw)]
+    elif kind == "patrol":
+        for _ in range(task.loops):
+            nodes += [
+                RouteNode(f"wp{k + 1}", p.x, p.y, p.yaw) for k, p in enumerate(task.waypoints)
+            ]
+    elif kind == "visit_rooms":
+        for label in task.rooms:
+            goal = loaded.room_goals[label]
+            nodes.append(RouteNode(label, goal.x, goal.y, None))
+    else:
+        raise MissionError(
+            [
+                Problem(
+                    str(loaded.source),
+                    None,
+                    f"tasks.{index}.type",
+                    f"{kind}: not a task a VDA 5050 order can carry (go_to, patrol, visit_rooms)",
+                )
+            ]
+        )
+    policy = getattr(task, "on_failure", "abort")
+    retries = getattr(task, "retries", 0) if policy == "retry" else 0
+    return TaskRoute(index, kind, nodes, retries=retries, on_failure=policy)
+
+
+def load_plan(
+    path: Path,
+    overrides: list[str] | None = None,
+    seed: int | None = None,
+    robots: list[str] | None = None,
+) -> MasterPlan:
+    """The plan of mission file ``path``: a one-robot mission drives vehicle ``agv1`` (or
+    ``robots``); a ``robots:`` list names the vehicles and tasks may carry ``robot:``."""
+    try:
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise MissionError(
+            [Problem(str(path), None, "", f"cannot read the mission: {exc}")]
+        ) from None
+    assigned: list[str | None] = []
+    if isinstance(doc, dict) and isinstance(doc.get("robots"), list) and doc["robots"]:
+        names = [r.get("name") for r in doc["robots"] if isinstance(r, dict)]
+        if not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
+            raise MissionError(
+                [Problem(str(path), None, "robots", "each robot needs a unique name")]
+            )
+        one = {k: copy.deepcopy(v) for k, v in doc.items() if k not in ("robots", "fleet", "tasks")}
+        first = doc["robots"][0]
+        for key in ("robot", "start"):
+            if key in first:
+                one[key] = first[key]
+        tasks = []
+        for task in doc.get("tasks") or []:
+            task = dict(task) if isinstance(task, dict) else task
+            assigned.append(task.pop("robot", None) if isinstance(task, dict) else None)
+            tasks.append(task)
+        one["tasks"] = tasks
+        loaded = load_mission(path, overrides, seed, text=yaml.safe_dump(one, sort_keys=False))
+        robot_names = list(names)
+    else:
+        loaded = load_mission(path, overrides, seed)
+        robot_names = robots or ["agv1"]
+        assigned = [robot_names[0] if len(robot_names) == 1 else None] * len(loaded.mission.tasks)
+    routes = [_route(task, i, loaded) for i, task in enumerate(loaded.mission.tasks)]
+    for route, robot in zip(routes, assigned, strict=True):
+        if robot is not None and robot not in robot_names:
+            raise MissionError(
+                [
+                    Problem(
+                        str(path),
+                        None,
+                        f"tasks.{route.index}.robot",
+                        f"{robot!r} is not one of robots {robot_names}",
+                    )
+                ]
+            )
+        route.robot = robot
+    nav = loaded.mission.stack.navigation
+    return MasterPlan(
+        loaded.name,
+        robot_names,
+        routes,
+        loaded.world.name,
+        nav.xy_goal_tolerance,
+        nav.yaw_goal_tolerance,
+        loaded.mission.limits.time,
+        Path(loaded.mission.output),
+        loaded.resolved(),
+    )
+
+
+class NodeReservations:
+    """Traffic control as the master can do it without a fleet world: a node (by id) is
+    granted to one vehicle at a time; a vehicle frees a node when it has left it."""
+
+    def __init__(self) -> None:
+        self.holder: dict[str, str] = {}
+
+    def grant(self, robot: str, node_id: str) -> bool:
+        owner = self.holder.setdefault(node_id, robot)
+        return owner == robot
+
+    def keep_only(self, robot: str, node_ids: set[str]) -> None:
+        for node_id, owner in list(self.holder.items()):
+            if owner == robot and node_id not in node_ids:
+                del self.holder[node_id]
+
+
+@dataclass
+class ActiveOrder:
+    task: TaskRoute
+    order_id: str
+    nodes: list[RouteNode]  # the start node first
+    update_id: int = 0
+    released: int = 0  # index of the decision point (last released node)
+    sent_at: float = 0.0
+    last_first: int = 0  # the first node index of the message last sent
+    last_sent: float = 0.0
+
+
+@dataclass
+class Peer:
+    """A vehicle as the master sees it."""
+
+    serial: str
+    connection: str | None = None
+    state: dict[str, Any] | None = None
+    since: float = 0.0  # when the connection last changed (or the start)
+    queue: list[TaskRoute] = field(default_factory=list)
+    order: ActiveOrder | None = None
+    orders: int = 0
+    updates: int = 0
+    distance: float = 0.0
+    last_xy: tuple[float, float] | None = None
+    orders_made: int = 0
+
+    @property
+    def online(self) -> bool:
+        return self.connection == "ONLINE" or (self.connection is None and self.state is not None)
+
+
+class Master:
+    """Dispatch ``plan`` over the broker at ``url`` until every task ended."""
+
+    def __init__(
+        self,
+        plan: MasterPlan,
+        url: BrokerUrl,
+        manufacturer: str = "agv-mission",
+        reassign_timeout: float = 10.0,
+        lookahead: int = 2,
+        run_dir: Path | None = None,
+    ) -> None:
+        self.plan, self.url, self.manufacturer = plan, url, manufacturer
+        self.reassign_timeout, self.lookahead = reassign_timeout, max(1, lookahead)
+        self.peers = {name: Peer(name) for name in plan.robots}
+        self.traffic = NodeReservations()
+        self.events: list[dict[str, Any]] = []
+        self.dispatch: list[dict[str, Any]] = []
+        self.rows: list[tuple[Any, ...]] = []
+        self.inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        self.run_dir = run_dir
+        self.start = time.monotonic()
+        self.link = MqttLink(
+            url,
+            f"master-{plan.name}-{id(self):x}"[:64],
+            manufacturer,
+            "master",
+            lambda t, p, _r: self.inbox.put((t, p)),
+            [
+                (f"uagv/v2/{manufacturer}/+/{name}", 1)
+                for name in ("state", "connection", "visualization")
+            ],
+        )
+
+    def now(self) -> float:
+        return time.monotonic() - self.start
+
+    def event(self, kind: str, **details: Any) -> None:
+        self.events.append({"t": round(self.now(), 3), "event": kind, **details})
+
+    # ---------------------------------------------------------------- the loop
+
+    def run(self, stop: Any = None) -> dict[str, Any]:
+        """Until every task ended, the time limit passed or ``stop`` (an Event) is set."""
+        self.start = time.monotonic()
+        for peer in self.peers.values():
+            peer.since = 0.0
+        for task in self.plan.tasks:
+            if task.robot is not None:
+                self._assign(task, self.peers[task.robot])
+        self.link.start(wait=30.0)
+        status, reason = "failed", None
+        try:
+            while True:
+                self._drain()
+                self._assign_free_tasks()
+                for peer in self.peers.values():
+                    self._follow(peer)
+                ended = self._ended()
+                if ended is not None:
+                    status, reason = ended
+                    break
+                if self.now() > self.plan.time_limit:
+                    status, reason = "failed", f"time limit ({self.plan.time_limit:.0f} s) reached"
+                    break
+                if stop is not None and stop.is_set():
+                    status, reason = "aborted", "interrupted"
+                    break
+                time.sleep(0.05)
+        except KeyboardInterrupt:
+            status, reason = "aborted", "interrupted by the user (Ctrl-C)"
+        finally:
+            if status != "succeeded":
+                self._cancel_all()
+            self.link.stop()
+        return self._result(status, reason)
+
+    def _drain(self) -> None:
+        while True:
+            try:
+                topic_name, payload = self.inbox.get_nowait()
+            except queue.Empty:
+                return
+            parts = split_topic(topic_name)
+            if parts is None or parts[1] not in self.peers:
+                continue
+            peer = self.peers[parts[1]]
+            try:
+                doc = json.loads(payload)
+            except ValueError:
+                continue
+            if not isinstance(doc, dict):
+                continue
+            if parts[2] == "connection":
+                self._connection(peer, str(doc.get("connectionState")))
+            elif parts[2] in ("state", "visualization"):
+                if parts[2] == "state":
+                    peer.state = doc
+                    if peer.connection is None:
+                        peer.connection, peer.since = "ONLINE", self.now()
+                self._track(peer, doc)
+
+    def _connection(self, peer: Peer, state: str) -> None:
+        if state == peer.connection:
+            return
+        was = peer.connection
+        peer.connection, peer.since = state, self.now()
+        if state != "ONLINE":
+            self.event("connection_" + state.lower(), robot=peer.serial)
+        elif was is not None:
+            self.event("reconnected", robot=peer.serial)
+
+    def _track(self, peer: Peer, doc: dict[str, Any]) -> None:
+        pos = doc.get("agvPosition")
+        if not isinstance(pos, dict):
+            return
+        try:
+            x, y, th = float(pos["x"]), float(pos["y"]), float(pos["theta"])
+        except (KeyError, TypeError, ValueError):
+            return
+        vel = doc.get("velocity") or {}
+        if peer.last_xy is not None:
+            peer.distance += math.hypot(x - peer.last_xy[0], y - peer.last_xy[1])
+        peer.last_xy = (x, y)
+        self.rows.append(
+            (peer.serial, round(self.now(), 3), x, y, th, vel.get("vx", 0.0), vel.get("omega", 0.0))
+        )
+
+    # ---------------------------------------------------------------- dispatch
+
+    def _assign(self, task: TaskRoute, peer: Peer) -> None:
+        task.assigned = peer.serial
+        peer.queue.append(task)
+        self.dispatch.append({"task": task.index, "robot": peer.serial, "t": round(self.now(), 3)})
+
+    def _assign_free_tasks(self) -> None:
+        for task in self.plan.tasks:
+            if task.status != "pending" or task.assigned is not None:
+                continue
+            candidates = [p for p in self.peers.values() if p.online and p.last_xy is not None]
+            if not candidates:
+                continue
+            first = task.nodes[0]
+
+            def cost(p: Peer, first: RouteNode = first) -> float:
+                assert p.last_xy is not None
+                busy = len(p.queue) + (p.order is not None)
+                return busy * 1000.0 + math.hypot(first.x - p.last_xy[0], first.y - p.last_xy[1])
+
+            self._assign(task, min(candidates, key=cost))
+
+    def _reassign(self, peer: Peer, why: str) -> None:
+        """``peer``'s tasks (running and queued) go back to the pool (or fail)."""
+        tasks = ([peer.order.task] if peer.order is not None else []) + peer.queue
+        peer.order, peer.queue = None, []
+        # held while it was away; now only where it was last seen stays its own
+        last = (peer.state or {}).get("lastNodeId")
+        self.traffic.keep_only(peer.serial, {last} if last else set())
+        others = [p for p in self.peers.values() if p is not peer and p.online]
+        for task in tasks:
+            task.status, task.assigned = "pending", None
+            if task.robot is not None and not others:
+                task.status, task.reason = "failed", f"{peer.serial} {why}; no other vehicle online"
+                continue
+            task.robot = None
+            self.event("task_redispatched", task=task.index, robot=peer.serial, reason=why)
+
+    # ---------------------------------------------------------------- following a vehicle
+
+    def _follow(self, peer: Peer) -> None:
+        if not peer.online:
+            if peer.order is not None or peer.queue:
+                waited = self.now() - peer.since
+                if waited >= self.reassign_timeout:
+                    why = (
+                        "never came online"
+                        if peer.connection is None
+                        else f"went {peer.connection}"
+                    )
+                    self._reassign(peer, why)
+            return
+        order = peer.order
+        if order is None:
+            if peer.queue and peer.state is not None:
+                self._send_new(peer, peer.queue.pop(0))
+            return
+        state = peer.state
+        if state is None or state.get("orderId") != order.order_id:
+            error = self._order_error(state, order) if state is not None else None
+            if error is not None:
+                self._finish(peer, "failed", error)
+            elif self.now() - order.sent_at > ORDER_TIMEOUT:
+                self._finish(peer, "failed", "the vehicle did not take the order")
+            elif self.now() - order.last_sent > RESEND_AFTER:  # lost on the way (QoS 0)
+                self._publish_order(peer, order, order.last_first)
+            return
+        if (
+            int(state.get("orderUpdateId", 0)) < order.update_id
+            and self.now() - order.last_sent > RESEND_AFTER
+        ):
+            self._publish_order(peer, order, order.last_first)
+        error = self._order_error(state, order)
+        last_seq = int(state.get("lastNodeSequenceId", -1))
+        final_seq = 2 * (len(order.nodes) - 1)
+        actions_done = all(
+            a.get("actionStatus") in ("FINISHED", "FAILED") for a in state.get("actionStates", [])
+        )
+        if not state.get("nodeStates") and last_seq == final_seq and actions_done:
+            self._finish(peer, "succeeded", None)
+        elif error is not None:
+            self._finish(peer, "failed", error)
+        elif not state.get("nodeStates") and last_seq != final_seq:
+            self._finish(
+                peer, "failed", f"the vehicle dropped the order at node {state.get('lastNodeId')}"
+            )
+        else:
+            self._extend(peer, order, last_seq // 2 if last_seq >= 0 else 0)
+
+    def _order_error(self, state: dict[str, Any], order: ActiveOrder) -> str | None:
+        for err in state.get("errors", []):
+            refs = {
+                r.get("referenceKey"): r.get("referenceValue")
+                for r in err.get("errorReferences", [])
+            }
+            if err.get("errorLevel") == "FATAL" or (
+                err.get("errorType") in ORDER_ERRORS and refs.get("orderId") == order.order_id
+            ):
+                return f"{err.get('errorType')}: {err.get('errorDescription', '')}".strip()
+        return None
+
+    def _finish(self, peer: Peer, status: str, reason: str | None) -> None:
+        order = peer.order
+        assert order is not None
+        task = order.task
+        peer.order = None
+        self.traffic.keep_only(peer.serial, {order.nodes[-1].node_id})
+        if status == "failed" and task.retries > 0:
+            task.retries -= 1
+            self.event("task_retry", task=task.index, robot=peer.serial, reason=reason)
+            peer.queue.insert(0, task)
+            return
+        task.status, task.reason = status, reason
+        if status == "failed" and task.on_failure == "skip":
+            task.status = "skipped"
+        self.event(f"task_{task.status}", task=task.index, robot=peer.serial, reason=reason)
+
+    def _send_new(self, peer: Peer, task: TaskRoute) -> None:
+        state = peer.state or {}
+        pos = state.get("agvPosition") or {}
+        here = RouteNode(
+            str(state.get("lastNodeId") or "start"),
+            float(pos.get("x", 0.0)),
+            float(pos.get("y", 0.0)),
+            None,
+        )
+        peer.orders_made += 1
+        order = ActiveOrder(
+            task,
+            f"{self.plan.name}-t{task.index}-{peer.serial}-{peer.orders_made}",
+            [here, *task.nodes],
+        )
+        order.released = self._grantable(peer, order, 0)
+        order.sent_at = self.now()
+        task.status = "running"
+        peer.order = order
+        peer.orders += 1
+        self._publish_order(peer, order, 0)
+        self.event("order_sent", task=task.index, robot=peer.serial, order=order.order_id)
+
+    def _grantable(self, peer: Peer, order: ActiveOrder, last: int) -> int:
+        """The furthest node index that may be released, ``lookahead`` past ``last``."""
+        end = max(order.released, 0)
+        for i in range(end + 1, min(last + self.lookahead, len(order.nodes) - 1) + 1):
+            if not self.traffic.grant(peer.serial, order.nodes[i].node_id):
+                break
+            end = i
+        return end
+
+    def _extend(self, peer: Peer, order: ActiveOrder, last: int) -> None:
+        held = {n.node_id for n in order.nodes[last : order.released + 1]}
+        self.traffic.keep_only(peer.serial, held)
+        end = self._grantable(peer, order, last)
+        if end > order.released:
+            start = order.released
+            order.released = end
+            order.update_id += 1
+            peer.updates += 1
+            self._publish_order(peer, order, start)
+
+    def _publish_order(self, peer: Peer, order: ActiveOrder, first: int) -> None:
+        """Nodes ``first``.. of ``order`` (the stitching node first on an update)."""
+        nodes, edges = [], []
+        for i in range(first, len(order.nodes)):
+            n = order.nodes[i]
+            released = i <= order.released
+            pos: dict[str, Any] = {"x": n.x, "y": n.y, "mapId": self.plan.map_id}
+            if i == 0:
+                pos["allowedDeviationXY"] = START_DEVIATION
+            else:
+                pos["allowedDeviationXY"] = self.plan.xy_tolerance
+                if n.theta is not None:
+                    pos["theta"] = n.theta
+                    pos["allowedDeviationTheta"] = self.plan.yaw_tolerance
+            nodes.append(
+                {
+                    "nodeId": n.node_id,
+                    "sequenceId": 2 * i,
+                    "released": released,
+                    "nodePosition": pos,
+                    "actions": [],
+                }
+            )
+            if i > first:
+                a = order.nodes[i - 1]
+                edges.append(
+                    {
+                        "edgeId": f"{a.node_id}-{n.node_id}",
+                        "sequenceId": 2 * i - 1,
+                        "released": released,
+                        "startNodeId": a.node_id,
+                        "endNodeId": n.node_id,
+                        "actions": [],
+                    }
+                )
+        order.last_first, order.last_sent = first, self.now()
+        body = {
+            "orderId": order.order_id,
+            "orderUpdateId": order.update_id,
+            "nodes": nodes,
+            "edges": edges,
+        }
+        self.link.publish("order", body, qos=0, serial=peer.serial)
+
+    def _cancel_all(self) -> None:
+        for peer in self.peers.values():
+            if peer.order is not None and peer.online:
+                self.link.publish(
+                    "instantActions",
+                    {
+                        "actions": [
+                            {
+                                "actionId": f"cancel-{peer.order.order_id}",
+                                "actionType": "cancelOrder",
+                                "blockingType": "HARD",
+                            }
+                        ]
+                    },
+                    qos=0,
+                    serial=peer.serial,
+                )
+
+    # ---------------------------------------------------------------- the end
+
+    def _ended(self) -> tuple[str, str | None] | None:
+        tasks = self.plan.tasks
+        failed = [t for t in tasks if t.status == "failed" and t.on_failure != "skip"]
+        if failed:
+            t = failed[0]
+            return "failed", f"task {t.index} ({t.type}) failed on {t.assigned}: {t.reason}"
+        if all(t.status in ("succeeded", "skipped") for t in tasks):
+            return "succeeded", None
+        return None
+
+    def _result(self, status: str, reason: str | None) -> dict[str, Any]:
+        robots = {}
+        for name, peer in self.peers.items():
+            mine = [t for t in self.plan.tasks if t.assigned == name]
+            bad = [t for t in mine if t.status == "failed"]
+            robots[name] = {
+                "status": "failed"
+                if bad
+                else (
+                    "succeeded"
+                    if all(t.status in ("succeeded", "skipped") for t in mine)
+                    else "not_run"
+                    if not mine
+                    else "incomplete"
+                ),
+                "reason": bad[0].reason if bad else None,
+                "connection": peer.connection,
+                "tasks": [
+                    {"index": t.index, "type": t.type, "status": t.status, "reason": t.reason}
+                    for t in mine
+                ],
+                "metrics": {
+                    "orders": peer.orders,
+                    "order_updates": peer.updates,
+                    "distance": round(peer.distance, 3),
+                },
+            }
+        return {
+            "name": self.plan.name,
+            "status": status,
+            "reason": reason,
+            "broker": str(self.url),
+            "manufacturer": self.manufacturer,
+            "wall_time": round(self.now(), 3),
+            "tasks": [
+                {
+                    "index": t.index,
+                    "type": t.type,
+                    "robot": t.assigned,
+                    "status": t.status,
+                    "reason": t.reason,
+                    "nodes": [n.node_id for n in t.nodes],
+                }
+                for t in self.plan.tasks
+            ],
+            "robots": robots,
+            "fleet": {
+                "dispatch": self.dispatch,
+                "events": self.events,
+                "makespan": round(self.now(), 3),
+            },
+        }
+
+
+TRAJECTORY_HEADER = "robot,t,x,y,theta,vx,omega"
+
+
+def write_outputs(run_dir: Path, master: Master, result: dict[str, Any]) -> None:
+    """``mission.yaml``, ``trajectory.csv`` (from the vehicles' state and visualization)
+    and, last, ``result.json``."""
+    atomic_write_text(
+        run_dir / "mission.yaml", yaml.safe_dump(master.plan.resolved, sort_keys=False)
+    )
+    lines = [TRAJECTORY_HEADER] + [
+        f"{r[0]},{r[1]:.3f},{r[2]:.6f},{r[3]:.6f},{r[4]:.6f},{float(r[5]):.6f},{float(r[6]):.6f}"
+        for r in master.rows
+    ]
+    atomic_write_text(run_dir / "trajectory.csv", "\n".join(lines) + "\n")
+    write_json(run_dir / "result.json", {**result, "run_dir": str(run_dir)})
+
+
+def new_run_dir(plan: MasterPlan, output: Path | None) -> Path:
+    return make_run_dir(output if output is not None else plan.output, f"{plan.name}-vda5050")

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib.resources import as_file, files
 from pathlib import Path
 from typing import Any
@@ -40,11 +40,19 @@ from agv_mission.missions.problems import (
 from agv_mission.missions.schema import (
     FIELD_ORDER,
     MAX_NAME_LENGTH,
+    MAX_SIM_SECONDS,
     Mission,
     Setup,
     with_default_plugin_types,
 )
-from agv_mission.missions.tree import TreeSource, TreeSpec, assemble, tasks_spec, yaml_spec
+from agv_mission.missions.tree import (
+    TreeSource,
+    TreeSpec,
+    assemble,
+    tasks_spec,
+    tasks_tree,
+    yaml_spec,
+)
 from agv_mission.missions.tree_xml import parse_xml
 from agv_mission.missions.world_checks import check_docks, costmap_fits, place_mission
 from agv_mission.missions.yaml_lines import FieldPath, load_with_lines
@@ -376,3 +384,13 @@ def _read_text(path: Path, file: str) -> str:
         column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
         message = f"not a UTF-8 text file (byte 0x{raw[exc.start]:02x} at column {column})"
         raise MissionError([Problem(file, line, "", message)]) from None
+
+
+def remote_controlled(loaded: LoadedMission, time_limit: float = MAX_SIM_SECONDS) -> LoadedMission:
+    """``loaded``'s setup (world, robot, start, stack) with one open-ended ``teleop`` task
+    instead of its behaviour: the robot under remote command, as the service's teleop task,
+    the terminal and a VDA 5050 vehicle drive it."""
+    doc = loaded.mission.model_dump(exclude={"tasks", "tree", "trees", "blackboard", "expect"})
+    doc["tasks"] = [{"type": "teleop"}]
+    doc["limits"] = {**doc.get("limits", {}), "time": time_limit}
+    return replace(loaded, mission=Mission.model_validate(doc), tree=tasks_tree(doc["tasks"]))

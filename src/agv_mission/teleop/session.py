@@ -29,7 +29,6 @@ is the rest of a line, and end of input quits.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import sys
@@ -49,13 +48,12 @@ from agv_mission.maps.recorder import (
     load_entries,
 )
 from agv_mission.maps.rooms import room_at
-from agv_mission.missions.loader import LoadedMission, load_mission
+from agv_mission.missions.loader import LoadedMission, load_mission, remote_controlled
 from agv_mission.missions.outputs import make_run_dir, write_trajectory
 from agv_mission.missions.overrides import Override
 from agv_mission.missions.runner import MissionRun, run_mission
-from agv_mission.missions.schema import MAX_SIM_SECONDS, Mission
+from agv_mission.missions.schema import MAX_SIM_SECONDS
 from agv_mission.missions.stack import CONTROL_PERIOD, open_recorders
-from agv_mission.missions.tree import tasks_tree
 from agv_mission.teleop.terminal import (
     HELP,
     KeyInput,
@@ -104,11 +102,7 @@ TELEOP_TIME_LIMIT = MAX_SIM_SECONDS  # a session ends when its driver says so (a
 def teleop_mission(loaded: LoadedMission) -> LoadedMission:
     """``loaded``'s setup with one ``teleop`` task: the same task the service runs, so the
     terminal is one more client of it, not a second implementation."""
-    doc = loaded.mission.model_dump(exclude={"tasks", "tree", "trees", "blackboard", "expect"})
-    doc["tasks"] = [{"type": "teleop"}]
-    doc["limits"] = {**doc.get("limits", {}), "time": TELEOP_TIME_LIMIT}
-    mission = Mission.model_validate(doc)
-    return dataclasses.replace(loaded, mission=mission, tree=tasks_tree(doc["tasks"]))
+    return remote_controlled(loaded, TELEOP_TIME_LIMIT)
 
 
 def status_line(run: MissionRun, keys: TeleopKeys) -> str:

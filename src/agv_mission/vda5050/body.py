@@ -20,9 +20,8 @@ from dataclasses import dataclass, replace
 from typing import Literal, Protocol
 
 from agv_mission.geometry import Pose2D
-from agv_mission.missions.loader import LoadedMission
+from agv_mission.missions.loader import LoadedMission, remote_controlled
 from agv_mission.missions.runner import MissionRun, RunRecord, run_mission
-from agv_mission.missions.schema import MAX_SIM_SECONDS, Mission
 from agv_mission.missions.stack import CONTROL_PERIOD
 
 NavState = Literal["idle", "running", "succeeded", "failed"]
@@ -70,14 +69,6 @@ class VehicleBody(Protocol):
     def set_pose(self, pose: Pose2D) -> None:
         """Reset the localiser to ``pose`` (the standard's initPosition)."""
         ...
-
-
-def remote_controlled(loaded: LoadedMission) -> LoadedMission:
-    """``loaded``'s world, robot, start and stack with one open-ended ``teleop`` task."""
-    doc = loaded.mission.model_dump(exclude={"tasks", "expect"})
-    doc["tasks"] = [{"type": "teleop"}]
-    doc["limits"] = {**doc.get("limits", {}), "time": MAX_SIM_SECONDS}
-    return replace(loaded, mission=Mission.model_validate(doc))
 
 
 class SimulatedBody:

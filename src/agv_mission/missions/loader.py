@@ -19,8 +19,10 @@ from pydantic import ValidationError
 from agv_mission.atomic import InputFileError, input_path, read_input_bytes
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
+from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.recorder import RecorderFileError, load_entries
 from agv_mission.maps.rooms import Room
+from agv_mission.maps.ros_map import MapLoadError, load_ros_map
 from agv_mission.maps.rooms_file import RoomsFileError, load_rooms
 from agv_mission.maps.world_loader import WorldError, builtin_names, load_world
 from agv_mission.maps.worlds import World
@@ -64,13 +66,20 @@ class LoadedMission:
     mission: Mission  # a Setup (no tasks) when loaded with tasks_required=False
     source: Path | None
     name: str
-    world: World
+    world: World  # what is simulated
     robot: RobotDescription
     rooms: dict[str, Room]
     start: Pose2D
     costmap: Costmap
     room_goals: dict[str, Pose2D] = field(default_factory=dict)  # where each visit goes
     recorder: Path | None = None  # an existing recorder file to append to
+    given_map: OccupancyGrid | None = None  # the mission's ``map:``, when it names one
+
+    @property
+    def map(self) -> OccupancyGrid:
+        """The map the robot is given (localisation, planning, rooms): the mission's
+        ``map:``, else the world's own map."""
+        return self.given_map if self.given_map is not None else self.world.map
 
     def resolved(self) -> dict[str, Any]:
         """The mission as it runs: defaults filled in and overrides applied."""
@@ -182,6 +191,7 @@ def _resolve(
         named = {
             "world": None if mission.world.strip() in builtin_names() else mission.world,
             "robot": None if mission.robot in BUILTIN_ROBOTS else mission.robot,
+            "map": mission.map,
             "rooms": mission.rooms,
             "recorder": mission.recorder,
         }
@@ -218,6 +228,16 @@ def _resolve(
         log.add(("robot",), f"invalid robot file {mission.robot!r}: {exc}")
     except (OSError, ValueError, RuntimeError) as exc:
         log.add(("robot",), f"cannot read robot file {mission.robot!r}: {os_message(exc)}")
+    given_map = None
+    if mission.map is not None:
+        try:
+            given_map = load_ros_map(input_path(mission.map.strip(), base_dir))
+        except MapLoadError as exc:  # names the file and what is wrong with it
+            log.add(("map",), one_line(str(exc)))
+        except (OSError, ValueError, RuntimeError) as exc:
+            log.add(("map",), f"cannot read map {mission.map!r}: {os_message(exc)}")
+        except MemoryError:
+            log.add(("map",), f"map {mission.map!r} is too large for memory")
     rooms = dict(world.rooms)
     if mission.rooms is not None:
         try:
@@ -228,9 +248,10 @@ def _resolve(
             log.add(("rooms",), f"cannot read rooms file {mission.rooms!r}: {os_message(exc)}")
     log.raise_if_any()
 
-    if not costmap_fits(mission, world, log.add):
+    known = given_map if given_map is not None else world.map
+    if not costmap_fits(mission, known, log.add):
         raise MissionError(log.problems)
-    costmap = Costmap.from_grid(world.map, robot.footprint_radius, mission.stack.costmap)
+    costmap = Costmap.from_grid(known, robot.footprint_radius, mission.stack.costmap)
     placed = place_mission(mission, world, robot, rooms, costmap, log.add)
     recorder = None
     if mission.recorder is not None:
@@ -256,6 +277,7 @@ def _resolve(
         costmap=costmap,
         room_goals=placed.room_goals,
         recorder=recorder,
+        given_map=given_map,
     )
 
 

@@ -99,7 +99,7 @@ class RobotStack:
         self.next_scan = 0.0
         self.odom = self.odometry.update(*self.sim.encoder_ticks())
         self.odom_start = self.odom
-        self.localizer: Localizer = self.new_localizer(loaded.world.map)
+        self.localizer: Localizer = self.new_localizer(loaded.map)
         self.localizer.reset(loaded.start, self.odom)
 
     def new_localizer(self, grid: OccupancyGrid) -> Localizer:

@@ -18,7 +18,8 @@ class Lidar:
     Beam ``i`` points at ``i * 2 pi / beams`` counter-clockwise from the robot's +x (beam 0
     straight ahead, like the TurtleBot3 LDS). Only geoms in :data:`WALL_GROUP` are seen, so
     the robot's own body, wheels and casters (another group) and the floor are never hit.
-    Returns closer than ``range_min`` or beyond ``range_max`` read ``inf``.
+    Returns closer than ``range_min`` or beyond ``range_max`` read ``inf``; dropped beams
+    (``dropout``) read ``nan``.
     """
 
     def __init__(
@@ -90,9 +91,11 @@ class Lidar:
             sigma = np.maximum(self.noise_std, self.noise_fraction * d)
             dist[hit] = d + sigma * self.rng.standard_normal(len(d))
         ok = hit & (dist >= self.spec.range_min) & (dist <= self.spec.range_max)
-        if self.dropout > 0.0:
-            ok &= self.rng.random(len(dist)) >= self.dropout
         ranges = np.where(ok, dist, np.inf).astype(np.float32)
+        if self.dropout > 0.0:
+            # A beam that got no echo back (a dark, glossy or grazing surface) is an invalid
+            # reading (REP 117: nan), not "nothing in range" (inf): it clears no free space.
+            ranges[self.rng.random(len(ranges)) < self.dropout] = np.nan
         return LaserScan(
             ranges=ranges,
             angle_min=0.0,

@@ -175,7 +175,12 @@ def test_lidar_noise_and_rotation():
 
 
 def test_lidar_drops_beams_at_the_datasheet_rate_unless_ideal():
-    walls = [Box(0, 1, 1.2, 0.05), Box(0, -1, 1.2, 0.05), Box(1, 0, 0.05, 1.2), Box(-1, 0, 0.05, 1.2)]
+    walls = [
+        Box(0, 1, 1.2, 0.05),
+        Box(0, -1, 1.2, 0.05),
+        Box(1, 0, 0.05, 1.2),
+        Box(-1, 0, 0.05, 1.2),
+    ]
     world = make_world(walls)  # the robot in a closed 2 x 2 m room: every beam hits
     real = make_sim(world, ideal=False)
     lost = np.mean([np.isnan(real.scan().ranges).mean() for _ in range(30)])

@@ -22,8 +22,8 @@ from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.recorder import RecorderFileError, load_entries
 from agv_mission.maps.rooms import Room
-from agv_mission.maps.ros_map import MapLoadError, load_ros_map
 from agv_mission.maps.rooms_file import RoomsFileError, load_rooms
+from agv_mission.maps.ros_map import MapLoadError, load_ros_map
 from agv_mission.maps.world_loader import WorldError, builtin_names, load_world
 from agv_mission.maps.worlds import World
 from agv_mission.missions.errors import MissionError, Problem

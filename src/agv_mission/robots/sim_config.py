@@ -32,8 +32,7 @@ class SimConfig(BaseModel):
         None,
         ge=0,
         le=1,
-        description="each read's wheel travel is scaled by 1 + U(-slip, slip) (None: the "
-        "robot's)",
+        description="each read's wheel travel is scaled by 1 + U(-slip, slip) (None: the robot's)",
     )
     wheel_scale_error: float | None = Field(
         None,

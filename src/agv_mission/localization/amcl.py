@@ -104,10 +104,13 @@ class AmclLocalizer:
                 grid,
                 RefineParams(
                     sigma=c.refine_sigma,
+                    sigma_fraction=c.refine_sigma_fraction,
+                    max_innovation=c.refine_max_innovation,
                     huber=c.refine_huber,
                     outlier=c.refine_outlier,
                     inlier=c.refine_inlier,
                     min_inlier_fraction=c.refine_min_inlier_fraction,
+                    min_inlier_beams=c.refine_min_inlier_beams,
                     min_beams=c.refine_min_beams,
                     max_beams=c.refine_max_beams,
                     floor_xy=c.refine_floor_xy,

@@ -132,8 +132,8 @@ class AmclConfig(PluginConfig):
     refine_min_inlier_beams: int = Field(
         15,
         ge=3,
-        description="or at least this many beams must fit (the others may see furniture the "
-        "map lacks)",
+        description="or at least this many beams, and half the fraction, must fit (the others "
+        "may see furniture the map lacks)",
     )
     refine_min_beams: int = Field(20, ge=3)
     refine_max_beams: int = Field(360, ge=3)

@@ -52,7 +52,7 @@ class RefineParams:
     max_innovation: float = 5.0
     inlier: float = 0.05  # m, a beam within this of a wall counts as fitting
     min_inlier_fraction: float = 0.6  # gate: at least this share of the beams must fit,
-    min_inlier_beams: int = 15  # or at least this many (the rest see unmapped obstacles)
+    min_inlier_beams: int = 15  # or this many and half that share (unmapped obstacles)
     min_beams: int = 20  # fewer valid beams: no correction (prediction only)
     max_beams: int = 360
     floor_xy: float = 0.01  # m, no single scan pins x or y tighter than this
@@ -254,7 +254,11 @@ class PoseTracker:
         rv = r[a < p.outlier]
         rms = math.sqrt(float(rv @ rv) / len(rv)) if len(rv) else math.nan
         cov = _inverse3(post_info)
-        accepted = inlier >= p.min_inlier_fraction or fitting >= p.min_inlier_beams
+        # Furniture the map lacks hides walls from some beams: a scan whose fitting beams
+        # are many enough (and at least half the gate's share) still corrects.
+        accepted = inlier >= p.min_inlier_fraction or (
+            fitting >= p.min_inlier_beams and inlier >= 0.5 * p.min_inlier_fraction
+        )
         if (
             accepted
             and p.max_innovation > 0.0

@@ -18,10 +18,11 @@ the spread the filter's own noise kept up (~1000 particles), not the pose's unce
 it is full again from the first update after the refinement lets go. Measured on the demo
 patrol (benchmarks/bench_breakdown.py): localisation 0.4x the cost per simulated second of
 the filter at the KLD count and 180 beams with the refinement before its speed-ups, the
-same accuracy (benchmarks/bench_localization.py). Measured (tests/test_localization_accuracy.py,
-benchmarks/bench_localization.py): 1-2 mm RMSE on the real AWS small house map (amcl alone
-7 cm), 2-3 cm in a 30 x 50 m warehouse (amcl alone 22 cm, 0.97 m maximum), with the true
-error inside the reported 2-sigma ellipse on more than 99 % of the steps.
+same accuracy (benchmarks/bench_localization.py). Measured with the robots' realistic
+sensors (benchmarks/bench_localization.py): 7 mm RMSE on the real AWS small house map
+(amcl alone 7 cm), 1.3 cm in the built-in small house, 3 cm in a 30 x 50 m warehouse (amcl
+alone 23 cm, 0.98 m maximum), 1.3 cm with furniture moved since the map was made, with the
+true error inside the reported 2-sigma ellipse on more than 99 % of the steps.
 
 The field defaults are TurtleBot3's ``amcl.launch`` (``profile: turtlebot3``). Measured here
 (tests/test_amcl.py): they track the demo patrol to ~0.03 m / 0.02 rad RMSE from a start

@@ -130,6 +130,7 @@ class AmclLocalizer:
         )
         self.refine_stats = {"scans": 0, "accepted": 0, "rejected": 0, "starts": 0, "restarts": 0}
         self._track_odom = Pose2D(0.0, 0.0, 0.0)
+        self._refine_odom = Pose2D(0.0, 0.0, 0.0)  # odometry at the last refinement
         self._failures = 0
         self._pf_cov = np.diag([c.initial_cov_xx, c.initial_cov_yy, c.initial_cov_aa])
         self._estimate = Pose2D(0.0, 0.0, 0.0)
@@ -193,6 +194,7 @@ class AmclLocalizer:
             self.filter.init_gaussian(start.as_array(), cov)
         self._pose, self._odom = start, odom
         self._estimate, self._track_odom = start, odom
+        self._refine_odom = odom
         self._pf_cov = self.filter.covariance(start.as_array())
         self._failures = 0
         self.refine_stats = {"scans": 0, "accepted": 0, "rejected": 0, "starts": 0, "restarts": 0}
@@ -215,6 +217,7 @@ class AmclLocalizer:
         if tracker is not None and tracker.active:
             tracker.predict(delta.as_array())
         filtered = False
+        forced = self._force_update
         if scan is not None:
             delta = odom.relative_to(self._odom)
             moved = (
@@ -226,8 +229,9 @@ class AmclLocalizer:
                 self._force_update = False
                 filtered = True
         pf_pose = self._pose.compose(odom.relative_to(self._odom))
-        if tracker is not None and scan is not None:
+        if tracker is not None and scan is not None and self._refine_due(tracker, odom, forced):
             self._refine(tracker, scan, pf_pose, filtered)
+            self._refine_odom = odom
         if tracker is not None and tracker.active:
             m = tracker.mean
             self._estimate = Pose2D(float(m[0]), float(m[1]), float(m[2]))
@@ -254,6 +258,16 @@ class AmclLocalizer:
         self._force_update = True
 
     # ------------------------------------------------------------------ internals
+
+    def _refine_due(self, tracker: PoseTracker, odom: Pose2D, forced: bool) -> bool:
+        """Whether a scan should refine the tracked pose: always while it does not track,
+        else once odometry has moved (1 mm or 1 mrad) since the last refinement, or on a
+        no-motion request. A robot standing still sees the same walls again: matching
+        each new scan's noise would only make its estimate jitter."""
+        if not tracker.active or forced:
+            return True
+        moved = odom.relative_to(self._refine_odom)
+        return math.hypot(moved.x, moved.y) >= 1e-3 or abs(moved.yaw) >= 1e-3
 
     def _refine(
         self, tracker: PoseTracker, scan: LaserScan, pf_pose: Pose2D, filtered: bool

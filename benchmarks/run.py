@@ -76,6 +76,17 @@ TARGETS = {
             "depot_30x15.burger",
         )
     },
+    # issue 22: realistic sensors, and a map: that is not the world
+    **{
+        f"localization.{key}.accurate.{name}": bound
+        for key in ("small_house.burger", "turtlebot3_world.burger")
+        for name, bound in (("rmse_m", ("<=", 0.05)), ("max_error_m", ("<=", 0.20)))
+    },
+    "localization.depot_30x15.burger.accurate.rmse_m": ("<=", 0.08),
+    **{
+        f"localization.{key}.burger.accurate.rmse_m": ("<=", 0.06)
+        for key in ("map_slam_house", "map_moved_house")
+    },
     "bags.round_trip.tb3.free_iou.offline": (">=", 0.95),
     "bags.round_trip.tb3.x_bag_duration": (">=", 20.0),
     "bags.round_trip.aws_small_house.free_iou.offline": (">=", 0.95),

@@ -25,6 +25,8 @@ def make_world(boxes: list[Box] | None = None, cylinders: list[Cylinder] | None 
 
 
 def make_sim(world: World | None = None, start: Pose2D = ORIGIN, seed: int = 0, **cfg):
+    """A burger; ideal sensors unless the test asks for the realistic ones (ideal=False)."""
+    cfg.setdefault("ideal", True)
     return DiffDriveSim(
         BURGER, world or make_world(), start, SimConfig(**cfg), np.random.default_rng(seed)
     )
@@ -162,11 +164,52 @@ def test_lidar_reads_wall_ahead():
 
 def test_lidar_noise_and_rotation():
     world = make_world([Box(0.0, 1.0, 1.0, 0.05)])  # wall face at y = 0.95
-    sim = make_sim(world, start=Pose2D(0.0, 0.0, math.pi / 2))
-    ranges = np.array([sim.scan().ranges[0] for _ in range(50)])
-    std = BURGER.lidar.noise_std
-    assert abs(ranges.mean() - 0.95) < 3 * std / math.sqrt(50) + 1e-4
-    assert 0.5 * std < ranges.std() < 1.5 * std
+    sim = make_sim(world, start=Pose2D(0.0, 0.0, math.pi / 2), ideal=False)
+    ranges = np.array([sim.scan().ranges[0] for _ in range(200)])
+    ranges = ranges[~np.isnan(ranges)]  # the LDS-01's dropouts
+    # The LDS-01's precision at 0.95 m: 3.5 % of the range as two standard deviations.
+    std = max(BURGER.lidar.noise_std, BURGER.lidar.noise_fraction * 0.95)
+    assert std == pytest.approx(0.0166, abs=1e-3)
+    assert abs(ranges.mean() - 0.95) < 3 * std / math.sqrt(len(ranges)) + 1e-4
+    assert 0.7 * std < ranges.std() < 1.3 * std
+
+
+def test_lidar_drops_beams_at_the_datasheet_rate_unless_ideal():
+    walls = [
+        Box(0, 1, 1.2, 0.05),
+        Box(0, -1, 1.2, 0.05),
+        Box(1, 0, 0.05, 1.2),
+        Box(-1, 0, 0.05, 1.2),
+    ]
+    world = make_world(walls)  # the robot in a closed 2 x 2 m room: every beam hits
+    real = make_sim(world, ideal=False)
+    lost = np.mean([np.isnan(real.scan().ranges).mean() for _ in range(30)])
+    assert lost == pytest.approx(BURGER.lidar.dropout, abs=0.006)
+    ideal = make_sim(world)
+    assert np.isfinite(ideal.scan().ranges).all()
+    a, b = make_sim(world, ideal=False, seed=4), make_sim(world, ideal=False, seed=4)
+    assert np.array_equal(a.scan().ranges, b.scan().ranges, equal_nan=True)
+
+
+def test_realistic_odometry_drifts_like_a_turtlebot3():
+    """Default encoders: straight 2 m, the dead-reckoned pose a centimetre or two off (wheel
+    scale errors, slip, noise); ideal ones within a few millimetres."""
+
+    def drift(seed: int, ideal: bool) -> float:
+        from agv_mission.robots.odometry import DiffDriveOdometry
+
+        sim = make_sim(seed=seed, ideal=ideal)
+        odo = DiffDriveOdometry(BURGER.encoder.ticks_per_meter, BURGER.wheel_separation)
+        odo.update(*sim.encoder_ticks())
+        sim.set_command(0.2, 0.0)
+        for _ in range(100):
+            sim.advance(0.1)
+            pose = odo.update(*sim.encoder_ticks())
+        return pose.distance_to(sim.true_pose())
+
+    real = [drift(seed, False) for seed in range(4)]
+    assert max(drift(seed, True) for seed in range(2)) < 0.008  # MuJoCo's tyre contact
+    assert 0.01 < float(np.mean(real)) < 0.1
 
 
 def test_empty_world_sees_nothing():

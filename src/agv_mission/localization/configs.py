@@ -111,11 +111,29 @@ class AmclConfig(PluginConfig):
         "every scan (iterated EKF); the estimate and covariance then come from it",
     )
     refine_sigma: float = Field(0.02, gt=0, description="per-beam noise, m")
+    refine_sigma_fraction: float = Field(
+        0.0175,
+        ge=0,
+        description="per-beam noise as a fraction of the range where larger than refine_sigma "
+        "(the LDS-01's 1.75 %); far beams count less and fit looser",
+    )
+    refine_max_innovation: float = Field(
+        5.0,
+        ge=0,
+        description="Mahalanobis distance (prior covariance) beyond which a scan's correction "
+        "is rejected as implausible given odometry; 0 disables",
+    )
     refine_huber: float = Field(0.03, gt=0, description="robust kernel width, m")
     refine_outlier: float = Field(0.25, gt=0, description="beams farther off are ignored, m")
     refine_inlier: float = Field(0.05, gt=0, description="a beam this close fits, m")
     refine_min_inlier_fraction: float = Field(
         0.6, ge=0, le=1, description="fit-quality gate: share of beams that must fit"
+    )
+    refine_min_inlier_beams: int = Field(
+        15,
+        ge=3,
+        description="or at least this many beams, and half the fraction, must fit (the others "
+        "may see furniture the map lacks)",
     )
     refine_min_beams: int = Field(20, ge=3)
     refine_max_beams: int = Field(360, ge=3)

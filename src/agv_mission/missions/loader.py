@@ -20,9 +20,11 @@ from agv_mission.atomic import InputFileError, input_path, read_input_bytes
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.docks import Dock
+from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.recorder import RecorderFileError, load_entries
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.rooms_file import RoomsFileError, load_rooms_file
+from agv_mission.maps.ros_map import MapLoadError, load_ros_map
 from agv_mission.maps.world_loader import WorldError, builtin_names, load_world
 from agv_mission.maps.worlds import World
 from agv_mission.missions.errors import MissionError, Problem
@@ -75,7 +77,7 @@ class LoadedMission:
     mission: Mission  # a Setup (no tasks) when loaded with tasks_required=False
     source: Path | None
     name: str
-    world: World
+    world: World  # what is simulated
     robot: RobotDescription
     rooms: dict[str, Room]
     start: Pose2D
@@ -84,6 +86,13 @@ class LoadedMission:
     recorder: Path | None = None  # an existing recorder file to append to
     tree: TreeSpec | None = None  # what the robot does (None for a setup)
     docks: dict[str, Dock] = field(default_factory=dict)  # the world's and rooms file's
+    given_map: OccupancyGrid | None = None  # the mission's ``map:``, when it names one
+
+    @property
+    def map(self) -> OccupancyGrid:
+        """The map the robot is given (localisation, planning, rooms): the mission's
+        ``map:``, else the world's own map."""
+        return self.given_map if self.given_map is not None else self.world.map
 
     def resolved(self) -> dict[str, Any]:
         """The mission as it runs: defaults filled in and overrides applied."""
@@ -255,6 +264,7 @@ def _resolve(
         named = {
             "world": None if mission.world.strip() in builtin_names() else mission.world,
             "robot": None if mission.robot in BUILTIN_ROBOTS else mission.robot,
+            "map": mission.map,
             "rooms": mission.rooms,
             "recorder": mission.recorder,
         }
@@ -294,6 +304,16 @@ def _resolve(
             log.add(("robot",), f"invalid robot file {mission.robot!r}: {where}{message}")
     except (OSError, ValueError, RuntimeError) as exc:
         log.add(("robot",), f"cannot read robot file {mission.robot!r}: {os_message(exc)}")
+    given_map = None
+    if mission.map is not None:
+        try:
+            given_map = load_ros_map(input_path(mission.map.strip(), base_dir))
+        except MapLoadError as exc:  # names the file and what is wrong with it
+            log.add(("map",), one_line(str(exc)))
+        except (OSError, ValueError, RuntimeError) as exc:
+            log.add(("map",), f"cannot read map {mission.map!r}: {os_message(exc)}")
+        except MemoryError:
+            log.add(("map",), f"map {mission.map!r} is too large for memory")
     rooms = dict(world.rooms)
     docks = dict(world.docks)
     rooms_docks: dict[str, Dock] = {}
@@ -309,9 +329,10 @@ def _resolve(
             log.add(("rooms",), f"cannot read rooms file {mission.rooms!r}: {os_message(exc)}")
     log.raise_if_any()
 
-    if not costmap_fits(mission, world, log.add):
+    known = given_map if given_map is not None else world.map
+    if not costmap_fits(mission, known, log.add):
         raise MissionError(log.problems)
-    costmap = Costmap.from_grid(world.map, robot.footprint_radius, mission.stack.costmap)
+    costmap = Costmap.from_grid(known, robot.footprint_radius, mission.stack.costmap)
     node_checks = _node_checks(tree, log)
     placed = place_mission(mission, world, robot, rooms, costmap, log.add, node_checks)
     check_docks(mission, robot, docks, rooms_docks, costmap, log.add, node_checks)
@@ -341,6 +362,7 @@ def _resolve(
         recorder=recorder,
         tree=tree,
         docks=docks,
+        given_map=given_map,
     )
 
 

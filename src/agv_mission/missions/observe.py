@@ -70,7 +70,7 @@ class RunStart:
     run_dir: Path | None
     mission: Mission  # the resolved mission model
     robot: RobotDescription
-    world_map: OccupancyGrid  # the known map (the world's map)
+    world_map: OccupancyGrid  # the known map (the mission's map:, else the world's)
     rooms: dict[str, Room]  # label -> Room (polygon, anchor)
     start: Pose2D
     tree_nodes: list[TreeNode]  # pre-order

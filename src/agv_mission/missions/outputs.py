@@ -150,7 +150,7 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
     import matplotlib.pyplot as plt
     from matplotlib.patches import Circle, Polygon
 
-    grid = record.built_map if record.built_map is not None else loaded.world.map
+    grid = record.built_map if record.built_map is not None else loaded.map
     xmin, xmax, ymin, ymax = grid.extent
     image = np.full(grid.data.shape, 0.75)
     image[grid.data == 0] = 1.0

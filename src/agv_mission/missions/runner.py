@@ -215,7 +215,7 @@ class MissionRun:
             run_dir=self.run_dir,
             mission=self.mission,
             robot=self.robot,
-            world_map=loaded.world.map,
+            world_map=loaded.map,
             rooms=loaded.rooms,
             start=loaded.start,
             tree_nodes=tree_nodes(self.tree.root),

@@ -110,7 +110,7 @@ class RobotStack:
         self._between: list[Sensing] = []  # scans taken within the last control period
         self.odom = self.odometry.update(*self.sim.encoder_ticks())
         self.odom_start = self.odom
-        self.localizer: Localizer = self.new_localizer(loaded.world.map)
+        self.localizer: Localizer = self.new_localizer(loaded.map)
         self.localizer.reset(loaded.start, self.odom)
 
     def new_localizer(self, grid: OccupancyGrid) -> Localizer:

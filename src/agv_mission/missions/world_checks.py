@@ -20,7 +20,7 @@ from agv_mission.behaviors.ports import NodePorts
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.docks import Dock, dock_problem
-from agv_mission.maps.grid import UNKNOWN
+from agv_mission.maps.grid import UNKNOWN, OccupancyGrid
 from agv_mission.maps.rooms import Room, reachable_cells, room_point
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.missions.schema import Setup
@@ -46,12 +46,13 @@ class Placement:
     room_goals: dict[str, Pose2D]  # where each visited room is entered
 
 
-def costmap_fits(mission: Setup, world: World, report: Report) -> bool:
-    """The costmap at ``stack.costmap.resolution`` fits in memory (checked before it is built)."""
+def costmap_fits(mission: Setup, grid: OccupancyGrid, report: Report) -> bool:
+    """The costmap of ``grid`` (the robot's map) at ``stack.costmap.resolution`` fits in
+    memory (checked before it is built)."""
     resolution = mission.stack.costmap.resolution
     if resolution is None:
         return True
-    cells = grid_cells(world.map.extent, resolution)
+    cells = grid_cells(grid.extent, resolution)
     if cells > MAX_GRID_CELLS:
         report(
             ("stack", "costmap", "resolution"),

@@ -18,7 +18,8 @@ class Lidar:
     Beam ``i`` points at ``i * 2 pi / beams`` counter-clockwise from the robot's +x (beam 0
     straight ahead, like the TurtleBot3 LDS). Only geoms in :data:`WALL_GROUP` are seen, so
     the robot's own body, wheels and casters (another group) and the floor are never hit.
-    Returns closer than ``range_min`` or beyond ``range_max`` read ``inf``.
+    Returns closer than ``range_min`` or beyond ``range_max`` read ``inf``; dropped beams
+    (``dropout``) read ``nan``.
     """
 
     def __init__(
@@ -29,12 +30,16 @@ class Lidar:
         rng: np.random.Generator,
         site: str = "lidar",
         noise_std: float | None = None,
+        noise_fraction: float | None = None,
+        dropout: float | None = None,
     ) -> None:
         self.model = model
         self.data = data
         self.spec = spec
         self.rng = rng
         self.noise_std = spec.noise_std if noise_std is None else float(noise_std)
+        self.noise_fraction = spec.noise_fraction if noise_fraction is None else noise_fraction
+        self.dropout = spec.dropout if dropout is None else float(dropout)
         self.site_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, site)
         if self.site_id < 0:
             raise ValueError(f"model has no site {site!r}")
@@ -77,13 +82,20 @@ class Lidar:
         return self._dist
 
     def scan(self, time: float) -> LaserScan:
-        """One scan at the current state, with Gaussian range noise from the rng."""
+        """One scan at the current state: Gaussian range noise of standard deviation
+        ``max(noise_std, noise_fraction * range)`` and random dropouts, from the rng."""
         dist = self.cast().copy()
         hit = dist >= 0.0
-        if self.noise_std > 0.0:
-            dist[hit] += self.rng.normal(0.0, self.noise_std, size=int(hit.sum()))
+        if self.noise_std > 0.0 or self.noise_fraction > 0.0:
+            d = dist[hit]
+            sigma = np.maximum(self.noise_std, self.noise_fraction * d)
+            dist[hit] = d + sigma * self.rng.standard_normal(len(d))
         ok = hit & (dist >= self.spec.range_min) & (dist <= self.spec.range_max)
         ranges = np.where(ok, dist, np.inf).astype(np.float32)
+        if self.dropout > 0.0:
+            # A beam that got no echo back (a dark, glossy or grazing surface) is an invalid
+            # reading (REP 117: nan), not "nothing in range" (inf): it clears no free space.
+            ranges[self.rng.random(len(ranges)) < self.dropout] = np.nan
         return LaserScan(
             ranges=ranges,
             angle_min=0.0,
@@ -98,9 +110,10 @@ class WheelEncoders:
     """Incremental encoders on the two wheel hinges, read as cumulative integer ticks.
 
     Each :meth:`read` turns the wheel travel since the previous read (joint angle x radius x
-    ticks per metre) into ticks, scaled per wheel by ``1 + N(0, noise) + U(-slip, slip)``,
-    and accumulates them (sub-tick fractions are kept, so a noise-free encoder never
-    drifts). Draws come from ``rng`` only when noise/slip are non-zero.
+    ticks per metre) into ticks, scaled per wheel by ``scale * (1 + N(0, noise) +
+    U(-slip, slip))``, and accumulates them (sub-tick fractions are kept, so a noise-free
+    encoder never drifts). ``scale`` is the wheel's systematic error, ``1 + N(0,
+    scale_error)`` drawn once. Draws come from ``rng`` only when the errors are non-zero.
     """
 
     def __init__(
@@ -112,6 +125,7 @@ class WheelEncoders:
         rng: np.random.Generator,
         noise: float = 0.0,
         slip: float = 0.0,
+        scale_error: float = 0.0,
         joints: tuple[str, str] = ("wheel_left", "wheel_right"),
     ) -> None:
         self.data = data
@@ -119,6 +133,10 @@ class WheelEncoders:
         self.noise = float(noise)
         self.slip = float(slip)
         self.ticks_per_rad = wheel_radius * ticks_per_meter
+        self.scale = (1.0, 1.0)
+        if scale_error > 0.0:
+            a, b = (1.0 + rng.normal(0.0, scale_error, size=2)).tolist()
+            self.scale = (a, b)
         self._qadr = np.array(
             [
                 model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j)]
@@ -138,13 +156,13 @@ class WheelEncoders:
         (a0, a1), (b0, b1) = self._angles(), self._last_angle
         self._last_angle = (a0, a1)
         d0, d1 = (a0 - b0) * self.ticks_per_rad, (a1 - b1) * self.ticks_per_rad
-        s0 = s1 = 1.0
+        s0, s1 = self.scale
         if self.noise > 0.0:
             n0, n1 = self.rng.normal(0.0, self.noise, size=2).tolist()
-            s0, s1 = s0 + n0, s1 + n1
+            s0, s1 = s0 * (1.0 + n0), s1 * (1.0 + n1)
         if self.slip > 0.0:
             u0, u1 = self.rng.uniform(-self.slip, self.slip, size=2).tolist()
-            s0, s1 = s0 + u0, s1 + u1
+            s0, s1 = s0 + self.scale[0] * u0, s1 + self.scale[1] * u1
         self._acc = (self._acc[0] + d0 * s0, self._acc[1] + d1 * s1)
         return math.floor(self._acc[0]), math.floor(self._acc[1])
 

@@ -251,17 +251,28 @@ class DiffDriveSim:
 
         self._write_pose(start)
         mujoco.mj_forward(self.model, self.data)
+        cfg, lidar, enc = self.config, robot.lidar, robot.encoder
         self.lidar = Lidar(
-            self.model, self.data, robot.lidar, self.rng, noise_std=self.config.lidar_noise
+            self.model,
+            self.data,
+            lidar,
+            self.rng,
+            noise_std=cfg.pick("lidar_noise", lidar.noise_std),
+            # A constant lidar_noise given alone replaces the robot's whole noise model.
+            noise_fraction=cfg.pick(
+                "lidar_noise_fraction", 0.0 if cfg.lidar_noise is not None else lidar.noise_fraction
+            ),
+            dropout=cfg.pick("lidar_dropout", lidar.dropout),
         )
         self.encoders = WheelEncoders(
             self.model,
             self.data,
             robot.wheel_radius,
-            robot.encoder.ticks_per_meter,
+            enc.ticks_per_meter,
             self.rng,
-            noise=self.config.encoder_noise,
-            slip=self.config.wheel_slip,
+            noise=cfg.pick("encoder_noise", enc.noise),
+            slip=cfg.pick("wheel_slip", enc.slip),
+            scale_error=cfg.pick("wheel_scale_error", enc.scale_error),
         )
 
     # ----------------------------------------------------------------- time and commands

@@ -69,6 +69,12 @@ class Setup(StrictModel):
         "turtlebot3_world",
         description="a built-in world, a world file, or a ROS map_server YAML",
     )
+    map: str | None = Field(
+        None,
+        description="a ROS map_server YAML the robot is given (localisation, planning, rooms), "
+        "in the world's frame, e.g. from an earlier map_area run; the world stays what is "
+        "simulated; default: the world's own map",
+    )
     rooms: str | None = Field(None, description="rooms file; built-in worlds carry their own")
     robot: str = Field("burger", description="burger, waffle, rosbots, or a robot file")
     start: StartSpec | None = Field(
@@ -147,6 +153,7 @@ class Mission(Setup):
 FIELD_ORDER = (
     "name",
     "world",
+    "map",
     "rooms",
     "robot",
     "start",

@@ -426,10 +426,7 @@ def test_no_ompl_leaks_or_log_lines() -> None:
 def ros_costmap(name: str) -> Costmap:
     from agv_mission.maps.ros_map import load_ros_map
 
-    yaml_path = ROS_MAPS / name / "map.yaml"
-    if not yaml_path.is_file():
-        pytest.skip(f"shared map {yaml_path} not available")
-    return Costmap.from_grid(load_ros_map(yaml_path), ROBOT_RADIUS, COSTMAP)
+    return Costmap.from_grid(load_ros_map(ROS_MAPS / name / "map.yaml"), ROBOT_RADIUS, COSTMAP)
 
 
 def legs(waypoints: list[Pose2D]) -> list[tuple[Pose2D, Pose2D]]:

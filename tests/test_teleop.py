@@ -239,7 +239,9 @@ def _start(tmux: Tmux, tmp_path: Path, *args: str) -> None:
     command = shlex.join([*CLI, "teleop", *args])
     script.write_text(
         f"cd {shlex.quote(str(tmp_path))}\n"
-        "stty -g > stty_before\n"
+        # a pane just made may not answer stty at once on a loaded machine: ask again
+        "for i in 1 2 3 4 5 6 7 8 9 10; do stty -g > stty_before && [ -s stty_before ] && break;"
+        " sleep 0.2; done\n"
         f"sh -c 'echo $$ > pid; exec \"$@\"' sh {command}\n"
         "echo TELEOP_EXIT=$?\n"
         "stty -g > stty_after\n"

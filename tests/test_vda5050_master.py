@@ -31,7 +31,11 @@ WAREHOUSE = {
     "tasks": [
         {"type": "visit_rooms", "rooms": ["cross_aisle", "back_aisle"], "robot": "agv1"},
         {"type": "visit_rooms", "rooms": ["cross_aisle", "west_aisle"], "robot": "agv2"},
-        {"type": "go_to", "pose": {"x": 2.0, "y": -20.0, "yaw": 0.0}},
+        {
+            "type": "go_to",
+            "pose": {"x": 2.0, "y": -20.0, "yaw": 0.0},
+            "actions": [{"type": "pick", "load_id": "pallet3"}],
+        },
         {"type": "patrol", "waypoints": [{"x": -12.0, "y": -20.0}, {"x": 12.0, "y": -20.0}]},
     ],
     "limits": {"time": 40.0},
@@ -110,6 +114,12 @@ def test_warehouse_mission_on_minimal_vehicles_with_traffic(
     assert {r["robot"] for r in rows} == {"agv1", "agv2"}
     edges = [e["edgeId"] for v in vehicles for o in v.orders for e in o["edges"]]
     assert "cross_aisle-back_aisle" in edges
+    # the go_to task's pick went to its goal node as a HARD node action, and was done
+    picks = [a for v in vehicles for o in v.orders for n in o["nodes"] for a in n["actions"]]
+    assert picks and {(a["actionType"], a["blockingType"]) for a in picks} == {("pick", "HARD")}
+    assert {"key": "loadId", "value": "pallet3"} in picks[0]["actionParameters"]
+    [done] = doc["tasks"][2]["actions"]
+    assert done["type"] == "pick" and done["node"] == "goal3" and done["status"] == "FINISHED"
 
 
 def test_a_vehicle_that_drops_off_has_its_task_redispatched(tmp_path: Path) -> None:

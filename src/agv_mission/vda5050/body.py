@@ -203,6 +203,9 @@ class SimulatedBody:
         self._watch_goal(run)
         self._watch_dock(run)
         handle, smoother = run.handle, run.stack.smoother
+        goal, nav, paused = self._goal, self._nav, self._paused
+        if nav == "running" and goal is not None and not paused and handle.remote_goal is None:
+            handle.remote_goal = goal[0]  # the teleop task's first tick had cleared it
         v, w = smoother.v, smoother.w  # the command of the step just made (state's lags one)
         battery = handle.battery
         snap = BodySnapshot(

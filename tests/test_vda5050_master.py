@@ -31,7 +31,11 @@ WAREHOUSE = {
     "tasks": [
         {"type": "visit_rooms", "rooms": ["cross_aisle", "back_aisle"], "robot": "agv1"},
         {"type": "visit_rooms", "rooms": ["cross_aisle", "west_aisle"], "robot": "agv2"},
-        {"type": "go_to", "pose": {"x": 2.0, "y": -20.0, "yaw": 0.0}},
+        {
+            "type": "go_to",
+            "pose": {"x": 2.0, "y": -20.0, "yaw": 0.0},
+            "actions": [{"type": "pick", "load_id": "pallet3"}],
+        },
         {"type": "patrol", "waypoints": [{"x": -12.0, "y": -20.0}, {"x": 12.0, "y": -20.0}]},
     ],
     "limits": {"time": 40.0},
@@ -110,6 +114,12 @@ def test_warehouse_mission_on_minimal_vehicles_with_traffic(
     assert {r["robot"] for r in rows} == {"agv1", "agv2"}
     edges = [e["edgeId"] for v in vehicles for o in v.orders for e in o["edges"]]
     assert "cross_aisle-back_aisle" in edges
+    # the go_to task's pick went to its goal node as a HARD node action, and was done
+    picks = [a for v in vehicles for o in v.orders for n in o["nodes"] for a in n["actions"]]
+    assert picks and {(a["actionType"], a["blockingType"]) for a in picks} == {("pick", "HARD")}
+    assert {"key": "loadId", "value": "pallet3"} in picks[0]["actionParameters"]
+    [done] = doc["tasks"][2]["actions"]
+    assert done["type"] == "pick" and done["node"] == "goal3" and done["status"] == "FINISHED"
 
 
 def test_a_vehicle_that_drops_off_has_its_task_redispatched(tmp_path: Path) -> None:
@@ -179,6 +189,10 @@ def test_our_master_drives_our_vehicle_end_to_end(tmp_path: Path) -> None:
             {
                 "type": "patrol",
                 "waypoints": [{"x": -1.4, "y": -0.5}, {"x": -0.55, "y": -0.55, "yaw": 0.0}],
+                "actions": [
+                    {"type": "pick", "at": "wp1", "duration": 1.0, "load_id": "crate7"},
+                    {"type": "drop", "duration": 1.0},
+                ],
             }
         ],
         "limits": {"time": 90.0},
@@ -204,6 +218,15 @@ def test_our_master_drives_our_vehicle_end_to_end(tmp_path: Path) -> None:
     assert not watcher.invalid, watcher.invalid
     last = watcher.of("agv1", "state")[-1]
     assert last["agvPosition"]["x"] == pytest.approx(-0.55, abs=0.1)
+    # the task's pick at wp1 and drop at the last node went as HARD node actions, done
+    done = [(a["type"], a["node"], a["status"], a["result"]) for a in result["tasks"][0]["actions"]]
+    assert done == [("pick", "wp1", "FINISHED", "crate7"), ("drop", "wp2", "FINISHED", "crate7")]
+    assert [e["action"] for e in result["fleet"]["events"] if e["event"] == "action_finished"] == [
+        "pick",
+        "drop",
+    ]
+    carrying = [s for s in watcher.of("agv1", "state") if s["loads"]]
+    assert carrying and carrying[0]["loads"][0]["loadId"] == "crate7" and not last["loads"]
     assert (run_dir / "trajectory.csv").stat().st_size > 100
 
 
@@ -237,7 +260,30 @@ def test_dispatch_cli_bad_input_exits_2(tmp_path: Path) -> None:
         timeout=60,
     )
     assert r.returncode == 2 and "missing.yaml" in r.stderr
-    assert time.monotonic() > 0
+    wrong = write(
+        tmp_path / "wrong_at.yaml",
+        {
+            "name": "x",
+            "world": "warehouse",
+            "tasks": [
+                {
+                    "type": "go_to",
+                    "pose": {"x": 0, "y": 0},
+                    "actions": [{"type": "pick", "at": "wp9"}],
+                }
+            ],
+        },
+    )
+    r = subprocess.run(
+        [*cmd, "dispatch", str(wrong), "--broker", "mqtt://127.0.0.1:1"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert (
+        r.returncode == 2 and "wrong_at.yaml:10" in r.stderr and "tasks.0.actions.0.at" in r.stderr
+    )
+    assert "goal" in r.stderr
 
 
 def test_master_rides_out_a_broker_restart(mosquitto: Mosquitto, tmp_path: Path) -> None:

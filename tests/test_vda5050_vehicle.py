@@ -30,6 +30,7 @@ MISSION = {
     "robot": "burger",
     "start": {"x": -2.0, "y": -0.5, "yaw": 0.0},
     "seed": 1,
+    "simulation": {"battery_level": 0.6},
     "stack": {
         "localization": {"type": "ground_truth"},
         "global_planner": {"type": "cost_grid"},
@@ -436,6 +437,74 @@ def test_instant_actions(rig, tmp_path: Path) -> None:
         10,
         t2,
     )
+
+
+def charge_status(state: dict, action_id: str) -> str | None:
+    return {a["actionId"]: a["actionStatus"] for a in state["actionStates"]}.get(action_id)
+
+
+def test_charging_at_the_dock_with_the_robots_battery(rig) -> None:
+    """The master sends the vehicle to the charging node (the world's dock ``charger``) with
+    ``startCharging`` on it: the vehicle connects there, the level rises at the battery's
+    charge power until ``stopCharging``."""
+    master, vehicle, _body = rig
+    battery = vehicle.body.loaded.robot.battery
+    assert battery is not None and battery.voltage is not None
+    s0 = master.of(SERIAL, "state")[-1]["batteryState"]
+    assert s0["charging"] is False and 0.0 < s0["batteryCharge"] < 60.0  # started at 60 %
+    assert s0["batteryVoltage"] == battery.voltage
+    dock = vehicle.body.loaded.world.docks["charger"].pose
+    x, y = here(master)
+    a = node("c0", 0, x, y, MAP)
+    b = node("stage", 2, dock.x, dock.y + 0.6, MAP)
+    c = node(
+        "charger",
+        4,
+        dock.x,
+        dock.y,
+        MAP,
+        actions=[action("chg1", "startCharging")],
+        theta=dock.yaw,
+    )
+    t0 = time.monotonic()
+    master.send(
+        SERIAL,
+        "order",
+        orderId="o-charge",
+        orderUpdateId=0,
+        nodes=[a, b, c],
+        edges=[edge(a, b), edge(b, c)],
+    )
+    on = master.wait(SERIAL, "state", lambda s: s["batteryState"]["charging"], 90, t0)
+    assert charge_status(on, "chg1") == "FINISHED" and on["lastNodeId"] == "charger"
+    assert not errors_of(on, "chargingError")
+    level_on, t_on = on["batteryState"]["batteryCharge"], time.monotonic()
+    later = master.wait(
+        SERIAL, "state", lambda s: s["batteryState"]["batteryCharge"] > level_on + 0.05, 30, t_on
+    )
+    assert later["batteryState"]["charging"] and not later["driving"]
+    t1 = time.monotonic()
+    master.send(SERIAL, "instantActions", actions=[action("stop1", "stopCharging")])
+    off = master.wait(SERIAL, "state", lambda s: charge_status(s, "stop1") == "FINISHED", 10, t1)
+    assert off["batteryState"]["charging"] is False
+    level_off, t_off = off["batteryState"]["batteryCharge"], time.monotonic()
+    drained = master.wait(
+        SERIAL, "state", lambda s: s["batteryState"]["batteryCharge"] < level_off, 30, t_off
+    )
+    assert drained["batteryState"]["charging"] is False
+    # away from the dock startCharging fails with an error naming the nearest dock
+    x, y = here(master)
+    a, b = node("d0", 0, x, y, MAP), node("away", 2, dock.x, dock.y + 0.6, MAP)
+    t2 = time.monotonic()
+    master.send(
+        SERIAL, "order", orderId="o-away", orderUpdateId=0, nodes=[a, b], edges=[edge(a, b)]
+    )
+    master.wait(SERIAL, "state", lambda s: s["lastNodeId"] == "away", 60, t2)
+    master.send(SERIAL, "instantActions", actions=[action("chg2", "startCharging")])
+    failed = master.wait(SERIAL, "state", lambda s: charge_status(s, "chg2") == "FAILED", 10, t2)
+    err = [e for e in errors_of(failed, "chargingError") if ref(e, "actionId") == "chg2"]
+    assert err and "charger" in err[0]["errorDescription"]
+    assert failed["batteryState"]["charging"] is False
 
 
 def test_clean_stop_and_last_will_on_the_embedded_broker(tmp_path: Path) -> None:

@@ -247,6 +247,7 @@ class MiniVehicle:
         self.nodes: list[dict[str, Any]] = []
         self.edges: list[dict[str, Any]] = []
         self.last_node, self.last_seq = "", 0
+        self.actions: dict[str, dict[str, Any]] = {}  # node actions, done on reaching the node
         self.lock = threading.Lock()
         self.stopped = threading.Event()
         self.log: list[tuple[float, str, str]] = []  # (time, "released" | "reached", nodeId)
@@ -300,6 +301,15 @@ class MiniVehicle:
             else:
                 return
             for n in self.nodes:
+                for a in n.get("actions", []):
+                    self.actions.setdefault(
+                        a["actionId"],
+                        {
+                            "actionId": a["actionId"],
+                            "actionType": a["actionType"],
+                            "actionStatus": "WAITING",
+                        },
+                    )
                 if n["released"] and not any(
                     e == (n["sequenceId"], doc["orderId"]) for e in self._seen
                 ):
@@ -329,7 +339,7 @@ class MiniVehicle:
                 "positionInitialized": True,
             },
             driving=driving,
-            actionStates=[],
+            actionStates=list(self.actions.values()),
             batteryState={"batteryCharge": 80.0, "charging": False},
             operatingMode="AUTOMATIC",
             errors=[],
@@ -354,6 +364,8 @@ class MiniVehicle:
                             self.edges.pop(0)
                         self.last_node, self.last_seq = done["nodeId"], done["sequenceId"]
                         self.log.append((time.monotonic(), "reached", done["nodeId"]))
+                        for a in done.get("actions", []):  # instantly done (6.11 allows it)
+                            self.actions[a["actionId"]]["actionStatus"] = "FINISHED"
                         n = 0
                     else:
                         self.x += step * dx / dist

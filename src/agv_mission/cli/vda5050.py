@@ -180,3 +180,68 @@ def dispatch(
         )
     out.print(f"run directory: {run_dir}", highlight=False)
     raise typer.Exit(EXIT_CODES.get(result["status"], 3))
+
+
+@app.command()
+def watch(
+    broker: Broker = None,
+    manufacturer: Annotated[
+        str, typer.Option(help="the topics' manufacturer level to watch (+: every one)")
+    ] = "+",
+    world: Annotated[
+        list[str],
+        typer.Option(help="a world (built-in name or file) for vehicles on a map of its name"),
+    ] = [],  # noqa: B006
+    host: Annotated[str, typer.Option(help="address the page is served on")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(min=0, max=65535, help="port of the page (0: any)")] = 8050,
+    username: Username = None,
+    password: Password = None,
+    embedded_port: EmbeddedPort = 1883,
+    duration: Annotated[
+        Optional[float],  # noqa: UP045
+        typer.Option(min=0.0, help="stop after this many wall seconds (default: until Ctrl-C)"),
+    ] = None,
+) -> None:
+    """A web page showing every VDA 5050 vehicle on a broker on its map, with its state."""
+    from agv_mission.maps.world_loader import WorldError, load_world
+    from agv_mission.vda5050.watch import FleetWatch, WatchServer
+
+    try:
+        worlds = [load_world(spec) for spec in world]
+    except WorldError as exc:
+        raise failure("invalid input", str(exc)) from None
+    url, embedded = _broker(broker, username, password, embedded_port)
+    stop = threading.Event()
+    _stop_on_signals(stop)
+    fleet = FleetWatch(url, manufacturer, worlds)
+    try:
+        server = WatchServer(fleet, host, port)
+    except OSError as exc:
+        if embedded is not None:
+            embedded.stop()
+        raise failure("watch", f"cannot serve on {host}:{port}: {exc}", 3) from None
+    try:
+        fleet.start()
+    except (RuntimeError, ConnectionError) as exc:
+        server.server_close()
+        if embedded is not None:
+            embedded.stop()
+        raise failure("watch", str(exc), 3) from None
+    threading.Thread(target=server.serve_forever, name="vda5050-watch", daemon=True).start()
+    shown = f"http://{host}:{server.server_address[1]}/"
+    out.print(
+        f"watching uagv/v2/{manufacturer}/+/ on {url}: {shown}", highlight=False, markup=False
+    )
+    end = None if duration is None else time.monotonic() + duration
+    try:
+        while not stop.is_set():
+            left = 1.0 if end is None else min(1.0, end - time.monotonic())
+            if left <= 0:
+                break
+            stop.wait(left)
+    finally:
+        server.shutdown()
+        server.server_close()
+        fleet.stop()
+        if embedded is not None:
+            embedded.stop()

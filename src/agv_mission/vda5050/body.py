@@ -26,6 +26,11 @@ from agv_mission.missions.stack import CONTROL_PERIOD
 
 NavState = Literal["idle", "running", "succeeded", "failed"]
 
+#: m from a dock's pose within which ``startCharging`` connects to its charger: a node at
+#: the dock's pose is reached within 0.05 m (the navigator's default goal tolerance);
+#: the margin allows an ``allowedDeviationXY`` a master may give the charging node
+DOCK_REACH = 0.25
+
 
 @dataclass(frozen=True)
 class BodySnapshot:
@@ -40,6 +45,12 @@ class BodySnapshot:
     goal_id: int  # which navigate_to the state belongs to
     paused: bool
     fault: str | None = None  # why the simulation stopped, once it has
+    battery: float | None = None  # state of charge 0..1 (None: the robot models no battery)
+    voltage: float | None = None  # the battery's nominal V, when the robot file gives it
+    charging: bool = False
+    dock: str | None = None  # the dock the robot stands on
+    charge_id: int = 0  # the last start/stop charging request the body has handled
+    charge_error: str | None = None  # why that request could not be done
 
 
 class VehicleBody(Protocol):
@@ -70,6 +81,11 @@ class VehicleBody(Protocol):
         """Reset the localiser to ``pose`` (the standard's initPosition)."""
         ...
 
+    def charge(self, on: bool) -> int:
+        """Start (dock onto the dock the robot stands at) or stop charging; returns the
+        request's id (``charge_id`` of the snapshots that answer it)."""
+        ...
+
 
 class SimulatedBody:
     """One simulated robot running its mission stack on a thread of its own."""
@@ -97,6 +113,9 @@ class SimulatedBody:
         self._reason: str | None = None
         self._paused = False
         self._events_seen = 0
+        self._charge_counter = 0
+        self._charge_id = 0
+        self._charge_error: str | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._next_tick = 0.0
@@ -164,6 +183,13 @@ class SimulatedBody:
     def set_pose(self, pose: Pose2D) -> None:
         self._commands.put(lambda run: self._reset_pose(run, pose))
 
+    def charge(self, on: bool) -> int:
+        with self._lock:
+            self._charge_counter += 1
+            request = self._charge_counter
+        self._commands.put(lambda run: self._set_charging(run, request, on))
+        return request
+
     # ---------------------------------------------------------------- on the run's thread
 
     def before_step(self, run: MissionRun) -> None:
@@ -175,8 +201,13 @@ class SimulatedBody:
             self.ready.set()
             self._next_tick = time.monotonic()
         self._watch_goal(run)
+        self._watch_dock(run)
         handle, smoother = run.handle, run.stack.smoother
+        goal, nav, paused = self._goal, self._nav, self._paused
+        if nav == "running" and goal is not None and not paused and handle.remote_goal is None:
+            handle.remote_goal = goal[0]  # the teleop task's first tick had cleared it
         v, w = smoother.v, smoother.w  # the command of the step just made (state's lags one)
+        battery = handle.battery
         snap = BodySnapshot(
             run.sim.time,
             handle.state.estimate,
@@ -186,6 +217,12 @@ class SimulatedBody:
             self._reason,
             self._goal_id,
             self._paused,
+            battery=None if battery is None else battery.level,
+            voltage=None if battery is None else battery.spec.voltage,
+            charging=battery is not None and battery.charging,
+            dock=None if handle.docked is None else handle.docked.name,
+            charge_id=self._charge_id,
+            charge_error=self._charge_error,
         )
         with self._lock:
             changed = _phase(snap) != _phase(self._snap)
@@ -250,6 +287,52 @@ class SimulatedBody:
         run.localizer.reset(pose, run.stack.odom)
         run.handle.state.estimate = pose
 
+    def _set_charging(self, run: MissionRun, request: int, on: bool) -> None:
+        """Dock onto the nearest dock within :data:`DOCK_REACH` and charge, or stop. A real
+        AGV is sent to its charging station node and then told ``startCharging``; it
+        connects to the charger where it stands, it does not drive anywhere for it."""
+        handle, battery = run.handle, run.handle.battery
+        self._charge_id, self._charge_error = request, None
+        if not on:
+            if battery is not None:
+                battery.charging = False
+            handle.docked = None
+            return
+        if battery is None:
+            self._charge_error = f"robot {self.robot_name!r} models no battery to charge"
+            return
+        here = handle.state.estimate
+        near = sorted(
+            (math.hypot(d.pose.x - here.x, d.pose.y - here.y), name)
+            for name, d in handle.docks.items()
+        )
+        if not near:
+            self._charge_error = f"world {self.map_id!r} has no dock"
+            return
+        distance, name = near[0]
+        if distance > DOCK_REACH:
+            self._charge_error = (
+                f"not at a dock: the nearest, {name!r} at ({handle.docks[name].pose.x:g}, "
+                f"{handle.docks[name].pose.y:g}), is {distance:.2f} m away "
+                f"(a vehicle charges within {DOCK_REACH:g} m of a dock's pose)"
+            )
+            return
+        handle.docked = handle.docks[name]
+        battery.charging = True
+        handle.log("charging", dock=name, level=round(battery.level, 4))
+
+    def _watch_dock(self, run: MissionRun) -> None:
+        """Charging ends when the robot drives off its dock (the contacts part)."""
+        handle, battery = run.handle, run.handle.battery
+        dock = handle.docked
+        if battery is None or dock is None or not battery.charging:
+            return
+        est = handle.state.estimate
+        if math.hypot(est.x - dock.pose.x, est.y - dock.pose.y) > DOCK_REACH:
+            battery.charging = False
+            handle.docked = None
+            handle.log("undocked", dock=dock.name)
+
     def _watch_goal(self, run: MissionRun) -> None:
         events = run.handle.events
         while self._events_seen < len(events):
@@ -277,4 +360,4 @@ def yaw_or_free(
 def _phase(snap: BodySnapshot) -> tuple[object, ...]:
     """What a change of wakes the vehicle: the goal's state, pause, moving or not."""
     moving = abs(snap.v) > 1e-3 or abs(snap.w) > 1e-3
-    return (snap.nav, snap.goal_id, snap.paused, moving)
+    return (snap.nav, snap.goal_id, snap.paused, moving, snap.charging, snap.charge_id)

@@ -44,9 +44,18 @@ def load_vehicles(
             [Problem(str(path), None, "", f"cannot read the mission: {exc}")]
         ) from None
     if not isinstance(doc, dict) or "robots" not in doc:
-        return [
-            VehicleSpec(DEFAULT_SERIAL, load_mission(path, overrides, seed, tasks_required=False))
-        ]
+        tasks = doc.get("tasks") if isinstance(doc, dict) else None
+        if isinstance(tasks, list) and any(isinstance(t, dict) and "actions" in t for t in tasks):
+            # the master's node actions (``dispatch`` only): not the vehicle's business
+            doc["tasks"] = [
+                {k: v for k, v in t.items() if k != "actions"} if isinstance(t, dict) else t
+                for t in tasks
+            ]
+            text = yaml.safe_dump(doc, sort_keys=False)
+            loaded = load_mission(path, overrides, seed, text=text, tasks_required=False)
+        else:
+            loaded = load_mission(path, overrides, seed, tasks_required=False)
+        return [VehicleSpec(DEFAULT_SERIAL, loaded)]
     robots = doc["robots"]
     if not isinstance(robots, list) or not robots:
         raise MissionError([Problem(str(path), None, "robots", "a non-empty list of robots")])

@@ -19,16 +19,18 @@ import json
 import math
 import queue
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from agv_mission.atomic import atomic_write_text
 from agv_mission.missions.errors import MissionError, Problem
 from agv_mission.missions.loader import LoadedMission, load_mission
 from agv_mission.missions.outputs import make_run_dir, write_json
+from agv_mission.missions.yaml_lines import line_of, load_with_lines
 from agv_mission.vda5050.messages import split_topic
 from agv_mission.vda5050.transport import BrokerUrl, MqttLink
 
@@ -38,12 +40,44 @@ ORDER_TIMEOUT = 15.0  # s: an order the vehicle has not taken by then fails its 
 START_DEVIATION = 0.5  # m: the first node is where the vehicle stands, within this
 
 
+class NodeAction(BaseModel):
+    """A load handling action at one of a task's nodes (a dispatched task's ``actions:``),
+    sent as a HARD node action of the order (6.8.2 ``pick`` / ``drop``)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    type: Literal["pick", "drop"]
+    at: str | None = Field(
+        None,
+        description="the node: go_to `goal`, patrol `wpN` (each loop), visit_rooms a room "
+        "label; default the task's last node",
+    )
+    duration: float | None = Field(
+        None, gt=0, le=3600, description="s the vehicle takes (its own default if not given)"
+    )
+    load_id: str | None = Field(None, min_length=1, max_length=128)
+    load_type: str | None = Field(None, min_length=1, max_length=128)
+
+    def doc(self, action_id: str) -> dict[str, Any]:
+        params = {"duration": self.duration, "loadId": self.load_id, "loadType": self.load_type}
+        out: dict[str, Any] = {
+            "actionId": action_id,
+            "actionType": self.type,
+            "blockingType": "HARD",
+        }
+        given = [{"key": k, "value": v} for k, v in params.items() if v is not None]
+        if given:
+            out["actionParameters"] = given
+        return out
+
+
 @dataclass(frozen=True)
 class RouteNode:
     node_id: str
     x: float
     y: float
     theta: float | None
+    actions: tuple[NodeAction, ...] = ()
 
 
 @dataclass
@@ -59,6 +93,7 @@ class TaskRoute:
     status: str = "pending"  # pending | running | succeeded | failed | skipped
     reason: str | None = None
     assigned: str | None = None
+    actions: dict[str, dict[str, Any]] = field(default_factory=dict)  # by actionId, as done
 
 
 @dataclass
@@ -76,7 +111,13 @@ class MasterPlan:
     resolved: dict[str, Any] = field(default_factory=dict)
 
 
-def _route(task: Any, index: int, loaded: LoadedMission) -> TaskRoute:
+def _route(
+    task: Any,
+    index: int,
+    loaded: LoadedMission,
+    actions: list[NodeAction] | None = None,
+    lines: dict[Any, int] | None = None,
+) -> TaskRoute:
     kind = task.type
     nodes: list[RouteNode] = []
     if kind == "go_to":
@@ -101,9 +142,90 @@ def _route(task: Any, index: int, loaded: LoadedMission) -> TaskRoute:
                 )
             ]
         )
+    nodes = _with_actions(nodes, actions or [], kind, index, loaded, lines or {})
     policy = getattr(task, "on_failure", "abort")
     retries = getattr(task, "retries", 0) if policy == "retry" else 0
     return TaskRoute(index, kind, nodes, retries=retries, on_failure=policy)
+
+
+def _with_actions(
+    nodes: list[RouteNode],
+    actions: list[NodeAction],
+    kind: str,
+    index: int,
+    loaded: LoadedMission,
+    lines: dict[Any, int],
+) -> list[RouteNode]:
+    """``nodes`` with each action on the nodes it names (``go_to``'s node is ``goal``)."""
+    ids = ["goal" if kind == "go_to" else n.node_id for n in nodes]
+    on: list[list[NodeAction]] = [[] for _ in nodes]
+    for j, act in enumerate(actions):
+        at = act.at if act.at is not None else ids[-1]
+        hits = [i for i, node_id in enumerate(ids) if node_id == at]
+        if not hits:
+            names = ", ".join(dict.fromkeys(ids))
+            raise MissionError(
+                [
+                    Problem(
+                        str(loaded.source),
+                        line_of(("tasks", index, "actions", j, "at"), lines),
+                        f"tasks.{index}.actions.{j}.at",
+                        f"{at!r} is not a node of this {kind} task (its nodes: {names})",
+                    )
+                ]
+            )
+        for i in hits:
+            on[i].append(act)
+    return [replace(n, actions=tuple(a)) for n, a in zip(nodes, on, strict=True)]
+
+
+def _lines(text: str) -> dict[Any, int]:
+    try:
+        return load_with_lines(text)[1]
+    except yaml.YAMLError:
+        return {}
+
+
+def _pop_actions(path: Path, lines: dict[Any, int], tasks: list[Any]) -> list[list[NodeAction]]:
+    """Take each task's ``actions:`` (a dispatch-only field) out of ``tasks``, validated."""
+    out: list[list[NodeAction]] = []
+    for i, task in enumerate(tasks):
+        raw = task.pop("actions", None) if isinstance(task, dict) else None
+        if raw is None:
+            out.append([])
+            continue
+        if not isinstance(raw, list):
+            where = ("tasks", i, "actions")
+            raise MissionError(
+                [
+                    Problem(
+                        str(path),
+                        line_of(where, lines),
+                        f"tasks.{i}.actions",
+                        "a list of {type: pick|drop, at: NODE, duration, load_id, load_type}",
+                    )
+                ]
+            )
+        acts = []
+        for j, item in enumerate(raw):
+            try:
+                acts.append(NodeAction.model_validate(item))
+            except ValidationError as exc:
+                err = exc.errors()[0]
+                sub = tuple(err["loc"])
+                where = ("tasks", i, "actions", j, *sub)
+                raise MissionError(
+                    [
+                        Problem(
+                            str(path),
+                            line_of(where, lines),
+                            ".".join(str(p) for p in where),
+                            err["msg"],
+                        )
+                    ]
+                ) from None
+        out.append(acts)
+    return out
 
 
 def load_plan(
@@ -115,12 +237,14 @@ def load_plan(
     """The plan of mission file ``path``: a one-robot mission drives vehicle ``agv1`` (or
     ``robots``); a ``robots:`` list names the vehicles and tasks may carry ``robot:``."""
     try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
+        doc = yaml.safe_load(text)
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise MissionError(
             [Problem(str(path), None, "", f"cannot read the mission: {exc}")]
         ) from None
     assigned: list[str | None] = []
+    lines = _lines(text)
     if isinstance(doc, dict) and isinstance(doc.get("robots"), list) and doc["robots"]:
         names = [r.get("name") for r in doc["robots"] if isinstance(r, dict)]
         if not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
@@ -137,14 +261,26 @@ def load_plan(
             task = dict(task) if isinstance(task, dict) else task
             assigned.append(task.pop("robot", None) if isinstance(task, dict) else None)
             tasks.append(task)
+        actions = _pop_actions(path, lines, tasks)
         one["tasks"] = tasks
         loaded = load_mission(path, overrides, seed, text=yaml.safe_dump(one, sort_keys=False))
         robot_names = list(names)
     else:
-        loaded = load_mission(path, overrides, seed)
+        tasks = doc.get("tasks") if isinstance(doc, dict) else None
+        if isinstance(tasks, list) and any(isinstance(t, dict) and "actions" in t for t in tasks):
+            tasks = [dict(t) if isinstance(t, dict) else t for t in tasks]
+            actions = _pop_actions(path, lines, tasks)
+            one = {**doc, "tasks": tasks}
+            loaded = load_mission(path, overrides, seed, text=yaml.safe_dump(one, sort_keys=False))
+        else:
+            loaded = load_mission(path, overrides, seed)
+            actions = []
         robot_names = robots or ["agv1"]
         assigned = [robot_names[0] if len(robot_names) == 1 else None] * len(loaded.mission.tasks)
-    routes = [_route(task, i, loaded) for i, task in enumerate(loaded.mission.tasks)]
+    routes = [
+        _route(task, i, loaded, actions[i] if i < len(actions) else None, lines)
+        for i, task in enumerate(loaded.mission.tasks)
+    ]
     for route, robot in zip(routes, assigned, strict=True):
         if robot is not None and robot not in robot_names:
             raise MissionError(
@@ -198,6 +334,8 @@ class ActiveOrder:
     released: int = 0  # index of the decision point (last released node)
     sent_at: float = 0.0
     last_first: int = 0  # the first node index of the message last sent
+    #: node actions by actionId: (node index, the action)
+    actions: dict[str, tuple[int, NodeAction]] = field(default_factory=dict)
     last_sent: float = 0.0
 
 
@@ -423,7 +561,7 @@ class Master:
             and self.now() - order.last_sent > RESEND_AFTER
         ):
             self._publish_order(peer, order, order.last_first)
-        error = self._order_error(state, order)
+        error = self._order_error(state, order) or self._follow_actions(peer, order, state)
         last_seq = int(state.get("lastNodeSequenceId", -1))
         final_seq = 2 * (len(order.nodes) - 1)
         actions_done = all(
@@ -439,6 +577,38 @@ class Master:
             )
         else:
             self._extend(peer, order, last_seq // 2 if last_seq >= 0 else 0)
+
+    def _follow_actions(self, peer: Peer, order: ActiveOrder, state: dict[str, Any]) -> str | None:
+        """Note how the order's pick/drop went (in the task, an event when one ends); why
+        the task fails when one failed."""
+        task, failed = order.task, None
+        for a in state.get("actionStates", []):
+            action_id = a.get("actionId")
+            if action_id not in order.actions:
+                continue
+            at, act = order.actions[action_id]
+            status = str(a.get("actionStatus"))
+            done = {
+                "type": act.type,
+                "node": order.nodes[at].node_id,
+                "robot": peer.serial,
+                "status": status,
+                "result": a.get("resultDescription"),
+            }
+            before = task.actions.get(action_id, {}).get("status")
+            task.actions[action_id] = done
+            if status in ("FINISHED", "FAILED") and before != status:
+                self.event(
+                    f"action_{status.lower()}",
+                    task=task.index,
+                    robot=peer.serial,
+                    action=act.type,
+                    node=done["node"],
+                    result=done["result"],
+                )
+            if status == "FAILED" and failed is None:
+                failed = f"{act.type} at {done['node']} failed: {done['result'] or 'no reason'}"
+        return failed
 
     def _order_error(self, state: dict[str, Any], order: ActiveOrder) -> str | None:
         for err in state.get("errors", []):
@@ -483,6 +653,9 @@ class Master:
             f"{self.plan.name}-t{task.index}-{peer.serial}-{peer.orders_made}",
             [here, *task.nodes],
         )
+        for i, n in enumerate(order.nodes):
+            for k, act in enumerate(n.actions):
+                order.actions[f"{order.order_id}-n{2 * i}-{k}-{act.type}"] = (i, act)
         order.released = self._grantable(peer, order, 0)
         order.sent_at = self.now()
         task.status = "running"
@@ -531,7 +704,11 @@ class Master:
                     "sequenceId": 2 * i,
                     "released": released,
                     "nodePosition": pos,
-                    "actions": [],
+                    "actions": [
+                        act.doc(action_id)
+                        for action_id, (at, act) in order.actions.items()
+                        if at == i
+                    ],
                 }
             )
             if i > first:
@@ -627,6 +804,7 @@ class Master:
                     "status": t.status,
                     "reason": t.reason,
                     "nodes": [n.node_id for n in t.nodes],
+                    "actions": list(t.actions.values()),
                 }
                 for t in self.plan.tasks
             ],

@@ -55,6 +55,7 @@ class ActionRun:
     started: float | None = None  # simulated time it started
     result: str | None = None
     elapsed: float = 0.0  # simulated seconds of work done (frozen while paused)
+    request: int = 0  # the body's charge request it waits for (start/stopCharging)
 
     def doc(self) -> dict[str, Any]:
         d = {
@@ -100,7 +101,6 @@ class Vehicle:
         self.errors: list[dict[str, Any]] = []
         self.loads: list[dict[str, Any]] = []
         self.paused = False
-        self.charging = False
         self._prev_driving = False
         self._faulted = False
         self._load_count = 0
@@ -230,7 +230,7 @@ class Vehicle:
                 "paused": self.paused,
                 "newBaseRequest": bool(o.nodes) and all(not n.released for n in o.nodes),
                 "actionStates": [a.doc() for a in self.actions.values()],
-                "batteryState": {"batteryCharge": 100.0, "charging": self.charging},
+                "batteryState": _battery_state(snap),
                 "operatingMode": "AUTOMATIC",
                 "errors": list(self.errors),
                 "safetyState": {"eStop": "NONE", "fieldViolation": False},
@@ -596,7 +596,6 @@ class Vehicle:
             len(self.errors),
             self.paused,
             len(self.loads),
-            self.charging,
         )
 
     def _drive_to(self, node: Node, snap: BodySnapshot) -> None:
@@ -662,12 +661,7 @@ class Vehicle:
         elif kind == "initPosition":
             self._init_position(run)
         elif kind in ("startCharging", "stopCharging"):
-            run.status, run.result = "FAILED", "no battery/dock support yet"
-            self._error(
-                "chargingError",
-                f"{kind}: no battery/dock support yet (the robot models no battery)",
-                actionId=a.actionId,
-            )
+            run.request = self.body.charge(kind == "startCharging")  # RUNNING until answered
         elif kind == "drop" and not self.loads:
             run.status, run.result = "FAILED", "no load to drop"
             self._error("loadError", "drop: the vehicle carries no load", actionId=a.actionId)
@@ -675,6 +669,17 @@ class Vehicle:
 
     def _continue_action(self, run: ActionRun, snap: BodySnapshot) -> None:
         kind = run.action.actionType
+        if kind in ("startCharging", "stopCharging"):
+            if snap.charge_id < run.request:
+                return  # the body has not handled it yet (communication with the charger)
+            if snap.charge_error is None:
+                run.status, run.result = "FINISHED", snap.dock or "not charging"
+            else:
+                run.status, run.result = "FAILED", snap.charge_error
+                self._error(
+                    "chargingError", f"{kind}: {snap.charge_error}", actionId=run.action.actionId
+                )
+            return
         if kind == "cancelOrder":
             if not self._driving(snap) and not any(
                 a.status not in FINAL for a in self.actions.values() if a.node_seq is not None
@@ -777,6 +782,20 @@ class Vehicle:
             run.status, run.result = "FAILED", f"cannot store the report: {exc}"
             return
         run.status, run.result = "FINISHED", str(self.log_dir / name)
+
+
+def _battery_state(snap: BodySnapshot) -> dict[str, Any]:
+    """``batteryState`` from the robot's battery; a robot without one reports the standard's
+    "good" level (80 %), as an AGV that only knows good or bad does."""
+    if snap.battery is None:
+        return {"batteryCharge": 80.0, "charging": False}
+    out: dict[str, Any] = {
+        "batteryCharge": round(100.0 * snap.battery, 3),
+        "charging": snap.charging,
+    }
+    if snap.voltage is not None:
+        out["batteryVoltage"] = snap.voltage
+    return out
 
 
 def _node_state(n: Node) -> dict[str, Any]:

@@ -79,6 +79,16 @@ def load_ros_map(yaml_path: str | os.PathLike[str]) -> OccupancyGrid:
     return OccupancyGrid(data=data, resolution=resolution, origin=origin)
 
 
+def saver_pixels(grid: OccupancyGrid) -> np.ndarray:
+    """The grid as map_saver draws it (254 free, 0 occupied, 205 unknown), uint8, image row
+    0 at the top of the map: the saved PGM's and the dashboards' picture."""
+    data = np.asarray(grid.data).astype(np.int16)
+    pixels = np.full(data.shape, PGM_UNKNOWN, dtype=np.uint8)
+    pixels[(data >= 0) & (data <= SAVER_THRESHOLD_FREE)] = PGM_FREE
+    pixels[data >= SAVER_THRESHOLD_OCCUPIED] = PGM_OCCUPIED
+    return np.ascontiguousarray(pixels[::-1])
+
+
 def save_ros_map(grid: OccupancyGrid, stem_path: str | os.PathLike[str]) -> tuple[Path, Path]:
     """Write ``<stem>.pgm`` and ``<stem>.yaml`` in ``map_saver``'s trinary format.
 
@@ -93,11 +103,7 @@ def save_ros_map(grid: OccupancyGrid, stem_path: str | os.PathLike[str]) -> tupl
     yaml_path = stem_path.parent / (stem_path.name + ".yaml")
     stem_path.parent.mkdir(parents=True, exist_ok=True)
 
-    data = np.asarray(grid.data).astype(np.int16)
-    pixels = np.full(data.shape, PGM_UNKNOWN, dtype=np.uint8)
-    pixels[(data >= 0) & (data <= SAVER_THRESHOLD_FREE)] = PGM_FREE
-    pixels[data >= SAVER_THRESHOLD_OCCUPIED] = PGM_OCCUPIED
-    pixels = np.ascontiguousarray(pixels[::-1])  # image row 0 is the top of the map
+    pixels = saver_pixels(grid)
     header = (
         f"P5\n# CREATOR: agv_mission ros_map.py {grid.resolution:.3f} m/pix\n"
         f"{grid.width} {grid.height}\n255\n"

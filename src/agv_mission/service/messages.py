@@ -18,11 +18,11 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.docks import Dock
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.rooms import Room
+from agv_mission.maps.ros_map import saver_pixels
 from agv_mission.messages import json_default
 from agv_mission.missions.observe import TreeNode
 
 MAX_PARTICLES = 300
-PGM_FREE, PGM_OCCUPIED, PGM_UNKNOWN = 254, 0, 205
 TREE_STATUS = {
     "succeeded": "SUCCESS",
     "failed": "FAILURE",
@@ -52,12 +52,8 @@ def xy_list(points: np.ndarray | None, columns: int = 2) -> list[list[float]]:
 def map_message(grid: OccupancyGrid) -> dict[str, Any]:
     """The map as map_saver would write it (254 free, 0 occupied, 205 unknown), PNG, row 0
     at the top."""
-    data = np.asarray(grid.data).astype(np.int16)
-    pixels = np.full(data.shape, PGM_UNKNOWN, dtype=np.uint8)
-    pixels[(data >= 0) & (data <= 19)] = PGM_FREE
-    pixels[data >= 65] = PGM_OCCUPIED
     buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(pixels[::-1]), mode="L").save(buf, format="PNG")
+    Image.fromarray(saver_pixels(grid), mode="L").save(buf, format="PNG")
     return {
         "type": "map",
         "resolution": grid.resolution,

@@ -25,10 +25,10 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlparse
 
-import numpy as np
 from PIL import Image
 
 from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
+from agv_mission.maps.ros_map import saver_pixels
 from agv_mission.maps.worlds import World
 from agv_mission.vda5050.messages import split_topic
 from agv_mission.vda5050.transport import BrokerUrl, MqttLink
@@ -174,12 +174,8 @@ def _map_doc(world: World) -> dict[str, Any]:
     """The world's static map as map_saver writes it (254 free, 0 occupied, 205 unknown),
     PNG with row 0 at the top: the format of the dashboard's ``map`` message."""
     grid = world.map
-    data = np.asarray(grid.data).astype(np.int16)
-    pixels = np.full(data.shape, 205, dtype=np.uint8)
-    pixels[(data >= 0) & (data <= 19)] = 254
-    pixels[data >= 65] = 0
     buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(pixels[::-1]), mode="L").save(buf, format="PNG")
+    Image.fromarray(saver_pixels(grid), mode="L").save(buf, format="PNG")
     return {
         "type": "map",
         "resolution": grid.resolution,

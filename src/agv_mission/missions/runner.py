@@ -25,6 +25,7 @@ from agv_mission.behaviors.outcome import failure_reason
 from agv_mission.geometry import Pose2D
 from agv_mission.localization.base import Localizer, LocalizerDiagnostics
 from agv_mission.maps.obstacle_layer import ObstacleLayer
+from agv_mission.maps.zones import zone_metrics
 from agv_mission.messages import LaserScan
 from agv_mission.missions.faults import FaultInjector
 from agv_mission.missions.loader import LoadedMission
@@ -273,7 +274,7 @@ class MissionRun:
         for i, subtree in enumerate(self.tree.tasks):
             if subtree.status is not Status.INVALID:
                 self.task_status[i] = status_name(subtree.status)
-        v, w = smoother(*handle.command)
+        v, w = smoother(*self._speed_capped(estimate, *handle.command))
         battery = self.battery
         if battery is not None:
             self.levels.append(battery.level)
@@ -313,6 +314,19 @@ class MissionRun:
             battery.step(v, w, CONTROL_PERIOD)
         self.stack.advance(self._scan_filter)
         return True
+
+    def _speed_capped(self, estimate: Pose2D, v: float, w: float) -> tuple[float, float]:
+        """The command within the speed zones' limits (Nav2's speed filter), scaled as a
+        whole so the robot keeps its curvature."""
+        zones = self.loaded.zones
+        if zones is None or not zones.levels:
+            return v, w
+        lead = 2.0 * abs(self.stack.smoother.v) * CONTROL_PERIOD + zones.grid.resolution
+        cap = zones.speed_cap(estimate.x, estimate.y, self.limits.max_acc_v, lead)
+        if abs(v) <= cap:
+            return v, w
+        scale = cap / abs(v)
+        return v * scale, w * scale
 
     def _scan_filter(self, t: float, scan: LaserScan) -> LaserScan | None:
         return self.faults.filter_scan(t, scan, self.handle)
@@ -421,6 +435,10 @@ class MissionRun:
                 recoveries[e["kind"]] = recoveries.get(e["kind"], 0) + 1
         metrics["navigation"]["recoveries"] = recoveries
         metrics["battery"] = self._battery_metrics()
+        zones = self.loaded.zones
+        metrics["zones"] = (
+            zone_metrics(zones, trajectory[:, 0], trajectory[:, 1:3]) if zones is not None else None
+        )
         metrics["localization"].update(covariance_metrics(trajectory, covariance))
         refine = getattr(self.localizer, "refine_stats", None)
         if refine and refine.get("scans"):

@@ -212,6 +212,7 @@ class MissionRun:
         if not self.observers:
             return
         loaded = self.loaded
+        zones = loaded.zones
         start = RunStart(
             run_dir=self.run_dir,
             mission=self.mission,
@@ -221,6 +222,8 @@ class MissionRun:
             start=loaded.start,
             tree_nodes=tree_nodes(self.tree.root),
             docks=loaded.docks,
+            keepout_mask=zones.keepout_grid() if zones and zones.keepout.any() else None,
+            speed_mask=zones.speed_grid() if zones and zones.levels else None,
         )
         for observer in self.observers:
             observer.on_start(start)

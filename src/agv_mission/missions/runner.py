@@ -57,6 +57,7 @@ from agv_mission.missions.stack import (
 from agv_mission.missions.tree import build_tree
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.state import RobotState
+from agv_mission.planners.collision_monitor import CollisionMonitor
 from agv_mission.robots.battery import Battery, battery_for
 
 __all__ = [
@@ -183,6 +184,9 @@ class MissionRun:
         )
         self.tree = build_tree(loaded.tree, context)
         self.faults = FaultInjector(mission.faults, self.sim, stack.fault_rng)
+        self.monitor = CollisionMonitor(
+            mission.stack.collision_monitor, robot.footprint_radius, CONTROL_PERIOD
+        )
         self.task_status = ["not_run"] * len(self.tree.tasks)
         self.collisions: list[dict[str, float]] = []
         self.in_contact = False
@@ -277,7 +281,8 @@ class MissionRun:
         for i, subtree in enumerate(self.tree.tasks):
             if subtree.status is not Status.INVALID:
                 self.task_status[i] = status_name(subtree.status)
-        v, w = smoother(*self._speed_capped(estimate, *handle.command))
+        v, w = self._monitored(estimate, *self._speed_capped(estimate, *handle.command))
+        v, w = smoother(v, w)
         battery = self.battery
         if battery is not None:
             self.levels.append(battery.level)
@@ -317,6 +322,21 @@ class MissionRun:
             battery.step(v, w, CONTROL_PERIOD)
         self.stack.advance(self._scan_filter)
         return True
+
+    def _monitored(self, estimate: Pose2D, v: float, w: float) -> tuple[float, float]:
+        """The command through the collision monitor, on the newest scan's points in the
+        robot's frame; each change of its action is an event."""
+        points = self.handle.state.obstacles
+        if points is None or not len(points):
+            local = np.zeros((0, 2))
+        else:
+            c, s = math.cos(estimate.yaw), math.sin(estimate.yaw)
+            dx, dy = points[:, 0] - estimate.x, points[:, 1] - estimate.y
+            local = np.column_stack([c * dx + s * dy, -s * dx + c * dy])
+        out = self.monitor(v, w, local)
+        if self.monitor.changed:
+            self.handle.log("collision_monitor", action=out.action, zone=out.zone)
+        return out.v, out.w
 
     def _speed_capped(self, estimate: Pose2D, v: float, w: float) -> tuple[float, float]:
         """The command within the speed zones' limits (Nav2's speed filter), scaled as a
@@ -438,6 +458,7 @@ class MissionRun:
                 recoveries[e["kind"]] = recoveries.get(e["kind"], 0) + 1
         metrics["navigation"]["recoveries"] = recoveries
         metrics["battery"] = self._battery_metrics()
+        metrics["collision_monitor"] = self.monitor.report()
         zones = self.loaded.zones
         metrics["zones"] = (
             zone_metrics(zones, trajectory[:, 0], trajectory[:, 1:3]) if zones is not None else None

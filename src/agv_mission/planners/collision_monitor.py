@@ -196,7 +196,7 @@ class CollisionMonitor:
 
     def _time_to_collision(self, v: float, w: float, pts: np.ndarray, z: CollisionZone) -> float:
         """When the footprint, driven on at (v, w), first touches a point (inf: never
-        within the zone's time)."""
+        within the zone's time), to the simulation step, rounded down (the safe side)."""
         r = self.robot_radius
         if np.any(np.hypot(pts[:, 0], pts[:, 1]) <= r):
             return 0.0
@@ -209,7 +209,10 @@ class CollisionMonitor:
             x, y = v / w * np.sin(yaw), v / w * (1.0 - np.cos(yaw))
         d = np.hypot(pts[None, :, 0] - x[:, None], pts[None, :, 1] - y[:, None])
         hit = np.nonzero((d <= r).any(axis=1))[0]
-        return float(t[hit[0]]) if len(hit) else math.inf
+        if not len(hit):
+            return math.inf
+        # contact falls within the step before the first hit: its start is the safe bound
+        return float(t[hit[0]] - z.simulation_time_step)
 
     def report(self) -> dict[str, dict[str, float | int]]:
         """``metrics.collision_monitor``: activations and seconds per zone."""

@@ -144,20 +144,25 @@ class CollisionMonitor:
             for shape in self._shapes
         ]  # fmt: skip
         self.stats = {z.name: ZoneStats() for z in self.zones}
-        reach = [self.robot_radius + 2.0]
+        reach = [0.0]
         for z, shape in zip(self.zones, self._shapes, strict=True):
             if z.radius is not None:
                 reach.append(z.radius)
             elif shape is not None:
                 reach.append(float(np.max(np.hypot(*np.asarray(z.polygon).T))))
-        self.reach = max(reach)
+        self._zone_reach = max(reach)  # of the stop and slowdown zones
+        self._horizon = max(
+            (z.time_before_collision for z in self.zones if z.type == "approach"), default=0.0
+        )
 
     def __call__(self, v: float, w: float, points: np.ndarray) -> MonitorOutput:
         """The command after the monitor; ``points`` (N, 2) in the robot's frame. A change
         of the winning action is :attr:`changed` until the next call."""
         best = MonitorOutput(v, w, "none", None)
+        # only points a zone can reach: the polygons, or the footprint within the horizon
+        reach = max(self._zone_reach, abs(v) * self._horizon + self.robot_radius)
         if len(points):
-            near = points[np.hypot(points[:, 0], points[:, 1]) <= self.reach]
+            near = points[(points[:, 0] ** 2 + points[:, 1] ** 2) <= reach * reach]
         else:
             near = points.reshape(0, 2)
         if len(near) and self.config.enabled and abs(v) >= 1e-6:  # turning in place is free
@@ -185,7 +190,11 @@ class CollisionMonitor:
             scale = max(t / z.time_before_collision, 0.0)
             return MonitorOutput(v * scale, w * scale, "approach", z.name)
         if shape is not None:
-            inside = int(np.count_nonzero(shapely.contains_xy(shape, pts[:, 0], pts[:, 1])))
+            x0, y0, x1, y1 = shape.bounds
+            box = pts[(pts[:, 0] >= x0) & (pts[:, 0] <= x1) & (pts[:, 1] >= y0) & (pts[:, 1] <= y1)]
+            if len(box) < z.min_points:
+                return None
+            inside = int(np.count_nonzero(shapely.contains_xy(shape, box[:, 0], box[:, 1])))
         else:
             inside = int(np.count_nonzero(np.hypot(pts[:, 0], pts[:, 1]) <= z.radius))
         if inside < z.min_points:

@@ -330,8 +330,10 @@ class MissionRun:
         if points is None or not len(points):
             local = np.zeros((0, 2))
         else:
-            c, s = math.cos(estimate.yaw), math.sin(estimate.yaw)
             dx, dy = points[:, 0] - estimate.x, points[:, 1] - estimate.y
+            near = dx * dx + dy * dy <= self.monitor.reach(v) ** 2
+            dx, dy = dx[near], dy[near]
+            c, s = math.cos(estimate.yaw), math.sin(estimate.yaw)
             local = np.column_stack([c * dx + s * dy, -s * dx + c * dy])
         out = self.monitor(v, w, local)
         if self.monitor.changed:

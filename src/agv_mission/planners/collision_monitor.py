@@ -159,8 +159,7 @@ class CollisionMonitor:
         """The command after the monitor; ``points`` (N, 2) in the robot's frame. A change
         of the winning action is :attr:`changed` until the next call."""
         best = MonitorOutput(v, w, "none", None)
-        # only points a zone can reach: the polygons, or the footprint within the horizon
-        reach = max(self._zone_reach, abs(v) * self._horizon + self.robot_radius)
+        reach = self.reach(v)
         if len(points):
             near = points[(points[:, 0] ** 2 + points[:, 1] ** 2) <= reach * reach]
         else:
@@ -179,6 +178,11 @@ class CollisionMonitor:
             self.stats[best.zone].time += self.period
         self.action, self.zone = best.action, best.zone
         return best
+
+    def reach(self, v: float) -> float:
+        """How far from the robot a point can matter at speed ``v``: the zones' polygons, or
+        the footprint driven on within the approach horizon."""
+        return max(self._zone_reach, abs(v) * self._horizon + self.robot_radius)
 
     def _zone(
         self, z: CollisionZone, shape: shapely.Polygon | None, v: float, w: float, pts: np.ndarray

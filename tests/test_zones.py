@@ -188,3 +188,42 @@ def test_speed_zone_run_metrics_and_bag(tmp_path: Path) -> None:
     assert got["/keepout_filter_mask"] == (0, {0, 100})
     assert got["/speed_filter_mask"][0] == 0 and got["/speed_filter_mask"][1] == {0, 37}
     assert (run_dir / "run.png").stat().st_size > 0
+
+
+def test_dashboard_zones_message(tmp_path: Path) -> None:
+    """The live stream's ``zones`` message: keepout red, speed blue, on the map's grid."""
+    import base64
+    import io
+
+    from agv_mission.service.messages import zones_message
+
+    loaded = load_mission(
+        write(
+            tmp_path,
+            "  - {type: keepout, polygon: [[0.5, -5.3], [2.0, -5.3], [2.0, -3.2], [0.5, -3.2]]}\n"
+            "  - {type: speed_limit, room: kitchen, percent: 50}\n",
+        )
+    )
+    zones = loaded.zones
+    message = zones_message(zones.keepout_grid(), zones.speed_grid())
+    assert message["type"] == "zones" and message["width"] == zones.grid.width
+    image = np.asarray(Image.open(io.BytesIO(base64.b64decode(message["png"]))))
+    grid = zones.grid
+
+    def pixel(x: float, y: float) -> np.ndarray:
+        row, col = grid.world_to_cell(np.array([x, y]))
+        return image[grid.height - 1 - int(row), int(col)]  # row 0 at the top
+
+    assert tuple(pixel(1.0, -4.0)[:3]) == (217, 70, 60) and pixel(1.0, -4.0)[3] > 0
+    assert tuple(pixel(7.0, -2.0)[:3]) == (40, 90, 255) and pixel(7.0, -2.0)[3] > 0
+    assert pixel(-5.0, -2.0)[3] == 0  # the bedroom: no zone
+
+
+def test_masks_travel_with_a_mission_to_the_service(tmp_path: Path) -> None:
+    """``submit`` sends the files a mission names: a mask's YAML and its image too."""
+    from agv_mission.service.client import mission_files
+
+    mask(tmp_path, "keepout", np.full((20, 20), 100.0))
+    path = write(tmp_path, "  - {type: keepout_mask, map: keepout.yaml}\n")
+    names = {p.name for p in mission_files(path, path.read_text(), [], None)}
+    assert {"keepout.yaml", "keepout.png"} <= names

@@ -275,6 +275,11 @@ def _resolve(
             refused = spec is not None and path_guard(key, input_path(spec.strip(), base_dir))
             if refused:
                 log.add((key,), refused)
+        for i, zone in enumerate(mission.zones):  # a mask is a map_server YAML and its image
+            if isinstance(zone, KeepoutMask | SpeedMask):
+                refused = path_guard("world", input_path(zone.map.strip(), base_dir))
+                if refused:
+                    log.add(("zones", i, "map"), refused)
         log.raise_if_any()
 
     try:
@@ -339,7 +344,7 @@ def _resolve(
     node_checks = _node_checks(tree, log)
     placed = place_mission(mission, world, robot, rooms, costmap, log.add, node_checks)
     check_docks(mission, robot, docks, rooms_docks, costmap, log.add, node_checks)
-    zones = _zone_filters(mission, robot, rooms, costmap, base_dir, log, path_guard)
+    zones = _zone_filters(mission, robot, rooms, costmap, base_dir, log)
     if zones is not None:
         costmap = zones.costmap  # keepout zones are obstacles of every plan
     recorder = None
@@ -380,7 +385,6 @@ def _zone_filters(
     costmap: Costmap,
     base_dir: Path,
     log: ProblemLog,
-    path_guard: PathGuard | None,
 ) -> ZoneFilters | None:
     """The mission's ``zones:`` on the costmap's grid; each problem at its zone's field."""
     if not mission.zones:
@@ -391,11 +395,7 @@ def _zone_filters(
     speed_masks: list[tuple[FilterMask, bool]] = []
     for i, zone in enumerate(mission.zones):
         if isinstance(zone, KeepoutMask | SpeedMask):
-            path = input_path(zone.map.strip(), base_dir)
-            refused = path_guard is not None and path_guard("zones", path)
-            if refused:
-                log.add(("zones", i, "map"), refused)
-                continue
+            path = input_path(zone.map.strip(), base_dir)  # the path guard saw it first
             try:
                 mask = FilterMask(load_ros_map(path), zone.base, zone.multiplier)
             except MapLoadError as exc:

@@ -227,3 +227,10 @@ def test_masks_travel_with_a_mission_to_the_service(tmp_path: Path) -> None:
     path = write(tmp_path, "  - {type: keepout_mask, map: keepout.yaml}\n")
     names = {p.name for p in mission_files(path, path.read_text(), [], None)}
     assert {"keepout.yaml", "keepout.png"} <= names
+
+
+def test_a_goal_in_a_keepout_zone_fails_with_the_reason(tmp_path: Path) -> None:
+    path = write(tmp_path, "  - {type: keepout, room: recreationroom}\n")
+    record = run_mission(load_mission(path, ["limits.time=60"]))
+    assert record.status == "failed"
+    assert "(2.00, 1.00) lies in a keepout zone" in record.reason

@@ -271,6 +271,10 @@ class Navigator:
         seed = self.seed + self.stats.plans
         self.stats.plans += 1
         start = state.estimate
+        goal = self.goal
+        if self.zones is not None and self.zones.in_keepout(goal.x, goal.y):
+            self._fail(f"goal ({goal.x:.2f}, {goal.y:.2f}) lies in a keepout zone")
+            return False
         exit_point = self._keepout_exit(start)
         escape = exit_point or self._escape_point(start)
         if not self._connected(escape or start, self.goal):

@@ -102,12 +102,14 @@ def test_retry_policy_tries_again_then_fails(tmp_path: Path) -> None:
 
 
 def test_collision_fails_the_mission_unless_allowed(tmp_path: Path) -> None:
-    # wander with a tiny min_range drives into a wall (1 cm: less than it needs to stop)
+    # wander with a tiny min_range drives into a wall (1 cm: less than it needs to stop),
+    # with the collision monitor off (it would stop the robot short of the wall)
     path = mission(tmp_path, "crash", [], "  - {type: wander, duration: 60, min_range: 0.01}", 80)
-    record = run_mission(load_mission(path))
+    blind = "stack.collision_monitor.enabled=false"
+    record = run_mission(load_mission(path, [blind]))
     assert record.status == "failed" and "collision" in record.reason
     assert record.metrics["collisions"] == 1
-    record = run_mission(load_mission(path, ["limits.collisions=100"]))
+    record = run_mission(load_mission(path, [blind, "limits.collisions=100"]))
     assert record.status == "succeeded"
     assert record.metrics["collisions"] >= 1
     assert record.metrics["min_clearance"] < 0.01

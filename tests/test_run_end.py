@@ -117,7 +117,8 @@ def test_a_closed_stdout_keeps_the_exit_code(tmp_path: Path) -> None:
 
 
 def test_after_a_collision_the_task_is_failed_not_running(tmp_path: Path) -> None:
-    record = run_mission(load_mission(mission_file(tmp_path, CRASH)))
+    blind = ["stack.collision_monitor.enabled=false"]  # it would stop short of the wall
+    record = run_mission(load_mission(mission_file(tmp_path, CRASH), blind))
     assert record.status == "failed" and "collision" in (record.reason or "")
     assert record.tasks[0]["status"] == "failed"
     assert "collision" in record.tasks[0]["reason"]

@@ -69,6 +69,12 @@ TOPICS: dict[str, tuple[str, bool]] = {
     "/battery_state": (rm.BATTERY_STATE, False),
 }
 
+#: Nav2's filter masks (people-and-zones.md), latched, in a bag of a mission with zones.
+ZONE_TOPICS: dict[str, tuple[str, bool]] = {
+    "/keepout_filter_mask": (rm.OCCUPANCY_GRID, True),
+    "/speed_filter_mask": (rm.OCCUPANCY_GRID, True),
+}
+
 
 def lidar_mount(robot: Any) -> tuple[Pose2D, float]:
     """The lidar's planar pose on ``base_footprint`` and its height (upside-down mounts
@@ -172,6 +178,15 @@ class BagWriter:
         )
         self._write("/map", t0, rm.occupancy_grid(t0, start.world_map, MAP_FRAME))
         self._write("/rooms", t0, rm.room_markers(t0, start.rooms, MAP_FRAME))
+        masks = {"/keepout_filter_mask": start.keepout_mask, "/speed_filter_mask": start.speed_mask}
+        for topic, mask in masks.items():
+            if mask is not None:
+                msgtype, _ = ZONE_TOPICS[topic]
+                self._conns[topic] = writer.add_connection(
+                    topic, msgtype, typestore=store, offered_qos_profiles=[LATCHED]
+                )
+                grid = rm.occupancy_grid(t0, mask, MAP_FRAME)
+                self._write_raw(topic, t0, rm.serialize(grid, msgtype))
 
     def on_step(self, sample: StepSample) -> None:
         if self._writer is None:

@@ -41,6 +41,23 @@ class Expectations(BaseModel):
         None, description="metres between the robot's footprint and obstacles, at least"
     )
     distance_driven_max: float | None = Field(None, ge=0.0, description="metres, at most")
+    keepout_time_max: float | None = Field(
+        None,
+        ge=0.0,
+        description="seconds the footprint overlapped a keepout zone (metrics.zones), at most; "
+        "for a robot started inside one, how long it took to leave",
+    )
+    keepout_time_after_exit_max: float | None = Field(
+        None, ge=0.0, description="seconds back inside a keepout zone once out of it, at most"
+    )
+    speed_violation_time_max: float | None = Field(
+        None,
+        ge=0.0,
+        description="seconds above a speed zone's limit by more than 5 % (metrics.zones), at most",
+    )
+    speed_ratio_max: float | None = Field(
+        None, ge=0.0, description="highest true speed / limit inside speed zones, at most"
+    )
     driven_vs_shortest_max: float | None = Field(
         None,
         ge=1.0,
@@ -182,6 +199,17 @@ def check(expect: Expectations | None, result: dict[str, Any]) -> list[Failure]:
     at_most("collisions_max", e.collisions_max, metrics.get("collisions"))
     at_least("min_clearance_min", e.min_clearance_min, metrics.get("min_clearance"))
     at_most("distance_driven_max", e.distance_driven_max, metrics.get("distance_driven"))
+    zones = metrics.get("zones") or {}
+    at_most("keepout_time_max", e.keepout_time_max, zones.get("keepout_time"))
+    at_most(
+        "keepout_time_after_exit_max",
+        e.keepout_time_after_exit_max,
+        zones.get("keepout_time_after_exit"),
+    )
+    at_most(
+        "speed_violation_time_max", e.speed_violation_time_max, zones.get("speed_violation_time")
+    )
+    at_most("speed_ratio_max", e.speed_ratio_max, zones.get("max_speed_ratio"))
     navigation = metrics.get("navigation") or {}
     for key, bound in (
         ("driven_vs_shortest_max", e.driven_vs_shortest_max),

@@ -27,6 +27,7 @@ from agv_mission.maps.rooms_file import RoomsFileError, load_rooms_file
 from agv_mission.maps.ros_map import MapLoadError, load_ros_map
 from agv_mission.maps.world_loader import WorldError, builtin_names, load_world
 from agv_mission.maps.worlds import World
+from agv_mission.maps.zones import FilterMask, ZoneFilters
 from agv_mission.missions.errors import MissionError, Problem
 from agv_mission.missions.overrides import Override, apply_overrides
 from agv_mission.missions.problems import (
@@ -47,6 +48,7 @@ from agv_mission.missions.schema import (
     Setup,
     with_default_plugin_types,
 )
+from agv_mission.missions.schema.zones import KeepoutMask, KeepoutZone, SpeedMask
 from agv_mission.missions.tree import (
     TreeSource,
     TreeSpec,
@@ -87,6 +89,7 @@ class LoadedMission:
     tree: TreeSpec | None = None  # what the robot does (None for a setup)
     docks: dict[str, Dock] = field(default_factory=dict)  # the world's and rooms file's
     given_map: OccupancyGrid | None = None  # the mission's ``map:``, when it names one
+    zones: ZoneFilters | None = None  # keepout and speed filters (None: no zones)
 
     @property
     def map(self) -> OccupancyGrid:
@@ -272,6 +275,11 @@ def _resolve(
             refused = spec is not None and path_guard(key, input_path(spec.strip(), base_dir))
             if refused:
                 log.add((key,), refused)
+        for i, zone in enumerate(mission.zones):  # a mask is a map_server YAML and its image
+            if isinstance(zone, KeepoutMask | SpeedMask):
+                refused = path_guard("world", input_path(zone.map.strip(), base_dir))
+                if refused:
+                    log.add(("zones", i, "map"), refused)
         log.raise_if_any()
 
     try:
@@ -336,6 +344,9 @@ def _resolve(
     node_checks = _node_checks(tree, log)
     placed = place_mission(mission, world, robot, rooms, costmap, log.add, node_checks)
     check_docks(mission, robot, docks, rooms_docks, costmap, log.add, node_checks)
+    zones = _zone_filters(mission, robot, rooms, costmap, base_dir, log)
+    if zones is not None:
+        costmap = zones.costmap  # keepout zones are obstacles of every plan
     recorder = None
     if mission.recorder is not None:
         try:
@@ -363,6 +374,63 @@ def _resolve(
         tree=tree,
         docks=docks,
         given_map=given_map,
+        zones=zones,
+    )
+
+
+def _zone_filters(
+    mission: Setup,
+    robot: RobotDescription,
+    rooms: dict[str, Room],
+    costmap: Costmap,
+    base_dir: Path,
+    log: ProblemLog,
+) -> ZoneFilters | None:
+    """The mission's ``zones:`` on the costmap's grid; each problem at its zone's field."""
+    if not mission.zones:
+        return None
+    keepouts: list[Any] = []
+    speeds: list[tuple[Any, float]] = []
+    keepout_masks: list[FilterMask] = []
+    speed_masks: list[tuple[FilterMask, bool]] = []
+    for i, zone in enumerate(mission.zones):
+        if isinstance(zone, KeepoutMask | SpeedMask):
+            path = input_path(zone.map.strip(), base_dir)  # the path guard saw it first
+            try:
+                mask = FilterMask(load_ros_map(path), zone.base, zone.multiplier)
+            except MapLoadError as exc:
+                log.add(("zones", i, "map"), one_line(str(exc)))
+                continue
+            except (OSError, ValueError, RuntimeError) as exc:
+                log.add(("zones", i, "map"), f"cannot read mask {zone.map!r}: {os_message(exc)}")
+                continue
+            except MemoryError:
+                log.add(("zones", i, "map"), f"mask {zone.map!r} is too large for memory")
+                continue
+            if isinstance(zone, KeepoutMask):
+                keepout_masks.append(mask)
+            else:
+                speed_masks.append((mask, zone.unit == "percent"))
+            continue
+        if zone.room is not None:
+            room = rooms.get(zone.room)
+            if room is None:
+                known = ", ".join(sorted(rooms)) or "none"
+                log.add(("zones", i, "room"), f"no room {zone.room!r} (rooms: {known})")
+                continue
+            polygon = room.polygon
+        else:
+            polygon = tuple((p[0], p[1]) for p in zone.polygon or ())
+        if isinstance(zone, KeepoutZone):
+            keepouts.append(polygon)
+        else:
+            limit = zone.max_speed
+            if limit is None:
+                limit = (zone.percent or 100.0) / 100.0 * robot.max_linear_velocity
+            speeds.append((polygon, limit))
+    log.raise_if_any()
+    return ZoneFilters.build(
+        costmap, robot.max_linear_velocity, keepouts, speeds, keepout_masks, speed_masks
     )
 
 

@@ -75,6 +75,8 @@ class RunStart:
     start: Pose2D
     tree_nodes: list[TreeNode]  # pre-order
     docks: dict[str, Dock] = field(default_factory=dict)  # chargers by name
+    keepout_mask: OccupancyGrid | None = None  # the keepout filter mask (100: kept out)
+    speed_mask: OccupancyGrid | None = None  # the speed filter mask (% of max speed, 0: none)
 
 
 @dataclass

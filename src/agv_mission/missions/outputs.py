@@ -14,6 +14,7 @@ import numpy as np
 import yaml
 
 from agv_mission.atomic import atomic_write_bytes, atomic_write_text
+from agv_mission.maps.zones import ZoneFilters
 from agv_mission.messages import json_default
 from agv_mission.missions.loader import LoadedMission
 from agv_mission.missions.run_report import COVARIANCE_COLUMNS
@@ -142,6 +143,40 @@ def write_trajectory(
     atomic_write_text(path, buf.getvalue())
 
 
+def _plot_zones(ax: Any, zones: ZoneFilters) -> None:
+    """Keepout zones in red, speed zones in blue (darker: slower), as their rasters."""
+    xmin, xmax, ymin, ymax = zones.grid.extent
+    extent = (xmin, xmax, ymin, ymax)
+    if zones.keepout.any():
+        rgba = np.zeros((*zones.keepout.shape, 4))
+        rgba[zones.keepout] = (0.85, 0.1, 0.1, 0.35)
+        ax.imshow(rgba, origin="lower", extent=extent, interpolation="nearest")
+        ax.fill([], [], color=(0.85, 0.1, 0.1, 0.35), label="keepout zones")
+    if zones.levels:
+        limited = np.isfinite(zones.speed)
+        rgba = np.zeros((*zones.speed.shape, 4))
+        slow = 1.0 - np.where(limited, zones.speed, zones.max_speed) / zones.max_speed
+        rgba[limited] = np.column_stack(
+            [np.full(limited.sum(), 0.1), np.full(limited.sum(), 0.3), np.ones(limited.sum()),
+             0.15 + 0.35 * slow[limited]]
+        )  # fmt: skip
+        ax.imshow(rgba, origin="lower", extent=extent, interpolation="nearest")
+        ax.fill([], [], color=(0.1, 0.3, 1.0, 0.35), label="speed zones")
+        for level, (r, c) in _zone_labels(zones):
+            x, y = zones.grid.cell_to_world(np.array(r), np.array(c))
+            ax.text(x, y, f"{level:.2g} m/s", color="navy", fontsize=7, ha="center")
+
+
+def _zone_labels(zones: ZoneFilters) -> list[tuple[float, tuple[int, int]]]:
+    """A cell in the middle of each speed level's cells, to print its limit at."""
+    out = []
+    for level in zones.levels:
+        rows, cols = np.nonzero(zones.speed == np.float32(level))
+        k = len(rows) // 2
+        out.append((level, (int(rows[k]), int(cols[k]))))
+    return out
+
+
 def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
     """The map with rooms, planned paths, the driven and estimated trajectory, and goals."""
     import matplotlib
@@ -165,6 +200,8 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
         extent=(xmin, xmax, ymin, ymax),
         interpolation="nearest",
     )
+    if loaded.zones is not None:
+        _plot_zones(ax, loaded.zones)
     for room in loaded.rooms.values():
         poly = np.asarray(room.polygon + (room.polygon[0],))
         ax.plot(poly[:, 0], poly[:, 1], "--", lw=0.8, color="tab:purple", alpha=0.7)

@@ -25,6 +25,7 @@ from agv_mission.behaviors.outcome import failure_reason
 from agv_mission.geometry import Pose2D
 from agv_mission.localization.base import Localizer, LocalizerDiagnostics
 from agv_mission.maps.obstacle_layer import ObstacleLayer
+from agv_mission.maps.zones import zone_metrics
 from agv_mission.messages import LaserScan
 from agv_mission.missions.faults import FaultInjector
 from agv_mission.missions.loader import LoadedMission
@@ -56,6 +57,7 @@ from agv_mission.missions.stack import (
 from agv_mission.missions.tree import build_tree
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.state import RobotState
+from agv_mission.planners.collision_monitor import CollisionMonitor
 from agv_mission.robots.battery import Battery, battery_for
 
 __all__ = [
@@ -182,6 +184,9 @@ class MissionRun:
         )
         self.tree = build_tree(loaded.tree, context)
         self.faults = FaultInjector(mission.faults, self.sim, stack.fault_rng)
+        self.monitor = CollisionMonitor(
+            mission.stack.collision_monitor, robot.footprint_radius, CONTROL_PERIOD
+        )
         self.task_status = ["not_run"] * len(self.tree.tasks)
         self.collisions: list[dict[str, float]] = []
         self.in_contact = False
@@ -211,6 +216,7 @@ class MissionRun:
         if not self.observers:
             return
         loaded = self.loaded
+        zones = loaded.zones
         start = RunStart(
             run_dir=self.run_dir,
             mission=self.mission,
@@ -220,6 +226,8 @@ class MissionRun:
             start=loaded.start,
             tree_nodes=tree_nodes(self.tree.root),
             docks=loaded.docks,
+            keepout_mask=zones.keepout_grid() if zones and zones.keepout.any() else None,
+            speed_mask=zones.speed_grid() if zones and zones.levels else None,
         )
         for observer in self.observers:
             observer.on_start(start)
@@ -273,7 +281,8 @@ class MissionRun:
         for i, subtree in enumerate(self.tree.tasks):
             if subtree.status is not Status.INVALID:
                 self.task_status[i] = status_name(subtree.status)
-        v, w = smoother(*handle.command)
+        v, w = self._monitored(estimate, *self._speed_capped(estimate, *handle.command))
+        v, w = smoother(v, w)
         battery = self.battery
         if battery is not None:
             self.levels.append(battery.level)
@@ -313,6 +322,36 @@ class MissionRun:
             battery.step(v, w, CONTROL_PERIOD)
         self.stack.advance(self._scan_filter)
         return True
+
+    def _monitored(self, estimate: Pose2D, v: float, w: float) -> tuple[float, float]:
+        """The command through the collision monitor, on the newest scan's points in the
+        robot's frame; each change of its action is an event."""
+        points = self.handle.state.obstacles
+        if points is None or not len(points):
+            local = np.zeros((0, 2))
+        else:
+            dx, dy = points[:, 0] - estimate.x, points[:, 1] - estimate.y
+            near = dx * dx + dy * dy <= self.monitor.reach(v) ** 2
+            dx, dy = dx[near], dy[near]
+            c, s = math.cos(estimate.yaw), math.sin(estimate.yaw)
+            local = np.column_stack([c * dx + s * dy, -s * dx + c * dy])
+        out = self.monitor(v, w, local)
+        if self.monitor.changed:
+            self.handle.log("collision_monitor", action=out.action, zone=out.zone)
+        return out.v, out.w
+
+    def _speed_capped(self, estimate: Pose2D, v: float, w: float) -> tuple[float, float]:
+        """The command within the speed zones' limits (Nav2's speed filter), scaled as a
+        whole so the robot keeps its curvature."""
+        zones = self.loaded.zones
+        if zones is None or not zones.levels:
+            return v, w
+        lead = 2.0 * abs(self.stack.smoother.v) * CONTROL_PERIOD + zones.grid.resolution
+        cap = zones.speed_cap(estimate.x, estimate.y, self.limits.max_acc_v, lead)
+        if abs(v) <= cap:
+            return v, w
+        scale = cap / abs(v)
+        return v * scale, w * scale
 
     def _scan_filter(self, t: float, scan: LaserScan) -> LaserScan | None:
         return self.faults.filter_scan(t, scan, self.handle)
@@ -421,6 +460,11 @@ class MissionRun:
                 recoveries[e["kind"]] = recoveries.get(e["kind"], 0) + 1
         metrics["navigation"]["recoveries"] = recoveries
         metrics["battery"] = self._battery_metrics()
+        metrics["collision_monitor"] = self.monitor.report()
+        zones = self.loaded.zones
+        metrics["zones"] = (
+            zone_metrics(zones, trajectory[:, 0], trajectory[:, 1:3]) if zones is not None else None
+        )
         metrics["localization"].update(covariance_metrics(trajectory, covariance))
         refine = getattr(self.localizer, "refine_stats", None)
         if refine and refine.get("scans"):

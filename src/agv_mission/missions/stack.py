@@ -143,6 +143,7 @@ class RobotStack:
             mission.stack.navigation,
             CONTROL_PERIOD,
             seed=int(self.planner_rng.integers(0, 2**31 - 1)),
+            zones=self.loaded.zones,
         )
 
     def sense(self, scan_filter: ScanFilter | None = None) -> Sensing:

@@ -18,6 +18,7 @@ from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.obstacle_layer import ObstacleLayer
 from agv_mission.maps.rooms import reachable_cells
+from agv_mission.maps.zones import ZoneFilters
 from agv_mission.messages import LaserScan
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.legs import Leg, NavigationStats
@@ -58,8 +59,10 @@ class Navigator:
         config: NavigationConfig,
         control_period: float,
         seed: int = 0,
+        zones: ZoneFilters | None = None,
     ) -> None:
         self.layer = layer
+        self.zones = zones if zones is not None and not zones.empty else None
         self.global_planner = global_planner
         self.local_planner = local_planner
         self.limits = limits
@@ -181,6 +184,12 @@ class Navigator:
         if len(near):
             d = np.hypot(near[:, 0] - state.estimate.x, near[:, 1] - state.estimate.y)
             near = near[d <= self.config.obstacle_range]
+        if self.zones is not None:  # keepout edges are walls to the controller too
+            edge = self.zones.boundary_near(
+                state.estimate.x, state.estimate.y, self.config.obstacle_range
+            )
+            if len(edge):
+                near = np.vstack([near.reshape(-1, 2), edge])
         cmd = self.local_planner.compute(
             state.estimate, state.velocity, self.path.points, self.goal, near
         )
@@ -262,7 +271,12 @@ class Navigator:
         seed = self.seed + self.stats.plans
         self.stats.plans += 1
         start = state.estimate
-        escape = self._escape_point(start)
+        goal = self.goal
+        if self.zones is not None and self.zones.in_keepout(goal.x, goal.y):
+            self._fail(f"goal ({goal.x:.2f}, {goal.y:.2f}) lies in a keepout zone")
+            return False
+        exit_point = self._keepout_exit(start)
+        escape = exit_point or self._escape_point(start)
         if not self._connected(escape or start, self.goal):
             self._fail(
                 f"goal ({self.goal.x:.2f}, {self.goal.y:.2f}) is unreachable: no free corridor "
@@ -279,7 +293,10 @@ class Navigator:
         except PlanningError as exc:
             self._fail(f"no path to ({self.goal.x:.2f}, {self.goal.y:.2f}): {exc}")
             return False
-        if escape is not None:  # leave the inflated margin the shortest way first
+        if exit_point is not None:  # out of the keepout zone first, on the map without it
+            lead = self._lead_out(start, exit_point, seed)
+            path = PlannedPath(np.vstack([lead, path.points]), path.planning_time)
+        elif escape is not None:  # leave the inflated margin the shortest way first
             path = PlannedPath(np.vstack([[start.x, start.y], path.points]), path.planning_time)
         self.path = path
         self.paths.append(path.points.copy())
@@ -297,6 +314,24 @@ class Navigator:
         return bool(cells[int(rows), int(cols)]) or not bool(
             self.costmap.is_free(np.array([goal.x, goal.y]), margin)
         )
+
+    def _keepout_exit(self, pose: Pose2D) -> Pose2D | None:
+        """Where a robot inside (or at the margin of) a keepout zone leaves it: the nearest
+        point clear of it, reached straight, so it drives out instead of freezing."""
+        if self.zones is None:
+            return None
+        out = self.zones.exit_point(pose.x, pose.y, self.global_planner.clearance + 0.02)
+        return None if out is None else Pose2D(out[0], out[1], pose.yaw)
+
+    def _lead_out(self, start: Pose2D, exit_point: Pose2D, seed: int) -> np.ndarray:
+        """The way from inside a keepout zone to its exit point, planned on the map without
+        the zones (around walls); straight when even that finds none."""
+        assert self.zones is not None
+        try:
+            lead = self.global_planner.plan(self.zones.base, start, exit_point, seed=seed)
+        except PlanningError:
+            return np.array([[start.x, start.y]])
+        return lead.points[:-1]
 
     def _escape_point(self, pose: Pose2D) -> Pose2D | None:
         """The nearest comfortably free point when the robot stands inside the margin the

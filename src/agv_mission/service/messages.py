@@ -64,6 +64,32 @@ def map_message(grid: OccupancyGrid) -> dict[str, Any]:
     }
 
 
+def zones_message(keepout: OccupancyGrid | None, speed: OccupancyGrid | None) -> dict[str, Any]:
+    """The keepout (red) and speed (blue, darker: slower) filter masks as one RGBA PNG on
+    the masks' grid, row 0 at the top."""
+    grid = keepout if keepout is not None else speed
+    assert grid is not None
+    rgba = np.zeros((grid.height, grid.width, 4), dtype=np.uint8)
+    if speed is not None:
+        limited = speed.data > 0
+        rgba[limited] = (40, 90, 255, 0)
+        rgba[limited, 3] = (60 + 1.2 * (100 - speed.data[limited].astype(np.int16))).astype(
+            np.uint8
+        )
+    if keepout is not None:
+        rgba[keepout.data >= 65] = (217, 70, 60, 120)
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgba[::-1]), mode="RGBA").save(buf, format="PNG")
+    return {
+        "type": "zones",
+        "resolution": grid.resolution,
+        "origin": [round(grid.origin.x, 4), round(grid.origin.y, 4)],
+        "width": grid.width,
+        "height": grid.height,
+        "png": base64.b64encode(buf.getvalue()).decode("ascii"),
+    }
+
+
 def rooms_message(rooms: dict[str, Room], docks: dict[str, Dock] | None = None) -> dict[str, Any]:
     """The rooms, and the docks (chargers) as ``{name, x, y, yaw}``."""
     return {

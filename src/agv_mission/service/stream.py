@@ -78,6 +78,8 @@ class StreamObserver:
 
     def on_start(self, start: RunStart) -> None:
         self.emit(msg.map_message(start.world_map))
+        if start.keepout_mask is not None or start.speed_mask is not None:
+            self.emit(msg.zones_message(start.keepout_mask, start.speed_mask))
         self.emit(msg.rooms_message(start.rooms, start.docks))
         self.emit(msg.recorded_message(self.recorded))
         self.nodes = start.tree_nodes

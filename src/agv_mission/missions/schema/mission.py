@@ -20,6 +20,7 @@ from agv_mission.missions.schema.base import (
 from agv_mission.missions.schema.disturbances import Fault, Obstacle
 from agv_mission.missions.schema.stack import Stack
 from agv_mission.missions.schema.tasks import Task
+from agv_mission.missions.schema.zones import MAX_ZONES, Zone
 from agv_mission.robots.sim_config import SimConfig
 
 
@@ -91,6 +92,11 @@ class Setup(StrictModel):
     )
     faults: list[Fault] = Field(
         default_factory=list, max_length=MAX_FAULTS, description="faults to inject"
+    )
+    zones: list[Zone] = Field(
+        default_factory=list,
+        max_length=MAX_ZONES,
+        description="keepout and speed-limit zones: polygons, rooms or Nav2 filter masks",
     )
     recorder: str | None = Field(
         None,
@@ -167,6 +173,7 @@ FIELD_ORDER = (
     "limits",
     "obstacles",
     "faults",
+    "zones",
     "recorder",
     "output",
     "expect",

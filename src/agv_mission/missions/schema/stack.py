@@ -13,6 +13,7 @@ from pydantic import Field
 from agv_mission.maps.costmap import CostmapConfig
 from agv_mission.missions.schema.base import StrictModel
 from agv_mission.navigation.config import NavigationConfig
+from agv_mission.planners.collision_monitor import CollisionMonitorConfig
 from agv_mission.registry import registry
 
 
@@ -89,3 +90,8 @@ class Stack(StrictModel):
     )
     costmap: CostmapConfig = Field(default_factory=CostmapConfig)
     navigation: NavigationConfig = Field(default_factory=NavigationConfig)
+    collision_monitor: CollisionMonitorConfig = Field(
+        default_factory=CollisionMonitorConfig,
+        description="Nav2's collision monitor between the controller and the wheels, on the "
+        "raw lidar points; on by default with zones sized from the footprint",
+    )

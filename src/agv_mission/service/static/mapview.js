@@ -19,7 +19,7 @@ class MapView {
     this.ctx = canvas.getContext("2d", { alpha: false });
     this.scene = this.emptyScene();
     this.layers = { map: true, rooms: true, trails: true, scan: true, particles: true, plan: true,
-      horizon: true, goal: true, truth: true, estimate: true, recorded: true };
+      horizon: true, goal: true, truth: true, estimate: true, recorded: true, zones: true };
     this.view = { cx: 0, cy: 0, scale: 40 };
     this.fitted = false;
     this.follow = false;
@@ -81,10 +81,11 @@ class MapView {
   }
 
   reset() {
-    const map = this.scene.map, rooms = this.scene.rooms;
+    const map = this.scene.map, rooms = this.scene.rooms, zones = this.scene.zones;
     this.scene = this.emptyScene();
     this.scene.map = map;
     this.scene.rooms = rooms;
+    this.scene.zones = zones;
     this.dirty = true;
   }
 
@@ -139,6 +140,20 @@ class MapView {
       this.scene.map = { canvas: off, resolution: res, origin: msg.origin,
         width: off.width, height: off.height, known };
       if (!this.fitted) this.fit();
+      this.dirty = true;
+    };
+    img.src = "data:image/png;base64," + msg.png;
+  }
+
+  /** decode a `zones` message (base64 RGBA PNG of keepout and speed zones, row 0 = top) */
+  setZones(msg) {
+    const img = new Image();
+    img.onload = () => {
+      const off = document.createElement("canvas");
+      off.width = msg.width; off.height = msg.height;
+      off.getContext("2d").drawImage(img, 0, 0, off.width, off.height);
+      this.scene.zones = { canvas: off, resolution: msg.resolution, origin: msg.origin,
+        width: msg.width, height: msg.height };
       this.dirty = true;
     };
     img.src = "data:image/png;base64," + msg.png;
@@ -264,8 +279,9 @@ class MapView {
     // The map, grid and room outlines change only with the view: rendered once per view into
     // a cached layer, then copied 1:1 each frame (a software raster of the scaled map and the
     // translucent rooms costs several milliseconds a frame).
-    const key = [this.canvas.width, this.canvas.height, this.view.cx, this.view.cy, S, L.map, L.rooms].join("|");
-    if (key !== this.staticKey || s.map !== this.staticMap || s.rooms !== this.staticRooms) {
+    const key = [this.canvas.width, this.canvas.height, this.view.cx, this.view.cy, S, L.map, L.rooms, L.zones].join("|");
+    if (key !== this.staticKey || s.map !== this.staticMap || s.rooms !== this.staticRooms
+        || s.zones !== this.staticZones) {
       if (!this.staticCanvas) this.staticCanvas = document.createElement("canvas");
       const sc = this.staticCanvas;
       if (sc.width !== this.canvas.width || sc.height !== this.canvas.height) {
@@ -274,7 +290,7 @@ class MapView {
       const sctx = sc.getContext("2d");
       sctx.setTransform(dpr, 0, 0, dpr, 0, 0);
       this.drawStatic(sctx, P, w, h);
-      this.staticKey = key; this.staticMap = s.map; this.staticRooms = s.rooms;
+      this.staticKey = key; this.staticMap = s.map; this.staticRooms = s.rooms; this.staticZones = s.zones;
     }
     ctx.setTransform(1, 0, 0, 1, 0, 0);
     ctx.drawImage(this.staticCanvas, 0, 0);
@@ -331,6 +347,12 @@ class MapView {
       ctx.imageSmoothingEnabled = S * m.resolution < 1.5;
       ctx.drawImage(m.canvas, ox, oy, m.width * m.resolution * S, m.height * m.resolution * S);
       this.drawGrid(ctx, w, h);
+    }
+    if (s.zones && L.zones) {
+      const z = s.zones;
+      const [zx, zy] = P(z.origin[0], z.origin[1] + z.height * z.resolution);
+      ctx.imageSmoothingEnabled = false;
+      ctx.drawImage(z.canvas, zx, zy, z.width * z.resolution * S, z.height * z.resolution * S);
     }
     if (L.rooms) this.drawRooms(ctx, P);
   }

@@ -26,7 +26,8 @@
   const LAYERS = [["map", "map", "#8a96a6"], ["rooms", "rooms", LAYER_STYLE.rooms], ["truth", "true pose", LAYER_STYLE.truth],
     ["estimate", "estimate", LAYER_STYLE.estimate], ["trails", "trails", "#6b7f99"], ["scan", "scan", LAYER_STYLE.scan],
     ["particles", "particles", LAYER_STYLE.particles], ["plan", "global path", LAYER_STYLE.plan],
-    ["horizon", "local horizon", LAYER_STYLE.horizon], ["goal", "goal", LAYER_STYLE.goal], ["recorded", "recorded", LAYER_STYLE.recorded]];
+    ["horizon", "local horizon", LAYER_STYLE.horizon], ["goal", "goal", LAYER_STYLE.goal], ["recorded", "recorded", LAYER_STYLE.recorded],
+    ["zones", "zones", "#d9463c"]];
   $("layers").innerHTML = LAYERS.map(([k, label, color]) =>
     `<label><input type="checkbox" data-layer="${k}" checked><span class="sw" style="background:${color}"></span>${label}</label>`).join("");
   $("layers").addEventListener("change", (e) => {
@@ -114,6 +115,7 @@
     const s = view.scene;
     switch (msg.type) {
       case "map": view.setMap(msg); break;
+      case "zones": view.setZones(msg); break;
       case "rooms": s.rooms = msg.rooms || []; s.docks = msg.docks || []; break;
       case "recorded": s.recorded = Object.assign({}, msg.entries || {}); break;
       case "tree": treeNodes = msg.nodes || []; treeDirty = true; break;

@@ -170,6 +170,28 @@ def test_no_return_clears_only_the_configured_length(length):
     assert grid.value_at(np.array([3.01, 0.0])) == OCCUPIED
 
 
+@pytest.mark.parametrize("max_hits", [None, 0, 1, 2])
+def test_a_cell_that_returned_beams_is_free_only_within_free_max_hits(max_hits):
+    """A person stood 2 m ahead for two scans, then walked off: twenty scans see through
+    the cell. The log-odds call it free again; with ``free_max_hits`` it is FREE only if
+    it held at most that many end points (never OCCUPIED either: UNKNOWN)."""
+    config = GridSlamConfig(free_max_hits=max_hits, initial_size=20.0)
+    grid_map = LogOddsMap(config, None, Pose2D(0.0, 0.0, 0.0))
+
+    def scan(ahead: float) -> LaserScan:
+        return LaserScan(np.array([4.02, ahead, 4.02], np.float32), -0.1, 0.1, 0.1, 10.0, 0.0)
+
+    for _ in range(2):
+        grid_map.integrate(scan(2.02), Pose2D(0.0, 0.0, 0.0))
+    for _ in range(20):
+        grid_map.integrate(scan(4.02), Pose2D(0.0, 0.0, 0.0))
+    grid = grid_map.occupancy_grid()
+    person = grid.value_at(np.array([2.02, 0.0]))
+    assert person == (FREE if max_hits is None or max_hits >= 2 else UNKNOWN)
+    assert grid.value_at(np.array([1.5, 0.0])) == FREE  # never hit: free either way
+    assert grid.value_at(np.array([4.02, 0.0])) == OCCUPIED  # the wall behind
+
+
 def test_crop_keeps_what_was_seen_plus_margin_in_place():
     data = np.full((200, 300), UNKNOWN, np.int8)
     data[50:60, 100:130] = FREE

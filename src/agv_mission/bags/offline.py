@@ -274,6 +274,8 @@ DEFAULT_SLAM: dict[str, Any] = {
     "update_min_d": 0.2,
     "update_min_a": 0.2,
     "free_threshold": 0.196,
+    "free_max_hits": 0,
+    "missing_data_ray_length": 0.0,
 }
 
 

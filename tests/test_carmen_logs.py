@@ -300,3 +300,29 @@ def test_reference_agreement_of_a_shifted_map():
     assert moved["walls_within"] < 0.6 and moved["free_in_reference"] < 0.95
     # 0.1 m off: within the tolerance.
     assert reference_agreement(ref, ref, frame=Pose2D(0.1, 0.0, 0.0))["walls_within"] == 1.0
+
+
+CONVERTER = SHARED_LOGS.parents[1] / "tools" / "carmen_to_bag.py"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not CONVERTER.is_file(), reason="../shared/tools/carmen_to_bag.py is absent")
+def test_real_log_bag_meets_the_issue_targets(tmp_path):
+    """Freiburg 079 (real SICK scans) as a robot-like bag with drifting odometry (another
+    converter seed than the benchmark's), mapped with ``map``'s defaults: the relative
+    pose error, free cells and walls against the converter's reference map."""
+    import subprocess
+    import sys
+
+    from agv_mission.mapping.quality import reference_agreement
+    from agv_mission.maps.ros_map import load_ros_map
+
+    log = SHARED_LOGS / "freiburg-079-corrected.log.gz"
+    cmd = [sys.executable, str(CONVERTER), str(log), str(tmp_path), "--seed", "2"]
+    subprocess.run(cmd, check=True, capture_output=True)
+    result = map_bag(tmp_path / "bag", slam_config([]))
+    rpe = relative_pose_error(result.trajectory, read_bag(tmp_path / "bag").truth)
+    agree = reference_agreement(result.grid, load_ros_map(tmp_path / "reference.yaml"))
+    assert rpe["translation_mean"] <= 0.025
+    assert agree["free_in_reference"] >= 0.85
+    assert agree["walls_within"] >= 0.95

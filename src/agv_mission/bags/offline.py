@@ -275,7 +275,7 @@ DEFAULT_SLAM: dict[str, Any] = {
     "update_min_a": 0.2,
     "free_threshold": 0.196,
     "free_max_hits": 0,
-    "missing_data_ray_length": 0.0,
+    "missing_data_ray_length": 3.0,
 }
 
 

@@ -1,7 +1,8 @@
 """grid SLAM cost on real MuJoCo scans: scan integration, scan matching, frontier search.
 
 A burger drives a fixed route through small_house (living room, bedroom door, bedroom)
-with noisy encoders (encoder_noise 0.05, wheel_slip 0.1), feeding 5 Hz 360-beam scans
+with the robot's realistic sensors (the simulation's defaults: its encoders' noise and
+slip, the LDS-01's range noise and dropouts), feeding 5 Hz 360-beam scans
 and odometry to the ``grid`` plugin exactly as the runner does; the plugin times each
 integration and each match itself. Frontier search runs on the map at the end, as the
 map_area task would call it.
@@ -45,7 +46,7 @@ from slam_drive import drive  # noqa: E402
 
 ROUTE = ((3.0, -0.45), (-1.5, -0.45), (-1.5, -1.7), (-3.5, -1.7), (-5.5, -1.5), (-5.5, -3.5))
 BOUNDS = (-9.5, 9.5, -5.5, 5.5)
-NOISY = SimConfig(encoder_noise=0.05, wheel_slip=0.1)
+REALISTIC = SimConfig()
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 LOGS = {"aces": "bag", "csail": "log", "freiburg_079": "bag"}
 
@@ -56,7 +57,7 @@ def _percentile(samples: list[float], q: float) -> float:
 
 def run() -> dict[str, float]:
     world = small_house()
-    driven = drive(world, ROUTE, NOISY, bounds=BOUNDS, max_steps=3000)
+    driven = drive(world, ROUTE, REALISTIC, bounds=BOUNDS, max_steps=3000)
     slam, est = driven.slam, driven.estimate
     grid = slam.occupancy_grid()
     frontier_times = []

@@ -270,10 +270,12 @@ DEFAULT_SLAM: dict[str, Any] = {
     "odom_translation_noise": 0.02,
     "odom_rotation_per_metre": 0.03,
     "odom_rotation_noise": 0.05,
-    "loop_check_every": 4,
+    "loop_check_every": 8,
     "update_min_d": 0.2,
     "update_min_a": 0.2,
     "free_threshold": 0.196,
+    "free_max_hits": 0,
+    "missing_data_ray_length": 3.0,
 }
 
 

@@ -44,6 +44,13 @@ class GridSlamConfig(PluginConfig):
         description="m of free space a beam without a return (+inf) clears (Cartographer's "
         "missing_data_ray_length): not through doors and windows to the max range; 0: none",
     )
+    free_max_hits: int | None = Field(
+        None,
+        ge=0,
+        description="a cell that held more end points than this is never FREE, however often "
+        "beams crossed it (a person walking by, a door that swung: no place a planner can "
+        "trust); below hit_memory; None: the log-odds alone decide",
+    )
     hit_memory: int = Field(
         20, ge=1, description="end points averaged per cell anchor (older ones fade out)"
     )

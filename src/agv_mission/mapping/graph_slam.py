@@ -27,7 +27,7 @@ from time import perf_counter
 from typing import Any
 
 import numpy as np
-from scipy.sparse import csr_matrix, identity
+from scipy.sparse import csr_matrix, diags
 from scipy.sparse.linalg import spsolve
 
 from agv_mission.geometry import Pose2D, wrap_angles
@@ -301,6 +301,10 @@ def optimize_pose_graph(
     for a in range(3):
         cols[:, a, :3] = 3 * ii[:, None] + np.arange(3)
         cols[:, a, 3:] = 3 * jj[:, None] + np.arange(3)
+    # Node 0 is the gauge; a little damping elsewhere.
+    diag = np.full(3 * n, 1e-6)
+    diag[:3] += 1e9
+    damping = diags(diag, format="csc")
     for _ in range(iterations):
         pi, pj = x[ii], x[jj]
         c, s = np.cos(pi[:, 2]), np.sin(pi[:, 2])
@@ -325,11 +329,7 @@ def optimize_pose_graph(
         scale = (w * np.sqrt(robust)[:, None])[:, :, None]
         jac = csr_matrix(((j * scale).ravel(), (rows.ravel(), cols.ravel())), shape=(3 * m, 3 * n))
         res = (rw * np.sqrt(robust)[:, None]).ravel()
-        h = (jac.T @ jac).tolil()
-        h[0, 0] += 1e9  # node 0 is the gauge
-        h[1, 1] += 1e9
-        h[2, 2] += 1e9
-        h = h.tocsc() + identity(3 * n, format="csc") * 1e-6
+        h = (jac.T @ jac).tocsc() + damping
         step = spsolve(h, -(jac.T @ res))
         x += step.reshape(n, 3)
         x[:, 2] = wrap_angles(x[:, 2])

@@ -7,7 +7,9 @@ cell; a cell hit by one beam of a scan is not also cleared by that scan), clampe
 ``[log_odds_min, log_odds_max]``. Beams without a return (+inf) clear only
 ``missing_data_ray_length`` (Cartographer's name and 5 m default; gmapping's ``maxUrange``
 plays the same part): "nothing within range" is no evidence that all of it is free: an
-open door or window would clear a starburst of free space outside the building. Each
+open door or window would clear a starburst of free space outside the building. With
+``free_max_hits`` a cell that held more end points than that is never FREE, however
+often beams crossed it afterwards. Each
 cell also keeps the mean of the end points that fell in it (the last ``hit_memory`` weigh most), its *anchor*, and the sum of
 the directions from its end points back to the scanner, the side it was seen from (see
 :mod:`slam`). The likelihood field (cells above ``field_threshold`` log-odds count as
@@ -84,7 +86,11 @@ class LogOddsMap:
     def occupancy_grid(self) -> OccupancyGrid:
         """The map in map_saver's trinary convention (a new grid every call)."""
         data = np.full(self.logodds.shape, UNKNOWN, dtype=np.int8)
-        data[self.logodds < self._free_l] = FREE
+        free = self.logodds < self._free_l
+        if self.config.free_max_hits is not None:
+            # hn counts end points up to hit_memory, so small counts are exact.
+            free &= self.hn < self.config.free_max_hits + 1
+        data[free] = FREE
         data[self.logodds > self._occ_l] = OCCUPIED
         return OccupancyGrid(data, self.resolution, Pose2D(self.ox, self.oy, 0.0))
 

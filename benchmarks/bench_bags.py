@@ -21,7 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from agv_mission.bags.offline import map_bag, slam_config
+from agv_mission.bags.offline import default_slam, map_bag, slam_config
 from agv_mission.bags.writer import BagWriter
 from agv_mission.mapping.quality import map_quality
 from agv_mission.missions.loader import load_mission
@@ -63,7 +63,7 @@ def _round_trip(root: Path, label: str, mission: Path) -> dict[str, float]:
     run_dir = root / label
     run_dir.mkdir()
     record = run_mission(loaded, run_dir, observers=[BagWriter()])
-    result = map_bag(run_dir / "bag", slam_config([]))
+    result = map_bag(run_dir / "bag", default_slam([]))
     start = (loaded.start.x, loaded.start.y)
     quality = map_quality(result.grid, loaded.world.map, None, start)
     r = result.report

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agv_mission.bags.offline import map_bag, slam_config
+from agv_mission.bags.offline import default_slam, map_bag
 from agv_mission.bags.reader import read_bag
 from agv_mission.geometry import Pose2D
 from agv_mission.mapping.frontiers import find_frontiers
@@ -98,7 +98,7 @@ def real_logs() -> dict[str, float]:
             )
             source, truth_topic = (work / "bag", None) if route == "bag" else (log, "FLASER")
             t0, c0 = time.perf_counter(), time.process_time()
-            result = map_bag(source, slam_config([]), truth_topic=truth_topic)
+            result = map_bag(source, default_slam([]), truth_topic=truth_topic)
             wall, cpu = time.perf_counter() - t0, time.process_time() - c0
             truth = read_bag(source, truth_topic=truth_topic).truth
             rpe = relative_pose_error(result.trajectory, truth)

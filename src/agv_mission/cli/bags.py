@@ -48,15 +48,15 @@ def map_(
     cropped to what was seen, + a report)."""
     from agv_mission.bags.offline import (
         MappingFailed,
+        default_slam,
         map_bag,
         report_lines,
         save_outputs,
-        slam_config,
     )
     from agv_mission.bags.reader import BagError
 
     try:
-        config = slam_config(set_)
+        config = default_slam(set_)
         result = map_bag(bag, config, scan_topic, odom_topic, truth_topic)
     except MissionError as exc:
         raise invalid(exc) from None

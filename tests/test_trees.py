@@ -4,6 +4,7 @@ result.json's ``tree``, and a third-party node type registered at run time."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -15,10 +16,12 @@ import py_trees
 import pytest
 import yaml
 from py_trees.common import Status
+from typer.testing import CliRunner
 
 from agv_mission.behaviors.check import sample_context
 from agv_mission.behaviors.context import TreeContext
 from agv_mission.behaviors.ports import NodePorts
+from agv_mission.cli import app
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.runner import run_mission
 from agv_mission.missions.tree import MissionTree, TreeSource, assemble, build_tree, yaml_spec
@@ -399,3 +402,50 @@ def test_a_tree_that_repeats_forever_succeeds_at_the_time_limit(tmp_path: Path) 
     bounded = forever.replace("num_cycles: -1", "num_cycles: 100")
     record = run_mission(load_mission(mission_file(tmp_path, bounded, "bounded")))
     assert record.status == "failed" and "time limit" in (record.reason or "")
+
+
+CONTRACT_BATTERY_PATROL = """\
+name: battery-patrol
+world: small_house
+robot: burger
+seed: 3
+simulation: {battery_level: 0.302}
+stack: {localization: {type: ground_truth}}
+limits: {time: 90.0}
+blackboard:
+  home: {x: 0.0, y: 0.0, yaw: 0.0}
+trees:
+  Recharge:
+    type: sequence
+    children:
+      - {type: dock, dock: "{dock}"}
+      - {type: charge, until: 0.95}
+      - {type: undock}
+tree:
+  type: repeat
+  num_cycles: -1
+  child:
+    type: reactive_fallback
+    children:
+      - type: sequence
+        children:
+          - {type: is_battery_low, min_battery: 0.3}
+          - {type: subtree, id: Recharge, dock: charger}
+      - type: patrol
+        waypoints: [{x: 1.0, y: 2.0, yaw: 0.0}, {x: -3.0, y: 1.0, yaw: 1.57}]
+"""
+
+
+def test_the_contracts_battery_patrol_runs_its_subtree(tmp_path: Path) -> None:
+    """The contract's own example: a subtree with a remapped port, under a reactive guard;
+    the battery falls below 0.3 on the patrol and the Recharge subtree docks the robot."""
+    path = tmp_path / "battery_patrol.yaml"
+    path.write_text(CONTRACT_BATTERY_PATROL)
+    result = CliRunner().invoke(app, ["run", str(path), "--output", str(tmp_path / "runs")])
+    assert result.exit_code == 0, result.output  # repeat -1 runs to the time limit
+    [run_dir] = (tmp_path / "runs").iterdir()
+    doc = json.loads((run_dir / "result.json").read_text())
+    events = [e["event"] for e in doc["events"]]
+    assert "docked" in events and "charging" in events, events
+    assert doc["metrics"]["battery"]["minimum"] < 0.3
+    assert any(node["type"] == "subtree" for node in doc["tree"]), doc["tree"]

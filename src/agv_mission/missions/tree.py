@@ -131,6 +131,8 @@ def _main_file(spec: TreeSpec) -> str:
 
 
 def _is_task(node_type: str) -> bool:
+    if node_type == "subtree":  # the assembly's own node: a subtree's expansion, not a plugin
+        return False
     return bool(getattr(registry.config(SLOT, node_type), "task", False))
 
 

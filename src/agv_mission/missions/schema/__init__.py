@@ -5,6 +5,22 @@
 ``json_schema`` (what ``agv-mission schema`` prints); every name is importable from here.
 """
 
+from agv_mission.behaviors.ports import (  # the task types: action nodes of the library
+    AreaBounds,
+    ChargeTask,
+    DockTask,
+    FailurePolicy,
+    GoToTask,
+    MapAreaTask,
+    PatrolTask,
+    RecordRoomTask,
+    SettleBeforeRecording,
+    Task,
+    TeleopTask,
+    UndockTask,
+    VisitRoomsTask,
+    WanderTask,
+)
 from agv_mission.missions.schema.base import (
     MAX_FAULTS,
     MAX_LOOPS,
@@ -49,22 +65,6 @@ from agv_mission.missions.schema.stack import (
     SlamConfig,
     Stack,
     with_default_plugin_types,
-)
-from agv_mission.missions.schema.tasks import (
-    AreaBounds,
-    ChargeTask,
-    DockTask,
-    FailurePolicy,
-    GoToTask,
-    MapAreaTask,
-    PatrolTask,
-    RecordRoomTask,
-    SettleBeforeRecording,
-    Task,
-    TeleopTask,
-    UndockTask,
-    VisitRoomsTask,
-    WanderTask,
 )
 
 __all__ = [

@@ -7,6 +7,7 @@ from typing import Any
 
 from pydantic import Field, field_validator, model_validator
 
+from agv_mission.behaviors.ports import Task
 from agv_mission.missions.expectations import Expectations
 from agv_mission.missions.schema.base import (
     MAX_FAULTS,
@@ -19,7 +20,6 @@ from agv_mission.missions.schema.base import (
 )
 from agv_mission.missions.schema.disturbances import Fault, Obstacle
 from agv_mission.missions.schema.stack import Stack
-from agv_mission.missions.schema.tasks import Task
 from agv_mission.missions.schema.zones import MAX_ZONES, Zone
 from agv_mission.robots.sim_config import SimConfig
 

@@ -21,6 +21,7 @@ FLOORS = {
     "missions": 6,
     "behaviors": 5,
     "navigation": 4,
+    "fleet": 4,
     "plugin_check": 6,  # drives a plugin of any slot: floor-3 ones, and behaviour nodes (5)
     "robots": 3,
     "planners": 3,

@@ -49,6 +49,7 @@ class Bot:
     detour: Pose2D | None = None
     arrived: list[float] = field(default_factory=list)  # when each goal was reached
     travelled: float = 0.0
+    stuck: bool = False  # keeps its plan but never moves (a robot that broke down)
 
     @property
     def target(self) -> Pose2D | None:
@@ -148,7 +149,7 @@ class KinematicFleet:
             # no way round: keep the plan (and wait), as a navigator does
 
     def _advance(self, b: Bot, limit: float | None) -> None:
-        if b.path is None:
+        if b.path is None or b.stuck:
             return
         step = b.max_speed * DT if limit is None else min(b.max_speed * DT, limit)
         here = np.array([b.pose.x, b.pose.y])

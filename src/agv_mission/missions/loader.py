@@ -46,6 +46,7 @@ from agv_mission.missions.schema import (
     MAX_SIM_SECONDS,
     Mission,
     Setup,
+    Stack,
     with_default_plugin_types,
 )
 from agv_mission.missions.schema.zones import KeepoutMask, KeepoutZone, SpeedMask
@@ -73,6 +74,25 @@ PathGuard = Callable[[str, Path], "str | None"]
 
 
 @dataclass
+class RobotSetup:
+    """One robot of a mission as it runs: its name (ROS namespace), description, start,
+    stack, the costmap its footprint inflates, its zone filters and what it does."""
+
+    name: str
+    robot: RobotDescription
+    start: Pose2D
+    stack: Stack
+    costmap: Costmap
+    tree: TreeSpec | None = None
+    zones: ZoneFilters | None = None
+    room_goals: dict[str, Pose2D] = field(default_factory=dict)
+
+
+#: The name of a one-robot mission's robot (its bodies and logs; no ROS namespace).
+SOLE_ROBOT = "robot"
+
+
+@dataclass
 class LoadedMission:
     """A validated mission with everything it names loaded and resolved."""
 
@@ -90,6 +110,32 @@ class LoadedMission:
     docks: dict[str, Dock] = field(default_factory=dict)  # the world's and rooms file's
     given_map: OccupancyGrid | None = None  # the mission's ``map:``, when it names one
     zones: ZoneFilters | None = None  # keepout and speed filters (None: no zones)
+    fleet: list[RobotSetup] = field(default_factory=list)  # a fleet mission's robots
+
+    @property
+    def is_fleet(self) -> bool:
+        """A mission with a ``robots:`` list (fleet.md); else a one-robot mission."""
+        return bool(self.fleet)
+
+    @property
+    def robots(self) -> list[RobotSetup]:
+        """Every robot of the mission: the fleet's, or the one robot of a one-robot
+        mission (named :data:`SOLE_ROBOT`)."""
+        if self.fleet:
+            return self.fleet
+        stack = self.mission.stack
+        return [
+            RobotSetup(
+                SOLE_ROBOT,
+                self.robot,
+                self.start,
+                stack,
+                self.costmap,
+                self.tree,
+                self.zones,
+                self.room_goals,
+            )
+        ]
 
     @property
     def map(self) -> OccupancyGrid:

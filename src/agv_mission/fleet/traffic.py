@@ -96,6 +96,7 @@ class ReservationTraffic:
         self._stuck_since: dict[tuple[str, ...], float] = {}  # deadlock key -> first seen
         self._parked_replan: dict[tuple[str, str], float] = {}  # (waiter, parked) -> when
         self._last_t: float | None = None
+        self._grants: dict[str, _Grant] = {}
         self._wait_count = 0
         self._wait_time = 0.0
         self._deadlocks = 0
@@ -110,6 +111,7 @@ class ReservationTraffic:
         self._forget_gone(by_name)
         self._release_yields(t, by_name, events)
         grants = self._grant(robots)
+        self._grants = grants
         waiting = {
             name: g.blocker
             for name, g in grants.items()
@@ -284,9 +286,11 @@ class ReservationTraffic:
         robots: dict[str, TrafficRobot],
         events: list[FleetEvent],
     ) -> None:
-        """The member with the shortest way out of the others' paths steps aside."""
+        """The member with the shortest way out of the others' paths steps aside (one
+        already stepping aside only when no other member can)."""
         best: tuple[float, int, str, Pose2D] | None = None
-        for name in cycle:
+        free = [n for n in cycle if n not in self._yields] or cycle
+        for name in free:
             others = [robots[o] for o in cycle if o != name]
             detour = self._detour(robots[name], others, robots)
             if detour is not None:
@@ -358,7 +362,8 @@ class ReservationTraffic:
         away_from: list[TrafficRobot],
         robots: dict[str, TrafficRobot],
     ) -> Detour | None:
-        """Where ``robot`` keeps clear of ``away_from``'s remaining paths and bodies."""
+        """Where ``robot`` keeps clear of ``away_from``'s remaining paths and every body;
+        out of the other robots' reserved space too, where such a place is in reach."""
         if robot.costmap is None:
             return None
         keep_clear = [Keepout(_route_of(o), o.radius) for o in away_from]
@@ -367,15 +372,25 @@ class ReservationTraffic:
             for o in robots.values()
             if o.name != robot.name
         ]
-        return find_detour(
-            robot.costmap,
-            robot.pose,
-            robot.radius,
-            keep_clear,
-            bodies,
-            self.config.margin + SLACK,
-            self.config.detour_radius,
-        )
+        skip = {robot.name, *(o.name for o in away_from)}
+        reserved = [
+            Keepout(g.pts, g.robot.radius)
+            for name, g in self._grants.items()
+            if name not in skip and len(g.pts) > 1
+        ]
+        for extra in [reserved, []] if reserved else [[]]:
+            found = find_detour(
+                robot.costmap,
+                robot.pose,
+                robot.radius,
+                keep_clear + extra,
+                bodies,
+                self.config.margin + SLACK,
+                self.config.detour_radius,
+            )
+            if found is not None:
+                return found
+        return None
 
     def _replan(
         self, name: str, around: list[str], grants: dict[str, _Grant], reason: str

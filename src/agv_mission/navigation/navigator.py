@@ -218,14 +218,13 @@ class Navigator:
         left out: they clear, but do not mark)."""
         bodies = self.fleet_bodies
         if len(bodies):
-            a = scan.angle_min + scan.angle_increment * np.arange(len(scan.ranges)) + pose.yaw
             r = scan.ranges.astype(float)
-            ends = np.column_stack([pose.x + r * np.cos(a), pose.y + r * np.sin(a)])
-            d = np.hypot(
-                ends[:, None, 0] - bodies[None, :, 0], ends[:, None, 1] - bodies[None, :, 1]
-            )
-            theirs = np.any(d <= bodies[None, :, 2] + BODY_SLACK, axis=1)
-            if theirs.any():
+            beams = np.flatnonzero(np.isfinite(r))
+            a = scan.angle_min + scan.angle_increment * beams + pose.yaw
+            x, y = pose.x + r[beams] * np.cos(a), pose.y + r[beams] * np.sin(a)
+            d = np.hypot(x[:, None] - bodies[None, :, 0], y[:, None] - bodies[None, :, 1])
+            theirs = beams[np.any(d <= bodies[None, :, 2] + BODY_SLACK, axis=1)]
+            if len(theirs):
                 ranges = scan.ranges.copy()
                 ranges[theirs] = np.nan
                 scan = replace(scan, ranges=ranges)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from agv_mission.missions.schema.fleet import DEFAULT_FLEET_PLUGINS
 from agv_mission.missions.schema.mission import Mission
 from agv_mission.missions.schema.stack import DEFAULT_PLUGINS
 from agv_mission.registry import registry
@@ -38,7 +39,49 @@ def mission_json_schema() -> dict[str, Any]:
         "anyOf": [{"type": "string"}, {"$ref": output["$ref"]}],
     }
     _tree_nodes(schema)
+    _fleet(schema)
     return {"$schema": JSON_SCHEMA_DIALECT, **schema}
+
+
+def _fleet(schema: dict[str, Any]) -> None:
+    """A fleet task may name its ``robot``; a ``fleet`` slot block without ``type`` is
+    the slot's default plugin."""
+    items = schema["properties"]["tasks"]["items"]
+    mapping = items.get("discriminator", {}).get("mapping", {})
+    fleet_refs = {}
+    for kind, ref in mapping.items():
+        name = ref.rsplit("/", 1)[-1]
+        task = schema["$defs"][name]
+        schema["$defs"][f"Fleet{name}"] = {
+            **task,
+            "properties": {
+                **task["properties"],
+                "robot": {
+                    "type": "string",
+                    "pattern": "^[a-z][a-z0-9_]{0,31}$",
+                    "description": "a fleet mission's task: the robot that does it (without "
+                    "one, the dispatcher picks the robot)",
+                },
+            },
+        }
+        fleet_refs[kind] = f"#/$defs/Fleet{name}"
+    if fleet_refs:
+        schema["properties"]["tasks"]["items"] = {
+            "discriminator": {"mapping": fleet_refs, "propertyName": "type"},
+            "oneOf": [{"$ref": ref} for ref in fleet_refs.values()],
+        }
+    slots = schema["$defs"]["Fleet"]["properties"]
+    for slot, name in DEFAULT_FLEET_PLUGINS.items():
+        union = slots[slot]
+        refs = union.get("discriminator", {}).get("mapping", {})
+        if name not in refs:
+            continue
+        slots[slot] = {
+            "description": union.get("description", slot),
+            "if": {"type": "object", "not": {"required": ["type"]}},
+            "then": {"$ref": refs[name]},
+            "else": {k: v for k, v in union.items() if k != "title"},
+        }
 
 
 def _tree_nodes(schema: dict[str, Any]) -> None:

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 from scipy.ndimage import distance_transform_edt
 from scipy.sparse.csgraph import dijkstra
 
@@ -22,6 +23,7 @@ from agv_mission.planners.grid_search import step_graph
 
 PLAN_CLEARANCE = 0.05  # m beyond the radius a cell needs to be on a plan (cost_grid's default)
 WALL_CLEARANCE = 0.1  # m beyond the radius a detour pose keeps from walls
+NEAR = 5.0  # m searched first
 
 
 @dataclass(frozen=True)
@@ -51,7 +53,24 @@ def find_detour(
     """The nearest pose (by travel over free cells) from which a robot of ``radius`` at
     ``pose`` keeps ``margin`` from every ``keep_clear`` path and every other robot's body
     in ``bodies`` (bodies also block the way there). None when none lies within
-    ``search_radius`` metres."""
+    ``search_radius`` metres. The search looks within :data:`NEAR` metres first (most
+    ways out are a few metres long), then as far as allowed."""
+    for reach in dict.fromkeys((min(NEAR, search_radius), search_radius)):
+        found = _search(costmap, pose, radius, keep_clear, bodies, margin, reach)
+        if found is not None:
+            return found
+    return None
+
+
+def _search(
+    costmap: Costmap,
+    pose: Pose2D,
+    radius: float,
+    keep_clear: Sequence[Keepout],
+    bodies: Sequence[Keepout],
+    margin: float,
+    search_radius: float,
+) -> Detour | None:
     grid = costmap.grid
     res = grid.resolution
     reach = max((k.radius for k in (*keep_clear, *bodies)), default=0.0) + radius + margin
@@ -65,17 +84,19 @@ def find_detour(
     shape = clearance.shape
     passable = clearance > radius + PLAN_CLEARANCE
     target = clearance > radius + WALL_CLEARANCE
-    for body in bodies:
-        away = _distance_to(body.points, grid, rows, cols)
-        passable &= away >= body.radius + radius
-        target &= away >= body.radius + radius + margin
-    for way in keep_clear:
-        target &= _distance_to(way.points, grid, rows, cols) >= way.radius + radius + margin
+    for body_radius, away in _grouped(bodies, grid, rows, cols):
+        passable &= away >= body_radius + radius
+        target &= away >= body_radius + radius + margin
+    for way_radius, away in _grouped(keep_clear, grid, rows, cols):
+        target &= away >= way_radius + radius + margin
     start = (r0 - rows.start, c0 - cols.start)
     if not (0 <= start[0] < shape[0] and 0 <= start[1] < shape[1]):
         return None
-    passable[start] = True
-    graph = step_graph(passable, passable, np.ones(shape), connectivity=8)
+    # only what the search can reach: the free component round the start
+    labels, _ = ndimage.label(passable | _at(shape, start))
+    here = labels == labels[start]
+    here &= _disc(shape, start, search_radius / res)
+    graph = step_graph(here, here, np.ones(shape), connectivity=8)
     node = int(graph.node_of[start[0] * shape[1] + start[1]])
     dist = dijkstra(graph.graph, indices=node, limit=search_radius / res)
     cells = graph.cells
@@ -91,19 +112,36 @@ def find_detour(
     return Detour(Pose2D(float(x), float(y), yaw), float(dist[best]) * res)
 
 
-def _distance_to(points: np.ndarray, grid: OccupancyGrid, rows: slice, cols: slice) -> np.ndarray:
-    """Metres from every cell of a window of ``grid`` to a polyline: a distance transform
-    of the cells the polyline passes through (exact to half a cell). Parts outside the
-    window are left out: the window reaches farther than any margin tested against it."""
-    pts = np.asarray(points, dtype=float).reshape(-1, 2)
+def _at(shape: tuple[int, int], cell: tuple[int, int]) -> np.ndarray:
+    out = np.zeros(shape, dtype=bool)
+    out[cell] = True
+    return out
+
+
+def _disc(shape: tuple[int, int], centre: tuple[int, int], cells: float) -> np.ndarray:
+    rr, cc = np.ogrid[: shape[0], : shape[1]]
+    return (rr - centre[0]) ** 2 + (cc - centre[1]) ** 2 <= cells * cells
+
+
+def _grouped(
+    keepouts: Sequence[Keepout], grid: OccupancyGrid, rows: slice, cols: slice
+) -> list[tuple[float, np.ndarray]]:
+    """One distance field per radius: robots of a kind share one transform."""
+    by_radius: dict[float, list[np.ndarray]] = {}
+    for k in keepouts:
+        by_radius.setdefault(round(k.radius, 6), []).append(np.asarray(k.points, dtype=float))
+    return [(r, _distance_to(lines, grid, rows, cols)) for r, lines in sorted(by_radius.items())]
+
+
+def _distance_to(
+    lines: Sequence[np.ndarray], grid: OccupancyGrid, rows: slice, cols: slice
+) -> np.ndarray:
+    """Metres from every cell of a window of ``grid`` to the nearest of some polylines: a
+    distance transform of the cells they pass through (exact to half a cell). Parts
+    outside the window are left out: the window reaches farther than any margin tested
+    against it."""
     res = grid.resolution
-    if len(pts) > 1:
-        seg = np.diff(pts, axis=0)
-        n = np.maximum(np.ceil(np.hypot(seg[:, 0], seg[:, 1]) / (0.5 * res)), 1).astype(int)
-        t = [np.arange(k) / k for k in n]
-        pts = np.concatenate(
-            [p + s * f[:, None] for p, s, f in zip(pts[:-1], seg, t, strict=True)] + [pts[-1:]]
-        )
+    pts = np.concatenate([_densified(line.reshape(-1, 2), 0.5 * res) for line in lines])
     r, c = grid.world_to_cell(pts)
     r, c = r - rows.start, c - cols.start
     shape = (rows.stop - rows.start, cols.stop - cols.start)
@@ -113,3 +151,14 @@ def _distance_to(points: np.ndarray, grid: OccupancyGrid, rows: slice, cols: sli
     free = np.ones(shape, dtype=bool)
     free[r[inside], c[inside]] = False
     return distance_transform_edt(free) * res
+
+
+def _densified(pts: np.ndarray, step: float) -> np.ndarray:
+    """A polyline's points at most ``step`` apart."""
+    if len(pts) < 2:
+        return pts
+    seg = np.diff(pts, axis=0)
+    n = np.maximum(np.ceil(np.hypot(seg[:, 0], seg[:, 1]) / step), 1).astype(int)
+    t = np.concatenate([np.arange(k) / k for k in n])
+    base = np.repeat(pts[:-1], n, axis=0)
+    return np.concatenate([base + np.repeat(seg, n, axis=0) * t[:, None], pts[-1:]])

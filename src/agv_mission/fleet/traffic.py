@@ -75,13 +75,37 @@ class _Wait:
 
 
 @dataclass
+class _Space:
+    """Space a body sweeps: the polyline (or point) its centre covers, and its radius
+    (the footprint plus half the margin), with the bounding box of the whole."""
+
+    pts: np.ndarray  # (k, 2)
+    radius: float
+    box: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        (x0, y0), (x1, y1) = self.pts.min(axis=0), self.pts.max(axis=0)
+        r = self.radius
+        self.box = (float(x0) - r, float(y0) - r, float(x1) + r, float(y1) + r)
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Metres from each of ``points`` (n, 2) to the space (negative inside)."""
+        return polyline_distance(points, self.pts) - self.radius
+
+    def polygon(self) -> BaseGeometry:
+        if len(self.pts) > 1:
+            return LineString(self.pts).buffer(self.radius, quad_segs=QUAD_SEGS)
+        return Point(*self.pts[0]).buffer(self.radius, quad_segs=QUAD_SEGS)
+
+
+@dataclass
 class _Grant:
     robot: TrafficRobot
     pts: np.ndarray  # (k, 2) samples of the reserved prefix, from the robot's position
     s: np.ndarray  # (k,) arc length of each sample
     limit: float | None = None  # None: the whole prefix
     blocker: str | None = None
-    region: BaseGeometry | None = None  # the reservation granted
+    region: _Space | None = None  # the reservation granted
 
 
 class ReservationTraffic:
@@ -142,11 +166,8 @@ class ReservationTraffic:
         cfg = self.config
         half = cfg.margin / 2.0
         grants = {r.name: self._prefix(r) for r in robots}
-        bodies = {
-            r.name: Point(r.pose.x, r.pose.y).buffer(r.radius + half, quad_segs=QUAD_SEGS)
-            for r in robots
-        }
-        granted: dict[str, BaseGeometry] = {}
+        bodies = {r.name: _Space(grants[r.name].pts[:1], r.radius + half) for r in robots}
+        granted: dict[str, _Space] = {}
         for robot in self._order(robots):
             g = grants[robot.name]
             if len(g.pts) > 1:
@@ -156,7 +177,7 @@ class ReservationTraffic:
                 g.limit, g.blocker = self._limit(g, robot.radius + half, robot.radius, others)
             upto = len(g.pts) if g.limit is None else int(np.searchsorted(g.s, g.limit, "right"))
             g.region = (
-                LineString(g.pts[:upto]).buffer(robot.radius + half, quad_segs=QUAD_SEGS)
+                _Space(g.pts[:upto], robot.radius + half)
                 if upto > 1 and (g.limit is None or g.limit >= MIN_GO)
                 else bodies[robot.name]
             )
@@ -175,21 +196,18 @@ class ReservationTraffic:
 
     @staticmethod
     def _limit(
-        g: _Grant, keep: float, floor: float, others: list[tuple[str, BaseGeometry]]
+        g: _Grant, keep: float, floor: float, others: list[tuple[str, _Space]]
     ) -> tuple[float | None, str | None]:
         """How far along its prefix a robot may go, and who stops it: its centre keeps
         ``keep`` metres from every other's space, or, where it is closer already, gets no
         closer (so it can back away or pass alongside) and never nearer than ``floor``."""
         (x0, y0), (x1, y1) = g.pts.min(axis=0), g.pts.max(axis=0)
         limit, blocker = None, None
-        samples = None
         for name, space in others:
-            bx0, by0, bx1, by1 = space.bounds
+            bx0, by0, bx1, by1 = space.box
             if bx0 > x1 + keep or bx1 < x0 - keep or by0 > y1 + keep or by1 < y0 - keep:
                 continue
-            if samples is None:
-                samples = shapely.points(g.pts)
-            d = shapely.distance(samples, space)
+            d = space.distance(g.pts)
             ok = (d >= keep - TOL) | ((d >= d[0] - TOL) & (d >= floor))
             if ok.all():
                 continue
@@ -397,7 +415,9 @@ class ReservationTraffic:
     ) -> TrafficDecision:
         """Plan again with the others' granted reservations as lethal cells (the robot
         itself keeps ``margin / 2`` from them, so its own cell stays free)."""
-        polygons = tuple(grants[o].region for o in around if grants[o].region is not None)
+        polygons = tuple(
+            region.polygon() for o in around if (region := grants[o].region) is not None
+        )
         return TrafficDecision(
             "replan",
             avoid=cover(polygons, STEP),
@@ -512,6 +532,20 @@ def rest_of_path(path: np.ndarray, here: np.ndarray) -> np.ndarray:
     foot = a + u[:, None] * ab
     k = int(np.argmin(np.hypot(*(foot - here).T)))
     return np.concatenate([foot[k : k + 1], path[k + 1 :]])
+
+
+def polyline_distance(points: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """Metres from each of ``points`` (n, 2) to the polyline ``line`` (k, 2; one point
+    when k = 1)."""
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    if len(line) == 1:
+        return np.hypot(points[:, 0] - line[0, 0], points[:, 1] - line[0, 1])
+    a, ab = line[:-1], np.diff(line, axis=0)
+    denom = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12)
+    ap = points[:, None, :] - a[None, :, :]
+    u = np.clip(np.einsum("nkj,kj->nk", ap, ab) / denom, 0.0, 1.0)
+    off = ap - u[..., None] * ab[None, :, :]
+    return np.sqrt(np.min(np.einsum("nkj,nkj->nk", off, off), axis=1))
 
 
 def resample(pts: np.ndarray, length: float, step: float) -> tuple[np.ndarray, np.ndarray]:

@@ -131,6 +131,8 @@ class ReservationTraffic:
         dt = 0.0 if self._last_t is None else max(t - self._last_t, 0.0)
         self._last_t = t
         events: list[FleetEvent] = []
+        if len(robots) < 2:  # nobody to meet
+            return TrafficUpdate({r.name: TrafficDecision() for r in robots}, events)
         by_name = {r.name: r for r in robots}
         self._forget_gone(by_name)
         self._release_yields(t, by_name, events)

@@ -241,3 +241,36 @@ def test_map_of_a_one_robot_fleet_bag_needs_no_robot(solo, tmp_path):
     report = json.loads((tmp_path / "m_report.json").read_text())
     assert report["robot"] == "agv1" and report["scan_topic"] == "/agv1/scan"
     assert report["ground_truth_topic"] == "/agv1/ground_truth"
+
+
+SLAM_PAIR = """\
+name: slampair
+world: turtlebot3_world
+seed: 3
+stack: {slam: {type: grid}, local_planner: {type: pure_pursuit}}
+robots:
+  - name: agv1
+    robot: burger
+    start: {x: -2.0, y: -0.5, yaw: 0.0}
+    tasks: [{type: map_area, coverage: 0.9, time_limit: 5.0}]
+  - {name: agv2, robot: burger, start: {x: 2.0, y: 0.5, yaw: 3.14}}
+limits: {time: 6}
+"""
+
+
+def test_a_fleet_robots_growing_slam_map_is_its_own(tmp_path_factory):
+    """/map stays the known map, once; the robot mapping publishes its SLAM map under
+    its namespace (as a per-robot slam_toolbox does), every 2 s and its last state."""
+    loaded, run_dir, record, _ = _fleet_run(tmp_path_factory, SLAM_PAIR, "slampair")
+    types, messages = _read(run_dir / "bag")
+    assert types["/agv1/map"] == TOPICS["/map"][0] and "/agv2/map" not in types
+    assert len(messages["/map"]) == 1
+    grids = messages["/agv1/map"]
+    stamps = [_t(m.header.stamp) for _, m in grids]
+    paced = stamps[:-1]  # the last one is the map's last state, whenever the run ended
+    assert len(paced) >= 2 and all(
+        b - a >= 2.0 - 1e-6 for a, b in zip(paced, paced[1:], strict=False)
+    )
+    assert stamps[-1] == pytest.approx(record.sim_time, abs=0.11)
+    known = [sum(1 for v in m.data if v >= 0) for _, m in grids]
+    assert known[-1] > known[0]  # it grows

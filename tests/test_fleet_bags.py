@@ -64,10 +64,10 @@ def _read(bag):
     return types, messages
 
 
-def _fleet_run(tmp_path_factory, text: str, name: str):
+def _fleet_run(tmp_path_factory, text: str, name: str, time: float = 20.0):
     path = tmp_path_factory.mktemp(name) / f"{name}.yaml"
     path.write_text(text)
-    loaded = load_mission(path, ["limits.time=20"])
+    loaded = load_mission(path, [f"limits.time={time}"])
     run_dir = make_run_dir(path.parent / "runs", loaded.name)
     scans = _Scans()
     record = run_mission(loaded, run_dir, observers=[BagWriter(), scans])
@@ -261,7 +261,7 @@ limits: {time: 6}
 def test_a_fleet_robots_growing_slam_map_is_its_own(tmp_path_factory):
     """/map stays the known map, once; the robot mapping publishes its SLAM map under
     its namespace (as a per-robot slam_toolbox does), every 2 s and its last state."""
-    loaded, run_dir, record, _ = _fleet_run(tmp_path_factory, SLAM_PAIR, "slampair")
+    loaded, run_dir, record, _ = _fleet_run(tmp_path_factory, SLAM_PAIR, "slampair", time=6.0)
     types, messages = _read(run_dir / "bag")
     assert types["/agv1/map"] == TOPICS["/map"][0] and "/agv2/map" not in types
     assert len(messages["/map"]) == 1
@@ -274,3 +274,23 @@ def test_a_fleet_robots_growing_slam_map_is_its_own(tmp_path_factory):
     assert stamps[-1] == pytest.approx(record.sim_time, abs=0.11)
     known = [sum(1 for v in m.data if v >= 0) for _, m in grids]
     assert known[-1] > known[0]  # it grows
+
+
+def test_fleet_zone_masks_per_robot(tmp_path_factory):
+    """Each robot's filter masks under its namespace: the speed mask is in percent of
+    that robot's top speed, so a burger's and a waffle's differ."""
+    zones = (
+        "zones:\n"
+        "  - {type: speed_limit, polygon: [[-1.0, -2.0], [0.0, -2.0], [0.0, -1.5], [-1.0, -1.5]],"
+        " max_speed: 0.1}\n"
+        "  - {type: keepout, polygon: [[0.5, 1.5], [1.0, 1.5], [1.0, 2.0], [0.5, 2.0]]}\n"
+    )
+    text = FLEET.format(x1=-2.0).replace("limits: {time: 60}", zones)
+    loaded, run_dir, record, _ = _fleet_run(tmp_path_factory, text, "zonepair", time=0.5)
+    types, messages = _read(run_dir / "bag")
+    masks = sorted(t for t in types if t.endswith("_filter_mask"))
+    assert masks == [f"/{n}/{k}_filter_mask" for n in NAMES for k in ("keepout", "speed")]
+    values = {t: set(messages[t][0][1].data.tolist()) for t in masks}
+    assert values["/agv1/keepout_filter_mask"] == values["/agv2/keepout_filter_mask"] == {0, 100}
+    limits = {n: (values[f"/{n}/speed_filter_mask"] - {0}) for n in NAMES}
+    assert all(len(v) == 1 for v in limits.values()) and limits["agv1"] != limits["agv2"]

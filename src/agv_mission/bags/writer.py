@@ -249,7 +249,8 @@ class BagWriter:
     def on_step(self, sample: StepSample) -> None:
         if self._writer is None:
             return
-        bag = self._robots[sample.robot]
+        # a one-robot run's steps are its robot's whatever they call it
+        bag = self._robots[sample.robot] if self._fleet else next(iter(self._robots.values()))
         topic = bag.topics
         t = float(sample.t)
         est, odom = sample.estimate, sample.odom

@@ -11,7 +11,9 @@ Frames follow REP-105: ``map -> odom`` is what the localiser believes (its estim
 composed with the inverse odometry, so RViz shows drift the way a real robot does),
 ``odom -> base_footprint`` the dead-reckoned pose, ``base_footprint -> base_scan`` the
 lidar mount on ``/tf_static``. Everything is stamped in simulated time, which starts at
-zero (play it back with ``use_sim_time``; ``/clock`` is in the bag).
+zero (play it back with ``use_sim_time``; ``/clock`` is in the bag). A fleet's robots
+have these frames and their topics under their namespaces (fleet.md, Nav2's multi-robot
+naming: ``agv1/odom``, ``/agv1/scan``); see :class:`BagWriter`.
 """
 
 from __future__ import annotations
@@ -161,7 +163,9 @@ class BagWriter:
     and ``/events`` (each event once, with its ``robot``, as ``result.json`` lists them);
     every other topic is per robot under its namespace (``/agv1/scan``), in frames
     ``agv1/odom``, ``agv1/base_footprint``, ``agv1/base_scan`` under the shared ``map``.
-    A robot's own growing SLAM map goes to its ``/agv1/map``: ``/map`` stays the known one.
+    Zone masks are per robot (``/agv1/speed_filter_mask``: each robot's filter server, its
+    speed mask in percent of its own top speed). A robot's own growing SLAM map goes to its
+    ``/agv1/map``: ``/map`` stays the known one.
     """
 
     def __init__(

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
+from agv_mission.vda5050.body import VehicleWorld
 from agv_mission.vda5050.fleet import VehicleSet, load_vehicles
 from agv_mission.vda5050.transport import BrokerUrl
 from vda5050_peers import MiniMaster, Mosquitto, action, edge, node
@@ -167,3 +168,18 @@ def test_a_one_robot_mission_is_one_vehicle_agv1(tmp_path: Path) -> None:
     mission = load_vehicles(path)
     assert [(v.serial, v.description.name) for v in mission.vehicles] == [("agv1", "burger")]
     assert not mission.loaded.is_fleet
+
+
+def test_fleet_vehicles_keep_each_robots_stack_and_only_teleop(tmp_path: Path) -> None:
+    path = tmp_path / "fleet.yaml"
+    path.write_text(yaml.safe_dump(FLEET))
+    mission = load_vehicles(path, ["robots.agv2.stack.local_planner.type=mpc"])
+    world = VehicleWorld(mission.loaded, TIME_SCALE)  # not started: no simulation yet
+    agv1, agv2 = world.loaded.robots
+    assert (agv1.stack.local_planner.type, agv2.stack.local_planner.type) == (
+        "pure_pursuit",
+        "mpc",
+    )
+    assert agv1.tree.task_types() == agv2.tree.task_types() == ["teleop"]
+    assert world.loaded.fleet_tasks == [] and world.loaded.mission.tasks is None
+    assert sorted(world.bodies) == ["agv1", "agv2"]

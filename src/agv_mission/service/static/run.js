@@ -236,6 +236,7 @@
     const colour = colourOf(s.selected);
     const head = s.fleet && s.selected ? `<span class="sw" style="background:${colour}"></span>${AGV.esc(s.selected)}` : "";
     if ($("treerobot").innerHTML !== head) $("treerobot").innerHTML = head;
+    if ($("teleoprobot").innerHTML !== head) $("teleoprobot").innerHTML = head;
     if (!s.fleet) return;
     const html = Object.values(s.robots).map((r) => {
       const t = states[r.name]?.task;
@@ -472,7 +473,23 @@
       ["min clearance", m.min_clearance != null ? `${AGV.fmtNum(m.min_clearance, 3)} m` : null],
       ["loc. RMSE", loc.position_rmse != null ? `${AGV.fmtNum(loc.position_rmse, 3)} m (max ${AGV.fmtNum(loc.position_max_error, 3)})` : null],
       ["plans / replans", nav.plans != null ? `${nav.plans} / ${nav.replans ?? 0}` : null],
-    ].filter(([, v]) => v != null && v !== "");
+    ];
+    const fleet = result?.fleet;
+    if (fleet) {
+      rows.push(["makespan", fleet.makespan != null ? `${AGV.fmtNum(fleet.makespan, 1)} s` : null],
+        ["robot-robot collisions", Array.isArray(fleet.robot_robot_collisions) ? fleet.robot_robot_collisions.length : fleet.robot_robot_collisions],
+        ["closest robots", fleet.robot_robot_min_distance != null ? `${AGV.fmtNum(fleet.robot_robot_min_distance, 3)} m` : null],
+        ["waits", fleet.waits ? `${fleet.waits.count} (${AGV.fmtNum(fleet.waits.time, 1)} s)` : null],
+        ["deadlocks", fleet.deadlocks],
+        ["dispatched", Array.isArray(fleet.dispatch) ? fleet.dispatch.length : null]);
+    }
+    const shownRows = rows.filter(([, v]) => v != null && v !== "");
+    // a fleet's result: each robot's status in its colour
+    const perRobot = Object.entries(result?.robots || {}).map(([name, r]) => {
+      const colour = colourOf(name) || "#8a96a6";
+      const done = (r.tasks || []).filter((t) => t.status === "succeeded").length;
+      return `<div class="robotresult" data-robot="${AGV.esc(name)}"><span class="robot"><span class="rsw" style="background:${colour}"></span>${AGV.esc(name)}</span> ${AGV.badge(r.status)} <span class="muted">${done}/${(r.tasks || []).length} tasks${r.reason ? " · " + AGV.esc(r.reason) : ""}</span></div>`;
+    }).join("");
     const tasks = (result?.tasks || []).map((t) => {
       const wps = t.waypoints ? ` · ${t.waypoints.filter((w) => w.status === "reached").length}/${t.waypoints.length} waypoints` : "";
       const rooms = t.rooms ? ` · ${t.rooms.filter((w) => w.status === "reached").length}/${t.rooms.length} rooms` : "";
@@ -481,7 +498,8 @@
     const links = files.map((f) => `<a href="${AGV.fileUrl(runId, f)}" data-file="${AGV.esc(f)}" target="_blank" rel="noopener">${AGV.esc(f)}</a>`).join("");
     $("result").innerHTML = `
       <p class="reason">${AGV.badge(st)} ${AGV.esc(reason || "")}</p>
-      <dl>${rows.map(([k, v]) => `<dt>${k}</dt><dd>${AGV.esc(v)}</dd>`).join("")}</dl>
+      <dl>${shownRows.map(([k, v]) => `<dt>${k}</dt><dd>${AGV.esc(v)}</dd>`).join("")}</dl>
+      ${perRobot ? `<div class="robotresults">${perRobot}</div>` : ""}
       ${tasks ? `<div style="margin-top:8px;display:flex;flex-direction:column;gap:3px">${tasks}</div>` : ""}
       <div class="files">${links || '<span class="muted">no files</span>'}</div>
       ${files.includes("run.png") ? `<img ${AGV.token() ? "data-src" : "src"}="${AGV.fileUrl(runId, "run.png")}" alt="run.png">` : ""}`;

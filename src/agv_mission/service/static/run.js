@@ -331,7 +331,7 @@
     el.innerHTML = shown.map((e) => {
       const name = String(e.event ?? "event");
       const colour = e.robot != null ? colourOf(e.robot) : null;
-      const kv = Object.entries(e).filter(([k]) => k !== "t" && k !== "event" && k !== "type" && !(colour && k === "robot"))
+      const kv = Object.entries(e).filter(([k]) => k !== "t" && k !== "event" && k !== "type" && !(k === "robot" && (colour || !view.scene.fleet)))
         .map(([k, v]) => `${k}=${typeof v === "object" ? JSON.stringify(v) : v}`).join("  ");
       const when = e.t ?? 0;
       const who = colour ? `<span class="robot"><span class="rsw" style="background:${colour}"></span>${AGV.esc(e.robot)}</span>` : "";

@@ -156,6 +156,9 @@ def test_fleet_run_draws_every_robot_and_shows_the_picked_ones_tree(
         f"() => document.querySelectorAll('#tree .node').length === {agv1_nodes}", timeout=5_000
     )
 
+    # the replay's event ticks are in the robot's colour
+    ticks = page.locator("#ticks i").evaluate_all("ts => ts.map((t) => t.style.background)")
+    assert "rgb(214, 39, 40)" in ticks and "rgb(31, 119, 180)" in ticks, ticks
     # the events name their robot in its colour
     rows = page.locator('#events .ev[data-robot="agv2"]')
     assert rows.count() >= 2

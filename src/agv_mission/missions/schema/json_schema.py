@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from agv_mission.missions.schema.fleet import DEFAULT_FLEET_PLUGINS
-from agv_mission.missions.schema.mission import Mission
+from agv_mission.missions.schema.mission import ROBOT_NAME_PATTERN, Mission
 from agv_mission.missions.schema.stack import DEFAULT_PLUGINS
 from agv_mission.registry import registry
 
@@ -39,37 +39,33 @@ def mission_json_schema() -> dict[str, Any]:
         "anyOf": [{"type": "string"}, {"$ref": output["$ref"]}],
     }
     _tree_nodes(schema)
-    _fleet(schema)
+    _fleet_tasks(schema)
+    _fleet_slots(schema)
     return {"$schema": JSON_SCHEMA_DIALECT, **schema}
 
 
-def _fleet(schema: dict[str, Any]) -> None:
-    """A fleet task may name its ``robot``; a ``fleet`` slot block without ``type`` is
-    the slot's default plugin."""
+def _fleet_tasks(schema: dict[str, Any]) -> None:
+    """A mission's own ``tasks`` may carry ``robot:`` (fleet.md: the robot a fleet task is
+    assigned to; the loader takes it out before the task model sees it)."""
+    defs = schema["$defs"]
     items = schema["properties"]["tasks"]["items"]
+    robot = {
+        "type": "string",
+        "pattern": ROBOT_NAME_PATTERN,
+        "description": "a fleet mission's task: the robot (robots[].name) it is assigned to",
+    }
+    for option in items["oneOf"]:
+        name = option["$ref"].rsplit("/", 1)[-1]
+        fleet = {**defs[name], "properties": {**defs[name]["properties"], "robot": robot}}
+        defs[f"Fleet{name}"] = fleet
+        option["$ref"] = f"#/$defs/Fleet{name}"
     mapping = items.get("discriminator", {}).get("mapping", {})
-    fleet_refs = {}
-    for kind, ref in mapping.items():
-        name = ref.rsplit("/", 1)[-1]
-        task = schema["$defs"][name]
-        schema["$defs"][f"Fleet{name}"] = {
-            **task,
-            "properties": {
-                **task["properties"],
-                "robot": {
-                    "type": "string",
-                    "pattern": "^[a-z][a-z0-9_]{0,31}$",
-                    "description": "a fleet mission's task: the robot that does it (without "
-                    "one, the dispatcher picks the robot)",
-                },
-            },
-        }
-        fleet_refs[kind] = f"#/$defs/Fleet{name}"
-    if fleet_refs:
-        schema["properties"]["tasks"]["items"] = {
-            "discriminator": {"mapping": fleet_refs, "propertyName": "type"},
-            "oneOf": [{"$ref": ref} for ref in fleet_refs.values()],
-        }
+    for key, ref in mapping.items():
+        mapping[key] = ref.replace("#/$defs/", "#/$defs/Fleet")
+
+
+def _fleet_slots(schema: dict[str, Any]) -> None:
+    """A ``fleet`` slot block without ``type`` is the slot's default plugin."""
     slots = schema["$defs"]["Fleet"]["properties"]
     for slot, name in DEFAULT_FLEET_PLUGINS.items():
         union = slots[slot]

@@ -24,6 +24,8 @@ from agv_mission.planners.grid_search import step_graph
 PLAN_CLEARANCE = 0.05  # m beyond the radius a cell needs to be on a plan (cost_grid's default)
 WALL_CLEARANCE = 0.1  # m beyond the radius a detour pose keeps from walls
 NEAR = 5.0  # m searched first
+ROOMY = 0.3  # m beyond the radius from walls a detour pose is best kept
+PENALTY = 5.0  # m of travel that one m of clearance short of ROOMY is worth
 
 
 @dataclass(frozen=True)
@@ -103,7 +105,11 @@ def _search(
     ok = np.isfinite(dist) & target.ravel()[cells]
     if not ok.any():
         return None
-    best = int(np.flatnonzero(ok)[np.argmin(dist[ok])])  # argmin keeps the first of equals
+    # nearest, but a pose hugging a wall or a corner costs more: the robot must turn and
+    # drive off from there (each cm of clearance short of ROOMY counts as PENALTY cm)
+    room = clearance.ravel()[cells[ok]] - radius
+    score = dist[ok] * res + PENALTY * np.maximum(ROOMY - room, 0.0)
+    best = int(np.flatnonzero(ok)[np.argmin(score)])  # argmin keeps the first of equals
     rr, cc = divmod(int(cells[best]), shape[1])
     x, y = grid.cell_to_world(np.array(rr + rows.start), np.array(cc + cols.start))
     yaw = (

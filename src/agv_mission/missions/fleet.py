@@ -59,9 +59,7 @@ def dispatch_tasks(loaded: LoadedMission) -> tuple[LoadedMission, list[dict[str,
         return loaded, []
     dispatcher = registry.create("dispatcher", loaded.mission.fleet.dispatcher)
     setups = {s.name: s for s in loaded.fleet}
-    travel = {
-        s.name: GridTravelTime(s.costmap, s.robot.max_linear_velocity) for s in loaded.fleet
-    }
+    travel = {s.name: GridTravelTime(s.costmap, s.robot.max_linear_velocity) for s in loaded.fleet}
 
     def travel_time(name: str, a: Pose2D, b: Pose2D) -> float:
         return travel[name](a, b)
@@ -80,9 +78,7 @@ def dispatch_tasks(loaded: LoadedMission) -> tuple[LoadedMission, list[dict[str,
     for task in tasks:
         winner_view = loaded.fleet[0]
         goals = tuple(tree_goals(task.tree, winner_view.room_goals, loaded.docks))
-        got = dispatcher.assign(
-            FleetTask(str(task.index), goals), list(work.values()), travel_time
-        )
+        got = dispatcher.assign(FleetTask(str(task.index), goals), list(work.values()), travel_time)
         queued[got.robot].append(task.tree.source.main.children[0])
         end = goals[-1] if goals else work[got.robot].end
         work[got.robot] = RobotWork(got.robot, end, got.finish)

@@ -189,8 +189,10 @@ class Navigator:
         order = self.order
         if order is None or order.limit is None or order.action not in ("go", "yield"):
             return cmd
+        # one control period at v, then braking at the acceleration limit: v dt + v^2 / 2a
         room = max(order.limit - LIMIT_SLACK, 0.0)
-        cap = min(math.sqrt(2.0 * self.limits.max_acc_v * room), room / self.control_period)
+        a, dt = self.limits.max_acc_v, self.control_period
+        cap = a * (math.sqrt(dt * dt + 2.0 * room / a) - dt)
         if abs(cmd.v) > cap:
             cmd = replace(cmd, v=math.copysign(cap, cmd.v))
         return cmd

@@ -53,6 +53,7 @@ MIN_GO = 0.05  # m: a robot allowed less than this waits
 TOL = 0.01  # m: distance changes smaller than this are sampling noise
 ARRIVED = 0.15  # m from its detour pose a yielding robot counts as there
 QUAD_SEGS = 4  # segments per quarter circle of a buffered body
+REPEAT_WINDOW = 30.0  # s within which a cycle seen again is another member's turn
 SLACK = 0.05  # m a robot without a goal keeps beyond the margin before it stops stepping aside
 
 
@@ -121,6 +122,7 @@ class ReservationTraffic:
         self._parked_replan: dict[tuple[str, str], float] = {}  # (waiter, parked) -> when
         self._last_t: float | None = None
         self._grants: dict[str, _Grant] = {}
+        self._last_breaker: dict[tuple[str, ...], tuple[str, float]] = {}  # cycle -> who, when
         self._wait_count = 0
         self._wait_time = 0.0
         self._deadlocks = 0
@@ -310,6 +312,11 @@ class ReservationTraffic:
         already stepping aside only when no other member can)."""
         best: tuple[float, int, str, Pose2D] | None = None
         free = [n for n in cycle if n not in self._yields] or cycle
+        # the same cycle again soon after: another member's turn to step aside
+        key = tuple(sorted(cycle))
+        last = self._last_breaker.get(key)
+        if last is not None and t - last[1] < REPEAT_WINDOW and len(free) > 1:
+            free = [n for n in free if n != last[0]] or free
         for name in free:
             others = [robots[o] for o in cycle if o != name]
             detour = self._detour(robots[name], others, robots)
@@ -320,6 +327,7 @@ class ReservationTraffic:
         if best is None:
             return  # nobody can step aside now; the timeouts try again
         _, _, name, pose = best
+        self._last_breaker[key] = (name, t)
         others = tuple(o for o in cycle if o != name)
         self._start_yield(t, robots[name], others, pose, "cycle")
         self._count(events, t, "cycle", cycle, name, "yield", pose)
@@ -473,7 +481,10 @@ class ReservationTraffic:
             # its way back: from where it stands to where it left its route, then the route
             mine = here if y.route is None else np.concatenate([here, y.route])
             keep = me.radius + cfg.margin + (0.0 if y.route is not None else SLACK)
-            clear = all(
+            # a robot with a goal first gets to its detour: released on the way, it
+            # would turn back into the robot it made way for
+            there = y.route is None or me.pose.distance_to(y.detour) < ARRIVED
+            clear = there and all(
                 o not in robots
                 or robots[o].path is None
                 or len(robots[o].path) == 0

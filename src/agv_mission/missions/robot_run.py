@@ -260,7 +260,11 @@ class RobotRun:
             if handle.nomotion_update:  # the localiser holds it until a scan comes
                 self.localizer.request_nomotion_update()
                 handle.nomotion_update = False
-            estimate = self.localizer.update(sensing.odom, scan, sensing.truth, t)
+            # other robots are not in the map: their returns are left out (fleet layer)
+            seen = (
+                scan if scan is None else self.navigator.without_fleet(handle.state.estimate, scan)
+            )
+            estimate = self.localizer.update(sensing.odom, seen, sensing.truth, t)
         if scan is not None:
             handle.state.scan = scan
             handle.state.obstacles = scan.points(estimate)

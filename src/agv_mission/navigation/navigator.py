@@ -218,19 +218,26 @@ class Navigator:
     def observe(self, pose: Pose2D, scan: LaserScan) -> None:
         """Mark and clear unmapped obstacles from a new scan (other robots' returns
         left out: they clear, but do not mark)."""
+        self.layer.update(pose, self.without_fleet(pose, scan))
+
+    def without_fleet(self, pose: Pose2D, scan: LaserScan) -> LaserScan:
+        """``scan`` with the returns off the other robots' bodies (``fleet_bodies``, as
+        the fleet layer reports them) made 'no return': neither the obstacle layer nor a
+        localiser should take a robot for a wall."""
         bodies = self.fleet_bodies
-        if len(bodies):
-            r = scan.ranges.astype(float)
-            beams = np.flatnonzero(np.isfinite(r))
-            a = scan.angle_min + scan.angle_increment * beams + pose.yaw
-            x, y = pose.x + r[beams] * np.cos(a), pose.y + r[beams] * np.sin(a)
-            d = np.hypot(x[:, None] - bodies[None, :, 0], y[:, None] - bodies[None, :, 1])
-            theirs = beams[np.any(d <= bodies[None, :, 2] + BODY_SLACK, axis=1)]
-            if len(theirs):
-                ranges = scan.ranges.copy()
-                ranges[theirs] = np.nan
-                scan = replace(scan, ranges=ranges)
-        self.layer.update(pose, scan)
+        if not len(bodies):
+            return scan
+        r = scan.ranges.astype(float)
+        beams = np.flatnonzero(np.isfinite(r))
+        a = scan.angle_min + scan.angle_increment * beams + pose.yaw
+        x, y = pose.x + r[beams] * np.cos(a), pose.y + r[beams] * np.sin(a)
+        d = np.hypot(x[:, None] - bodies[None, :, 0], y[:, None] - bodies[None, :, 1])
+        theirs = beams[np.any(d <= bodies[None, :, 2] + BODY_SLACK, axis=1)]
+        if not len(theirs):
+            return scan
+        ranges = scan.ranges.copy()
+        ranges[theirs] = np.inf
+        return replace(scan, ranges=ranges)
 
     def clear_costmap(self) -> None:
         self.layer.clear()

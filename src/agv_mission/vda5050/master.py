@@ -27,10 +27,14 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from agv_mission.atomic import atomic_write_text
+from agv_mission.fleet.base import DispatchError, FleetTask, RobotWork
+from agv_mission.fleet.travel import GridTravelTime
+from agv_mission.geometry import Pose2D
 from agv_mission.missions.errors import MissionError, Problem
 from agv_mission.missions.loader import LoadedMission, load_mission
 from agv_mission.missions.outputs import make_run_dir, write_json
 from agv_mission.missions.yaml_lines import line_of, load_with_lines
+from agv_mission.registry import registry
 from agv_mission.vda5050.messages import split_topic
 from agv_mission.vda5050.transport import BrokerUrl, MqttLink
 
@@ -109,6 +113,10 @@ class MasterPlan:
     time_limit: float  # wall seconds
     output: Path
     resolved: dict[str, Any] = field(default_factory=dict)
+    #: the fleet layer's dispatcher (fleet.md's `fleet.dispatcher`) and its travel times
+    #: over the map (the mission's first robot's free space, at its top speed)
+    dispatcher: Any = None
+    travel: Any = None
 
 
 def _route(
@@ -305,6 +313,8 @@ def load_plan(
         loaded.mission.limits.time,
         Path(loaded.mission.output),
         loaded.resolved(),
+        dispatcher=registry.create("dispatcher", loaded.mission.fleet.dispatcher),
+        travel=GridTravelTime(loaded.costmap, loaded.robot.max_linear_velocity),
     )
 
 
@@ -508,14 +518,36 @@ class Master:
             candidates = [p for p in self.peers.values() if p.online and p.last_xy is not None]
             if not candidates:
                 continue
-            first = task.nodes[0]
+            goals = tuple(Pose2D(n.x, n.y, n.theta or 0.0) for n in task.nodes)
+            work = [self._work(p) for p in candidates]
+            try:
+                got = self.plan.dispatcher.assign(
+                    FleetTask(str(task.index), goals), work, self._travel_time
+                )
+            except DispatchError as exc:
+                self.event("dispatch_failed", task=task.index, reason=str(exc))
+                continue
+            self._assign(task, self.peers[got.robot])
 
-            def cost(p: Peer, first: RouteNode = first) -> float:
-                assert p.last_xy is not None
-                busy = len(p.queue) + (p.order is not None)
-                return busy * 1000.0 + math.hypot(first.x - p.last_xy[0], first.y - p.last_xy[1])
+    def _travel_time(self, robot: str, a: Pose2D, b: Pose2D) -> float:
+        return float(self.plan.travel(a, b))
 
-            self._assign(task, min(candidates, key=cost))
+    def _work(self, peer: Peer) -> RobotWork:
+        """What the dispatcher knows of ``peer``: where its held work ends and how long it
+        takes (its order's nodes not yet reached, then its queue), travelled over the map."""
+        assert peer.last_xy is not None
+        here = Pose2D(peer.last_xy[0], peer.last_xy[1], 0.0)
+        nodes: list[RouteNode] = []
+        if peer.order is not None:
+            nodes += peer.order.nodes[peer.order.last_first :]
+        for task in peer.queue:
+            nodes += task.nodes
+        held = 0.0
+        for n in nodes:
+            goal = Pose2D(n.x, n.y, n.theta or 0.0)
+            held += self._travel_time(peer.serial, here, goal)
+            here = goal
+        return RobotWork(peer.serial, here, held if math.isfinite(held) else 1e9)
 
     def _reassign(self, peer: Peer, why: str) -> None:
         """``peer``'s tasks (running and queued) go back to the pool (or fail)."""

@@ -26,6 +26,7 @@ FLOORS = {
     "planners": 3,
     "localization": 3,
     "mapping": 3,
+    "world": 2.5,  # the simulated world (people): above maps, below robots
     "maps": 2,
     "geometry": 1,
     "registry": 1,

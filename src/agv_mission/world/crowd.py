@@ -42,7 +42,9 @@ ARRIVED = 0.3  # m: a goal counts as reached
 # Wander goals: a pool per group drawn from the seed (each costs one Dijkstra tree, kept).
 WANDER_GOALS_MIN, WANDER_GOALS_MAX = 8, 24
 REPLAN_PERIOD = 2.0
-PERTURBATION = 0.01  # m/s of random push on each preferred velocity (RVO2's examples)
+PERTURBATION = (
+    0.01  # m/s (standard deviation) of random push on each preferred velocity (RVO2's examples)
+)
 STALL_SPEED = 0.2  # of the preferred speed: below it a person is held up...
 STALL_TIME = 1.0  # s ... and after this long bears right
 SIDESTEP = np.pi / 4  # rad  # s between checks that a person still sees its next waypoint
@@ -345,27 +347,26 @@ class Crowd:
         self._set_robots(np.zeros((0, 5)) if robots is None else np.asarray(robots, float))
         for i in np.flatnonzero(~self.active & (self.start_times <= self.time + 1e-9)):
             self._enter(int(i))
+        if not self.active.any():
+            sim.do_step()  # robots alone: keep the simulator's clock with the world's
+            self.time += dt
+            return
         people = np.flatnonzero(self.active)
-        if people.size:
-            self._steer(people)
-        before = self.positions[people].copy()
+        who = slice(None) if len(people) == len(self.active) else people  # cheaper when all
+        self._steer(people, who)
+        before = self.positions[who].copy()
         sim.do_step()
-        get_p, get_v = sim.get_agent_position, sim.get_agent_velocity
-        agents = self._agent[people].tolist()
-        moved = [get_p(a).to_tuple() for a in agents]
-        speeds = [get_v(a).to_tuple() for a in agents]
-        if people.size:
-            self.positions[people] = moved
-            self.velocities[people] = speeds
-        if people.size:
-            self._keep_off_walls(people, before)
-            going = np.hypot(*self.velocities[people].T) >= STALL_SPEED * self.speeds[people]
-            going |= self._final[people] & (
-                np.hypot(*(self._target[people] - self.positions[people]).T) < 2 * ARRIVED
-            )
-            self._slow_since[people[going]] = np.inf
-            stalled = people[~going]
-            self._slow_since[stalled] = np.minimum(self._slow_since[stalled], self.time)
+        get_p = sim.get_agent_position
+        self.positions[who] = [get_p(a).to_tuple() for a in self._agent[who].tolist()]
+        # RVO2 moves each agent by its new velocity times the step: no need to ask for it
+        self.velocities[who] = (self.positions[who] - before) / dt
+        self._keep_off_walls(people, before)
+        going = np.hypot(*self.velocities[who].T) >= STALL_SPEED * self.speeds[who]
+        going |= self._final[who] & (
+            np.hypot(*(self._target[who] - self.positions[who]).T) < 2 * ARRIVED
+        )
+        since = self._slow_since[who]
+        self._slow_since[who] = np.where(going, np.inf, np.minimum(since, self.time))
         self.time += dt
 
     def _enter(self, i: int) -> None:
@@ -403,35 +404,33 @@ class Crowd:
                 sim.set_agent_velocity(a, (0.0, 0.0))
                 sim.set_agent_pref_velocity(a, (0.0, 0.0))
 
-    def _steer(self, people: np.ndarray) -> None:
+    def _steer(self, people: np.ndarray, who: slice | np.ndarray) -> None:
         """Each walking person's preferred velocity: towards its waypoint at its speed
-        (slowing into its goal)."""
-        delta = self._target[people] - self.positions[people]
+        (slowing into its goal); ``who`` selects ``people`` from the arrays."""
+        delta = self._target[who] - self.positions[who]
         dist = np.hypot(delta[:, 0], delta[:, 1])
-        final = self._final[people]
-        due = (dist < np.where(final, ARRIVED, REACHED)) | (self._next_check[people] <= self.time)
+        final = self._final[who]
+        due = (dist < np.where(final, ARRIVED, REACHED)) | (self._next_check[who] <= self.time)
         if due.any():
             for i in people[due]:
                 self._advance(int(i))
-            delta = self._target[people] - self.positions[people]
+            delta = self._target[who] - self.positions[who]
             dist = np.hypot(delta[:, 0], delta[:, 1])
-            final = self._final[people]
-        speeds = self.speeds[people]
+            final = self._final[who]
+        speeds = self.speeds[who]
         speed = np.where(final, np.minimum(speeds, dist), speeds)
         pref = delta * (speed / np.maximum(dist, 1e-9))[:, None]
         # ORCA stalls in perfect symmetry (head on into someone standing): RVO2's own
         # examples perturb the preferred velocities a little; one held up for a while
         # also bears right, as people do.
-        blocked = self._slow_since[people] <= self.time - STALL_TIME
+        blocked = self._slow_since[who] <= self.time - STALL_TIME
         if blocked.any():
             c, s = np.cos(-SIDESTEP), np.sin(-SIDESTEP)
             vx, vy = pref[blocked, 0], pref[blocked, 1]
             pref[blocked] = np.stack([c * vx - s * vy, s * vx + c * vy], axis=1)
-        angle = self.rng.uniform(0.0, 2 * np.pi, len(people))
-        pref += PERTURBATION * np.stack([np.cos(angle), np.sin(angle)], axis=1)
-        pref = pref.tolist()
+        pref += self.rng.normal(0.0, PERTURBATION, pref.shape)
         set_pref = self._sim.set_agent_pref_velocity
-        for a, v in zip(self._agent[people].tolist(), pref, strict=True):
+        for a, v in zip(self._agent[who].tolist(), pref.tolist(), strict=True):
             set_pref(a, v)
 
     def _advance(self, i: int) -> None:

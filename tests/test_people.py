@@ -356,3 +356,25 @@ def test_person_near_measures_footprint_to_the_persons_edge() -> None:
     handle.state.people = np.array([[5.0, 5.0, 0.25], [1.0, 1.0 + footprint + 0.25 + 0.4, 0.25]])
     node.tick_once()
     assert node.status == Status.SUCCESS
+
+
+# --- /people in the bag --------------------------------------------------------------------
+
+
+def test_people_markers_packed_byte_for_byte_as_rosbags_serialises_them() -> None:
+    from agv_mission.bags import ros_messages as rm
+    from agv_mission.bags.cdr import PeopleMarkersCdr
+
+    packer = PeopleMarkersCdr()
+    rng = np.random.default_rng(0)
+    for n, t in ((3, 0.1), (3, 7.25), (5, 1234.5)):  # the same set again, then one grown
+        ids = np.arange(n)
+        xy = rng.uniform(-20.0, 20.0, (n, 2))
+        radii = np.linspace(0.2, 0.3, n)
+        expected = rm.serialize(rm.people_markers(t, ids, xy, radii), rm.MARKER_ARRAY)
+        assert packer.pack(t, ids, xy, radii) == expected
+    msg = rm.typestore().deserialize_cdr(packer.pack(2.0, ids, xy, radii), rm.MARKER_ARRAY)
+    first = msg.markers[0]
+    assert first.ns == "people" and first.type == 3 and first.scale.x == pytest.approx(0.4)
+    assert (first.pose.position.x, first.pose.position.y) == tuple(xy[0])
+    assert first.header.stamp.sec == 2 and first.header.frame_id == "map"

@@ -11,7 +11,7 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.robots.description import BUILTIN_ROBOTS
-from agv_mission.robots.simulation import DiffDriveSim, SimConfig
+from agv_mission.robots.simulation import DiffDriveBody, SimConfig
 
 
 def bench_world(n_boxes: int = 50) -> World:
@@ -36,7 +36,7 @@ def bench_world(n_boxes: int = 50) -> World:
 def run() -> dict[str, float]:
     robot = BUILTIN_ROBOTS["burger"]
     world = bench_world()
-    sim = DiffDriveSim(robot, world, Pose2D(0.0, 0.0), SimConfig(), np.random.default_rng(0))
+    sim = DiffDriveBody.alone(robot, world, Pose2D(0.0, 0.0), SimConfig(), np.random.default_rng(0))
     sim.set_command(0.1, 0.4)  # circle of radius 0.25 m around the start
 
     steps = 5000

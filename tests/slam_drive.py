@@ -14,7 +14,7 @@ from agv_mission.mapping.slam import GridSlam, GridSlamConfig
 from agv_mission.maps.worlds import World
 from agv_mission.robots.description import BUILTIN_ROBOTS
 from agv_mission.robots.odometry import DiffDriveOdometry
-from agv_mission.robots.simulation import DiffDriveSim, SimConfig
+from agv_mission.robots.simulation import DiffDriveBody, SimConfig
 
 BURGER = BUILTIN_ROBOTS["burger"]
 TB3_BOUNDS = (-3.0, 3.0, -3.0, 3.0)
@@ -42,7 +42,7 @@ def drive(
 ) -> Drive:
     """Follow ``waypoints`` (steering on the true pose, as a scripted test driver), feeding
     encoder odometry and 5 Hz scans to the SLAM plugin every 0.1 s like the runner does."""
-    sim = DiffDriveSim(BURGER, world, world.spawn, config, np.random.default_rng(seed))
+    sim = DiffDriveBody.alone(BURGER, world, world.spawn, config, np.random.default_rng(seed))
     odometry = DiffDriveOdometry(BURGER.encoder.ticks_per_meter, BURGER.wheel_separation)
     odom0 = odometry.update(*sim.encoder_ticks())
     slam = GridSlam(slam_config or GridSlamConfig(), bounds=bounds)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -16,11 +17,9 @@ from agv_mission.localization.configs import PROFILES
 from agv_mission.localization.particle_filter import ParticleFilter
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
-from agv_mission.missions import stack
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.runner import run_mission
 from agv_mission.registry import registry
-from agv_mission.robots.simulation import DiffDriveSim
 
 RES = 0.05
 PAD = 10  # unknown cells around the room
@@ -533,29 +532,21 @@ def test_global_localisation_in_small_house_converges_within_30s(start):
     assert record.metrics["localization"]["particles"]["max"] == 20000
 
 
-class _KidnappingSim(DiffDriveSim):
-    """The simulator, with the robot carried to ``TARGET`` at ``AT`` seconds."""
-
-    AT = 20.0
-    TARGET = Pose2D(7.0, -2.0, 1.0)  # from the living room into the kitchen
-
-    def advance(self, duration: float) -> None:
-        before = self.time
-        super().advance(duration)
-        if before < self.AT <= self.time:
-            self.teleport(self.TARGET)
+KIDNAP_AT = 20.0
+KIDNAP_TO = {"x": 7.0, "y": -2.0, "yaw": 1.0}  # from the living room into the kitchen
 
 
 @pytest.mark.parametrize("recovery", [True, False], ids=["recovery", "no-recovery"])
-def test_kidnapped_robot_in_small_house_is_found_again(monkeypatch, recovery):
-    monkeypatch.setattr(stack, "DiffDriveSim", _KidnappingSim)
+def test_kidnapped_robot_in_small_house_is_found_again(recovery):
     text = HOUSE.format(seed=1, start="null", duration=50, limit=55)
     profile = {**GLOBAL, **(RECOVERY if recovery else {})}
-    record = run_mission(load_mission("house.yaml", _overrides(profile), text=text))
+    kidnap = {"type": "kidnap", "time": KIDNAP_AT, "pose": KIDNAP_TO}
+    overrides = [*_overrides(profile), f"faults={json.dumps([kidnap])}"]
+    record = run_mission(load_mission("house.yaml", overrides, text=text))
     t, err, _ = _errors(record)
-    assert err[t < _KidnappingSim.AT].max() < 0.1  # tracking before
-    assert err[(t > _KidnappingSim.AT) & (t < _KidnappingSim.AT + 1.0)].min() > 2.0
-    late = err[t > _KidnappingSim.AT + 25.0]
+    assert err[t < KIDNAP_AT].max() < 0.1  # tracking before
+    assert err[(t > KIDNAP_AT) & (t < KIDNAP_AT + 1.0)].min() > 2.0
+    late = err[t > KIDNAP_AT + 25.0]
     if recovery:
         assert late.max() < 0.2
     else:

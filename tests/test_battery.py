@@ -236,7 +236,7 @@ def test_dock_and_charge_tasks_are_validated(tmp_path: Path) -> None:
 def test_battery_conditions_on_a_real_handle(tmp_path: Path) -> None:
     run = MissionRun(mission(tmp_path, "  - {type: undock}\n", level=0.25), None)
     handle = run.handle
-    assert handle.battery is run.battery and handle.docks["charger"].name == "charger"
+    assert handle.battery is run.lead.battery and handle.docks["charger"].name == "charger"
     low = IsBatteryLow("low?", handle, min_battery=0.3)
     charging = IsBatteryCharging("charging?", handle)
     low.tick_once()
@@ -374,7 +374,7 @@ def test_a_reactive_tree_patrols_docks_when_low_charges_and_patrols_on(tmp_path:
     second_dock = events.index("dock_staged", 1)
     assert events[5:second_dock].count("goal_reached") >= 2  # patrolled on after charging
     # never lower than the guard's 10 % less what docking takes (about 0.4 %)
-    assert run.battery.minimum > 0.095 and run.battery.charging_time > 60.0
+    assert run.lead.battery.minimum > 0.095 and run.lead.battery.charging_time > 60.0
 
 
 def test_the_battery_patrol_is_a_dashboard_template_and_validates() -> None:

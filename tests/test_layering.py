@@ -19,22 +19,23 @@ FLOORS = {
     "bags": 7,
     "vda5050": 7,
     "missions": 6,
+    "plugin_check": 6,  # drives a plugin of any slot: floor-3 ones, and behaviour nodes (5)
     "behaviors": 5,
     "navigation": 4,
-    "plugin_check": 6,  # drives a plugin of any slot: floor-3 ones, and behaviour nodes (5)
+    "fleet": 4,
     "robots": 3,
     "planners": 3,
     "localization": 3,
     "mapping": 3,
-    "world": 2.5,  # the simulated world (people): above maps, below robots
-    "maps": 2,
-    "geometry": 1,
-    "registry": 1,
-    "atomic": 1,
-    "messages": 1,
-    "suggest": 1,
+    "world": 2,
+    "maps": 1,
+    "geometry": 0,
+    "registry": 0,
+    "atomic": 0,
+    "messages": 0,
+    "suggest": 0,
 }
-GROUND = 1  # the floor-1 modules are the ground everything stands on: they may share
+GROUND = 0  # the floor-0 modules are the ground everything stands on: they may share
 
 
 def unit_of(module: str) -> str:

@@ -184,11 +184,11 @@ def test_scan_matching_beats_dead_reckoning_during_map_area(tmp_path: Path) -> N
     anchor = None
     slam_err, odom_err = [], []
     while run.step():
-        if run.mapper.session is None:
+        if run.lead.mapper.session is None:
             assert anchor is None, "mapping ended but the mission goes on"
             continue
-        t, x, y, _, ex, ey, eyaw = run.rows[-1][:7]
-        odom = run.odometry.pose
+        t, x, y, _, ex, ey, eyaw = run.lead.rows[-1][:7]
+        odom = run.lead.odometry.pose
         if anchor is None:
             anchor = (Pose2D(ex, ey, eyaw), odom)
         dead = anchor[0].compose(odom.relative_to(anchor[1]))

@@ -133,7 +133,7 @@ def test_runs_without_observers_build_no_samples(tmp_path: Path) -> None:
     assert run.handle.remote_command is None
     while run.step():
         pass
-    assert run._sampler is None and run.record().status == "failed"
+    assert run.lead.sampler is None and run.record().status == "failed"
 
 
 def test_safety_watch_skips_only_queries_that_cannot_change_its_outcome(tmp_path: Path) -> None:
@@ -158,6 +158,6 @@ def test_safety_watch_skips_only_queries_that_cannot_change_its_outcome(tmp_path
     run.sim.min_clearance = lambda: queries.append(1) or exact_clearance()  # type: ignore[method-assign]
     run.drive()
     assert run.status == "succeeded" and len(watcher.clearances) > 20
-    assert run.min_clearance == min(watcher.clearances)
+    assert run.lead.min_clearance == min(watcher.clearances)
     assert 0 < len(queries) < len(watcher.clearances)  # some steps were skipped
-    assert watcher.contacts == 0 and not run.collisions
+    assert watcher.contacts == 0 and not run.lead.collisions

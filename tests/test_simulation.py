@@ -11,9 +11,8 @@ from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.robots.description import BUILTIN_ROBOTS
-from agv_mission.robots.mjcf import build_mjcf
 from agv_mission.robots.odometry import DiffDriveOdometry
-from agv_mission.robots.simulation import DiffDriveSim, SimConfig
+from agv_mission.robots.simulation import DiffDriveBody, SimConfig
 
 BURGER = BUILTIN_ROBOTS["burger"]
 ORIGIN = Pose2D(0.0, 0.0, 0.0)
@@ -27,22 +26,23 @@ def make_world(boxes: list[Box] | None = None, cylinders: list[Cylinder] | None 
 def make_sim(world: World | None = None, start: Pose2D = ORIGIN, seed: int = 0, **cfg):
     """A burger; ideal sensors unless the test asks for the realistic ones (ideal=False)."""
     cfg.setdefault("ideal", True)
-    return DiffDriveSim(
+    return DiffDriveBody.alone(
         BURGER, world or make_world(), start, SimConfig(**cfg), np.random.default_rng(seed)
     )
 
 
-def test_mjcf_has_all_walls_and_robot_parts():
+def test_world_model_has_all_walls_and_robot_parts():
     import mujoco
 
     world = make_world([Box(1, 0, 0.05, 1, 0.3), Box(-1, 0, 0.05, 1)], [Cylinder(0, 2, 0.1)])
-    m = mujoco.MjModel.from_xml_string(build_mjcf(BURGER, world, SimConfig().physics_dt))
+    m = make_sim(world).world.model
     names = {m.geom(i).name for i in range(m.ngeom)}
-    assert {"wall_0", "wall_1", "pillar_0", "chassis", "wheel_left", "wheel_right"} <= names
+    parts = {f"robot/{p}" for p in ("chassis", "hull", "wheel_left", "wheel_right")}
+    assert {"wall_0", "wall_1", "pillar_0"} | parts <= names
     assert m.nu == 2
     # Explicit Euler while the wheel servos are stable under it, implicitfast beyond.
     assert m.opt.integrator == mujoco.mjtIntegrator.mjINT_EULER
-    coarse = mujoco.MjModel.from_xml_string(build_mjcf(BURGER, world, timestep=0.02))
+    coarse = make_sim(world, physics_dt=0.02).world.model
     assert coarse.opt.integrator == mujoco.mjtIntegrator.mjINT_IMPLICITFAST
 
 
@@ -53,17 +53,17 @@ def test_lifted_wheel_settles_at_its_commanded_speed(dt):
     import mujoco
 
     sim = make_sim(physics_dt=dt)
-    sim.data.qpos[2] += 0.5
+    sim.world.data.qpos[2] += 0.5
     sim.set_command(BURGER.max_linear_velocity, 0.0)
-    wheel = sim.model.jnt_dofadr[
-        mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_JOINT, "wheel_left")
+    wheel = sim.world.model.jnt_dofadr[
+        mujoco.mj_name2id(sim.world.model, mujoco.mjtObj.mjOBJ_JOINT, "robot/wheel_left")
     ]
     speeds = []
     for _ in range(int(round(0.3 / dt))):  # still falling after 0.3 s
-        mujoco.mj_step(sim.model, sim.data)
-        speeds.append(float(sim.data.qvel[wheel]))
+        mujoco.mj_step(sim.world.model, sim.world.data)
+        speeds.append(float(sim.world.data.qvel[wheel]))
     target = BURGER.max_linear_velocity / BURGER.wheel_radius
-    assert sim.data.ncon == 0  # nothing touches the floor yet
+    assert sim.world.data.ncon == 0  # nothing touches the floor yet
     assert np.allclose(speeds[-3:], target, rtol=1e-3)
 
 
@@ -287,16 +287,16 @@ def large_world() -> World:
 
 def test_large_world_scans_match_a_model_with_every_wall(monkeypatch):
     """The rolling window of wall slots sees exactly what a model holding all walls sees."""
-    import agv_mission.robots.mjcf as mjcf
+    import agv_mission.world.model as model
 
     world, start = large_world(), Pose2D(0.0, 0.0, 0.3)
     windowed = make_sim(world, start, lidar_noise=0.0)
-    assert windowed.wall_window is not None
-    assert windowed.model.ngeom < len(world.boxes) // 2
-    monkeypatch.setattr(mjcf, "WALL_SLOTS", 10_000)
-    monkeypatch.setattr(mjcf, "PILLAR_SLOTS", 10_000)
+    assert windowed.world.window is not None
+    assert windowed.world.model.ngeom < len(world.boxes) // 2
+    monkeypatch.setattr(model, "WALL_SLOTS", 10_000)
+    monkeypatch.setattr(model, "PILLAR_SLOTS", 10_000)
     full = make_sim(world, start, lidar_noise=0.0)
-    assert full.wall_window is None and full.model.ngeom > len(world.boxes)
+    assert full.world.window is None and full.world.model.ngeom > len(world.boxes)
     rng = np.random.default_rng(5)
     for _ in range(12):
         pose = Pose2D(*rng.uniform(-9.0, 9.0, size=2), rng.uniform(-math.pi, math.pi))
@@ -312,11 +312,11 @@ def test_large_world_window_follows_the_robot_into_a_wall():
     world = large_world()
     # A free lane between two rows of posts (rows at y = 0.05 and y = -0.65).
     sim = make_sim(world, Pose2D(-3.0, -0.3, 0.0))
-    centre = sim.wall_window.centre
+    centre = sim.world.window.centres[0]
     sim.set_command(0.25, 0.0)
     sim.advance(4.0)
     assert sim.true_pose().x > -2.2
-    assert sim.wall_window.centre[0] > centre[0] + 0.5  # re-centred during the advance
+    assert sim.world.window.centres[0][0] > centre[0] + 0.5  # re-centred during the advance
     assert sim.contacts() == 0
     # Facing a post 0.3 m ahead (its face at x = 0.0): the chassis must hit it.
     sim.teleport(Pose2D(-0.3 - BURGER.footprint_radius, 0.05, 0.0))

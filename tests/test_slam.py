@@ -20,7 +20,7 @@ from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.maps.worlds import World
 from agv_mission.registry import registry
-from agv_mission.robots.simulation import DiffDriveSim, SimConfig
+from agv_mission.robots.simulation import DiffDriveBody, SimConfig
 from slam_drive import BURGER, GARBAGE, TB3_BOUNDS, Drive, drive
 
 # A loop through the pillar field of turtlebot3_world, and back to the first corner.
@@ -44,7 +44,7 @@ def noisy_loop(tb3: World) -> Drive:
 
 def scans_at(world: World, pose: Pose2D, n: int = 1, noise: float | None = None):
     config = SimConfig(ideal=True, lidar_noise=0.01 if noise is None else noise)
-    sim = DiffDriveSim(BURGER, world, pose, config, np.random.default_rng(3))
+    sim = DiffDriveBody.alone(BURGER, world, pose, config, np.random.default_rng(3))
     return [sim.scan() for _ in range(n)]
 
 

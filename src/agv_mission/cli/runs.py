@@ -63,11 +63,18 @@ def run(
     except RunDirError as exc:
         where = "--output" if output is not None else f"{loaded.source}: output"
         raise failure("invalid input", f"{where} {exc}") from None
-    out.print(
-        f"[bold]{loaded.name}[/]: {loaded.tree.count if loaded.tree else 0} tree node(s), "
-        f"{len(loaded.tree.task_types()) if loaded.tree else 0} task(s) in "
-        f"{loaded.world.name} with {loaded.robot.name}, seed {loaded.mission.seed}"
-    )
+    if loaded.is_fleet:
+        robots = ", ".join(f"{r.name} ({r.robot.name})" for r in loaded.fleet)
+        out.print(
+            f"[bold]{loaded.name}[/]: {len(loaded.fleet)} robots in {loaded.world.name}: "
+            f"{robots}; {len(loaded.fleet_tasks)} fleet task(s), seed {loaded.mission.seed}"
+        )
+    else:
+        out.print(
+            f"[bold]{loaded.name}[/]: {loaded.tree.count if loaded.tree else 0} tree node(s), "
+            f"{len(loaded.tree.task_types()) if loaded.tree else 0} task(s) in "
+            f"{loaded.world.name} with {loaded.robot.name}, seed {loaded.mission.seed}"
+        )
     with progress_bar("{task.completed:.1f}/{task.total:.0f} sim s") as bar:
         job = bar.add_task("running", total=loaded.mission.limits.time)
         record = run_mission(

@@ -9,7 +9,7 @@ import numpy as np
 
 from agv_mission.messages import LaserScan
 from agv_mission.navigation.handle import RobotHandle
-from agv_mission.robots.simulation import DiffDriveSim
+from agv_mission.robots.simulation import DiffDriveBody
 
 
 def _active(fault: Any, now: float) -> bool:
@@ -19,7 +19,7 @@ def _active(fault: Any, now: float) -> bool:
 class FaultInjector:
     """Applies faults at their times; every random draw comes from its own ``rng``."""
 
-    def __init__(self, faults: list[Any], sim: DiffDriveSim, rng: np.random.Generator) -> None:
+    def __init__(self, faults: list[Any], sim: DiffDriveBody, rng: np.random.Generator) -> None:
         self.faults = faults
         self.sim = sim
         self.rng = rng

@@ -46,12 +46,16 @@ from agv_mission.missions.schema import (
     MAX_SIM_SECONDS,
     Mission,
     Setup,
+    Stack,
     with_default_plugin_types,
 )
+from agv_mission.missions.schema.base import Pose
 from agv_mission.missions.schema.zones import KeepoutMask, KeepoutZone, SpeedMask
 from agv_mission.missions.tree import (
+    NodeSpec,
     TreeSource,
     TreeSpec,
+    Where,
     assemble,
     tasks_spec,
     tasks_tree,
@@ -73,6 +77,35 @@ PathGuard = Callable[[str, Path], "str | None"]
 
 
 @dataclass
+class RobotSetup:
+    """One robot of a mission as it runs: its name (ROS namespace), description, start,
+    stack, the costmap its footprint inflates, its zone filters and what it does."""
+
+    name: str
+    robot: RobotDescription
+    start: Pose2D
+    stack: Stack
+    costmap: Costmap
+    tree: TreeSpec | None = None
+    zones: ZoneFilters | None = None
+    room_goals: dict[str, Pose2D] = field(default_factory=dict)
+
+
+@dataclass
+class FleetTask:
+    """One task of a fleet mission's ``tasks:``: assigned (``robot``) or dispatched."""
+
+    index: int  # its place in ``tasks:`` (0-based)
+    type: str
+    tree: TreeSpec  # the task as a tree of its own
+    robot: str | None = None  # the robot it is assigned to; None: the dispatcher decides
+
+
+#: The name of a one-robot mission's robot (its bodies and logs; no ROS namespace).
+SOLE_ROBOT = "robot"
+
+
+@dataclass
 class LoadedMission:
     """A validated mission with everything it names loaded and resolved."""
 
@@ -90,6 +123,33 @@ class LoadedMission:
     docks: dict[str, Dock] = field(default_factory=dict)  # the world's and rooms file's
     given_map: OccupancyGrid | None = None  # the mission's ``map:``, when it names one
     zones: ZoneFilters | None = None  # keepout and speed filters (None: no zones)
+    fleet: list[RobotSetup] = field(default_factory=list)  # a fleet mission's robots
+    fleet_tasks: list[FleetTask] = field(default_factory=list)  # its tasks: dispatched, assigned
+
+    @property
+    def is_fleet(self) -> bool:
+        """A mission with a ``robots:`` list (fleet.md); else a one-robot mission."""
+        return bool(self.fleet)
+
+    @property
+    def robots(self) -> list[RobotSetup]:
+        """Every robot of the mission: the fleet's, or the one robot of a one-robot
+        mission (named :data:`SOLE_ROBOT`)."""
+        if self.fleet:
+            return self.fleet
+        stack = self.mission.stack
+        return [
+            RobotSetup(
+                SOLE_ROBOT,
+                self.robot,
+                self.start,
+                stack,
+                self.costmap,
+                self.tree,
+                self.zones,
+                self.room_goals,
+            )
+        ]
 
     @property
     def map(self) -> OccupancyGrid:
@@ -174,7 +234,11 @@ def load_mission(
             [log.at(p, f"keys must be strings, got {p[-1]!r} (quote it)") for p in bad_keys]
         )
 
+    assigned = _fleet_layout(data, log)
     with_default_plugin_types(data)
+    for robot in data.get("robots") or []:
+        if isinstance(robot, dict) and isinstance(robot.get("stack"), dict):
+            with_default_plugin_types(robot)
     non_finite = non_finite_numbers(data)
     if non_finite:
         raise MissionError(
@@ -206,12 +270,69 @@ def load_mission(
         ) from None
 
     base_dir = path.parent if path.name else Path.cwd()
+    if isinstance(mission, Mission) and mission.robots:
+        loaded = _resolve_fleet(
+            mission, data, assigned, base_dir, path.stem or "mission", log, path_guard
+        )
+        loaded.source = path
+        return loaded
     tree = None
     if isinstance(mission, Mission):
         tree = assemble(tree_source(mission, data, log, base_dir, path_guard))
     loaded = _resolve(mission, base_dir, path.stem or "mission", log, path_guard, tree)
     loaded.source = path
     return loaded
+
+
+def _fleet_layout(data: dict[str, Any], log: ProblemLog) -> dict[int, str]:
+    """A fleet mission's data made ready to validate (in place): each robot's ``stack``
+    merged over the mission's, and the fleet tasks' ``robot:`` taken out (returned by
+    task index). Top-level ``robot:``/``start:`` beside ``robots:`` are refused."""
+    robots = data.get("robots")
+    if not isinstance(robots, list) or not robots:
+        return {}
+    for key in ("robot", "start"):
+        if key in data:
+            log.add(
+                (key,),
+                f"a fleet mission (with `robots:`) names each robot's {key} in its entry "
+                f"under robots:, not a top-level `{key}:`",
+            )
+    log.raise_if_any()
+    shared = data.get("stack")
+    for robot in robots:
+        if isinstance(robot, dict) and isinstance(shared, dict):
+            own = robot.get("stack")
+            if own is None or isinstance(own, dict):
+                robot["stack"] = _merged(shared, own or {})
+    assigned: dict[int, str] = {}
+    for i, task in enumerate(data.get("tasks") or []):
+        if isinstance(task, dict) and "robot" in task:
+            name = task.pop("robot")
+            if not isinstance(name, str):
+                log.add(("tasks", i, "robot"), f"expected a robot's name, got {kind_of(name)}")
+            else:
+                assigned[i] = name
+    log.raise_if_any()
+    return assigned
+
+
+def _merged(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """``over`` merged into a copy of ``base``, mapping by mapping; a plugin block whose
+    ``type`` differs replaces the base's block whole."""
+    out = copy.deepcopy(base)
+    for key, value in over.items():
+        old = out.get(key)
+        swap = (
+            isinstance(old, dict)
+            and isinstance(value, dict)
+            and ("type" in value and old.get("type", value["type"]) != value["type"])
+        )
+        if isinstance(old, dict) and isinstance(value, dict) and not swap:
+            out[key] = _merged(old, value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
 
 
 def tree_source(
@@ -234,23 +355,34 @@ def tree_source(
         main = yaml_spec(data["tree"], ("tree",), file, lines)
         return TreeSource(main, trees, dict(mission.blackboard))
     assert isinstance(mission.tree, str)
-    xml_path = input_path(mission.tree.strip(), base_dir)
+    source = _xml_source(mission.tree, ("tree",), log, base_dir, path_guard)
+    source.trees = {**trees, **source.trees}
+    source.blackboard = dict(mission.blackboard)
+    return source
+
+
+def _xml_source(
+    name: str,
+    field_path: FieldPath,
+    log: ProblemLog,
+    base_dir: Path,
+    path_guard: PathGuard | None,
+) -> TreeSource:
+    """The BT.CPP XML file ``name`` (the mission's field at ``field_path``) as a tree."""
+    xml_path = input_path(name.strip(), base_dir)
     refused = path_guard("tree", xml_path) if path_guard is not None else None
     if refused:
-        log.add(("tree",), refused)
+        log.add(field_path, refused)
         log.raise_if_any()
     try:
         text = read_input_bytes(xml_path).decode("utf-8")
     except InputFileError as exc:
-        log.add(("tree",), f"cannot read {mission.tree!r}: {exc}")
+        log.add(field_path, f"cannot read {name!r}: {exc}")
         raise MissionError(log.problems) from None
     except (OSError, UnicodeDecodeError) as exc:
-        log.add(("tree",), f"cannot read {mission.tree!r}: {os_message(exc)}")
+        log.add(field_path, f"cannot read {name!r}: {os_message(exc)}")
         raise MissionError(log.problems) from None
-    source = parse_xml(text, str(xml_path))
-    source.trees = {**trees, **source.trees}
-    source.blackboard = dict(mission.blackboard)
-    return source
+    return parse_xml(text, str(xml_path))
 
 
 def _resolve(
@@ -260,9 +392,11 @@ def _resolve(
     log: ProblemLog,
     path_guard: PathGuard | None = None,
     tree: TreeSpec | None = None,
+    more_checks: Sequence[Any] = (),
 ) -> LoadedMission:
     """Load what the mission names (world, robot, rooms, recorder) and check the mission
-    against them; every problem found is raised together."""
+    against them (with ``more_checks``: nodes beside the tree, e.g. a fleet's tasks); every
+    problem found is raised together."""
     if path_guard is not None:
         named = {
             "world": None if mission.world.strip() in builtin_names() else mission.world,
@@ -341,7 +475,12 @@ def _resolve(
     if not costmap_fits(mission, known, log.add):
         raise MissionError(log.problems)
     costmap = Costmap.from_grid(known, robot.footprint_radius, mission.stack.costmap)
-    node_checks = _node_checks(tree, log)
+    node_checks = [*_node_checks(tree, log), *more_checks]
+    if isinstance(mission.start, str) and mission.start not in rooms and mission.start in docks:
+        dock = docks[mission.start].pose  # a robot may start on its dock
+        mission = mission.model_copy(
+            update={"start": Pose.model_validate({"x": dock.x, "y": dock.y, "yaw": dock.yaw})}
+        )
     placed = place_mission(mission, world, robot, rooms, costmap, log.add, node_checks)
     check_docks(mission, robot, docks, rooms_docks, costmap, log.add, node_checks)
     zones = _zone_filters(mission, robot, rooms, costmap, base_dir, log)
@@ -376,6 +515,177 @@ def _resolve(
         given_map=given_map,
         zones=zones,
     )
+
+
+class _RobotLog:
+    """A fleet robot's view of the mission's problems: what it calls ``start``, ``robot``
+    and ``stack`` is its entry's under ``robots:``; a problem found twice is reported once."""
+
+    OWN = ("start", "robot", "stack")
+
+    def __init__(self, log: ProblemLog, index: int) -> None:
+        self.log, self.index = log, index
+        self.file, self.lines = log.file, log.lines
+
+    @property
+    def problems(self) -> list[Problem]:
+        return self.log.problems
+
+    def _path(self, field_path: FieldPath) -> FieldPath:
+        if field_path and field_path[0] in self.OWN:
+            return ("robots", self.index, *field_path)
+        return field_path
+
+    def at(self, field_path: FieldPath, message: str) -> Problem:
+        return self.log.at(self._path(field_path), message)
+
+    def add(self, field_path: FieldPath, message: str) -> None:
+        problem = self.at(field_path, message)
+        if problem not in self.log.problems:
+            self.log.problems.append(problem)
+
+    def raise_if_any(self) -> None:
+        self.log.raise_if_any()
+
+
+def _robot_tree(
+    mission: Mission,
+    index: int,
+    data: dict[str, Any],
+    log: ProblemLog,
+    base_dir: Path,
+    path_guard: PathGuard | None,
+    assigned: list[NodeSpec],
+) -> TreeSpec:
+    """A fleet robot's behaviour as a tree: its own (tasks, tree, or nothing), then the
+    fleet tasks ``assigned`` to it by ``robot:``, in the order given."""
+    file, lines = log.file, log.lines
+    robot, entry = mission.robots[index], data["robots"][index]
+    base: FieldPath = ("robots", index)
+    trees = {
+        tree_id: yaml_spec(body, ("trees", tree_id), file, lines)
+        for tree_id, body in (data.get("trees") or {}).items()
+    }
+    if isinstance(robot.tree, str):
+        source = _xml_source(robot.tree, (*base, "tree"), log, base_dir, path_guard)
+        source.trees = {**trees, **source.trees}
+    elif isinstance(robot.tree, dict):
+        source = TreeSource(yaml_spec(entry["tree"], (*base, "tree"), file, lines), trees)
+    elif entry.get("tasks"):
+        source = TreeSource(tasks_spec(entry["tasks"], file, lines, (*base, "tasks")), trees)
+    else:
+        idle = NodeSpec("log", Where(file, base, lines.get(base)), None,
+                        {"message": f"{robot.name} has no tasks of its own"})  # fmt: skip
+        source = TreeSource(idle if not assigned else assigned[0], trees)
+        assigned = assigned[1:]
+    if assigned:
+        own = source.main
+        source.main = NodeSpec("sequence", own.where, robot.name, {}, {}, [own, *assigned])
+    source.blackboard = dict(mission.blackboard)
+    return assemble(source)
+
+
+def _resolve_fleet(
+    mission: Mission,
+    data: dict[str, Any],
+    assigned: dict[int, str],
+    base_dir: Path,
+    stem: str,
+    log: ProblemLog,
+    path_guard: PathGuard | None,
+) -> LoadedMission:
+    """A fleet mission: every robot resolved against the one world, as a one-robot
+    mission of its own; names unique, starts apart, assigned tasks to known robots."""
+    names = [r.name for r in mission.robots]
+    for j, name in enumerate(names):
+        if name in names[:j]:
+            log.add(("robots", j, "name"), f"robot name {name!r} is used twice")
+    for i, name in sorted(assigned.items()):
+        if name not in names:
+            log.add(("tasks", i, "robot"), f"no robot {name!r} in robots: ({', '.join(names)})")
+    log.raise_if_any()
+    file, lines = log.file, log.lines
+    fleet_tasks = []
+    for i, task in enumerate(data.get("tasks") or []):
+        spec = tasks_spec([task], file, lines, ("tasks",), [i])
+        fleet_tasks.append(FleetTask(i, task["type"], assemble(TreeSource(spec)), assigned.get(i)))
+    trees = [
+        _robot_tree(
+            mission,
+            i,
+            data,
+            log,
+            base_dir,
+            path_guard,
+            [t.tree.source.main.children[0] for t in fleet_tasks if t.robot == name],
+        )
+        for i, name in enumerate(names)
+    ]
+    log.raise_if_any()
+    # Each fleet task is checked on the map of the robot that will do it (the assigned
+    # one; for a dispatched task the robot with the widest footprint); every robot learns
+    # where the rooms it may be sent to are entered.
+    widest = max(range(len(names)), key=lambda i: _footprint(mission.robots[i].robot, base_dir))
+    resolved = []
+    for i, robot in enumerate(mission.robots):
+        view = mission.model_copy(
+            update={"robot": robot.robot, "start": robot.start, "stack": robot.stack}
+        )
+        robot_log = _RobotLog(log, i)
+        checks = []
+        for task in fleet_tasks:
+            reporter = task.robot == robot.name or (task.robot is None and i == widest)
+            for where, ports, report in _node_checks(task.tree, log):
+                checks.append((where, ports, report if reporter else _silent))
+        try:
+            resolved.append(
+                _resolve(view, base_dir, stem, robot_log, path_guard, trees[i], checks)  # type: ignore[arg-type]
+            )
+        except MissionError:
+            continue
+    log.raise_if_any()
+    for k, b in enumerate(resolved):
+        for j, a in enumerate(resolved[:k]):
+            gap = a.start.distance_to(b.start)
+            need = a.robot.footprint_radius + b.robot.footprint_radius
+            if gap < need:
+                log.add(
+                    ("robots", k, "start"),
+                    f"{names[k]} starts {gap:.2f} m from {names[j]}'s start; their "
+                    f"footprints need {need:.2f} m",
+                )
+    log.raise_if_any()
+    first = resolved[0]
+    first.mission = mission
+    first.name = mission.name or stem[:MAX_NAME_LENGTH]
+    first.fleet = [
+        RobotSetup(
+            names[i],
+            r.robot,
+            r.start,
+            mission.robots[i].stack,
+            r.costmap,
+            trees[i],
+            r.zones,
+            r.room_goals,
+        )
+        for i, r in enumerate(resolved)
+    ]
+    first.tree = trees[0]
+    first.fleet_tasks = fleet_tasks
+    return first
+
+
+def _silent(field_path: FieldPath, message: str) -> None:
+    """A reporter for checks another robot reports."""
+
+
+def _footprint(robot: str, base_dir: Path) -> float:
+    """A robot's footprint radius, 0 when its description does not load (reported later)."""
+    try:
+        return load_robot(robot, base_dir).footprint_radius
+    except Exception:
+        return 0.0
 
 
 def _zone_filters(

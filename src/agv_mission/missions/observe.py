@@ -64,19 +64,49 @@ def _walk(
 
 
 @dataclass(frozen=True)
+class RobotStart:
+    """One robot of a run, as it starts."""
+
+    name: str  # its ROS namespace in a fleet mission
+    robot: RobotDescription
+    start: Pose2D
+    tree_nodes: list[TreeNode]  # pre-order
+    keepout_mask: OccupancyGrid | None = None  # the keepout filter mask (100: kept out)
+    speed_mask: OccupancyGrid | None = None  # the speed filter mask (% of max speed, 0: none)
+
+
+@dataclass(frozen=True)
 class RunStart:
     """What does not change during a run."""
 
     run_dir: Path | None
     mission: Mission  # the resolved mission model
-    robot: RobotDescription
     world_map: OccupancyGrid  # the known map (the mission's map:, else the world's)
     rooms: dict[str, Room]  # label -> Room (polygon, anchor)
-    start: Pose2D
-    tree_nodes: list[TreeNode]  # pre-order
+    robots: list[RobotStart]  # every robot; a one-robot mission's one
     docks: dict[str, Dock] = field(default_factory=dict)  # chargers by name
-    keepout_mask: OccupancyGrid | None = None  # the keepout filter mask (100: kept out)
-    speed_mask: OccupancyGrid | None = None  # the speed filter mask (% of max speed, 0: none)
+    fleet: bool = False  # a fleet mission (robots: list): per-robot names are namespaces
+
+    # A one-robot mission's robot (the first robot of a fleet).
+    @property
+    def robot(self) -> RobotDescription:
+        return self.robots[0].robot
+
+    @property
+    def start(self) -> Pose2D:
+        return self.robots[0].start
+
+    @property
+    def tree_nodes(self) -> list[TreeNode]:
+        return self.robots[0].tree_nodes
+
+    @property
+    def keepout_mask(self) -> OccupancyGrid | None:
+        return self.robots[0].keepout_mask
+
+    @property
+    def speed_mask(self) -> OccupancyGrid | None:
+        return self.robots[0].speed_mask
 
 
 @dataclass
@@ -104,6 +134,7 @@ class StepSample:
     battery: float | None = None  # the level 0..1; None: not modelled
     charging: bool = False
     docked: str | None = None  # the dock the robot stands on
+    robot: str = "robot"  # whose step this is (a fleet robot's name)
 
 
 class RunObserver(Protocol):
@@ -121,6 +152,7 @@ class RunControl(Protocol):
 
     def before_step(self, run: MissionRun) -> None:
         """Called before every control step; may block (pause), may call
-        ``run.cancel(reason)`` (the run ends ``aborted``), may set
-        ``run.handle.remote_command = (v, w)`` for a teleop task."""
+        ``run.cancel(reason)`` (the run ends ``aborted``), may set a robot's
+        ``handle.remote_command = (v, w)`` for a teleop task (``run.handle``: the first
+        robot's)."""
         ...

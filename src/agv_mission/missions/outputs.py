@@ -55,6 +55,17 @@ def open_run_dir(root: Path, loaded: LoadedMission, name: str | None = None) -> 
 
 
 def result_document(loaded: LoadedMission, record: RunRecord, run_dir: Path) -> dict[str, Any]:
+    robots = {}
+    for setup in loaded.fleet:  # a fleet's robots, each with the one-robot result keys
+        own = record.robots.get(setup.name)
+        if own is not None:
+            robots[setup.name] = {
+                "status": own.status,
+                "reason": own.reason,
+                "robot": setup.robot.name,
+                "tasks": own.tasks,
+                "metrics": own.metrics,
+            }
     return {
         "name": loaded.name,
         "status": record.status,
@@ -68,6 +79,7 @@ def result_document(loaded: LoadedMission, record: RunRecord, run_dir: Path) -> 
         "metrics": record.metrics,
         "events": record.events,
         **record.extras,
+        **({"robots": robots} if robots else {}),
         "run_dir": str(run_dir),
     }
 
@@ -87,10 +99,7 @@ def write_run(run_dir: Path, loaded: LoadedMission, record: RunRecord) -> dict[s
     write_json(run_dir / "result.json", result)
     errors: list[str] = []
     for name, write in (
-        (
-            "trajectory.csv",
-            lambda p: write_trajectory(p, record.trajectory, record.covariance, record.battery),
-        ),
+        ("trajectory.csv", lambda p: write_run_trajectory(p, record)),
         ("tree.txt", lambda p: atomic_write_text(p, strip_ansi(record.tree_text) + "\n")),
         ("run.png", lambda p: plot_run(p, loaded, record)),
     ):
@@ -117,8 +126,28 @@ def write_json(path: Path, doc: dict[str, Any]) -> None:
     atomic_write_text(path, json.dumps(doc, indent=2, allow_nan=False, default=json_default) + "\n")
 
 
+def write_run_trajectory(path: Path, record: RunRecord) -> None:
+    """``trajectory.csv`` of a run: a fleet's with a first column ``robot`` (fleet.md), one
+    row per robot per control step, in time order."""
+    if not record.robots:
+        write_trajectory(path, record.trajectory, record.covariance, record.battery)
+        return
+    parts = []
+    for name, own in record.robots.items():
+        buf = io.StringIO()
+        covariance = own.covariance
+        if covariance is None:  # every robot's rows have the same columns
+            covariance = np.full((len(own.trajectory), len(COVARIANCE_COLUMNS)), np.nan)
+        write_trajectory(buf, own.trajectory, covariance, own.battery)
+        header, *rows = buf.getvalue().splitlines()
+        parts.append([(float(r.split(",", 1)[0]), k, f"{name},{r}") for k, r in enumerate(rows)])
+    rows = sorted((row for part in parts for row in part), key=lambda r: (r[0], r[1]))
+    text = "robot," + header + "\n" + "".join(r[2] + "\n" for r in rows)
+    atomic_write_text(path, text)
+
+
 def write_trajectory(
-    path: Path,
+    path: Path | io.StringIO,
     trajectory: np.ndarray,
     covariance: np.ndarray | None = None,
     battery: np.ndarray | None = None,
@@ -140,7 +169,10 @@ def write_trajectory(
     buf.write(",".join(columns) + "\n")
     if trajectory.size:
         np.savetxt(buf, trajectory, delimiter=",", fmt=fmt)
-    atomic_write_text(path, buf.getvalue())
+    if isinstance(path, io.StringIO):
+        path.write(buf.getvalue())
+    else:
+        atomic_write_text(path, buf.getvalue())
 
 
 def _plot_zones(ax: Any, zones: ZoneFilters) -> None:
@@ -175,6 +207,13 @@ def _zone_labels(zones: ZoneFilters) -> list[tuple[float, tuple[int, int]]]:
         k = len(rows) // 2
         out.append((level, (int(rows[k]), int(cols[k]))))
     return out
+
+
+#: A fleet's robots in run.png (and the dashboard), in robot order.
+ROBOT_COLOURS = (
+    "tab:blue", "tab:red", "tab:green", "tab:purple", "tab:brown",
+    "tab:pink", "tab:olive", "tab:cyan", "navy", "darkorange",
+)  # fmt: skip
 
 
 def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
@@ -258,6 +297,15 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
         ax.plot(traj[:, 1], traj[:, 2], "-", lw=1.4, color="tab:blue", label="driven (true)")
         ax.plot(traj[:, 4], traj[:, 5], ":", lw=1.0, color="tab:green", label="estimated")
         ax.plot(traj[0, 1], traj[0, 2], "o", color="tab:blue", label="start")
+    for k, (name, own) in enumerate(record.robots.items()):  # a fleet: a colour a robot
+        t = own.trajectory
+        if not t.size:
+            continue
+        colour = ROBOT_COLOURS[k % len(ROBOT_COLOURS)]
+        ax.plot(t[:, 1], t[:, 2], "-", lw=1.4, color=colour, label=name)
+        ax.plot(t[:, 4], t[:, 5], ":", lw=0.8, color=colour, alpha=0.7)
+        ax.plot(t[0, 1], t[0, 2], "o", color=colour)
+        ax.plot(t[-1, 1], t[-1, 2], "s", color=colour)
     for e in record.events:
         if e["event"] == "goal_reached":
             ax.plot(e["x"], e["y"], "*", color="gold", markeredgecolor="k", ms=11)

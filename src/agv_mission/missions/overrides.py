@@ -91,7 +91,7 @@ def apply_overrides(data: dict, overrides: Sequence[str | Override]) -> Applied:
             set_path(data, block, {**kept, "type": value}, override)
             applied.type_swaps[block] = override.label
         else:
-            set_path(data, field_path, copy.deepcopy(value), override)
+            field_path = set_path(data, field_path, copy.deepcopy(value), override)
         written.append((field_path, value))
         applied.paths[field_path] = override.label
     return applied
@@ -137,10 +137,28 @@ def earlier_writes(block: FieldPath, written: list[tuple[FieldPath, Any]]) -> di
     return kept
 
 
-def set_path(data: dict, field_path: FieldPath, value: Any, override: Override) -> None:
+def set_path(data: dict, field_path: FieldPath, value: Any, override: Override) -> FieldPath:
+    """Write ``value`` at ``field_path``; returns the path with list items named by their
+    ``name`` (``robots.agv1``, fleet.md) replaced by their indices."""
     node: Any = data
+    resolved: list[str | int] = []
     for i, part in enumerate(field_path):
         last = i == len(field_path) - 1
+        if isinstance(node, list) and isinstance(part, str):  # an item by its name
+            named = [
+                j
+                for j, item in enumerate(node)
+                if isinstance(item, dict) and item.get("name") == part
+            ]
+            if not named:
+                names = [item.get("name") for item in node if isinstance(item, dict)]
+                raise override_error(
+                    override.item,
+                    f"no item named {part!r} (names: {', '.join(map(str, names)) or 'none'})",
+                    override.option,
+                )
+            part = named[0]
+        resolved.append(part)
         if isinstance(node, list):
             if not isinstance(part, int) or not -len(node) <= part < len(node):
                 raise override_error(
@@ -166,3 +184,4 @@ def set_path(data: dict, field_path: FieldPath, value: Any, override: Override) 
             raise override_error(
                 override.item, f"cannot set a key inside a {kind_of(node)}", override.option
             )
+    return tuple(resolved)

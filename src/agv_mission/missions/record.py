@@ -34,6 +34,7 @@ class RunRecord:
     built_map: OccupancyGrid | None = None  # the last map a map_area task saved
     covariance: np.ndarray | None = None  # (steps, len(COVARIANCE_COLUMNS)), NaN: none
     battery: np.ndarray | None = None  # (steps,) the level 0..1; None: not modelled
+    robots: dict[str, RunRecord] = field(default_factory=dict)  # a fleet's, by robot name
 
 
 def bare_record(

@@ -1,11 +1,13 @@
-"""The simulation-clock loop: sensors -> estimator -> behaviour tree -> robot, step by step.
+"""The simulation-clock loop over a world of robots: sensors -> estimator -> behaviour
+tree -> wheels, for every robot, then physics once for all.
 
-One control step every ``CONTROL_PERIOD`` simulated seconds: read encoders and (when due)
-the lidar, update odometry and the localiser, tick the tree once, smooth the command
-within the robot's acceleration limits, and advance the physics. A lidar faster than the
-loop scans at its own times while the physics advances; each of those scans reaches the
-localiser (with the odometry at its time), the obstacle layer and the observers at the
-next step. The wall clock is read only to report speed.
+One control step every ``CONTROL_PERIOD`` simulated seconds: every robot reads its
+encoders and (when due) its lidar, updates odometry and its localiser, ticks its tree once
+and chooses a command within its acceleration limits; then the world advances one control
+period. A lidar faster than the loop scans at its own times while the world advances; each
+of those scans reaches the robot's localiser (with the odometry at its time), obstacle
+layer and observers at the next step. A one-robot mission is a world with one robot. The
+wall clock is read only to report speed.
 """
 
 from __future__ import annotations
@@ -17,48 +19,16 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-from py_trees.common import Status
-
-from agv_mission.behaviors.context import TreeContext
-from agv_mission.behaviors.outcome import failure_reason
-from agv_mission.geometry import Pose2D
-from agv_mission.localization.base import Localizer, LocalizerDiagnostics
-from agv_mission.maps.obstacle_layer import ObstacleLayer
-from agv_mission.maps.zones import zone_metrics
-from agv_mission.messages import LaserScan
-from agv_mission.missions.faults import FaultInjector
 from agv_mission.missions.loader import LoadedMission
-from agv_mission.missions.map_building import MapBuilder
-from agv_mission.missions.observe import (
-    RunControl,
-    RunObserver,
-    RunStart,
-    status_name,
-    tree_nodes,
-)
+from agv_mission.missions.observe import RobotStart, RunControl, RunObserver, RunStart, tree_nodes
 from agv_mission.missions.record import TRAJECTORY_COLUMNS, RunRecord, bare_record
-from agv_mission.missions.run_report import (
-    COVARIANCE_COLUMNS,
-    add_true_errors,
-    covariance_metrics,
-    covariance_row,
-    run_metrics,
-    task_reports,
-)
-from agv_mission.missions.sampler import StepSampler
+from agv_mission.missions.robot_run import RobotRun
 from agv_mission.missions.stack import (
     CONTROL_PERIOD,
-    RobotStack,
-    Sensing,
     VelocitySmoother,
+    build_world,
     open_recorders,
 )
-from agv_mission.missions.tree import build_tree
-from agv_mission.navigation.handle import RobotHandle
-from agv_mission.navigation.state import RobotState
-from agv_mission.planners.collision_monitor import CollisionMonitor
-from agv_mission.robots.battery import Battery, battery_for
 
 __all__ = [
     "CONTROL_PERIOD",
@@ -70,10 +40,6 @@ __all__ = [
 ]
 
 ProgressCallback = Callable[[float, float], None]
-
-#: Below this planar clearance (m) the chassis may touch a wall: contacts are read. Above
-#: it a contact would need the robot tilted by more than ~15 degrees.
-CONTACT_CLEARANCE = 0.05
 
 
 class RunStopped(BaseException):
@@ -129,7 +95,7 @@ def run_mission(
                 "error",
                 f"{type(exc).__name__} while summarising the run: {exc}",
                 time.perf_counter() - wall_start,
-                sim_time=run.sim.time,
+                sim_time=run.world.time,
             )
     for observer in observers:
         observer.on_end(record)
@@ -137,7 +103,8 @@ def run_mission(
 
 
 class MissionRun:
-    """One mission in simulation: the components, the control loop's state, the outcome."""
+    """One mission in simulation: the world, its robots, the control loop's state, the
+    outcome."""
 
     def __init__(
         self,
@@ -146,88 +113,86 @@ class MissionRun:
         observers: Sequence[RunObserver] = (),
     ) -> None:
         self.loaded = loaded
-        mission, robot = loaded.mission, loaded.robot
-        self.mission, self.robot = mission, robot
-        self.stack = stack = RobotStack(loaded)
-        self.sim, self.odometry, self.limits = stack.sim, stack.odometry, stack.limits
-        self.navigator = stack.build_navigator()
-        self.battery: Battery | None = None
-        if robot.battery is not None:
-            self.battery = battery_for(
-                robot.battery,
-                robot.mass,
-                robot.footprint_radius,
-                robot.wheel_separation,
-                mission.simulation.battery_level,
-            )
-        self.handle = RobotHandle(
-            RobotState(time=0.0, estimate=loaded.start),
-            self.navigator,
-            rooms=loaded.rooms,
-            recorders=open_recorders(loaded, run_dir),
-            battery=self.battery,
-            docks=loaded.docks,
-        )
+        self.mission = loaded.mission
         self.run_dir = run_dir
-        self.rows: list[tuple[float, ...]] = []
-        self.levels: list[float] = []  # the battery's level at each step
-        self.covs: list[tuple[float, ...]] = []
-        self.mapper = MapBuilder(stack, self.navigator, self.handle, run_dir, self.rows)
-        assert loaded.tree is not None, "a mission to run has a tree"
-        context = TreeContext(
-            self.handle,
-            robot,
-            mission.stack.navigation,
-            loaded.room_goals,
-            self.mapper,
-            blackboard=dict(loaded.tree.source.blackboard),
-        )
-        self.tree = build_tree(loaded.tree, context)
-        self.faults = FaultInjector(mission.faults, self.sim, stack.fault_rng)
-        self.monitor = CollisionMonitor(
-            mission.stack.collision_monitor, robot.footprint_radius, CONTROL_PERIOD
-        )
-        self.task_status = ["not_run"] * len(self.tree.tasks)
-        self.collisions: list[dict[str, float]] = []
-        self.in_contact = False
-        self.min_clearance = math.inf
-        self._clearance_at = (0.0, 0.0, -math.inf)  # (x, y, clearance) of the last query
+        self.observers = list(observers)
+        self.world, stacks = build_world(loaded)
+        recorders = open_recorders(loaded, run_dir)
+        self.robots = [
+            RobotRun(loaded, stack, run_dir, recorders, bool(self.observers)) for stack in stacks
+        ]
+        self.by_name = {r.name: r for r in self.robots}
+        # The fleet's own log (fleet.md): what the fleet layer dispatched, waits, deadlocks,
+        # and the robots' contacts with each other.
+        self.fleet_log: dict[str, Any] = {
+            "dispatch": [],
+            "waits": {"count": 0, "time": 0.0},
+            "deadlocks": 0,
+            "robot_robot_collisions": [],
+            "robot_robot_min_distance": math.inf,
+            "makespan": None,
+        }
+        self._touching: set[tuple[int, int]] = set()
         self.wall_start = time.perf_counter()
         self.status: str | None = None
         self.reason: str | None = None
-        self.observers = list(observers)
-        self._sampler = StepSampler(self) if self.observers else None
+
+    # The first robot's parts: a one-robot mission's only robot (teleop, VDA 5050 vehicles
+    # and the service's teleop drive one robot).
+    @property
+    def lead(self) -> RobotRun:
+        return self.robots[0]
 
     @property
-    def localizer(self) -> Localizer:
-        return self.stack.localizer
+    def sim(self):  # noqa: ANN201 - the lead robot's body
+        return self.lead.sim
 
-    def _estimate_covariance(self) -> tuple[np.ndarray | None, LocalizerDiagnostics | None]:
-        """The current estimate's covariance: SLAM's while mapping, else the localiser's
-        (with the localiser's diagnostics, read once per step)."""
-        mapping = self.mapper.session
-        if mapping is not None:
-            return getattr(mapping.slam, "covariance", None), None
-        diagnostics = self.localizer.diagnostics()
-        return diagnostics.covariance, diagnostics
+    @property
+    def handle(self):  # noqa: ANN201
+        return self.lead.handle
+
+    @property
+    def navigator(self):  # noqa: ANN201
+        return self.lead.navigator
+
+    @property
+    def tree(self):  # noqa: ANN201
+        return self.lead.tree
+
+    @property
+    def stack(self):  # noqa: ANN201
+        return self.lead.stack
+
+    @property
+    def localizer(self):  # noqa: ANN201
+        return self.lead.localizer
 
     def notify_start(self) -> None:
         """Tell the observers what the run is about."""
         if not self.observers:
             return
         loaded = self.loaded
-        zones = loaded.zones
+        robots = []
+        for r in self.robots:
+            zones = r.setup.zones
+            robots.append(
+                RobotStart(
+                    name=r.name,
+                    robot=r.robot,
+                    start=r.setup.start,
+                    tree_nodes=tree_nodes(r.tree.root),
+                    keepout_mask=zones.keepout_grid() if zones and zones.keepout.any() else None,
+                    speed_mask=zones.speed_grid() if zones and zones.levels else None,
+                )
+            )
         start = RunStart(
             run_dir=self.run_dir,
             mission=self.mission,
-            robot=self.robot,
             world_map=loaded.map,
             rooms=loaded.rooms,
-            start=loaded.start,
-            tree_nodes=tree_nodes(self.tree.root),
             docks=loaded.docks,
-            keepout_mask=zones.keepout_grid() if zones and zones.keepout.any() else None,
-            speed_mask=zones.speed_grid() if zones and zones.levels else None,
+            robots=robots,
+            fleet=loaded.is_fleet,
         )
         for observer in self.observers:
             observer.on_start(start)
@@ -238,7 +203,7 @@ class MissionRun:
         """Step until the mission ends: ``control`` before each step, ``progress`` after.
 
         The set-up left ~100k long-lived objects (casadi functions, OMPL, typestores, the
-        tree); the loop freezes them out of the garbage collector, so its one full
+        trees); the loop freezes them out of the garbage collector, so its one full
         collection of a 100 s run (~50 ms, 0.5 ms per simulated second) scans only what
         the run made since.
         """
@@ -250,7 +215,7 @@ class MissionRun:
                 if not self.step():
                     break
                 if progress is not None:
-                    progress(self.sim.time, self.mission.limits.time)
+                    progress(self.world.time, self.mission.limits.time)
         finally:
             gc.unfreeze()
 
@@ -259,260 +224,173 @@ class MissionRun:
         self.end("aborted", reason)
 
     def step(self) -> bool:
-        """One control step; False once the mission has ended."""
+        """One control step of every robot, then the world's physics; False once the
+        mission has ended."""
         if self.status is not None:
             return False
-        sim, handle, state = self.sim, self.handle, self.handle.state
-        now = sim.time
-        state.time = now
-        self.faults.apply(now, handle)
-        sensing = self.stack.sense(self._scan_filter)
-        truth = sensing.truth
-        for earlier in sensing.earlier:  # a lidar faster than the loop: each at its time
-            self._perceive(earlier)
-        estimate = self._perceive(sensing)
-        state.time, state.estimate = now, estimate
-        smoother = self.stack.smoother
-        state.velocity = (smoother.v, smoother.w)
-
-        handle.stop()
-        self.navigator.horizon = None  # set again if the tick drives the local planner
-        self.tree.root.tick_once()
-        for i, subtree in enumerate(self.tree.tasks):
-            if subtree.status is not Status.INVALID:
-                self.task_status[i] = status_name(subtree.status)
-        v, w = self._monitored(estimate, *self._speed_capped(estimate, *handle.command))
-        v, w = smoother(v, w)
-        battery = self.battery
-        if battery is not None:
-            self.levels.append(battery.level)
-            if battery.level <= 0.0 and self.status is None:
-                v = w = 0.0
-                self.end(
-                    "failed",
-                    f"battery empty at t={now:.1f} s "
-                    f"({battery.energy_used / 3600.0:.2f} Wh used): the robot stopped",
-                )
-        self.rows.append(
-            (now, truth.x, truth.y, truth.yaw, estimate.x, estimate.y, estimate.yaw, v, w)
-        )
-        covariance, diagnostics = self._estimate_covariance()
-        self.covs.append(covariance_row(covariance))
-        self._watch_safety(now, truth)
-
-        if self.status is None:
-            if self.tree.root.status is Status.SUCCESS:
-                self.end("succeeded", None)
-            elif self.tree.root.status is Status.FAILURE:
-                self.end("failed", self._failure())
-            elif now >= self.mission.limits.time - 1e-9:
-                if self.tree.repeats_until_the_limit():
-                    handle.log("time_limit", reason="the tree repeats until the time limit")
-                    self.end("succeeded", None)
-                else:
-                    self.end("failed", self._timeout())
-        if self._sampler is not None:
-            sample = self._sampler.sample(sensing, estimate, v, w, covariance, diagnostics)
-            for observer in self.observers:
-                observer.on_step(sample)
+        now = self.world.time
+        robots = self.robots
+        for r in robots:
+            r.decide(now)
+        self._watch_collisions(now)
+        if len(robots) > 1:
+            self._watch_robots(now)
+        limit = self.mission.limits.time
+        for r in robots:
+            r.conclude(now, limit)
+        if self.status is None and all(r.status is not None for r in robots):
+            self._conclude()
+        if self.observers:
+            for r in robots:
+                sample = r.sample()
+                if sample is not None:
+                    for observer in self.observers:
+                        observer.on_step(sample)
         if self.status is not None:
             return False
-        sim.set_command(v, w)
-        if battery is not None:
-            battery.step(v, w, CONTROL_PERIOD)
-        self.stack.advance(self._scan_filter)
+        for r in robots:
+            r.act()
+        self._advance()
         return True
 
-    def _monitored(self, estimate: Pose2D, v: float, w: float) -> tuple[float, float]:
-        """The command through the collision monitor, on the newest scan's points in the
-        robot's frame; each change of its action is an event."""
-        points = self.handle.state.obstacles
-        if points is None or not len(points):
-            local = np.zeros((0, 2))
+    def _advance(self) -> None:
+        """Let physics run one control period; lidars faster than the loop scan at their
+        own times within it (to the physics step)."""
+        world = self.world
+        dt = world.dt
+        steps = int(round(CONTROL_PERIOD / dt))
+        t0 = world.time
+        due: dict[int, list[RobotRun]] = {}
+        for r in self.robots:
+            for k in r.stack.scan_steps(t0, steps, dt):
+                due.setdefault(k, []).append(r)
+        done = 0
+        for k in sorted(due):
+            world.step(k - done)
+            done = k
+            for r in due[k]:
+                r.stack.take_scan(r._scan_filter)
+        world.step(steps - done)
+
+    def _watch_collisions(self, now: float) -> None:
+        """End the run once the robots together touched walls more often than allowed."""
+        touched = [r for r in self.robots if r.new_collision is not None]
+        if not touched:
+            return
+        total = sum(len(r.collisions) for r in self.robots)
+        total += len(self.fleet_log["robot_robot_collisions"])
+        if total > self.mission.limits.collisions:
+            r = touched[0]
+            c = r.new_collision
+            assert c is not None
+            who = f"{r.name}: " if self.loaded.is_fleet else ""
+            self.end("failed", f"{who}collision at t={now:.1f} s near ({c['x']:.2f}, {c['y']:.2f})")
+
+    def _watch_robots(self, now: float) -> None:
+        """Robot-robot contacts (each new touch counts once) and the closest approach."""
+        log = self.fleet_log
+        gap = float(self.world.body_gaps().min())
+        log["robot_robot_min_distance"] = min(log["robot_robot_min_distance"], gap)
+        touching = {pair for pair in self.world.contacts() if pair[1] >= 0}
+        for i, j in sorted(touching - self._touching):
+            a, b = self.robots[i], self.robots[j]
+            p = a.sim.true_pose()
+            log["robot_robot_collisions"].append(
+                {
+                    "t": round(now, 3),
+                    "robots": [a.name, b.name],
+                    "x": round(p.x, 3),
+                    "y": round(p.y, 3),
+                }
+            )
+            a.handle.log("robot_collision", robot=a.name, other=b.name)
+            if len(log["robot_robot_collisions"]) > self.mission.limits.collisions:
+                self.end(
+                    "failed",
+                    f"{a.name} and {b.name} collided at t={now:.1f} s near ({p.x:.2f}, {p.y:.2f})",
+                )
+        self._touching = touching
+
+    def _conclude(self) -> None:
+        """Every robot's part has ended: the mission's outcome."""
+        failed = [r for r in self.robots if r.status != "succeeded"]
+        self.fleet_log["makespan"] = round(self.world.time, 3)
+        if not failed:
+            self.status, self.reason = "succeeded", None
+        elif not self.loaded.is_fleet:
+            self.status, self.reason = failed[0].status, failed[0].reason
         else:
-            dx, dy = points[:, 0] - estimate.x, points[:, 1] - estimate.y
-            near = dx * dx + dy * dy <= self.monitor.reach(v) ** 2
-            dx, dy = dx[near], dy[near]
-            c, s = math.cos(estimate.yaw), math.sin(estimate.yaw)
-            local = np.column_stack([c * dx + s * dy, -s * dx + c * dy])
-        out = self.monitor(v, w, local)
-        if self.monitor.changed:
-            self.handle.log("collision_monitor", action=out.action, zone=out.zone)
-        return out.v, out.w
-
-    def _speed_capped(self, estimate: Pose2D, v: float, w: float) -> tuple[float, float]:
-        """The command within the speed zones' limits (Nav2's speed filter), scaled as a
-        whole so the robot keeps its curvature."""
-        zones = self.loaded.zones
-        if zones is None or not zones.levels:
-            return v, w
-        lead = 2.0 * abs(self.stack.smoother.v) * CONTROL_PERIOD + zones.grid.resolution
-        cap = zones.speed_cap(estimate.x, estimate.y, self.limits.max_acc_v, lead)
-        if abs(v) <= cap:
-            return v, w
-        scale = cap / abs(v)
-        return v * scale, w * scale
-
-    def _scan_filter(self, t: float, scan: LaserScan) -> LaserScan | None:
-        return self.faults.filter_scan(t, scan, self.handle)
-
-    def _perceive(self, sensing: Sensing) -> Pose2D:
-        """Odometry and a scan (if any) into the localiser or the SLAM session, and the
-        scan into the obstacle layer, at the sensing's own time; the estimate then."""
-        handle, scan, t = self.handle, sensing.scan, sensing.time
-        mapping = self.mapper.session
-        if mapping is not None:
-            estimate = mapping.update(sensing.odom, scan, sensing.truth, t)
-            costmap = mapping.refreshed_costmap(t)
-            if costmap is not None:
-                self.navigator.layer = ObstacleLayer(costmap, costmap.config.obstacles)
-        else:
-            if handle.nomotion_update:  # the localiser holds it until a scan comes
-                self.localizer.request_nomotion_update()
-                handle.nomotion_update = False
-            estimate = self.localizer.update(sensing.odom, scan, sensing.truth, t)
-        if scan is not None:
-            handle.state.scan = scan
-            handle.state.obstacles = scan.points(estimate)
-            self.navigator.observe(estimate, scan)
-        return estimate
+            r = failed[0]
+            self.status, self.reason = "failed", f"{r.name}: {r.reason}"
 
     def end(self, status: str, reason: str | None) -> bool:
+        """End the run (the first outcome stands); robots still running end with it."""
         if self.status is None:
-            fired = self.faults.describe_fired()
-            if status == "failed" and fired:
-                reason = f"{reason} (faults fired: {fired})"
+            for r in self.robots:
+                r.end(status, reason)
+            lead = self.robots[0]
+            if not self.loaded.is_fleet:  # the robot's own words (faults fired)
+                status, reason = lead.status or status, lead.reason
             self.status, self.reason = status, reason
-            self.sim.set_command(0.0, 0.0)
         return False
-
-    def _watch_safety(self, now: float, truth: Pose2D) -> None:
-        # Clearance is 1-Lipschitz in the position: where it was c at p0 it is at least
-        # c - |p - p0| at p. A step that cannot lower the minimum skips the clearance
-        # query, and one that cannot touch a wall (the chassis is the footprint's
-        # cylinder) skips reading the contacts.
-        x0, y0, c0 = self._clearance_at
-        bound = c0 - math.hypot(truth.x - x0, truth.y - y0)
-        contacts = self.sim.contacts() if bound < CONTACT_CLEARANCE else 0
-        if contacts and not self.in_contact:
-            self.collisions.append(
-                {"t": round(now, 3), "x": round(truth.x, 3), "y": round(truth.y, 3)}
-            )
-            if len(self.collisions) > self.mission.limits.collisions:
-                self.end(
-                    "failed", f"collision at t={now:.1f} s near ({truth.x:.2f}, {truth.y:.2f})"
-                )
-        self.in_contact = contacts > 0
-        if bound < self.min_clearance:
-            clearance = self.sim.min_clearance()
-            self._clearance_at = (truth.x, truth.y, clearance)
-            self.min_clearance = min(self.min_clearance, clearance)
-
-    def _failure(self) -> str:
-        i = next((i for i, s in enumerate(self.task_status) if s == "failed"), None)
-        if i is None:
-            return f"the tree failed: {failure_reason(self.tree.root)}"
-        return (
-            f"task {i + 1} ({self.tree.task_nodes[i].type}) failed: "
-            f"{failure_reason(self.tree.tasks[i])}"
-        )
-
-    def _timeout(self) -> str:
-        i = next((i for i, s in enumerate(self.task_status) if s == "running"), None)
-        limit = self.mission.limits.time
-        if i is None:
-            return f"time limit of {limit:g} s reached"
-        self.task_status[i] = "failed"
-        self.tree.tasks[i].feedback_message = "time limit reached"
-        return (
-            f"time limit of {limit:g} s reached during task {i + 1} "
-            f"({self.tree.task_nodes[i].type})"
-        )
 
     def record(self) -> RunRecord:
         """The outcome so far, as the run directory will hold it."""
         if self.status is None:
             self.end("error", "the run ended without an outcome")
         wall_time = time.perf_counter() - self.wall_start
-        sim_time = self.sim.time
-        trajectory = np.asarray(self.rows, dtype=float).reshape(-1, len(TRAJECTORY_COLUMNS))
-        if self.status in ("aborted", "error"):
-            self.task_status = ["aborted" if s == "running" else s for s in self.task_status]
-        elif self.status == "failed":  # e.g. a collision ended the run during this task
-            for i, s in enumerate(self.task_status):
-                if s == "running":
-                    self.task_status[i] = "failed"
-                    self.tree.tasks[i].feedback_message = self.reason or "mission failed"
-        tasks = task_reports(self.tree, self.task_status, self.handle.events)
-        add_true_errors(tasks, trajectory)
-        covariance = np.asarray(self.covs, dtype=float).reshape(-1, len(COVARIANCE_COLUMNS))
-        metrics = run_metrics(
-            trajectory,
-            self.navigator,
-            len(self.collisions),
-            self.min_clearance,
-            sim_time,
-            wall_time,
-        )
-        recoveries: dict[str, int] = {}
-        for e in self.handle.events:
-            if e["event"] == "recovery":
-                recoveries[e["kind"]] = recoveries.get(e["kind"], 0) + 1
-        metrics["navigation"]["recoveries"] = recoveries
-        metrics["battery"] = self._battery_metrics()
-        metrics["collision_monitor"] = self.monitor.report()
-        zones = self.loaded.zones
-        metrics["zones"] = (
-            zone_metrics(zones, trajectory[:, 0], trajectory[:, 1:3]) if zones is not None else None
-        )
-        metrics["localization"].update(covariance_metrics(trajectory, covariance))
-        refine = getattr(self.localizer, "refine_stats", None)
-        if refine and refine.get("scans"):
-            metrics["localization"]["refinement"] = dict(refine)
-        extras: dict[str, Any] = {
-            "collisions": self.collisions,
-            "faults": self.faults.report(),
-            "tree": self.tree.report(),
-        }
-        if self.mapper.maps:
-            extras["maps"] = self.mapper.maps
-        if self.handle.recorded:
-            extras["rooms_recorded"] = {
-                label: {"x": round(p.x, 4), "y": round(p.y, 4), "yaw": round(p.yaw, 4)}
-                for label, p in self.handle.recorded.items()
-            }
-        diagnostics = self.localizer.diagnostics()
-        counts = diagnostics.particle_counts
-        if counts:
-            c = np.asarray([n for _, n in counts])
-            metrics["localization"]["particles"] = {
-                "min": int(c.min()),
-                "max": int(c.max()),
-                "mean": round(float(c.mean()), 1),
-            }
-            extras["particle_counts"] = [[round(t, 3), int(n)] for t, n in counts]
-        return RunRecord(
-            status=self.status or "error",
-            reason=self.reason,
-            sim_time=round(sim_time, 6),
-            wall_time=round(wall_time, 3),
-            tasks=tasks,
-            metrics=metrics,
-            trajectory=trajectory,
-            covariance=covariance if np.isfinite(covariance).any() else None,
-            paths=self.navigator.paths,
-            events=self.handle.events,
-            tree_text=self.tree.render(),
-            extras=extras,
-            particle_snapshots=list(diagnostics.snapshots),
-            built_map=self.mapper.built_map,
-            battery=np.asarray(self.levels, dtype=float) if self.battery is not None else None,
-        )
+        records = [r.record(wall_time) for r in self.robots]
+        if not self.loaded.is_fleet:
+            record = records[0]
+            record.status, record.reason = self.status or "error", self.reason
+            return record
+        return fleet_record(self, records, wall_time)
 
-    def _battery_metrics(self) -> dict[str, Any] | None:
-        """``metrics.battery``: levels, energy, charging time, and how often it docked."""
-        if self.battery is None:
-            return None
-        report: dict[str, Any] = self.battery.report()
-        report["dockings"] = sum(1 for e in self.handle.events if e["event"] == "docked")
-        return report
+
+def fleet_record(run: MissionRun, records: list[RunRecord], wall_time: float) -> RunRecord:
+    """A fleet run's record: every robot's own record under ``robots`` and the fleet's
+    summary (fleet.md); the trajectory is every robot's, in robot order."""
+    log = run.fleet_log
+    sim_time = run.world.time
+    by_name = dict(zip((r.name for r in run.robots), records, strict=True))
+    tasks = [{**task, "robot": name} for name, record in by_name.items() for task in record.tasks]
+    gap = log["robot_robot_min_distance"]
+    collisions = sum(r.metrics["collisions"] for r in records)
+    clearances = [
+        r.metrics["min_clearance"] for r in records if r.metrics["min_clearance"] is not None
+    ]
+    fleet = {
+        "dispatch": log["dispatch"],
+        "makespan": log["makespan"],
+        "robot_robot_collisions": len(log["robot_robot_collisions"]),
+        "robot_robot_min_distance": round(gap, 4) if math.isfinite(gap) else None,
+        "waits": {"count": log["waits"]["count"], "time": round(log["waits"]["time"], 3)},
+        "deadlocks": log["deadlocks"],
+    }
+    metrics = {
+        "sim_time": round(sim_time, 3),
+        "wall_time": round(wall_time, 3),
+        "real_time_factor": round(sim_time / wall_time, 2) if wall_time > 0 else None,
+        "robots": len(records),
+        "distance_driven": round(sum(r.metrics["distance_driven"] for r in records), 4),
+        "collisions": collisions + fleet["robot_robot_collisions"],
+        "min_clearance": min(clearances) if clearances else None,
+    }
+    events = sorted(
+        ({**e, "robot": name} for name, record in by_name.items() for e in record.events),
+        key=lambda e: e.get("t", 0.0),
+    )
+    return RunRecord(
+        status=run.status or "error",
+        reason=run.reason,
+        sim_time=round(sim_time, 6),
+        wall_time=round(wall_time, 3),
+        tasks=tasks,
+        metrics=metrics,
+        trajectory=records[0].trajectory[:0],
+        paths=[p for record in records for p in record.paths],
+        events=events,
+        tree_text="\n".join(f"[{name}]\n{record.tree_text}" for name, record in by_name.items()),
+        extras={"fleet": fleet, "collisions": log["robot_robot_collisions"]},
+        robots=by_name,
+    )

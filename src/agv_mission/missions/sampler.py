@@ -14,15 +14,15 @@ from agv_mission.missions.observe import StepSample, TreeNode, tree_nodes
 from agv_mission.missions.stack import Sensing
 
 if TYPE_CHECKING:
-    from agv_mission.missions.runner import MissionRun
+    from agv_mission.missions.robot_run import RobotRun
 
 
 class StepSampler:
-    """Turns one control step of a :class:`~agv_mission.missions.runner.MissionRun` into a
+    """Turns one control step of a :class:`~agv_mission.missions.robot_run.RobotRun` into a
     :class:`StepSample`: what changed since the previous step (a new plan, a filter update,
     a grown map, tree statuses) and what holds now."""
 
-    def __init__(self, run: MissionRun) -> None:
+    def __init__(self, run: RobotRun) -> None:
         self.run = run
         self.plans = 0
         self.filter_updates = -1
@@ -105,4 +105,5 @@ class StepSampler:
             battery=battery.level if battery is not None else None,
             charging=battery is not None and battery.charging,
             docked=handle.docked.name if handle.docked is not None else None,
+            robot=run.name,
         )

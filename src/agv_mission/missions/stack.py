@@ -1,9 +1,9 @@
-"""The one place that builds a mission's robot: simulation, sensors, localiser, navigator,
-recorders.
+"""The one place that builds a mission's robots on their bodies in the world: sensors,
+localiser, navigator, recorders.
 
 Every front door (``run``, ``regress``, ``teleop``, the service) starts from a
-:class:`RobotStack`, so a mission's seed gives the same random streams, the same plugins
-and the same control period whichever way it came in.
+:class:`RobotStack` per robot, so a mission's seed gives the same random streams, the same
+plugins and the same control period whichever way it came in.
 """
 
 from __future__ import annotations
@@ -22,13 +22,15 @@ from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.obstacle_layer import ObstacleLayer
 from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder, RecorderFileError
 from agv_mission.messages import LaserScan
-from agv_mission.missions.loader import LoadedMission
+from agv_mission.missions.loader import LoadedMission, RobotSetup
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.planners.base import VelocityLimits
 from agv_mission.registry import registry
+from agv_mission.robots.body import hull_top
 from agv_mission.robots.description import RobotDescription
 from agv_mission.robots.odometry import DiffDriveOdometry
-from agv_mission.robots.simulation import DiffDriveSim
+from agv_mission.robots.simulation import DiffDriveBody, world_builder
+from agv_mission.world.simulation import SimulatedWorld
 
 CONTROL_PERIOD = 0.1
 
@@ -88,20 +90,29 @@ ScanFilter = Callable[[float, LaserScan], LaserScan | None]
 
 
 class RobotStack:
-    """The simulated robot with its encoders, lidar, odometry and localiser.
+    """One robot: its body in the world with its encoders, lidar, odometry and localiser.
 
-    Random streams: the mission's seed spawns four (simulation, localisation, planning,
-    faults), always in this order, so every front door draws the same numbers.
+    Random streams: the mission's seed spawns four per robot (simulation, localisation,
+    planning, faults), always in this order and robot after robot, so every front door
+    draws the same numbers (a one-robot mission's are those of the first robot).
     """
 
-    def __init__(self, loaded: LoadedMission) -> None:
-        self.loaded = loaded
-        mission, robot = loaded.mission, loaded.robot
-        seeds = np.random.SeedSequence(mission.seed).spawn(4)
+    def __init__(
+        self,
+        loaded: LoadedMission,
+        setup: RobotSetup,
+        world: SimulatedWorld,
+        seeds: list[np.random.SeedSequence],
+    ) -> None:
+        self.loaded, self.setup = loaded, setup
+        self.name = setup.name
+        robot = setup.robot
         sim_rng, self.loc_rng, self.planner_rng, self.fault_rng = (
             np.random.default_rng(s) for s in seeds
         )
-        self.sim = DiffDriveSim(robot, loaded.world, loaded.start, mission.simulation, sim_rng)
+        self.sim = DiffDriveBody(
+            world, setup.name, robot, setup.start, loaded.mission.simulation, sim_rng
+        )
         self.odometry = DiffDriveOdometry(robot.encoder.ticks_per_meter, robot.wheel_separation)
         self.limits = velocity_limits(robot)
         self.smoother = VelocitySmoother(self.limits, CONTROL_PERIOD)
@@ -111,44 +122,42 @@ class RobotStack:
         self.odom = self.odometry.update(*self.sim.encoder_ticks())
         self.odom_start = self.odom
         self.localizer: Localizer = self.new_localizer(loaded.map)
-        self.localizer.reset(loaded.start, self.odom)
+        self.localizer.reset(setup.start, self.odom)
 
     def new_localizer(self, grid: OccupancyGrid) -> Localizer:
-        """The mission's localisation plugin on ``grid`` (not yet reset)."""
+        """The robot's localisation plugin on ``grid`` (not yet reset)."""
         return registry.create(
-            "localization", self.loaded.mission.stack.localization, grid=grid, rng=self.loc_rng
+            "localization", self.setup.stack.localization, grid=grid, rng=self.loc_rng
         )
 
     def new_slam(self, bounds: Bounds) -> Slam:
-        """The mission's SLAM plugin over ``bounds`` (not yet reset)."""
-        return registry.create(
-            "slam", self.loaded.mission.stack.slam, bounds=bounds, rng=self.loc_rng
-        )
+        """The robot's SLAM plugin over ``bounds`` (not yet reset)."""
+        return registry.create("slam", self.setup.stack.slam, bounds=bounds, rng=self.loc_rng)
 
     def build_navigator(self) -> Navigator:
-        """The mission's global and local planners behind a navigator on the known map."""
-        mission, robot = self.loaded.mission, self.loaded.robot
+        """The robot's global and local planners behind a navigator on the known map."""
+        stack, robot = self.setup.stack, self.setup.robot
         local_planner = registry.create(
             "local_planner",
-            mission.stack.local_planner,
+            stack.local_planner,
             limits=self.limits,
             robot_radius=robot.footprint_radius,
             control_period=CONTROL_PERIOD,
         )
         return Navigator(
-            ObstacleLayer(self.loaded.costmap, mission.stack.costmap.obstacles),
-            registry.create("global_planner", mission.stack.global_planner),
+            ObstacleLayer(self.setup.costmap, stack.costmap.obstacles),
+            registry.create("global_planner", stack.global_planner),
             local_planner,
             self.limits,
-            mission.stack.navigation,
+            stack.navigation,
             CONTROL_PERIOD,
             seed=int(self.planner_rng.integers(0, 2**31 - 1)),
-            zones=self.loaded.zones,
+            zones=self.setup.zones,
         )
 
     def sense(self, scan_filter: ScanFilter | None = None) -> Sensing:
         """Read the encoders into odometry and, when one is due, a lidar scan; with the
-        scans :meth:`advance` took since the last call."""
+        scans taken within the last control period (:meth:`scan_steps`)."""
         sim = self.sim
         now = sim.time
         self.odom = self.odometry.update(*sim.encoder_ticks())
@@ -172,30 +181,48 @@ class RobotStack:
         self.sim.set_command(v, w)
         return v, w
 
-    def advance(self, scan_filter: ScanFilter | None = None) -> None:
-        """Let physics run one control period. A lidar faster than the control loop scans
-        at its own times within it (to the physics step), each scan with the odometry and
-        the truth at that time, for the next :meth:`sense`; scans due at the period's ends
-        are :meth:`sense`'s, so a lidar at 10 Hz or slower runs as one sense a step."""
-        sim = self.sim
-        dt = sim.dt
-        steps, done = int(round(CONTROL_PERIOD / dt)), 0
-        t0 = sim.time
-        while True:
-            if self.next_scan >= t0 + CONTROL_PERIOD - 1e-9:
-                break
-            k = max(1, int(round((self.next_scan - t0) / dt)))
+    def scan_steps(self, t0: float, steps: int, dt: float) -> list[int]:
+        """The physics steps (1..steps-1) after ``t0`` at which a lidar faster than the
+        control loop scans within the coming control period; scans due at the period's
+        ends are :meth:`sense`'s, so a lidar at 10 Hz or slower has none."""
+        out: list[int] = []
+        due = self.next_scan
+        while due < t0 + CONTROL_PERIOD - 1e-9:
+            k = max(1, int(round((due - t0) / dt)))
             if k >= steps:  # within half a physics step of the end: sense() takes it
                 break
-            sim.advance((k - done) * dt)
-            done = k
-            self.next_scan += self.scan_period
-            odom = self.odometry.update(*sim.encoder_ticks())
-            scan = sim.scan()
-            if scan_filter is not None:
-                scan = scan_filter(sim.time, scan)
-            self._between.append(Sensing(sim.time, odom, scan, sim.true_pose()))
-        sim.advance((steps - done) * dt)
+            if out and k <= out[-1]:
+                k = out[-1]
+            out.append(k)
+            due += self.scan_period
+        return out
+
+    def take_scan(self, scan_filter: ScanFilter | None = None) -> None:
+        """A scan at the world's current time, with the odometry and the truth then, for
+        the next :meth:`sense`."""
+        sim = self.sim
+        self.next_scan += self.scan_period
+        odom = self.odometry.update(*sim.encoder_ticks())
+        scan = sim.scan()
+        if scan_filter is not None:
+            scan = scan_filter(sim.time, scan)
+        self._between.append(Sensing(sim.time, odom, scan, sim.true_pose()))
+
+
+def build_world(loaded: LoadedMission) -> tuple[SimulatedWorld, list[RobotStack]]:
+    """The mission's world with every robot's body in it, and each robot's stack."""
+    setups = loaded.robots
+    builder = world_builder(loaded.world, [s.robot for s in setups], loaded.mission.simulation)
+    seen = max(hull_top(s.robot) for s in setups)
+    for setup in setups:
+        DiffDriveBody.add_to(builder, setup.name, setup.robot, seen)
+    world = builder.build()
+    root = np.random.SeedSequence(loaded.mission.seed)
+    stacks = []
+    for setup in setups:
+        stacks.append(RobotStack(loaded, setup, world, root.spawn(4)))
+    world.start()
+    return world, stacks
 
 
 def open_recorders(

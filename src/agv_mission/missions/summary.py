@@ -25,13 +25,24 @@ def task_rows(result: dict[str, Any]) -> list[tuple[str, str, str]]:
             details.append(f"{reached}/{len(task['rooms'])} rooms reached, {recorded} recorded")
         if task.get("reason"):
             details.append(str(task["reason"]))
-        rows.append((f"{task['index']}. {task['type']}", task["status"], "; ".join(details)))
+        who = f"{task['robot']}: " if task.get("robot") else ""
+        rows.append((f"{who}{task['index']}. {task['type']}", task["status"], "; ".join(details)))
     return rows
 
 
 def metrics_line(result: dict[str, Any]) -> str:
     """Time, speed, distance, collisions, clearance and localisation error in one line."""
     m = result["metrics"]
+    fleet = result.get("fleet")
+    if fleet is not None:
+        return (
+            f"sim {result['sim_time']:.1f} s in {result['wall_time']:.1f} s wall "
+            f"({m['real_time_factor']}x real time), {m['robots']} robots drove "
+            f"{m['distance_driven']:.2f} m, collisions {m['collisions']} "
+            f"({fleet['robot_robot_collisions']} robot-robot), closest robots "
+            f"{fleet['robot_robot_min_distance']} m, waits {fleet['waits']['count']}, "
+            f"deadlocks {fleet['deadlocks']}, makespan {fleet['makespan']} s"
+        )
     loc = m["localization"]
     return (
         f"sim {result['sim_time']:.1f} s in {result['wall_time']:.1f} s wall "

@@ -170,14 +170,21 @@ def yaml_spec(value: Any, path: FieldPath, file: str, lines: dict[FieldPath, int
     return spec
 
 
-def tasks_spec(tasks: list[dict[str, Any]], file: str, lines: dict[FieldPath, int]) -> NodeSpec:
-    """``tasks:`` as the tree it is shorthand for: a sequence named ``mission``."""
+def tasks_spec(
+    tasks: list[dict[str, Any]],
+    file: str,
+    lines: dict[FieldPath, int],
+    base: FieldPath = ("tasks",),
+    indices: list[int] | None = None,
+) -> NodeSpec:
+    """``tasks:`` (at ``base``; the tasks' own ``indices`` there, default 0, 1, ...) as the
+    tree it is shorthand for: a sequence named ``mission``."""
     children = []
-    for i, task in enumerate(tasks):
-        where = Where(file, ("tasks", i), lines.get(("tasks", i)))
-        ports = {k: v for k, v in task.items() if k != "type"}
+    for i, task in zip(indices or range(len(tasks)), tasks, strict=True):
+        where = Where(file, (*base, i), lines.get((*base, i)))
+        ports = {k: v for k, v in task.items() if k not in ("type", "robot")}
         children.append(NodeSpec(task["type"], where, None, ports))
-    return NodeSpec("sequence", Where(file, ("tasks",), lines.get(("tasks",))), "mission", {},
+    return NodeSpec("sequence", Where(file, base, lines.get(base)), "mission", {},
                     {}, children)  # fmt: skip
 
 

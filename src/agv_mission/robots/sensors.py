@@ -1,4 +1,4 @@
-"""Simulated sensors on a MuJoCo model built by :func:`agv_mission.robots.mjcf.build_mjcf`."""
+"""Simulated sensors of a robot's body in the world (see :mod:`agv_mission.robots.body`)."""
 
 from __future__ import annotations
 
@@ -9,23 +9,23 @@ import numpy as np
 
 from agv_mission.messages import LaserScan
 from agv_mission.robots.description import LidarSpec
-from agv_mission.robots.mjcf import WALL_GROUP
+from agv_mission.world.simulation import Body, SimulatedWorld
 
 
 class Lidar:
-    """A planar 360-degree scanner: all beams in one ``mj_multiRay`` call.
+    """A planar 360-degree scanner: all beams in one ray cast of the world.
 
     Beam ``i`` points at ``i * 2 pi / beams`` counter-clockwise from the robot's +x (beam 0
-    straight ahead, like the TurtleBot3 LDS). Only geoms in :data:`WALL_GROUP` are seen, so
-    the robot's own body, wheels and casters (another group) and the floor are never hit.
-    Returns closer than ``range_min`` or beyond ``range_max`` read ``inf``; dropped beams
-    (``dropout``) read ``nan``.
+    straight ahead, like the TurtleBot3 LDS). It sees the world's walls and every other
+    body's outline (robots' hulls, people), never its own robot. Returns closer than
+    ``range_min`` or beyond ``range_max`` read ``inf``; dropped beams (``dropout``) read
+    ``nan``.
     """
 
     def __init__(
         self,
-        model: mujoco.MjModel,
-        data: mujoco.MjData,
+        world: SimulatedWorld,
+        body: Body,
         spec: LidarSpec,
         rng: np.random.Generator,
         site: str = "lidar",
@@ -33,14 +33,14 @@ class Lidar:
         noise_fraction: float | None = None,
         dropout: float | None = None,
     ) -> None:
-        self.model = model
-        self.data = data
+        self.world = world
+        self.body = body
         self.spec = spec
         self.rng = rng
         self.noise_std = spec.noise_std if noise_std is None else float(noise_std)
         self.noise_fraction = spec.noise_fraction if noise_fraction is None else noise_fraction
         self.dropout = spec.dropout if dropout is None else float(dropout)
-        self.site_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, site)
+        self.site_id = mujoco.mj_name2id(world.model, mujoco.mjtObj.mjOBJ_SITE, site)
         if self.site_id < 0:
             raise ValueError(f"model has no site {site!r}")
         n = spec.beams
@@ -51,34 +51,19 @@ class Lidar:
         self._vec = np.zeros(3 * n)
         self._dist = np.zeros(n)
         self._geomid = np.zeros(n, dtype=np.int32)
-        self._groups = np.zeros(6, dtype=np.uint8)
-        self._groups[WALL_GROUP] = 1
-        # mj_multiRay's cutoff culls by bounding volume; exact clamping is done afterwards.
+        # The ray cast culls by bounding volume; exact clamping is done afterwards.
         self._cutoff = spec.range_max + 1.0
 
     def cast(self) -> np.ndarray:
         """Noise-free hit distances (float64, -1 for no hit) from the current kinematics.
 
-        Call :func:`mujoco.mj_kinematics` (or a step) first so ``site_xpos`` is current.
+        Call ``world.kinematics()`` first so the site's pose is current.
         """
-        d = self.data
+        d = self.world.data
         origin = d.site_xpos[self.site_id].copy()
         rot = d.site_xmat[self.site_id].reshape(3, 3)
         np.matmul(self._local, rot.T, out=self._vec.reshape(-1, 3))
-        mujoco.mj_multiRay(
-            self.model,
-            d,
-            origin,
-            self._vec,
-            self._groups,
-            1,  # flg_static: walls live in the world body
-            -1,  # bodyexclude: robot excluded by geom group instead
-            self._geomid,
-            self._dist,
-            None,  # normal (new in MuJoCo 4.0)
-            self.spec.beams,
-            self._cutoff,
-        )
+        self.world.cast(origin, self._vec, self.body, self._geomid, self._dist, self._cutoff)
         return self._dist
 
     def scan(self, time: float) -> LaserScan:

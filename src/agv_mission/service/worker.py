@@ -47,7 +47,7 @@ class PipeControl:
         while self.paused and self.cancel_reason is None:
             self._drain(1.0)
         if self.cancel_reason is not None:
-            if run.rows:  # a run ends after at least one step: its record needs one
+            if run.lead.rows:  # a run ends after at least one step: its record needs one
                 run.cancel(self.cancel_reason)
             return
         self._teleop(run)

@@ -233,7 +233,7 @@ class KeyboardControl:
         if self.run is None:  # the first step: this session's recorders, keys, clock
             self.run = run
             run.handle.recorders = self.recorders
-            self.keys = TeleopKeys.for_limits(run.limits)
+            self.keys = TeleopKeys.for_limits(run.lead.limits)
             self.start = self.next_tick = time.monotonic()
         else:
             self.next_tick += self.period

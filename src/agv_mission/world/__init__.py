@@ -1,0 +1,1 @@
+"""The simulated world: one MuJoCo model holding walls and every body in it."""

@@ -19,6 +19,7 @@ from agv_mission.missions.schema.base import (
     StrictModel,
 )
 from agv_mission.missions.schema.disturbances import Fault, Obstacle
+from agv_mission.missions.schema.fleet import Fleet
 from agv_mission.missions.schema.stack import Stack
 from agv_mission.missions.schema.zones import MAX_ZONES, Zone
 from agv_mission.robots.sim_config import SimConfig
@@ -116,8 +117,44 @@ class Setup(StrictModel):
         return v
 
 
+#: A fleet robot's name: its ROS namespace (fleet.md).
+ROBOT_NAME_PATTERN = r"^[a-z][a-z0-9_]{0,31}$"
+MAX_ROBOTS = 64
+
+
+class FleetRobot(StrictModel):
+    """One robot of a fleet mission: a body in the shared world with its own stack and
+    behaviour (fleet.md)."""
+
+    name: str = Field(
+        pattern=ROBOT_NAME_PATTERN,
+        description="[a-z][a-z0-9_]{0,31}, unique: the robot's ROS namespace",
+    )
+    robot: str = Field("burger", description="burger, waffle, rosbots, or a robot file")
+    start: StartSpec = Field(description="a pose, a room label or a dock name")
+    stack: Stack = Field(
+        default_factory=Stack,
+        description="merged over the mission's stack (the mission's stack where it says nothing)",
+    )
+    tasks: list[Task] | None = Field(  # type: ignore[assignment]
+        None,
+        max_length=MAX_TASKS,
+        description="this robot's own tasks (they run before any dispatched to it)",
+    )
+    tree: dict[str, Any] | str | None = Field(
+        None, description="this robot's own tree (a node or a BT.CPP XML file), instead of tasks"
+    )
+
+    @model_validator(mode="after")
+    def _one_behaviour(self) -> FleetRobot:
+        if self.tasks is not None and self.tree is not None:
+            raise ValueError("a robot has `tasks` or `tree`, not both")
+        return self
+
+
 class Mission(Setup):
-    """A mission file: a setup and what to do in it, as ``tasks`` or as a ``tree``."""
+    """A mission file: a setup and what to do in it, as ``tasks`` or as a ``tree``; with a
+    ``robots:`` list, a fleet mission (fleet.md)."""
 
     tasks: list[Task] = Field(  # type: ignore[assignment]  (absent: None, given: a list)
         None,
@@ -138,6 +175,18 @@ class Mission(Setup):
     blackboard: dict[str, Any] = Field(
         default_factory=dict, description="initial blackboard entries, read by ports as {key}"
     )
+    robots: list[FleetRobot] = Field(
+        default_factory=list,
+        max_length=MAX_ROBOTS,
+        description="a fleet: every robot a body in the same world with its own stack and "
+        "behaviour; `tasks` are then the fleet's (`robot:` assigns one, the others are "
+        "dispatched)",
+    )
+    fleet: Fleet = Field(
+        default_factory=Fleet,
+        description="the fleet layer's plugins: `dispatcher` (default quickest_finish) and "
+        "`traffic` (default reservations)",
+    )
     expect: Expectations | None = Field(
         None,
         description="what `agv-mission regress` checks of the run (ignored by `run`): final "
@@ -147,6 +196,10 @@ class Mission(Setup):
 
     @model_validator(mode="after")
     def _tree_or_tasks(self) -> Mission:
+        if self.robots:
+            if self.tree is not None:
+                raise ValueError("a fleet mission's robots carry their trees (robots[].tree)")
+            return self
         if (self.tasks is None) == (self.tree is None):
             raise ValueError("a mission has `tasks` or `tree`, not both" if self.tasks else
                              "a mission needs `tasks` or a `tree`")  # fmt: skip
@@ -164,11 +217,13 @@ FIELD_ORDER = (
     "robot",
     "start",
     "seed",
+    "fleet",
     "stack",
     "simulation",
     "blackboard",
     "trees",
     "tree",
+    "robots",
     "tasks",
     "limits",
     "obstacles",

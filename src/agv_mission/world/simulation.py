@@ -1,0 +1,259 @@
+"""The simulated world: one MuJoCo model, every body in it, physics stepped once for all.
+
+The world owns the model and its data; robots are attached to it as bodies (see
+:mod:`agv_mission.robots.body`) and read and command them through a :class:`Body`. It
+answers what only the world can: ray casts (every lidar sees walls and every other
+body), contacts between bodies and with walls, and clearances.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from agv_mission.geometry import Pose2D, wrap_angle, yaw_from_quaternion
+from agv_mission.maps.worlds import World
+from agv_mission.world.model import SEEN_GROUP, WALL_GROUP, uses_wall_slots, world_spec
+from agv_mission.world.walls import Walls, WallWindow
+
+WINDOW_CHECK_PERIOD = 0.1  # s of simulated motion between wall-window checks
+
+WALL = -1  # owner of a wall or pillar geom
+FLOOR = -2  # owner of the floor and anything else static
+
+
+@dataclass(frozen=True)
+class Body:
+    """A moving body of the world on a free joint: a robot's base."""
+
+    name: str
+    index: int  # position among the world's bodies
+    body_id: int  # MuJoCo body id of the base
+    qadr: int  # free joint's qpos address
+    vadr: int  # free joint's qvel address
+    spawn_z: float
+    radius: float  # planar footprint radius, for clearances
+    dofs: tuple[int, ...] = ()  # every degree of freedom of the body and its parts
+
+
+class WorldBuilder:
+    """Collects the world's walls and its bodies in one :class:`mujoco.MjSpec`, then
+    compiles them into a :class:`SimulatedWorld`."""
+
+    def __init__(
+        self, world: World, timestep: float, bodies: int = 1, fastest_mode: float = math.inf
+    ) -> None:
+        self.world = world
+        self.spec = world_spec(world, timestep, bodies, fastest_mode)
+        self.windows = bodies
+        self._bodies: list[tuple[str, str, float, float]] = []
+
+    def attach(self, name: str, base: str, radius: float, sight: float) -> None:
+        """Register the body ``base`` (already added to :attr:`spec`) as ``name``, with
+        its planar footprint ``radius`` and the range ``sight`` its sensors see."""
+        if any(n == name for n, *_ in self._bodies):
+            raise ValueError(f"the world already has a body named {name!r}")
+        self._bodies.append((name, base, radius, sight))
+
+    def build(self) -> SimulatedWorld:
+        return SimulatedWorld(self.world, self.spec.compile(), self._bodies, self.windows)
+
+
+class SimulatedWorld:
+    """Physics, contacts, clearances and ray casts of one world and every body in it.
+
+    Deterministic: the same world, bodies, commands and call sequence give bit-identical
+    states.
+    """
+
+    def __init__(
+        self,
+        world: World,
+        model: mujoco.MjModel,
+        bodies: list[tuple[str, str, float, float]],
+        windows: int = 1,
+    ) -> None:
+        self.world = world
+        self.model = m = model
+        self.data = mujoco.MjData(model)
+        self.bodies: dict[str, Body] = {}
+        owner = np.full(m.ngeom, FLOOR, dtype=np.int64)
+        for i in range(m.ngeom):
+            if m.geom(i).name.startswith(("wall", "pillar")):
+                owner[i] = WALL
+        for k, (name, base, radius, _) in enumerate(bodies):
+            body_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, base)
+            joint = int(m.body_jntadr[body_id])
+            # the base and every body below it (wheels) belong to it
+            tree = {body_id} | {b for b in range(m.nbody) if self._descends(b, body_id)}
+            self.bodies[name] = Body(
+                name=name,
+                index=k,
+                body_id=body_id,
+                qadr=int(m.jnt_qposadr[joint]),
+                vadr=int(m.jnt_dofadr[joint]),
+                spawn_z=float(m.body_pos[body_id][2]),
+                radius=radius,
+                dofs=tuple(int(d) for d in np.flatnonzero(np.isin(m.dof_bodyid, list(tree)))),
+            )
+            owner[np.isin(m.geom_bodyid, list(tree))] = k
+        self._owner = owner  # geom id -> WALL, FLOOR or a body's index
+        self._order = list(self.bodies.values())
+        self.walls = Walls(world)
+        self.window: WallWindow | None = None
+        if uses_wall_slots(world, windows):
+            sight = max((s for *_, s in bodies), default=0.0)
+            self.window = WallWindow(m, self.walls, world.wall_height, radius=sight + 0.5)
+        self._kinematics_at = -math.inf
+        self._rays = np.zeros(6, dtype=np.uint8)
+        self._rays[[WALL_GROUP, SEEN_GROUP]] = 1
+
+    def _descends(self, body: int, root: int) -> bool:
+        while body > 0:
+            if body == root:
+                return True
+            body = int(self.model.body_parentid[body])
+        return False
+
+    # ----------------------------------------------------------------- time
+    @property
+    def time(self) -> float:
+        """Simulated seconds since the start."""
+        return float(self.data.time)
+
+    @property
+    def dt(self) -> float:
+        return float(self.model.opt.timestep)
+
+    def start(self) -> None:
+        """Compute the state of the placed bodies (call once every body stands at its start)."""
+        self.follow_window()
+        mujoco.mj_forward(self.model, self.data)
+        self._kinematics_at = self.time
+
+    def step(self, n: int) -> None:
+        """Step the physics ``n`` times (with a wall window, re-centred at least every
+        :data:`WINDOW_CHECK_PERIOD` of motion)."""
+        chunk = n if self.window is None else max(1, int(WINDOW_CHECK_PERIOD / self.dt))
+        while n > 0:
+            self.follow_window()
+            mujoco.mj_step(self.model, self.data, min(chunk, n))
+            n -= chunk
+
+    def follow_window(self) -> None:
+        """Re-centre the wall window on the bodies that moved (large worlds)."""
+        if self.window is not None and self._order:
+            q = self.data.qpos
+            centres = np.array([[q[b.qadr], q[b.qadr + 1]] for b in self._order])
+            self.window.update(centres)
+
+    # ----------------------------------------------------------------- bodies
+    def pose(self, body: Body) -> Pose2D:
+        a = body.qadr
+        px, py, _, w, x, y, z = self.data.qpos[a : a + 7].tolist()
+        return Pose2D(px, py, yaw_from_quaternion(x, y, z, w))
+
+    def velocity(self, body: Body) -> tuple[float, float]:
+        """Body-frame forward speed (m/s) and yaw rate (rad/s) of the base frame."""
+        qv = self.data.qvel[body.vadr : body.vadr + 6]
+        yaw = self.pose(body).yaw
+        # Free joint: linear velocity in the world frame, angular velocity in the body frame.
+        return float(math.cos(yaw) * qv[0] + math.sin(yaw) * qv[1]), float(qv[5])
+
+    def place(self, body: Body, pose: Pose2D) -> None:
+        """Write ``body``'s free joint at ``pose`` (on the floor), at rest."""
+        a = body.qadr
+        self.data.qpos[a : a + 3] = (pose.x, pose.y, body.spawn_z)
+        yaw = wrap_angle(pose.yaw)
+        self.data.qpos[a + 3 : a + 7] = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
+
+    def teleport(self, body: Body, pose: Pose2D) -> None:
+        """Put ``body`` at ``pose`` at rest (kidnapping), the rest of the world as it was."""
+        self.place(body, pose)
+        self.data.qvel[list(body.dofs)] = 0.0
+        self.data.qacc_warmstart[:] = 0.0
+        self.start()
+
+    # ----------------------------------------------------------------- sensing
+    def cast(
+        self,
+        origin: np.ndarray,
+        directions: np.ndarray,
+        exclude: Body,
+        geomid: np.ndarray,
+        dist: np.ndarray,
+        cutoff: float,
+    ) -> None:
+        """Cast ``len(dist)`` rays from ``origin`` along ``directions`` (flat, 3n) into
+        ``dist`` (-1: no hit) and ``geomid``, seeing walls and every body but ``exclude``."""
+        mujoco.mj_multiRay(
+            self.model,
+            self.data,
+            origin,
+            directions,
+            self._rays,
+            1,  # flg_static: walls live in the world body
+            exclude.body_id,
+            geomid,
+            dist,
+            None,  # normal (new in MuJoCo 4.0)
+            len(dist),
+            cutoff,
+        )
+
+    def kinematics(self) -> None:
+        """Bring sites and geoms to the current state (once per simulated instant)."""
+        if self._kinematics_at != self.time:
+            self.follow_window()
+            mujoco.mj_kinematics(self.model, self.data)
+            self._kinematics_at = self.time
+
+    # ----------------------------------------------------------------- safety
+    def contacts(self) -> list[tuple[int, int]]:
+        """Every contact between a body and a wall (``(index, WALL)``) or another body
+        (``(i, j)``, ``i < j``), the floor left out."""
+        n = self.data.ncon
+        if n == 0:
+            return []
+        owner = self._owner[self.data.contact.geom[:n]]
+        found = []
+        for a, b in owner.tolist():
+            if FLOOR in (a, b) or a == b:
+                continue
+            if a == WALL or b == WALL:
+                found.append((max(a, b), WALL))
+            else:
+                found.append((min(a, b), max(a, b)))
+        return found
+
+    def wall_contacts(self, body: Body) -> int:
+        """Contact points between ``body`` and walls/pillars."""
+        return sum(1 for k, other in self.contacts() if k == body.index and other == WALL)
+
+    def wall_clearance(self, body: Body) -> float:
+        """Planar distance from ``body``'s footprint circle to the nearest wall or pillar
+        (negative when overlapping; ``inf`` in an empty world)."""
+        p = self.pose(body)
+        best = None
+        if self.window is not None:
+            best = self.window.min_distance(p.x, p.y)
+        if best is None:
+            best = math.inf
+            if len(self.walls.box_c):
+                best = min(best, float(self.walls.box_distance(p.x, p.y).min()))
+            if len(self.walls.cyl):
+                best = min(best, float(self.walls.cyl_distance(p.x, p.y).min()))
+        return best - body.radius
+
+    def body_gaps(self) -> np.ndarray:
+        """(n, n) planar gaps between the bodies' footprint circles (inf on the diagonal)."""
+        q = self.data.qpos
+        xy = np.array([[q[b.qadr], q[b.qadr + 1]] for b in self._order]).reshape(-1, 2)
+        r = np.array([b.radius for b in self._order])
+        gaps = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1)) - r[:, None]
+        gaps -= r[None, :]
+        np.fill_diagonal(gaps, math.inf)
+        return gaps

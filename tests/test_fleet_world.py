@@ -1,0 +1,149 @@
+"""Fleet missions on the one world: loading (names, starts, overrides), every robot a body
+the others' lidars see, contacts between robots counted, outputs per robot."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+
+from agv_mission.missions.errors import MissionError
+from agv_mission.missions.loader import load_mission
+from agv_mission.missions.outputs import open_run_dir, write_run
+from agv_mission.missions.runner import MissionRun, run_mission
+from agv_mission.missions.stack import build_world
+
+FLEET = """\
+name: pair
+world: turtlebot3_world
+seed: 3
+stack: {{local_planner: {{type: pure_pursuit}}}}
+robots:
+  - name: agv1
+    robot: burger
+    start: {{x: {x1}, y: -0.5, yaw: 0.0}}
+    tasks: [{{type: go_to, pose: {{x: -2.0, y: 1.0, yaw: 0.0}}}}]
+  - name: agv2
+    robot: waffle
+    start: {{x: 2.0, y: 0.5, yaw: 3.14}}
+    stack: {{local_planner: {{type: mpc}}}}
+tasks:
+  - {{type: go_to, pose: {{x: 1.8, y: -1.0, yaw: 0.0}}, robot: agv2}}
+limits: {{time: 60}}
+"""
+
+
+def fleet_file(tmp_path, text=None, **fmt):
+    path = tmp_path / "pair.yaml"
+    path.write_text(text if text is not None else FLEET.format(**{"x1": -2.0, **fmt}))
+    return path
+
+
+def problems(path, overrides=()):
+    with pytest.raises(MissionError) as err:
+        load_mission(path, list(overrides))
+    return [str(p) for p in err.value.problems]
+
+
+def test_fleet_loads_each_robot_with_its_merged_stack(tmp_path):
+    loaded = load_mission(fleet_file(tmp_path))
+    assert loaded.is_fleet and [r.name for r in loaded.robots] == ["agv1", "agv2"]
+    agv1, agv2 = loaded.robots
+    assert agv1.stack.local_planner.type == "pure_pursuit"  # the mission's stack
+    assert agv2.stack.local_planner.type == "mpc"  # its own, merged over
+    assert agv2.robot.name == "waffle" and agv2.costmap is not agv1.costmap
+    # the task assigned by robot: runs after agv2's own (none): its tree holds it
+    assert agv2.tree.task_types() == ["go_to"] and agv1.tree.task_types() == ["go_to"]
+    swapped = load_mission(
+        fleet_file(tmp_path), ["robots.agv1.stack.local_planner.type=mpc"]
+    ).robots[0]
+    assert swapped.stack.local_planner.type == "mpc"
+
+
+def test_fleet_input_errors_name_the_robot_field(tmp_path):
+    text = FLEET.format(x1=-2.0)
+    both = fleet_file(tmp_path, "robot: burger\n" + text)
+    assert any("robot" in p and "robots:" in p for p in problems(both))
+    twice = fleet_file(tmp_path, text.replace("name: agv2", "name: agv1"))
+    assert any("robots.1.name" in p and "used twice" in p for p in problems(twice))
+    upper = fleet_file(tmp_path, text.replace("name: agv2", "name: AGV2"))
+    assert any("robots.1.name" in p for p in problems(upper))
+    stranger = fleet_file(tmp_path, text.replace("robot: agv2}", "robot: agv9}"))
+    assert any("tasks.0.robot" in p and "agv9" in p for p in problems(stranger))
+    close = fleet_file(tmp_path, text.replace("x: 2.0, y: 0.5", "x: -1.8, y: -0.45"))
+    found = problems(close)
+    assert any("robots.1.start" in p and "footprints" in p for p in found), found
+    assert any("line" in p or ":" in p for p in found)
+    unknown = problems(fleet_file(tmp_path), ["robots.agv7.start.x=1.0"])
+    assert any("agv7" in p for p in unknown)
+
+
+def test_every_lidar_sees_the_other_robots(tmp_path):
+    text = FLEET.format(x1=1.0).replace("x: 2.0, y: 0.5", "x: 2.0, y: -0.5")
+    loaded = load_mission(fleet_file(tmp_path, text))  # agv1 faces agv2, 1 m ahead
+    world, stacks = build_world(loaded)
+    agv1, agv2 = stacks
+    ranges = agv1.sim.scan().ranges
+    ahead = float(np.nanmin(ranges[np.r_[0:5, -5:0]]))
+    radius = loaded.robots[1].robot.footprint_radius
+    assert ahead == pytest.approx(1.0 - radius, abs=0.08)  # the waffle's hull, not a wall
+    own = agv2.sim.scan().ranges  # and the waffle sees the burger, never itself
+    assert float(np.nanmin(own)) > 0.05
+
+
+def test_robots_touching_count_as_robot_robot_collisions(tmp_path):
+    text = FLEET.format(x1=1.2).replace("x: 2.0, y: 0.5", "x: 2.0, y: -0.5")
+    loaded = load_mission(fleet_file(tmp_path, text), ["limits.collisions=5"])
+    run = MissionRun(loaded, None)
+    agv1, agv2 = run.robots
+    for _ in range(40):  # drive the burger straight into the waffle, blind
+        now = run.world.time
+        for r in run.robots:
+            r.decide(now)
+        run._watch_robots(now)
+        agv1.sim.set_command(0.2, 0.0)
+        agv2.sim.set_command(0.0, 0.0)
+        run.world.step(10)
+    log = run.fleet_log
+    assert log["robot_robot_collisions"], "the robots touched"
+    assert log["robot_robot_min_distance"] < 0.01
+    assert log["robot_robot_collisions"][0]["robots"] == ["agv1", "agv2"]
+
+
+def test_fleet_run_writes_results_per_robot(tmp_path):
+    loaded = load_mission(fleet_file(tmp_path))
+    run_dir = open_run_dir(tmp_path / "runs", loaded)
+    record = run_mission(loaded, run_dir)
+    result = write_run(run_dir, loaded, record)
+    assert record.status == "succeeded", record.reason
+    assert set(result["robots"]) == {"agv1", "agv2"}
+    assert all(r["status"] == "succeeded" for r in result["robots"].values())
+    fleet = result["fleet"]
+    assert fleet["robot_robot_collisions"] == 0 and fleet["robot_robot_min_distance"] > 0.5
+    assert fleet["makespan"] == pytest.approx(record.sim_time, abs=0.2)
+    assert json.loads((run_dir / "result.json").read_text())["robots"]["agv2"]["robot"] == "waffle"
+    with open(run_dir / "trajectory.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert list(rows[0])[0] == "robot"
+    names = {r["robot"] for r in rows}
+    assert names == {"agv1", "agv2"}
+    per = {n: [float(r["t"]) for r in rows if r["robot"] == n] for n in names}
+    assert per["agv1"] == per["agv2"]  # one row per robot per control step
+    end = [r for r in rows if r["robot"] == "agv2"][-1]
+    assert math.hypot(float(end["x"]) - 1.8, float(end["y"]) + 1.0) < 0.3
+    assert (run_dir / "run.png").stat().st_size > 10_000
+
+
+def test_one_robot_mission_is_a_world_with_one_robot(tmp_path):
+    path = tmp_path / "one.yaml"
+    path.write_text(
+        "world: turtlebot3_world\nseed: 3\nstart: {x: -2.0, y: -0.5, yaw: 0.0}\n"
+        "tasks: [{type: go_to, pose: {x: -2.0, y: 1.0, yaw: 0.0}}]\nlimits: {time: 40}\n"
+    )
+    run = MissionRun(load_mission(path), None)
+    assert len(run.robots) == 1 and list(run.world.bodies) == ["robot"]
+    a, b = run_mission(load_mission(path)), run_mission(load_mission(path))
+    assert a.status == "succeeded" and np.array_equal(a.trajectory, b.trajectory)

@@ -20,13 +20,16 @@ def people_metrics(
     robot_radius: float,
     people_radii: np.ndarray,
     legs: Sequence[tuple[float, float]] = (),
+    touching: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """``metrics.people`` of result.json.
 
     ``t`` (m,) sample times; ``robot_xy`` (m, 2); ``people_xy`` (m, n, 2), NaN where a person
     is not in the world yet; ``robot_radius`` the footprint's; ``people_radii`` (n,); ``legs``
-    the navigation legs as (start, end) times. Distances are edge to edge (footprint to a
-    person's body); each sample counts for the time to the next one.
+    the navigation legs as (start, end) times; ``touching`` (m, n), when given, says who
+    the robot's body touched at each sample (the world's contacts), else bodies closer
+    than 0 touch. Distances are edge to edge (footprint to a person's body); each sample
+    counts for the time to the next one.
     """
     t = np.asarray(t, dtype=float)
     robot_xy = np.asarray(robot_xy, dtype=float).reshape(-1, 2)
@@ -44,7 +47,9 @@ def people_metrics(
         gap = np.full((m, 0), np.nan)
         nearest = np.full(m, np.inf)
     seen = np.isfinite(nearest)
-    touching = np.nan_to_num(gap, nan=np.inf) <= 0.0
+    if touching is None:
+        touching = np.nan_to_num(gap, nan=np.inf) <= 0.0
+    touching = np.asarray(touching, dtype=bool).reshape(m, -1)
     before = np.vstack([np.zeros((1, touching.shape[1]), bool), touching[:-1]])
     onsets = int(np.count_nonzero(touching & ~before))
 

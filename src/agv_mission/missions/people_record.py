@@ -1,15 +1,20 @@
-"""What a run keeps of its people and writes of them: ``people.csv`` (``t, id, x, y``, one
-row per person present at each control step) and their tracks on ``run.png``."""
+"""The people of a run: the crowd stepped with the world, what the robots are told of them,
+their contacts, and what the run directory keeps: ``people.csv`` (``t, id, x, y``, one row
+per person present at each control step), their tracks on ``run.png``, ``metrics.people``."""
 
 from __future__ import annotations
 
 import io
+import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from agv_mission.atomic import atomic_write_text
+from agv_mission.missions.people_metrics import people_metrics
+from agv_mission.world.crowd import Crowd, PeopleGroup
+from agv_mission.world.simulation import SimulatedWorld
 
 PEOPLE_COLUMNS = ("t", "id", "x", "y")
 
@@ -77,3 +82,85 @@ def plot_people(ax: Any, xy: np.ndarray, radii: np.ndarray) -> None:
         )
         x, y = track[seen][-1]
         ax.add_patch(Circle((x, y), float(radii[i]), color="tab:brown", alpha=0.7))
+
+
+PEOPLE_STREAM = 0x9E0_91E  # the people's random stream: the seed's, apart from the robots'
+
+
+class PeopleRun:
+    """The people of a run: the crowd walking in the world, what each robot is told of
+    them, the contacts they had with robots and their track for the run directory."""
+
+    def __init__(self, groups: list[PeopleGroup], world: SimulatedWorld, seed: int) -> None:
+        rng = np.random.default_rng(np.random.SeedSequence([seed, PEOPLE_STREAM]))
+        self.crowd = Crowd(groups, world.world.map, rng)
+        self.world = world
+        self.track = PeopleTrack(self.crowd.ids, self.crowd.radii)
+        self.touching: set[tuple[int, int]] = set()
+        self.touches: list[list[tuple[int, int]]] = []  # (robot, person) pairs at each step
+        world.move_people(self.crowd.positions, self.crowd.active)
+
+    def sense(self, now: float, robots: list[Any]) -> None:
+        """Before the robots decide: hand each the people present (a perfect tracker) and
+        note who touches whom (each new touch an event of that robot)."""
+        crowd = self.crowd
+        self.track.add(now, crowd.positions, crowd.active)
+        present = crowd.active
+        rows = np.column_stack([crowd.positions[present], crowd.radii[present]])
+        for r in robots:
+            r.handle.state.people = rows
+        touching = self.world.person_contacts()
+        for k, person in sorted(touching - self.touching):
+            p = robots[k].sim.true_pose()
+            robots[k].handle.log(
+                "person_collision", person=int(person), x=round(p.x, 3), y=round(p.y, 3)
+            )
+        self.touching = touching
+        self.touches.append(sorted(touching))
+
+    def move(self, dt: float, robots: list[Any]) -> None:
+        """Walk everyone one control period among the robots where they truly are."""
+        rows = np.zeros((len(robots), 5))
+        for k, r in enumerate(robots):
+            pose = r.sim.true_pose()
+            v, _ = r.sim.true_velocity()
+            c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+            rows[k] = (pose.x, pose.y, v * c, v * s, r.robot.footprint_radius)
+        self.crowd.step(dt, rows)
+        self.world.move_people(self.crowd.positions, self.crowd.active)
+
+    def metrics(
+        self, k: int, trajectory: np.ndarray, robot_radius: float, legs: list[Any], end: float
+    ) -> dict[str, Any]:
+        """``metrics.people`` of robot ``k`` (its trajectory rows align with the track's)."""
+        steps = min(len(trajectory), len(self.touches))
+        touched = np.zeros((steps, len(self.crowd.ids)), dtype=bool)
+        for i, pairs in enumerate(self.touches[:steps]):
+            for robot, person in pairs:
+                if robot == k:
+                    touched[i, person] = True
+        spans = [(leg.t_start, leg.t_end if leg.t_end is not None else end) for leg in legs]
+        return people_metrics(
+            trajectory[:steps, 0],
+            trajectory[:steps, 1:3],
+            self.track.xy[:steps],
+            float(robot_radius),
+            self.crowd.radii,
+            spans,
+            touching=touched,
+        )
+
+
+def fleet_people_metrics(records: list[Any]) -> dict[str, Any]:
+    """A fleet's ``metrics.people``: contacts of all its robots, the closest any came, and
+    the worst robot's times (each robot's own set is under ``robots``)."""
+    own = [r.metrics["people"] for r in records if r.metrics.get("people")]
+    distances = [m["min_distance"] for m in own if m["min_distance"] is not None]
+    return {
+        "people": own[0]["people"] if own else 0,
+        "min_distance": min(distances) if distances else None,
+        "intimate_time": max((m["intimate_time"] for m in own), default=0.0),
+        "personal_time": max((m["personal_time"] for m in own), default=0.0),
+        "collisions": sum(m["collisions"] for m in own),
+        "time_not_moving": max((m["time_not_moving"] for m in own), default=0.0),
+    }

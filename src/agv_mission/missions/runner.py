@@ -21,6 +21,7 @@ from typing import Any
 
 from agv_mission.missions.loader import LoadedMission
 from agv_mission.missions.observe import RobotStart, RunControl, RunObserver, RunStart, tree_nodes
+from agv_mission.missions.people_record import PeopleRun, fleet_people_metrics
 from agv_mission.missions.record import TRAJECTORY_COLUMNS, RunRecord, bare_record
 from agv_mission.missions.robot_run import RobotRun
 from agv_mission.missions.stack import (
@@ -122,6 +123,9 @@ class MissionRun:
             RobotRun(loaded, stack, run_dir, recorders, bool(self.observers)) for stack in stacks
         ]
         self.by_name = {r.name: r for r in self.robots}
+        self.people = (
+            PeopleRun(loaded.people, self.world, self.mission.seed) if loaded.people else None
+        )
         # The fleet's own log (fleet.md): what the fleet layer dispatched, waits, deadlocks,
         # and the robots' contacts with each other.
         self.fleet_log: dict[str, Any] = {
@@ -230,6 +234,8 @@ class MissionRun:
             return False
         now = self.world.time
         robots = self.robots
+        if self.people is not None:
+            self.people.sense(now, robots)
         for r in robots:
             r.decide(now)
         self._watch_collisions(now)
@@ -257,6 +263,8 @@ class MissionRun:
         """Let physics run one control period; lidars faster than the loop scan at their
         own times within it (to the physics step)."""
         world = self.world
+        if self.people is not None:
+            self.people.move(CONTROL_PERIOD, self.robots)
         dt = world.dt
         steps = int(round(CONTROL_PERIOD / dt))
         t0 = world.time
@@ -340,11 +348,25 @@ class MissionRun:
             self.end("error", "the run ended without an outcome")
         wall_time = time.perf_counter() - self.wall_start
         records = [r.record(wall_time) for r in self.robots]
+        if self.people is not None:
+            for k, (r, record) in enumerate(zip(self.robots, records, strict=True)):
+                record.metrics["people"] = self.people.metrics(
+                    k,
+                    record.trajectory,
+                    r.robot.footprint_radius,
+                    r.navigator.stats.legs,
+                    self.world.time,
+                )
         if not self.loaded.is_fleet:
             record = records[0]
             record.status, record.reason = self.status or "error", self.reason
+            record.people = self.people.track if self.people is not None else None
             return record
-        return fleet_record(self, records, wall_time)
+        record = fleet_record(self, records, wall_time)
+        if self.people is not None:
+            record.people = self.people.track
+            record.metrics["people"] = fleet_people_metrics(records)
+        return record
 
 
 def fleet_record(run: MissionRun, records: list[RunRecord], wall_time: float) -> RunRecord:

@@ -230,6 +230,8 @@ class Crowd:
         self._exact: dict[int, np.ndarray] = {}  # goal cells that stand for a given point
         self._on_route = np.array([s.behaviour == "route" for s in specs], dtype=bool)
         self._place(groups)
+        for i in np.flatnonzero(self.start_times <= 0.0):  # in the world from the start
+            self._enter(int(i))
 
     # -- set up ------------------------------------------------------------------------
 

@@ -90,9 +90,10 @@ class PersonNear(Condition):
         self.distance = distance
 
     def check(self) -> str | None:
-        people = np.asarray(self.handle.state.people, dtype=float).reshape(-1, 3)
+        people = np.asarray(self.handle.state.people, dtype=float)
         if people.size == 0:
             return f"nobody within {self.distance:g} m"
+        people = people.reshape(len(people), -1)[:, :3]  # x, y, radius (then velocities)
         est = self.handle.state.estimate
         footprint = float(self.handle.navigator.costmap.robot_radius)
         gaps = np.hypot(people[:, 0] - est.x, people[:, 1] - est.y) - footprint - people[:, 2]

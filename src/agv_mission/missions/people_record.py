@@ -101,12 +101,15 @@ class PeopleRun:
         world.move_people(self.crowd.positions, self.crowd.active)
 
     def sense(self, now: float, robots: list[Any]) -> None:
-        """Before the robots decide: hand each the people present (a perfect tracker) and
-        note who touches whom (each new touch an event of that robot)."""
+        """Before the robots decide: hand each the people present, rows (x, y, radius, vx,
+        vy) (a perfect tracker, as HuNavSim's robots get), and note who touches whom (each
+        new touch an event of that robot)."""
         crowd = self.crowd
         self.track.add(now, crowd.positions, crowd.active)
         present = crowd.active
-        rows = np.column_stack([crowd.positions[present], crowd.radii[present]])
+        rows = np.column_stack(
+            [crowd.positions[present], crowd.radii[present], crowd.velocities[present]]
+        )
         for r in robots:
             r.handle.state.people = rows
         touching = self.world.person_contacts()

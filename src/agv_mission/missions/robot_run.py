@@ -248,7 +248,7 @@ class RobotRun:
         if scan is not None:
             handle.state.scan = scan
             handle.state.obstacles = scan.points(estimate)
-            self.navigator.observe(estimate, scan)
+            self.navigator.observe(estimate, scan, handle.state.people)
         return estimate
 
     def _estimate_covariance(self) -> tuple[np.ndarray | None, LocalizerDiagnostics | None]:

@@ -47,6 +47,18 @@ class _Phase(Enum):
     ROTATE = "rotate"
 
 
+PERSON_TOLERANCE = 0.15  # m beyond a tracked person's radius: a lidar return is theirs
+
+
+def on_people(points: np.ndarray, people: np.ndarray) -> np.ndarray:
+    """Which of ``points`` (n, 2) lie on a tracked person (rows x, y, radius, ...)."""
+    pts = np.asarray(points, dtype=float).reshape(-1, 2)
+    rows = np.asarray(people, dtype=float)
+    d2 = (pts[:, None, 0] - rows[None, :, 0]) ** 2 + (pts[:, None, 1] - rows[None, :, 1]) ** 2
+    reach = rows[:, 2] + PERSON_TOLERANCE
+    return (d2 <= (reach * reach)[None, :]).any(axis=1)
+
+
 class Navigator:
     """Drives the robot to one goal at a time."""
 
@@ -92,9 +104,19 @@ class Navigator:
         """The static map with the obstacles the lidar marked."""
         return self.layer.costmap
 
-    def observe(self, pose: Pose2D, scan: LaserScan) -> None:
-        """Mark and clear unmapped obstacles from a new scan."""
-        self.layer.update(pose, scan)
+    def observe(self, pose: Pose2D, scan: LaserScan, people: np.ndarray | None = None) -> None:
+        """Mark and clear unmapped obstacles from a new scan; returns on tracked
+        ``people`` (rows x, y, radius, ...) are not obstacles of the costmap (the
+        controller avoids them where they go; a plan does not swerve round where they
+        were), though their beams still clear what they pass."""
+        ignore = None
+        if people is not None and len(people):
+            r = scan.ranges.astype(float)
+            a = scan.angles + pose.yaw
+            with np.errstate(invalid="ignore"):  # no-return beams: inf or nan, on nobody
+                ends = np.stack([pose.x + r * np.cos(a), pose.y + r * np.sin(a)], axis=1)
+                ignore = on_people(ends, people)
+        self.layer.update(pose, scan, ignore)
 
     def clear_costmap(self) -> None:
         self.layer.clear()
@@ -184,15 +206,27 @@ class Navigator:
         if len(near):
             d = np.hypot(near[:, 0] - state.estimate.x, near[:, 1] - state.estimate.y)
             near = near[d <= self.config.obstacle_range]
+        moving = None
+        people = state.people
+        if len(people) and len(near) and getattr(self.local_planner, "predicts_moving", False):
+            # a controller that predicts people gets them as people, not as the points
+            # where they are now
+            near = near[~on_people(near, people)]
+            moving = people
         if self.zones is not None:  # keepout edges are walls to the controller too
             edge = self.zones.boundary_near(
                 state.estimate.x, state.estimate.y, self.config.obstacle_range
             )
             if len(edge):
                 near = np.vstack([near.reshape(-1, 2), edge])
-        cmd = self.local_planner.compute(
-            state.estimate, state.velocity, self.path.points, self.goal, near
-        )
+        if moving is not None:
+            cmd = self.local_planner.compute(
+                state.estimate, state.velocity, self.path.points, self.goal, near, moving
+            )
+        else:
+            cmd = self.local_planner.compute(
+                state.estimate, state.velocity, self.path.points, self.goal, near
+            )
         self.stats.solve_times.append(cmd.solve_time)
         self.horizon = cmd.predicted
         if not cmd.ok:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,8 +18,10 @@ from agv_mission.behaviors.check import sample_context
 from agv_mission.behaviors.conditions import PersonNear
 from agv_mission.maps.builtin_worlds import small_house, warehouse
 from agv_mission.missions.expectations import Expectations, check
+from agv_mission.missions.loader import load_mission
 from agv_mission.missions.people import resolve_people
 from agv_mission.missions.people_metrics import people_metrics
+from agv_mission.missions.runner import run_mission
 from agv_mission.missions.schema.people import MAX_PEOPLE, People, PeopleSpec
 from agv_mission.world.crowd import Crowd, PeopleGroup, clearance
 
@@ -378,3 +381,48 @@ def test_people_markers_packed_byte_for_byte_as_rosbags_serialises_them() -> Non
     assert first.ns == "people" and first.type == 3 and first.scale.x == pytest.approx(0.4)
     assert (first.pose.position.x, first.pose.position.y) == tuple(xy[0])
     assert first.header.stamp.sec == 2 and first.header.frame_id == "map"
+
+
+# --- runs with people ---------------------------------------------------------------------
+
+STEP_OUT = """\
+name: step-out
+world: warehouse
+start: {{x: -8.0, y: 0.0, yaw: 0.0}}
+seed: 4
+stack:
+  localization: {{type: ground_truth}}
+  local_planner: {{type: pure_pursuit}}
+  costmap: {{obstacles: {{enabled: false}}}}
+  collision_monitor: {{enabled: {enabled}}}
+people:
+  - {{behaviour: route, route: [{{x: -5.6, y: -0.05}}, {{x: -5.6, y: 0.0}}], start_time: 5.0,
+      attentive: false}}
+tasks:
+  - {{type: go_to, pose: {{x: 4.0, y: 0.0, yaw: 0.0}}}}
+limits: {{time: 14.0}}
+"""
+
+
+def test_the_monitor_stops_a_blind_robot_for_a_person_stepping_out_1_m_ahead(
+    tmp_path: Path,
+) -> None:
+    """At t = 5 s the burger drives at its full 0.22 m/s with its front at x = -6.84 when a
+    person who does not look out appears with their edge 1 m ahead and stands. Pure pursuit
+    without an obstacle layer is blind to them: without the collision monitor it runs
+    into them; with it, it stops short, on the raw lidar points."""
+    records = {}
+    for enabled in ("true", "false"):
+        path = tmp_path / f"step_out_{enabled}.yaml"
+        path.write_text(STEP_OUT.format(enabled=enabled))
+        records[enabled] = run_mission(load_mission(path))
+    on, off = records["true"], records["false"]
+    at_five = on.trajectory[np.argmin(np.abs(on.trajectory[:, 0] - 5.0))]
+    assert at_five[7] == pytest.approx(0.22)  # full speed when the person appears
+    assert 1.0 - 0.05 < (-5.6 - 0.25) - (at_five[1] + 0.105) < 1.0 + 0.05
+    assert off.metrics["people"]["collisions"] >= 1
+    assert any(e["event"] == "person_collision" for e in off.events)
+    assert off.metrics["collisions"] == 0  # a person is not a wall
+    assert on.metrics["people"]["collisions"] == 0
+    assert on.metrics["people"]["min_distance"] > 0.0
+    assert on.metrics["collision_monitor"]["stop"]["activations"] >= 1

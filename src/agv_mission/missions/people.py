@@ -49,6 +49,7 @@ def resolve_people(
                     speed=spec.speed,
                     radius=spec.radius,
                     start_time=spec.start_time,
+                    attentive=spec.attentive,
                 )
             )
     return groups

@@ -48,6 +48,7 @@ class _Phase(Enum):
 
 
 PERSON_TOLERANCE = 0.15  # m beyond a tracked person's radius: a lidar return is theirs
+STANDING = 0.2  # m/s: a person slower than this stands (the costmap marks them)
 
 
 def on_people(points: np.ndarray, people: np.ndarray) -> np.ndarray:
@@ -106,10 +107,14 @@ class Navigator:
 
     def observe(self, pose: Pose2D, scan: LaserScan, people: np.ndarray | None = None) -> None:
         """Mark and clear unmapped obstacles from a new scan; returns on tracked
-        ``people`` (rows x, y, radius, ...) are not obstacles of the costmap (the
-        controller avoids them where they go; a plan does not swerve round where they
-        were), though their beams still clear what they pass."""
+        ``people`` walking by (rows x, y, radius, vx, vy) are not obstacles of the costmap
+        (the controller avoids them where they go; a plan does not swerve round where they
+        were), though their beams still clear what they pass. Someone standing still is
+        an obstacle like any other until they walk on."""
         ignore = None
+        if people is not None and len(people):
+            people = np.asarray(people, dtype=float)
+            people = people[np.hypot(people[:, 3], people[:, 4]) >= STANDING]
         if people is not None and len(people):
             r = scan.ranges.astype(float)
             a = scan.angles + pose.yaw

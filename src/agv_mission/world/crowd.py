@@ -62,6 +62,7 @@ class PeopleGroup:
     speed: float = 1.2  # m/s preferred
     radius: float = 0.25  # m
     start_time: float = 0.0  # s: absent from the world before
+    attentive: bool = True  # False: walks its way as if nobody were there
 
 
 def free_space(grid: OccupancyGrid, simplify: float = WALL_SIMPLIFY) -> shapely.Geometry:
@@ -229,6 +230,7 @@ class Crowd:
         self._slow_since = np.full(n, np.inf)  # since when each walks slower than it wants
         self._exact: dict[int, np.ndarray] = {}  # goal cells that stand for a given point
         self._on_route = np.array([s.behaviour == "route" for s in specs], dtype=bool)
+        self._inattentive = np.array([not s.attentive for s in specs], dtype=bool)
         self._place(groups)
         for i in np.flatnonzero(self.start_times <= 0.0):  # in the world from the start
             self._enter(int(i))
@@ -355,11 +357,13 @@ class Crowd:
             return
         people = np.flatnonzero(self.active)
         who = slice(None) if len(people) == len(self.active) else people  # cheaper when all
-        self._steer(people, who)
+        pref = self._steer(people, who)
         before = self.positions[who].copy()
         sim.do_step()
         get_p = sim.get_agent_position
         self.positions[who] = [get_p(a).to_tuple() for a in self._agent[who].tolist()]
+        if self._inattentive.any():
+            self._walk_blind(people, before, pref, dt)
         # RVO2 moves each agent by its new velocity times the step: no need to ask for it
         self.velocities[who] = (self.positions[who] - before) / dt
         self._keep_off_walls(people, before)
@@ -406,7 +410,7 @@ class Crowd:
                 sim.set_agent_velocity(a, (0.0, 0.0))
                 sim.set_agent_pref_velocity(a, (0.0, 0.0))
 
-    def _steer(self, people: np.ndarray, who: slice | np.ndarray) -> None:
+    def _steer(self, people: np.ndarray, who: slice | np.ndarray) -> np.ndarray:
         """Each walking person's preferred velocity: towards its waypoint at its speed
         (slowing into its goal); ``who`` selects ``people`` from the arrays."""
         delta = self._target[who] - self.positions[who]
@@ -434,6 +438,7 @@ class Crowd:
         set_pref = self._sim.set_agent_pref_velocity
         for a, v in zip(self._agent[who].tolist(), pref.tolist(), strict=True):
             set_pref(a, v)
+        return pref
 
     def _advance(self, i: int) -> None:
         """Pass reached waypoints; a reached goal draws the next; one lost from sight
@@ -469,6 +474,20 @@ class Crowd:
         room = np.full(len(points), -np.inf)
         room[inside] = self._clearance[rows[inside], cols[inside]]
         return room
+
+    def _walk_blind(
+        self, people: np.ndarray, before: np.ndarray, pref: np.ndarray, dt: float
+    ) -> None:
+        """The inattentive walk their preferred velocity whatever ORCA says (others still
+        avoid them: they are agents whose step is set)."""
+        blind = self._inattentive[people]
+        for j in np.flatnonzero(blind):
+            i = int(people[j])
+            x, y = (before[j] + pref[j] * dt).tolist()
+            self.positions[i] = (x, y)
+            a = int(self._agent[i])
+            self._sim.set_agent_position(a, (x, y))
+            self._sim.set_agent_velocity(a, (float(pref[j, 0]), float(pref[j, 1])))
 
     def _keep_off_walls(self, people: np.ndarray, before: np.ndarray) -> None:
         """The guard under ORCA: a person whose step would end in a wall stays put."""

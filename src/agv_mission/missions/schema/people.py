@@ -56,6 +56,12 @@ class PeopleSpec(StrictModel):
         0.0, ge=0.0, le=MAX_SIM_SECONDS, description="simulated s; absent from the world before"
     )
 
+    attentive: bool = Field(
+        True,
+        description="false: walks its way as if nobody were there (a distracted pedestrian "
+        "stepping out in front of a robot); others still avoid them",
+    )
+
     @model_validator(mode="after")
     def _behaviour_needs(self) -> PeopleSpec:
         if self.behaviour == "wander":

@@ -426,3 +426,47 @@ def test_the_monitor_stops_a_blind_robot_for_a_person_stepping_out_1_m_ahead(
     assert on.metrics["people"]["collisions"] == 0
     assert on.metrics["people"]["min_distance"] > 0.0
     assert on.metrics["collision_monitor"]["stop"]["activations"] >= 1
+
+
+def test_a_run_with_people_writes_people_csv_the_bag_topic_and_metrics(tmp_path: Path) -> None:
+    from rosbags.highlevel import AnyReader
+
+    mission = tmp_path / "walk.yaml"
+    mission.write_text(
+        "name: walk\nworld: small_house\nstart: {x: -1.5, y: -2.0, yaw: 0.0}\nseed: 2\n"
+        "stack:\n  localization: {type: ground_truth}\n"
+        "people:\n  - {count: 3, area: livingroom}\n"
+        "  - {behaviour: route, route: [{x: -5.0, y: -4.0}, {x: -5.0, y: 0.0}], start_time: 2.0}\n"
+        "tasks:\n  - {type: go_to, pose: {x: 3.5, y: -2.0, yaw: 0.0}}\n"
+        f"limits: {{time: 8.0}}\noutput: {tmp_path / 'runs'}\n"
+    )
+    done = subprocess.run(
+        [str(Path(sys.executable).parent / "agv-mission"), "run", str(mission)],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode in (0, 1), done.stderr
+    run_dir = next((tmp_path / "runs").iterdir())
+    rows = (run_dir / "people.csv").read_text().splitlines()
+    assert rows[0] == "t,id,x,y"
+    table = np.array([[float(v) for v in row.split(",")] for row in rows[1:]])
+    assert set(table[:, 1].astype(int)) == {0, 1, 2, 3}
+    assert table[table[:, 1] == 3, 0].min() == pytest.approx(2.0, abs=0.11)  # entered at 2 s
+    inside = HOUSE.rooms["livingroom"].contains_points(table[table[:, 1] < 3][:, 2:4])
+    assert inside.mean() > 0.9  # wanderers stay in their room (bodies may lean over its line)
+    import json
+
+    result = json.loads((run_dir / "result.json").read_text())
+    people = result["metrics"]["people"]
+    assert people["people"] == 4 and people["collisions"] == 0
+    assert people["min_distance"] is not None and people["legs"]
+    with AnyReader([run_dir / "bag"]) as reader:
+        conns = [c for c in reader.connections if c.topic == "/people"]
+        assert conns and conns[0].msgtype == "visualization_msgs/msg/MarkerArray"
+        last = None
+        for conn, _, raw in reader.messages(connections=conns):
+            last = reader.deserialize(raw, conn.msgtype)
+    assert last is not None and sorted(m.id for m in last.markers) == [0, 1, 2, 3]
+    final = table[table[:, 0] == table[:, 0].max()]
+    marker = next(m for m in last.markers if m.id == 0)
+    assert marker.pose.position.x == pytest.approx(final[final[:, 1] == 0][0, 2], abs=0.2)

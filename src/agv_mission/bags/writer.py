@@ -69,6 +69,9 @@ TOPICS: dict[str, tuple[str, bool]] = {
     "/battery_state": (rm.BATTERY_STATE, False),
 }
 
+#: The people of the world (people-and-zones.md), a cylinder each, every control step.
+PEOPLE_TOPIC = ("/people", rm.MARKER_ARRAY)
+
 #: Nav2's filter masks (people-and-zones.md), latched, in a bag of a mission with zones.
 ZONE_TOPICS: dict[str, tuple[str, bool]] = {
     "/keepout_filter_mask": (rm.OCCUPANCY_GRID, True),
@@ -126,6 +129,7 @@ class BagWriter:
         self._conns: dict[str, Any] = {}
         self._prev: dict[str, tuple[float, Pose2D]] = {}
         self._scan_time = 0.0
+        self._people = cdr.PeopleMarkersCdr(MAP_FRAME)
 
     def prepare(self) -> BagWriter:
         """Build the typestore and its serialisers now, not when the run starts (~0.3 s
@@ -228,6 +232,13 @@ class BagWriter:
             self._flush_map()
         for event in sample.events:
             self._write("/events", t, rm.string(json.dumps(event, default=_jsonable)))
+        if sample.people is not None:
+            topic, msgtype = PEOPLE_TOPIC
+            if topic not in self._conns:
+                self._conns[topic] = self._writer.add_connection(
+                    topic, msgtype, typestore=rm.typestore()
+                )
+            raw(topic, t, self._people.pack(t, *sample.people))
         spec = self._battery
         due = t >= self._next_battery - 1e-9 or sample.charging != self._charging
         if spec is not None and sample.battery is not None and due:

@@ -121,6 +121,12 @@ class PeopleRun:
         self.touching = touching
         self.touches.append(sorted(touching))
 
+    def present(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(ids, xy, radii) of the people in the world now (copies: observers keep them)."""
+        crowd = self.crowd
+        on = crowd.active
+        return crowd.ids[on].copy(), crowd.positions[on].copy(), crowd.radii[on].copy()
+
     def move(self, dt: float, robots: list[Any]) -> None:
         """Walk everyone one control period among the robots where they truly are."""
         rows = np.zeros((len(robots), 5))

@@ -247,8 +247,10 @@ class MissionRun:
         if self.status is None and all(r.status is not None for r in robots):
             self._conclude()
         if self.observers:
-            for r in robots:
+            for k, r in enumerate(robots):
                 sample = r.sample()
+                if sample is not None and k == 0 and self.people is not None:
+                    sample.people = self.people.present()
                 if sample is not None:
                     for observer in self.observers:
                         observer.on_step(sample)

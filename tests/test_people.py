@@ -470,3 +470,39 @@ def test_a_run_with_people_writes_people_csv_the_bag_topic_and_metrics(tmp_path:
     final = table[table[:, 0] == table[:, 0].max()]
     marker = next(m for m in last.markers if m.id == 0)
     assert marker.pose.position.x == pytest.approx(final[final[:, 1] == 0][0, 2], abs=0.2)
+
+
+def test_the_dashboards_stream_carries_the_people(tmp_path: Path) -> None:
+    """The run's stream (live and ``stream.jsonl``, which the run page replays) has
+    ``people`` messages: ``[id, x, y, radius]`` of everyone present."""
+    import json
+    from multiprocessing import Pipe
+
+    from agv_mission.missions.runner import MissionRun
+    from agv_mission.service.stream import STREAM_FILE, StreamObserver
+
+    mission = tmp_path / "walk.yaml"
+    mission.write_text(
+        "name: walk\nworld: small_house\nstart: {x: -1.5, y: -2.0, yaw: 0.0}\nseed: 2\n"
+        "stack:\n  localization: {type: ground_truth}\n"
+        "people:\n  - {count: 2, area: livingroom}\n"
+        "tasks:\n  - {type: go_to, pose: {x: 3.5, y: -2.0, yaw: 0.0}}\nlimits: {time: 3.0}\n"
+    )
+    mine, theirs = Pipe()
+    stream = StreamObserver(theirs, tmp_path)
+    run = MissionRun(load_mission(mission), tmp_path, [stream])
+    run.notify_start()
+    run.drive()
+    stream.on_end(run.record())
+    lines = [json.loads(line) for line in (tmp_path / STREAM_FILE).read_text().splitlines()]
+    people = [m for m in lines if m["type"] == "people"]
+    assert len(people) >= 5  # every 0.5 simulated s in the file
+    last = people[-1]["people"]
+    assert [p[0] for p in last] == [0, 1] and all(p[3] == 0.25 for p in last)
+    assert all(HOUSE.rooms["livingroom"].contains(p[1], p[2]) for p in last)
+    live = []
+    while mine.poll():
+        item = mine.recv()
+        if item[0] == "msg" and item[1] == "people":
+            live.append(item)
+    assert live

@@ -63,25 +63,23 @@ def write_people_csv(path: Path, t: np.ndarray, xy: np.ndarray, ids: np.ndarray)
 
 
 def plot_people(ax: Any, xy: np.ndarray, radii: np.ndarray) -> None:
-    """Each person's walk as a faint line and where they stood at the end as a disc."""
+    """Everyone's walk as faint lines (one artist) and where they stood at the end as discs
+    (one collection): a figure with 50 people draws about as fast as one without."""
+    from matplotlib.collections import PatchCollection
     from matplotlib.patches import Circle
 
+    if not xy.size:
+        return
+    gap = np.full((1, xy.shape[1], 2), np.nan)
+    lines = np.concatenate([xy, gap]).transpose(1, 0, 2).reshape(-1, 2)  # NaN between people
+    ax.plot(lines[:, 0], lines[:, 1], "-", lw=0.5, color="tab:brown", alpha=0.35, label="people")
+    discs = []
     for i in range(xy.shape[1]):
-        track = xy[:, i]
-        seen = ~np.isnan(track[:, 0])
-        if not seen.any():
-            continue
-        ax.plot(
-            track[seen, 0],
-            track[seen, 1],
-            "-",
-            lw=0.5,
-            color="tab:brown",
-            alpha=0.35,
-            label="people" if i == 0 else None,
-        )
-        x, y = track[seen][-1]
-        ax.add_patch(Circle((x, y), float(radii[i]), color="tab:brown", alpha=0.7))
+        seen = xy[~np.isnan(xy[:, i, 0]), i]
+        if len(seen):
+            discs.append(Circle(tuple(seen[-1]), float(radii[i])))
+    if discs:
+        ax.add_collection(PatchCollection(discs, color="tab:brown", alpha=0.7))
 
 
 PEOPLE_STREAM = 0x9E0_91E  # the people's random stream: the seed's, apart from the robots'

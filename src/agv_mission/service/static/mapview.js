@@ -10,6 +10,7 @@ const MAP_PALETTE = {
 const LAYER_STYLE = {
   truth: "#4aa3ff", estimate: "#ffb020", scan: "#ff2e63", particles: "#b58cff",
   plan: "#3ecf8e", horizon: "#ffe066", goal: "#ff7ad9", rooms: "#8fa3bf", recorded: "#3ecf8e", dock: "#ffd43b",
+  people: "#ff8c1a",
 };
 const ROOM_HUES = [205, 140, 30, 280, 350, 60, 180, 100, 320, 240];
 
@@ -19,7 +20,7 @@ class MapView {
     this.ctx = canvas.getContext("2d", { alpha: false });
     this.scene = this.emptyScene();
     this.layers = { map: true, rooms: true, trails: true, scan: true, particles: true, plan: true,
-      horizon: true, goal: true, truth: true, estimate: true, recorded: true, zones: true };
+      horizon: true, goal: true, truth: true, estimate: true, recorded: true, zones: true, people: true };
     this.view = { cx: 0, cy: 0, scale: 40 };
     this.fitted = false;
     this.follow = false;
@@ -76,7 +77,7 @@ class MapView {
 
   emptyScene() {
     return { map: null, rooms: [], docks: [], recorded: {}, truth: null, estimate: null, covariance: null,
-      truthTrail: [], estTrail: [], scan: null, particles: null, plan: null, horizon: null, goal: null,
+      truthTrail: [], estTrail: [], scan: null, particles: null, plan: null, horizon: null, people: null, goal: null,
       pendingGoal: null };
   }
 
@@ -318,6 +319,19 @@ class MapView {
       this.polyline(ctx, P, s.horizon, LAYER_STYLE.horizon, 3, null, 0.9);
       ctx.fillStyle = LAYER_STYLE.horizon;
       for (const q of s.horizon) { const [x, y] = P(q[0], q[1]); ctx.fillRect(x - 1.5, y - 1.5, 3, 3); }
+    }
+    if (L.people && s.people) {  // [id, x, y, radius] each: a disc the size of the body
+      ctx.fillStyle = LAYER_STYLE.people;
+      ctx.globalAlpha = 0.85;
+      ctx.beginPath();
+      for (const q of s.people) {
+        const [x, y] = P(q[1], q[2]);
+        const r = Math.max(2, q[3] * S);
+        ctx.moveTo(x + r, y);
+        ctx.arc(x, y, r, 0, 2 * Math.PI);
+      }
+      ctx.fill();
+      ctx.globalAlpha = 1;
     }
     if (L.scan && s.scan) {
       ctx.fillStyle = LAYER_STYLE.scan;

@@ -27,7 +27,7 @@
     ["estimate", "estimate", LAYER_STYLE.estimate], ["trails", "trails", "#6b7f99"], ["scan", "scan", LAYER_STYLE.scan],
     ["particles", "particles", LAYER_STYLE.particles], ["plan", "global path", LAYER_STYLE.plan],
     ["horizon", "local horizon", LAYER_STYLE.horizon], ["goal", "goal", LAYER_STYLE.goal], ["recorded", "recorded", LAYER_STYLE.recorded],
-    ["zones", "zones", "#d9463c"]];
+    ["zones", "zones", "#d9463c"], ["people", "people", LAYER_STYLE.people]];
   $("layers").innerHTML = LAYERS.map(([k, label, color]) =>
     `<label><input type="checkbox" data-layer="${k}" checked><span class="sw" style="background:${color}"></span>${label}</label>`).join("");
   $("layers").addEventListener("change", (e) => {
@@ -121,6 +121,7 @@
       case "tree": treeNodes = msg.nodes || []; treeDirty = true; break;
       case "plan": s.plan = msg.path; break;
       case "horizon": s.horizon = msg.path; break;
+      case "people": s.people = msg.people; break;
       case "particles": s.particles = msg.particles; break;
       case "goal": s.goal = msg.pose; break;
       case "scan": s.scan = msg.points; break;

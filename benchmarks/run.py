@@ -37,6 +37,7 @@ MODULES = [
     "bench_battery",
     "bench_trees",
     "bench_vda5050",
+    "bench_fleet",
     "bench_people",
 ]
 
@@ -47,6 +48,10 @@ TARGETS = {
     "mpc.solve_cpu_ms.p50": ("<=", 0.5),
     "mpc.solve_cpu_ms.p99": ("<=", 1.5),
     "mission.patrol.real_time_factor": (">=", 60.0),
+    # issue 24: fleets in the 30 x 50 m warehouse, amcl + MPC on every robot
+    "fleet.warehouse.10.real_time_factor": (">=", 10.0),
+    "fleet.warehouse.10_over_1_cpu_per_robot": ("<=", 1.25),
+    "fleet.warehouse.30.real_time_factor": (">=", 3.0),
     "breakdown.patrol_bag.real_time_factor": (">=", 60.0),  # issue 16: with the bag written
     "breakdown.warehouse_over_patrol_cost": ("<=", 1.2),
     "amcl.update_ms.p50.1000x60": ("<=", 2.0),

@@ -251,13 +251,14 @@ def load_mission(
             ]
         )
 
-    wants = tasks_required or "tasks" in data or "tree" in data
+    wants = tasks_required or "tasks" in data or "tree" in data or "robots" in data
     model: type[Setup] = Mission if wants else Setup
     tree_file = data.get("tree")
     if isinstance(tree_file, str) and not tree_file.strip().endswith(".xml"):
         message = f"a string names a BT.CPP XML file (ending in .xml), not {tree_file!r}"
         raise MissionError([log.at(("tree",), message)])
-    if model is Mission and ("tasks" in data) == ("tree" in data):
+    fleet = isinstance(data.get("robots"), list) and bool(data["robots"])
+    if model is Mission and not fleet and ("tasks" in data) == ("tree" in data):
         both = "tasks" in data
         message = (
             "a mission has `tasks` or `tree`, not both" if both else "required field is missing"

@@ -123,11 +123,18 @@ class RobotRun:
         return self.stack.localizer
 
     # ----------------------------------------------------------------- one control step
+    def prepare(self, now: float) -> None:
+        """What this step does to the world before any robot senses: faults (a kidnap
+        moves the body)."""
+        self.handle.state.time = now
+        self.faults.apply(now, self.handle)
+
     def decide(self, now: float) -> None:
-        """Sense, estimate, tick the tree and choose this step's command (not yet sent)."""
+        """Sense, estimate, tick the tree and choose this step's command (not yet sent).
+
+        Touches only this robot and reads the world: the robots of a fleet decide side by
+        side (see :class:`~agv_mission.missions.runner.MissionRun`)."""
         handle, state = self.handle, self.handle.state
-        state.time = now
-        self.faults.apply(now, handle)
         sensing = self.stack.sense(self._scan_filter)
         truth = sensing.truth
         for earlier in sensing.earlier:  # a lidar faster than the loop: each at its time

@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import gc
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +43,9 @@ __all__ = [
 ]
 
 ProgressCallback = Callable[[float, float], None]
+
+#: Threads a fleet's robots decide in (the machine's cores, at most 4).
+DECISION_THREADS = min(4, os.cpu_count() or 1)
 
 
 class RunStopped(BaseException):
@@ -137,6 +142,13 @@ class MissionRun:
             "makespan": None,
         }
         self._touching: set[tuple[int, int]] = set()
+        # A fleet's robots decide side by side: each touches only its own stack and reads
+        # the world, and the solvers (casadi, numpy, MuJoCo's ray casts) release the GIL.
+        # Every robot's draws come from its own streams: the outcome does not depend on
+        # the threads' interleaving.
+        self._pool: ThreadPoolExecutor | None = None
+        if len(self.robots) > 1 and DECISION_THREADS > 1:
+            self._pool = ThreadPoolExecutor(DECISION_THREADS, thread_name_prefix="robots")
         self.wall_start = time.perf_counter()
         self.status: str | None = None
         self.reason: str | None = None
@@ -237,7 +249,14 @@ class MissionRun:
         if self.people is not None:
             self.people.sense(now, robots)
         for r in robots:
-            r.decide(now)
+            r.prepare(now)
+        if self._pool is None:
+            for r in robots:
+                r.decide(now)
+        else:
+            self.world.kinematics()  # every lidar reads the same, current state
+            for future in [self._pool.submit(r.decide, now) for r in robots]:
+                future.result()
         self._watch_collisions(now)
         if len(robots) > 1:
             self._watch_robots(now)
@@ -346,6 +365,9 @@ class MissionRun:
 
     def record(self) -> RunRecord:
         """The outcome so far, as the run directory will hold it."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
         if self.status is None:
             self.end("error", "the run ended without an outcome")
         wall_time = time.perf_counter() - self.wall_start

@@ -71,7 +71,8 @@ def plot_people(ax: Any, xy: np.ndarray, radii: np.ndarray) -> None:
     if not xy.size:
         return
     gap = np.full((1, xy.shape[1], 2), np.nan)
-    lines = np.concatenate([xy, gap]).transpose(1, 0, 2).reshape(-1, 2)  # NaN between people
+    thin = xy[:: max(1, len(xy) // 400)]  # 400 points a walk draw the same at this size
+    lines = np.concatenate([thin, gap]).transpose(1, 0, 2).reshape(-1, 2)  # NaN between
     ax.plot(lines[:, 0], lines[:, 1], "-", lw=0.5, color="tab:brown", alpha=0.35, label="people")
     discs = []
     for i in range(xy.shape[1]):

@@ -49,6 +49,7 @@ class _Phase(Enum):
 
 PERSON_TOLERANCE = 0.15  # m beyond a tracked person's radius: a lidar return is theirs
 STANDING = 0.2  # m/s: a person slower than this stands (the costmap marks them)
+PEOPLE_REACH = 5.0  # m beyond the obstacle range: people farther cannot matter this horizon
 
 
 def on_people(points: np.ndarray, people: np.ndarray) -> np.ndarray:
@@ -114,7 +115,9 @@ class Navigator:
         ignore = None
         if people is not None and len(people):
             people = np.asarray(people, dtype=float)
-            people = people[np.hypot(people[:, 3], people[:, 4]) >= STANDING]
+            reach = scan.range_max + people[:, 2] + PERSON_TOLERANCE
+            seen = np.hypot(people[:, 0] - pose.x, people[:, 1] - pose.y) <= reach
+            people = people[seen & (np.hypot(people[:, 3], people[:, 4]) >= STANDING)]
         if people is not None and len(people):
             r = scan.ranges.astype(float)
             a = scan.angles + pose.yaw
@@ -213,11 +216,14 @@ class Navigator:
             near = near[d <= self.config.obstacle_range]
         moving = None
         people = state.people
-        if len(people) and len(near) and getattr(self.local_planner, "predicts_moving", False):
+        if len(people) and getattr(self.local_planner, "predicts_moving", False):
             # a controller that predicts people gets them as people, not as the points
-            # where they are now
-            near = near[~on_people(near, people)]
-            moving = people
+            # where they are now (those who could come within its reach this horizon)
+            est = state.estimate
+            gap = np.hypot(people[:, 0] - est.x, people[:, 1] - est.y) - people[:, 2]
+            moving = people[gap <= self.config.obstacle_range + PEOPLE_REACH]
+            if len(near) and len(moving):
+                near = near[~on_people(near, moving)]
         if self.zones is not None:  # keepout edges are walls to the controller too
             edge = self.zones.boundary_near(
                 state.estimate.x, state.estimate.y, self.config.obstacle_range

@@ -43,6 +43,7 @@ ARRIVED = 0.3  # m: a goal counts as reached
 # Wander goals: a pool per group drawn from the seed (each costs one Dijkstra tree, kept).
 WANDER_GOALS_MIN, WANDER_GOALS_MAX = 8, 24
 REPLAN_PERIOD = 2.0
+MAX_WAYS = 10_000  # ways between goals kept (24 goals a group: 576 a group)
 PERTURBATION = (
     0.01  # m/s (standard deviation) of random push on each preferred velocity (RVO2's examples)
 )
@@ -238,6 +239,7 @@ class Crowd:
         self._target = np.zeros((n, 2))  # each person's current waypoint
         self._final = np.zeros(n, dtype=bool)  # ... is its goal
         self._next_check = np.zeros(n)
+        self._ways: dict[tuple[int, int | None, int], np.ndarray] = {}  # goal to goal, kept
         self._slow_since = np.full(n, np.inf)  # since when each walks slower than it wants
         self._exact: dict[int, np.ndarray] = {}  # goal cells that stand for a given point
         self._on_route = np.array([s.behaviour == "route" for s in specs], dtype=bool)
@@ -318,16 +320,24 @@ class Crowd:
             self._waypoints[i] = self.positions[i : i + 1].copy()
             self._set_waypoint(i, 0)
             return
+        reached = goals[int(self._goal_index[i])]
         if self._on_route[i]:
             self._goal_index[i] = (self._goal_index[i] + 1) % len(goals)
         else:
             self._goal_index[i] = int(self.rng.integers(len(goals)))
-        self._route_to(i, goals[int(self._goal_index[i])])
+        self._route_to(i, goals[int(self._goal_index[i])], reached)
 
-    def _route_to(self, i: int, goal: int) -> None:
-        """Waypoints from the person's position to ``goal``, pulled taut."""
+    def _route_to(self, i: int, goal: int, reached: int | None = None) -> None:
+        """Waypoints from the person's position to ``goal``, pulled taut; the way from a
+        goal just ``reached`` to the next (wanderers, routes) is worked out once and kept."""
         router = self._routers[i]
-        start = router.node(self.positions[i])
+        start = reached if reached is not None else router.node(self.positions[i])
+        key = (id(router), start, goal)
+        known = self._ways.get(key)
+        if known is not None:
+            self._waypoints[i] = known
+            self._set_waypoint(i, 0)
+            return
         path = None if start is None else router.path(start, goal)
         if path is None:  # cut off (a door shut by a robot's body is not a wall): stand
             path = self.positions[i : i + 1].copy()
@@ -335,6 +345,8 @@ class Crowd:
             path[-1] = self._exact[goal]
         self._waypoints[i] = self._taut(self.positions[i], path, float(self.radii[i]))
         self._set_waypoint(i, 0)
+        if reached is not None and len(self._ways) < MAX_WAYS:
+            self._ways[key] = self._waypoints[i]
 
     def _taut(self, start: np.ndarray, path: np.ndarray, radius: float) -> np.ndarray:
         """The path's corners only: from each kept point, the farthest point in sight."""
@@ -400,10 +412,12 @@ class Crowd:
         self.active[i] = True
         self._next_check[i] = self.time + REPLAN_PERIOD * (1 + i % 10) / 10
         goals = self._goals[i]
-        if self._on_route[i] and goals:  # a route starts on its leg
-            self._route_to(i, goals[int(self._goal_index[i])])
-        else:
-            self._next_goal(i)
+        if not goals:
+            self._next_goal(i)  # nowhere to go: stands
+            return
+        if not self._on_route[i]:  # a wanderer's first goal; a route starts on its leg
+            self._goal_index[i] = int(self.rng.integers(len(goals)))
+        self._route_to(i, goals[int(self._goal_index[i])])
 
     def _set_robots(self, robots: np.ndarray) -> None:
         sim = self._sim

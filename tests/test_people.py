@@ -543,3 +543,28 @@ def test_the_mpc_keeps_off_where_a_crossing_person_will_be() -> None:
     predicted_with, predicted_without = horizon(person), horizon(None)
     assert closest(predicted_without) < 0.05  # blind to where they go: into them
     assert closest(predicted_with) > 0.05  # keeps off their predicted place (0.13 m)
+
+
+def test_the_costmap_leaves_out_people_walking_by_but_not_people_standing() -> None:
+    from agv_mission.geometry import Pose2D
+    from agv_mission.messages import LaserScan
+
+    navigator = sample_context().handle.navigator  # a real navigator in a 4 m room
+    pose = Pose2D(1.0, 1.0, 0.0)
+
+    def scan(ahead: float) -> LaserScan:
+        ranges = np.full(360, np.inf, dtype=np.float32)
+        ranges[0] = ahead
+        return LaserScan(ranges, 0.0, 2 * np.pi / 360, 0.12, 3.5, 0.0)
+
+    walking = np.array([[2.25, 1.0, 0.25, 0.0, 1.0]])  # x, y, radius, vx, vy
+    navigator.observe(pose, scan(1.0), walking)  # the return at (2, 1) is on them
+    assert not navigator.layer.marks.any()
+    standing = walking.copy()
+    standing[0, 3:] = 0.0
+    navigator.observe(pose, scan(1.0), standing)
+    assert navigator.layer.marks.sum() == 1  # someone standing is in the way like a box
+    navigator.observe(pose, scan(np.inf), np.zeros((0, 5)))  # gone: the beam clears it
+    assert not navigator.layer.marks.any()
+    navigator.observe(pose, scan(1.0), None)  # not a person: marked as before
+    assert navigator.layer.marks.sum() == 1

@@ -327,6 +327,10 @@ def test_metrics_without_anyone_in_the_world() -> None:
     t = np.arange(0.0, 1.0, 0.1)
     m = people_metrics(t, np.zeros((10, 2)), np.zeros((10, 0, 2)), 0.2, np.zeros(0))
     assert m["min_distance"] is None and m["personal_time"] == 0.0 and m["collisions"] == 0
+    for steps in (0, 1):  # a run that ended before (or at) its first step
+        m = people_metrics(np.zeros(steps), np.zeros((steps, 2)), np.full((steps, 3, 2), 9.0), 0.2,
+                           np.full(3, 0.25), [(0.0, 0.0)])  # fmt: skip
+        assert m["collisions"] == 0 and m["time_not_moving"] == 0.0
 
 
 def test_people_expectations_read_metrics_people() -> None:

@@ -33,11 +33,11 @@ def people_metrics(
     """
     t = np.asarray(t, dtype=float)
     robot_xy = np.asarray(robot_xy, dtype=float).reshape(-1, 2)
-    people_xy = np.asarray(people_xy, dtype=float).reshape(len(t), -1, 2)
     radii = np.asarray(people_radii, dtype=float).reshape(-1)
+    people_xy = np.asarray(people_xy, dtype=float).reshape(len(t), len(radii), 2)
     m = len(t)
     dt = np.diff(t) if m > 1 else np.zeros(0)
-    weights = np.append(dt, dt[-1] if m > 1 else 0.0)  # the last sample as long as the one before
+    weights = np.append(dt, dt[-1]) if m > 1 else np.zeros(m)  # the last as long as the one before
 
     if people_xy.shape[1] and m:
         centre = np.hypot(*(people_xy - robot_xy[:, None, :]).transpose(2, 0, 1))
@@ -49,7 +49,7 @@ def people_metrics(
     seen = np.isfinite(nearest)
     if touching is None:
         touching = np.nan_to_num(gap, nan=np.inf) <= 0.0
-    touching = np.asarray(touching, dtype=bool).reshape(m, -1)
+    touching = np.asarray(touching, dtype=bool).reshape(m, len(radii))
     before = np.vstack([np.zeros((1, touching.shape[1]), bool), touching[:-1]])
     onsets = int(np.count_nonzero(touching & ~before))
 

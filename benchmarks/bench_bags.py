@@ -9,6 +9,11 @@ map is, and what loop closure buys on a 100 m loop.
   writer, the bag mapped offline by the default ``map`` SLAM: free-cell IoU against the
   world (and, for ``map_area``, the IoU of the map the run built live), scans per second
   and the speed as a multiple of the bag's duration;
+* fleet write: warehouse fleets of 1 and 5 robots (amcl + MPC each, ``bench_fleet``'s
+  aisle patrols), the writer's own time (its observer calls, which run between the
+  robots' steps) in ms per robot per simulated second, and megabytes per robot per
+  simulated minute (a namespaced robot should cost what a lone one does), and the share
+  of the run's wall time the writer takes;
 * loop: one lap (~100 m) of the loop building with slipping wheels (rosbots, 12 m lidar,
   ``benchmarks/data/loop_patrol.yaml``), mapped by ``grid`` (no loop closure) and by
   ``graph`` (loop closure): trajectory RMSE against ground truth.
@@ -20,6 +25,7 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from agv_mission.bags.offline import default_slam, map_bag, slam_config
 from agv_mission.bags.writer import BagWriter
@@ -56,6 +62,50 @@ def _write_cost(root: Path) -> dict[str, float]:
         "bags.write.cost_share": round((with_bag - without) / with_bag, 4),
         "bags.write.mb_per_sim_minute": round(size / 1e6 * 60.0 / sim, 3),
     }
+
+
+class _TimedWriter(BagWriter):
+    """The bag writer with its observer calls timed (wall clock: they run alone, between
+    the robots' steps)."""
+
+    seconds = 0.0
+
+    def on_start(self, start: Any) -> None:
+        t0 = time.perf_counter()
+        super().on_start(start)
+        self.seconds += time.perf_counter() - t0
+
+    def on_step(self, sample: Any) -> None:
+        t0 = time.perf_counter()
+        super().on_step(sample)
+        self.seconds += time.perf_counter() - t0
+
+    def on_end(self, record: Any) -> None:
+        t0 = time.perf_counter()
+        super().on_end(record)
+        self.seconds += time.perf_counter() - t0
+
+
+def _fleet_write(
+    root: Path, sizes: tuple[int, ...] = (1, 5), sim: float = 20.0
+) -> dict[str, float]:
+    from bench_fleet import fleet_mission
+
+    out: dict[str, float] = {}
+    for n in sizes:
+        path = root / f"fleet{n}.yaml"
+        path.write_text(fleet_mission(n, sim))
+        loaded = load_mission(path)
+        run_dir = root / f"fleet{n}"
+        run_dir.mkdir()
+        writer = _TimedWriter()
+        record = run_mission(loaded, run_dir, observers=[writer.prepare()])
+        per = n * record.sim_time
+        key = f"bags.fleet_write.robots{n}"
+        out[f"{key}.writer_ms_per_robot_sim_s"] = round(writer.seconds * 1e3 / per, 3)
+        out[f"{key}.share_of_run_wall"] = round(writer.seconds / record.wall_time, 4)
+        out[f"{key}.mb_per_robot_sim_minute"] = round(_size(run_dir / "bag") / 1e6 * 60 / per, 3)
+    return out
 
 
 def _round_trip(root: Path, label: str, mission: Path) -> dict[str, float]:
@@ -103,6 +153,7 @@ def run() -> dict[str, float]:
     root = Path(tempfile.mkdtemp(prefix="bench_bags_"))
     try:
         results = _write_cost(root)
+        results |= _fleet_write(root)
         results |= _round_trip(root, "tb3", REPO / "tests" / "scenarios" / "map_area_tb3.yaml")
         results |= _round_trip(root, "aws_small_house", HERE / "data" / "house_patrol.yaml")
         results |= _loop(root)

@@ -1,13 +1,14 @@
 """VDA 5050: N vehicles at time scale 1 on one broker (issue 26).
 
-``agv-mission vda5050 vehicles`` runs a fleet mission of N robots (each its own world on
-a thread of its own, in one process: the stop-gap until fleets share one world) against
-Debian's mosquitto (the embedded broker when mosquitto is absent). A subscriber in this
-process counts every ``state`` and ``visualization`` message per vehicle (rates, and
-messages lost as gaps in each topic's headerIds), and sends each vehicle orders in turn
-(there and back, 1 m, released at once), timing order-to-motion: from publishing the order
-to the first ``state`` reporting ``driving: true``. CPU is the vehicles' process, user +
-system, over the measured window, in cores.
+``agv-mission vda5050 vehicles`` runs a fleet mission of N robots in the 30 x 50 m
+warehouse (one world: every robot a body the others' lidars see; each robot on its own
+spot of a rack aisle, 2.5 m apart) against Debian's mosquitto (the embedded broker when
+mosquitto is absent). A subscriber in this process counts every ``state`` and
+``visualization`` message per vehicle (rates, and messages lost as gaps in each topic's
+headerIds), and sends each vehicle orders in turn (there and back along its aisle, 1 m,
+released at once), timing order-to-motion: from publishing the order to the first
+``state`` reporting ``driving: true``. CPU is the vehicles' process, user + system, over
+the measured window, in cores.
 """
 
 from __future__ import annotations
@@ -32,8 +33,13 @@ import yaml
 
 COUNTS = [int(n) for n in os.environ.get("BENCH_VDA5050_N", "20,50").split(",")]
 WINDOW = float(os.environ.get("BENCH_VDA5050_WINDOW", "30"))
-MAP = "turtlebot3_world"
-A, B = (-2.0, -0.5), (-1.0, -0.5)
+MAP = "warehouse"
+AISLES = (-13.2, -8.95, -5.35, -1.75, 1.85, 5.45, 9.05, 12.55)  # x of the rack aisles
+
+
+def spot(k: int) -> tuple[float, float]:
+    """Robot ``k``'s start: aisle after aisle, 2.5 m apart along each (17 spots an aisle)."""
+    return AISLES[k % len(AISLES)], -20.0 + 2.5 * (k // len(AISLES))
 
 
 def _free_port() -> int:
@@ -166,7 +172,11 @@ def _measure(n: int, folder: Path) -> dict[str, float]:
             "local_planner": {"type": "pure_pursuit"},
         },
         "robots": [
-            {"name": f"agv{i + 1}", "robot": "burger", "start": {"x": A[0], "y": A[1], "yaw": 0.0}}
+            {
+                "name": f"agv{i + 1}",
+                "robot": "burger",
+                "start": {"x": spot(i)[0], "y": spot(i)[1], "yaw": 1.5708},
+            }
             for i in range(n)
         ],
     }
@@ -202,12 +212,14 @@ def _measure(n: int, folder: Path) -> dict[str, float]:
         with obs.lock:
             obs.counting, obs.counts = True, {}
         cpu0, t0 = _cpu_seconds(proc.pid), time.monotonic()
-        where = dict.fromkeys(serials, A)
+        home = {s: spot(i) for i, s in enumerate(serials)}
+        away = {s: (x, y + 1.0) for s, (x, y) in home.items()}
+        where = dict(home)
         k = 0
         while time.monotonic() - t0 < WINDOW:
             serial = serials[k % n]
             frm = where[serial]
-            to = B if frm == A else A
+            to = away[serial] if frm == home[serial] else home[serial]
             if obs.last_node.get(serial) in (None, "", "a", "b") and serial not in obs.waiting:
                 obs.order(serial, to, frm, f"o{k}")
                 where[serial] = to

@@ -46,6 +46,38 @@ WANDER_MISSION = tb3_mission(
     robot=None,
 )
 
+# A small fleet: two robots in turtlebot3_world, each with its own tasks (agv2 two legs, so
+# that the two trees differ); ``%(tasks1)s`` / ``%(tasks2)s`` replace them.
+FLEET_MISSION = """\
+name: pair
+world: turtlebot3_world
+seed: 3
+stack: {localization: {type: ground_truth}, global_planner: {type: grid_astar}}
+robots:
+  - name: agv1
+    robot: burger
+    start: {x: -2.0, y: -0.5, yaw: 0.0}
+    tasks: %(tasks1)s
+  - name: agv2
+    robot: waffle
+    start: {x: 2.0, y: 0.5, yaw: 3.14}
+    tasks: %(tasks2)s
+limits: {time: %(time)s}
+"""
+FLEET_TASKS = {
+    "tasks1": "[{type: go_to, pose: {x: -2.0, y: 1.0, yaw: 0.0}}]",
+    "tasks2": "[{type: go_to, pose: {x: 2.0, y: -0.5, yaw: 0.0}}, "
+    "{type: go_to, pose: {x: 1.8, y: -1.0, yaw: 0.0}}]",
+    "time": 60,
+}
+SHORT_FLEET = FLEET_MISSION % FLEET_TASKS
+# both robots under remote command (the run goes on until cancelled)
+TELEOP_FLEET = FLEET_MISSION % {
+    "tasks1": "[{type: teleop}]",
+    "tasks2": "[{type: teleop}]",
+    "time": 600,
+}
+
 
 class Server:
     """Start ``agv-mission serve --port 0`` and read its URL from the first stdout line."""

@@ -53,7 +53,7 @@ def test_slow_client_is_thinned_then_dropped_without_blocking() -> None:
         for i in range(3 * CLIENT_QUEUE):
             hub.publish("state", _state(i * 0.1), round(i * 0.1, 3))
             hub.publish("event", json.dumps({"type": "event", "i": i}))
-        kinds = [k for k, _, _ in slow.queue]
+        kinds = [k for k, *_ in slow.queue]
         assert kinds.count("event") == 3 * CLIENT_QUEUE  # nothing but frequent kinds is lost
         assert kinds.count("state") < CLIENT_QUEUE and slow.thinned > 0
         assert not slow.dropped
@@ -99,5 +99,37 @@ def test_a_client_may_ask_for_fewer_messages() -> None:
         assert got[page] <= 5 * 2 + 5 * BURST + 1 < got[full]
         items, _ = page.take(10.0)
         assert json.loads(items[-1][1])["t"] == 19.9  # the newest still arrives
+
+    asyncio.run(main())
+
+
+def _robot_state(robot: str, t: float) -> str:
+    return json.dumps({"type": "state", "robot": robot, "t": round(t, 3), "status": "running"})
+
+
+def test_a_fleets_robots_are_thinned_and_snapshotted_each_on_its_own() -> None:
+    async def main() -> None:
+        hub = Hub()
+        client = hub.subscribe()
+        client.take(0.0)
+        for step in range(100):  # 10 sim seconds of two robots, in one burst
+            for robot in ("agv1", "agv2"):
+                t = round(step * 0.1, 3)
+                hub.publish("state", _robot_state(robot, t), t, robot=robot)
+        items, _ = client.take(0.0)
+        for robot in ("agv1", "agv2"):
+            ts = [json.loads(x)["t"] for _, x in items if json.loads(x)["robot"] == robot]
+            assert len(ts) >= 50 and ts[-1] == 9.9  # 5 per sim second each, the newest
+            assert all(b - a <= 0.2 + 1e-9 for a, b in zip(ts, ts[1:], strict=False))
+        # a late client gets both robots' latest state; a pause reaches both
+        hub.publish("robots", json.dumps({"type": "robots"}))
+        late = hub.subscribe()
+        items, _ = late.take(1.0)
+        assert [k for k, _ in items] == ["robots", "state", "state"]
+        assert {json.loads(x)["robot"] for _, x in items[1:]} == {"agv1", "agv2"}
+        hub.set_status("paused")
+        items, _ = late.take(2.0)
+        paused = [json.loads(x) for _, x in items]
+        assert {m["robot"] for m in paused if m["status"] == "paused"} == {"agv1", "agv2"}
 
     asyncio.run(main())

@@ -323,3 +323,17 @@ def test_master_rides_out_a_broker_restart(mosquitto: Mosquitto, tmp_path: Path)
     assert master.link.connects >= 2
     assert not any(e["event"] == "task_redispatched" for e in result["fleet"]["events"])
     assert all(not v.invalid for v in vehicles)
+
+
+def test_node_reservations_are_places_not_ids():
+    """Every patrol names its nodes wp1, wp2, ...: the master reserves where they are."""
+    from agv_mission.vda5050.master import NodeReservations, RouteNode, place
+
+    traffic = NodeReservations()
+    a = RouteNode("wp1", 1.0, 2.0, None)
+    b = RouteNode("wp1", 5.0, 2.0, None)  # another patrol's wp1, elsewhere
+    same = RouteNode("goal0", 1.02, 1.98, None)  # a third task's node on a's spot
+    assert traffic.grant("agv1", a) and traffic.grant("agv2", b)
+    assert not traffic.grant("agv2", same)  # held by agv1
+    traffic.keep_only("agv1", set())  # agv1 has left it
+    assert traffic.grant("agv2", same) and place(same) == place(a)

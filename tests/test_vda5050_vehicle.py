@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from agv_mission.vda5050.body import SimulatedBody
+from agv_mission.vda5050.body import VehicleWorld
 from agv_mission.vda5050.fleet import load_vehicles
 from agv_mission.vda5050.transport import BrokerUrl, EmbeddedBroker, free_port
 from agv_mission.vda5050.vehicle import Vehicle
@@ -48,15 +48,17 @@ def mission_file(folder: Path, **changes: object) -> Path:
 
 def start_vehicle(
     path: Path, url: BrokerUrl, log_dir: Path, serial: str = SERIAL
-) -> tuple[Vehicle, SimulatedBody]:
-    spec = load_vehicles(path)[0]
-    body = SimulatedBody(spec.loaded, TIME_SCALE)
-    vehicle = Vehicle(body, spec.loaded.robot, url, serial, log_dir=log_dir)
+) -> tuple[Vehicle, VehicleWorld]:
+    mission = load_vehicles(path)
+    spec = mission.vehicles[0]
+    world = VehicleWorld(mission.loaded, TIME_SCALE)
+    body = world.bodies[spec.robot]
+    vehicle = Vehicle(body, spec.description, url, serial, log_dir=log_dir)
     body.on_change = vehicle.wake
-    body.start()
-    assert body.ready.wait(60)
+    world.start()
+    assert world.ready.wait(60)
     vehicle.start()
-    return vehicle, body
+    return vehicle, world
 
 
 @pytest.fixture(scope="module")
@@ -71,13 +73,13 @@ def broker(tmp_path_factory: pytest.TempPathFactory):
 def rig(broker: Mosquitto, tmp_path_factory: pytest.TempPathFactory):
     folder = tmp_path_factory.mktemp("vehicle")
     master = MiniMaster(broker.port)
-    vehicle, body = start_vehicle(
+    vehicle, world = start_vehicle(
         mission_file(folder), BrokerUrl("127.0.0.1", broker.port), folder / "logs"
     )
     master.wait(SERIAL, "state", lambda d: True)
-    yield master, vehicle, body
+    yield master, vehicle, world
     vehicle.stop()
-    body.stop()
+    world.stop()
     master.close()
     assert not master.invalid, master.invalid
 
@@ -98,7 +100,7 @@ def ref(error: dict, key: str) -> str | None:
 
 
 def test_connection_factsheet_and_headers(rig) -> None:
-    master, vehicle, _body = rig
+    master, vehicle, _world = rig
     late = MiniMaster(master.client._port)  # subscribes after the vehicle published: retained
     try:
         conn = late.wait(SERIAL, "connection", lambda d: True, 10)
@@ -125,7 +127,7 @@ def test_connection_factsheet_and_headers(rig) -> None:
 
 
 def test_order_horizon_stitching_pick_and_drop(rig) -> None:
-    master, _vehicle, _body = rig
+    master, _vehicle, _world = rig
     x, y = here(master)
     a = node("a", 0, x, y, MAP)
     b = node("b", 2, -1.5, -0.5, MAP, allowedDeviationXY=0.1)
@@ -218,7 +220,7 @@ def test_order_horizon_stitching_pick_and_drop(rig) -> None:
 
 
 def test_rejections_leave_the_vehicle_running(rig) -> None:
-    master, _vehicle, _body = rig
+    master, _vehicle, _world = rig
     x, y = here(master)
     t0 = time.monotonic()
     master.raw(SERIAL, "order", b"{not json")
@@ -331,7 +333,7 @@ def test_rejections_leave_the_vehicle_running(rig) -> None:
 
 
 def test_instant_actions(rig, tmp_path: Path) -> None:
-    master, _vehicle, _body = rig
+    master, _vehicle, _world = rig
     x, y = here(master)
     a = node("p0", 0, x, y, MAP)
     b = node("p1", 2, -0.55, -0.55, MAP)
@@ -447,8 +449,8 @@ def test_charging_at_the_dock_with_the_robots_battery(rig) -> None:
     """The master sends the vehicle to the charging node (the world's dock ``charger``) with
     ``startCharging`` on it: the vehicle connects there, the level rises at the battery's
     charge power until ``stopCharging``."""
-    master, vehicle, _body = rig
-    battery = vehicle.body.loaded.robot.battery
+    master, vehicle, _world = rig
+    battery = vehicle.body.robot.battery
     assert battery is not None and battery.voltage is not None
     s0 = master.of(SERIAL, "state")[-1]["batteryState"]
     assert s0["charging"] is False and 0.0 < s0["batteryCharge"] < 60.0  # started at 60 %
@@ -512,8 +514,8 @@ def test_clean_stop_and_last_will_on_the_embedded_broker(tmp_path: Path) -> None
     url = embedded.start()
     master = MiniMaster(url.port)
     try:
-        v1, b1 = start_vehicle(mission_file(tmp_path), url, tmp_path, "agv1")
-        v2, b2 = start_vehicle(mission_file(tmp_path), url, tmp_path, "agv2")
+        v1, w1 = start_vehicle(mission_file(tmp_path), url, tmp_path, "agv1")
+        v2, w2 = start_vehicle(mission_file(tmp_path), url, tmp_path, "agv2")
         for serial in ("agv1", "agv2"):
             master.wait(serial, "connection", lambda d: d["connectionState"] == "ONLINE", 10)
             master.wait(serial, "state", lambda d: True, 10)
@@ -521,8 +523,8 @@ def test_clean_stop_and_last_will_on_the_embedded_broker(tmp_path: Path) -> None
         master.wait("agv1", "connection", lambda d: d["connectionState"] == "OFFLINE", 10)
         v2.link.kill()  # the process vanishing, as far as the broker can tell
         master.wait("agv2", "connection", lambda d: d["connectionState"] == "CONNECTIONBROKEN", 30)
-        b1.stop()
-        b2.stop()
+        w1.stop()
+        w2.stop()
         v2._stop.set()
     finally:
         master.close()
@@ -572,7 +574,9 @@ def test_broker_restart_vehicle_keeps_driving_its_base(tmp_path: Path) -> None:
     mq = Mosquitto(tmp_path)
     mq.start()
     master = MiniMaster(mq.port)
-    vehicle, body = start_vehicle(mission_file(tmp_path), BrokerUrl("127.0.0.1", mq.port), tmp_path)
+    vehicle, world = start_vehicle(
+        mission_file(tmp_path), BrokerUrl("127.0.0.1", mq.port), tmp_path
+    )
     try:
         master.wait(SERIAL, "state", lambda d: True, 10)
         x, y = here(master)
@@ -594,7 +598,7 @@ def test_broker_restart_vehicle_keeps_driving_its_base(tmp_path: Path) -> None:
         assert vehicle.link.connects >= 2
     finally:
         vehicle.stop()
-        body.stop()
+        world.stop()
         master.close()
         mq.stop()
     assert not master.invalid, master.invalid

@@ -17,7 +17,7 @@ import httpx
 import pytest
 import yaml
 
-from agv_mission.vda5050.body import SimulatedBody
+from agv_mission.vda5050.body import VehicleWorld
 from agv_mission.vda5050.fleet import load_vehicles
 from agv_mission.vda5050.transport import BrokerUrl, free_port
 from agv_mission.vda5050.vehicle import Vehicle
@@ -49,12 +49,13 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     url = BrokerUrl("127.0.0.1", broker.port)
     path = folder / "vehicle.yaml"
     path.write_text(yaml.safe_dump(MISSION))
-    spec = load_vehicles(path)[0]
-    body = SimulatedBody(spec.loaded, 5.0)
-    vehicle = Vehicle(body, spec.loaded.robot, url, "agv1", log_dir=folder / "logs")
+    mission = load_vehicles(path)
+    world = VehicleWorld(mission.loaded, 5.0)
+    body = world.bodies[mission.vehicles[0].robot]
+    vehicle = Vehicle(body, mission.vehicles[0].description, url, "agv1", log_dir=folder / "logs")
     body.on_change = vehicle.wake
-    body.start()
-    assert body.ready.wait(60)
+    world.start()
+    assert world.ready.wait(60)
     vehicle.start()
     other = MiniVehicle(broker.port, "forklift1", 1.6, 1.6, MAP, manufacturer="acme")
     master = MiniMaster(broker.port)
@@ -72,7 +73,7 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     watch.stop()
     other.close()
     vehicle.stop()
-    body.stop()
+    world.stop()
     master.close()
     broker.stop()
     assert not master.invalid, master.invalid

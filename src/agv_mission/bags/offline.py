@@ -55,14 +55,16 @@ def map_bag(
     odom_topic: str | None = None,
     truth_topic: str | None = None,
     max_odom_gap: float = 1.0,
+    robot: str | None = None,
 ) -> OfflineMap:
     """Build a map from the bag at ``path`` with the SLAM plugin ``slam_config`` (or the
-    one ``slam_config(range_max)`` picks for the bag's scanner: :func:`default_slam`).
+    one ``slam_config(range_max)`` picks for the bag's scanner: :func:`default_slam`);
+    ``robot``: whose topics, in a bag of several robots (a fleet run's).
 
     Raises :class:`~agv_mission.bags.reader.BagError` for input that cannot be mapped.
     """
     t_read = time.perf_counter()
-    data = read_bag(path, scan_topic, odom_topic, truth_topic)
+    data = read_bag(path, scan_topic, odom_topic, truth_topic, robot)
     read_s = time.perf_counter() - t_read
     times = np.array([s.time for s in data.scans])
     odom_at, ok = interpolate_poses(data.odom, times, max_odom_gap)
@@ -99,6 +101,7 @@ def map_bag(
     report: dict[str, Any] = {
         "bag": str(path),
         **({"input": data.notes} if data.notes else {}),
+        **({"robot": data.robot} if data.robot else {}),
         "scan_topic": data.scan_topic,
         "scan_frame": data.scan_frame,
         "odometry": data.odom_source,

@@ -6,7 +6,9 @@ or MCAP) and bare ``.mcap`` files; CARMEN logs (``.log``, ``.log.gz``) through
 is handled here, once:
 
 * topics are found by type (``sensor_msgs/LaserScan``; ``nav_msgs/Odometry`` or, without
-  one, the ``odom -> base`` transform of ``/tf``) unless named;
+  one, the ``odom -> base`` transform of ``/tf``) unless named; in a bag of several robots
+  (a fleet's, Nav2's multi-robot namespaces ``/agv1/scan``, ``/agv1/odom``) only the
+  chosen robot's, and a lone namespaced robot is chosen by itself;
 * the scan's frame is placed on the robot through ``/tf_static`` (or constant ``/tf``
   links, as ROS 1's ``static_transform_publisher`` sends them): off-centre and rotated
   mounts, and upside-down ones (the scan is mirrored so that it reads counter-clockwise
@@ -80,6 +82,7 @@ class BagData:
     truth: np.ndarray | None = None  # (k, 4) t, x, y, yaw
     truth_topic: str | None = None
     topics: dict[str, str] = field(default_factory=dict)  # topic -> type
+    robot: str | None = None  # the robot's namespace, when its topics have one
     duration: float = 0.0
     notes: dict[str, Any] = field(default_factory=dict)  # what the report should say
 
@@ -134,22 +137,74 @@ def _pick(candidates: list[str], preferred: tuple[str, ...], counts: dict[str, i
     return max(candidates, key=lambda t: counts.get(t, 0))
 
 
+def namespace(topic: str) -> str:
+    """The first namespace of a topic (``/agv1/scan`` -> ``agv1``; ``/scan`` -> ``""``)."""
+    parts = topic.strip("/").split("/")
+    return parts[0] if len(parts) > 1 else ""
+
+
+def robot_namespaces(topics: dict[str, str]) -> list[str]:
+    """Namespaces that hold a robot: a LaserScan and odometry (``nav_msgs/Odometry``
+    not named like ground truth) under ``/NAME/``, as a fleet's bag and Nav2's
+    multi-robot launch name them; a lone ``/front/scan`` is a sensor's namespace."""
+    scans = {namespace(t) for t, ty in topics.items() if ty == SCAN_TYPE}
+    odoms = {
+        namespace(t) for t, ty in topics.items() if ty == ODOM_TYPE and not _looks_like_truth(t)
+    }
+    return sorted((scans & odoms) - {""})
+
+
+def _under(ns: str | None, topics: list[str]) -> list[str]:
+    return topics if ns is None else [t for t in topics if namespace(t) == ns]
+
+
 def read_bag(
     path: Path,
     scan_topic: str | None = None,
     odom_topic: str | None = None,
     truth_topic: str | None = None,
+    robot: str | None = None,
 ) -> BagData:
-    """Scans, odometry, mount and ground truth of the bag (or CARMEN log) at ``path``."""
+    """Scans, odometry, mount and ground truth of the bag (or CARMEN log) at ``path``;
+    ``robot``: whose, in a bag of several robots (their namespace)."""
     from agv_mission.bags.carmen import is_carmen_log, read_carmen
 
     if is_carmen_log(path):
+        if robot is not None:
+            raise BagError(f"{path}: a CARMEN log holds one robot, no namespace {robot!r}")
         return read_carmen(path, scan_topic, odom_topic, truth_topic)
     reader = open_reader(path)
     try:
-        return _read(reader, path, scan_topic, odom_topic, truth_topic)
+        return _read(reader, path, scan_topic, odom_topic, truth_topic, robot)
     finally:
         reader.close()
+
+
+def _pick_robot(
+    path: Path, topics: dict[str, str], scan_topic: str | None, robot: str | None
+) -> str | None:
+    """The namespace whose topics are read: the one named; else the scan topic's when it
+    is a robot's; else the only robot's when no topic outside a namespace is a scan.
+    Several robots and nothing named is invalid input naming them."""
+    robots = robot_namespaces(topics)
+    if robot is not None:
+        if robot not in robots:
+            found = ", ".join(robots) if robots else "none: no namespaced scan and odometry"
+            raise BagError(f"{path}: no robot {robot!r} (robots: {found})")
+        if scan_topic is not None and namespace(scan_topic) != robot:
+            raise BagError(f"{path}: --scan-topic {scan_topic} is not robot {robot!r}'s")
+        return robot
+    if scan_topic is not None:
+        ns = namespace(scan_topic)
+        return ns if ns in robots else None
+    if any(ty == SCAN_TYPE and not namespace(t) for t, ty in topics.items()):
+        return None
+    if len(robots) > 1:
+        raise BagError(
+            f"{path}: the bag holds several robots ({', '.join(robots)}): "
+            "pick one with --robot NAME"
+        )
+    return robots[0] if robots else None
 
 
 def _read(
@@ -158,6 +213,7 @@ def _read(
     scan_topic: str | None,
     odom_topic: str | None,
     truth_topic: str | None,
+    robot: str | None = None,
 ) -> BagData:
     topics: dict[str, str] = {}
     counts: dict[str, int] = {}
@@ -165,7 +221,9 @@ def _read(
         topics[conn.topic] = conn.msgtype
         counts[conn.topic] = counts.get(conn.topic, 0) + conn.msgcount
 
-    scans_found = [t for t, ty in topics.items() if ty == SCAN_TYPE]
+    robot = _pick_robot(path, topics, scan_topic, robot)
+    prefix = f"/{robot}" if robot else ""
+    scans_found = _under(robot, [t for t, ty in topics.items() if ty == SCAN_TYPE])
     if scan_topic is not None:
         if scan_topic not in topics:
             raise BagError(f"{path}: no topic {scan_topic} (topics: {', '.join(sorted(topics))})")
@@ -176,10 +234,10 @@ def _read(
             f"{path}: no sensor_msgs/LaserScan topic (topics: {', '.join(sorted(topics))})"
         )
     else:
-        scan_topic = _pick(scans_found, ("/scan", "scan", "/base_scan"), counts)
+        scan_topic = _pick(scans_found, (f"{prefix}/scan", "scan", f"{prefix}/base_scan"), counts)
 
-    odoms = [t for t, ty in topics.items() if ty == ODOM_TYPE]
-    poses = odoms + [t for t, ty in topics.items() if ty in POSE_TYPES]
+    odoms = _under(robot, [t for t, ty in topics.items() if ty == ODOM_TYPE])
+    poses = odoms + _under(robot, [t for t, ty in topics.items() if ty in POSE_TYPES])
     truths = [t for t in poses if _looks_like_truth(t)]
     if truth_topic is not None and topics.get(truth_topic) not in (ODOM_TYPE, *POSE_TYPES):
         raise BagError(f"{path}: no odometry or pose topic {truth_topic} for ground truth")
@@ -195,7 +253,9 @@ def _read(
     else:
         plain = [t for t in odoms if t != truth_topic]
         if plain:
-            odom_topic = _pick(plain, ("/odom", "odom", "/odometry/filtered"), counts)
+            odom_topic = _pick(
+                plain, (f"{prefix}/odom", "odom", f"{prefix}/odometry/filtered"), counts
+            )
 
     wanted = {scan_topic, "/tf", "/tf_static", "tf", "tf_static"}
     if odom_topic:
@@ -300,6 +360,7 @@ def _read(
         truth=truth,
         truth_topic=truth_topic if truth is not None else None,
         topics=topics,
+        robot=robot,
         duration=float(max(times) - min(times)) if times else 0.0,
     )
 

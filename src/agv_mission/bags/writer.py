@@ -11,12 +11,15 @@ Frames follow REP-105: ``map -> odom`` is what the localiser believes (its estim
 composed with the inverse odometry, so RViz shows drift the way a real robot does),
 ``odom -> base_footprint`` the dead-reckoned pose, ``base_footprint -> base_scan`` the
 lidar mount on ``/tf_static``. Everything is stamped in simulated time, which starts at
-zero (play it back with ``use_sim_time``; ``/clock`` is in the bag).
+zero (play it back with ``use_sim_time``; ``/clock`` is in the bag). A fleet's robots
+have these frames and their topics under their namespaces (fleet.md, Nav2's multi-robot
+naming: ``agv1/odom``, ``/agv1/scan``); see :class:`BagWriter`.
 """
 
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -32,7 +35,7 @@ from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import json_default
 
 if TYPE_CHECKING:
-    from agv_mission.missions.observe import RunStart, StepSample
+    from agv_mission.missions.observe import RobotStart, RunStart, StepSample
 
 BAG_DIRNAME = "bag"
 MAP_FRAME, ODOM_FRAME, BASE_FRAME, SCAN_FRAME = "map", "odom", "base_footprint", "base_scan"
@@ -78,6 +81,11 @@ ZONE_TOPICS: dict[str, tuple[str, bool]] = {
     "/speed_filter_mask": (rm.OCCUPANCY_GRID, True),
 }
 
+#: A fleet's topics written once for all robots (fleet.md); every other one is per robot.
+SHARED_TOPICS = frozenset({"/clock", "/tf", "/tf_static", "/map", "/rooms", "/events"})
+#: A robot's growing SLAM map: ``/map`` alone, ``/NAME/map`` in a fleet (``/map`` known).
+GROWING_MAP = "slam_map"
+
 
 def lidar_mount(robot: Any) -> tuple[Pose2D, float]:
     """The lidar's planar pose on ``base_footprint`` and its height (upside-down mounts
@@ -89,6 +97,56 @@ def lidar_mount(robot: Any) -> tuple[Pose2D, float]:
         float(getattr(lidar, "yaw", 0.0)),
     )
     return offset, float(lidar.height)
+
+
+@dataclass
+class _RobotBag:
+    """One robot's part of the bag: its topic names, frames and what its streams
+    remember between steps (Nav2's multi-robot naming in a fleet: ``/agv1/odom``,
+    ``agv1/base_footprint``; a one-robot mission's plain names)."""
+
+    name: str
+    topics: dict[str, str]  # contract topic (``/odom``) -> this robot's (``/agv1/odom``)
+    odom_frame: str
+    base_frame: str
+    scan_frame: str
+    scan_time: float
+    battery: Any  # the robot's BatterySpec, None: not modelled
+    next_battery: float = 0.0
+    charging: bool = False
+    next_particles: float = 0.0
+    next_map: float = 0.0
+    pending_map: tuple[float, Any] | None = None
+    prev: dict[str, tuple[float, Pose2D]] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, start: RobotStart, fleet: bool) -> _RobotBag:
+        ns = start.name if fleet else ""
+        topics = {t: robot_topic(t, ns) for t in (*TOPICS, *ZONE_TOPICS)}
+        topics[GROWING_MAP] = f"/{ns}/map" if ns else "/map"
+        return cls(
+            name=start.name,
+            topics=topics,
+            odom_frame=robot_frame(ODOM_FRAME, ns),
+            base_frame=robot_frame(BASE_FRAME, ns),
+            scan_frame=robot_frame(SCAN_FRAME, ns),
+            scan_time=1.0 / float(start.robot.lidar.rate),
+            battery=start.robot.battery,
+        )
+
+
+def robot_topic(topic: str, namespace: str) -> str:
+    """A per-robot topic in the robot's namespace (``/agv1/scan``); shared ones as they are."""
+    if not namespace or topic in SHARED_TOPICS:
+        return topic
+    return f"/{namespace}{topic}"
+
+
+def robot_frame(frame: str, namespace: str) -> str:
+    """A robot's frame with its namespace as prefix (``agv1/odom``); ``map`` is shared."""
+    if not namespace or frame == MAP_FRAME:
+        return frame
+    return f"{namespace}/{frame}"
 
 
 class BagWriter:
@@ -103,6 +161,14 @@ class BagWriter:
     ``/battery_state`` goes out every ``battery_period`` simulated seconds and when
     charging starts or stops. The bag is closed by :meth:`on_end` (or :meth:`close`), so it is complete
     even when the run ends aborted or in error.
+
+    A fleet run (fleet.md) shares ``/clock``, ``/tf``, ``/tf_static``, ``/map``, ``/rooms``
+    and ``/events`` (each event once, with its ``robot``, as ``result.json`` lists them);
+    every other topic is per robot under its namespace (``/agv1/scan``), in frames
+    ``agv1/odom``, ``agv1/base_footprint``, ``agv1/base_scan`` under the shared ``map``.
+    Zone masks are per robot (``/agv1/speed_filter_mask``: each robot's filter server, its
+    speed mask in percent of its own top speed). A robot's own growing SLAM map goes to its
+    ``/agv1/map``: ``/map`` stays the known one.
     """
 
     def __init__(
@@ -118,17 +184,12 @@ class BagWriter:
         self.max_particles = max_particles
         self.map_period = map_period
         self.battery_period = battery_period
-        self._battery: Any = None  # the robot's BatterySpec
-        self._next_battery = 0.0
-        self._charging = False
-        self._next_particles = 0.0
-        self._next_map = 0.0
-        self._pending_map: tuple[float, Any] | None = None
         self.messages = 0
         self._writer: Writer | None = None
         self._conns: dict[str, Any] = {}
-        self._prev: dict[str, tuple[float, Pose2D]] = {}
-        self._scan_time = 0.0
+        self._robots: dict[str, _RobotBag] = {}
+        self._fleet = False
+        self._clock: float | None = None
         self._people = cdr.PeopleMarkersCdr(MAP_FRAME)
 
     def prepare(self) -> BagWriter:
@@ -162,124 +223,162 @@ class BagWriter:
         writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
         writer.open()
         self._writer = writer
-        store = rm.typestore()
-        for topic, (msgtype, latched) in TOPICS.items():
-            self._conns[topic] = writer.add_connection(
-                topic,
-                msgtype,
-                typestore=store,
-                offered_qos_profiles=[LATCHED] if latched else [],
+        self._fleet = start.fleet
+        self._robots = {r.name: _RobotBag.of(r, start.fleet) for r in start.robots}
+        for topic in TOPICS:
+            names = (
+                [topic]
+                if topic in SHARED_TOPICS
+                else [bag.topics[topic] for bag in self._robots.values()]
             )
-        robot = start.robot
-        self._battery = robot.battery
-        self._scan_time = 1.0 / float(robot.lidar.rate)
-        offset, height = lidar_mount(robot)
+            for name in names:
+                self._connect(name, *TOPICS[topic])
         t0 = 0.0
-        self._write(
-            "/tf_static",
-            t0,
-            rm.tf_message([rm.transform(t0, BASE_FRAME, SCAN_FRAME, offset, z=height)]),
-        )
+        mounts = []
+        for r in start.robots:
+            bag = self._robots[r.name]
+            offset, height = lidar_mount(r.robot)
+            mounts.append(rm.transform(t0, bag.base_frame, bag.scan_frame, offset, z=height))
+        self._write("/tf_static", t0, rm.tf_message(mounts))
         self._write("/map", t0, rm.occupancy_grid(t0, start.world_map, MAP_FRAME))
         self._write("/rooms", t0, rm.room_markers(t0, start.rooms, MAP_FRAME))
-        masks = {"/keepout_filter_mask": start.keepout_mask, "/speed_filter_mask": start.speed_mask}
-        for topic, mask in masks.items():
-            if mask is not None:
-                msgtype, _ = ZONE_TOPICS[topic]
-                self._conns[topic] = writer.add_connection(
-                    topic, msgtype, typestore=store, offered_qos_profiles=[LATCHED]
-                )
-                grid = rm.occupancy_grid(t0, mask, MAP_FRAME)
-                self._write_raw(topic, t0, rm.serialize(grid, msgtype))
+        for r in start.robots:
+            bag = self._robots[r.name]
+            for topic, mask in (
+                ("/keepout_filter_mask", r.keepout_mask),
+                ("/speed_filter_mask", r.speed_mask),
+            ):
+                if mask is not None:
+                    msgtype, latched = ZONE_TOPICS[topic]
+                    name = self._connect(bag.topics[topic], msgtype, latched)
+                    grid = rm.occupancy_grid(t0, mask, MAP_FRAME)
+                    self._write_raw(name, t0, rm.serialize(grid, msgtype))
 
     def on_step(self, sample: StepSample) -> None:
         if self._writer is None:
             return
+        # a one-robot run's steps are its robot's whatever they call it
+        bag = self._robots[sample.robot] if self._fleet else next(iter(self._robots.values()))
+        topic = bag.topics
         t = float(sample.t)
         est, odom = sample.estimate, sample.odom
         map_to_odom = est.compose(Pose2D(0.0, 0.0, 0.0).relative_to(odom))
         raw = self._write_raw
         for scan in sample.scans:  # (a lidar faster than the loop: several, each at its time)
-            raw("/scan", float(scan.time), cdr.laser_scan_cdr(scan, SCAN_FRAME, self._scan_time))
-        raw("/clock", t, cdr.clock_cdr(t))
+            raw(
+                topic["/scan"],
+                float(scan.time),
+                cdr.laser_scan_cdr(scan, bag.scan_frame, bag.scan_time),
+            )
+        if self._clock is None or t > self._clock:  # once per step, however many robots
+            self._clock = t
+            raw("/clock", t, cdr.clock_cdr(t))
+        links = [
+            (MAP_FRAME, bag.odom_frame, map_to_odom, 0.0),
+            (bag.odom_frame, bag.base_frame, odom, 0.0),
+        ]
+        raw("/tf", t, cdr.tf_cdr(t, links))
+        v, w = self._velocity(bag, "odom", t, odom)
         raw(
-            "/tf",
+            topic["/odom"],
             t,
-            cdr.tf_cdr(
-                t, [(MAP_FRAME, ODOM_FRAME, map_to_odom, 0.0), (ODOM_FRAME, BASE_FRAME, odom, 0.0)]
-            ),
+            cdr.odometry_cdr(t, bag.odom_frame, bag.base_frame, odom, v, w, None),
         )
-        v, w = self._velocity("odom", t, odom)
-        raw("/odom", t, cdr.odometry_cdr(t, ODOM_FRAME, BASE_FRAME, odom, v, w, None))
-        v, w = self._velocity("truth", t, sample.truth)
+        v, w = self._velocity(bag, "truth", t, sample.truth)
         raw(
-            "/ground_truth", t, cdr.odometry_cdr(t, MAP_FRAME, BASE_FRAME, sample.truth, v, w, None)
+            topic["/ground_truth"],
+            t,
+            cdr.odometry_cdr(t, MAP_FRAME, bag.base_frame, sample.truth, v, w, None),
         )
-        raw("/cmd_vel", t, cdr.twist_cdr(sample.v, sample.w))
-        raw("/amcl_pose", t, cdr.pose_with_covariance_cdr(t, MAP_FRAME, est, sample.covariance))
+        raw(topic["/cmd_vel"], t, cdr.twist_cdr(sample.v, sample.w))
+        raw(
+            topic["/amcl_pose"],
+            t,
+            cdr.pose_with_covariance_cdr(t, MAP_FRAME, est, sample.covariance),
+        )
         particles = sample.particles
-        if particles is not None and len(particles) and t >= self._next_particles - 1e-9:
-            self._next_particles = t + self.particle_period
+        if particles is not None and len(particles) and t >= bag.next_particles - 1e-9:
+            bag.next_particles = t + self.particle_period
             stride = -(-len(particles) // self.max_particles)
-            self._write_raw(
-                "/particlecloud", t, cdr.pose_array_cdr(t, MAP_FRAME, particles[::stride])
+            raw(
+                topic["/particlecloud"],
+                t,
+                cdr.pose_array_cdr(t, MAP_FRAME, particles[::stride]),
             )
         if sample.plan is not None and len(sample.plan):
-            self._write("/plan", t, rm.path(t, sample.plan, MAP_FRAME))
+            self._write("/plan", t, rm.path(t, sample.plan, MAP_FRAME), topic["/plan"])
         if sample.grid is not None:
-            self._pending_map = (t, sample.grid)
-        if self._pending_map is not None and t >= self._next_map - 1e-9:
-            self._flush_map()
+            bag.pending_map = (t, sample.grid)
+        if bag.pending_map is not None and t >= bag.next_map - 1e-9:
+            self._flush_map(bag)
         for event in sample.events:
+            if self._fleet:
+                event = {**event, "robot": bag.name}
             self._write("/events", t, rm.string(json.dumps(event, default=_jsonable)))
-        if sample.people is not None:
-            topic, msgtype = PEOPLE_TOPIC
-            if topic not in self._conns:
-                self._conns[topic] = self._writer.add_connection(
-                    topic, msgtype, typestore=rm.typestore()
+        if sample.people is not None:  # the world's people, once a step (the first robot's)
+            name, msgtype = PEOPLE_TOPIC
+            if name not in self._conns:
+                self._conns[name] = self._writer.add_connection(
+                    name, msgtype, typestore=rm.typestore()
                 )
-            raw(topic, t, self._people.pack(t, *sample.people))
-        spec = self._battery
-        due = t >= self._next_battery - 1e-9 or sample.charging != self._charging
+            raw(name, t, self._people.pack(t, *sample.people))
+        spec = bag.battery
+        due = t >= bag.next_battery - 1e-9 or sample.charging != bag.charging
         if spec is not None and sample.battery is not None and due:
-            self._next_battery = t + self.battery_period
-            self._charging = sample.charging
+            bag.next_battery = t + self.battery_period
+            bag.charging = sample.charging
             state = rm.battery_state(
                 t, sample.battery, sample.charging, spec.capacity, spec.voltage
             )
-            self._write("/battery_state", t, state)
+            self._write("/battery_state", t, state, topic["/battery_state"])
 
     def on_end(self, record: Any) -> None:
         self.close()
 
-    def _flush_map(self) -> None:
-        assert self._pending_map is not None
-        t, grid = self._pending_map
-        self._write("/map", t, rm.occupancy_grid(t, grid, MAP_FRAME))
-        self._pending_map = None
-        self._next_map = t + self.map_period
+    def _flush_map(self, bag: _RobotBag) -> None:
+        assert bag.pending_map is not None
+        t, grid = bag.pending_map
+        name = bag.topics[GROWING_MAP]
+        if name not in self._conns:  # a fleet robot's own SLAM map, once it has one
+            self._connect(name, *TOPICS["/map"])
+        self._write("/map", t, rm.occupancy_grid(t, grid, MAP_FRAME), name)
+        bag.pending_map = None
+        bag.next_map = t + self.map_period
 
     def close(self) -> None:
         if self._writer is not None:
-            if self._pending_map is not None:
-                self._flush_map()
+            for bag in self._robots.values():
+                if bag.pending_map is not None:
+                    self._flush_map(bag)
             self._writer.close()
             self._writer = None
 
     # ------------------------------------------------------------------ helpers
 
-    def _write(self, topic: str, t: float, msg: Any) -> None:
-        self._write_raw(topic, t, rm.serialize(msg, TOPICS[topic][0]))
+    def _connect(self, name: str, msgtype: str, latched: bool) -> str:
+        assert self._writer is not None
+        self._conns[name] = self._writer.add_connection(
+            name,
+            msgtype,
+            typestore=rm.typestore(),
+            offered_qos_profiles=[LATCHED] if latched else [],
+        )
+        return name
+
+    def _write(self, topic: str, t: float, msg: Any, name: str | None = None) -> None:
+        """``msg`` of the contract's ``topic`` type, on ``name`` (default: ``topic``)."""
+        self._write_raw(name or topic, t, rm.serialize(msg, TOPICS[topic][0]))
 
     def _write_raw(self, topic: str, t: float, data: bytes) -> None:
         assert self._writer is not None
         self._writer.write(self._conns[topic], rm.nanoseconds(t), data)
         self.messages += 1
 
-    def _velocity(self, key: str, t: float, p: Pose2D) -> tuple[float, float]:
+    @staticmethod
+    def _velocity(bag: _RobotBag, key: str, t: float, p: Pose2D) -> tuple[float, float]:
         """Body-frame (v, w) from the previous pose of the same stream."""
-        prev = self._prev.get(key)
-        self._prev[key] = (t, p)
+        prev = bag.prev.get(key)
+        bag.prev[key] = (t, p)
         if prev is None or t <= prev[0]:
             return 0.0, 0.0
         dt = t - prev[0]

@@ -40,6 +40,14 @@ def map_(
             "FLASER / ROBOTLASER1 / ODOM, the poses those lines carry: a corrected log's)",
         ),
     ] = None,
+    robot: Annotated[
+        Optional[str],  # noqa: UP007, UP045
+        typer.Option(
+            "--robot",
+            help="whose topics, in a bag of several robots (a fleet run's: /NAME/scan, "
+            "/NAME/odom); default: the only one",
+        ),
+    ] = None,
     set_: Annotated[
         list[str], typer.Option("--set", help="SLAM KEY=VALUE (stack.slam.KEY or KEY)")
     ] = [],  # noqa: B006
@@ -57,7 +65,7 @@ def map_(
 
     try:
         config = default_slam(set_)
-        result = map_bag(bag, config, scan_topic, odom_topic, truth_topic)
+        result = map_bag(bag, config, scan_topic, odom_topic, truth_topic, robot=robot)
     except MissionError as exc:
         raise invalid(exc) from None
     except BagError as exc:

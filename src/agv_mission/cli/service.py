@@ -109,7 +109,15 @@ def submit(
         except client.ClientError as exc:
             raise failure("service unavailable", str(exc), EXIT_UNAVAILABLE) from None
     result = final.get("result")
-    if result:
+    if result and result.get("fleet") is not None:
+        robots = result.get("robots") or {}
+        names = ", ".join(f"{name} ({r.get('robot')})" for name, r in robots.items())
+        out.print(
+            f"[bold]{result['name']}[/]: {len(robots)} robots in {result.get('world')}: "
+            f"{names}; seed {result.get('seed')}"
+        )
+        print_summary(result)
+    elif result:
         out.print(
             f"[bold]{result['name']}[/]: {len(result.get('tasks', []))} task(s) in "
             f"{result.get('world')} with {result.get('robot')}, seed {result.get('seed')}"

@@ -81,13 +81,13 @@ def vehicles(
     from agv_mission.vda5050.fleet import VehicleSet, load_vehicles
 
     try:
-        specs = load_vehicles(mission, set_, seed)
+        fleet_mission = load_vehicles(mission, set_, seed)
     except MissionError as exc:
         raise invalid(exc) from None
     url, embedded = _broker(broker, username, password, embedded_port)
     stop = threading.Event()
     _stop_on_signals(stop)
-    fleet = VehicleSet(specs, url, manufacturer, time_scale)
+    fleet = VehicleSet(fleet_mission, url, manufacturer, time_scale)
     try:
         fleet.start()
     except (RuntimeError, ConnectionError) as exc:
@@ -95,10 +95,11 @@ def vehicles(
         if embedded is not None:
             embedded.stop()
         raise failure("vehicles", str(exc), 3) from None
-    for spec in specs:
+    world = fleet_mission.loaded.world.name
+    for spec in fleet_mission.vehicles:
         out.print(
-            f"{spec.serial}: uagv/v2/{manufacturer}/{spec.serial}/# ({spec.loaded.robot.name} in "
-            f"{spec.loaded.world.name}, time scale {time_scale:g})",
+            f"{spec.serial}: uagv/v2/{manufacturer}/{spec.serial}/# ({spec.description.name} in "
+            f"{world}, time scale {time_scale:g})",
             highlight=False,
             markup=False,
         )

@@ -793,10 +793,23 @@ def _read_text(path: Path, file: str) -> str:
 
 
 def remote_controlled(loaded: LoadedMission, time_limit: float = MAX_SIM_SECONDS) -> LoadedMission:
-    """``loaded``'s setup (world, robot, start, stack) with one open-ended ``teleop`` task
-    instead of its behaviour: the robot under remote command, as the service's teleop task,
-    the terminal and a VDA 5050 vehicle drive it."""
+    """``loaded``'s setup (world, robots, starts, stacks) with one open-ended ``teleop`` task
+    per robot instead of its behaviour: every robot under remote command, as the service's
+    teleop task, the terminal and VDA 5050 vehicles drive them. A fleet keeps its robots
+    and loses its fleet tasks (nothing is dispatched)."""
+    teleop = [{"type": "teleop"}]
     doc = loaded.mission.model_dump(exclude={"tasks", "tree", "trees", "blackboard", "expect"})
-    doc["tasks"] = [{"type": "teleop"}]
     doc["limits"] = {**doc.get("limits", {}), "time": time_limit}
-    return replace(loaded, mission=Mission.model_validate(doc), tree=tasks_tree(doc["tasks"]))
+    if not loaded.is_fleet:
+        doc["tasks"] = teleop
+        return replace(loaded, mission=Mission.model_validate(doc), tree=tasks_tree(teleop))
+    for robot in doc["robots"]:
+        robot["tasks"] = robot["tree"] = None
+    fleet = [replace(r, tree=tasks_tree(teleop)) for r in loaded.fleet]
+    return replace(
+        loaded,
+        mission=Mission.model_validate(doc),
+        tree=fleet[0].tree,
+        fleet=fleet,
+        fleet_tasks=[],
+    )

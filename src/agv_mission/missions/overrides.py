@@ -145,19 +145,16 @@ def set_path(data: dict, field_path: FieldPath, value: Any, override: Override) 
     for i, part in enumerate(field_path):
         last = i == len(field_path) - 1
         if isinstance(node, list) and isinstance(part, str):  # an item by its name
-            named = [
-                j
-                for j, item in enumerate(node)
-                if isinstance(item, dict) and item.get("name") == part
-            ]
-            if not named:
-                names = [item.get("name") for item in node if isinstance(item, dict)]
+            names = [item.get("name") if isinstance(item, dict) else None for item in node]
+            if part in names:
+                part = names.index(part)
+            elif any(isinstance(name, str) for name in names):
                 raise override_error(
                     override.item,
-                    f"no item named {part!r} (names: {', '.join(map(str, names)) or 'none'})",
+                    f"no item named {part!r} "
+                    f"(names: {', '.join(n for n in names if isinstance(n, str))})",
                     override.option,
                 )
-            part = named[0]
         resolved.append(part)
         if isinstance(node, list):
             if not isinstance(part, int) or not -len(node) <= part < len(node):

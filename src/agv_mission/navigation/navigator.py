@@ -124,7 +124,10 @@ class Navigator:
             with np.errstate(invalid="ignore"):  # no-return beams: inf or nan, on nobody
                 ends = np.stack([pose.x + r * np.cos(a), pose.y + r * np.sin(a)], axis=1)
                 ignore = on_people(ends, people)
-        self.layer.update(pose, scan, ignore)
+        if ignore is None:
+            self.layer.update(pose, scan)
+        else:
+            self.layer.update(pose, scan, ignore)
 
     def clear_costmap(self) -> None:
         self.layer.clear()

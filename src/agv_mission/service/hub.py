@@ -2,12 +2,13 @@
 
 The worker encodes each message once; the hub keeps the latest of each kind a late client
 needs first (map, rooms, recorded, tree, plan, goal, state) and appends every message to
-each client's own queue. Nothing here ever waits for a client, so no client slows a
+each client's own queue; in a fleet run the snapshot holds the latest of each kind per robot
+(a message's ``robot``). Nothing here ever waits for a client, so no client slows a
 mission. A client's sender takes everything queued at once and thins it: of the frequent
 kinds (state, scan, particles, horizon) a message is skipped when a newer one of its kind
-is waiting and it is closer in simulated time than :data:`SPACING` to the last one sent
-(so every client still gets at least 5 states per simulated second, and the newest of
-each kind always). A client that lags by more than :data:`CLIENT_QUEUE` messages loses
+(of the same robot) is waiting and it is closer in simulated time than :data:`SPACING` to
+the last one sent (so every client still gets at least 5 states per simulated second of
+every robot, and the newest of each kind always). A client that lags by more than :data:`CLIENT_QUEUE` messages loses
 the oldest frequent ones; one that falls behind even on the others is dropped.
 
 Many clients share a budget: each frequent kind goes out at most :data:`KIND_BUDGET`
@@ -31,13 +32,18 @@ from typing import Any
 SPACING = {"state": 0.2, "scan": 0.2, "horizon": 0.2, "particles": 0.5, "people": 0.1}  # sim s
 THINNABLE = frozenset(SPACING)
 URGENT = frozenset({"end", "pong", "recorded"})  # sent without waiting for the next period
-SNAPSHOT_ORDER = ("map", "rooms", "recorded", "tree", "plan", "goal", "state")
+SNAPSHOT_ORDER = ("map", "rooms", "recorded", "robots", "tree", "plan", "goal", "state")
 CLIENT_QUEUE = 500  # messages a client may lag behind before the oldest frequent ones go
 CLIENT_HARD_LIMIT = 5000  # backlog of other messages at which a client is dropped
 KIND_BUDGET = 600.0  # messages of one frequent kind per wall second, over all clients
 BURST = 0.5  # wall seconds of budget a client may spend at once
 
-Item = tuple[str, str, "float | None"]
+Item = tuple[str, str, "float | None", str]  # kind, text, sim time, thinning key
+
+
+def thin_key(kind: str, robot: str | None) -> str:
+    """Frequent kinds are thinned per robot: one robot's states never crowd out another's."""
+    return kind if robot is None else f"{kind}/{robot}"
 
 
 class Client:
@@ -51,17 +57,24 @@ class Client:
         self.dropped = False
         self.thinned = 0
         self.last_t: dict[str, float] = {}
-        self.held: dict[str, tuple[str, float | None]] = {}
+        self.held: dict[str, tuple[str, str, float | None]] = {}  # key -> kind, text, t
         self.rate = max_rate  # messages of a frequent kind per wall second (token bucket)
         self.tokens: dict[str, tuple[float, float]] = {}  # kind -> (tokens, at wall time)
 
-    def put(self, kind: str, text: str, t: float | None = None, urgent: bool = False) -> None:
+    def put(
+        self,
+        kind: str,
+        text: str,
+        t: float | None = None,
+        urgent: bool = False,
+        robot: str | None = None,
+    ) -> None:
         if self.dropped:
             return
         if urgent or kind in URGENT:
             self.urgent.set()
         q = self.queue
-        q.append((kind, text, t))
+        q.append((kind, text, t, thin_key(kind, robot)))
         if len(q) > CLIENT_QUEUE:
             for i, item in enumerate(q):
                 if item[0] in THINNABLE:
@@ -79,50 +92,49 @@ class Client:
         a held message falls due (None: nothing held)."""
         batch = list(self.queue)
         self.queue.clear()
-        newest = {kind: i for i, (kind, _, _) in enumerate(batch) if kind in SPACING}
+        newest = {key: i for i, (kind, _, _, key) in enumerate(batch) if kind in SPACING}
         out = []
-        for i, (kind, text, t) in enumerate(batch):
+        for i, (kind, text, t, key) in enumerate(batch):
             if kind not in SPACING:
                 out.append((kind, text))
                 continue
-            too_close = (
-                t is not None and t - self.last_t.get(kind, -math.inf) < SPACING[kind] - 1e-6
-            )
-            if too_close and i != newest[kind]:
+            too_close = t is not None and t - self.last_t.get(key, -math.inf) < SPACING[kind] - 1e-6
+            if too_close and i != newest[key]:
                 self.thinned += 1
                 continue
-            if not self._token(kind, now):
-                if kind in self.held:
+            if not self._token(key, now):
+                if key in self.held:
                     self.thinned += 1
-                self.held[kind] = (text, t)
+                self.held[key] = (kind, text, t)
                 continue
-            self._sent(kind, t)
-            self.held.pop(kind, None)
+            self._sent(key, t)
+            self.held.pop(key, None)
             out.append((kind, text))
         due = None
-        for kind in list(self.held):
-            if self._token(kind, now):
-                text, t = self.held.pop(kind)
-                self._sent(kind, t)
+        for key in list(self.held):
+            if self._token(key, now):
+                kind, text, t = self.held.pop(key)
+                self._sent(key, t)
                 out.append((kind, text))
             else:
-                tokens, _ = self.tokens[kind]
+                tokens, _ = self.tokens[key]
                 ready_at = now + (1.0 - tokens) / self.rate
                 due = ready_at if due is None else min(due, ready_at)
         return out, due
 
-    def _token(self, kind: str, now: float) -> bool:
-        """Take one of ``kind``'s tokens (refilled at ``rate``, up to half a second's worth)."""
+    def _token(self, key: str, now: float) -> bool:
+        """Take one of ``key``'s tokens (a kind, per robot; refilled at ``rate``, up to half
+        a second's worth)."""
         capacity = max(1.0, self.rate * BURST)
-        tokens, at = self.tokens.get(kind, (capacity, now))
+        tokens, at = self.tokens.get(key, (capacity, now))
         tokens = min(capacity, tokens + (now - at) * self.rate)
         ok = tokens >= 1.0
-        self.tokens[kind] = (tokens - 1.0 if ok else tokens, now)
+        self.tokens[key] = (tokens - 1.0 if ok else tokens, now)
         return ok
 
-    def _sent(self, kind: str, t: float | None) -> None:
+    def _sent(self, key: str, t: float | None) -> None:
         if t is not None:
-            self.last_t[kind] = t
+            self.last_t[key] = t
 
 
 class Hub:
@@ -130,27 +142,33 @@ class Hub:
 
     def __init__(self) -> None:
         self.clients: set[Client] = set()
-        self.latest: dict[str, str] = {}
+        # kind -> robot (None: the run's, not one robot's) -> the latest message's text
+        self.latest: dict[str, dict[str | None, str]] = {}
         self.end: str | None = None
 
-    def publish(self, kind: str, text: str, t: float | None = None, urgent: bool = False) -> None:
+    def publish(
+        self,
+        kind: str,
+        text: str,
+        t: float | None = None,
+        urgent: bool = False,
+        robot: str | None = None,
+    ) -> None:
         if kind in SNAPSHOT_ORDER:
-            self.latest[kind] = text
+            self.latest.setdefault(kind, {})[robot] = text
         for client in self.clients:
-            client.put(kind, text, t, urgent)
+            client.put(kind, text, t, urgent, robot)
 
     def set_status(self, status: str) -> None:
-        """A paused (or resumed) run sends no steps: republish its last state with the
-        new status, so that every client sees the change."""
-        state = self.latest_state()
-        if state is None:
-            return
-        state["status"] = status
-        self.publish("state", json.dumps(state, separators=(",", ":")), state.get("t"), True)
+        """A paused (or resumed) run sends no steps: republish every robot's last state
+        with the new status, so that every client sees the change."""
+        for robot, state in self.latest_states().items():
+            state["status"] = status
+            text = json.dumps(state, separators=(",", ":"))
+            self.publish("state", text, state.get("t"), True, robot)
 
-    def latest_state(self) -> dict[str, Any] | None:
-        text = self.latest.get("state")
-        return json.loads(text) if text else None
+    def latest_states(self) -> dict[str | None, dict[str, Any]]:
+        return {robot: json.loads(text) for robot, text in self.latest.get("state", {}).items()}
 
     def finish(self, text: str) -> None:
         self.end = text
@@ -163,10 +181,10 @@ class Hub:
         20 frames a second needs no more)."""
         client = Client(max_rate)
         for kind in SNAPSHOT_ORDER:
-            if kind in self.latest:
-                client.queue.append((kind, self.latest[kind], None))
+            for robot, text in self.latest.get(kind, {}).items():
+                client.queue.append((kind, text, None, thin_key(kind, robot)))
         if self.end is not None:
-            client.queue.append(("end", self.end, None))
+            client.queue.append(("end", self.end, None, "end"))
         client.ready.set()
         self.clients.add(client)
         self._share()

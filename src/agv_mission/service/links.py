@@ -2,11 +2,12 @@
 
 The service talks to a worker over one duplex :class:`multiprocessing.connection.Connection`
 (a pipe for local processes, a socket for Ray tasks). Worker -> service: ``("msg", type,
-text, t)`` live-stream messages (JSON text, encoded once in the worker), ``("status",
-status)``, ``("progress", dict)``, ``("reply", request_id, code, body)`` and finally
-``("end", status, reason, result)``. Service -> worker: ``("cancel", reason)``,
-``("pause",)``, ``("resume",)``, ``("cmd_vel", v, w)``, ``("goal", x, y, yaw)``,
-``("record", request_id, label)``.
+text, t, robot)`` live-stream messages (JSON text, encoded once in the worker; ``robot``
+None for what is the run's, not one robot's), ``("robots", {name: (v_max, w_max)})``,
+``("status", status)``, ``("progress", dict)``, ``("reply", request_id, code, body)`` and
+finally ``("end", status, reason, result)``. Service -> worker: ``("cancel", reason)``,
+``("pause",)``, ``("resume",)``, ``("cmd_vel", robot, v, w)``, ``("goal", request_id,
+robot, x, y, yaw)``, ``("record", request_id, robot, label)``.
 
 Neither end waits for the other: the worker sends from a thread of its own
 (:class:`Outbox`), and the service reads the frames from an asyncio stream
@@ -71,14 +72,14 @@ class Outbox:
 
     When the service reads slowly (a busy event loop, a full socket buffer), a frequent
     message (state, scan, particles, horizon) still queued is replaced in place by the
-    newer one of its kind; other messages keep their order and are all delivered.
+    newer one of its kind and robot; other messages keep their order and are all delivered.
     """
 
     def __init__(self, conn: Connection) -> None:
         self.conn = conn
         self.closed = False
         self._queue: deque[list[Any]] = deque()
-        self._slots: dict[str, list[Any]] = {}  # kind -> its queued, unsent slot
+        self._slots: dict[tuple[str, Any], list[Any]] = {}  # (kind, robot) -> unsent slot
         self._cond = threading.Condition()
         self._stop = False
         self.coalesced = 0
@@ -89,7 +90,7 @@ class Outbox:
         with self._cond:
             if self.closed or self._stop:
                 return
-            kind = item[1] if item[0] == "msg" and item[1] in COALESCED else None
+            kind = _slot_key(item)
             slot = self._slots.get(kind) if kind is not None else None
             if slot is not None:
                 slot[0] = item
@@ -110,8 +111,9 @@ class Outbox:
                     return
                 slot = self._queue.popleft()
                 item = slot[0]
-                if item[0] == "msg" and self._slots.get(item[1]) is slot:
-                    del self._slots[item[1]]
+                key = _slot_key(item)
+                if key is not None and self._slots.get(key) is slot:
+                    del self._slots[key]
             try:
                 self.conn.send(item)
             except (OSError, EOFError, BrokenPipeError, ValueError):
@@ -127,3 +129,10 @@ class Outbox:
             self._stop = True
             self._cond.notify()
         self._thread.join(timeout)
+
+
+def _slot_key(item: tuple[Any, ...]) -> tuple[str, Any] | None:
+    """A frequent message's coalescing key: its kind and robot (None: never coalesced)."""
+    if item[0] == "msg" and item[1] in COALESCED:
+        return item[1], item[4] if len(item) > 4 else None
+    return None

@@ -33,16 +33,18 @@ def read_result(run_dir: Path) -> dict[str, Any] | None:
         return None
 
 
-def _snapshot_of(path: Path) -> dict[str, str]:
-    """The latest message of each snapshot kind in a finished run's ``stream.jsonl``."""
-    latest: dict[str, str] = {}
+def _snapshot_of(path: Path) -> dict[str, dict[str | None, str]]:
+    """The latest message of each snapshot kind (per robot) in a finished run's
+    ``stream.jsonl``."""
+    latest: dict[str, dict[str | None, str]] = {}
     if path.is_file():
         with open(path, encoding="utf-8") as f:
             for line in f:
-                with contextlib.suppress(ValueError):
-                    kind = json.loads(line).get("type")
+                with contextlib.suppress(ValueError, AttributeError):
+                    message = json.loads(line)
+                    kind = message.get("type")
                     if kind in SNAPSHOT_ORDER:
-                        latest[kind] = line.rstrip("\n")
+                        latest.setdefault(kind, {})[message.get("robot")] = line.rstrip("\n")
     return latest
 
 

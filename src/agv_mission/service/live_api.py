@@ -13,7 +13,7 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from agv_mission.service.access import authorised, same_origin
 from agv_mission.service.context import Service
 from agv_mission.service.hub import KIND_BUDGET, Client
-from agv_mission.service.runs import RunManager
+from agv_mission.service.runs import RunManager, UnknownRobot
 
 MAX_WS_MESSAGE = 4096  # bytes of a client message on the live stream
 SEND_PERIOD = 0.05  # seconds between two sends to one live client (20 batches a second)
@@ -114,20 +114,29 @@ def _client_message(manager: RunManager, run_id: str, client: Client, text: str)
     if kind == "ping":
         client.put("pong", '{"type":"pong"}')
     elif kind == "cmd_vel":
-        v, w = message.get("v", 0.0), message.get("w", 0.0)
+        v, w, robot = message.get("v", 0.0), message.get("w", 0.0), message.get("robot")
         if not all(_finite_number(x) for x in (v, w)):
             _tell(client, "error", message="cmd_vel needs finite numbers v (m/s) and w (rad/s)")
             return
-        sent = manager.cmd_vel(run_id, float(v), float(w))
+        if robot is not None and not isinstance(robot, str):
+            _tell(client, "error", message="cmd_vel's robot is a robot's name (a string)")
+            return
+        try:
+            sent = manager.cmd_vel(run_id, robot, float(v), float(w))
+        except UnknownRobot as exc:
+            _tell(client, "error", message=f"cmd_vel: {exc}", robot=robot)
+            return
         if sent is None:
             _tell(client, "error", message="the run is not active: nothing to drive")
-        elif sent != (float(v), float(w)):
-            v_max, w_max = manager.limits(run_id) or (math.inf, math.inf)
+        elif sent[1:] != (float(v), float(w)):
+            name = sent[0]
+            v_max, w_max = manager.limits(run_id, name) or (math.inf, math.inf)
             _tell(
                 client,
                 "clamped",
-                v=sent[0],
-                w=sent[1],
+                robot=name,
+                v=sent[1],
+                w=sent[2],
                 requested={"v": v, "w": w},
                 limits={"v": v_max, "w": w_max},
                 message=f"cmd_vel clamped to the robot's limits: |v| <= {v_max} m/s, "
@@ -153,8 +162,12 @@ LIVE_DOC = """
 frequent kinds to N a second) sends JSON text messages, each with a `type`: `state`
 (`t`, `pose`, `estimate`, `v`, `w`, `status`, `task`), `scan` (`t`, `points`), `plan`
 (`t`, `path`), `tree` (`nodes`), `event` (an event of `result.json`) and, once, `end`
-(`status`, `reason`). A client sends `{"type": "cmd_vel", "v": 0.1, "w": 0.0}` to drive a
-run whose current task is `teleop`, or `{"type": "ping"}` (answered `pong`). A command beyond
+(`status`, `reason`). At the start, `robots` lists every robot (`name`, `type`, `colour`,
+`radius`, `start`, `tree`; schema `StreamRobots`), and every per-robot message names its
+robot in `robot`. A client sends `{"type": "cmd_vel", "v": 0.1, "w": 0.0, "robot": "agv1"}`
+to drive a robot whose current task is `teleop` (`robot` may be left out when the run has
+one robot; an unknown one, or none in a fleet run, is answered `error`), or
+`{"type": "ping"}` (answered `pong`). A command beyond
 the robot's limits is clamped and answered `clamped` (`v`, `w` sent, `requested`, `limits`);
 a frame that is no valid command is answered `error` (`message`).
 """

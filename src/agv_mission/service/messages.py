@@ -20,7 +20,8 @@ from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.ros_map import saver_pixels
 from agv_mission.messages import json_default
-from agv_mission.missions.observe import TreeNode
+from agv_mission.missions.observe import RunStart, TreeNode
+from agv_mission.missions.outputs import ROBOT_COLOURS
 
 MAX_PARTICLES = 300
 TREE_STATUS = {
@@ -119,14 +120,43 @@ def recorded_message(entries: dict[str, Pose2D]) -> dict[str, Any]:
     return {"type": "recorded", "entries": {k: pose(p) for k, p in entries.items()}}
 
 
-def tree_message(nodes: list[TreeNode]) -> dict[str, Any]:
-    return {
-        "type": "tree",
-        "nodes": [
-            {"name": n.name, "status": TREE_STATUS.get(n.status, n.status), "depth": n.depth}
-            for n in nodes
+def tree_nodes(nodes: list[TreeNode]) -> list[dict[str, Any]]:
+    return [
+        {"name": n.name, "status": TREE_STATUS.get(n.status, n.status), "depth": n.depth}
+        for n in nodes
+    ]
+
+
+def tree_message(nodes: list[TreeNode], robot: str) -> dict[str, Any]:
+    return {"type": "tree", "robot": robot, "nodes": tree_nodes(nodes)}
+
+
+def robot_colour(index: int) -> str:
+    """The ``index``-th robot's colour as ``#rrggbb``: run.png's (outputs.ROBOT_COLOURS)."""
+    from matplotlib.colors import to_hex
+
+    return to_hex(ROBOT_COLOURS[index % len(ROBOT_COLOURS)])
+
+
+def robots_message(start: RunStart) -> dict[str, Any]:
+    """Every robot of the run: name, model, colour, footprint, start and tree."""
+    from agv_mission.service.models import StreamRobots
+
+    message = StreamRobots(
+        fleet=start.fleet,
+        robots=[
+            {
+                "name": r.name,
+                "type": r.robot.name,
+                "colour": robot_colour(k),
+                "radius": r.robot.footprint_radius,
+                "start": pose(r.start),
+                "tree": tree_nodes(r.tree_nodes),
+            }
+            for k, r in enumerate(start.robots)
         ],
-    }
+    )
+    return message.model_dump()
 
 
 def detail_of(nodes: list[TreeNode] | None) -> str:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
+from fastapi import Query
 from pydantic import BaseModel, ConfigDict, Field
 from pydantic.json_schema import SkipJsonSchema
 
@@ -34,13 +35,25 @@ class Health(BaseModel):
     backend: str = Field(description="local (processes) or ray")
 
 
+class RobotProgress(BaseModel):
+    """Where one robot of a run is: its current task and a one-line detail."""
+
+    task_index: int | None = Field(None, description="index of its current task in its tree")
+    task_type: str | None = Field(None, description="type of its current task")
+    detail: str = Field("", description="one line about what the robot is doing")
+
+
 class Progress(Open):
-    """Where a run is: simulated time, the current task, a one-line detail."""
+    """Where a run is: simulated time, the current task, a one-line detail (the first
+    robot's; every robot's under ``robots``)."""
 
     sim_time: float = Field(description="simulated seconds so far")
     task_index: int | None = Field(None, description="index of the current task in `tasks`")
     task_type: str | None = Field(None, description="type of the current task")
     detail: str = Field("", description="one line about what the robot is doing")
+    robots: dict[str, RobotProgress] | None = Field(
+        None, description="every robot's task and detail by name (a fleet's namespaces)"
+    )
 
 
 class Run(Open):
@@ -159,6 +172,7 @@ class Goal(BaseModel):
 class GoalSent(BaseModel):
     id: str
     goal: Goal
+    robot: str = Field(description="the robot driving there")
 
 
 class FileList(BaseModel):
@@ -179,6 +193,46 @@ class RoomRecord(BaseModel):
     confirmation: str = Field(examples=["Entry saved in file"])
     label: str
     pose: Pose
+    robot: str | None = Field(None, description="the robot whose pose was recorded")
+
+
+RobotName = Annotated[
+    str | None,
+    Query(
+        description="the robot (its name in the mission's `robots:`); may be omitted when "
+        "the run has one robot",
+        max_length=64,
+    ),
+]
+
+
+class StreamNode(BaseModel):
+    """One behaviour of a robot's tree, as the live stream's ``tree`` messages carry it."""
+
+    name: str
+    status: Literal["SUCCESS", "FAILURE", "RUNNING", "INVALID"]
+    depth: int = Field(ge=0)
+
+
+class StreamRobot(BaseModel):
+    """One robot of a run, as the live stream's ``robots`` message lists it at the start."""
+
+    name: str = Field(description="its name: the ROS namespace in a fleet mission")
+    type: str = Field(description="the robot model (burger, waffle, a robot file's name)")
+    colour: str = Field(description="#rrggbb: its colour on the dashboard and in run.png")
+    radius: float = Field(gt=0, description="footprint radius, m")
+    start: Pose
+    tree: list[StreamNode] = Field(description="its behaviour tree, pre-order")
+
+
+class StreamRobots(BaseModel):
+    """The live stream's ``robots`` message: every robot of the run (sent at the start,
+    before any robot's own). Every per-robot message that follows (state, scan, plan, goal, tree,
+    particles, horizon, event) names its robot in ``robot``."""
+
+    type: Literal["robots"] = "robots"
+    fleet: bool = Field(description="a fleet mission (`robots:`); false: one robot")
+    robots: list[StreamRobot]
 
 
 class Template(BaseModel):
@@ -237,12 +291,14 @@ def request_body(
 
 
 BODY_MODELS: tuple[type[BaseModel], ...] = (Submit, SubmitWithFiles, Goal)
+STREAM_MODELS: tuple[type[BaseModel], ...] = (StreamRobots,)  # live-stream messages
 
 
 def body_schemas() -> dict[str, Any]:
-    """The component schemas of the bodies routes read themselves."""
+    """The component schemas of the bodies routes read themselves, and of the live
+    stream's typed messages (a WebSocket has no route schema of its own)."""
     schemas: dict[str, Any] = {}
-    for model in BODY_MODELS:
+    for model in (*BODY_MODELS, *STREAM_MODELS):
         schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
         schemas.update(schema.pop("$defs", {}))
         schemas[model.__name__] = schema

@@ -36,6 +36,10 @@ class NotActive(Exception):
     """The run is not in a state where this command means anything (409)."""
 
 
+class UnknownRobot(Exception):
+    """A command names no robot of the run, or names none in a fleet run (422)."""
+
+
 @dataclass
 class ActiveRun:
     run_id: str
@@ -48,7 +52,23 @@ class ActiveRun:
     ended: bool = False
     saved_at: float = 0.0
     pending: list[tuple[Any, ...]] = field(default_factory=list)  # commands before connect
-    limits: tuple[float, float] | None = None  # the robot's (m/s, rad/s), once loaded
+    robots: dict[str, tuple[float, float]] = field(default_factory=dict)  # name -> limits
+
+    def robot(self, name: str | None) -> str:
+        """The robot a command means: ``name``, or the run's only robot when omitted."""
+        names = ", ".join(self.robots)
+        if name is None:
+            if len(self.robots) == 1:
+                return next(iter(self.robots))
+            raise UnknownRobot(f"the run has {len(self.robots)} robots ({names}): name one (robot)")
+        if name not in self.robots:
+            raise UnknownRobot(f"the run has no robot {name!r}; its robots: {names}")
+        return name
+
+    def task_type(self, name: str) -> str | None:
+        """The robot's current task type, as its latest progress said."""
+        robots = self.progress.get("robots") or {}
+        return (robots.get(name) or {}).get("task_type")
 
 
 class RunManager:
@@ -200,7 +220,7 @@ class RunManager:
         kind = item[0]
         hub = self.live[run.run_id]
         if kind == "msg":
-            hub.publish(item[1], item[2], item[3])
+            hub.publish(item[1], item[2], item[3], robot=item[4])
         elif kind == "progress":
             run.progress = item[1]
             now = asyncio.get_running_loop().time()
@@ -215,8 +235,8 @@ class RunManager:
             future = run.replies.pop(item[1], None)
             if future is not None and not future.done():
                 future.set_result((item[2], item[3]))
-        elif kind == "limits":
-            run.limits = (float(item[1]), float(item[2]))
+        elif kind == "robots":
+            run.robots = {str(k): (float(v), float(w)) for k, (v, w) in item[1].items()}
         elif kind == "end":
             self.finish(run, item[1], item[2], item[3])
 
@@ -292,34 +312,46 @@ class RunManager:
         run.status = "running"
         self._send(run, ("resume",))
 
-    def cmd_vel(self, run_id: str, v: float, w: float) -> tuple[float, float] | None:
-        """Send a remote command, clamped to the robot's limits; the command sent (None
-        when the run is not active)."""
+    def cmd_vel(
+        self, run_id: str, robot: str | None, v: float, w: float
+    ) -> tuple[str, float, float] | None:
+        """Send a robot a remote command, clamped to its limits; the robot and the command
+        sent (None when the run is not active or not loaded yet). An unknown or missing
+        robot raises :class:`UnknownRobot`."""
         run = self.active.get(run_id)
-        if run is None:
+        if run is None or not run.robots:
             return None
-        if run.limits is not None:
-            v_max, w_max = run.limits
-            v, w = min(max(v, -v_max), v_max), min(max(w, -w_max), w_max)
-        self._send(run, ("cmd_vel", v, w))
-        return v, w
+        name = run.robot(robot)
+        v_max, w_max = run.robots[name]
+        v, w = min(max(v, -v_max), v_max), min(max(w, -w_max), w_max)
+        self._send(run, ("cmd_vel", name, v, w))
+        return name, v, w
 
-    def limits(self, run_id: str) -> tuple[float, float] | None:
+    def limits(self, run_id: str, robot: str) -> tuple[float, float] | None:
         run = self.active.get(run_id)
-        return run.limits if run is not None else None
+        return None if run is None else run.robots.get(robot)
 
-    async def goal(self, run_id: str, x: float, y: float, yaw: float) -> tuple[int, dict[str, Any]]:
-        """Send a teleop run a goal; the worker answers 202, or 422 when no path reaches it."""
+    def _running(self, run_id: str, robot: str | None) -> tuple[ActiveRun, str]:
         run = self.active.get(run_id)
-        if run is None or run.status != "running" or run.progress.get("task_type") != "teleop":
-            raise NotActive("the run's current task is not teleop")
-        return await self._ask(run, "goal", x, y, yaw)
-
-    async def record_room(self, run_id: str, label: str) -> tuple[int, dict[str, Any]]:
-        run = self.active.get(run_id)
-        if run is None or run.status != "running":
+        if run is None or run.status != "running" or not run.robots:
             raise NotActive("the run is not running")
-        return await self._ask(run, "record", label)
+        return run, run.robot(robot)
+
+    async def goal(
+        self, run_id: str, robot: str | None, x: float, y: float, yaw: float
+    ) -> tuple[str, int, dict[str, Any]]:
+        """Send a robot whose task is teleop a goal; the worker answers 202, or 422 when no
+        path reaches it."""
+        run, name = self._running(run_id, robot)
+        if run.task_type(name) != "teleop":
+            raise NotActive(f"{name}'s current task is not teleop")
+        return (name, *await self._ask(run, "goal", name, x, y, yaw))
+
+    async def record_room(
+        self, run_id: str, robot: str | None, label: str
+    ) -> tuple[int, dict[str, Any]]:
+        run, name = self._running(run_id, robot)
+        return await self._ask(run, "record", name, label)
 
     async def _ask(self, run: ActiveRun, kind: str, *args: Any) -> tuple[int, dict[str, Any]]:
         """A command the worker answers: (HTTP status, body)."""

@@ -25,6 +25,7 @@ from agv_mission.service.models import (
     Command,
     Goal,
     GoalSent,
+    RobotName,
     RoomRecord,
     Run,
     RunList,
@@ -36,7 +37,7 @@ from agv_mission.service.models import (
     request_body,
 )
 from agv_mission.service.registry import FINAL
-from agv_mission.service.runs import NotActive, QueueFull
+from agv_mission.service.runs import NotActive, QueueFull, UnknownRobot
 
 MAX_LABEL = 100
 
@@ -166,9 +167,11 @@ def runs_router(service: Service) -> APIRouter:
         responses=answers(404, 409, 413, 422, 503),
         openapi_extra=request_body(Goal),
     )
-    async def goal(run_id: str, request: Request) -> dict[str, Any]:
-        """Drive to a pose, then remote command resumes (a teleop task only). A goal no
-        path reaches (outside the map, in an obstacle, cut off) answers 422."""
+    async def goal(run_id: str, request: Request, robot: RobotName = None) -> dict[str, Any]:
+        """Drive a robot to a pose, then remote command resumes (its current task teleop
+        only). ``?robot=`` names it (optional when the run has one robot); an unknown
+        robot, or none named in a fleet run, answers 422, and so does a goal no path
+        reaches (outside the map, in an obstacle, cut off)."""
         await service.get_run(run_id)
         try:
             target = Goal.model_validate_json(await read_body(request))
@@ -183,29 +186,34 @@ def runs_router(service: Service) -> APIRouter:
             ) from None
         x, y, yaw = target.x, target.y, target.yaw
         try:
-            code, answer = await manager.goal(run_id, x, y, yaw)
+            name, code, answer = await manager.goal(run_id, robot, x, y, yaw)
+        except UnknownRobot as exc:
+            raise ApiError(422, str(exc)) from None
         except NotActive as exc:
             raise ApiError(409, str(exc)) from None
         except asyncio.TimeoutError:
             raise ApiError(503, "the run did not answer in time") from None
         if code != 202:
             raise ApiError(code, answer.get("detail", "refused"))
-        return {"id": run_id, "goal": {"x": x, "y": y, "yaw": yaw}}
+        return {"id": run_id, "goal": {"x": x, "y": y, "yaw": yaw}, "robot": name}
 
     @router.post(
         "/api/runs/{run_id}/rooms/{label}",
         response_model=RoomRecord,
         responses=answers(404, 409, 422, 500, 503),
     )
-    async def record_room(run_id: str, label: str) -> JSONResponse:
-        """Record the robot's current estimated pose under ``label`` in the run's recorder
-        file (the seed's ``rosservice call room_service "kitchen"``)."""
+    async def record_room(run_id: str, label: str, robot: RobotName = None) -> JSONResponse:
+        """Record a robot's current estimated pose under ``label`` in the run's recorder
+        file (the seed's ``rosservice call room_service "kitchen"``). ``?robot=`` names
+        the robot (optional when the run has one); an unknown one answers 422."""
         await service.get_run(run_id)
         label = label.strip()
         if not label or len(label) > MAX_LABEL or not label.isprintable():
             raise ApiError(422, f"a room label is 1 to {MAX_LABEL} printable characters")
         try:
-            code, body = await manager.record_room(run_id, label)
+            code, body = await manager.record_room(run_id, robot, label)
+        except UnknownRobot as exc:
+            raise ApiError(422, str(exc)) from None
         except NotActive as exc:
             raise ApiError(409, str(exc)) from None
         except asyncio.TimeoutError:

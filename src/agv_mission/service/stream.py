@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any, TextIO
@@ -25,9 +26,32 @@ FILE_THIN_PERIOD = 0.5  # sim seconds between scans/particles/horizons in stream
 MAP_PERIOD = 1.0  # wall seconds between map messages while SLAM grows the map
 
 
+@dataclass
+class RobotView:
+    """What the stream knows of one robot: its tree, task and goal, and when its thinned
+    kinds are next due."""
+
+    name: str
+    nodes: list[TreeNode] | None = None
+    task: dict[str, Any] | None = None
+    goal: dict[str, float] | None = None
+    last_live_state: float = -math.inf
+    live_due: dict[str, float] = field(default_factory=dict)
+    file_due: dict[str, float] = field(default_factory=dict)
+
+    def progress(self) -> dict[str, Any]:
+        task = self.task or {}
+        return {
+            "task_index": task.get("index"),
+            "task_type": task.get("type"),
+            "detail": msg.detail_of(self.nodes),
+        }
+
+
 class StreamObserver:
     """Turns run observations into stream messages: to the service (live) and to
-    ``stream.jsonl`` in the run directory (for replay)."""
+    ``stream.jsonl`` in the run directory (for replay). Every robot's messages name it
+    (``robot``); a fleet's robots are thinned each on its own."""
 
     def __init__(self, conn: Connection, run_dir: Path | None) -> None:
         self.conn = conn
@@ -38,18 +62,24 @@ class StreamObserver:
             else None
         )
         self.status = "running"
-        self.nodes: list[TreeNode] | None = None
-        self.task: dict[str, Any] | None = None
+        self.views: dict[str, RobotView] = {}
         self.recorded: dict[str, Pose2D] = {}
         self.last_progress = 0.0
-        self._live_due: dict[str, float] = {}
-        self._file_due: dict[str, float] = {}
         self._last_map = -math.inf
-        self._goal: dict[str, float] | None = None
-        self._last_live_state = -math.inf
         self.sim_time = 0.0
         self.cpu0 = time.process_time()  # the worker's CPU seconds are reported from here
         self.closed = False
+
+    def view(self, robot: str) -> RobotView:
+        view = self.views.get(robot)
+        if view is None:
+            view = self.views[robot] = RobotView(robot)
+        return view
+
+    def task_of(self, robot: str) -> dict[str, Any] | None:
+        """The robot's current task ``{index, type}`` (None: none running)."""
+        view = self.views.get(robot)
+        return None if view is None else view.task
 
     # ---------------------------------------------------------------- sending
 
@@ -58,7 +88,7 @@ class StreamObserver:
         if to_file and self.file is not None:
             self.file.write(text + "\n")
         if live:
-            self.send(("msg", message["type"], text, message.get("t")))
+            self.send(("msg", message["type"], text, message.get("t"), message.get("robot")))
 
     def send(self, item: tuple[Any, ...]) -> None:
         if self.closed or self.outbox.closed:
@@ -83,18 +113,21 @@ class StreamObserver:
             self.emit(msg.zones_message(start.keepout_mask, start.speed_mask))
         self.emit(msg.rooms_message(start.rooms, start.docks))
         self.emit(msg.recorded_message(self.recorded))
-        self.nodes = start.tree_nodes
-        self.emit(msg.tree_message(start.tree_nodes))
+        self.emit(msg.robots_message(start))
+        for r in start.robots:
+            self.view(r.name).nodes = r.tree_nodes
+            self.emit(msg.tree_message(r.tree_nodes, r.name))
 
     def on_step(self, s: StepSample) -> None:
         wall = time.monotonic()
         self.sim_time = s.t
+        view = self.view(s.robot)
         if s.tree_nodes is not None:
-            self.nodes = s.tree_nodes
-            self.emit(msg.tree_message(s.tree_nodes))
-        self.task = None if s.task_index is None else {"index": s.task_index, "type": s.task_type}
+            view.nodes = s.tree_nodes
+            self.emit(msg.tree_message(s.tree_nodes, s.robot))
+        view.task = None if s.task_index is None else {"index": s.task_index, "type": s.task_type}
         for event in s.events:
-            self.emit({"type": "event", **event})
+            self.emit({"type": "event", "robot": s.robot, **event})
             if event.get("event") == "room_recorded":
                 self.recorded[str(event.get("room"))] = Pose2D(
                     float(event.get("x", 0.0)),
@@ -105,24 +138,25 @@ class StreamObserver:
         if s.grid is not None and wall - self._last_map >= MAP_PERIOD:
             self._last_map = wall
             self.emit(msg.map_message(s.grid))
+        t = round(s.t, 3)
         if s.plan is not None:
-            self.emit({"type": "plan", "t": round(s.t, 3), "path": msg.xy_list(s.plan)})
+            self.emit({"type": "plan", "robot": s.robot, "t": t, "path": msg.xy_list(s.plan)})
         goal = msg.pose(s.goal)
-        if goal != self._goal:
-            self._goal = goal
-            self.emit({"type": "goal", "t": round(s.t, 3), "pose": goal})
-        self._thinned(s, wall)
-        live = s.t >= self._last_live_state + LIVE_STATE_SPACING - 1e-6
+        if goal != view.goal:
+            view.goal = goal
+            self.emit({"type": "goal", "robot": s.robot, "t": t, "pose": goal})
+        self._thinned(s, view, wall)
+        live = s.t >= view.last_live_state + LIVE_STATE_SPACING - 1e-6
         if live:
-            self._last_live_state = s.t
+            view.last_live_state = s.t
         self.emit(self.state(s), live=live)
         if wall - self.last_progress >= PROGRESS_PERIOD:
             self.last_progress = wall
             self.send(("progress", self.progress()))
 
-    def _thinned(self, s: StepSample, wall: float) -> None:
+    def _thinned(self, s: StepSample, view: RobotView, wall: float) -> None:
         """Scans, particles and horizons: every one is costly to encode, so at most a few
-        per wall second live and a few per sim second in the file."""
+        per wall second live and a few per sim second in the file, per robot."""
         parts = (
             ("scan", s.scan, LIVE_SCAN_PERIOD),
             ("particles", s.particles, LIVE_PARTICLES_PERIOD),
@@ -132,41 +166,42 @@ class StreamObserver:
         for kind, data, live_period in parts:
             if data is None:
                 continue
-            live = self._due(self._live_due, kind, wall, live_period)
-            to_file = self._due(self._file_due, kind, s.t - 1e-9, FILE_THIN_PERIOD)
+            live = self._due(view.live_due, kind, wall, live_period)
+            to_file = self._due(view.file_due, kind, s.t - 1e-9, FILE_THIN_PERIOD)
             if not (live or to_file):
                 continue
+            message: dict[str, Any] = {"type": kind, "robot": s.robot, "t": round(s.t, 3)}
             if kind == "scan":
-                message = {
-                    "type": "scan",
-                    "t": round(s.t, 3),
-                    "points": msg.xy_list(data.points(s.estimate)),
-                }
+                message["points"] = msg.xy_list(data.points(s.estimate))
             elif kind == "particles":
-                message = {
-                    "type": "particles",
-                    "t": round(s.t, 3),
-                    "particles": msg.particles_list(data),
-                }
-            elif kind == "people":
+                message["particles"] = msg.particles_list(data)
+            elif kind == "people":  # the world's, not the robot's: no robot key
                 message = msg.people_message(s.t, *data)
             else:
-                message = {"type": "horizon", "t": round(s.t, 3), "path": msg.xy_list(data)}
+                message["path"] = msg.xy_list(data)
             self.emit(message, live=live, to_file=to_file)
 
     def progress(self) -> dict[str, Any]:
-        task = self.task or {}
+        """Simulated time, CPU, the first robot's task and detail, and every robot's."""
+        robots = {name: view.progress() for name, view in self.views.items()}
+        lead = next(iter(robots.values()), {"task_index": None, "task_type": None, "detail": ""})
+        detail = lead["detail"]
+        if len(robots) > 1:
+            detail = " · ".join(f"{name}: {p['task_type'] or 'idle'}" for name, p in robots.items())
         return {
             "sim_time": round(self.sim_time, 3),
-            "task_index": task.get("index"),
-            "task_type": task.get("type"),
-            "detail": msg.detail_of(self.nodes),
+            "task_index": lead["task_index"],
+            "task_type": lead["task_type"],
+            "detail": detail,
+            "robots": robots,
             "cpu_time": round(time.process_time() - self.cpu0, 3),
         }
 
     def state(self, s: StepSample) -> dict[str, Any]:
+        view = self.view(s.robot)
         return {
             "type": "state",
+            "robot": s.robot,
             "t": round(s.t, 3),
             "pose": msg.pose(s.truth),
             "estimate": msg.pose(s.estimate),
@@ -174,8 +209,8 @@ class StreamObserver:
             "v": round(s.v, 4),
             "w": round(s.w, 4),
             "status": self.status,
-            "task": self.task,
-            "progress": self.progress(),
+            "task": view.task,
+            "progress": {"sim_time": round(s.t, 3), **view.progress()},
             "battery": None if s.battery is None else round(s.battery, 5),
             "charging": s.charging,
             "docked": s.docked,

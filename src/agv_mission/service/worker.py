@@ -29,14 +29,14 @@ REMOTE_TIMEOUT = 0.5  # wall seconds without cmd_vel before a teleop robot stops
 
 class PipeControl:
     """Steers the run from the service's commands: pause, resume, cancel, remote driving,
-    goals and room records. Paces simulated time at wall speed during a teleop task."""
+    goals and room records, each for the robot it names. Paces simulated time at wall
+    speed while any robot's current task is teleop."""
 
     def __init__(self, conn: Connection, stream: StreamObserver) -> None:
         self.conn = conn
         self.stream = stream
         self.paused = False
-        self.cmd: tuple[float, float] = (0.0, 0.0)
-        self.cmd_wall = -math.inf
+        self.cmds: dict[str, tuple[tuple[float, float], float]] = {}  # robot -> (v, w), wall
         self.pace_origin: tuple[float, float] | None = None  # (wall, sim) of pacing start
         self.run: Any = None
         self.cancel_reason: str | None = None
@@ -71,37 +71,57 @@ class PipeControl:
             self.cancel_reason = str(command[1])
         elif kind == "pause" and not self.paused:
             self.paused = True
-            run.sim.set_command(0.0, 0.0)
+            for robot in run.robots:
+                robot.sim.set_command(0.0, 0.0)
             self._set_status("paused")
         elif kind == "resume" and self.paused:
             self.paused = False
             self.pace_origin = None
             self._set_status("running")
         elif kind == "cmd_vel":
-            self.cmd, self.cmd_wall = (float(command[1]), float(command[2])), time.monotonic()
+            self.cmds[str(command[1])] = (float(command[2]), float(command[3])), time.monotonic()
         elif kind == "goal":
-            self._goal(str(command[1]), Pose2D(*(float(c) for c in command[2:5])))
+            self._goal(str(command[1]), str(command[2]), Pose2D(*map(float, command[3:6])))
         elif kind == "record":
-            self._record(str(command[1]), str(command[2]))
+            self._record(str(command[1]), str(command[2]), str(command[3]))
 
     def _set_status(self, status: str) -> None:
         self.stream.status = status
         self.stream.send(("status", status))
 
-    def _record(self, request_id: str, label: str) -> None:
-        handle = self.run.handle
+    def _robot(self, request_id: str, name: str) -> Any:
+        """The named robot of the run (the service checked the name; None answers 422)."""
+        robot = self.run.by_name.get(name)
+        if robot is None:
+            self.stream.send(("reply", request_id, 422, {"detail": f"no robot {name!r}"}))
+        return robot
+
+    def _record(self, request_id: str, name: str, label: str) -> None:
+        robot = self._robot(request_id, name)
+        if robot is None:
+            return
+        handle = robot.handle
         try:
             pose = handle.record(label)
         except (OSError, ValueError) as exc:
             self.stream.send(("reply", request_id, 500, {"detail": f"not recorded: {exc}"}))
             return
         handle.log_recorded(label, pose, source="service")
-        body = {"confirmation": "Entry saved in file", "label": label, "pose": msg.pose(pose)}
+        body = {
+            "confirmation": "Entry saved in file",
+            "label": label,
+            "pose": msg.pose(pose),
+            "robot": name,
+        }
         self.stream.send(("reply", request_id, 200, body))
 
-    def _goal(self, request_id: str, goal: Pose2D) -> None:
-        """Drive to ``goal`` if a path reaches it (202); say why not otherwise (422)."""
-        handle = self.run.handle
+    def _goal(self, request_id: str, name: str, goal: Pose2D) -> None:
+        """Drive the robot to ``goal`` if a path reaches it (202); say why not otherwise
+        (422)."""
+        robot = self._robot(request_id, name)
+        if robot is None:
+            return
+        handle = robot.handle
         why = unreachable(handle.navigator, handle.state.estimate, goal)
         if why is not None:
             self.stream.send(("reply", request_id, 422, {"detail": why}))
@@ -110,15 +130,21 @@ class PipeControl:
         self.stream.send(("reply", request_id, 202, {}))
 
     def _teleop(self, run: Any) -> None:
-        """During a teleop task: the latest remote command (stale after 0.5 s wall) and
-        simulated time paced at wall speed, also while it drives to a goal it was sent
-        (the dashboard shows the drive as it happens)."""
-        handle = run.handle
-        if self.stream.task is None or self.stream.task.get("type") != "teleop":
+        """While a robot's task is teleop: its latest remote command (stale after 0.5 s
+        wall), and simulated time paced at wall speed, also while it drives to a goal it
+        was sent (the dashboard shows the drive as it happens)."""
+        now = time.monotonic()
+        driven = False
+        for robot in run.robots:
+            task = self.stream.task_of(robot.name)
+            if task is None or task.get("type") != "teleop":
+                continue
+            driven = True
+            cmd, at = self.cmds.get(robot.name, ((0.0, 0.0), -math.inf))
+            robot.handle.remote_command = cmd if now - at <= REMOTE_TIMEOUT else None
+        if not driven:
             self.pace_origin = None
             return
-        now = time.monotonic()
-        handle.remote_command = self.cmd if now - self.cmd_wall <= REMOTE_TIMEOUT else None
         if self.pace_origin is None:
             self.pace_origin = (now, run.sim.time)
             return
@@ -197,7 +223,10 @@ def _run(job: dict[str, Any], conn: Connection) -> None:
     stream = StreamObserver(conn, run_dir)
     control = PipeControl(conn, stream)
     stream.send(("status", "running"))
-    stream.send(("limits", loaded.robot.max_linear_velocity, loaded.robot.max_angular_velocity))
+    limits = {
+        r.name: (r.robot.max_linear_velocity, r.robot.max_angular_velocity) for r in loaded.robots
+    }
+    stream.send(("robots", limits))
     observers = [stream, *(job["observers"](loaded) if job.get("observers") else [])]
     try:
         record = run_mission(loaded, run_dir, observers=observers, control=control)

@@ -1,12 +1,16 @@
-"""The vehicle's body: what a VDA 5050 vehicle needs of a robot, behind a narrow interface.
+"""The vehicles' bodies: what a VDA 5050 vehicle needs of a robot, behind a narrow interface.
 
 :class:`VehicleBody` is all the protocol side uses (pose, velocity, a navigation goal with
-tolerances and a speed cap, cancel, pause, set the pose), so a fleet world serving many
-robots can stand in for :class:`SimulatedBody` later. :class:`SimulatedBody` is one robot
-of a mission running its whole stack (localiser, global planner, controller on MuJoCo)
-through the mission runner with one ``teleop`` task, the same task the service uses for
-``POST .../goal``: this body is the run's :class:`~agv_mission.missions.observe.RunControl`,
-pacing simulated time to the wall clock times ``time_scale`` and handing the task its goals.
+tolerances and a speed cap, cancel, pause, set the pose, charge). :class:`VehicleWorld` is
+a mission's one world with every robot under remote command: one
+:class:`~agv_mission.missions.runner.MissionRun` holding every robot (its lidar sees the
+others, their contacts count), each robot running its whole stack (localiser, global
+planner, controller on MuJoCo) with one open-ended ``teleop`` task, the same task the
+service uses for ``POST .../goal``. The world is the run's
+:class:`~agv_mission.missions.observe.RunControl`: it paces simulated time to the wall clock
+times ``time_scale`` and, between two control steps, lets each robot's
+:class:`SimulatedBody` hand its robot the goals its vehicle asked for and read back its
+state.
 """
 
 from __future__ import annotations
@@ -20,7 +24,8 @@ from dataclasses import dataclass, replace
 from typing import Literal, Protocol
 
 from agv_mission.geometry import Pose2D
-from agv_mission.missions.loader import LoadedMission, remote_controlled
+from agv_mission.missions.loader import LoadedMission, RobotSetup, remote_controlled
+from agv_mission.missions.robot_run import RobotRun
 from agv_mission.missions.runner import MissionRun, RunRecord, run_mission
 from agv_mission.missions.stack import CONTROL_PERIOD
 
@@ -87,47 +92,29 @@ class VehicleBody(Protocol):
         ...
 
 
-class SimulatedBody:
-    """One simulated robot running its mission stack on a thread of its own."""
+class VehicleWorld:
+    """A mission's world with every robot under remote command, run on a thread of its own
+    at wall-clock pace (times ``time_scale``); ``bodies`` by robot name."""
 
-    def __init__(
-        self,
-        loaded: LoadedMission,
-        time_scale: float = 1.0,
-        on_change: Callable[[], None] | None = None,
-    ) -> None:
+    def __init__(self, loaded: LoadedMission, time_scale: float = 1.0) -> None:
         if time_scale <= 0:
             raise ValueError("time_scale must be positive")
-        self.loaded = loaded
-        self.map_id = loaded.world.name
-        self.robot_name = loaded.robot.name
+        self.loaded = remote_controlled(loaded)
         self.period = CONTROL_PERIOD / time_scale
-        self.on_change = on_change
-        self._commands: queue.SimpleQueue[Callable[[MissionRun], None]] = queue.SimpleQueue()
-        self._lock = threading.Lock()
-        self._snap = BodySnapshot(0.0, loaded.start, 0.0, 0.0, "idle", None, 0, False)
-        self._goal: tuple[Pose2D, tuple[float | None, float | None], float | None] | None = None
-        self._goal_counter = 0  # goals asked for
-        self._goal_id = 0  # the goal the run drives to (snapshots report its state)
-        self._nav: NavState = "idle"
-        self._reason: str | None = None
-        self._paused = False
-        self._events_seen = 0
-        self._charge_counter = 0
-        self._charge_id = 0
-        self._charge_error: str | None = None
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._next_tick = 0.0
+        self.bodies = {
+            setup.name: SimulatedBody(self.loaded, setup) for setup in self.loaded.robots
+        }
+        self.run: MissionRun | None = None  # once the run has been set up
         self.ready = threading.Event()
         self.record: RunRecord | None = None
         self.error: str | None = None
-
-    # ---------------------------------------------------------------- life
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._next_tick = 0.0
 
     def start(self) -> None:
         self._thread = threading.Thread(
-            target=self._run, name=f"body-{self.robot_name}", daemon=True
+            target=self._run, name=f"world-{self.loaded.world.name}", daemon=True
         )
         self._thread.start()
 
@@ -139,16 +126,64 @@ class SimulatedBody:
     def _run(self) -> None:
         fault = "the simulation stopped"
         try:
-            self.record = run_mission(remote_controlled(self.loaded), None, control=self)
+            self.record = run_mission(self.loaded, None, control=self)
             fault = f"the simulation ended ({self.record.status}): {self.record.reason}"
             if self.record.status == "error":
                 self.error = self.record.reason
         finally:
-            with self._lock:
-                self._snap = replace(self._snap, fault=fault, v=0.0, w=0.0)
             self.ready.set()
-            if self.on_change is not None:
-                self.on_change()
+            for body in self.bodies.values():
+                body.end(fault)
+
+    def before_step(self, run: MissionRun) -> None:
+        """Every body sees its robot's step, then the wall clock catches up, then every
+        body's queued commands go into the step that follows."""
+        if self._stop.is_set():
+            run.cancel("vehicle stopped")
+            return
+        if not self.ready.is_set():
+            self.run = run
+            self.ready.set()
+            self._next_tick = time.monotonic()
+        for name, body in self.bodies.items():
+            body.observe(run.by_name[name])
+        self._next_tick += self.period
+        delay = self._next_tick - time.monotonic()
+        if delay > 0:
+            self._stop.wait(delay)
+        elif delay < -1.0:  # fell behind by more than a second: do not race to catch up
+            self._next_tick = time.monotonic()
+        if self._stop.is_set():
+            run.cancel("vehicle stopped")
+            return
+        for name, body in self.bodies.items():
+            body.apply(run.by_name[name])
+
+
+class SimulatedBody:
+    """One robot of a :class:`VehicleWorld`: its vehicle's calls become commands its robot
+    takes between two control steps, and its state comes back as snapshots."""
+
+    def __init__(self, loaded: LoadedMission, setup: RobotSetup) -> None:
+        self.loaded = loaded
+        self.map_id = loaded.world.name
+        self.robot_name = setup.name
+        self.robot = setup.robot
+        self.on_change: Callable[[], None] | None = None
+        self._localization = setup.stack.localization.type
+        self._commands: queue.SimpleQueue[Callable[[RobotRun], None]] = queue.SimpleQueue()
+        self._lock = threading.Lock()
+        self._snap = BodySnapshot(0.0, setup.start, 0.0, 0.0, "idle", None, 0, False)
+        self._goal: tuple[Pose2D, tuple[float | None, float | None], float | None] | None = None
+        self._goal_counter = 0  # goals asked for
+        self._goal_id = 0  # the goal the run drives to (snapshots report its state)
+        self._nav: NavState = "idle"
+        self._reason: str | None = None
+        self._paused = False
+        self._events_seen = 0
+        self._charge_counter = 0
+        self._charge_id = 0
+        self._charge_error: str | None = None
 
     # ---------------------------------------------------------------- the interface
 
@@ -167,7 +202,7 @@ class SimulatedBody:
             self._goal_counter += 1
             goal_id = self._goal_counter
         self._commands.put(
-            lambda run: self._set_goal(run, goal_id, pose, (xy_tolerance, yaw_tolerance), max_speed)
+            lambda r: self._set_goal(r, goal_id, pose, (xy_tolerance, yaw_tolerance), max_speed)
         )
         return goal_id
 
@@ -175,41 +210,42 @@ class SimulatedBody:
         self._commands.put(self._cancel)
 
     def pause(self) -> None:
-        self._commands.put(lambda run: self._set_paused(run, True))
+        self._commands.put(lambda r: self._set_paused(r, True))
 
     def resume(self) -> None:
-        self._commands.put(lambda run: self._set_paused(run, False))
+        self._commands.put(lambda r: self._set_paused(r, False))
 
     def set_pose(self, pose: Pose2D) -> None:
-        self._commands.put(lambda run: self._reset_pose(run, pose))
+        self._commands.put(lambda r: self._reset_pose(r, pose))
 
     def charge(self, on: bool) -> int:
         with self._lock:
             self._charge_counter += 1
             request = self._charge_counter
-        self._commands.put(lambda run: self._set_charging(run, request, on))
+        self._commands.put(lambda r: self._set_charging(r, request, on))
         return request
 
-    # ---------------------------------------------------------------- on the run's thread
+    # ---------------------------------------------------------------- on the world's thread
 
-    def before_step(self, run: MissionRun) -> None:
-        """Apply queued commands, see how the goal went, publish a snapshot, keep pace."""
-        if self._stop.is_set():
-            run.cancel("vehicle stopped")
-            return
-        if not self.ready.is_set():
-            self.ready.set()
-            self._next_tick = time.monotonic()
-        self._watch_goal(run)
-        self._watch_dock(run)
-        handle, smoother = run.handle, run.stack.smoother
+    def end(self, fault: str) -> None:
+        """The world's run is over: the vehicle reports why and stands still."""
+        with self._lock:
+            self._snap = replace(self._snap, fault=fault, v=0.0, w=0.0)
+        if self.on_change is not None:
+            self.on_change()
+
+    def observe(self, robot: RobotRun) -> None:
+        """See how the goal went and publish a snapshot of the step just made."""
+        self._watch_goal(robot)
+        self._watch_dock(robot)
+        handle, smoother = robot.handle, robot.stack.smoother
         goal, nav, paused = self._goal, self._nav, self._paused
         if nav == "running" and goal is not None and not paused and handle.remote_goal is None:
             handle.remote_goal = goal[0]  # the teleop task's first tick had cleared it
         v, w = smoother.v, smoother.w  # the command of the step just made (state's lags one)
         battery = handle.battery
         snap = BodySnapshot(
-            run.sim.time,
+            robot.sim.time,
             handle.state.estimate,
             v,
             w,
@@ -229,30 +265,24 @@ class SimulatedBody:
             self._snap = snap
         if changed and self.on_change is not None:
             self.on_change()
-        self._next_tick += self.period
-        delay = self._next_tick - time.monotonic()
-        if delay > 0:
-            self._stop.wait(delay)
-        elif delay < -1.0:  # fell behind by more than a second: do not race to catch up
-            self._next_tick = time.monotonic()
-        if self._stop.is_set():
-            run.cancel("vehicle stopped")
-            return
-        while True:  # commands that came while waiting go into the step that follows now
+
+    def apply(self, robot: RobotRun) -> None:
+        """The commands that came since the last step, in the order they came."""
+        while True:
             try:
-                self._commands.get_nowait()(run)
+                self._commands.get_nowait()(robot)
             except queue.Empty:
                 break
 
     def _set_goal(
         self,
-        run: MissionRun,
+        robot: RobotRun,
         goal_id: int,
         pose: Pose2D,
         tolerance: tuple[float | None, float | None],
         max_speed: float | None,
     ) -> None:
-        handle = run.handle
+        handle = robot.handle
         handle.navigator.cancel()
         self._goal = (pose, tolerance, max_speed)
         self._goal_id, self._nav, self._reason = goal_id, "running", None
@@ -261,16 +291,16 @@ class SimulatedBody:
         handle.remote_speed_limit = max_speed
         handle.remote_goal = None if self._paused else pose
 
-    def _cancel(self, run: MissionRun) -> None:
-        handle = run.handle
+    def _cancel(self, robot: RobotRun) -> None:
+        handle = robot.handle
         handle.remote_goal = None
         handle.navigator.cancel()
         if self._nav == "running":
             self._nav, self._reason = "failed", "cancelled"
         self._goal = None
 
-    def _set_paused(self, run: MissionRun, paused: bool) -> None:
-        handle = run.handle
+    def _set_paused(self, robot: RobotRun, paused: bool) -> None:
+        handle = robot.handle
         self._paused = paused
         if paused:
             handle.remote_goal = None
@@ -278,20 +308,20 @@ class SimulatedBody:
         elif self._goal is not None and self._nav == "running":
             handle.remote_goal = self._goal[0]
 
-    def _reset_pose(self, run: MissionRun, pose: Pose2D) -> None:
+    def _reset_pose(self, robot: RobotRun, pose: Pose2D) -> None:
         """A localiser's belief is reset (a real AGV's initPosition); with ``ground_truth``
         localisation the belief is the truth, so the simulated robot is placed there."""
-        run.handle.navigator.cancel()
-        if run.mission.stack.localization.type == "ground_truth":
-            run.sim.teleport(pose)
-        run.localizer.reset(pose, run.stack.odom)
-        run.handle.state.estimate = pose
+        robot.handle.navigator.cancel()
+        if self._localization == "ground_truth":
+            robot.sim.teleport(pose)
+        robot.localizer.reset(pose, robot.stack.odom)
+        robot.handle.state.estimate = pose
 
-    def _set_charging(self, run: MissionRun, request: int, on: bool) -> None:
+    def _set_charging(self, robot: RobotRun, request: int, on: bool) -> None:
         """Dock onto the nearest dock within :data:`DOCK_REACH` and charge, or stop. A real
         AGV is sent to its charging station node and then told ``startCharging``; it
         connects to the charger where it stands, it does not drive anywhere for it."""
-        handle, battery = run.handle, run.handle.battery
+        handle, battery = robot.handle, robot.handle.battery
         self._charge_id, self._charge_error = request, None
         if not on:
             if battery is not None:
@@ -299,7 +329,7 @@ class SimulatedBody:
             handle.docked = None
             return
         if battery is None:
-            self._charge_error = f"robot {self.robot_name!r} models no battery to charge"
+            self._charge_error = f"robot {self.robot.name!r} models no battery to charge"
             return
         here = handle.state.estimate
         near = sorted(
@@ -321,9 +351,9 @@ class SimulatedBody:
         battery.charging = True
         handle.log("charging", dock=name, level=round(battery.level, 4))
 
-    def _watch_dock(self, run: MissionRun) -> None:
+    def _watch_dock(self, robot: RobotRun) -> None:
         """Charging ends when the robot drives off its dock (the contacts part)."""
-        handle, battery = run.handle, run.handle.battery
+        handle, battery = robot.handle, robot.handle.battery
         dock = handle.docked
         if battery is None or dock is None or not battery.charging:
             return
@@ -333,8 +363,8 @@ class SimulatedBody:
             handle.docked = None
             handle.log("undocked", dock=dock.name)
 
-    def _watch_goal(self, run: MissionRun) -> None:
-        events = run.handle.events
+    def _watch_goal(self, robot: RobotRun) -> None:
+        events = robot.handle.events
         while self._events_seen < len(events):
             event = events[self._events_seen]
             self._events_seen += 1

@@ -2,14 +2,13 @@
 
 A one-robot mission is one vehicle, serial number ``agv1`` (its ``robot:`` names a model,
 not an individual). A mission with a ``robots:`` list (``fleet.md``) is one vehicle per
-robot, serial number its ``name``; until the fleet world exists each robot runs in a world
-of its own, on a thread of its own, in this one process (a stop-gap: their lidars do not
-see each other). ``tasks`` are ignored: a vehicle does what its orders say.
+robot, serial number its ``name``, every robot a body of the mission's one world (their
+lidars see each other, their contacts count): one :class:`~agv_mission.vda5050.body.
+VehicleWorld`. ``tasks`` are ignored: a vehicle does what its orders say.
 """
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,23 +17,34 @@ import yaml
 
 from agv_mission.missions.errors import MissionError, Problem
 from agv_mission.missions.loader import LoadedMission, load_mission
-from agv_mission.vda5050.body import SimulatedBody
+from agv_mission.robots.description import RobotDescription
+from agv_mission.vda5050.body import VehicleWorld
 from agv_mission.vda5050.transport import BrokerUrl
 from agv_mission.vda5050.vehicle import Vehicle
 
 DEFAULT_SERIAL = "agv1"
-FLEET_KEYS = ("robots", "tasks", "fleet", "expect", "tree")
 
 
 @dataclass(frozen=True)
 class VehicleSpec:
+    """One vehicle: its serial number and the robot of the mission it drives."""
+
     serial: str
+    robot: str  # the robot's name in the run
+    description: RobotDescription
+
+
+@dataclass(frozen=True)
+class VehicleMission:
+    """A mission file's world and the vehicles its robots are."""
+
     loaded: LoadedMission
+    vehicles: list[VehicleSpec]
 
 
 def load_vehicles(
     path: Path, overrides: list[str] | None = None, seed: int | None = None
-) -> list[VehicleSpec]:
+) -> VehicleMission:
     """The vehicles of mission file ``path``. Raises :class:`MissionError` (exit code 2)."""
     try:
         text = path.read_text(encoding="utf-8")
@@ -43,87 +53,65 @@ def load_vehicles(
         raise MissionError(
             [Problem(str(path), None, "", f"cannot read the mission: {exc}")]
         ) from None
-    if not isinstance(doc, dict) or "robots" not in doc:
-        tasks = doc.get("tasks") if isinstance(doc, dict) else None
-        if isinstance(tasks, list) and any(isinstance(t, dict) and "actions" in t for t in tasks):
-            # the master's node actions (``dispatch`` only): not the vehicle's business
-            doc["tasks"] = [
-                {k: v for k, v in t.items() if k != "actions"} if isinstance(t, dict) else t
-                for t in tasks
-            ]
-            text = yaml.safe_dump(doc, sort_keys=False)
-            loaded = load_mission(path, overrides, seed, text=text, tasks_required=False)
-        else:
-            loaded = load_mission(path, overrides, seed, tasks_required=False)
-        return [VehicleSpec(DEFAULT_SERIAL, loaded)]
-    robots = doc["robots"]
-    if not isinstance(robots, list) or not robots:
-        raise MissionError([Problem(str(path), None, "robots", "a non-empty list of robots")])
-    base = {k: v for k, v in doc.items() if k not in FLEET_KEYS}
-    specs: list[VehicleSpec] = []
-    for i, robot in enumerate(robots):
-        if not isinstance(robot, dict) or not isinstance(robot.get("name"), str):
-            raise MissionError([Problem(str(path), None, f"robots.{i}", "each robot needs a name")])
-        one: dict[str, Any] = copy.deepcopy(base)
-        one["name"] = f"{doc.get('name', path.stem)}-{robot['name']}"
-        for key in ("robot", "start"):
-            if key in robot:
-                one[key] = robot[key]
-        if isinstance(robot.get("stack"), dict):
-            one["stack"] = {**one.get("stack", {}), **robot["stack"]}
-        text_one = yaml.safe_dump(one, sort_keys=False)
-        try:
-            loaded = load_mission(path, overrides, seed, text=text_one, tasks_required=False)
-        except MissionError as exc:
-            raise MissionError(
-                [
-                    Problem(p.file, None, f"robots.{i}.{p.field}".rstrip("."), p.message)
-                    for p in exc.problems
-                ]
-            ) from None
-        specs.append(VehicleSpec(robot["name"], loaded))
-    return specs
+    if isinstance(doc, dict) and _without_node_actions(doc):
+        text = yaml.safe_dump(doc, sort_keys=False)
+    loaded = load_mission(path, overrides, seed, text=text, tasks_required=False)
+    if not loaded.is_fleet:
+        return VehicleMission(
+            loaded, [VehicleSpec(DEFAULT_SERIAL, loaded.robots[0].name, loaded.robot)]
+        )
+    return VehicleMission(loaded, [VehicleSpec(r.name, r.name, r.robot) for r in loaded.robots])
+
+
+def _without_node_actions(doc: dict[str, Any]) -> bool:
+    """Take the master's node ``actions`` (a ``dispatch``-only field, not the vehicle's
+    business) out of every task of ``doc``; True if there were any."""
+    lists = [doc.get("tasks")]
+    lists += [r.get("tasks") for r in doc.get("robots") or [] if isinstance(r, dict)]
+    found = False
+    for tasks in lists:
+        for task in tasks if isinstance(tasks, list) else []:
+            if isinstance(task, dict) and "actions" in task:
+                del task["actions"]
+                found = True
+    return found
 
 
 class VehicleSet:
-    """Bodies and vehicles of a mission file, started and stopped together."""
+    """A mission's world and its vehicles, started and stopped together."""
 
     def __init__(
         self,
-        specs: list[VehicleSpec],
+        mission: VehicleMission,
         broker: BrokerUrl,
         manufacturer: str = "agv-mission",
         time_scale: float = 1.0,
         log_dir: Path | None = None,
     ) -> None:
-        self.bodies: list[SimulatedBody] = []
+        self.world = VehicleWorld(mission.loaded, time_scale)
         self.vehicles: list[Vehicle] = []
-        for spec in specs:
-            body = SimulatedBody(spec.loaded, time_scale)
-            vehicle = Vehicle(body, spec.loaded.robot, broker, spec.serial, manufacturer, log_dir)
+        for spec in mission.vehicles:
+            body = self.world.bodies[spec.robot]
+            vehicle = Vehicle(body, spec.description, broker, spec.serial, manufacturer, log_dir)
             body.on_change = vehicle.wake
-            self.bodies.append(body)
             self.vehicles.append(vehicle)
 
     def start(self, timeout: float = 120.0) -> None:
-        """Bodies first (their set-up takes a while), then the MQTT side."""
-        for body in self.bodies:
-            body.start()
-        for body in self.bodies:
-            if not body.ready.wait(timeout) or body.error:
-                raise RuntimeError(f"{body.robot_name}: the simulation did not start: {body.error}")
+        """The world first (its set-up takes a while), then the MQTT side."""
+        self.world.start()
+        if not self.world.ready.wait(timeout) or self.world.error:
+            raise RuntimeError(f"the simulation did not start: {self.world.error}")
         for vehicle in self.vehicles:
             vehicle.start()
 
     def failed(self) -> str | None:
-        """Why a body stopped on its own, if one did."""
-        for vehicle, body in zip(self.vehicles, self.bodies, strict=True):
-            if body.record is not None and body.record.status != "aborted":
-                return f"{vehicle.serial}: the simulation ended: {body.record.reason}"
+        """Why the world stopped on its own, if it did."""
+        record = self.world.record
+        if record is not None and record.status != "aborted":
+            return f"the simulation ended ({record.status}): {record.reason}"
         return None
 
     def stop(self) -> None:
         for vehicle in self.vehicles:
             vehicle.stop()
-        for body in self.bodies:
-            body.stop()
+        self.world.stop()

@@ -308,21 +308,27 @@ def load_plan(
     )
 
 
+def place(node: RouteNode) -> str:
+    """Where a node is, to the decimetre: two orders' nodes at one place are one resource
+    whatever their ids (every patrol calls its waypoints wp1, wp2, ...)."""
+    return f"{round(node.x, 1):g},{round(node.y, 1):g}"
+
+
 class NodeReservations:
-    """Traffic control as the master can do it without a fleet world: a node (by id) is
-    granted to one vehicle at a time; a vehicle frees a node when it has left it."""
+    """Traffic control as the master can do it without a fleet world: a node's place is
+    granted to one vehicle at a time; a vehicle frees a place when it has left it."""
 
     def __init__(self) -> None:
         self.holder: dict[str, str] = {}
 
-    def grant(self, robot: str, node_id: str) -> bool:
-        owner = self.holder.setdefault(node_id, robot)
+    def grant(self, robot: str, node: RouteNode) -> bool:
+        owner = self.holder.setdefault(place(node), robot)
         return owner == robot
 
-    def keep_only(self, robot: str, node_ids: set[str]) -> None:
-        for node_id, owner in list(self.holder.items()):
-            if owner == robot and node_id not in node_ids:
-                del self.holder[node_id]
+    def keep_only(self, robot: str, places: set[str]) -> None:
+        for key, owner in list(self.holder.items()):
+            if owner == robot and key not in places:
+                del self.holder[key]
 
 
 @dataclass
@@ -517,7 +523,8 @@ class Master:
         peer.order, peer.queue = None, []
         # held while it was away; now only where it was last seen stays its own
         last = (peer.state or {}).get("lastNodeId")
-        self.traffic.keep_only(peer.serial, {last} if last else set())
+        nodes = [n for t in tasks for n in t.nodes] if last else []
+        self.traffic.keep_only(peer.serial, {place(n) for n in nodes if n.node_id == last})
         others = [p for p in self.peers.values() if p is not peer and p.online]
         for task in tasks:
             task.status, task.assigned = "pending", None
@@ -627,7 +634,7 @@ class Master:
         assert order is not None
         task = order.task
         peer.order = None
-        self.traffic.keep_only(peer.serial, {order.nodes[-1].node_id})
+        self.traffic.keep_only(peer.serial, {place(order.nodes[-1])})
         if status == "failed" and task.retries > 0:
             task.retries -= 1
             self.event("task_retry", task=task.index, robot=peer.serial, reason=reason)
@@ -668,13 +675,13 @@ class Master:
         """The furthest node index that may be released, ``lookahead`` past ``last``."""
         end = max(order.released, 0)
         for i in range(end + 1, min(last + self.lookahead, len(order.nodes) - 1) + 1):
-            if not self.traffic.grant(peer.serial, order.nodes[i].node_id):
+            if not self.traffic.grant(peer.serial, order.nodes[i]):
                 break
             end = i
         return end
 
     def _extend(self, peer: Peer, order: ActiveOrder, last: int) -> None:
-        held = {n.node_id for n in order.nodes[last : order.released + 1]}
+        held = {place(n) for n in order.nodes[last : order.released + 1]}
         self.traffic.keep_only(peer.serial, held)
         end = self._grantable(peer, order, last)
         if end > order.released:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from agv_mission.missions.schema.mission import Mission
+from agv_mission.missions.schema.mission import ROBOT_NAME_PATTERN, Mission
 from agv_mission.missions.schema.stack import DEFAULT_PLUGINS
 from agv_mission.registry import registry
 
@@ -38,7 +38,28 @@ def mission_json_schema() -> dict[str, Any]:
         "anyOf": [{"type": "string"}, {"$ref": output["$ref"]}],
     }
     _tree_nodes(schema)
+    _fleet_tasks(schema)
     return {"$schema": JSON_SCHEMA_DIALECT, **schema}
+
+
+def _fleet_tasks(schema: dict[str, Any]) -> None:
+    """A mission's own ``tasks`` may carry ``robot:`` (fleet.md: the robot a fleet task is
+    assigned to; the loader takes it out before the task model sees it)."""
+    defs = schema["$defs"]
+    items = schema["properties"]["tasks"]["items"]
+    robot = {
+        "type": "string",
+        "pattern": ROBOT_NAME_PATTERN,
+        "description": "a fleet mission's task: the robot (robots[].name) it is assigned to",
+    }
+    for option in items["oneOf"]:
+        name = option["$ref"].rsplit("/", 1)[-1]
+        fleet = {**defs[name], "properties": {**defs[name]["properties"], "robot": robot}}
+        defs[f"Fleet{name}"] = fleet
+        option["$ref"] = f"#/$defs/Fleet{name}"
+    mapping = items.get("discriminator", {}).get("mapping", {})
+    for key, ref in mapping.items():
+        mapping[key] = ref.replace("#/$defs/", "#/$defs/Fleet")
 
 
 def _tree_nodes(schema: dict[str, Any]) -> None:

@@ -2,6 +2,8 @@
 // layers (rooms, poses, trails, scan, particles, paths, goal) drawn over it at
 // requestAnimationFrame, only when something changed. Pan (drag), zoom (wheel, pinch),
 // and a "2D Nav Goal" mode (press at the goal, drag for the heading) as in RViz.
+// Every robot of a fleet has its own layers (scene.robots) in its own colour: pose, trail,
+// plan and goal of all; scan, particles and horizon of the picked one (a click picks).
 "use strict";
 
 const MAP_PALETTE = {
@@ -27,6 +29,7 @@ class MapView {
     this.goalMode = false;
     this.onGoal = null;         // (x, y, yaw) => void, called when a goal is placed
     this.onCursor = null;
+    this.onPick = null;         // (name) => void, called when a robot is clicked on the map
     this.robotRadius = 0.11;
     this.alwaysDraw = false;    // benchmarks: redraw every frame
     // Stream updates are drawn at most 20 times a second; interaction (pan, zoom) at the
@@ -76,18 +79,53 @@ class MapView {
   setAlwaysDraw(on) { this.alwaysDraw = on; if (on) this.schedule(); }
 
   emptyScene() {
-    return { map: null, rooms: [], docks: [], recorded: {}, truth: null, estimate: null, covariance: null,
-      truthTrail: [], estTrail: [], scan: null, particles: null, plan: null, horizon: null, people: null, goal: null,
+    // robots: name -> its layers (insertion order: the run's order); truth, goal, ... read
+    // the picked robot's (a one-robot run's only one); people are the world's
+    const scene = { map: null, rooms: [], docks: [], recorded: {}, robots: {}, selected: null, fleet: false,
+      people: null,
       pendingGoal: null };
+    for (const k of ["truth", "estimate", "covariance", "truthTrail", "estTrail", "scan", "particles", "plan", "horizon", "goal"]) {
+      Object.defineProperty(scene, k, {
+        get() { const r = this.robots[this.selected]; return r ? r[k] : null; },
+        set(v) { const r = this.robots[this.selected]; if (r) r[k] = v; },
+      });
+    }
+    return scene;
+  }
+
+  /** the layers of robot NAME (made on first use: a stream from before fleets names none) */
+  robot(name, info) {
+    const s = this.scene;
+    let r = s.robots[name];
+    if (!r) {
+      r = s.robots[name] = { name, colour: null, radius: null, type: null, truth: null, estimate: null, covariance: null,
+        truthTrail: [], estTrail: [], scan: null, particles: null, plan: null, horizon: null, goal: null };
+      if (s.selected == null) s.selected = name;
+    }
+    if (info) Object.assign(r, { colour: info.colour || r.colour, radius: info.radius || r.radius, type: info.type || r.type });
+    return r;
   }
 
   reset() {
-    const map = this.scene.map, rooms = this.scene.rooms, zones = this.scene.zones;
+    const old = this.scene;
     this.scene = this.emptyScene();
-    this.scene.map = map;
-    this.scene.rooms = rooms;
-    this.scene.zones = zones;
+    for (const k of ["map", "rooms", "zones", "fleet", "docks"]) this.scene[k] = old[k];
+    for (const r of Object.values(old.robots)) this.robot(r.name, r);
+    this.scene.selected = old.selected;
     this.dirty = true;
+  }
+
+  /** the robot drawn nearest to screen point (sx, sy), within its footprint and a few pixels */
+  robotAt(sx, sy) {
+    let best = null, bestD = Infinity;
+    for (const r of Object.values(this.scene.robots)) {
+      if (!r.truth) continue;
+      const [x, y] = this.toScreen(r.truth.x, r.truth.y);
+      const d = Math.hypot(x - sx, y - sy);
+      const reach = Math.max(12, (r.radius || this.robotRadius) * this.view.scale + 6);
+      if (d <= reach && d < bestD) { best = r.name; bestD = d; }
+    }
+    return best;
   }
 
   resize() {
@@ -217,7 +255,7 @@ class MapView {
         this.scene.pendingGoal = { x, y, yaw: 0, sx: p[0], sy: p[1] };
         this.drag = { kind: "goal" };
       } else if (this.pointers.size === 1) {
-        this.drag = { kind: "pan", last: p };
+        this.drag = { kind: "pan", last: p, start: p };
       } else if (this.pointers.size === 2) {
         const [a, b] = [...this.pointers.values()];
         this.drag = { kind: "pinch", dist: Math.hypot(a[0] - b[0], a[1] - b[1]) };
@@ -251,6 +289,11 @@ class MapView {
     });
     const end = (e) => {
       this.pointers.delete(e.pointerId);
+      if (e.type === "pointerup" && this.drag && this.drag.kind === "pan" && this.onPick) {
+        const p = local(e), [x0, y0] = this.drag.start;
+        const name = Math.hypot(p[0] - x0, p[1] - y0) < 5 ? this.robotAt(p[0], p[1]) : null;
+        if (name) this.onPick(name);
+      }
       if (this.drag && this.drag.kind === "goal" && this.scene.pendingGoal) {
         const g = this.scene.pendingGoal;
         this.scene.pendingGoal = null;
@@ -275,7 +318,7 @@ class MapView {
     const ctx = this.ctx, dpr = this.dpr || 1;
     const w = this.W, h = this.H;
     const s = this.scene, L = this.layers, S = this.view.scale;
-    if (this.follow && s.truth) { this.view.cx = s.truth.x; this.view.cy = s.truth.y; }
+    if (this.follow && s.truth) { this.view.cx = s.truth.x; this.view.cy = s.truth.y; }  // the picked robot
     const P = (x, y) => this.toScreen(x, y);
     // The map, grid and room outlines change only with the view: rendered once per view into
     // a cached layer, then copied 1:1 each frame (a software raster of the scaled map and the
@@ -296,29 +339,34 @@ class MapView {
     ctx.setTransform(1, 0, 0, 1, 0, 0);
     ctx.drawImage(this.staticCanvas, 0, 0);
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
-    if (L.particles && s.particles) {
+    const robots = Object.values(s.robots), picked = s.robots[s.selected];
+    // a one-robot run keeps its layer colours; a fleet's robots are each in their own colour
+    const tint = (r, layer) => (s.fleet && r.colour ? r.colour : LAYER_STYLE[layer]);
+    if (L.particles && picked && picked.particles) {
       ctx.strokeStyle = LAYER_STYLE.particles; ctx.globalAlpha = 0.7; ctx.lineWidth = 1;
       ctx.beginPath();
       const len = Math.max(4, Math.min(12, 0.12 * S));
-      for (const q of s.particles) {
+      for (const q of picked.particles) {
         const [x, y] = P(q[0], q[1]);
         ctx.moveTo(x, y);
         ctx.lineTo(x + Math.cos(q[2]) * len, y - Math.sin(q[2]) * len);
       }
       ctx.stroke();
       ctx.fillStyle = LAYER_STYLE.particles;
-      for (const q of s.particles) { const [x, y] = P(q[0], q[1]); ctx.fillRect(x - 1, y - 1, 2, 2); }
+      for (const q of picked.particles) { const [x, y] = P(q[0], q[1]); ctx.fillRect(x - 1, y - 1, 2, 2); }
       ctx.globalAlpha = 1;
     }
     if (L.trails) {
-      this.polyline(ctx, P, s.estTrail, LAYER_STYLE.estimate, 1.5, [4, 3], 0.8);
-      this.polyline(ctx, P, s.truthTrail, LAYER_STYLE.truth, 2, null, 0.8);
+      for (const r of robots) {
+        this.polyline(ctx, P, r.estTrail, s.fleet ? tint(r, "estimate") : LAYER_STYLE.estimate, 1.5, [4, 3], s.fleet ? 0.45 : 0.8);
+        this.polyline(ctx, P, r.truthTrail, tint(r, "truth"), 2, null, 0.8);
+      }
     }
-    if (L.plan && s.plan) this.polyline(ctx, P, s.plan, LAYER_STYLE.plan, 2.5, null, 0.95);
-    if (L.horizon && s.horizon) {
-      this.polyline(ctx, P, s.horizon, LAYER_STYLE.horizon, 3, null, 0.9);
+    if (L.plan) for (const r of robots) if (r.plan) this.polyline(ctx, P, r.plan, tint(r, "plan"), 2.5, s.fleet ? [8, 4] : null, 0.95);
+    if (L.horizon && picked && picked.horizon) {
+      this.polyline(ctx, P, picked.horizon, LAYER_STYLE.horizon, 3, null, 0.9);
       ctx.fillStyle = LAYER_STYLE.horizon;
-      for (const q of s.horizon) { const [x, y] = P(q[0], q[1]); ctx.fillRect(x - 1.5, y - 1.5, 3, 3); }
+      for (const q of picked.horizon) { const [x, y] = P(q[0], q[1]); ctx.fillRect(x - 1.5, y - 1.5, 3, 3); }
     }
     if (L.people && s.people) {  // [id, x, y, radius] each: a disc the size of the body
       ctx.fillStyle = LAYER_STYLE.people;
@@ -333,21 +381,40 @@ class MapView {
       ctx.fill();
       ctx.globalAlpha = 1;
     }
-    if (L.scan && s.scan) {
+    if (L.scan && picked && picked.scan) {
       ctx.fillStyle = LAYER_STYLE.scan;
       const r = Math.max(2.5, Math.min(4, 0.04 * S));
-      for (const q of s.scan) { const [x, y] = P(q[0], q[1]); ctx.fillRect(x - r / 2, y - r / 2, r, r); }
+      for (const q of picked.scan) { const [x, y] = P(q[0], q[1]); ctx.fillRect(x - r / 2, y - r / 2, r, r); }
     }
-    if (L.goal && s.goal) this.drawArrow(ctx, P, s.goal, LAYER_STYLE.goal, 0.5, true);
+    if (L.goal) for (const r of robots) if (r.goal) this.drawArrow(ctx, P, r.goal, tint(r, "goal"), 0.5, true);
     if (s.pendingGoal) this.drawArrow(ctx, P, s.pendingGoal, "#ffffff", 0.6, true);
     if (L.rooms) this.drawRoomLabels(ctx, P);
     if (L.rooms) this.drawDocks(ctx, P);
     if (L.recorded) this.drawRecorded(ctx, P);
-    if (L.estimate && s.estimate) {
-      if (s.covariance) this.drawCovariance(ctx, P, s.estimate, s.covariance);
-      this.drawRobot(ctx, P, s.estimate, LAYER_STYLE.estimate, false);
+    for (const r of robots) {
+      const radius = r.radius || this.robotRadius;
+      if (L.estimate && r.estimate) {
+        if (r.covariance && r === picked) this.drawCovariance(ctx, P, r.estimate, r.covariance);
+        this.drawRobot(ctx, P, r.estimate, LAYER_STYLE.estimate, false, radius);
+      }
+      if (L.truth && r.truth) this.drawRobot(ctx, P, r.truth, tint(r, "truth"), true, radius);
     }
-    if (L.truth && s.truth) this.drawRobot(ctx, P, s.truth, LAYER_STYLE.truth, true);
+    if (s.fleet) {
+      ctx.font = "600 11px system-ui, sans-serif";
+      ctx.textAlign = "left"; ctx.textBaseline = "middle";
+      for (const r of robots) {
+        if (!r.truth) continue;
+        const [x, y] = P(r.truth.x, r.truth.y);
+        const rad = Math.max(6, (r.radius || this.robotRadius) * S);
+        if (r === picked) {
+          ctx.strokeStyle = "#ffffff"; ctx.lineWidth = 2; ctx.setLineDash([3, 3]);
+          ctx.beginPath(); ctx.arc(x, y, rad + 5, 0, Math.PI * 2); ctx.stroke(); ctx.setLineDash([]);
+        }
+        const tw = ctx.measureText(r.name).width;
+        ctx.fillStyle = "rgba(11,13,16,0.72)"; ctx.fillRect(x + rad + 4, y - rad - 16, tw + 8, 15);
+        ctx.fillStyle = r.colour || "#ffffff"; ctx.fillText(r.name, x + rad + 8, y - rad - 8.5);
+      }
+    }
     this.drawScaleBar(ctx, w, h);
   }
 
@@ -491,10 +558,10 @@ class MapView {
     if (ring) { ctx.beginPath(); ctx.arc(x, y, 5, 0, Math.PI * 2); ctx.stroke(); }
   }
 
-  drawRobot(ctx, P, pose, color, filled) {
+  drawRobot(ctx, P, pose, color, filled, radius) {
     const S = this.view.scale;
     const [x, y] = P(pose.x, pose.y);
-    const r = Math.max(6, this.robotRadius * S);
+    const r = Math.max(6, (radius || this.robotRadius) * S);
     ctx.beginPath(); ctx.arc(x, y, r, 0, Math.PI * 2);
     if (filled) { ctx.fillStyle = color + "55"; ctx.fill(); }
     ctx.strokeStyle = color; ctx.lineWidth = 2; ctx.stroke();

@@ -1,13 +1,18 @@
 // Run page: the run live over the WebSocket while it goes on, and replayed from the run
 // directory's stream.jsonl once it is final (time slider). Behaviour tree, event timeline,
 // pause / resume / cancel, teleop (arrow keys, pad, record room, nav goal), result and files.
+// A fleet run draws every robot in its own colour; picking one (its chip, or a click on it
+// on the map) shows its tree, HUD and battery, and points teleop, goals and records at it.
 "use strict";
 (function () {
   const runId = decodeURIComponent(location.pathname.split("/").filter(Boolean).pop());
   const $ = (id) => document.getElementById(id);
   const view = new MapView($("map"));
   window.agvView = view;  // for tests and the benchmark (frame counters)
-  window.agvRunState = () => ({ status, task, state: lastState, replay: replay && { t: replay.t, t0: replay.t0, t1: replay.t1 } });
+  window.agvRunState = () => ({ status, task, state: lastState, replay: replay && { t: replay.t, t0: replay.t0, t1: replay.t1 },
+    fleet: view.scene.fleet, selected: view.scene.selected, tree: treeNodes,
+    robots: Object.values(view.scene.robots).map((r) => ({ name: r.name, colour: r.colour, type: r.type, pose: r.truth,
+      task: states[r.name]?.task ?? null, plan: r.plan ? r.plan.length : 0, trail: r.truthTrail.length })) });
 
   let run = null;
   let status = null;
@@ -18,6 +23,8 @@
   let replay = null;
   let events = [];
   let treeNodes = null;
+  let trees = {};   // robot -> its tree's nodes
+  let states = {};  // robot -> its latest state
   let treeDirty = false, eventsDirty = false;
   let cursor = null;
   const LIVE_RATE = 25;
@@ -89,7 +96,8 @@
     document.title = `${run.name || runId} · agv-mission`;
     $("name").textContent = run.name || runId;
     const world = AGV.worldName(AGV.runWorld(run)), robot = AGV.worldName(AGV.runRobot(run));
-    const bits = [world && `world ${world}`, robot && `robot ${robot}`, `created ${AGV.fmtClock(run.created)}`,
+    const fleet = view.scene.fleet ? `${Object.keys(view.scene.robots).length} robots` : null;
+    const bits = [world && `world ${world}`, fleet || (robot && `robot ${robot}`), `created ${AGV.fmtClock(run.created)}`,
       run.started && `duration ${AGV.fmtDuration(AGV.runDuration(run))}`, `id ${run.id}`];
     const text = bits.filter(Boolean).join(" · ");
     if ($("meta").textContent !== text) $("meta").textContent = text;
@@ -113,23 +121,48 @@
   let lastClampToast = 0;
   function apply(msg, live) {
     const s = view.scene;
+    // a robot's own message (a stream from before fleets names none: its one robot)
+    const mine = () => view.robot(msg.robot ?? "robot");
+    const picked = () => (msg.robot ?? "robot") === s.selected;
     switch (msg.type) {
       case "map": view.setMap(msg); break;
       case "zones": view.setZones(msg); break;
+      case "robots": {
+        s.fleet = !!msg.fleet;
+        for (const r of msg.robots || []) {
+          view.robot(r.name, r);
+          if (!trees[r.name]) trees[r.name] = r.tree || [];
+        }
+        if (!s.fleet && msg.robots?.length) view.robotRadius = msg.robots[0].radius || view.robotRadius;
+        pick(s.selected ?? msg.robots?.[0]?.name);
+        robotsDirty = true;
+        break;
+      }
       case "rooms": s.rooms = msg.rooms || []; s.docks = msg.docks || []; break;
       case "recorded": s.recorded = Object.assign({}, msg.entries || {}); break;
-      case "tree": treeNodes = msg.nodes || []; treeDirty = true; break;
-      case "plan": s.plan = msg.path; break;
-      case "horizon": s.horizon = msg.path; break;
-      case "people": s.people = msg.people; break;
-      case "particles": s.particles = msg.particles; break;
-      case "goal": s.goal = msg.pose; break;
-      case "scan": s.scan = msg.points; break;
+      case "tree": {
+        mine();
+        trees[msg.robot ?? "robot"] = msg.nodes || [];
+        if (picked()) { treeNodes = msg.nodes || []; treeDirty = true; }
+        break;
+      }
+      case "plan": mine().plan = msg.path; break;
+      case "horizon": mine().horizon = msg.path; break;
+      case "people": s.people = msg.people; break;  // the world's, every robot's
+      case "particles": mine().particles = msg.particles; break;
+      case "goal": mine().goal = msg.pose; break;
+      case "scan": mine().scan = msg.points; break;
       case "state": {
-        lastState = msg;
-        s.truth = msg.pose; s.estimate = msg.estimate; s.covariance = msg.covariance || null;
-        pushTrail(s.truthTrail, msg.pose); pushTrail(s.estTrail, msg.estimate);
-        if (live) { setStatus(msg.status); task = msg.task || null; updateTeleop(); }
+        const r = mine();
+        states[r.name] = msg;
+        r.truth = msg.pose; r.estimate = msg.estimate; r.covariance = msg.covariance || null;
+        pushTrail(r.truthTrail, msg.pose); pushTrail(r.estTrail, msg.estimate);
+        if (live) setStatus(msg.status);
+        if (picked()) {
+          lastState = msg;
+          if (live) { task = msg.task || null; updateTeleop(); }
+        }
+        robotsDirty = true;
         break;
       }
       case "event": events.push(msg); eventsDirty = true; break;
@@ -169,7 +202,50 @@
   }
 
   function sendCmd(v, w) {
-    if (ws && ws.readyState === WebSocket.OPEN) ws.send(JSON.stringify({ type: "cmd_vel", v, w }));
+    const robot = view.scene.selected;
+    if (ws && ws.readyState === WebSocket.OPEN) ws.send(JSON.stringify({ type: "cmd_vel", v, w, robot }));
+  }
+
+  // ------------------------------------------------------------------ robots (a fleet's)
+  let robotsDirty = false;
+  const robotQuery = () => (view.scene.selected ? `?robot=${encodeURIComponent(view.scene.selected)}` : "");
+  function colourOf(name) {
+    const r = view.scene.robots[name];
+    return view.scene.fleet && r && r.colour ? r.colour : null;
+  }
+  /** show robot NAME's tree, HUD, battery; teleop, goals and records go to it */
+  function pick(name) {
+    if (name == null || !view.scene.robots[name]) return;
+    const changed = view.scene.selected !== name;
+    view.scene.selected = name;
+    treeNodes = trees[name] || null;
+    lastState = states[name] || null;
+    task = lastState?.task || null;
+    treeDirty = true; robotsDirty = true; view.dirty = true;
+    if (changed) held.clear();  // the robot left behind stops on its own (0.5 s without commands)
+    updateTeleop();
+  }
+  view.onPick = (name) => pick(name);
+  $("robots").addEventListener("click", (e) => {
+    const chip = e.target.closest("[data-robot]");
+    if (chip) pick(chip.dataset.robot);
+  });
+  function renderRobots() {
+    robotsDirty = false;
+    const s = view.scene;
+    $("robotspanel").hidden = !s.fleet;
+    const colour = colourOf(s.selected);
+    const head = s.fleet && s.selected ? `<span class="sw" style="background:${colour}"></span>${AGV.esc(s.selected)}` : "";
+    if ($("treerobot").innerHTML !== head) $("treerobot").innerHTML = head;
+    if ($("teleoprobot").innerHTML !== head) $("teleoprobot").innerHTML = head;
+    if (!s.fleet) return;
+    const html = Object.values(s.robots).map((r) => {
+      const t = states[r.name]?.task;
+      const doing = t ? `${t.index + 1} ${t.type}` : (states[r.name] ? "idle" : "");
+      return `<button class="robotchip${r.name === s.selected ? " picked" : ""}" data-robot="${AGV.esc(r.name)}" title="${AGV.esc(r.type || "")}">`
+        + `<span class="sw" style="background:${r.colour}"></span>${AGV.esc(r.name)}<span class="task">${AGV.esc(doing)}</span></button>`;
+    }).join("");
+    if ($("robots").innerHTML !== html) $("robots").innerHTML = html;
   }
 
   // ------------------------------------------------------------------ HUD, tree, events
@@ -180,6 +256,7 @@
     const lines = [];
     if (st) {
       const tk = st.task ? `task ${st.task.index + 1} ${st.task.type}` : "";
+      if (view.scene.fleet) lines.push(`${view.scene.selected} (${view.scene.robots[view.scene.selected]?.type ?? ""})`);
       lines.push(`t ${num(st.t, 8, 1)} s   ${tk}`);
       lines.push(`v ${num(st.v, 6, 2)} m/s   w ${num(st.w, 6, 2)} rad/s`);
       if (st.pose) lines.push(`true x${num(st.pose.x)} y${num(st.pose.y)} θ${deg(st.pose.yaw)}`);
@@ -240,8 +317,8 @@
   });
 
   function eventClass(name) {
-    if (/fail|collision|abort|error|lost|timeout/.test(name)) return "bad";
-    if (/recover|fault|skip|kidnap|replan|retry|stuck|clear/.test(name)) return "warn";
+    if (/fail|collision|abort|error|lost|timeout|deadlock/.test(name)) return "bad";
+    if (/recover|fault|skip|kidnap|replan|retry|stuck|clear|wait|yield/.test(name)) return "warn";
     if (/reached|recorded|succeed|saved|done|complete/.test(name)) return "good";
     return "";
   }
@@ -254,11 +331,13 @@
     const nowT = replay ? replay.t : Infinity;
     el.innerHTML = shown.map((e) => {
       const name = String(e.event ?? "event");
-      const kv = Object.entries(e).filter(([k]) => k !== "t" && k !== "event" && k !== "type")
+      const colour = e.robot != null ? colourOf(e.robot) : null;
+      const kv = Object.entries(e).filter(([k]) => k !== "t" && k !== "event" && k !== "type" && !(k === "robot" && (colour || !view.scene.fleet)))
         .map(([k, v]) => `${k}=${typeof v === "object" ? JSON.stringify(v) : v}`).join("  ");
       const when = e.t ?? 0;
-      return `<div class="ev ${eventClass(name)} ${when <= nowT ? "past" : "future"}" data-t="${when}">
-        <span class="t">${AGV.fmtNum(when, 1)}</span><div><div class="name">${AGV.esc(name)}</div><div class="kv">${AGV.esc(kv)}</div></div></div>`;
+      const who = colour ? `<span class="robot"><span class="rsw" style="background:${colour}"></span>${AGV.esc(e.robot)}</span>` : "";
+      return `<div class="ev ${eventClass(name)} ${when <= nowT ? "past" : "future"}" data-t="${when}"${colour ? ` data-robot="${AGV.esc(e.robot)}" style="border-left:3px solid ${colour};padding-left:4px"` : ""}>
+        <span class="t">${AGV.fmtNum(when, 1)}</span><div><div class="name">${who}${AGV.esc(name)}</div><div class="kv">${AGV.esc(kv)}</div></div></div>`;
     }).join("") || `<div class="muted">no events yet</div>`;
     $("evcount").textContent = `${events.length}`;
     if (atBottom && !replay) el.scrollTop = el.scrollHeight;
@@ -272,6 +351,7 @@
   setInterval(() => {
     if (treeDirty) renderTree();
     if (eventsDirty) renderEvents();
+    if (robotsDirty) renderRobots();
     updateHud();
   }, 200);
   setInterval(() => { if (run && !AGV.FINAL.has(status || "")) setMeta(); }, 1000);
@@ -331,7 +411,7 @@
     view.setGoalMode(false);
     $("navgoal").classList.remove("on");
     const pose = { x: +x.toFixed(3), y: +y.toFixed(3), yaw: +yaw.toFixed(3) };
-    const r = await AGV.api(`/api/runs/${encodeURIComponent(runId)}/goal`, { method: "POST", body: pose });
+    const r = await AGV.api(`/api/runs/${encodeURIComponent(runId)}/goal${robotQuery()}`, { method: "POST", body: pose });
     if (r.ok) { view.scene.goal = pose; view.dirty = true; toast(`goal set: x ${pose.x} y ${pose.y} yaw ${pose.yaw}`, "good"); }
     else toast(`goal refused: ${r.status} ${r.data?.detail ?? ""}`, "bad");
   };
@@ -344,7 +424,7 @@
     e.preventDefault();
     const label = $("reclabel").value.trim();
     if (!label) return;
-    const r = await AGV.api(`/api/runs/${encodeURIComponent(runId)}/rooms/${encodeURIComponent(label)}`, { method: "POST" });
+    const r = await AGV.api(`/api/runs/${encodeURIComponent(runId)}/rooms/${encodeURIComponent(label)}${robotQuery()}`, { method: "POST" });
     if (r.ok) {
       const pose = r.data?.pose;
       if (pose) { view.scene.recorded[label] = pose; view.dirty = true; }
@@ -394,7 +474,23 @@
       ["min clearance", m.min_clearance != null ? `${AGV.fmtNum(m.min_clearance, 3)} m` : null],
       ["loc. RMSE", loc.position_rmse != null ? `${AGV.fmtNum(loc.position_rmse, 3)} m (max ${AGV.fmtNum(loc.position_max_error, 3)})` : null],
       ["plans / replans", nav.plans != null ? `${nav.plans} / ${nav.replans ?? 0}` : null],
-    ].filter(([, v]) => v != null && v !== "");
+    ];
+    const fleet = result?.fleet;
+    if (fleet) {
+      rows.push(["makespan", fleet.makespan != null ? `${AGV.fmtNum(fleet.makespan, 1)} s` : null],
+        ["robot-robot collisions", Array.isArray(fleet.robot_robot_collisions) ? fleet.robot_robot_collisions.length : fleet.robot_robot_collisions],
+        ["closest robots", fleet.robot_robot_min_distance != null ? `${AGV.fmtNum(fleet.robot_robot_min_distance, 3)} m` : null],
+        ["waits", fleet.waits ? `${fleet.waits.count} (${AGV.fmtNum(fleet.waits.time, 1)} s)` : null],
+        ["deadlocks", fleet.deadlocks],
+        ["dispatched", Array.isArray(fleet.dispatch) ? fleet.dispatch.length : null]);
+    }
+    const shownRows = rows.filter(([, v]) => v != null && v !== "");
+    // a fleet's result: each robot's status in its colour
+    const perRobot = Object.entries(result?.robots || {}).map(([name, r]) => {
+      const colour = colourOf(name) || "#8a96a6";
+      const done = (r.tasks || []).filter((t) => t.status === "succeeded").length;
+      return `<div class="robotresult" data-robot="${AGV.esc(name)}"><span class="robot"><span class="rsw" style="background:${colour}"></span>${AGV.esc(name)}</span> ${AGV.badge(r.status)} <span class="muted">${done}/${(r.tasks || []).length} tasks${r.reason ? " · " + AGV.esc(r.reason) : ""}</span></div>`;
+    }).join("");
     const tasks = (result?.tasks || []).map((t) => {
       const wps = t.waypoints ? ` · ${t.waypoints.filter((w) => w.status === "reached").length}/${t.waypoints.length} waypoints` : "";
       const rooms = t.rooms ? ` · ${t.rooms.filter((w) => w.status === "reached").length}/${t.rooms.length} rooms` : "";
@@ -403,7 +499,8 @@
     const links = files.map((f) => `<a href="${AGV.fileUrl(runId, f)}" data-file="${AGV.esc(f)}" target="_blank" rel="noopener">${AGV.esc(f)}</a>`).join("");
     $("result").innerHTML = `
       <p class="reason">${AGV.badge(st)} ${AGV.esc(reason || "")}</p>
-      <dl>${rows.map(([k, v]) => `<dt>${k}</dt><dd>${AGV.esc(v)}</dd>`).join("")}</dl>
+      <dl>${shownRows.map(([k, v]) => `<dt>${k}</dt><dd>${AGV.esc(v)}</dd>`).join("")}</dl>
+      ${perRobot ? `<div class="robotresults">${perRobot}</div>` : ""}
       ${tasks ? `<div style="margin-top:8px;display:flex;flex-direction:column;gap:3px">${tasks}</div>` : ""}
       <div class="files">${links || '<span class="muted">no files</span>'}</div>
       ${files.includes("run.png") ? `<img ${AGV.token() ? "data-src" : "src"}="${AGV.fileUrl(runId, "run.png")}" alt="run.png">` : ""}`;
@@ -437,8 +534,11 @@
     scrub.min = t0; scrub.max = t1; scrub.step = 0.1;
     $("replaypanel").hidden = false;
     const span = Math.max(1e-6, t1 - t0);
-    $("ticks").innerHTML = events.map((e) =>
-      `<i class="${eventClass(String(e.event))}" style="left:${(((e.t ?? t0) - t0) / span * 100).toFixed(2)}%" title="${AGV.esc(e.event)} @ ${AGV.fmtNum(e.t, 1)} s"></i>`).join("");
+    $("ticks").innerHTML = events.map((e) => {
+      const colour = e.robot != null ? colourOf(e.robot) : null;
+      const who = colour ? `${e.robot}: ` : "";
+      return `<i class="${eventClass(String(e.event))}" style="left:${(((e.t ?? t0) - t0) / span * 100).toFixed(2)}%${colour ? `;background:${colour}` : ""}" title="${AGV.esc(who + e.event)} @ ${AGV.fmtNum(e.t, 1)} s"></i>`;
+    }).join("");
     seek(t1);
   }
 
@@ -449,7 +549,7 @@
     T = Math.max(R.t0, Math.min(R.t1, T));
     if (T < R.t) {
       view.reset();
-      R.idx = 0; R.mapMsg = null; lastState = null; treeNodes = null;
+      R.idx = 0; R.mapMsg = null; lastState = null; treeNodes = null; trees = {}; states = {};
     }
     while (R.idx < R.msgs.length && R.msgs[R.idx]._t <= T) {
       const m = R.msgs[R.idx++];
@@ -461,7 +561,7 @@
     R.t = T;
     $("scrub").value = T;
     $("scrubt").textContent = `${T.toFixed(1)} / ${R.t1.toFixed(1)} s`;
-    eventsDirty = true; treeDirty = true;
+    eventsDirty = true; treeDirty = true; robotsDirty = true;
     view.dirty = true;
   }
   $("scrub").addEventListener("input", (e) => seek(parseFloat(e.target.value)));

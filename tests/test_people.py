@@ -572,3 +572,19 @@ def test_the_costmap_leaves_out_people_walking_by_but_not_people_standing() -> N
     assert not navigator.layer.marks.any()
     navigator.observe(pose, scan(1.0), None)  # not a person: marked as before
     assert navigator.layer.marks.sum() == 1
+
+
+def test_a_run_with_people_is_reproduced_from_its_seed(tmp_path: Path) -> None:
+    mission = tmp_path / "again.yaml"
+    mission.write_text(
+        "name: again\nworld: small_house\nstart: {x: -1.5, y: -2.0, yaw: 0.0}\nseed: 5\n"
+        "people:\n  - {count: 4, area: livingroom}\n"
+        "tasks:\n  - {type: go_to, pose: {x: 3.5, y: -2.0, yaw: 0.0}}\nlimits: {time: 6.0}\n"
+    )
+    first, second = (run_mission(load_mission(mission)) for _ in range(2))
+    assert np.array_equal(first.trajectory, second.trajectory)
+    assert np.array_equal(first.people.xy, second.people.xy, equal_nan=True)
+    other = mission.read_text().replace("seed: 5", "seed: 6")
+    mission.write_text(other)
+    third = run_mission(load_mission(mission))
+    assert not np.array_equal(first.people.xy, third.people.xy, equal_nan=True)

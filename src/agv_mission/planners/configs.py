@@ -228,8 +228,8 @@ class MpcConfig(PluginConfig):
         ge=0,
         description="more room kept from a person's body than from a wall, m (people move "
         "unpredictably within the horizon: the constant-velocity guess is only a guess; "
-        "0.2 m kept 0.24 m from people walking both ways in a 2.2 m aisle, standing 2 % of "
-        "the time, where 0.3 m stood 15 %)",
+        "among people walking both ways in a 2.2 m aisle 0.2 m kept 0.30 m and never stood, "
+        "where 0.3 m stood 7 % of the time)",
     )
     solver: Literal["rti", "fatrop", "ipopt"] = Field(
         "rti",

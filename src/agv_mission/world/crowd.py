@@ -445,7 +445,10 @@ class Crowd:
         delta = self._target[who] - self.positions[who]
         dist = np.hypot(delta[:, 0], delta[:, 1])
         final = self._final[who]
-        due = (dist < np.where(final, ARRIVED, REACHED)) | (self._next_check[who] <= self.time)
+        # a waypoint reached, or someone held up (pushed aside, maybe out of its sight) due
+        # for a look at its way
+        held_up = (self._next_check[who] <= self.time) & np.isfinite(self._slow_since[who])
+        due = (dist < np.where(final, ARRIVED, REACHED)) | held_up
         if due.any():
             for i in people[due]:
                 self._advance(int(i))

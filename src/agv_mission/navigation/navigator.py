@@ -61,6 +61,22 @@ def on_people(points: np.ndarray, people: np.ndarray) -> np.ndarray:
     return (d2 <= (reach * reach)[None, :]).any(axis=1)
 
 
+def beams_on_people(scan: LaserScan, pose: Pose2D, people: np.ndarray) -> np.ndarray | None:
+    """Which beams of ``scan`` seen from ``pose`` end on a tracked person (rows x, y,
+    radius, ...); None when no person is within the lidar's reach."""
+    if not len(people):
+        return None
+    reach = scan.range_max + people[:, 2] + PERSON_TOLERANCE
+    people = people[np.hypot(people[:, 0] - pose.x, people[:, 1] - pose.y) <= reach]
+    if not len(people):
+        return None
+    r = scan.ranges.astype(float)
+    a = scan.angles + pose.yaw
+    with np.errstate(invalid="ignore"):  # no-return beams: inf or nan, on nobody
+        ends = np.stack([pose.x + r * np.cos(a), pose.y + r * np.sin(a)], axis=1)
+        return on_people(ends, people)
+
+
 class Navigator:
     """Drives the robot to one goal at a time."""
 
@@ -115,15 +131,8 @@ class Navigator:
         ignore = None
         if people is not None and len(people):
             people = np.asarray(people, dtype=float)
-            reach = scan.range_max + people[:, 2] + PERSON_TOLERANCE
-            seen = np.hypot(people[:, 0] - pose.x, people[:, 1] - pose.y) <= reach
-            people = people[seen & (np.hypot(people[:, 3], people[:, 4]) >= STANDING)]
-        if people is not None and len(people):
-            r = scan.ranges.astype(float)
-            a = scan.angles + pose.yaw
-            with np.errstate(invalid="ignore"):  # no-return beams: inf or nan, on nobody
-                ends = np.stack([pose.x + r * np.cos(a), pose.y + r * np.sin(a)], axis=1)
-                ignore = on_people(ends, people)
+            walking = people[np.hypot(people[:, 3], people[:, 4]) >= STANDING]
+            ignore = beams_on_people(scan, pose, walking)
         if ignore is None:
             self.layer.update(pose, scan)
         else:

@@ -24,7 +24,16 @@ AISLES = (-13.2, -8.95, -5.35, -1.75, 1.85, 5.45, 9.05, 12.55)  # x of the rack 
 STRETCHES = ((-20.0, -15.0), (-12.0, -7.0), (7.0, 12.0), (15.0, 20.0))  # y of a patrol
 SIM_SECONDS = 30.0
 SIZES = (1, 5, 10, 30)
-COMPONENTS = ("physics", "lidar", "localisation", "obstacle_layer", "planning", "control", "tree")
+COMPONENTS = (
+    "physics",
+    "lidar",
+    "localisation",
+    "obstacle_layer",
+    "planning",
+    "control",
+    "tree",
+    "traffic",
+)
 
 
 def fleet_mission(n: int, sim_seconds: float = SIM_SECONDS) -> str:
@@ -84,6 +93,8 @@ def measure(n: int, sim_seconds: float = SIM_SECONDS, parts: bool = True) -> dic
     clock = _Clock()
     if parts:
         clock.wrap(run.world, "step", "physics")
+        if run.coordinator is not None:
+            clock.wrap(run.coordinator.traffic, "decide", "traffic")
         for r in run.robots:
             clock.wrap(r.sim, "scan", "lidar")
             clock.wrap(r.localizer, "update", "localisation")

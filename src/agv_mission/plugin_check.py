@@ -9,7 +9,8 @@ Plugin authors call it in their tests::
 It checks the config (a :class:`~agv_mission.registry.PluginConfig` whose ``type`` is the
 plugin's name, buildable from defaults), that every method of the slot's protocol is there
 with the protocol's parameters, and then drives one instance in a 4 m x 4 m walled room:
-a plan across it, a control step, a localisation or SLAM update with a real scan.
+a plan across it, a control step, a localisation or SLAM update with a real scan, a task
+dispatched among three robots, traffic decisions for two robots meeting head-on.
 """
 
 from __future__ import annotations
@@ -21,6 +22,17 @@ from typing import Any
 import numpy as np
 
 from agv_mission.behaviors.check import NodeCheckError, check_node
+from agv_mission.fleet.base import (
+    Assignment,
+    Dispatcher,
+    DispatchError,
+    FleetTask,
+    RobotWork,
+    TrafficController,
+    TrafficDecision,
+    TrafficRobot,
+    TrafficUpdate,
+)
 from agv_mission.geometry import Pose2D
 from agv_mission.localization.base import Localizer, LocalizerDiagnostics
 from agv_mission.mapping.base import Slam
@@ -42,6 +54,8 @@ PROTOCOLS: dict[str, type] = {
     "local_planner": LocalPlanner,
     "localization": Localizer,
     "slam": Slam,
+    "dispatcher": Dispatcher,
+    "traffic": TrafficController,
 }
 ROOM = 4.0  # metres, the side of the test room
 RESOLUTION = 0.05
@@ -97,6 +111,8 @@ def _infer_slot(cls: type) -> str:
         ("local_planner", ("compute",)),
         ("slam", ("occupancy_grid",)),
         ("localization", ("request_nomotion_update",)),
+        ("dispatcher", ("assign",)),
+        ("traffic", ("decide",)),
     ):
         if all(callable(getattr(cls, m, None)) for m in methods):
             return slot
@@ -231,9 +247,68 @@ def _drive_slam(cls: type, config: PluginConfig) -> None:
     _expect(isinstance(slam.diagnostics(), dict), "diagnostics() must return a dict")
 
 
+def _drive_dispatcher(cls: type, config: PluginConfig) -> None:
+    dispatcher = cls(config)
+    speed = 0.2  # m/s
+
+    def travel(name: str, a: Pose2D, b: Pose2D) -> float:
+        return a.distance_to(b) / speed
+
+    robots = [
+        RobotWork("near_busy", Pose2D(1.0, 1.0), held_time=30.0),
+        RobotWork("far_idle", Pose2D(3.0, 3.0)),
+        RobotWork("out", Pose2D(1.0, 1.2), available=False),
+    ]
+    task = FleetTask("t0", (Pose2D(1.5, 1.0), Pose2D(2.0, 1.0)))
+    got = dispatcher.assign(task, robots, travel)
+    _expect(isinstance(got, Assignment), "assign() must return an Assignment")
+    _expect(got.robot in {"near_busy", "far_idle"}, f"assign() chose {got.robot!r}")
+    _expect(math.isfinite(got.finish) and got.finish >= 0.0, "finish must be seconds >= 0")
+    again = dispatcher.assign(task, robots, travel)
+    _expect(again.robot == got.robot, "the same question must get the same answer")
+    try:
+        dispatcher.assign(task, [RobotWork("out", Pose2D(1.0, 1.0), available=False)], travel)
+    except DispatchError:
+        pass
+    else:
+        raise PluginCheckError("a task no available robot can do must raise DispatchError")
+
+
+def _drive_traffic(cls: type, config: PluginConfig) -> None:
+    traffic = cls(config)
+    costmap = Costmap.from_grid(_room(), ROBOT_RADIUS, CostmapConfig())
+    line = np.array([[0.8, 2.0], [3.2, 2.0]])
+
+    def robot(name: str, x: float, path: np.ndarray) -> TrafficRobot:
+        yaw = 0.0 if path[-1, 0] > x else math.pi
+        return TrafficRobot(
+            name, Pose2D(x, 2.0, yaw), ROBOT_RADIUS, 0.22, 0.2, path, False, costmap
+        )
+
+    alone = traffic.decide(0.0, [robot("a", 1.0, line)])
+    _expect(isinstance(alone, TrafficUpdate), "decide() must return a TrafficUpdate")
+    _expect(alone.decisions["a"].action == "go", "a robot alone on its path must go")
+    for step in range(1, 4):  # head-on, 0.6 m apart (0.39 m between the footprints)
+        a, b = robot("a", 1.7, line), robot("b", 2.3, line[::-1].copy())
+        update = traffic.decide(0.1 * step, [a, b])
+        _expect(set(update.decisions) == {"a", "b"}, "every robot needs a decision")
+        ahead = 0.0
+        for d in update.decisions.values():
+            _expect(isinstance(d, TrafficDecision), "decisions must be TrafficDecisions")
+            _expect(d.action in ("go", "wait", "yield", "replan"), f"unknown action {d.action}")
+            if d.action == "go":
+                ahead += math.inf if d.limit is None else max(d.limit, 0.0)
+        _expect(ahead <= 0.39, "two robots head-on were both let go into each other")
+        _expect(all(isinstance(e, dict) and "event" in e for e in update.events), "events")
+    stats = traffic.stats()
+    _expect(isinstance(stats, dict) and {"waits", "deadlocks"} <= set(stats), "stats() keys")
+
+
 _DRIVERS = {
     "global_planner": _drive_global_planner,
     "local_planner": _drive_local_planner,
     "localization": _drive_localization,
     "slam": _drive_slam,
+    "dispatcher": _drive_dispatcher,
+    "traffic": _drive_traffic,
 }

@@ -27,7 +27,15 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel, ConfigDict
 
-SLOTS = ("localization", "slam", "global_planner", "local_planner", "behavior")
+SLOTS = (
+    "localization",
+    "slam",
+    "global_planner",
+    "local_planner",
+    "behavior",
+    "dispatcher",
+    "traffic",
+)
 ENTRY_POINT_GROUP = "agv_mission.plugins"
 
 T = TypeVar("T", bound=type)

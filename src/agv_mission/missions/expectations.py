@@ -139,8 +139,27 @@ class Expectations(BaseModel):
         description="final status of tree nodes, by name or path (result.json `tree`); a "
         "name several nodes share must hold for each",
     )
+    # fleets (fleet.md): the fleet's summary, result.json `fleet`
+    robot_robot_collisions_max: int | None = Field(
+        None, ge=0, description="contacts between two robots, at most"
+    )
+    robot_robot_min_distance_min: float | None = Field(
+        None, description="metres between the closest two robots' bodies over the run, at least"
+    )
+    makespan_max: float | None = Field(
+        None, ge=0.0, description="simulated seconds until every robot's part ended, at most"
+    )
+    deadlocks_max: int | None = Field(
+        None, ge=0, description="deadlocks the traffic layer had to break, at most"
+    )
+    robots: dict[str, Expectations] | None = Field(
+        None,
+        description="per robot of a fleet, by name: the one-robot keys, checked against "
+        "result.json `robots.NAME`",
+    )
 
 
+Expectations.model_rebuild()
 DEFAULT_EXPECTATIONS = Expectations(status="succeeded")
 
 
@@ -288,6 +307,26 @@ def check(expect: Expectations | None, result: dict[str, Any]) -> list[Failure]:
                     float(e.waypoints_reached - reached),
                 )
             )
+    fleet = result.get("fleet") or {}
+    at_most(
+        "robot_robot_collisions_max",
+        e.robot_robot_collisions_max,
+        fleet.get("robot_robot_collisions"),
+    )
+    at_least(
+        "robot_robot_min_distance_min",
+        e.robot_robot_min_distance_min,
+        fleet.get("robot_robot_min_distance"),
+    )
+    at_most("makespan_max", e.makespan_max, fleet.get("makespan"))
+    at_most("deadlocks_max", e.deadlocks_max, fleet.get("deadlocks"))
+    robots = result.get("robots") or {}
+    for name, sub in (e.robots or {}).items():
+        if name not in robots:
+            failures.append(Failure(f"robots.{name}", "a robot of the fleet", "no such robot"))
+            continue
+        for f in check(sub, robots[name]):
+            failures.append(Failure(f"robots.{name}.{f.metric}", f.expected, f.actual, f.by))
     return failures
 
 

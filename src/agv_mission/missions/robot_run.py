@@ -50,6 +50,10 @@ from agv_mission.robots.battery import Battery, battery_for
 CONTACT_CLEARANCE = 0.05
 
 
+def _vw(cmd: Any) -> tuple[float, float]:
+    return float(cmd.v), float(cmd.w)
+
+
 class RobotRun:
     """One robot in a run: what it senses, believes and does, step by step."""
 
@@ -153,6 +157,11 @@ class RobotRun:
             for i, subtree in enumerate(self.tree.tasks):
                 if subtree.status is not Status.INVALID:
                     self.task_status[i] = status_name(subtree.status)
+        navigator = self.navigator
+        if navigator.yielding and not navigator.updated_at(now):
+            # stepping aside for another robot while no behaviour drives (its tree is
+            # done, or it waits, docks, ...): the fleet layer's order stands
+            handle.drive(*_vw(navigator.update(state)))
         v, w = self._monitored(estimate, *self._speed_capped(estimate, *handle.command))
         v, w = smoother(v, w)
         battery = self.battery
@@ -201,7 +210,7 @@ class RobotRun:
 
     def act(self) -> None:
         """Send this step's command to the wheels (zero once the robot's part has ended)."""
-        v, w = self.command if self.status is None else (0.0, 0.0)
+        v, w = self.command if self.status is None or self.navigator.yielding else (0.0, 0.0)
         self.sim.set_command(v, w)
         if self.battery is not None:
             self.battery.step(v, w, CONTROL_PERIOD)
@@ -253,8 +262,13 @@ class RobotRun:
             if handle.nomotion_update:  # the localiser holds it until a scan comes
                 self.localizer.request_nomotion_update()
                 handle.nomotion_update = False
+            # other robots are not in the map: their returns are left out (fleet layer),
+            # and so are tracked people's
+            seen = (
+                scan if scan is None else self.navigator.without_fleet(handle.state.estimate, scan)
+            )
             estimate = self.localizer.update(
-                sensing.odom, self._without_people(scan), sensing.truth, t
+                sensing.odom, self._without_people(seen), sensing.truth, t
             )
         if scan is not None:
             handle.state.scan = scan

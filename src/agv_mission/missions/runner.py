@@ -21,6 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
+from agv_mission.missions.fleet import FleetCoordinator, dispatch_tasks
 from agv_mission.missions.loader import LoadedMission
 from agv_mission.missions.observe import RobotStart, RunControl, RunObserver, RunStart, tree_nodes
 from agv_mission.missions.people_record import PeopleRun, fleet_people_metrics
@@ -118,6 +119,8 @@ class MissionRun:
         run_dir: Path | None,
         observers: Sequence[RunObserver] = (),
     ) -> None:
+        # Fleet tasks without `robot:` are released now: each joins its robot's tree.
+        loaded, dispatched = dispatch_tasks(loaded) if loaded.is_fleet else (loaded, [])
         self.loaded = loaded
         self.mission = loaded.mission
         self.run_dir = run_dir
@@ -134,13 +137,20 @@ class MissionRun:
         # The fleet's own log (fleet.md): what the fleet layer dispatched, waits, deadlocks,
         # and the robots' contacts with each other.
         self.fleet_log: dict[str, Any] = {
-            "dispatch": [],
+            "dispatch": [{k: d[k] for k in ("task", "robot", "t")} for d in dispatched],
             "waits": {"count": 0, "time": 0.0},
             "deadlocks": 0,
             "robot_robot_collisions": [],
             "robot_robot_min_distance": math.inf,
             "makespan": None,
         }
+        for d in dispatched:
+            self.by_name[d["robot"]].handle.log(
+                "dispatch", task=d["task"], type=d["type"], estimated_finish=d["finish"]
+            )
+        self.coordinator = (
+            FleetCoordinator(loaded, self.robots, self.fleet_log) if loaded.is_fleet else None
+        )
         self._touching: set[tuple[int, int]] = set()
         # A fleet's robots decide side by side: each touches only its own stack and reads
         # the world, and the solvers (casadi, numpy, MuJoCo's ray casts) release the GIL.
@@ -246,6 +256,8 @@ class MissionRun:
             return False
         now = self.world.time
         robots = self.robots
+        if self.coordinator is not None:
+            self.coordinator.step(now)
         if self.people is not None:
             self.people.sense(now, robots)
         for r in robots:

@@ -3,14 +3,24 @@
 It plays move_base's part: a global plan on the costmap, a local planner that tracks it,
 an in-place rotation to the goal's yaw at the end, and replanning when the robot strays
 from its path or stops making progress. Time is the simulation clock in ``RobotState``.
+
+In a fleet the run hands it the traffic layer's decision every control step
+(:meth:`Navigator.obey`, a narrow interface: any object with ``action``, ``limit``,
+``detour`` and ``avoid``): ``wait`` stops it (keeping the plan, no 'no progress'
+recovery), ``go`` with a ``limit`` slows it so it can stop within that many metres,
+``yield`` drives it to the detour pose and holds it there until released (then it
+replans to its goal), ``replan`` plans again with the ``avoid`` points as lethal cells.
+The other robots' bodies (``fleet_bodies``) are not obstacles to mark: the traffic layer
+keeps robots apart, and a robot marked as a wall would make a narrow aisle unreachable.
 """
 
 from __future__ import annotations
 
 import inspect
 import math
+from dataclasses import replace
 from enum import Enum
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -45,6 +55,21 @@ class NavStatus(Enum):
 class _Phase(Enum):
     FOLLOW = "follow"
     ROTATE = "rotate"
+
+
+class TrafficOrder(Protocol):
+    """What the navigator reads of a traffic decision (``fleet.base.TrafficDecision``)."""
+
+    action: str  # go | wait | yield | replan
+    limit: float | None  # metres the robot may still advance along its path
+    detour: Pose2D | None  # where to step aside (yield)
+    avoid: np.ndarray | None  # (k, 2) points to plan round (replan)
+
+
+#: Metres a robot stops short of the limit it was given (its estimate's jitter).
+LIMIT_SLACK = 0.02
+#: A lidar return this close beyond another robot's footprint is that robot's.
+BODY_SLACK = 0.1
 
 
 PERSON_TOLERANCE = 0.15  # m beyond a tracked person's radius: a lidar return is theirs
@@ -116,6 +141,104 @@ class Navigator:
         self._now = 0.0
         self._takes_prior = "prior" in inspect.signature(global_planner.plan).parameters
         self._shortest = CostGridPlanner.shortest(float(global_planner.clearance))
+        # Fleet traffic: this step's order, the detour being driven to, the other bodies.
+        self.order: TrafficOrder | None = None
+        self.detour: Pose2D | None = None
+        self.detour_path: PlannedPath | None = None
+        self.fleet_bodies: np.ndarray = np.zeros((0, 3))  # (x, y, radius) of the others
+        self._updated_at = -math.inf
+
+    # ----------------------------------------------------------------- fleet traffic
+
+    def obey(self, order: TrafficOrder | None, state: RobotState) -> None:
+        """Take this step's traffic decision (before the behaviour tree ticks)."""
+        self.order = order
+        action = order.action if order is not None else "go"
+        if action == "yield" and order is not None and order.detour is not None:
+            if self.detour != order.detour:
+                self.detour = order.detour
+                self.detour_path = self._plan_to(state.estimate, order.detour, None)
+            return
+        if self.detour is not None:  # released: back to the goal, if there is one
+            self.detour = self.detour_path = None
+            if self.status is NavStatus.RUNNING and self.goal is not None:
+                self._last_progress_time = state.time
+                self.path = None
+                self._plan(state)
+        if action == "replan" and order is not None and self.status is NavStatus.RUNNING:
+            self._plan_around(state, order.avoid)
+
+    @property
+    def yielding(self) -> bool:
+        return self.detour is not None
+
+    def traffic_path(self) -> np.ndarray | None:
+        """The path the robot is driving now (to its goal, or to a detour), None when it
+        drives none: what the traffic layer reserves."""
+        if self.detour is not None:
+            return None if self.detour_path is None else self.detour_path.points
+        if self.status is NavStatus.RUNNING and self.path is not None:
+            return self.path.points
+        return None
+
+    def updated_at(self, now: float) -> bool:
+        """Whether something (a behaviour) called :meth:`update` at time ``now``."""
+        return self._updated_at == now
+
+    def _plan_to(self, start: Pose2D, goal: Pose2D, avoid: np.ndarray | None) -> PlannedPath | None:
+        """A plan on the costmap (with ``avoid`` points lethal), None when there is none."""
+        costmap = self.costmap
+        if avoid is not None and len(avoid):
+            marks = np.zeros(costmap.grid.data.shape, dtype=bool)
+            rows, cols = costmap.grid.world_to_cell(np.asarray(avoid, dtype=float))
+            inside = costmap.grid.in_bounds(rows, cols)
+            marks[rows[inside], cols[inside]] = True
+            costmap = costmap.with_obstacles(marks)
+        seed = self.seed + self.stats.plans
+        self.stats.plans += 1
+        try:
+            path = self.global_planner.plan(costmap, start, goal, seed=seed)
+        except PlanningError:
+            return None
+        self.paths.append(path.points.copy())
+        self.stats.planning_times.append(path.planning_time)
+        return path
+
+    def _plan_around(self, state: RobotState, avoid: np.ndarray | None) -> None:
+        """Replan to the goal round the others' reserved space; keep the plan if there is
+        no way round (the traffic layer then asks the other robot to make way)."""
+        assert self.goal is not None
+        path = self._plan_to(state.estimate, self.goal, avoid)
+        if path is not None:
+            self.path = path
+            self.stats.replans += 1
+            self._last_progress_time = state.time
+
+    def _limited(self, cmd: VelocityCommand) -> VelocityCommand:
+        """The command slowed so the robot can stop within the traffic limit."""
+        order = self.order
+        if order is None or order.limit is None or order.action not in ("go", "yield"):
+            return cmd
+        # one control period at v, then braking at the acceleration limit: v dt + v^2 / 2a
+        room = max(order.limit - LIMIT_SLACK, 0.0)
+        a, dt = self.limits.max_acc_v, self.control_period
+        cap = a * (math.sqrt(dt * dt + 2.0 * room / a) - dt)
+        if abs(cmd.v) > cap:
+            cmd = replace(cmd, v=math.copysign(cap, cmd.v))
+        return cmd
+
+    def _drive_detour(self, state: RobotState) -> VelocityCommand:
+        """Towards the detour pose, then stand there until released."""
+        assert self.detour is not None
+        self._last_progress_time = state.time
+        pose = state.estimate
+        if self.detour_path is None or pose.distance_to(self.detour) <= self._xy_tol:
+            return VelocityCommand(0.0, 0.0)
+        cmd = self.local_planner.compute(
+            pose, state.velocity, self.detour_path.points, self.detour, self._near(state)
+        )
+        self.horizon = cmd.predicted
+        return self._limited(cmd)
 
     @property
     def costmap(self) -> Costmap:
@@ -123,11 +246,13 @@ class Navigator:
         return self.layer.costmap
 
     def observe(self, pose: Pose2D, scan: LaserScan, people: np.ndarray | None = None) -> None:
-        """Mark and clear unmapped obstacles from a new scan; returns on tracked
-        ``people`` walking by (rows x, y, radius, vx, vy) are not obstacles of the costmap
-        (the controller avoids them where they go; a plan does not swerve round where they
-        were), though their beams still clear what they pass. Someone standing still is
-        an obstacle like any other until they walk on."""
+        """Mark and clear unmapped obstacles from a new scan (other robots' returns
+        left out: they clear, but do not mark). Returns on tracked ``people`` walking by
+        (rows x, y, radius, vx, vy) are not obstacles of the costmap either (the controller
+        avoids them where they go; a plan does not swerve round where they were), though
+        their beams still clear what they pass; someone standing still is an obstacle like
+        any other until they walk on."""
+        scan = self.without_fleet(pose, scan)
         ignore = None
         if people is not None and len(people):
             people = np.asarray(people, dtype=float)
@@ -137,6 +262,25 @@ class Navigator:
             self.layer.update(pose, scan)
         else:
             self.layer.update(pose, scan, ignore)
+
+    def without_fleet(self, pose: Pose2D, scan: LaserScan) -> LaserScan:
+        """``scan`` with the returns off the other robots' bodies (``fleet_bodies``, as
+        the fleet layer reports them) made 'no return': neither the obstacle layer nor a
+        localiser should take a robot for a wall."""
+        bodies = self.fleet_bodies
+        if not len(bodies):
+            return scan
+        r = scan.ranges.astype(float)
+        beams = np.flatnonzero(np.isfinite(r))
+        a = scan.angle_min + scan.angle_increment * beams + pose.yaw
+        x, y = pose.x + r[beams] * np.cos(a), pose.y + r[beams] * np.sin(a)
+        d = np.hypot(x[:, None] - bodies[None, :, 0], y[:, None] - bodies[None, :, 1])
+        theirs = beams[np.any(d <= bodies[None, :, 2] + BODY_SLACK, axis=1)]
+        if not len(theirs):
+            return scan
+        ranges = scan.ranges.copy()
+        ranges[theirs] = np.inf
+        return replace(scan, ranges=ranges)
 
     def clear_costmap(self) -> None:
         self.layer.clear()
@@ -191,7 +335,10 @@ class Navigator:
     def update(self, state: RobotState) -> VelocityCommand:
         """One control step towards the goal; read ``status`` afterwards."""
         self._now = state.time
+        self._updated_at = state.time
         self.horizon = None
+        if self.detour is not None:
+            return self._drive_detour(state)
         if self.status is not NavStatus.RUNNING or self.goal is None:
             return VelocityCommand(0.0, 0.0)
         pose, goal = state.estimate, self.goal
@@ -201,8 +348,13 @@ class Navigator:
         elif self._phase is _Phase.ROTATE and distance > 3.0 * self._xy_tol:
             self._phase = _Phase.FOLLOW
         if self._phase is _Phase.ROTATE:
-            return self._rotate(state)
-        return self._follow(state, distance)
+            return self._rotate(state)  # in place: a round footprint sweeps nothing new
+        order = self.order
+        if order is not None and (order.action == "wait" or order.limit is not None):
+            self._last_progress_time = state.time  # held by traffic: no recovery
+            if order.action == "wait":
+                return VelocityCommand(0.0, 0.0)
+        return self._limited(self._follow(state, distance))
 
     def _follow(self, state: RobotState, distance: float) -> VelocityCommand:
         assert self.goal is not None
@@ -222,26 +374,8 @@ class Navigator:
         assert self.path is not None
         if self._path_blocked(here) and not self._replan(state, "path blocked"):
             return VelocityCommand(0.0, 0.0)
-        near = state.obstacles
-        if len(near):
-            d = np.hypot(near[:, 0] - state.estimate.x, near[:, 1] - state.estimate.y)
-            near = near[d <= self.config.obstacle_range]
-        moving = None
-        people = state.people
-        if len(people) and getattr(self.local_planner, "predicts_moving", False):
-            # a controller that predicts people gets them as people, not as the points
-            # where they are now (those who could come within its reach this horizon)
-            est = state.estimate
-            gap = np.hypot(people[:, 0] - est.x, people[:, 1] - est.y) - people[:, 2]
-            moving = people[gap <= self.config.obstacle_range + PEOPLE_REACH]
-            if len(near) and len(moving):
-                near = near[~on_people(near, moving)]
-        if self.zones is not None:  # keepout edges are walls to the controller too
-            edge = self.zones.boundary_near(
-                state.estimate.x, state.estimate.y, self.config.obstacle_range
-            )
-            if len(edge):
-                near = np.vstack([near.reshape(-1, 2), edge])
+        moving = self._moving_people(state)
+        near = self._near(state, moving)
         if moving is not None:
             cmd = self.local_planner.compute(
                 state.estimate, state.velocity, self.path.points, self.goal, near, moving
@@ -255,6 +389,34 @@ class Navigator:
         if not cmd.ok:
             self.stats.solver_failures += 1
         return cmd
+
+    def _moving_people(self, state: RobotState) -> np.ndarray | None:
+        """The tracked people a controller that predicts them gets as people (those who
+        could come within its reach this horizon); None for one that does not."""
+        people = state.people
+        if not len(people) or not getattr(self.local_planner, "predicts_moving", False):
+            return None
+        est = state.estimate
+        gap = np.hypot(people[:, 0] - est.x, people[:, 1] - est.y) - people[:, 2]
+        return people[gap <= self.config.obstacle_range + PEOPLE_REACH]
+
+    def _near(self, state: RobotState, moving: np.ndarray | None = None) -> np.ndarray:
+        """The obstacle points the local planner avoids: the lidar's within range (but for
+        those on the ``moving`` people it predicts instead), and keepout edges (walls to
+        the controller too)."""
+        near = state.obstacles
+        if len(near):
+            d = np.hypot(near[:, 0] - state.estimate.x, near[:, 1] - state.estimate.y)
+            near = near[d <= self.config.obstacle_range]
+        if moving is not None and len(moving) and len(near):
+            near = near[~on_people(near, moving)]
+        if self.zones is not None:
+            edge = self.zones.boundary_near(
+                state.estimate.x, state.estimate.y, self.config.obstacle_range
+            )
+            if len(edge):
+                near = np.vstack([near.reshape(-1, 2), edge])
+        return near
 
     def _rotate(self, state: RobotState) -> VelocityCommand:
         assert self.goal is not None

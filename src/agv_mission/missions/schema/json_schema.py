@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from agv_mission.missions.schema.fleet import DEFAULT_FLEET_PLUGINS
 from agv_mission.missions.schema.mission import ROBOT_NAME_PATTERN, Mission
 from agv_mission.missions.schema.stack import DEFAULT_PLUGINS
 from agv_mission.registry import registry
@@ -39,6 +40,7 @@ def mission_json_schema() -> dict[str, Any]:
     }
     _tree_nodes(schema)
     _fleet_tasks(schema)
+    _fleet_slots(schema)
     return {"$schema": JSON_SCHEMA_DIALECT, **schema}
 
 
@@ -60,6 +62,22 @@ def _fleet_tasks(schema: dict[str, Any]) -> None:
     mapping = items.get("discriminator", {}).get("mapping", {})
     for key, ref in mapping.items():
         mapping[key] = ref.replace("#/$defs/", "#/$defs/Fleet")
+
+
+def _fleet_slots(schema: dict[str, Any]) -> None:
+    """A ``fleet`` slot block without ``type`` is the slot's default plugin."""
+    slots = schema["$defs"]["Fleet"]["properties"]
+    for slot, name in DEFAULT_FLEET_PLUGINS.items():
+        union = slots[slot]
+        refs = union.get("discriminator", {}).get("mapping", {})
+        if name not in refs:
+            continue
+        slots[slot] = {
+            "description": union.get("description", slot),
+            "if": {"type": "object", "not": {"required": ["type"]}},
+            "then": {"$ref": refs[name]},
+            "else": {k: v for k, v in union.items() if k != "title"},
+        }
 
 
 def _tree_nodes(schema: dict[str, Any]) -> None:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import gc
 import math
-import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -44,9 +43,6 @@ __all__ = [
 ]
 
 ProgressCallback = Callable[[float, float], None]
-
-#: Threads a fleet's robots decide in (the machine's cores, at most 4).
-DECISION_THREADS = min(4, os.cpu_count() or 1)
 
 
 class RunStopped(BaseException):
@@ -152,13 +148,14 @@ class MissionRun:
             FleetCoordinator(loaded, self.robots, self.fleet_log) if loaded.is_fleet else None
         )
         self._touching: set[tuple[int, int]] = set()
-        # A fleet's robots decide side by side: each touches only its own stack and reads
-        # the world, and the solvers (casadi, numpy, MuJoCo's ray casts) release the GIL.
-        # Every robot's draws come from its own streams: the outcome does not depend on
-        # the threads' interleaving.
+        # With ``simulation.threads``, a fleet's robots decide side by side: each touches
+        # only its own stack and reads the world, and the solvers (casadi, numpy, MuJoCo's
+        # ray casts) release the GIL. Every robot's draws come from its own streams: the
+        # outcome does not depend on the threads' interleaving.
         self._pool: ThreadPoolExecutor | None = None
-        if len(self.robots) > 1 and DECISION_THREADS > 1:
-            self._pool = ThreadPoolExecutor(DECISION_THREADS, thread_name_prefix="robots")
+        threads = self.mission.simulation.threads
+        if len(self.robots) > 1 and threads > 1:
+            self._pool = ThreadPoolExecutor(threads, thread_name_prefix="robots")
         self.wall_start = time.perf_counter()
         self.status: str | None = None
         self.reason: str | None = None

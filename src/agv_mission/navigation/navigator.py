@@ -270,6 +270,10 @@ class Navigator:
         bodies = self.fleet_bodies
         if not len(bodies):
             return scan
+        reach = scan.range_max + bodies[:, 2] + BODY_SLACK
+        bodies = bodies[np.hypot(bodies[:, 0] - pose.x, bodies[:, 1] - pose.y) <= reach]
+        if not len(bodies):  # nobody within the scan's reach
+            return scan
         r = scan.ranges.astype(float)
         beams = np.flatnonzero(np.isfinite(r))
         a = scan.angle_min + scan.angle_increment * beams + pose.yaw

@@ -390,3 +390,33 @@ def test_run_page_shows_the_battery_level_and_charging(
     assert final["battery"] == pytest.approx(
         page.evaluate("() => +document.getElementById('batterymeter').value")
     )
+
+
+def test_run_page_draws_the_people(page: Any, base_url: str, shots: Path) -> None:
+    """People wandering the living room reach the page (live, and in the replay of the
+    finished run) and are drawn on the map: the people layer changes the picture."""
+    mission = (
+        "name: people-walk\nworld: small_house\nrobot: burger\n"
+        "start: {x: -1.5, y: -2.0, yaw: 0.0}\nstack: {localization: {type: ground_truth}}\n"
+        "people:\n  - {count: 3, area: livingroom}\n"
+        "tasks:\n  - {type: go_to, pose: {x: 3.5, y: -2.0, yaw: 0.0}}\nlimits: {time: 30.0}\n"
+    )
+    answer = httpx.post(base_url + "/api/runs", json={"mission": mission}, timeout=30)
+    assert answer.status_code == 201, answer.text
+    page.goto(f"{base_url}/runs/{answer.json()['id']}")
+    page.wait_for_function("() => (window.agvView.scene.people || []).length === 3", timeout=90_000)
+    page.wait_for_function(  # over (however the robot fared): the replay is shown
+        "() => ['succeeded', 'failed'].includes(document.getElementById('status').dataset.status)",
+        timeout=120_000,
+    )
+    page.wait_for_function("() => (window.agvView.scene.people || []).length === 3", timeout=30_000)
+    people = page.evaluate("() => window.agvView.scene.people")
+    assert [p[0] for p in people] == [0, 1, 2]
+    assert all(-2.3 - 0.3 < p[1] < 4.6 + 0.3 and -5.3 - 0.3 < p[2] < 0.3 for p in people)
+    page.evaluate("() => window.agvView.fit()")
+    page.screenshot(path=str(shots / "run-people.png"))
+    shown = page.evaluate("() => document.getElementById('map').toDataURL()")
+    page.evaluate("() => { document.querySelector('input[data-layer=people]').click(); }")
+    page.wait_for_timeout(300)
+    hidden = page.evaluate("() => document.getElementById('map').toDataURL()")
+    assert shown != hidden  # the discs were on the map

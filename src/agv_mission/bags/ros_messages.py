@@ -280,5 +280,51 @@ def room_markers(t: float, rooms: dict[str, Any], frame: str = "map") -> Any:
     return types[MARKER_ARRAY](markers=markers)
 
 
+PERSON_HEIGHT = 1.7  # m: the cylinder a person is drawn as (and is, in the world)
+
+
+def people_markers(
+    t: float, ids: np.ndarray, xy: np.ndarray, radii: np.ndarray, frame: str = "map"
+) -> Any:
+    """One cylinder per person (namespace ``people``, id the person's), standing on the
+    floor, as pedsim_ros and HuNavSim draw their agents."""
+    types = typestore().types
+    marker = types["visualization_msgs/msg/Marker"]
+    colour = types["std_msgs/msg/ColorRGBA"]
+    zero = types["builtin_interfaces/msg/Duration"](sec=0, nanosec=0)
+    markers = []
+    for pid, (x, y), r in zip(
+        np.asarray(ids).tolist(), np.asarray(xy).tolist(), radii, strict=True
+    ):
+        markers.append(
+            marker(
+                header=header(t, frame),
+                ns="people",
+                id=int(pid),
+                type=3,  # CYLINDER
+                action=0,
+                pose=pose(Pose2D(float(x), float(y), 0.0), z=PERSON_HEIGHT / 2),
+                scale=_vector(2 * float(r), 2 * float(r), PERSON_HEIGHT),
+                color=colour(r=1.0, g=0.55, b=0.1, a=0.9),
+                lifetime=zero,
+                frame_locked=False,
+                points=[],
+                colors=[],
+                texture_resource="",
+                texture=types["sensor_msgs/msg/CompressedImage"](
+                    header=header(t, frame), format="", data=np.zeros(0, np.uint8)
+                ),
+                uv_coordinates=[],
+                text="",
+                mesh_resource="",
+                mesh_file=types["visualization_msgs/msg/MeshFile"](
+                    filename="", data=np.zeros(0, np.uint8)
+                ),
+                mesh_use_embedded_materials=False,
+            )
+        )
+    return types[MARKER_ARRAY](markers=markers)
+
+
 def serialize(msg: Any, msgtype: str) -> bytes:
     return bytes(typestore().serialize_cdr(msg, msgtype))

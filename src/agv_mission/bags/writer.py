@@ -72,6 +72,9 @@ TOPICS: dict[str, tuple[str, bool]] = {
     "/battery_state": (rm.BATTERY_STATE, False),
 }
 
+#: The people of the world (people-and-zones.md), a cylinder each, every control step.
+PEOPLE_TOPIC = ("/people", rm.MARKER_ARRAY)
+
 #: Nav2's filter masks (people-and-zones.md), latched, in a bag of a mission with zones.
 ZONE_TOPICS: dict[str, tuple[str, bool]] = {
     "/keepout_filter_mask": (rm.OCCUPANCY_GRID, True),
@@ -187,6 +190,7 @@ class BagWriter:
         self._robots: dict[str, _RobotBag] = {}
         self._fleet = False
         self._clock: float | None = None
+        self._people = cdr.PeopleMarkersCdr(MAP_FRAME)
 
     def prepare(self) -> BagWriter:
         """Build the typestore and its serialisers now, not when the run starts (~0.3 s
@@ -311,6 +315,13 @@ class BagWriter:
             if self._fleet:
                 event = {**event, "robot": bag.name}
             self._write("/events", t, rm.string(json.dumps(event, default=_jsonable)))
+        if sample.people is not None:  # the world's people, once a step (the first robot's)
+            name, msgtype = PEOPLE_TOPIC
+            if name not in self._conns:
+                self._conns[name] = self._writer.add_connection(
+                    name, msgtype, typestore=rm.typestore()
+                )
+            raw(name, t, self._people.pack(t, *sample.people))
         spec = bag.battery
         due = t >= bag.next_battery - 1e-9 or sample.charging != bag.charging
         if spec is not None and sample.battery is not None and due:

@@ -82,21 +82,25 @@ class RangeAheadBelow(Condition):
 
 
 class PersonNear(Condition):
-    """A person stands within ``distance`` of the robot: reads the handle's ``people``
-    (map-frame positions; no simulated people exist yet, so today it never holds)."""
+    """A person's edge is within ``distance`` of the robot's footprint (the distance of
+    ``metrics.people``), from the people the run hands the robot's state each step."""
 
     def __init__(self, name: str, handle: RobotHandle, distance: float):
         super().__init__(name, handle)
         self.distance = distance
 
     def check(self) -> str | None:
-        people = getattr(self.handle, "people", None) or []
+        people = np.asarray(self.handle.state.people, dtype=float)
+        if people.size == 0:
+            return f"nobody within {self.distance:g} m"
+        people = people.reshape(len(people), -1)[:, :3]  # x, y, radius (then velocities)
         est = self.handle.state.estimate
-        for p in people:
-            x, y = (p.x, p.y) if hasattr(p, "x") else (p[0], p[1])
-            if math.hypot(x - est.x, y - est.y) < self.distance:
-                return None
-        return f"nobody within {self.distance:g} m"
+        footprint = float(self.handle.navigator.costmap.robot_radius)
+        gaps = np.hypot(people[:, 0] - est.x, people[:, 1] - est.y) - footprint - people[:, 2]
+        nearest = float(gaps.min())
+        if nearest < self.distance:
+            return None
+        return f"nobody within {self.distance:g} m (nearest {nearest:.2f} m)"
 
 
 class TimeElapsed(Condition):

@@ -679,7 +679,8 @@ class RangeAheadBelowPorts(ConditionPorts):
 
 
 class PersonNearPorts(ConditionPorts):
-    """A person is within ``distance`` of the robot (the handle's list of people)."""
+    """A person's edge is within ``distance`` of the robot's footprint (the people the run
+    tracks, as ``metrics.people`` measures them)."""
 
     plugin: ClassVar[str] = "agv_mission.behaviors.conditions:PersonNear"
     type: Literal["person_near"]

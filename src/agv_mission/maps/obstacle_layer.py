@@ -96,13 +96,16 @@ class ObstacleLayer:
         layered.distance[win] = distance
         layered.cost[win] = inflation_cost(distance, static.robot_radius, static.config)
 
-    def update(self, pose: Pose2D, scan: LaserScan) -> bool:
-        """Clear along the beams and mark the returns of ``scan`` seen from ``pose``."""
+    def update(self, pose: Pose2D, scan: LaserScan, ignore: np.ndarray | None = None) -> bool:
+        """Clear along the beams and mark the returns of ``scan`` seen from ``pose``, but
+        for the beams ``ignore`` flags (their returns are not obstacles: tracked people)."""
         if not self.config.enabled:
             return False
         changed = self._clear(pose, scan)
         ranges = scan.ranges
         hit = np.isfinite(ranges) & (ranges <= self.config.max_range)
+        if ignore is not None:
+            hit &= ~ignore
         if hit.any():
             angles = scan.angle_min + scan.angle_increment * np.flatnonzero(hit) + pose.yaw
             r = ranges[hit].astype(float)

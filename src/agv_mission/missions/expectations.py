@@ -58,6 +58,20 @@ class Expectations(BaseModel):
     speed_ratio_max: float | None = Field(
         None, ge=0.0, description="highest true speed / limit inside speed zones, at most"
     )
+    people_collisions_max: int | None = Field(
+        None, ge=0, description="contacts begun with a person (metrics.people.collisions), at most"
+    )
+    people_min_distance_min: float | None = Field(
+        None,
+        description="metres from the robot's footprint to the nearest person's edge over the "
+        "run (metrics.people.min_distance), at least",
+    )
+    personal_time_max: float | None = Field(
+        None,
+        ge=0.0,
+        description="seconds with a person closer than 1.2 m to the footprint "
+        "(metrics.people.personal_time), at most",
+    )
     driven_vs_shortest_max: float | None = Field(
         None,
         ge=1.0,
@@ -229,6 +243,10 @@ def check(expect: Expectations | None, result: dict[str, Any]) -> list[Failure]:
         "speed_violation_time_max", e.speed_violation_time_max, zones.get("speed_violation_time")
     )
     at_most("speed_ratio_max", e.speed_ratio_max, zones.get("max_speed_ratio"))
+    people = metrics.get("people") or {}
+    at_most("people_collisions_max", e.people_collisions_max, people.get("collisions"))
+    at_least("people_min_distance_min", e.people_min_distance_min, people.get("min_distance"))
+    at_most("personal_time_max", e.personal_time_max, people.get("personal_time"))
     navigation = metrics.get("navigation") or {}
     for key, bound in (
         ("driven_vs_shortest_max", e.driven_vs_shortest_max),

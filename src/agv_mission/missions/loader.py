@@ -30,6 +30,7 @@ from agv_mission.maps.worlds import World
 from agv_mission.maps.zones import FilterMask, ZoneFilters
 from agv_mission.missions.errors import MissionError, Problem
 from agv_mission.missions.overrides import Override, apply_overrides
+from agv_mission.missions.people import resolve_people
 from agv_mission.missions.problems import (
     ProblemLog,
     kind_of,
@@ -70,6 +71,7 @@ from agv_mission.robots.description import (
     RobotFileError,
     load_robot,
 )
+from agv_mission.world.crowd import PeopleGroup
 
 # A front door's rule on which files a mission may name: (field, resolved path) -> a
 # problem message, or None when the file may be read.
@@ -123,6 +125,7 @@ class LoadedMission:
     docks: dict[str, Dock] = field(default_factory=dict)  # the world's and rooms file's
     given_map: OccupancyGrid | None = None  # the mission's ``map:``, when it names one
     zones: ZoneFilters | None = None  # keepout and speed filters (None: no zones)
+    people: list[PeopleGroup] = field(default_factory=list)  # resolved ``people:``
     fleet: list[RobotSetup] = field(default_factory=list)  # a fleet mission's robots
     fleet_tasks: list[FleetTask] = field(default_factory=list)  # its tasks: dispatched, assigned
 
@@ -487,6 +490,7 @@ def _resolve(
     zones = _zone_filters(mission, robot, rooms, costmap, base_dir, log)
     if zones is not None:
         costmap = zones.costmap  # keepout zones are obstacles of every plan
+    people = resolve_people(mission.people, rooms, world.map, log.add)  # they walk the world
     recorder = None
     if mission.recorder is not None:
         try:
@@ -515,6 +519,7 @@ def _resolve(
         docks=docks,
         given_map=given_map,
         zones=zones,
+        people=people,
     )
 
 

@@ -135,6 +135,9 @@ class StepSample:
     charging: bool = False
     docked: str | None = None  # the dock the robot stands on
     robot: str = "robot"  # whose step this is (a fleet robot's name)
+    # the people in the world, (ids, xy (n, 2), radii) of those present, in the samples of
+    # the run's first robot (the world's, not any robot's view); None: a run without people
+    people: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
 
 class RunObserver(Protocol):

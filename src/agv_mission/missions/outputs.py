@@ -17,6 +17,7 @@ from agv_mission.atomic import atomic_write_bytes, atomic_write_text
 from agv_mission.maps.zones import ZoneFilters
 from agv_mission.messages import json_default
 from agv_mission.missions.loader import LoadedMission
+from agv_mission.missions.people_record import plot_people, write_people_csv
 from agv_mission.missions.run_report import COVARIANCE_COLUMNS
 from agv_mission.missions.runner import TRAJECTORY_COLUMNS, RunRecord
 
@@ -102,6 +103,11 @@ def write_run(run_dir: Path, loaded: LoadedMission, record: RunRecord) -> dict[s
         ("trajectory.csv", lambda p: write_run_trajectory(p, record)),
         ("tree.txt", lambda p: atomic_write_text(p, strip_ansi(record.tree_text) + "\n")),
         ("run.png", lambda p: plot_run(p, loaded, record)),
+        *(
+            [("people.csv", lambda p: write_people(p, record.people))]
+            if record.people is not None
+            else []
+        ),
     ):
         try:
             write(run_dir / name)
@@ -124,6 +130,11 @@ def strip_ansi(text: str) -> str:
 
 def write_json(path: Path, doc: dict[str, Any]) -> None:
     atomic_write_text(path, json.dumps(doc, indent=2, allow_nan=False, default=json_default) + "\n")
+
+
+def write_people(path: Path, track: Any) -> None:
+    """``people.csv``: where each person present was at each control step."""
+    write_people_csv(path, track.t, track.xy, track.ids)
 
 
 def write_run_trajectory(path: Path, record: RunRecord) -> None:
@@ -269,6 +280,8 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
             corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * [o.size_x / 2, o.size_y / 2]
             xy = corners @ np.array([[c, s], [-s, c]]) + [o.x, o.y]
             ax.add_patch(Polygon(xy, closed=True, color="tab:red", alpha=0.6, label=label))
+    if record.people is not None:
+        plot_people(ax, record.people.xy, record.people.radii)
     snapshots = record.particle_snapshots
     if snapshots:
         picks = sorted(

@@ -35,6 +35,7 @@ class RunRecord:
     covariance: np.ndarray | None = None  # (steps, len(COVARIANCE_COLUMNS)), NaN: none
     battery: np.ndarray | None = None  # (steps,) the level 0..1; None: not modelled
     robots: dict[str, RunRecord] = field(default_factory=dict)  # a fleet's, by robot name
+    people: Any = None  # the run's PeopleTrack (people.csv, run.png); None: nobody walked
 
 
 def bare_record(

@@ -7,6 +7,7 @@ robot in turn. Robots never call each other.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any
@@ -39,6 +40,7 @@ from agv_mission.missions.sampler import StepSampler
 from agv_mission.missions.stack import CONTROL_PERIOD, RobotStack, Sensing
 from agv_mission.missions.tree import build_tree
 from agv_mission.navigation.handle import RobotHandle
+from agv_mission.navigation.navigator import beams_on_people
 from agv_mission.navigation.state import RobotState
 from agv_mission.planners.collision_monitor import CollisionMonitor
 from agv_mission.robots.battery import Battery, battery_for
@@ -252,7 +254,7 @@ class RobotRun:
         handle, scan, t = self.handle, sensing.scan, sensing.time
         mapping = self.mapper.session
         if mapping is not None:
-            estimate = mapping.update(sensing.odom, scan, sensing.truth, t)
+            estimate = mapping.update(sensing.odom, self._without_people(scan), sensing.truth, t)
             costmap = mapping.refreshed_costmap(t)
             if costmap is not None:
                 self.navigator.layer = ObstacleLayer(costmap, costmap.config.obstacles)
@@ -260,16 +262,33 @@ class RobotRun:
             if handle.nomotion_update:  # the localiser holds it until a scan comes
                 self.localizer.request_nomotion_update()
                 handle.nomotion_update = False
-            # other robots are not in the map: their returns are left out (fleet layer)
+            # other robots are not in the map: their returns are left out (fleet layer),
+            # and so are tracked people's
             seen = (
                 scan if scan is None else self.navigator.without_fleet(handle.state.estimate, scan)
             )
-            estimate = self.localizer.update(sensing.odom, seen, sensing.truth, t)
+            estimate = self.localizer.update(
+                sensing.odom, self._without_people(seen), sensing.truth, t
+            )
         if scan is not None:
             handle.state.scan = scan
             handle.state.obstacles = scan.points(estimate)
-            self.navigator.observe(estimate, scan)
+            self.navigator.observe(estimate, scan, handle.state.people)
         return estimate
+
+    def _without_people(self, scan: LaserScan | None) -> LaserScan | None:
+        """The scan for the localiser (or SLAM) without the returns on tracked people (as a
+        laser filter would take them out): a crowd is not on the map and would pull the
+        estimate towards whatever it hides, or be mapped. Seen from the last estimate."""
+        people = self.handle.state.people
+        if scan is None or not len(people):
+            return scan
+        mask = beams_on_people(scan, self.estimate, np.asarray(people, dtype=float))
+        if mask is None or not mask.any():
+            return scan
+        ranges = scan.ranges.copy()
+        ranges[mask] = np.inf
+        return dataclasses.replace(scan, ranges=ranges)
 
     def _estimate_covariance(self) -> tuple[np.ndarray | None, LocalizerDiagnostics | None]:
         """The current estimate's covariance: SLAM's while mapping, else the localiser's

@@ -23,6 +23,7 @@ from typing import Any
 from agv_mission.missions.fleet import FleetCoordinator, dispatch_tasks
 from agv_mission.missions.loader import LoadedMission
 from agv_mission.missions.observe import RobotStart, RunControl, RunObserver, RunStart, tree_nodes
+from agv_mission.missions.people_record import PeopleRun, fleet_people_metrics
 from agv_mission.missions.record import TRAJECTORY_COLUMNS, RunRecord, bare_record
 from agv_mission.missions.robot_run import RobotRun
 from agv_mission.missions.stack import (
@@ -126,6 +127,9 @@ class MissionRun:
             RobotRun(loaded, stack, run_dir, recorders, bool(self.observers)) for stack in stacks
         ]
         self.by_name = {r.name: r for r in self.robots}
+        self.people = (
+            PeopleRun(loaded.people, self.world, self.mission.seed) if loaded.people else None
+        )
         # The fleet's own log (fleet.md): what the fleet layer dispatched, waits, deadlocks,
         # and the robots' contacts with each other.
         self.fleet_log: dict[str, Any] = {
@@ -251,6 +255,8 @@ class MissionRun:
         robots = self.robots
         if self.coordinator is not None:
             self.coordinator.step(now)
+        if self.people is not None:
+            self.people.sense(now, robots)
         for r in robots:
             r.prepare(now)
         if self._pool is None:
@@ -269,8 +275,10 @@ class MissionRun:
         if self.status is None and all(r.status is not None for r in robots):
             self._conclude()
         if self.observers:
-            for r in robots:
+            for k, r in enumerate(robots):
                 sample = r.sample()
+                if sample is not None and k == 0 and self.people is not None:
+                    sample.people = self.people.present()
                 if sample is not None:
                     for observer in self.observers:
                         observer.on_step(sample)
@@ -285,6 +293,8 @@ class MissionRun:
         """Let physics run one control period; lidars faster than the loop scan at their
         own times within it (to the physics step)."""
         world = self.world
+        if self.people is not None:
+            self.people.move(CONTROL_PERIOD, self.robots)
         dt = world.dt
         steps = int(round(CONTROL_PERIOD / dt))
         t0 = world.time
@@ -371,11 +381,25 @@ class MissionRun:
             self.end("error", "the run ended without an outcome")
         wall_time = time.perf_counter() - self.wall_start
         records = [r.record(wall_time) for r in self.robots]
+        if self.people is not None:
+            for k, (r, record) in enumerate(zip(self.robots, records, strict=True)):
+                record.metrics["people"] = self.people.metrics(
+                    k,
+                    record.trajectory,
+                    r.robot.footprint_radius,
+                    r.navigator.stats.legs,
+                    self.world.time,
+                )
         if not self.loaded.is_fleet:
             record = records[0]
             record.status, record.reason = self.status or "error", self.reason
+            record.people = self.people.track if self.people is not None else None
             return record
-        return fleet_record(self, records, wall_time)
+        record = fleet_record(self, records, wall_time)
+        if self.people is not None:
+            record.people = self.people.track
+            record.metrics["people"] = fleet_people_metrics(records)
+        return record
 
 
 def fleet_record(run: MissionRun, records: list[RunRecord], wall_time: float) -> RunRecord:

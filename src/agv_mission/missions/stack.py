@@ -30,6 +30,7 @@ from agv_mission.robots.body import hull_top
 from agv_mission.robots.description import RobotDescription
 from agv_mission.robots.odometry import DiffDriveOdometry
 from agv_mission.robots.simulation import DiffDriveBody, world_builder
+from agv_mission.world.model import add_people
 from agv_mission.world.simulation import SimulatedWorld
 
 CONTROL_PERIOD = 0.1
@@ -216,6 +217,8 @@ def build_world(loaded: LoadedMission) -> tuple[SimulatedWorld, list[RobotStack]
     seen = max(hull_top(s.robot) for s in setups)
     for setup in setups:
         DiffDriveBody.add_to(builder, setup.name, setup.robot, seen)
+    if loaded.people:
+        add_people(builder.spec, [g.radius for g in loaded.people for _ in range(g.count)])
     world = builder.build()
     root = np.random.SeedSequence(loaded.mission.seed)
     stacks = []

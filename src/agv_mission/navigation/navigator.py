@@ -72,6 +72,36 @@ LIMIT_SLACK = 0.02
 BODY_SLACK = 0.1
 
 
+PERSON_TOLERANCE = 0.15  # m beyond a tracked person's radius: a lidar return is theirs
+STANDING = 0.2  # m/s: a person slower than this stands (the costmap marks them)
+PEOPLE_REACH = 5.0  # m beyond the obstacle range: people farther cannot matter this horizon
+
+
+def on_people(points: np.ndarray, people: np.ndarray) -> np.ndarray:
+    """Which of ``points`` (n, 2) lie on a tracked person (rows x, y, radius, ...)."""
+    pts = np.asarray(points, dtype=float).reshape(-1, 2)
+    rows = np.asarray(people, dtype=float)
+    d2 = (pts[:, None, 0] - rows[None, :, 0]) ** 2 + (pts[:, None, 1] - rows[None, :, 1]) ** 2
+    reach = rows[:, 2] + PERSON_TOLERANCE
+    return (d2 <= (reach * reach)[None, :]).any(axis=1)
+
+
+def beams_on_people(scan: LaserScan, pose: Pose2D, people: np.ndarray) -> np.ndarray | None:
+    """Which beams of ``scan`` seen from ``pose`` end on a tracked person (rows x, y,
+    radius, ...); None when no person is within the lidar's reach."""
+    if not len(people):
+        return None
+    reach = scan.range_max + people[:, 2] + PERSON_TOLERANCE
+    people = people[np.hypot(people[:, 0] - pose.x, people[:, 1] - pose.y) <= reach]
+    if not len(people):
+        return None
+    r = scan.ranges.astype(float)
+    a = scan.angles + pose.yaw
+    with np.errstate(invalid="ignore"):  # no-return beams: inf or nan, on nobody
+        ends = np.stack([pose.x + r * np.cos(a), pose.y + r * np.sin(a)], axis=1)
+        return on_people(ends, people)
+
+
 class Navigator:
     """Drives the robot to one goal at a time."""
 
@@ -215,10 +245,23 @@ class Navigator:
         """The static map with the obstacles the lidar marked."""
         return self.layer.costmap
 
-    def observe(self, pose: Pose2D, scan: LaserScan) -> None:
+    def observe(self, pose: Pose2D, scan: LaserScan, people: np.ndarray | None = None) -> None:
         """Mark and clear unmapped obstacles from a new scan (other robots' returns
-        left out: they clear, but do not mark)."""
-        self.layer.update(pose, self.without_fleet(pose, scan))
+        left out: they clear, but do not mark). Returns on tracked ``people`` walking by
+        (rows x, y, radius, vx, vy) are not obstacles of the costmap either (the controller
+        avoids them where they go; a plan does not swerve round where they were), though
+        their beams still clear what they pass; someone standing still is an obstacle like
+        any other until they walk on."""
+        scan = self.without_fleet(pose, scan)
+        ignore = None
+        if people is not None and len(people):
+            people = np.asarray(people, dtype=float)
+            walking = people[np.hypot(people[:, 3], people[:, 4]) >= STANDING]
+            ignore = beams_on_people(scan, pose, walking)
+        if ignore is None:
+            self.layer.update(pose, scan)
+        else:
+            self.layer.update(pose, scan, ignore)
 
     def without_fleet(self, pose: Pose2D, scan: LaserScan) -> LaserScan:
         """``scan`` with the returns off the other robots' bodies (``fleet_bodies``, as
@@ -335,22 +378,42 @@ class Navigator:
         assert self.path is not None
         if self._path_blocked(here) and not self._replan(state, "path blocked"):
             return VelocityCommand(0.0, 0.0)
-        cmd = self.local_planner.compute(
-            state.estimate, state.velocity, self.path.points, self.goal, self._near(state)
-        )
+        moving = self._moving_people(state)
+        near = self._near(state, moving)
+        if moving is not None:
+            cmd = self.local_planner.compute(
+                state.estimate, state.velocity, self.path.points, self.goal, near, moving
+            )
+        else:
+            cmd = self.local_planner.compute(
+                state.estimate, state.velocity, self.path.points, self.goal, near
+            )
         self.stats.solve_times.append(cmd.solve_time)
         self.horizon = cmd.predicted
         if not cmd.ok:
             self.stats.solver_failures += 1
         return cmd
 
-    def _near(self, state: RobotState) -> np.ndarray:
-        """The obstacle points the local planner avoids: the lidar's within range, and
-        keepout edges (walls to the controller too)."""
+    def _moving_people(self, state: RobotState) -> np.ndarray | None:
+        """The tracked people a controller that predicts them gets as people (those who
+        could come within its reach this horizon); None for one that does not."""
+        people = state.people
+        if not len(people) or not getattr(self.local_planner, "predicts_moving", False):
+            return None
+        est = state.estimate
+        gap = np.hypot(people[:, 0] - est.x, people[:, 1] - est.y) - people[:, 2]
+        return people[gap <= self.config.obstacle_range + PEOPLE_REACH]
+
+    def _near(self, state: RobotState, moving: np.ndarray | None = None) -> np.ndarray:
+        """The obstacle points the local planner avoids: the lidar's within range (but for
+        those on the ``moving`` people it predicts instead), and keepout edges (walls to
+        the controller too)."""
         near = state.obstacles
         if len(near):
             d = np.hypot(near[:, 0] - state.estimate.x, near[:, 1] - state.estimate.y)
             near = near[d <= self.config.obstacle_range]
+        if moving is not None and len(moving) and len(near):
+            near = near[~on_people(near, moving)]
         if self.zones is not None:
             edge = self.zones.boundary_near(
                 state.estimate.x, state.estimate.y, self.config.obstacle_range

@@ -19,6 +19,9 @@ class RobotState:
     velocity: tuple[float, float] = (0.0, 0.0)  # the last command (v, w)
     scan: LaserScan | None = None  # the newest scan
     obstacles: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # map-frame points
+    # People the robot tracks, rows (x, y, radius, vx, vy) in the map frame, refreshed by
+    # the run each step (a perfect tracker, as HuNavSim gives its robots); none: (0, 5).
+    people: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
 
     def path_ahead_blocked(self, length: float, half_width: float, margin: float) -> bool:
         """Whether a scan point lies in the corridor the robot would sweep driving

@@ -83,8 +83,11 @@ class LocalPlanner(Protocol):
         path: np.ndarray,
         goal: Pose2D,
         obstacles: np.ndarray,
+        moving: np.ndarray | None = None,
     ) -> VelocityCommand:
-        """The command for this step towards ``goal`` along ``path``."""
+        """The command for this step towards ``goal`` along ``path``; ``moving``: tracked
+        moving obstacles (people), rows (x, y, radius, vx, vy), for a planner that predicts
+        them (one that does not gets their points among ``obstacles``)."""
         ...
 
     def diagnostics(self) -> dict[str, float]:

@@ -53,6 +53,7 @@ class MpcController(PathFollower):
     """Tracks the path with a nonlinear MPC and stops at its end; avoids lidar points."""
 
     Config = MpcConfig
+    predicts_moving = True  # takes tracked people as moving obstacles (``compute(moving=)``)
 
     def __init__(
         self,
@@ -87,11 +88,17 @@ class MpcController(PathFollower):
     # -- helpers -----------------------------------------------------------------------
 
     def _stage_obstacles(
-        self, obstacles: np.ndarray, stage_xy: np.ndarray, pose: Pose2D
+        self,
+        obstacles: np.ndarray,
+        stage_xy: np.ndarray,
+        pose: Pose2D,
+        moving: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Fill the obstacle parameters: for each stage 1..N-1 the ``m`` lidar points
-        nearest its guessed position ``stage_xy`` (robot frame; the constraints that can
-        bind there); slots with no point within ``obstacle_range`` are parked far away.
+        """Fill the obstacle parameters: for each stage 1..N-1 the ``m`` points nearest its
+        guessed position ``stage_xy`` (robot frame; the constraints that can bind there):
+        lidar points, and each tracked person where it will be at that stage's time
+        (constant velocity), as the point of its body (grown by ``people_margin``) nearest
+        the stage. Slots with no point within ``obstacle_range`` are parked far away.
         Returns each stage's smallest squared distance to its points (inf: none)."""
         out, cfg = self._obs, self.config
         reach2 = cfg.obstacle_range**2
@@ -106,31 +113,70 @@ class MpcController(PathFollower):
         if len(near) > cfg.max_obstacles:
             near = near[np.argpartition(d2_robot[near], cfg.max_obstacles - 1)]
             near = near[: cfg.max_obstacles]
-        if len(near) == 0:
+        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+        lx = np.broadcast_to(c * dx[near] + s * dy[near], (len(stage_xy), len(near)))
+        ly = np.broadcast_to(c * dy[near] - s * dx[near], (len(stage_xy), len(near)))
+        people = self._people_points(moving, stage_xy, pose, ring, c, s)
+        if people is not None:
+            lx = np.hstack([lx, people[0]])
+            ly = np.hstack([ly, people[1]])
+        if lx.shape[1] == 0:
             out[:] = _FAR
             return np.full(len(stage_xy), np.inf)
-        dx, dy = dx[near], dy[near]
-        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-        lx, ly = c * dx + s * dy, c * dy - s * dx  # the points in the robot frame
         ex = stage_xy[:, 0, None] - lx
         ey = stage_xy[:, 1, None] - ly
         d2 = ex * ex + ey * ey
         rows = self._rows
         nearest = np.full(len(stage_xy), np.inf)
-        k = min(self._problem.m, len(lx))
+        k = min(self._problem.m, lx.shape[1])
         # The k nearest of each stage by repeated argmin: for a few slots far cheaper
         # than a row-wise argpartition.
         for j in range(k):
             i = d2.argmin(axis=1)
             dj = d2[rows, i]
             far = dj > reach2
-            out[:, j, 0] = np.where(far, _FAR, lx[i])
-            out[:, j, 1] = np.where(far, _FAR, ly[i])
+            out[:, j, 0] = np.where(far, _FAR, lx[rows, i])
+            out[:, j, 1] = np.where(far, _FAR, ly[rows, i])
             if j == 0:
                 nearest = np.where(far, np.inf, dj)
             d2[rows, i] = np.inf
         out[:, k:] = _FAR
         return nearest
+
+    def _people_points(
+        self,
+        moving: np.ndarray | None,
+        stage_xy: np.ndarray,
+        pose: Pose2D,
+        ring: float,
+        c: float,
+        s: float,
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """(x, y) per stage and person (robot frame): the person's predicted centre at the
+        stage's time moved towards the stage by its radius and ``people_margin`` (people
+        who cannot come within ``ring`` in the horizon are left out)."""
+        if moving is None or not len(moving):
+            return None
+        rows = np.asarray(moving, dtype=float).reshape(-1, 5)
+        dx, dy = rows[:, 0] - pose.x, rows[:, 1] - pose.y
+        horizon = len(stage_xy) * self.config.dt
+        speed = np.hypot(rows[:, 3], rows[:, 4])
+        reach = ring + rows[:, 2] + self.config.people_margin + speed * horizon
+        rows = rows[dx * dx + dy * dy <= reach * reach]
+        if not len(rows):
+            return None
+        dx, dy = rows[:, 0] - pose.x, rows[:, 1] - pose.y
+        px, py = c * dx + s * dy, c * dy - s * dx  # now, robot frame
+        vx, vy = c * rows[:, 3] + s * rows[:, 4], c * rows[:, 4] - s * rows[:, 3]
+        t = (np.arange(len(stage_xy)) + 1.0)[:, None] * self.config.dt  # stages 1..N-1
+        cx, cy = px[None, :] + vx[None, :] * t, py[None, :] + vy[None, :] * t
+        ex, ey = stage_xy[:, 0, None] - cx, stage_xy[:, 1, None] - cy
+        dist = np.maximum(np.hypot(ex, ey), 1e-6)
+        grow = (rows[:, 2] + self.config.people_margin)[None, :]
+        # a stage guessed inside the grown body: a point between it and the centre, so the
+        # constraint still pushes the stage out
+        out = np.where(dist > grow, grow, 0.5 * dist) / dist
+        return cx + ex * out, cy + ey * out
 
     @property
     def last_stats(self) -> dict:
@@ -265,8 +311,11 @@ class MpcController(PathFollower):
         p[0:NX] = x0
         p[-4:] = (r * r, speed_weight, heading_weight, position_weight)
         controls[:, 2] = 1e-4
-        if pb.m > 0 and step.obstacles is not None and len(step.obstacles):
-            d2 = self._stage_obstacles(step.obstacles, states[1:-1, 0:2], pose)
+        moving = step.moving
+        has_people = moving is not None and len(moving) > 0
+        if pb.m > 0 and (has_people or (step.obstacles is not None and len(step.obstacles))):
+            obstacles = step.obstacles if step.obstacles is not None else np.zeros((0, 2))
+            d2 = self._stage_obstacles(obstacles, states[1:-1, 0:2], pose, moving)
             # Slacks that make the guess feasible (a cold start inside the margin converges).
             controls[1:, 2] += np.maximum(r * r - d2, 0.0) * 1.1
         elif pb.m > 0:

@@ -126,6 +126,8 @@ class PathStep:
     to_goal: tuple[float, float]  # from the robot to the path's end
     dist_goal: float
     goal_ahead: float  # the end's distance ahead along the robot's heading
+    # tracked moving obstacles (people), rows (x, y, radius, vx, vy) in the map frame
+    moving: np.ndarray | None = None
 
 
 class PathFollower:
@@ -190,6 +192,7 @@ class PathFollower:
         path: np.ndarray,
         goal: Pose2D,
         obstacles: np.ndarray,
+        moving: np.ndarray | None = None,
     ) -> VelocityCommand:
         t0 = time.perf_counter()
         raw = np.asarray(path, dtype=float)
@@ -214,7 +217,17 @@ class PathFollower:
             cmd = VelocityCommand(*self.stop(velocity))
         else:
             step = PathStep(
-                pose, velocity, obstacles, path, cumlen, total, s0, (dx, dy), dist_goal, goal_ahead
+                pose,
+                velocity,
+                obstacles,
+                path,
+                cumlen,
+                total,
+                s0,
+                (dx, dy),
+                dist_goal,
+                goal_ahead,
+                moving,
             )
             cmd = self.follow(step)
         cmd.solve_time = time.perf_counter() - t0

@@ -29,7 +29,7 @@ import math
 from collections import deque
 from typing import Any
 
-SPACING = {"state": 0.2, "scan": 0.2, "horizon": 0.2, "particles": 0.5}  # sim seconds
+SPACING = {"state": 0.2, "scan": 0.2, "horizon": 0.2, "particles": 0.5, "people": 0.1}  # sim s
 THINNABLE = frozenset(SPACING)
 URGENT = frozenset({"end", "pong", "recorded"})  # sent without waiting for the next period
 SNAPSHOT_ORDER = ("map", "rooms", "recorded", "robots", "tree", "plan", "goal", "state")

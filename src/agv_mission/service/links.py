@@ -28,7 +28,7 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 LINK_BUFFER = 1 << 20  # bytes a worker link buffers (a map message is a few hundred kB)
-COALESCED = frozenset({"state", "scan", "particles", "horizon"})  # latest wins while queued
+COALESCED = frozenset({"state", "scan", "particles", "horizon", "people"})  # latest wins, queued
 
 
 class WorkerLink:

@@ -65,6 +65,15 @@ def map_message(grid: OccupancyGrid) -> dict[str, Any]:
     }
 
 
+def people_message(t: float, ids: Any, xy: Any, radii: Any) -> dict[str, Any]:
+    """The people in the world: ``[id, x, y, radius]`` each (people-and-zones.md)."""
+    rows = [
+        [int(i), round(float(x), 3), round(float(y), 3), round(float(r), 3)]
+        for i, (x, y), r in zip(ids, xy, radii, strict=True)
+    ]
+    return {"type": "people", "t": round(t, 3), "people": rows}
+
+
 def zones_message(keepout: OccupancyGrid | None, speed: OccupancyGrid | None) -> dict[str, Any]:
     """The keepout (red) and speed (blue, darker: slower) filter masks as one RGBA PNG on
     the masks' grid, row 0 at the top."""

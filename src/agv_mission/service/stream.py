@@ -21,6 +21,7 @@ PROGRESS_PERIOD = 0.25  # wall seconds between progress reports
 LIVE_SCAN_PERIOD = 0.2  # wall seconds between live scans (thinned; every scan is costly)
 LIVE_HORIZON_PERIOD = 0.2
 LIVE_PARTICLES_PERIOD = 0.5
+LIVE_PEOPLE_PERIOD = 0.1  # wall seconds between live people (they walk: smoother than scans)
 FILE_THIN_PERIOD = 0.5  # sim seconds between scans/particles/horizons in stream.jsonl
 MAP_PERIOD = 1.0  # wall seconds between map messages while SLAM grows the map
 
@@ -160,6 +161,7 @@ class StreamObserver:
             ("scan", s.scan, LIVE_SCAN_PERIOD),
             ("particles", s.particles, LIVE_PARTICLES_PERIOD),
             ("horizon", s.horizon, LIVE_HORIZON_PERIOD),
+            ("people", s.people, LIVE_PEOPLE_PERIOD),
         )
         for kind, data, live_period in parts:
             if data is None:
@@ -173,6 +175,8 @@ class StreamObserver:
                 message["points"] = msg.xy_list(data.points(s.estimate))
             elif kind == "particles":
                 message["particles"] = msg.particles_list(data)
+            elif kind == "people":  # the world's, not the robot's: no robot key
+                message = msg.people_message(s.t, *data)
             else:
                 message["path"] = msg.xy_list(data)
             self.emit(message, live=live, to_file=to_file)

@@ -47,6 +47,10 @@ FLOOR_BIT = 1
 WALL_BIT = 2
 BODY_BIT = 4  # chassis against chassis and people
 
+PERSON_HEIGHT = 1.7  # m: a standing adult, as the bag's /people markers draw them
+PERSON_PREFIX = "person_"
+PARKED_Z = -5.0  # m: where a person not yet in the world waits, under the floor
+
 GRAVITY = 9.81
 FLOOR_FRICTION = 1.0
 WALL_FRICTION = (0.5, 0.005, 0.0001)
@@ -195,3 +199,22 @@ def world_spec(
             **wall,
         )
     return spec
+
+
+def add_people(spec: mujoco.MjSpec, radii: list[float]) -> None:
+    """One mocap body per person (``person_<i>``, moved by the crowd every control step):
+    a cylinder in :data:`SEEN_GROUP` the lidars see, colliding with chassis only (people
+    do not collide with each other or with walls: the pedestrian model keeps them apart),
+    parked under the floor until the person enters."""
+    for i, r in enumerate(radii):
+        body = spec.worldbody.add_body(name=f"{PERSON_PREFIX}{i}", mocap=True)
+        body.pos = [0.0, 0.0, PARKED_Z]
+        body.add_geom(
+            name=f"{PERSON_PREFIX}{i}",
+            type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+            size=sig6(r, PERSON_HEIGHT / 2, 0.0),
+            group=SEEN_GROUP,
+            contype=BODY_BIT,
+            conaffinity=0,
+            rgba=[1.0, 0.55, 0.1, 1.0],
+        )

@@ -17,13 +17,22 @@ import numpy as np
 
 from agv_mission.geometry import Pose2D, wrap_angle, yaw_from_quaternion
 from agv_mission.maps.worlds import World
-from agv_mission.world.model import SEEN_GROUP, WALL_GROUP, uses_wall_slots, world_spec
+from agv_mission.world.model import (
+    PARKED_Z,
+    PERSON_HEIGHT,
+    PERSON_PREFIX,
+    SEEN_GROUP,
+    WALL_GROUP,
+    uses_wall_slots,
+    world_spec,
+)
 from agv_mission.world.walls import Walls, WallWindow
 
 WINDOW_CHECK_PERIOD = 0.1  # s of simulated motion between wall-window checks
 
 WALL = -1  # owner of a wall or pillar geom
 FLOOR = -2  # owner of the floor and anything else static
+PERSON = -3  # owner of person i's geom: PERSON - i
 
 
 @dataclass(frozen=True)
@@ -82,9 +91,16 @@ class SimulatedWorld:
         self.data = mujoco.MjData(model)
         self.bodies: dict[str, Body] = {}
         owner = np.full(m.ngeom, FLOOR, dtype=np.int64)
+        mocap: list[int] = []
         for i in range(m.ngeom):
-            if m.geom(i).name.startswith(("wall", "pillar")):
+            name = m.geom(i).name
+            if name.startswith(("wall", "pillar")):
                 owner[i] = WALL
+            elif name.startswith(PERSON_PREFIX):
+                k = int(name[len(PERSON_PREFIX) :])
+                owner[i] = PERSON - k
+                mocap.append(int(m.body_mocapid[m.geom_bodyid[i]]))
+        self._person_mocap = np.array(mocap, dtype=np.int64)  # person i's mocap slot
         for k, (name, base, radius, _) in enumerate(bodies):
             body_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, base)
             joint = int(m.body_jntadr[body_id])
@@ -229,20 +245,49 @@ class SimulatedWorld:
     # ----------------------------------------------------------------- safety
     def contacts(self) -> list[tuple[int, int]]:
         """Every contact between a body and a wall (``(index, WALL)``) or another body
-        (``(i, j)``, ``i < j``), the floor left out."""
+        (``(i, j)``, ``i < j``), the floor and people left out (:meth:`person_contacts`)."""
         n = self.data.ncon
         if n == 0:
             return []
         owner = self._owner[self.data.contact.geom[:n]]
         found = []
         for a, b in owner.tolist():
-            if FLOOR in (a, b) or a == b:
+            if a < WALL or b < WALL or a == b:  # the floor, a person
                 continue
             if a == WALL or b == WALL:
                 found.append((max(a, b), WALL))
             else:
                 found.append((min(a, b), max(a, b)))
         return found
+
+    def person_contacts(self) -> set[tuple[int, int]]:
+        """Every (body index, person index) pair touching now."""
+        n = self.data.ncon
+        if n == 0 or not len(self._person_mocap):
+            return set()
+        found = set()
+        for a, b in self._owner[self.data.contact.geom[:n]].tolist():
+            if a >= 0 and b <= PERSON:
+                found.add((a, PERSON - b))
+            elif b >= 0 and a <= PERSON:
+                found.add((b, PERSON - a))
+        return found
+
+    # ----------------------------------------------------------------- people
+    @property
+    def people(self) -> int:
+        """How many people bodies the model holds."""
+        return len(self._person_mocap)
+
+    def move_people(self, xy: np.ndarray, present: np.ndarray) -> None:
+        """Put the people where the crowd says (standing on the floor), those not present
+        under it, out of every ray's and chassis' way."""
+        slots = self._person_mocap
+        pos = self.data.mocap_pos
+        pos[slots, 0] = xy[:, 0]
+        pos[slots, 1] = xy[:, 1]
+        pos[slots, 2] = np.where(present, PERSON_HEIGHT / 2, PARKED_Z)
+        self._kinematics_at = -math.inf  # the geoms moved: rays need them where they are
 
     def wall_contacts(self, body: Body) -> int:
         """Contact points between ``body`` and walls/pillars."""

@@ -20,6 +20,7 @@ from agv_mission.missions.schema.base import (
 )
 from agv_mission.missions.schema.disturbances import Fault, Obstacle
 from agv_mission.missions.schema.fleet import Fleet
+from agv_mission.missions.schema.people import People
 from agv_mission.missions.schema.stack import Stack
 from agv_mission.missions.schema.zones import MAX_ZONES, Zone
 from agv_mission.robots.sim_config import SimConfig
@@ -98,6 +99,10 @@ class Setup(StrictModel):
         default_factory=list,
         max_length=MAX_ZONES,
         description="keepout and speed-limit zones: polygons, rooms or Nav2 filter masks",
+    )
+    people: People = Field(
+        default_factory=list,
+        description="simulated people who wander in an area or walk a route (ORCA)",
     )
     recorder: str | None = Field(
         None,
@@ -229,6 +234,7 @@ FIELD_ORDER = (
     "obstacles",
     "faults",
     "zones",
+    "people",
     "recorder",
     "output",
     "expect",

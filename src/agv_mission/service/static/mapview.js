@@ -12,6 +12,7 @@ const MAP_PALETTE = {
 const LAYER_STYLE = {
   truth: "#4aa3ff", estimate: "#ffb020", scan: "#ff2e63", particles: "#b58cff",
   plan: "#3ecf8e", horizon: "#ffe066", goal: "#ff7ad9", rooms: "#8fa3bf", recorded: "#3ecf8e", dock: "#ffd43b",
+  people: "#ff8c1a",
 };
 const ROOM_HUES = [205, 140, 30, 280, 350, 60, 180, 100, 320, 240];
 
@@ -21,7 +22,7 @@ class MapView {
     this.ctx = canvas.getContext("2d", { alpha: false });
     this.scene = this.emptyScene();
     this.layers = { map: true, rooms: true, trails: true, scan: true, particles: true, plan: true,
-      horizon: true, goal: true, truth: true, estimate: true, recorded: true, zones: true };
+      horizon: true, goal: true, truth: true, estimate: true, recorded: true, zones: true, people: true };
     this.view = { cx: 0, cy: 0, scale: 40 };
     this.fitted = false;
     this.follow = false;
@@ -79,8 +80,9 @@ class MapView {
 
   emptyScene() {
     // robots: name -> its layers (insertion order: the run's order); truth, goal, ... read
-    // the picked robot's (a one-robot run's only one)
+    // the picked robot's (a one-robot run's only one); people are the world's
     const scene = { map: null, rooms: [], docks: [], recorded: {}, robots: {}, selected: null, fleet: false,
+      people: null,
       pendingGoal: null };
     for (const k of ["truth", "estimate", "covariance", "truthTrail", "estTrail", "scan", "particles", "plan", "horizon", "goal"]) {
       Object.defineProperty(scene, k, {
@@ -365,6 +367,19 @@ class MapView {
       this.polyline(ctx, P, picked.horizon, LAYER_STYLE.horizon, 3, null, 0.9);
       ctx.fillStyle = LAYER_STYLE.horizon;
       for (const q of picked.horizon) { const [x, y] = P(q[0], q[1]); ctx.fillRect(x - 1.5, y - 1.5, 3, 3); }
+    }
+    if (L.people && s.people) {  // [id, x, y, radius] each: a disc the size of the body
+      ctx.fillStyle = LAYER_STYLE.people;
+      ctx.globalAlpha = 0.85;
+      ctx.beginPath();
+      for (const q of s.people) {
+        const [x, y] = P(q[1], q[2]);
+        const r = Math.max(2, q[3] * S);
+        ctx.moveTo(x + r, y);
+        ctx.arc(x, y, r, 0, 2 * Math.PI);
+      }
+      ctx.fill();
+      ctx.globalAlpha = 1;
     }
     if (L.scan && picked && picked.scan) {
       ctx.fillStyle = LAYER_STYLE.scan;

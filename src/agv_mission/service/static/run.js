@@ -34,7 +34,7 @@
     ["estimate", "estimate", LAYER_STYLE.estimate], ["trails", "trails", "#6b7f99"], ["scan", "scan", LAYER_STYLE.scan],
     ["particles", "particles", LAYER_STYLE.particles], ["plan", "global path", LAYER_STYLE.plan],
     ["horizon", "local horizon", LAYER_STYLE.horizon], ["goal", "goal", LAYER_STYLE.goal], ["recorded", "recorded", LAYER_STYLE.recorded],
-    ["zones", "zones", "#d9463c"]];
+    ["zones", "zones", "#d9463c"], ["people", "people", LAYER_STYLE.people]];
   $("layers").innerHTML = LAYERS.map(([k, label, color]) =>
     `<label><input type="checkbox" data-layer="${k}" checked><span class="sw" style="background:${color}"></span>${label}</label>`).join("");
   $("layers").addEventListener("change", (e) => {
@@ -148,6 +148,7 @@
       }
       case "plan": mine().plan = msg.path; break;
       case "horizon": mine().horizon = msg.path; break;
+      case "people": s.people = msg.people; break;  // the world's, every robot's
       case "particles": mine().particles = msg.particles; break;
       case "goal": mine().goal = msg.pose; break;
       case "scan": mine().scan = msg.points; break;

@@ -1,0 +1,120 @@
+"""What people cost a run (issue 25): one burger patrolling the built-in 30 x 50 m warehouse
+with 0, 10 and 50 people wandering it, everything a ``agv-mission run`` does included (the
+crowd, their bodies in the physics and the lidar's rays, the bag's ``/people``,
+``people.csv``) over 120 simulated seconds. Thread CPU time per simulated second, the three
+runs interleaved and repeated, medians of the per-round ratios to the run without people
+(a CPU speed change between rounds cancels out); the loop alone and the set-up (building
+the crowd: the free space's outline, the routing grid, ORCA's obstacles) apart, and the
+crowd's own step.
+"""
+
+from __future__ import annotations
+
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from agv_mission.bags.writer import BagWriter
+from agv_mission.maps.builtin_worlds import warehouse
+from agv_mission.missions.loader import load_mission
+from agv_mission.missions.outputs import write_run
+from agv_mission.missions.runner import MissionRun
+from agv_mission.world.crowd import Crowd, PeopleGroup
+
+ROUNDS = 3
+SIM_SECONDS = 120.0
+COUNTS = (0, 10, 50)
+WHOLE = "[[-14.9, -24.9], [14.9, -24.9], [14.9, 24.9], [-14.9, 24.9]]"
+MISSION = """
+name: people-bench
+world: warehouse
+robot: burger
+start: {{x: 0.0, y: -22.0, yaw: 1.5708}}
+seed: 5
+stack:
+  localization: {{type: ground_truth}}
+{people}
+tasks:
+  - type: patrol
+    loops: 20
+    waypoints:
+      - {{x: -1.8, y: -6.0, yaw: 1.5708}}
+      - {{x: -1.8, y: -16.0, yaw: -1.5708}}
+limits: {{time: {limit}}}
+"""
+
+
+def _mission(tmp: Path, count: int) -> Path:
+    people = f"people:\n  - {{count: {count}, area: {WHOLE}}}" if count else ""
+    path = tmp / f"people_{count}.yaml"
+    path.write_text(MISSION.format(people=people, limit=SIM_SECONDS))
+    return path
+
+
+def _cpu_per_sim_s(path: Path, out: Path) -> tuple[float, float, float]:
+    """Thread CPU seconds per simulated second of one run, bag and run directory included;
+    of its loop alone; and the seconds its set-up took."""
+    loaded = load_mission(path)
+    run_dir = out / f"{path.stem}_{len(list(out.iterdir()))}"
+    run_dir.mkdir()
+    writer = BagWriter(run_dir / "bag").prepare()
+    t0 = time.thread_time()
+    run = MissionRun(loaded, run_dir, [writer])
+    t1 = time.thread_time()
+    run.notify_start()
+    run.drive()
+    t2 = time.thread_time()
+    record = run.record()
+    writer.on_end(record)
+    write_run(run_dir, loaded, record)
+    sim = max(run.world.time, 1e-9)
+    return (time.thread_time() - t0) / sim, (t2 - t1) / sim, t1 - t0
+
+
+def _crowd_ms_per_sim_s(count: int) -> float:
+    """The crowd's own step (ORCA and routing) for ``count`` people, per simulated second."""
+    area = ((-14.9, -24.9), (14.9, -24.9), (14.9, 24.9), (-14.9, 24.9))
+    crowd = Crowd(
+        [PeopleGroup(count=count, behaviour="wander", area=area)],
+        warehouse().map,
+        np.random.default_rng(1),
+    )
+    robots = np.array([[0.0, -21.0, 0.2, 0.0, 0.105]])
+    for _ in range(20):
+        crowd.step(0.1, robots)
+    steps = 600
+    t0 = time.thread_time()
+    for _ in range(steps):
+        crowd.step(0.1, robots)
+    return (time.thread_time() - t0) / (steps * 0.1) * 1e3
+
+
+def run() -> dict[str, float]:
+    whole: dict[int, list[float]] = {n: [] for n in COUNTS}
+    loop: dict[int, list[float]] = {n: [] for n in COUNTS}
+    setup: dict[int, list[float]] = {n: [] for n in COUNTS}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp_path = Path(tmp)
+        paths = {n: _mission(tmp_path, n) for n in COUNTS}
+        for n in COUNTS:  # warm the caches (casadi, typestore, matplotlib) first
+            _cpu_per_sim_s(paths[n], tmp_path)
+        for _ in range(ROUNDS):
+            for n in COUNTS:
+                a, b, c = _cpu_per_sim_s(paths[n], tmp_path)
+                whole[n].append(a)
+                loop[n].append(b)
+                setup[n].append(c)
+    results: dict[str, float] = {}
+    for n in COUNTS:
+        results[f"people.n{n}.cpu_ms_per_sim_s"] = round(statistics.median(whole[n]) * 1e3, 3)
+        results[f"people.n{n}.loop_ms_per_sim_s"] = round(statistics.median(loop[n]) * 1e3, 3)
+        results[f"people.n{n}.setup_ms"] = round(statistics.median(setup[n]) * 1e3, 1)
+        if n:
+            for name, costs in (("cost_ratio", whole), ("loop_cost_ratio", loop)):
+                ratios = [a / b for a, b in zip(costs[n], costs[0], strict=True)]
+                results[f"people.n{n}.{name}"] = round(statistics.median(ratios), 4)
+            results[f"people.n{n}.crowd_ms_per_sim_s"] = round(_crowd_ms_per_sim_s(n), 3)
+    return results

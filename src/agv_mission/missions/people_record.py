@@ -1,0 +1,174 @@
+"""The people of a run: the crowd stepped with the world, what the robots are told of them,
+their contacts, and what the run directory keeps: ``people.csv`` (``t, id, x, y``, one row
+per person present at each control step), their tracks on ``run.png``, ``metrics.people``."""
+
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agv_mission.atomic import atomic_write_text
+from agv_mission.missions.people_metrics import people_metrics
+from agv_mission.world.crowd import Crowd, PeopleGroup
+from agv_mission.world.simulation import SimulatedWorld
+
+PEOPLE_COLUMNS = ("t", "id", "x", "y")
+
+
+class PeopleTrack:
+    """Everyone's position at each control step (float32: 50 people for an hour take
+    14 MB); NaN while a person is not in the world yet."""
+
+    def __init__(self, ids: np.ndarray, radii: np.ndarray):
+        self.ids = np.asarray(ids, dtype=np.int64)
+        self.radii = np.asarray(radii, dtype=float)
+        self._t: list[float] = []
+        self._xy: list[np.ndarray] = []
+
+    def add(self, t: float, positions: np.ndarray, active: np.ndarray) -> None:
+        row = np.full((len(self.ids), 2), np.nan, dtype=np.float32)
+        row[active] = positions[active]
+        self._t.append(float(t))
+        self._xy.append(row)
+
+    @property
+    def t(self) -> np.ndarray:
+        return np.asarray(self._t, dtype=float)
+
+    @property
+    def xy(self) -> np.ndarray:
+        """(steps, people, 2)."""
+        if not self._xy:
+            return np.zeros((0, len(self.ids), 2))
+        return np.stack(self._xy).astype(float)
+
+
+def write_people_csv(path: Path, t: np.ndarray, xy: np.ndarray, ids: np.ndarray) -> None:
+    """``people.csv``: the contract's ``t, id, x, y``, time-major, people present only."""
+    steps, n = xy.shape[:2]
+    times = np.repeat(np.asarray(t, float), n)
+    who = np.tile(np.asarray(ids, float), steps)
+    flat = xy.reshape(-1, 2)
+    present = ~np.isnan(flat[:, 0])
+    table = np.column_stack([times, who, flat])[present]
+    buf = io.StringIO()
+    buf.write(",".join(PEOPLE_COLUMNS) + "\n")
+    if table.size:
+        np.savetxt(buf, table, delimiter=",", fmt=["%.6f", "%d", "%.4f", "%.4f"])
+    atomic_write_text(path, buf.getvalue())
+
+
+def plot_people(ax: Any, xy: np.ndarray, radii: np.ndarray) -> None:
+    """Everyone's walk as faint lines (one artist) and where they stood at the end as discs
+    (one collection): a figure with 50 people draws about as fast as one without."""
+    from matplotlib.collections import PatchCollection
+    from matplotlib.patches import Circle
+
+    if not xy.size:
+        return
+    gap = np.full((1, xy.shape[1], 2), np.nan)
+    thin = xy[:: max(1, len(xy) // 400)]  # 400 points a walk draw the same at this size
+    lines = np.concatenate([thin, gap]).transpose(1, 0, 2).reshape(-1, 2)  # NaN between
+    ax.plot(lines[:, 0], lines[:, 1], "-", lw=0.5, color="tab:brown", alpha=0.35, label="people")
+    discs = []
+    for i in range(xy.shape[1]):
+        seen = xy[~np.isnan(xy[:, i, 0]), i]
+        if len(seen):
+            discs.append(Circle(tuple(seen[-1]), float(radii[i])))
+    if discs:
+        ax.add_collection(PatchCollection(discs, color="tab:brown", alpha=0.7))
+
+
+PEOPLE_STREAM = 0x9E0_91E  # the people's random stream: the seed's, apart from the robots'
+
+
+class PeopleRun:
+    """The people of a run: the crowd walking in the world, what each robot is told of
+    them, the contacts they had with robots and their track for the run directory."""
+
+    def __init__(self, groups: list[PeopleGroup], world: SimulatedWorld, seed: int) -> None:
+        rng = np.random.default_rng(np.random.SeedSequence([seed, PEOPLE_STREAM]))
+        self.crowd = Crowd(groups, world.world.map, rng)
+        self.world = world
+        self.track = PeopleTrack(self.crowd.ids, self.crowd.radii)
+        self.touching: set[tuple[int, int]] = set()
+        self.touches: list[list[tuple[int, int]]] = []  # (robot, person) pairs at each step
+        world.move_people(self.crowd.positions, self.crowd.active)
+
+    def sense(self, now: float, robots: list[Any]) -> None:
+        """Before the robots decide: hand each the people present, rows (x, y, radius, vx,
+        vy) (a perfect tracker, as HuNavSim's robots get), and note who touches whom (each
+        new touch an event of that robot)."""
+        crowd = self.crowd
+        self.track.add(now, crowd.positions, crowd.active)
+        present = crowd.active
+        rows = np.column_stack(
+            [crowd.positions[present], crowd.radii[present], crowd.velocities[present]]
+        )
+        for r in robots:
+            r.handle.state.people = rows
+        touching = self.world.person_contacts()
+        for k, person in sorted(touching - self.touching):
+            p = robots[k].sim.true_pose()
+            robots[k].handle.log(
+                "person_collision", person=int(person), x=round(p.x, 3), y=round(p.y, 3)
+            )
+        self.touching = touching
+        self.touches.append(sorted(touching))
+
+    def present(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(ids, xy, radii) of the people in the world now (copies: observers keep them)."""
+        crowd = self.crowd
+        on = crowd.active
+        return crowd.ids[on].copy(), crowd.positions[on].copy(), crowd.radii[on].copy()
+
+    def move(self, dt: float, robots: list[Any]) -> None:
+        """Walk everyone one control period among the robots where they truly are."""
+        rows = np.zeros((len(robots), 5))
+        for k, r in enumerate(robots):
+            pose = r.sim.true_pose()
+            v, _ = r.sim.true_velocity()
+            c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+            rows[k] = (pose.x, pose.y, v * c, v * s, r.robot.footprint_radius)
+        self.crowd.step(dt, rows)
+        self.world.move_people(self.crowd.positions, self.crowd.active)
+
+    def metrics(
+        self, k: int, trajectory: np.ndarray, robot_radius: float, legs: list[Any], end: float
+    ) -> dict[str, Any]:
+        """``metrics.people`` of robot ``k`` (its trajectory rows align with the track's)."""
+        steps = min(len(trajectory), len(self.touches))
+        touched = np.zeros((steps, len(self.crowd.ids)), dtype=bool)
+        for i, pairs in enumerate(self.touches[:steps]):
+            for robot, person in pairs:
+                if robot == k:
+                    touched[i, person] = True
+        spans = [(leg.t_start, leg.t_end if leg.t_end is not None else end) for leg in legs]
+        return people_metrics(
+            trajectory[:steps, 0],
+            trajectory[:steps, 1:3],
+            self.track.xy[:steps],
+            float(robot_radius),
+            self.crowd.radii,
+            spans,
+            touching=touched,
+        )
+
+
+def fleet_people_metrics(records: list[Any]) -> dict[str, Any]:
+    """A fleet's ``metrics.people``: contacts of all its robots, the closest any came, and
+    the worst robot's times (each robot's own set is under ``robots``)."""
+    own = [r.metrics["people"] for r in records if r.metrics.get("people")]
+    distances = [m["min_distance"] for m in own if m["min_distance"] is not None]
+    return {
+        "people": own[0]["people"] if own else 0,
+        "min_distance": min(distances) if distances else None,
+        "intimate_time": max((m["intimate_time"] for m in own), default=0.0),
+        "personal_time": max((m["personal_time"] for m in own), default=0.0),
+        "collisions": sum(m["collisions"] for m in own),
+        "time_not_moving": max((m["time_not_moving"] for m in own), default=0.0),
+    }

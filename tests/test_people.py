@@ -1,0 +1,608 @@
+"""People: the crowd (ORCA through pyrvo on the real built-in maps), the ``people:`` schema
+and its resolution against a map, HuNavSim's metrics, their expectations and the
+``person_near`` condition."""
+
+from __future__ import annotations
+
+import hashlib
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from py_trees.common import Status
+from pydantic import TypeAdapter, ValidationError
+
+from agv_mission.behaviors.check import sample_context
+from agv_mission.behaviors.conditions import PersonNear
+from agv_mission.maps.builtin_worlds import small_house, warehouse
+from agv_mission.missions.expectations import Expectations, check
+from agv_mission.missions.loader import load_mission
+from agv_mission.missions.people import resolve_people
+from agv_mission.missions.people_metrics import people_metrics
+from agv_mission.missions.runner import run_mission
+from agv_mission.missions.schema.people import MAX_PEOPLE, People, PeopleSpec
+from agv_mission.world.crowd import Crowd, PeopleGroup, clearance
+
+WAREHOUSE = warehouse()
+HOUSE = small_house()
+WHOLE_WAREHOUSE = ((-14.9, -24.9), (14.9, -24.9), (14.9, 24.9), (-14.9, 24.9))
+
+
+def _walk(crowd: Crowd, steps: int, robots: np.ndarray | None = None) -> np.ndarray:
+    """Positions after each step, shape (steps, n, 2); NaN while a person is absent."""
+    out = np.full((steps, len(crowd.ids), 2), np.nan)
+    for k in range(steps):
+        crowd.step(0.1, robots)
+        out[k, crowd.active] = crowd.positions[crowd.active]
+    return out
+
+
+def _digest(positions: np.ndarray) -> str:
+    return hashlib.sha256(np.round(positions, 9).tobytes()).hexdigest()
+
+
+def _wall_gap(grid, positions: np.ndarray, radii: np.ndarray) -> float:
+    """The smallest distance from a body's edge to a wall over all steps (negative: in it)."""
+    room = clearance(grid)
+    flat = positions.reshape(-1, 2)
+    ok = ~np.isnan(flat[:, 0])
+    rows, cols = grid.world_to_cell(flat[ok])
+    gaps = room[rows, cols] - np.tile(radii, len(positions))[ok]
+    return float(gaps.min())
+
+
+def test_fifty_people_wander_the_warehouse_off_the_walls_and_apart() -> None:
+    crowd = Crowd(
+        [PeopleGroup(count=50, behaviour="wander", area=WHOLE_WAREHOUSE)],
+        WAREHOUSE.map,
+        np.random.default_rng(3),
+    )
+    walked = _walk(crowd, 300)
+    assert crowd.active.all()
+    # they walk at about their preferred speed, and go places
+    assert 0.8 < float(np.mean(np.hypot(*crowd.velocities.T))) < 1.5
+    assert float(np.median(np.hypot(*(walked[-1] - walked[0]).T))) > 5.0
+    # never through (nor into) a wall: the map's cells are 5 cm, so allow half of one
+    assert _wall_gap(WAREHOUSE.map, walked, crowd.radii) > -0.03
+    # and not through each other: ORCA keeps bodies apart (a couple of cm of give)
+    d = np.hypot(*(walked[:, :, None, :] - walked[:, None, :, :]).transpose(3, 0, 1, 2))
+    d[:, np.arange(50), np.arange(50)] = np.inf
+    assert float(d.min()) > 2 * 0.25 - 0.05
+
+
+def test_people_in_the_house_stay_in_free_space_through_doors() -> None:
+    """Wanderers of the whole house pass its doors between rooms, never its walls."""
+    house = ((-9.3, -5.3), (9.3, -5.3), (9.3, 5.3), (-9.3, 5.3))
+    crowd = Crowd(
+        [PeopleGroup(count=12, behaviour="wander", area=house, speed=1.4)],
+        HOUSE.map,
+        np.random.default_rng(11),
+    )
+    walked = _walk(crowd, 600)
+    assert _wall_gap(HOUSE.map, walked, crowd.radii) > -0.03
+    rooms_seen = set()
+    for label, room in HOUSE.rooms.items():
+        inside = room.contains_points(walked.reshape(-1, 2))
+        if inside.any():
+            rooms_seen.add(label)
+    assert len(rooms_seen) >= 3  # they get about, not stuck in the room they started in
+
+
+def test_same_seed_same_walks_other_seed_other_walks() -> None:
+    def run(seed: int) -> str:
+        crowd = Crowd(
+            [
+                PeopleGroup(count=20, behaviour="wander", area=WHOLE_WAREHOUSE),
+                PeopleGroup(count=2, behaviour="route", route=((-12.0, 0.0), (12.0, 0.0))),
+            ],
+            WAREHOUSE.map,
+            np.random.default_rng(seed),
+        )
+        robots = np.array([[0.0, -21.0, 0.4, 0.0, 0.2]])
+        return _digest(_walk(crowd, 150, robots))
+
+    assert run(5) == run(5)
+    assert run(5) != run(6)
+
+
+def test_same_seed_same_walks_in_another_process() -> None:
+    code = (
+        "import hashlib, numpy as np\n"
+        "from agv_mission.maps.builtin_worlds import small_house\n"
+        "from agv_mission.world.crowd import Crowd, PeopleGroup\n"
+        "area = ((-2.3, -5.3), (4.6, -5.3), (4.6, 5.3), (-2.3, 5.3))\n"
+        "c = Crowd([PeopleGroup(count=8, behaviour='wander', area=area)], small_house().map,"
+        " np.random.default_rng(9))\n"
+        "out = []\n"
+        "for _ in range(100):\n"
+        "    c.step(0.1, np.array([[1.0, 0.0, 0.0, 0.0, 0.2]]))\n"
+        "    out.append(c.positions.copy())\n"
+        "print(hashlib.sha256(np.round(np.array(out), 9).tobytes()).hexdigest())\n"
+    )
+
+    def digest() -> str:
+        done = subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, check=True
+        )
+        return done.stdout.strip()
+
+    first = digest()
+    assert len(first) == 64 and first == digest()
+
+
+def test_a_person_walking_at_a_robot_goes_round_it() -> None:
+    """Robots are agents of the crowd: a person whose route runs through a robot standing
+    in the cross aisle steps round it and walks on."""
+    crowd = Crowd(
+        [PeopleGroup(count=1, behaviour="route", route=((-8.0, 0.0), (8.0, 0.0)))],
+        WAREHOUSE.map,
+        np.random.default_rng(0),
+    )
+    robot = np.array([[0.0, 0.0, 0.0, 0.0, 0.2]])
+    walked = _walk(crowd, 150, robot)[:, 0, :]
+    gap = np.hypot(*walked.T) - 0.2 - 0.25
+    assert float(gap.min()) > 0.05  # never touched it
+    assert float(walked[:, 0].max()) > 6.0  # and got past
+    assert float(np.abs(walked[:, 1]).max()) > 0.2  # by stepping aside
+    # without the robot, the same person walks the straight line
+    alone = Crowd(
+        [PeopleGroup(count=1, behaviour="route", route=((-8.0, 0.0), (8.0, 0.0)))],
+        WAREHOUSE.map,
+        np.random.default_rng(0),
+    )
+    assert float(np.abs(_walk(alone, 150)[:, 0, 1]).max()) < 0.1
+
+
+def test_a_route_loops_and_people_spread_along_it() -> None:
+    route = ((-10.0, 0.0), (10.0, 0.0))
+    crowd = Crowd(
+        [PeopleGroup(count=2, behaviour="route", route=route, speed=1.5)],
+        WAREHOUSE.map,
+        np.random.default_rng(0),
+    )
+    assert np.allclose(crowd.positions, [[-10.0, 0.0], [10.0, 0.0]], atol=0.15)
+    walked = _walk(crowd, 400)  # 40 s at 1.5 m/s: 60 m, end to end and back
+    first = walked[:, 0, 0]
+    assert first.max() > 9.0 and first[-100:].min() < first.max() - 5.0  # there and back
+
+
+def test_people_enter_at_their_start_time() -> None:
+    crowd = Crowd(
+        [
+            PeopleGroup(
+                count=3, behaviour="wander", area=HOUSE.rooms["kitchen"].polygon, start_time=1.0
+            )
+        ],  # fmt: skip
+        HOUSE.map,
+        np.random.default_rng(1),
+    )
+    walked = _walk(crowd, 20)
+    assert np.isnan(walked[:10]).all()  # t = 0.1 .. 1.0: not yet in (entered at step 10)
+    assert not np.isnan(walked[12:]).any()
+
+
+# --- schema ------------------------------------------------------------------------------
+
+PEOPLE = TypeAdapter(People)
+
+
+def test_the_contracts_example_validates_with_its_defaults() -> None:
+    groups = PEOPLE.validate_python(
+        [
+            {"count": 6, "area": "kitchen", "behaviour": "wander", "speed": 1.0},
+            {
+                "count": 2,
+                "behaviour": "route",
+                "route": [{"x": 1.0, "y": 2.0}, {"x": 8.0, "y": 2.0}],
+                "speed": 1.3,
+                "radius": 0.25,
+                "start_time": 10.0,
+            },
+            {"area": [[0, 0], [2, 0], [2, 2]]},
+        ]
+    )
+    assert groups[0].radius == 0.25 and groups[0].start_time == 0.0
+    assert groups[2].speed == 1.2 and groups[2].behaviour == "wander" and groups[2].count == 1
+
+
+@pytest.mark.parametrize(
+    ("entry", "words"),
+    [
+        ({"count": 10**9, "area": "kitchen"}, f"less than or equal to {MAX_PEOPLE}"),
+        ({"area": "kitchen", "speed": 40.0}, "less than or equal to 3"),
+        ({"behaviour": "wander"}, "need an `area`"),
+        ({"behaviour": "route", "route": [{"x": 0, "y": 0}]}, "at least 2 items"),
+        ({"behaviour": "route", "area": "kitchen"}, "need `route`"),
+        ({"area": [[0, 0], [1, 1], [0, 1], [1, 0]]}, "simple"),
+        ({"area": "kitchen", "sped": 1.0}, "Extra inputs"),
+        ({"area": "kitchen", "radius": float("nan")}, "finite"),
+    ],
+)
+def test_bad_people_entries_say_what_is_wrong(entry: dict, words: str) -> None:
+    with pytest.raises(ValidationError) as err:
+        PeopleSpec.model_validate(entry)
+    assert words in str(err.value)
+
+
+def test_too_many_people_in_all_is_refused() -> None:
+    with pytest.raises(ValidationError, match=f"at most {MAX_PEOPLE}"):
+        PEOPLE.validate_python([{"count": 150, "area": "a"}, {"count": 60, "area": "b"}])
+
+
+# --- resolving against the map --------------------------------------------------------
+
+
+def _resolve(entries: list[dict]) -> tuple[list[PeopleGroup], list[tuple[tuple, str]]]:
+    problems: list[tuple[tuple, str]] = []
+    groups = resolve_people(
+        PEOPLE.validate_python(entries),
+        HOUSE.rooms,
+        HOUSE.map,
+        lambda where, message: problems.append((where, message)),
+    )
+    return groups, problems
+
+
+def test_rooms_and_routes_resolve_to_the_map_frame() -> None:
+    groups, problems = _resolve(
+        [
+            {"count": 4, "area": "kitchen"},
+            {"behaviour": "route", "route": [{"x": -5.0, "y": -2.0}, {"x": 2.0, "y": -2.0}]},
+        ]
+    )
+    assert problems == []
+    assert groups[0].area == HOUSE.rooms["kitchen"].polygon and groups[0].count == 4
+    assert groups[1].route == ((-5.0, -2.0), (2.0, -2.0)) and groups[1].behaviour == "route"
+
+
+def test_problems_are_reported_at_their_field() -> None:
+    _, problems = _resolve(
+        [
+            {"area": "garage"},
+            {"behaviour": "route", "route": [{"x": -5.0, "y": -2.0}, {"x": -2.4, "y": -3.0}]},
+            {"behaviour": "route", "route": [{"x": -5.0, "y": -2.0}, {"x": 50.0, "y": 0.0}]},
+            {"count": 150, "area": [[5.0, -5.0], [6.0, -5.0], [6.0, -4.0], [5.0, -4.0]]},
+        ]
+    )
+    where = dict(problems)
+    assert "no room 'garage'" in where[("people", 0, "area")]
+    assert "kitchen" in where[("people", 0, "area")]  # the rooms there are
+    assert "in a wall" in where[("people", 1, "route", 1)]
+    assert "off the map" in where[("people", 2, "route", 1)]
+    assert "do not fit" in where[("people", 3, "count")]
+
+
+def test_a_route_point_walled_off_from_the_first_is_refused() -> None:
+    """A pocket of free space no door leads to (a point between the warehouse's outer
+    wall and the map's edge would be unknown; a closed box is the same)."""
+    grid = HOUSE.map
+    data = grid.data.copy()
+    rows, cols = grid.world_to_cell(np.array([[6.0, -3.0], [8.0, -1.0]]))
+    data[rows[0] : rows[1], cols[0]] = 100  # a closed box in the kitchen
+    data[rows[0] : rows[1], cols[1]] = 100
+    data[rows[0], cols[0] : cols[1] + 1] = 100
+    data[rows[1], cols[0] : cols[1] + 1] = 100
+    boxed = type(grid)(data=data, resolution=grid.resolution, origin=grid.origin)
+    problems: list[tuple[tuple, str]] = []
+    resolve_people(
+        PEOPLE.validate_python(
+            [{"behaviour": "route", "route": [{"x": 2.0, "y": -2.0}, {"x": 7.0, "y": -2.0}]}]
+        ),
+        HOUSE.rooms,
+        boxed,
+        lambda where, message: problems.append((where, message)),
+    )
+    assert problems and problems[0][0] == ("people", 0, "route", 1)
+    assert "walls are in the way" in problems[0][1]
+
+
+# --- metrics and expectations -----------------------------------------------------------
+
+
+def test_hunavsim_metrics_from_arrays() -> None:
+    t = np.round(np.arange(0.0, 10.0, 0.1), 9)
+    robot = np.stack([np.minimum(t, 5.0) * 0.5, np.zeros_like(t)], axis=1)  # stops at t = 5
+    people = np.full((len(t), 2, 2), np.nan)
+    people[20:, 0] = [3.0, 0.0]  # appears at t = 2 where the robot will drive into it
+    people[:, 1] = [0.0, 9.0]  # far away all along
+    m = people_metrics(t, robot, people, 0.2, np.array([0.25, 0.25]), [(0.0, 5.0), (5.0, 9.9)])
+    # the robot's centre reaches x = 2.5 at t = 5: 0.5 m from the person's centre
+    assert m["min_distance"] == pytest.approx(0.5 - 0.45)
+    assert m["collisions"] == 0
+    # intimate (< 0.45 m edge to edge): centre gap < 0.9, robot x > 2.1, from t = 4.2
+    assert m["intimate_time"] == pytest.approx(10.0 - 4.2, abs=0.11)
+    assert m["personal_time"] == pytest.approx(10.0 - 2.7, abs=0.11)  # x > 1.35 from t 2.7
+    assert m["time_not_moving"] == pytest.approx(5.0, abs=0.11)
+    assert m["legs"][0] == {"path_length": pytest.approx(2.5), "time": 5.0}
+    assert m["legs"][1]["path_length"] == pytest.approx(0.0)
+    # driving on into the person: one contact begun, however long it lasts
+    people[:, 0] = [2.6, 0.0]
+    m = people_metrics(t, robot, people, 0.2, np.array([0.25, 0.25]))
+    assert m["collisions"] == 1 and m["min_distance"] < 0.0
+
+
+def test_metrics_without_anyone_in_the_world() -> None:
+    t = np.arange(0.0, 1.0, 0.1)
+    m = people_metrics(t, np.zeros((10, 2)), np.zeros((10, 0, 2)), 0.2, np.zeros(0))
+    assert m["min_distance"] is None and m["personal_time"] == 0.0 and m["collisions"] == 0
+    for steps in (0, 1):  # a run that ended before (or at) its first step
+        m = people_metrics(np.zeros(steps), np.zeros((steps, 2)), np.full((steps, 3, 2), 9.0), 0.2,
+                           np.full(3, 0.25), [(0.0, 0.0)])  # fmt: skip
+        assert m["collisions"] == 0 and m["time_not_moving"] == 0.0
+
+
+def test_people_expectations_read_metrics_people() -> None:
+    expect = Expectations(
+        people_collisions_max=0, people_min_distance_min=0.2, personal_time_max=5.0
+    )
+    good = {"status": "succeeded", "metrics": {"people": {
+        "collisions": 0, "min_distance": 0.35, "personal_time": 2.0}}}  # fmt: skip
+    assert check(expect, good) == []
+    bad = {"status": "succeeded", "metrics": {"people": {
+        "collisions": 2, "min_distance": 0.1, "personal_time": 7.5}}}  # fmt: skip
+    failed = {f.metric: f for f in check(expect, bad)}
+    assert set(failed) == {"people_collisions_max", "people_min_distance_min", "personal_time_max"}
+    assert failed["people_min_distance_min"].by == pytest.approx(0.1)
+
+
+# --- person_near ---------------------------------------------------------------------------
+
+
+def test_person_near_measures_footprint_to_the_persons_edge() -> None:
+    context = sample_context()  # a burger at (1, 1) with a real navigator
+    handle = context.handle
+    node = PersonNear("near", handle, distance=0.5)
+    footprint = handle.navigator.costmap.robot_radius
+    node.setup()
+    assert node.tick_once() is None and node.status == Status.FAILURE  # nobody there
+    handle.state.people = np.array([[1.0 + footprint + 0.25 + 0.6, 1.0, 0.25]])
+    node.tick_once()
+    assert node.status == Status.FAILURE and "nearest 0.60 m" in node.feedback_message
+    handle.state.people = np.array([[5.0, 5.0, 0.25], [1.0, 1.0 + footprint + 0.25 + 0.4, 0.25]])
+    node.tick_once()
+    assert node.status == Status.SUCCESS
+
+
+# --- /people in the bag --------------------------------------------------------------------
+
+
+def test_people_markers_packed_byte_for_byte_as_rosbags_serialises_them() -> None:
+    from agv_mission.bags import ros_messages as rm
+    from agv_mission.bags.cdr import PeopleMarkersCdr
+
+    packer = PeopleMarkersCdr()
+    rng = np.random.default_rng(0)
+    for n, t in ((3, 0.1), (3, 7.25), (5, 1234.5)):  # the same set again, then one grown
+        ids = np.arange(n)
+        xy = rng.uniform(-20.0, 20.0, (n, 2))
+        radii = np.linspace(0.2, 0.3, n)
+        expected = rm.serialize(rm.people_markers(t, ids, xy, radii), rm.MARKER_ARRAY)
+        assert packer.pack(t, ids, xy, radii) == expected
+    msg = rm.typestore().deserialize_cdr(packer.pack(2.0, ids, xy, radii), rm.MARKER_ARRAY)
+    first = msg.markers[0]
+    assert first.ns == "people" and first.type == 3 and first.scale.x == pytest.approx(0.4)
+    assert (first.pose.position.x, first.pose.position.y) == tuple(xy[0])
+    assert first.header.stamp.sec == 2 and first.header.frame_id == "map"
+
+
+# --- runs with people ---------------------------------------------------------------------
+
+STEP_OUT = """\
+name: step-out
+world: warehouse
+start: {{x: -8.0, y: 0.0, yaw: 0.0}}
+seed: 4
+stack:
+  localization: {{type: ground_truth}}
+  local_planner: {{type: pure_pursuit}}
+  costmap: {{obstacles: {{enabled: false}}}}
+  collision_monitor: {{enabled: {enabled}}}
+people:
+  - {{behaviour: route, route: [{{x: -5.6, y: -0.05}}, {{x: -5.6, y: 0.0}}], start_time: 5.0,
+      attentive: false}}
+tasks:
+  - {{type: go_to, pose: {{x: 4.0, y: 0.0, yaw: 0.0}}}}
+limits: {{time: 14.0}}
+"""
+
+
+def test_the_monitor_stops_a_blind_robot_for_a_person_stepping_out_1_m_ahead(
+    tmp_path: Path,
+) -> None:
+    """At t = 5 s the burger drives at its full 0.22 m/s with its front at x = -6.84 when a
+    person who does not look out appears with their edge 1 m ahead and stands. Pure pursuit
+    without an obstacle layer is blind to them: without the collision monitor it runs
+    into them; with it, it stops short, on the raw lidar points."""
+    records = {}
+    for enabled in ("true", "false"):
+        path = tmp_path / f"step_out_{enabled}.yaml"
+        path.write_text(STEP_OUT.format(enabled=enabled))
+        records[enabled] = run_mission(load_mission(path))
+    on, off = records["true"], records["false"]
+    at_five = on.trajectory[np.argmin(np.abs(on.trajectory[:, 0] - 5.0))]
+    assert at_five[7] == pytest.approx(0.22)  # full speed when the person appears
+    assert 1.0 - 0.05 < (-5.6 - 0.25) - (at_five[1] + 0.105) < 1.0 + 0.05
+    assert off.metrics["people"]["collisions"] >= 1
+    assert any(e["event"] == "person_collision" for e in off.events)
+    assert off.metrics["collisions"] == 0  # a person is not a wall
+    assert on.metrics["people"]["collisions"] == 0
+    assert on.metrics["people"]["min_distance"] > 0.0
+    assert on.metrics["collision_monitor"]["stop"]["activations"] >= 1
+
+
+def test_a_run_with_people_writes_people_csv_the_bag_topic_and_metrics(tmp_path: Path) -> None:
+    from rosbags.highlevel import AnyReader
+
+    mission = tmp_path / "walk.yaml"
+    mission.write_text(
+        "name: walk\nworld: small_house\nstart: {x: -1.5, y: -2.0, yaw: 0.0}\nseed: 2\n"
+        "stack:\n  localization: {type: ground_truth}\n"
+        "people:\n  - {count: 3, area: livingroom}\n"
+        "  - {behaviour: route, route: [{x: -5.0, y: -4.0}, {x: -5.0, y: 0.0}], start_time: 2.0}\n"
+        "tasks:\n  - {type: go_to, pose: {x: 3.5, y: -2.0, yaw: 0.0}}\n"
+        f"limits: {{time: 8.0}}\noutput: {tmp_path / 'runs'}\n"
+    )
+    done = subprocess.run(
+        [str(Path(sys.executable).parent / "agv-mission"), "run", str(mission)],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode in (0, 1), done.stderr
+    run_dir = next((tmp_path / "runs").iterdir())
+    rows = (run_dir / "people.csv").read_text().splitlines()
+    assert rows[0] == "t,id,x,y"
+    table = np.array([[float(v) for v in row.split(",")] for row in rows[1:]])
+    assert set(table[:, 1].astype(int)) == {0, 1, 2, 3}
+    assert table[table[:, 1] == 3, 0].min() == pytest.approx(2.0, abs=0.11)  # entered at 2 s
+    inside = HOUSE.rooms["livingroom"].contains_points(table[table[:, 1] < 3][:, 2:4])
+    assert inside.mean() > 0.9  # wanderers stay in their room (bodies may lean over its line)
+    import json
+
+    result = json.loads((run_dir / "result.json").read_text())
+    people = result["metrics"]["people"]
+    assert people["people"] == 4 and people["collisions"] == 0
+    assert people["min_distance"] is not None and people["legs"]
+    with AnyReader([run_dir / "bag"]) as reader:
+        conns = [c for c in reader.connections if c.topic == "/people"]
+        assert conns and conns[0].msgtype == "visualization_msgs/msg/MarkerArray"
+        last = None
+        for conn, _, raw in reader.messages(connections=conns):
+            last = reader.deserialize(raw, conn.msgtype)
+    assert last is not None and sorted(m.id for m in last.markers) == [0, 1, 2, 3]
+    final = table[table[:, 0] == table[:, 0].max()]
+    marker = next(m for m in last.markers if m.id == 0)
+    assert marker.pose.position.x == pytest.approx(final[final[:, 1] == 0][0, 2], abs=0.2)
+
+
+def test_the_dashboards_stream_carries_the_people(tmp_path: Path) -> None:
+    """The run's stream (live and ``stream.jsonl``, which the run page replays) has
+    ``people`` messages: ``[id, x, y, radius]`` of everyone present."""
+    import json
+    from multiprocessing import Pipe
+
+    from agv_mission.missions.runner import MissionRun
+    from agv_mission.service.stream import STREAM_FILE, StreamObserver
+
+    mission = tmp_path / "walk.yaml"
+    mission.write_text(
+        "name: walk\nworld: small_house\nstart: {x: -1.5, y: -2.0, yaw: 0.0}\nseed: 2\n"
+        "stack:\n  localization: {type: ground_truth}\n"
+        "people:\n  - {count: 2, area: livingroom}\n"
+        "tasks:\n  - {type: go_to, pose: {x: 3.5, y: -2.0, yaw: 0.0}}\nlimits: {time: 3.0}\n"
+    )
+    mine, theirs = Pipe()
+    stream = StreamObserver(theirs, tmp_path)
+    run = MissionRun(load_mission(mission), tmp_path, [stream])
+    run.notify_start()
+    run.drive()
+    stream.on_end(run.record())
+    lines = [json.loads(line) for line in (tmp_path / STREAM_FILE).read_text().splitlines()]
+    people = [m for m in lines if m["type"] == "people"]
+    assert len(people) >= 5  # every 0.5 simulated s in the file
+    last = people[-1]["people"]
+    assert [p[0] for p in last] == [0, 1] and all(p[3] == 0.25 for p in last)
+    assert all(HOUSE.rooms["livingroom"].contains(p[1], p[2]) for p in last)
+    live = []
+    while mine.poll():
+        item = mine.recv()
+        if item[0] == "msg" and item[1] == "people":
+            live.append(item)
+    assert live
+
+
+def test_the_mpc_keeps_off_where_a_crossing_person_will_be() -> None:
+    """A person 1.5 m ahead and 1.5 m to the right walks across the robot's straight path
+    at 1 m/s: at 1 m/s the robot would meet them. Given the person as a moving obstacle,
+    the MPC's predicted motion keeps its distance from where they will be at each stage;
+    given only where they stand now, it drives straight on into that place."""
+    from agv_mission.geometry import Pose2D
+    from agv_mission.planners.base import VelocityLimits
+    from agv_mission.planners.configs import MpcConfig
+    from agv_mission.planners.mpc import MpcController
+
+    limits = VelocityLimits(max_v=1.0, max_w=2.0, max_acc_v=2.0, max_acc_w=4.0)
+    path = np.column_stack([np.linspace(0.0, 6.0, 61), np.zeros(61)])
+    goal = Pose2D(6.0, 0.0, 0.0)
+    person = np.array([[1.5, -1.5, 0.25, 0.0, 1.0]])  # x, y, radius, vx, vy
+    here = np.array([[1.5, -1.5 + 0.25]])  # a lidar point on them now
+    cfg = MpcConfig()
+
+    def horizon(moving: np.ndarray | None) -> np.ndarray:
+        ctrl = MpcController(cfg, limits, 0.105, 0.1)
+        pose, v = Pose2D(0.0, 0.0, 0.0), (1.0, 0.0)
+        cmd = None
+        for _ in range(5):  # a few steps: the real-time iteration settles
+            cmd = ctrl.compute(pose, v, path, goal, here if moving is None else np.zeros((0, 2)),
+                               moving)  # fmt: skip
+        assert cmd is not None and cmd.ok
+        return cmd.predicted
+
+    def closest(states: np.ndarray) -> float:
+        t = np.arange(len(states)) * cfg.dt
+        where = person[0, :2] + t[:, None] * person[0, 3:5]
+        return float(np.min(np.hypot(*(states[:, :2] - where).T)) - 0.105 - 0.25)
+
+    predicted_with, predicted_without = horizon(person), horizon(None)
+    assert closest(predicted_without) < 0.05  # blind to where they go: into them
+    assert closest(predicted_with) > 0.05  # keeps off their predicted place (0.13 m)
+
+
+def test_the_costmap_leaves_out_people_walking_by_but_not_people_standing() -> None:
+    from agv_mission.geometry import Pose2D
+    from agv_mission.messages import LaserScan
+
+    navigator = sample_context().handle.navigator  # a real navigator in a 4 m room
+    pose = Pose2D(1.0, 1.0, 0.0)
+
+    def scan(ahead: float) -> LaserScan:
+        ranges = np.full(360, np.inf, dtype=np.float32)
+        ranges[0] = ahead
+        return LaserScan(ranges, 0.0, 2 * np.pi / 360, 0.12, 3.5, 0.0)
+
+    walking = np.array([[2.25, 1.0, 0.25, 0.0, 1.0]])  # x, y, radius, vx, vy
+    navigator.observe(pose, scan(1.0), walking)  # the return at (2, 1) is on them
+    assert not navigator.layer.marks.any()
+    standing = walking.copy()
+    standing[0, 3:] = 0.0
+    navigator.observe(pose, scan(1.0), standing)
+    assert navigator.layer.marks.sum() == 1  # someone standing is in the way like a box
+    navigator.observe(pose, scan(np.inf), np.zeros((0, 5)))  # gone: the beam clears it
+    assert not navigator.layer.marks.any()
+    navigator.observe(pose, scan(1.0), None)  # not a person: marked as before
+    assert navigator.layer.marks.sum() == 1
+
+
+def test_a_run_with_people_is_reproduced_from_its_seed(tmp_path: Path) -> None:
+    mission = tmp_path / "again.yaml"
+    mission.write_text(
+        "name: again\nworld: small_house\nstart: {x: -1.5, y: -2.0, yaw: 0.0}\nseed: 5\n"
+        "people:\n  - {count: 4, area: livingroom}\n"
+        "tasks:\n  - {type: go_to, pose: {x: 3.5, y: -2.0, yaw: 0.0}}\nlimits: {time: 6.0}\n"
+    )
+    first, second = (run_mission(load_mission(mission)) for _ in range(2))
+    assert np.array_equal(first.trajectory, second.trajectory)
+    assert np.array_equal(first.people.xy, second.people.xy, equal_nan=True)
+    other = mission.read_text().replace("seed: 5", "seed: 6")
+    mission.write_text(other)
+    third = run_mission(load_mission(mission))
+    assert not np.array_equal(first.people.xy, third.people.xy, equal_nan=True)
+
+
+def test_amcl_keeps_its_estimate_in_a_crowd(tmp_path: Path) -> None:
+    """Eight people wandering the living room the robot crosses hide the walls amcl
+    matches: their returns are left out of its scans (a laser filter on tracked people), so
+    the estimate holds and the robot gets through; with them in, this run lost it (0.8 m)."""
+    mission = tmp_path / "crowd.yaml"
+    mission.write_text(
+        "name: crowd\nworld: small_house\nstart: {x: -6.0, y: -2.0, yaw: 0.0}\nseed: 7\n"
+        "people:\n  - {count: 8, area: livingroom, speed: 1.0}\n"
+        "tasks:\n  - {type: go_to, pose: {x: 7.0, y: -2.0, yaw: 0.0}}\nlimits: {time: 150.0}\n"
+    )
+    record = run_mission(load_mission(mission))
+    assert record.status == "succeeded", record.reason
+    assert record.metrics["localization"]["position_rmse"] < 0.1
+    people = record.metrics["people"]
+    assert people["collisions"] == 0 and people["min_distance"] > 0.2
+    assert people["time_not_moving"] < 0.1 * record.sim_time

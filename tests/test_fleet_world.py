@@ -147,12 +147,3 @@ def test_one_robot_mission_is_a_world_with_one_robot(tmp_path):
     assert len(run.robots) == 1 and list(run.world.bodies) == ["robot"]
     a, b = run_mission(load_mission(path)), run_mission(load_mission(path))
     assert a.status == "succeeded" and np.array_equal(a.trajectory, b.trajectory)
-
-
-def test_threads_do_not_change_a_fleet_run(tmp_path):
-    """Robots deciding side by side (simulation.threads) give the same run, bit for bit."""
-    path = fleet_file(tmp_path)
-    one = run_mission(load_mission(path, ["limits.time=8"]))
-    two = run_mission(load_mission(path, ["limits.time=8", "simulation.threads=2"]))
-    for name in ("agv1", "agv2"):
-        assert np.array_equal(one.robots[name].trajectory, two.robots[name].trajectory)

@@ -136,10 +136,8 @@ class RobotRun:
         self.faults.apply(now, self.handle)
 
     def decide(self, now: float) -> None:
-        """Sense, estimate, tick the tree and choose this step's command (not yet sent).
-
-        Touches only this robot and reads the world: the robots of a fleet decide side by
-        side (see :class:`~agv_mission.missions.runner.MissionRun`)."""
+        """Sense, estimate, tick the tree and choose this step's command (not yet sent);
+        touches only this robot and reads the world."""
         handle, state = self.handle, self.handle.state
         sensing = self.stack.sense(self._scan_filter)
         truth = sensing.truth

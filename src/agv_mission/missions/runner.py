@@ -16,7 +16,6 @@ import gc
 import math
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -148,14 +147,6 @@ class MissionRun:
             FleetCoordinator(loaded, self.robots, self.fleet_log) if loaded.is_fleet else None
         )
         self._touching: set[tuple[int, int]] = set()
-        # With ``simulation.threads``, a fleet's robots decide side by side: each touches
-        # only its own stack and reads the world, and the solvers (casadi, numpy, MuJoCo's
-        # ray casts) release the GIL. Every robot's draws come from its own streams: the
-        # outcome does not depend on the threads' interleaving.
-        self._pool: ThreadPoolExecutor | None = None
-        threads = self.mission.simulation.threads
-        if len(self.robots) > 1 and threads > 1:
-            self._pool = ThreadPoolExecutor(threads, thread_name_prefix="robots")
         self.wall_start = time.perf_counter()
         self.status: str | None = None
         self.reason: str | None = None
@@ -259,13 +250,8 @@ class MissionRun:
             self.people.sense(now, robots)
         for r in robots:
             r.prepare(now)
-        if self._pool is None:
-            for r in robots:
-                r.decide(now)
-        else:
-            self.world.kinematics()  # every lidar reads the same, current state
-            for future in [self._pool.submit(r.decide, now) for r in robots]:
-                future.result()
+        for r in robots:
+            r.decide(now)
         self._watch_collisions(now)
         if len(robots) > 1:
             self._watch_robots(now)
@@ -374,9 +360,6 @@ class MissionRun:
 
     def record(self) -> RunRecord:
         """The outcome so far, as the run directory will hold it."""
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
         if self.status is None:
             self.end("error", "the run ended without an outcome")
         wall_time = time.perf_counter() - self.wall_start

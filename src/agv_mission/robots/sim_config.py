@@ -18,14 +18,6 @@ class SimConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     physics_dt: float = Field(0.01, gt=0, le=0.02, description="physics time step, s")
-    threads: int = Field(
-        1,
-        ge=1,
-        le=8,
-        description="threads a fleet's robots decide on (the outcome is the same on any "
-        "number): on 2 cores, with the steps' Python holding the GIL, 2 threads cost 1.3x "
-        "the CPU for no gain in speed (measured), so one by default",
-    )
     ideal: bool = Field(
         False,
         description="perfect sensors: no encoder noise, slip or scale error, no lidar noise "

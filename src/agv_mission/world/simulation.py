@@ -9,7 +9,6 @@ body), contacts between bodies and with walls, and clearances.
 from __future__ import annotations
 
 import math
-import threading
 from dataclasses import dataclass
 
 import mujoco
@@ -125,7 +124,6 @@ class SimulatedWorld:
             sight = max((s for *_, s in bodies), default=0.0)
             self.window = WallWindow(m, self.walls, world.wall_height, radius=sight + 0.5)
         self._kinematics_at = -math.inf
-        self._cast_lock = threading.Lock()  # ray casts share the data's scratch stack
         self._rays = np.zeros(6, dtype=np.uint8)
         self._rays[[WALL_GROUP, SEEN_GROUP]] = 1
 
@@ -206,20 +204,7 @@ class SimulatedWorld:
         cutoff: float,
     ) -> None:
         """Cast ``len(dist)`` rays from ``origin`` along ``directions`` (flat, 3n) into
-        ``dist`` (-1: no hit) and ``geomid``, seeing walls and every body but ``exclude``.
-        One cast at a time (robots deciding side by side share the data)."""
-        with self._cast_lock:
-            self._multi_ray(origin, directions, exclude, geomid, dist, cutoff)
-
-    def _multi_ray(
-        self,
-        origin: np.ndarray,
-        directions: np.ndarray,
-        exclude: Body,
-        geomid: np.ndarray,
-        dist: np.ndarray,
-        cutoff: float,
-    ) -> None:
+        ``dist`` (-1: no hit) and ``geomid``, seeing walls and every body but ``exclude``."""
         mujoco.mj_multiRay(
             self.model,
             self.data,

@@ -147,3 +147,34 @@ def test_one_robot_mission_is_a_world_with_one_robot(tmp_path):
     assert len(run.robots) == 1 and list(run.world.bodies) == ["robot"]
     a, b = run_mission(load_mission(path)), run_mission(load_mission(path))
     assert a.status == "succeeded" and np.array_equal(a.trajectory, b.trajectory)
+
+
+def test_every_robots_problems_are_reported_together(tmp_path):
+    """One robot's bad entry does not hide the next robot's, nor the fleet block's."""
+    path = tmp_path / "bad.yaml"
+    path.write_text(
+        "world: turtlebot3_world\n"
+        "robots:\n"
+        "  - {name: agv1, start: {x: -2.0, y: -0.5}, robot: tank}\n"
+        "  - {name: agv2, start: {x: 2.0, y: 0.5}, tasks: [{type: go_to, pose: {x: 9, y: 9}}]}\n"
+        "  - {start: {x: 1.0, y: 0.5}}\n"
+        "tasks:\n"
+        "  - {type: go_to, pose: {x: 1.8, y: -1.0}, robot: 7}\n"
+        "fleet: {dispatcher: {type: fastest}}\n"
+    )
+    found = problems(path)
+    assert any(":7: tasks.0.robot" in p for p in found), found
+    assert any(":5: robots.2.name" in p for p in found), found
+    assert any(":8: fleet.dispatcher" in p and "quickest_finish" in p for p in found), found
+    path.write_text(
+        path.read_text()
+        .replace("robot: 7}", "}")
+        .replace("  - {start:", "  - {name: agv3, start:")
+        .replace("fastest", "nearest_idle")
+    )
+    found = problems(path)
+    assert any(":3: robots.0.robot" in p and "tank" in p for p in found), found
+    assert any(":4: robots.1.tasks.0.pose" in p and "outside the map" in p for p in found), found
+    not_a_list = tmp_path / "list.yaml"
+    not_a_list.write_text("world: turtlebot3_world\nrobots: agv1\n")
+    assert any(":2: robots" in p and "list" in p for p in problems(not_a_list))

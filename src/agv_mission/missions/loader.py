@@ -6,6 +6,7 @@ reported as :class:`MissionError` naming file, line and field.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -257,7 +258,7 @@ def load_mission(
     if isinstance(tree_file, str) and not tree_file.strip().endswith(".xml"):
         message = f"a string names a BT.CPP XML file (ending in .xml), not {tree_file!r}"
         raise MissionError([log.at(("tree",), message)])
-    fleet = isinstance(data.get("robots"), list) and bool(data["robots"])
+    fleet = data.get("robots") not in (None, [])
     if model is Mission and not fleet and ("tasks" in data) == ("tree" in data):
         both = "tasks" in data
         message = (
@@ -267,11 +268,12 @@ def load_mission(
     try:
         mission = model.model_validate(data, strict=True)
     except ValidationError as exc:
-        raise MissionError(validation_problems(log, exc, data, model)) from None
+        raise MissionError([*log.problems, *validation_problems(log, exc, data, model)]) from None
     except RecursionError:  # e.g. an alias that contains itself: a: &x [*x]
         raise MissionError(
             [Problem(file, None, "", "the document nests too deeply (or contains itself)")]
         ) from None
+    log.raise_if_any()  # what the fleet's layout found
 
     base_dir = path.parent if path.name else Path.cwd()
     if isinstance(mission, Mission) and mission.robots:
@@ -302,7 +304,7 @@ def _fleet_layout(data: dict[str, Any], log: ProblemLog) -> dict[int, str]:
                 f"a fleet mission (with `robots:`) names each robot's {key} in its entry "
                 f"under robots:, not a top-level `{key}:`",
             )
-    log.raise_if_any()
+            del data[key]  # reported; the rest is still checked
     shared = data.get("stack")
     for robot in robots:
         if isinstance(robot, dict) and isinstance(shared, dict):
@@ -317,7 +319,6 @@ def _fleet_layout(data: dict[str, Any], log: ProblemLog) -> dict[int, str]:
                 log.add(("tasks", i, "robot"), f"expected a robot's name, got {kind_of(name)}")
             else:
                 assigned[i] = name
-    log.raise_if_any()
     return assigned
 
 
@@ -525,17 +526,16 @@ def _resolve(
 
 class _RobotLog:
     """A fleet robot's view of the mission's problems: what it calls ``start``, ``robot``
-    and ``stack`` is its entry's under ``robots:``; a problem found twice is reported once."""
+    and ``stack`` is its entry's under ``robots:``. It collects its own problems (one
+    robot's do not stop the next robot's checks); :meth:`merge` hands them on, each
+    problem once."""
 
     OWN = ("start", "robot", "stack")
 
     def __init__(self, log: ProblemLog, index: int) -> None:
         self.log, self.index = log, index
         self.file, self.lines = log.file, log.lines
-
-    @property
-    def problems(self) -> list[Problem]:
-        return self.log.problems
+        self.problems: list[Problem] = []
 
     def _path(self, field_path: FieldPath) -> FieldPath:
         if field_path and field_path[0] in self.OWN:
@@ -547,11 +547,17 @@ class _RobotLog:
 
     def add(self, field_path: FieldPath, message: str) -> None:
         problem = self.at(field_path, message)
-        if problem not in self.log.problems:
-            self.log.problems.append(problem)
+        if problem not in self.problems:
+            self.problems.append(problem)
 
     def raise_if_any(self) -> None:
-        self.log.raise_if_any()
+        if self.problems:
+            raise MissionError(self.problems)
+
+    def merge(self) -> None:
+        for problem in self.problems:
+            if problem not in self.log.problems:
+                self.log.problems.append(problem)
 
 
 def _robot_tree(
@@ -643,12 +649,11 @@ def _resolve_fleet(
             reporter = task.robot == robot.name or (task.robot is None and i == widest)
             for where, ports, report in _node_checks(task.tree, log):
                 checks.append((where, ports, report if reporter else _silent))
-        try:
+        with contextlib.suppress(MissionError):  # its problems are in robot_log
             resolved.append(
                 _resolve(view, base_dir, stem, robot_log, path_guard, trees[i], checks)  # type: ignore[arg-type]
             )
-        except MissionError:
-            continue
+        robot_log.merge()
     log.raise_if_any()
     for k, b in enumerate(resolved):
         for j, a in enumerate(resolved[:k]):

@@ -12,10 +12,9 @@ from __future__ import annotations
 
 import tempfile
 import time
-from collections import defaultdict
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+
+from bench_breakdown import _Clock
 
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.runner import MissionRun
@@ -57,31 +56,6 @@ def fleet_mission(n: int, sim_seconds: float = SIM_SECONDS) -> str:
         f"robots:\n{''.join(robots)}"
         f"limits: {{time: {sim_seconds}, collisions: 1000}}\n"
     )
-
-
-class _Clock:
-    """CPU seconds per component, nested calls counted once (in the innermost)."""
-
-    def __init__(self) -> None:
-        self.total: dict[str, float] = defaultdict(float)
-        self._stack: list[list[float]] = []
-
-    def wrap(self, obj: Any, name: str, component: str) -> None:
-        fn: Callable[..., Any] = getattr(obj, name)
-
-        def timed(*args: Any, **kwargs: Any) -> Any:
-            frame = [time.process_time(), 0.0]
-            self._stack.append(frame)
-            try:
-                return fn(*args, **kwargs)
-            finally:
-                self._stack.pop()
-                spent = time.process_time() - frame[0]
-                self.total[component] += spent - frame[1]
-                if self._stack:
-                    self._stack[-1][1] += spent
-
-        setattr(obj, name, timed)
 
 
 def measure(n: int, sim_seconds: float = SIM_SECONDS, parts: bool = True) -> dict[str, float]:

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from agv_mission.missions.errors import MissionError
+from agv_mission.missions.fleet import queue_fleet_tasks
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.outputs import open_run_dir, write_run
 from agv_mission.missions.runner import MissionRun, run_mission
@@ -55,7 +56,9 @@ def test_fleet_loads_each_robot_with_its_merged_stack(tmp_path):
     assert agv1.stack.local_planner.type == "pure_pursuit"  # the mission's stack
     assert agv2.stack.local_planner.type == "mpc"  # its own, merged over
     assert agv2.robot.name == "waffle" and agv2.costmap is not agv1.costmap
-    # the task assigned by robot: runs after agv2's own (none): its tree holds it
+    # the task assigned by robot: runs after agv2's own (none) once the run releases it
+    assert agv2.tree is None and agv1.tree.task_types() == ["go_to"]
+    agv1, agv2 = queue_fleet_tasks(loaded)[0].robots
     assert agv2.tree.task_types() == ["go_to"] and agv1.tree.task_types() == ["go_to"]
     swapped = load_mission(
         fleet_file(tmp_path), ["robots.agv1.stack.local_planner.type=mpc"]
@@ -178,3 +181,26 @@ def test_every_robots_problems_are_reported_together(tmp_path):
     not_a_list = tmp_path / "list.yaml"
     not_a_list.write_text("world: turtlebot3_world\nrobots: agv1\n")
     assert any(":2: robots" in p and "list" in p for p in problems(not_a_list))
+
+
+def test_fleet_tasks_queue_in_the_order_given(tmp_path):
+    """Assigned and dispatched tasks join a robot's tree in the order of `tasks:`, after its
+    own (fleet.md), whichever way each came to it."""
+    from agv_mission.missions.fleet import tree_goals
+
+    path = tmp_path / "order.yaml"
+    path.write_text(
+        "world: turtlebot3_world\n"
+        "robots:\n"
+        "  - name: agv1\n"
+        "    start: {x: -2.0, y: -0.5}\n"
+        "    tasks: [{type: go_to, pose: {x: -2.0, y: 1.0}}]\n"
+        "tasks:\n"
+        "  - {type: go_to, pose: {x: 1.8, y: -1.0}}\n"
+        "  - {type: go_to, pose: {x: 1.8, y: 1.0}, robot: agv1}\n"
+        "  - {type: go_to, pose: {x: 0.0, y: -2.0}}\n"
+    )
+    loaded, log = queue_fleet_tasks(load_mission(path))
+    goals = [(g.x, g.y) for g in tree_goals(loaded.robots[0].tree, {}, {})]
+    assert goals == [(-2.0, 1.0), (1.8, -1.0), (1.8, 1.0), (0.0, -2.0)]
+    assert [d["task"] for d in log] == [0, 2] and {d["robot"] for d in log} == {"agv1"}

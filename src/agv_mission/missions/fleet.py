@@ -1,11 +1,11 @@
 """The run's side of the fleet layer: dispatch when tasks are released, traffic every step.
 
-* :func:`dispatch_tasks` hands every fleet task without ``robot:`` to the robot the
-  mission's ``dispatcher`` picks, when the run starts (fleet tasks are released then, in
-  the order given). A robot's bid counts the work it holds: its own tasks' goals (from
-  where it starts), then the tasks already queued on it, travelled at its top speed over
-  its free space (:class:`~agv_mission.fleet.travel.GridTravelTime`). The tasks a robot
-  wins queue behind its own tree, through the one tree assembly.
+* :func:`queue_fleet_tasks` releases the fleet's tasks when the run starts, in the order
+  given: one with ``robot:`` queues on that robot, one without goes to the robot the
+  mission's ``dispatcher`` picks. A robot's bid counts the work it holds: its own tasks'
+  goals (from where it starts), then the tasks already queued on it, travelled at its top
+  speed over its free space (:class:`~agv_mission.fleet.travel.GridTravelTime`). Every
+  robot's queue runs behind its own tree, through the one tree assembly.
 * :class:`FleetCoordinator` runs once per control step before the robots' trees tick: it
   gathers each robot's estimate, speed and the path its navigator drives, asks the
   ``traffic`` plugin, hands every navigator its decision (and the others' bodies, which its
@@ -25,7 +25,7 @@ from agv_mission.fleet.travel import GridTravelTime
 from agv_mission.geometry import Pose2D
 from agv_mission.missions.loader import LoadedMission, RobotSetup
 from agv_mission.missions.robot_run import RobotRun
-from agv_mission.missions.tree import NodeSpec, TreeSpec, assemble
+from agv_mission.missions.tree import NodeSpec, TreeSource, TreeSpec, Where, assemble
 from agv_mission.navigation.navigator import NavStatus
 from agv_mission.registry import registry
 
@@ -51,12 +51,24 @@ def tree_goals(
     return goals
 
 
-def dispatch_tasks(loaded: LoadedMission) -> tuple[LoadedMission, list[dict[str, Any]]]:
-    """``loaded`` with every dispatched fleet task queued behind its robot's tree, and the
-    dispatch log ``[{task, type, robot, t, finish}]`` (``task``: its index in ``tasks:``)."""
-    tasks = [t for t in loaded.fleet_tasks if t.robot is None]
-    if not tasks:
-        return loaded, []
+def queue_fleet_tasks(loaded: LoadedMission) -> tuple[LoadedMission, list[dict[str, Any]]]:
+    """``loaded`` with every fleet task queued behind its robot's own tree, in the order of
+    ``tasks:`` (assigned by ``robot:`` or dispatched), and the dispatch log ``[{task, type,
+    robot, t, finish}]`` (``task``: its index in ``tasks:``)."""
+    queued: dict[str, list[NodeSpec]] = {s.name: [] for s in loaded.fleet}
+    log: list[dict[str, Any]] = []
+    if any(t.robot is None for t in loaded.fleet_tasks):
+        log = _dispatch(loaded, queued)
+    else:
+        for task in loaded.fleet_tasks:
+            queued[task.robot or ""].append(task.tree.source.main.children[0])
+    fleet = [_with_queue(s, queued[s.name], loaded) for s in loaded.fleet]
+    return dataclasses.replace(loaded, fleet=fleet, tree=fleet[0].tree), log
+
+
+def _dispatch(loaded: LoadedMission, queued: dict[str, list[NodeSpec]]) -> list[dict[str, Any]]:
+    """Fill ``queued`` in the order of the fleet's tasks: assigned ones on their robot
+    (work it then holds), the others on the dispatcher's pick; the dispatch log."""
     dispatcher = registry.create("dispatcher", loaded.mission.fleet.dispatcher)
     setups = {s.name: s for s in loaded.fleet}
     travel = {s.name: GridTravelTime(s.costmap, s.robot.max_linear_velocity) for s in loaded.fleet}
@@ -64,22 +76,30 @@ def dispatch_tasks(loaded: LoadedMission) -> tuple[LoadedMission, list[dict[str,
     def travel_time(name: str, a: Pose2D, b: Pose2D) -> float:
         return travel[name](a, b)
 
-    work: dict[str, RobotWork] = {}
-    for s in loaded.fleet:
-        assert s.tree is not None, "a fleet robot has a tree"
-        own = tree_goals(s.tree, s.room_goals, loaded.docks)
-        held, here = 0.0, s.start
-        for goal in own:
-            held += travel_time(s.name, here, goal)
+    def held(name: str, start: Pose2D, goals: Sequence[Pose2D], already: float) -> RobotWork:
+        here, total = start, already
+        for goal in goals:
+            total += travel_time(name, here, goal)
             here = goal
-        work[s.name] = RobotWork(s.name, here, held if np.isfinite(held) else 0.0)
-    queued: dict[str, list[NodeSpec]] = {name: [] for name in setups}
+        return RobotWork(name, here, total if np.isfinite(total) else already)
+
+    work = {
+        s.name: held(s.name, s.start, _goals(s.tree, s, loaded), 0.0) if s.tree else
+        RobotWork(s.name, s.start, 0.0)
+        for s in loaded.fleet
+    }  # fmt: skip
     log = []
-    for task in tasks:
-        winner_view = loaded.fleet[0]
-        goals = tuple(tree_goals(task.tree, winner_view.room_goals, loaded.docks))
+    for task in loaded.fleet_tasks:
+        spec = task.tree.source.main.children[0]
+        if task.robot is not None:  # assigned: work its robot holds from now on
+            w = work[task.robot]
+            goals = _goals(task.tree, setups[task.robot], loaded)
+            work[task.robot] = held(task.robot, w.end, goals, w.held_time)
+            queued[task.robot].append(spec)
+            continue
+        goals = tuple(_goals(task.tree, loaded.fleet[0], loaded))
         got = dispatcher.assign(FleetTask(str(task.index), goals), list(work.values()), travel_time)
-        queued[got.robot].append(task.tree.source.main.children[0])
+        queued[got.robot].append(spec)
         end = goals[-1] if goals else work[got.robot].end
         work[got.robot] = RobotWork(got.robot, end, got.finish)
         log.append(
@@ -91,20 +111,29 @@ def dispatch_tasks(loaded: LoadedMission) -> tuple[LoadedMission, list[dict[str,
                 "finish": round(got.finish, 1),
             }
         )
-    fleet = [_with_queue(s, queued[s.name]) for s in loaded.fleet]
-    return dataclasses.replace(loaded, fleet=fleet, tree=fleet[0].tree), log
+    return log
 
 
-def _with_queue(setup: RobotSetup, specs: list[NodeSpec]) -> RobotSetup:
-    """``setup`` whose tree runs ``specs`` after its own (as assigned tasks are)."""
-    if not specs:
+def _goals(tree: TreeSpec | None, setup: RobotSetup, loaded: LoadedMission) -> list[Pose2D]:
+    return tree_goals(tree, setup.room_goals, loaded.docks) if tree is not None else []
+
+
+def _with_queue(setup: RobotSetup, specs: list[NodeSpec], loaded: LoadedMission) -> RobotSetup:
+    """``setup`` whose tree runs ``specs`` after its own; a robot with neither logs that it
+    has nothing to do (and stands by for the traffic layer)."""
+    own = setup.tree
+    if not specs and own is not None:
         return setup
-    assert setup.tree is not None
-    source = setup.tree.source
-    own = source.main
-    main = NodeSpec("sequence", own.where, f"{setup.name}_queue", {}, {}, [own, *specs])
-    tree = assemble(dataclasses.replace(source, main=main))
-    return dataclasses.replace(setup, tree=tree)
+    if own is None:
+        where = Where(str(loaded.source or loaded.name), ("robots",), None)
+        idle = NodeSpec("log", where, None, {"message": f"{setup.name} has no tasks"})
+        main = idle if not specs else NodeSpec("sequence", where, setup.name, {}, {}, specs)
+        source = TreeSource(main, blackboard=dict(loaded.mission.blackboard))
+    else:
+        main = NodeSpec("sequence", own.source.main.where, setup.name, {}, {},
+                        [own.source.main, *specs])  # fmt: skip
+        source = dataclasses.replace(own.source, main=main)
+    return dataclasses.replace(setup, tree=assemble(source))
 
 
 class FleetCoordinator:

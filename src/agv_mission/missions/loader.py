@@ -54,10 +54,8 @@ from agv_mission.missions.schema import (
 from agv_mission.missions.schema.base import Pose
 from agv_mission.missions.schema.zones import KeepoutMask, KeepoutZone, SpeedMask
 from agv_mission.missions.tree import (
-    NodeSpec,
     TreeSource,
     TreeSpec,
-    Where,
     assemble,
     tasks_spec,
     tasks_tree,
@@ -567,10 +565,10 @@ def _robot_tree(
     log: ProblemLog,
     base_dir: Path,
     path_guard: PathGuard | None,
-    assigned: list[NodeSpec],
-) -> TreeSpec:
-    """A fleet robot's behaviour as a tree: its own (tasks, tree, or nothing), then the
-    fleet tasks ``assigned`` to it by ``robot:``, in the order given."""
+) -> TreeSpec | None:
+    """A fleet robot's own behaviour (its tasks or tree) as a tree; None when it has none.
+    The fleet's tasks join it when the run releases them
+    (:func:`agv_mission.missions.fleet.queue_fleet_tasks`)."""
     file, lines = log.file, log.lines
     robot, entry = mission.robots[index], data["robots"][index]
     base: FieldPath = ("robots", index)
@@ -586,13 +584,7 @@ def _robot_tree(
     elif entry.get("tasks"):
         source = TreeSource(tasks_spec(entry["tasks"], file, lines, (*base, "tasks")), trees)
     else:
-        idle = NodeSpec("log", Where(file, base, lines.get(base)), None,
-                        {"message": f"{robot.name} has no tasks of its own"})  # fmt: skip
-        source = TreeSource(idle if not assigned else assigned[0], trees)
-        assigned = assigned[1:]
-    if assigned:
-        own = source.main
-        source.main = NodeSpec("sequence", own.where, robot.name, {}, {}, [own, *assigned])
+        return None
     source.blackboard = dict(mission.blackboard)
     return assemble(source)
 
@@ -621,18 +613,7 @@ def _resolve_fleet(
     for i, task in enumerate(data.get("tasks") or []):
         spec = tasks_spec([task], file, lines, ("tasks",), [i])
         fleet_tasks.append(FleetTask(i, task["type"], assemble(TreeSource(spec)), assigned.get(i)))
-    trees = [
-        _robot_tree(
-            mission,
-            i,
-            data,
-            log,
-            base_dir,
-            path_guard,
-            [t.tree.source.main.children[0] for t in fleet_tasks if t.robot == name],
-        )
-        for i, name in enumerate(names)
-    ]
+    trees = [_robot_tree(mission, i, data, log, base_dir, path_guard) for i in range(len(names))]
     log.raise_if_any()
     # Each fleet task is checked on the map of the robot that will do it (the assigned
     # one; for a dispatched task the robot with the widest footprint); every robot learns

@@ -19,7 +19,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from agv_mission.missions.fleet import FleetCoordinator, dispatch_tasks
+from agv_mission.localization.base import Localizer
+from agv_mission.missions.fleet import FleetCoordinator, queue_fleet_tasks
 from agv_mission.missions.loader import LoadedMission
 from agv_mission.missions.observe import RobotStart, RunControl, RunObserver, RunStart, tree_nodes
 from agv_mission.missions.people_record import PeopleRun, fleet_people_metrics
@@ -27,10 +28,15 @@ from agv_mission.missions.record import TRAJECTORY_COLUMNS, RunRecord, bare_reco
 from agv_mission.missions.robot_run import RobotRun
 from agv_mission.missions.stack import (
     CONTROL_PERIOD,
+    RobotStack,
     VelocitySmoother,
     build_world,
     open_recorders,
 )
+from agv_mission.missions.tree import MissionTree
+from agv_mission.navigation.handle import RobotHandle
+from agv_mission.navigation.navigator import Navigator
+from agv_mission.robots.simulation import DiffDriveBody
 
 __all__ = [
     "CONTROL_PERIOD",
@@ -114,8 +120,8 @@ class MissionRun:
         run_dir: Path | None,
         observers: Sequence[RunObserver] = (),
     ) -> None:
-        # Fleet tasks without `robot:` are released now: each joins its robot's tree.
-        loaded, dispatched = dispatch_tasks(loaded) if loaded.is_fleet else (loaded, [])
+        # The fleet's tasks are released now: each joins its robot's tree, in their order.
+        loaded, dispatched = queue_fleet_tasks(loaded) if loaded.is_fleet else (loaded, [])
         self.loaded = loaded
         self.mission = loaded.mission
         self.run_dir = run_dir
@@ -158,27 +164,27 @@ class MissionRun:
         return self.robots[0]
 
     @property
-    def sim(self):  # noqa: ANN201 - the lead robot's body
+    def sim(self) -> DiffDriveBody:
         return self.lead.sim
 
     @property
-    def handle(self):  # noqa: ANN201
+    def handle(self) -> RobotHandle:
         return self.lead.handle
 
     @property
-    def navigator(self):  # noqa: ANN201
+    def navigator(self) -> Navigator:
         return self.lead.navigator
 
     @property
-    def tree(self):  # noqa: ANN201
+    def tree(self) -> MissionTree:
         return self.lead.tree
 
     @property
-    def stack(self):  # noqa: ANN201
+    def stack(self) -> RobotStack:
         return self.lead.stack
 
     @property
-    def localizer(self):  # noqa: ANN201
+    def localizer(self) -> Localizer:
         return self.lead.localizer
 
     def notify_start(self) -> None:

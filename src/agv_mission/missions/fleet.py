@@ -26,7 +26,6 @@ from agv_mission.geometry import Pose2D
 from agv_mission.missions.loader import LoadedMission, RobotSetup
 from agv_mission.missions.robot_run import RobotRun
 from agv_mission.missions.tree import NodeSpec, TreeSource, TreeSpec, Where, assemble
-from agv_mission.navigation.navigator import NavStatus
 from agv_mission.registry import registry
 
 
@@ -145,20 +144,25 @@ class FleetCoordinator:
         self.traffic = registry.create("traffic", loaded.mission.fleet.traffic)
         self.log = log
 
-    def step(self, now: float) -> None:
+    def step(self, now: float, own: Sequence[RobotRun] | None = None) -> None:
         """Decide on the robots' latest estimates (those of the step before: the fleet
-        layer, as a fleet manager, acts on the robots' last reports)."""
+        layer, as a fleet manager, acts on the robots' last reports). The decisions go to
+        ``own`` robots (default: all), those deciding in this process; the same decisions
+        are reached in every process from the same reports."""
         states = [self._state(r) for r in self.robots]
         update = self.traffic.decide(now, states)
         bodies = np.array([[s.pose.x, s.pose.y, s.radius] for s in states])
+        mine = {r.name for r in own} if own is not None else None
         for i, r in enumerate(self.robots):
+            if mine is not None and r.name not in mine:
+                continue
             nav = r.navigator
             nav.fleet_bodies = np.delete(bodies, i, axis=0)
             nav.obey(update.decisions[r.name], r.handle.state)
         for event in update.events:
             name = event.get("robot")
             target = self.by_name.get(name) if isinstance(name, str) else None
-            if target is not None:
+            if target is not None and (mine is None or target.name in mine):
                 target.handle.events.append(
                     {"t": event["t"], **{k: v for k, v in event.items() if k != "t"}}
                 )
@@ -168,15 +172,15 @@ class FleetCoordinator:
 
     @staticmethod
     def _state(r: RobotRun) -> TrafficRobot:
-        nav = r.navigator
-        idle = r.status is not None or (nav.status is not NavStatus.RUNNING and not nav.yielding)
+        """A robot as it reported itself after deciding (:class:`RobotReport`'s fields)."""
+        idle = r.status is not None or (not r.navigating and not r.yielding)
         return TrafficRobot(
             r.name,
             r.estimate,
             r.robot.footprint_radius,
             r.limits.max_v,
             speed=float(r.command[0]),
-            path=nav.traffic_path(),
+            path=r.traffic_path,
             idle=idle,
             costmap=r.setup.costmap,
         )

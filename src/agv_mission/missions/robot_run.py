@@ -40,7 +40,7 @@ from agv_mission.missions.sampler import StepSampler
 from agv_mission.missions.stack import CONTROL_PERIOD, RobotStack, Sensing
 from agv_mission.missions.tree import build_tree
 from agv_mission.navigation.handle import RobotHandle
-from agv_mission.navigation.navigator import beams_on_people
+from agv_mission.navigation.navigator import NavStatus, beams_on_people
 from agv_mission.navigation.state import RobotState
 from agv_mission.planners.collision_monitor import CollisionMonitor
 from agv_mission.robots.battery import Battery, battery_for
@@ -48,6 +48,21 @@ from agv_mission.robots.battery import Battery, battery_for
 #: Below this planar clearance (m) the chassis may touch a wall: contacts are read. Above
 #: it a contact would need the robot tilted by more than ~15 degrees.
 CONTACT_CLEARANCE = 0.05
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotReport:
+    """A robot's step as the rest of the run reads it: its command, estimate, outcome,
+    the wall it touched, and what the fleet layer reserves for it."""
+
+    command: tuple[float, float]
+    estimate: Pose2D
+    status: str | None
+    reason: str | None
+    new_collision: dict[str, float] | None
+    yielding: bool
+    navigating: bool
+    traffic_path: np.ndarray | None
 
 
 def _vw(cmd: Any) -> tuple[float, float]:
@@ -123,6 +138,12 @@ class RobotRun:
         self.estimate = setup.start
         self._covariance: np.ndarray | None = None
         self._diagnostics: LocalizerDiagnostics | None = None
+        # What the others (the fleet layer, the run, other processes) read of this robot
+        # after it decided: set by :meth:`decide`, or from a :class:`RobotReport`.
+        self.traffic_path: np.ndarray | None = None  # the path it drives (fleets only)
+        self.navigating = False  # its navigator drives to a goal
+        self.yielding = False  # it steps aside for another robot
+        self._fleet = loaded.is_fleet
 
     @property
     def localizer(self) -> Localizer:
@@ -180,6 +201,10 @@ class RobotRun:
         self._watch_safety(now, truth)
         self.sensing, self.estimate, self.command = sensing, estimate, (v, w)
         self._covariance, self._diagnostics = covariance, diagnostics
+        self.yielding = navigator.yielding
+        if self._fleet:
+            self.traffic_path = navigator.traffic_path()
+            self.navigating = navigator.status is NavStatus.RUNNING
 
     def conclude(self, now: float, limit: float) -> None:
         """The robot's outcome once its tree has ended or the time limit has come."""
@@ -208,10 +233,35 @@ class RobotRun:
 
     def act(self) -> None:
         """Send this step's command to the wheels (zero once the robot's part has ended)."""
-        v, w = self.command if self.status is None or self.navigator.yielding else (0.0, 0.0)
+        v, w = self.command if self.status is None or self.yielding else (0.0, 0.0)
         self.sim.set_command(v, w)
         if self.battery is not None:
             self.battery.step(v, w, CONTROL_PERIOD)
+
+    def report(self) -> RobotReport:
+        """What the others read of this robot once it decided (for robots deciding in other
+        processes)."""
+        return RobotReport(
+            self.command,
+            self.estimate,
+            self.status,
+            self.reason,
+            self.new_collision,
+            self.yielding,
+            self.navigating,
+            self.traffic_path,
+        )
+
+    def take_report(self, report: RobotReport) -> None:
+        """Stand for a robot deciding in another process: its report is all that is read
+        of it here (its own parts stay as they were built)."""
+        self.command, self.estimate = report.command, report.estimate
+        self.status, self.reason = report.status, report.reason
+        self.new_collision = report.new_collision
+        if report.new_collision is not None:
+            self.collisions.append(report.new_collision)
+        self.yielding, self.navigating = report.yielding, report.navigating
+        self.traffic_path = report.traffic_path
 
     def _monitored(self, estimate: Pose2D, v: float, w: float) -> tuple[float, float]:
         """The command through the collision monitor, on the newest scan's points in the

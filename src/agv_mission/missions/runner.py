@@ -33,6 +33,7 @@ from agv_mission.missions.stack import (
     build_world,
     open_recorders,
 )
+from agv_mission.missions.team import RobotTeam, team_size
 from agv_mission.missions.tree import MissionTree
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import Navigator
@@ -132,6 +133,7 @@ class MissionRun:
             RobotRun(loaded, stack, run_dir, recorders, bool(self.observers)) for stack in stacks
         ]
         self.by_name = {r.name: r for r in self.robots}
+        self.team = RobotTeam.alone(self.robots)  # who decides here (see :meth:`drive`)
         self.people = (
             PeopleRun(loaded.people, self.world, self.mission.seed) if loaded.people else None
         )
@@ -228,6 +230,9 @@ class MissionRun:
         the run made since.
         """
         gc.freeze()
+        size = team_size(self.mission.simulation.processes, len(self.robots), control)
+        if size > 1 and not self.team.parallel and self.status is None:
+            self.team.fork(size, bool(self.observers), self._serve)
         try:
             while True:
                 if control is not None:
@@ -239,6 +244,11 @@ class MissionRun:
         finally:
             gc.unfreeze()
 
+    def _serve(self, team: RobotTeam) -> None:
+        """A robot process: step as the first process orders (it alone has observers)."""
+        self.observers = []
+        team.serve(self.step, self.end, self._robot_record)
+
     def cancel(self, reason: str) -> None:
         """End the run with status ``aborted`` before the next control step."""
         self.end("aborted", reason)
@@ -248,27 +258,31 @@ class MissionRun:
         mission has ended."""
         if self.status is not None:
             return False
+        team = self.team
+        team.begin_step()
         now = self.world.time
         robots = self.robots
         if self.coordinator is not None:
-            self.coordinator.step(now)
+            self.coordinator.step(now, team.own if team.parallel else None)
         if self.people is not None:
             self.people.sense(now, robots)
         for r in robots:
             r.prepare(now)
-        for r in robots:
+        for r in team.own:
             r.decide(now)
+        team.share_reports()
         self._watch_collisions(now)
         if len(robots) > 1:
             self._watch_robots(now)
         limit = self.mission.limits.time
-        for r in robots:
+        for r in team.own:
             r.conclude(now, limit)
+        samples = team.share_outcomes()
         if self.status is None and all(r.status is not None for r in robots):
             self._conclude()
         if self.observers:
             for k, r in enumerate(robots):
-                sample = r.sample()
+                sample = samples[k] if k in samples else r.sample()
                 if sample is not None and k == 0 and self.people is not None:
                     sample.people = self.people.present()
                 if sample is not None:
@@ -291,7 +305,7 @@ class MissionRun:
         steps = int(round(CONTROL_PERIOD / dt))
         t0 = world.time
         due: dict[int, list[RobotRun]] = {}
-        for r in self.robots:
+        for r in self.team.own:
             for k in r.stack.scan_steps(t0, steps, dt):
                 due.setdefault(k, []).append(r)
         done = 0
@@ -364,21 +378,32 @@ class MissionRun:
             self.status, self.reason = status, reason
         return False
 
+    def _robot_record(self, k: int, wall_time: float) -> RunRecord:
+        """Robot ``k``'s record, with its ``metrics.people`` (made where it decided)."""
+        r = self.robots[k]
+        record = r.record(wall_time)
+        if self.people is not None:
+            record.metrics["people"] = self.people.metrics(
+                k,
+                record.trajectory,
+                r.robot.footprint_radius,
+                r.navigator.stats.legs,
+                self.world.time,
+            )
+        return record
+
     def record(self) -> RunRecord:
         """The outcome so far, as the run directory will hold it."""
         if self.status is None:
             self.end("error", "the run ended without an outcome")
         wall_time = time.perf_counter() - self.wall_start
-        records = [r.record(wall_time) for r in self.robots]
-        if self.people is not None:
-            for k, (r, record) in enumerate(zip(self.robots, records, strict=True)):
-                record.metrics["people"] = self.people.metrics(
-                    k,
-                    record.trajectory,
-                    r.robot.footprint_radius,
-                    r.navigator.stats.legs,
-                    self.world.time,
-                )
+        team = self.team
+        assert self.status is not None
+        remote = team.gather((self.status, self.reason), wall_time) if team.links else {}
+        records = [
+            remote[k] if k in remote else self._robot_record(k, wall_time)
+            for k in range(len(self.robots))
+        ]
         if not self.loaded.is_fleet:
             record = records[0]
             record.status, record.reason = self.status or "error", self.reason

@@ -17,6 +17,8 @@ class SignalStop:
     the loop is not enough: casadi, for one, catches the KeyboardInterrupt a solve is
     interrupted with, prints it and goes on.)"""
 
+    only_cancels = True  # robots may decide in other processes (missions.team)
+
     def __init__(self) -> None:
         self.phase = "loading"  # then "running", then "writing" (too late to stop anything)
         self.received: list[int] = []

@@ -41,6 +41,8 @@ def _stop_on_signals() -> None:
 class _StopControl:
     """The run-control hook that ends a run ``aborted`` once a stop was requested."""
 
+    only_cancels = True  # robots may decide in other processes (missions.team)
+
     def before_step(self, run: Any) -> None:
         if _STOP:
             run.cancel("regress stopped (Ctrl-C)")

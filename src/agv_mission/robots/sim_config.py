@@ -3,7 +3,9 @@ mission does not import MuJoCo."""
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 
 class SimConfig(BaseModel):
@@ -64,6 +66,21 @@ class SimConfig(BaseModel):
         le=1,
         description="the battery's level at the start, 0..1 (None: the robot's initial_level)",
     )
+
+    processes: int | Literal["auto"] = Field(
+        "auto",
+        description="processes a fleet's robots decide in (each robot in one; the world is "
+        "stepped in each): auto is one per core, up to one per robot, in a run started from "
+        "the command line; 1 decides every robot in one process. The outcome is the same "
+        "for any value: it only changes how fast a fleet runs",
+    )
+
+    @field_validator("processes")
+    @classmethod
+    def _positive(cls, value: int | str) -> int | str:
+        if isinstance(value, int) and value < 1:
+            raise ValueError("processes must be 'auto' or at least 1")
+        return value
 
     def pick(self, key: str, robot_value: float) -> float:
         """The value of sensor error ``key``: set here, else 0 when ideal, else the robot's."""

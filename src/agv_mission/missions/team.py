@@ -1,0 +1,277 @@
+"""Robots deciding in parallel processes, on one world replicated in each.
+
+A fleet's cost is its robots' decisions: sensing, localisation, the tree and the MPC of
+every robot, one after the other on one core. A :class:`RobotTeam` spreads them over
+processes forked from the set-up run: every process holds the whole run (the world, every
+robot, the fleet layer, the people) and steps it the same way, but each robot senses,
+estimates and decides in one process only, its owner; the other processes stand for it
+with its :class:`~agv_mission.missions.robot_run.RobotReport`. Physics, people and the
+fleet layer's decisions are deterministic given the same inputs, so the replicas stay
+identical and the outcome is the one of a single process, bit for bit (a test runs both).
+
+A step has two exchanges, through the first process (the one the run was set up in,
+which also owns robots and alone talks to observers): the robots' reports after they
+decided, their outcomes (and the observers' samples) after they concluded. At the end
+the first process gathers the other processes' robots' records.
+
+Processes are forked (POSIX), only from a process that runs no other thread; in ``auto``
+mode not from a worker process (regress and the service run missions side by side
+already) and only with two robots or more.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import os
+import signal
+import sys
+import threading
+import traceback
+import weakref
+from collections.abc import Callable
+from multiprocessing.connection import Connection
+from typing import TYPE_CHECKING, Any, Literal
+
+if TYPE_CHECKING:
+    from agv_mission.missions.observe import StepSample
+    from agv_mission.missions.record import RunRecord
+    from agv_mission.missions.robot_run import RobotRun
+
+#: ``simulation.processes``: a count, or ``auto``.
+Processes = int | Literal["auto"]
+
+
+def usable_cores() -> int:
+    """The cores this process may run on."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
+
+
+def team_size(setting: Processes, robots: int, control: object | None) -> int:
+    """How many processes a run of ``robots`` robots decides in (1: this one alone)."""
+    if robots < 2 or not hasattr(os, "fork"):
+        return 1
+    if control is not None and not getattr(control, "only_cancels", False):
+        return 1  # a control that commands robots (teleop, the service) needs them here
+    if threading.active_count() > 1 or threading.current_thread() is not threading.main_thread():
+        return 1  # forking a process with other threads may copy a lock one of them held
+    if setting == "auto":
+        if multiprocessing.parent_process() is not None:
+            return 1
+        return min(usable_cores(), robots)
+    return max(1, min(int(setting), robots))
+
+
+class TeamError(RuntimeError):
+    """A robot process failed (its traceback is the message) or ended unexpectedly."""
+
+
+class _Finish(Exception):
+    """The first process asks for the records: unwind a robot process's step."""
+
+    def __init__(self, message: tuple[Any, ...]) -> None:
+        super().__init__("finish")
+        self.message = message
+
+
+class RobotTeam:
+    """Which robots decide in this process, and the exchanges with the others."""
+
+    def __init__(self, robots: list[RobotRun], own: list[int]) -> None:
+        self.robots = robots
+        self.own_indices = own
+        self.own = [robots[k] for k in own]
+        self.links: list[Connection] = []  # the first process: one per robot process
+        self.pids: list[int] = []
+        self.parent: Connection | None = None  # a robot process: its link to the first
+        self.observed = False  # the first process has observers (samples go to it)
+        self._finalizer: weakref.finalize | None = None
+
+    @classmethod
+    def alone(cls, robots: list[RobotRun]) -> RobotTeam:
+        """Every robot decides in this process."""
+        return cls(robots, list(range(len(robots))))
+
+    @property
+    def parallel(self) -> bool:
+        return bool(self.links) or self.parent is not None
+
+    # ------------------------------------------------------------------ forking
+    def fork(self, size: int, observed: bool, serve: Callable[[RobotTeam], None]) -> None:
+        """Fork ``size - 1`` robot processes; robot ``k`` decides in process ``k % size``.
+        In each robot process ``serve(team)`` runs the run's steps as the first process
+        orders them; it never returns there (the process exits)."""
+        n = len(self.robots)
+        self.observed = observed
+        sys.stdout.flush()
+        sys.stderr.flush()
+        for p in range(1, size):
+            mine, theirs = multiprocessing.Pipe(duplex=True)
+            pid = os.fork()
+            if pid == 0:  # a robot process
+                code = 0
+                try:
+                    mine.close()
+                    for link in self.links:
+                        link.close()
+                    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the first process decides
+                    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+                    self.links, self.pids, self.parent = [], [], theirs
+                    self.own_indices = list(range(p, n, size))
+                    self.own = [self.robots[k] for k in self.own_indices]
+                    serve(self)
+                except BaseException:  # noqa: BLE001 - a robot process never returns
+                    code = 1
+                finally:
+                    os._exit(code)
+            theirs.close()
+            self.links.append(mine)
+            self.pids.append(pid)
+        self.own_indices = list(range(0, n, size))
+        self.own = [self.robots[k] for k in self.own_indices]
+        self._finalizer = weakref.finalize(self, _release, list(self.links), list(self.pids))
+
+    # ------------------------------------------------------------------ a step
+    def begin_step(self) -> None:
+        """The first process: one more step for every robot process."""
+        for link in self.links:
+            link.send(("step",))
+
+    def share_reports(self) -> None:
+        """After the own robots decided: every robot's report reaches every process."""
+        if not self.parallel:
+            return
+        mine = {k: self.robots[k].report() for k in self.own_indices}
+        merged = self._exchange("reports", mine)
+        for k, report in merged.items():
+            if k not in mine:
+                self.robots[k].take_report(report)
+
+    def share_outcomes(self) -> dict[int, StepSample | None]:
+        """After the own robots concluded: every robot's status everywhere; the other
+        processes' robots' samples for the first process's observers."""
+        if not self.parallel:
+            return {}
+        mine: dict[int, tuple[str | None, str | None, StepSample | None]] = {}
+        for k in self.own_indices:
+            r = self.robots[k]
+            sample = r.sample() if self.observed and self.parent is not None else None
+            mine[k] = (r.status, r.reason, sample)
+        merged = self._exchange("outcomes", mine)
+        samples: dict[int, StepSample | None] = {}
+        for k, (status, reason, sample) in merged.items():
+            if k not in mine:
+                r = self.robots[k]
+                r.status, r.reason = status, reason
+                samples[k] = sample
+        return samples
+
+    def _exchange(self, tag: str, mine: dict[int, Any]) -> dict[int, Any]:
+        """Star exchange through the first process: everyone's entries to everyone."""
+        if self.parent is not None:
+            self.parent.send((tag, mine))
+            return self._receive(self.parent, tag)[1]
+        merged = dict(mine)
+        for link in self.links:
+            merged.update(self._receive(link, tag)[1])
+        # the robot processes need neither the samples nor their own entries back
+        for link in self.links:
+            link.send((tag, _without_samples(tag, merged)))
+        return merged
+
+    def _receive(self, link: Connection, tag: str) -> tuple[Any, ...]:
+        try:
+            message = link.recv()
+        except EOFError:
+            if self.parent is not None:
+                raise SystemExit(0) from None  # the first process is gone
+            raise TeamError("a robot process ended unexpectedly") from None
+        if message[0] == tag:
+            return message
+        if message[0] == "finish" and self.parent is not None:
+            raise _Finish(message)
+        if message[0] == "error":
+            raise TeamError(f"a robot process failed: {message[1]}")
+        raise TeamError(f"robot processes out of step: {message[0]!r} instead of {tag!r}")
+
+    # ------------------------------------------------------------------ the end
+    def gather(self, end: tuple[str, str | None], wall_time: float) -> dict[int, RunRecord]:
+        """The first process: the other processes' robots' records (each process ends its
+        robots with the run's ``end`` first, when the run ended outside a step there)."""
+        records: dict[int, RunRecord] = {}
+        for link in self.links:
+            try:
+                link.send(("finish", end, wall_time))
+                while True:
+                    message = link.recv()
+                    if message[0] == "records":
+                        records.update(message[1])
+                        break
+                    if message[0] == "error":
+                        raise TeamError(f"a robot process failed: {message[1]}")
+            except (EOFError, OSError):
+                raise TeamError("a robot process ended before sending its records") from None
+        self.close()
+        return records
+
+    def close(self) -> None:
+        if self._finalizer is not None:
+            self._finalizer()
+
+    def serve(
+        self,
+        step: Callable[[], object],
+        end: Callable[[str, str | None], object],
+        record: Callable[[int, float], RunRecord],
+    ) -> None:
+        """A robot process: step when told, then send its robots' records."""
+        link = self.parent
+        assert link is not None, "only a robot process serves"
+        while True:
+            try:
+                message = link.recv()
+            except EOFError:
+                return
+            if message[0] == "step":
+                try:
+                    step()
+                    continue
+                except _Finish as finish:
+                    message = finish.message
+                except SystemExit:
+                    return
+                except BaseException as exc:  # noqa: BLE001 - reported to the first process
+                    link.send(("error", _failure(exc)))
+                    continue
+            if message[0] == "finish":
+                _, (status, reason), wall_time = message
+                try:
+                    end(status, reason)
+                    link.send(("records", {k: record(k, wall_time) for k in self.own_indices}))
+                except BaseException as exc:  # noqa: BLE001 - reported to the first process
+                    link.send(("error", _failure(exc)))
+                return
+
+
+def _failure(exc: BaseException) -> str:
+    """A robot process's failure in one line for the run's reason; the traceback on its
+    standard error."""
+    traceback.print_exc(file=sys.stderr)
+    return f"{type(exc).__name__}: {exc}"
+
+
+def _without_samples(tag: str, merged: dict[int, Any]) -> dict[int, Any]:
+    if tag != "outcomes":
+        return merged
+    return {k: (status, reason, None) for k, (status, reason, _) in merged.items()}
+
+
+def _release(links: list[Connection], pids: list[int]) -> None:
+    """Close the links (a waiting robot process then exits) and reap the processes."""
+    for link in links:
+        link.close()
+    for pid in pids:
+        with contextlib.suppress(ChildProcessError):
+            os.waitpid(pid, 0)

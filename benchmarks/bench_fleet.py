@@ -5,11 +5,18 @@ time goes.
 Every robot patrols its own 5 m stretch of a rack aisle (eight aisles, four stretches
 each), so the figures measure the cost of many robots in one world rather than of their
 traffic. The loop alone is timed (set-up aside), over the same simulated time for every
-fleet size, on the process's CPU clock.
+fleet size. Each size runs twice, each time in a fresh interpreter as ``agv-mission run``
+would: with the default ``simulation.processes: auto`` (the robots decide in one process
+per core, :mod:`agv_mission.missions.team`; CPU counts every process), the headline
+figures; and in one process (``_serial``), with the breakdown of where the time goes.
 """
 
 from __future__ import annotations
 
+import json
+import resource
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -58,12 +65,21 @@ def fleet_mission(n: int, sim_seconds: float = SIM_SECONDS) -> str:
     )
 
 
-def measure(n: int, sim_seconds: float = SIM_SECONDS, parts: bool = True) -> dict[str, float]:
-    """The loop of an ``n``-robot fleet: wall and CPU per simulated second, per robot."""
+def _children_cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def measure(
+    n: int, sim_seconds: float = SIM_SECONDS, parts: bool = True, processes: str = "auto"
+) -> dict[str, float]:
+    """The loop of an ``n``-robot fleet: wall and CPU (of every process) per simulated
+    second, per robot; with ``parts`` (one process only) where the time goes."""
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "fleet.yaml"
         path.write_text(fleet_mission(n, sim_seconds))
-        run = MissionRun(load_mission(path), None)
+        run = MissionRun(load_mission(path, [f"simulation.processes={processes}"]), None)
+    parts = parts and processes == "1"
     clock = _Clock()
     if parts:
         clock.wrap(run.world, "step", "physics")
@@ -76,16 +92,18 @@ def measure(n: int, sim_seconds: float = SIM_SECONDS, parts: bool = True) -> dic
             clock.wrap(r.navigator.global_planner, "plan", "planning")
             clock.wrap(r.navigator.local_planner, "compute", "control")
             clock.wrap(r.tree.root, "tick_once", "tree")
-    wall0, cpu0 = time.perf_counter(), time.process_time()
+    wall0, cpu0, kids0 = time.perf_counter(), time.process_time(), _children_cpu()
     run.drive()
-    wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
-    record = run.record()
+    wall = time.perf_counter() - wall0
+    record = run.record()  # gathers (and reaps) the robot processes
+    cpu = time.process_time() - cpu0 + _children_cpu() - kids0
     sim = record.sim_time
     out = {
         "real_time_factor": sim / wall,
         "cpu_ms_per_robot_per_sim_s": cpu * 1e3 / sim / n,
         "sim_time_s": sim,
         "collisions": float(record.metrics["collisions"]),
+        "processes": float(len(run.team.links) + 1),
     }
     if parts:
         for c in COMPONENTS:
@@ -94,11 +112,33 @@ def measure(n: int, sim_seconds: float = SIM_SECONDS, parts: bool = True) -> dic
     return out
 
 
+def measure_fresh(n: int, processes: str) -> dict[str, float]:
+    """:func:`measure` in a fresh interpreter (one thread, not a worker: what ``auto``
+    sees in ``agv-mission run``)."""
+    out = subprocess.run(
+        [sys.executable, __file__, "--json", str(n), processes],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def run() -> dict[str, float]:
     results: dict[str, float] = {}
     for n in SIZES:
-        for metric, value in measure(n).items():
-            results[f"fleet.warehouse.{n}.{metric}"] = round(value, 3)
+        for processes, suffix in (("auto", ""), ("1", "_serial")):
+            for metric, value in measure_fresh(n, processes).items():
+                if suffix and metric in ("sim_time_s", "collisions", "processes"):
+                    continue
+                key = (
+                    metric
+                    if suffix
+                    and metric.endswith("_per_robot_per_sim_s")
+                    and (metric != "cpu_ms_per_robot_per_sim_s")
+                    else f"{metric}{suffix}"
+                )
+                results[f"fleet.warehouse.{n}.{key}"] = round(value, 3)
     one = results["fleet.warehouse.1.cpu_ms_per_robot_per_sim_s"]
     for n in SIZES[1:]:
         results[f"fleet.warehouse.{n}_over_1_cpu_per_robot"] = round(
@@ -108,7 +148,13 @@ def run() -> dict[str, float]:
 
 
 if __name__ == "__main__":
-    import sys
-
-    for n in map(int, sys.argv[1:] or ["1", "10"]):
-        print(n, {k: round(v, 2) for k, v in measure(n).items()})
+    if sys.argv[1:2] == ["--json"]:
+        print(json.dumps(measure(int(sys.argv[2]), processes=sys.argv[3])))
+    else:
+        for n in map(int, sys.argv[1:] or ["1", "10"]):
+            for processes in ("auto", "1"):
+                print(
+                    n,
+                    processes,
+                    {k: round(v, 2) for k, v in measure(n, processes=processes).items()},
+                )

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from agv_mission.fleet.base import FleetTask, RobotWork, TrafficRobot
+from agv_mission.fleet.base import FleetTask, RobotWork, TrafficDecision, TrafficRobot
 from agv_mission.fleet.travel import GridTravelTime
 from agv_mission.geometry import Pose2D
 from agv_mission.missions.loader import LoadedMission, RobotSetup
@@ -135,6 +135,16 @@ def _with_queue(setup: RobotSetup, specs: list[NodeSpec], loaded: LoadedMission)
     return dataclasses.replace(setup, tree=assemble(source))
 
 
+@dataclasses.dataclass
+class FleetOrder:
+    """One robot's part of a step's traffic decisions: what its navigator is told, the
+    other robots' bodies (x, y, radius), and its fleet events (wait, yield, deadlock)."""
+
+    decision: TrafficDecision
+    bodies: np.ndarray
+    events: list[dict[str, Any]]
+
+
 class FleetCoordinator:
     """Asks the traffic plugin once per control step and hands out its decisions."""
 
@@ -144,31 +154,37 @@ class FleetCoordinator:
         self.traffic = registry.create("traffic", loaded.mission.fleet.traffic)
         self.log = log
 
-    def step(self, now: float, own: Sequence[RobotRun] | None = None) -> None:
-        """Decide on the robots' latest estimates (those of the step before: the fleet
-        layer, as a fleet manager, acts on the robots' last reports). The decisions go to
-        ``own`` robots (default: all), those deciding in this process; the same decisions
-        are reached in every process from the same reports."""
+    def decide(self, now: float) -> dict[str, FleetOrder]:
+        """Every robot's order for this step, decided on the robots' latest reports (those
+        of the step before: the fleet layer, as a fleet manager, acts on the robots' last
+        reports)."""
         states = [self._state(r) for r in self.robots]
         update = self.traffic.decide(now, states)
         bodies = np.array([[s.pose.x, s.pose.y, s.radius] for s in states])
-        mine = {r.name for r in own} if own is not None else None
-        for i, r in enumerate(self.robots):
-            if mine is not None and r.name not in mine:
-                continue
-            nav = r.navigator
-            nav.fleet_bodies = np.delete(bodies, i, axis=0)
-            nav.obey(update.decisions[r.name], r.handle.state)
+        orders = {
+            r.name: FleetOrder(update.decisions[r.name], np.delete(bodies, i, axis=0), [])
+            for i, r in enumerate(self.robots)
+        }
         for event in update.events:
             name = event.get("robot")
-            target = self.by_name.get(name) if isinstance(name, str) else None
-            if target is not None and (mine is None or target.name in mine):
-                target.handle.events.append(
+            if isinstance(name, str) and name in orders:
+                orders[name].events.append(
                     {"t": event["t"], **{k: v for k, v in event.items() if k != "t"}}
                 )
         stats = self.traffic.stats()
         self.log["waits"] = dict(stats["waits"])
         self.log["deadlocks"] = stats["deadlocks"]
+        return orders
+
+    def hand_out(self, orders: dict[str, FleetOrder]) -> None:
+        """Give the robots named in ``orders`` their decision, the others' bodies (which
+        their obstacle layers must not mark) and their fleet events."""
+        for name, order in orders.items():
+            r = self.by_name[name]
+            nav = r.navigator
+            nav.fleet_bodies = order.bodies
+            nav.obey(order.decision, r.handle.state)
+            r.handle.events.extend(order.events)
 
     @staticmethod
     def _state(r: RobotRun) -> TrafficRobot:

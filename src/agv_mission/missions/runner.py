@@ -259,11 +259,15 @@ class MissionRun:
         if self.status is not None:
             return False
         team = self.team
-        team.begin_step()
         now = self.world.time
         robots = self.robots
-        if self.coordinator is not None:
-            self.coordinator.step(now, team.own if team.parallel else None)
+        coordinator = self.coordinator
+        # the fleet layer decides in the first process; each robot's order reaches it
+        # where it decides
+        orders = coordinator.decide(now) if coordinator and team.parent is None else {}
+        orders = team.begin_step(orders)
+        if coordinator is not None:
+            coordinator.hand_out(orders)
         if self.people is not None:
             self.people.sense(now, robots)
         for r in robots:

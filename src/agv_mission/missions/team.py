@@ -22,6 +22,7 @@ already) and only with two robots or more.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import multiprocessing
 import os
 import signal
@@ -34,9 +35,12 @@ from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Any, Literal
 
 if TYPE_CHECKING:
+    from agv_mission.missions.fleet import FleetOrder
     from agv_mission.missions.observe import StepSample
     from agv_mission.missions.record import RunRecord
-    from agv_mission.missions.robot_run import RobotRun
+    from agv_mission.missions.robot_run import RobotReport, RobotRun
+
+_UNSENT = object()
 
 #: ``simulation.processes``: a count, or ``auto``.
 Processes = int | Literal["auto"]
@@ -87,6 +91,9 @@ class RobotTeam:
         self.pids: list[int] = []
         self.parent: Connection | None = None  # a robot process: its link to the first
         self.observed = False  # the first process has observers (samples go to it)
+        self.orders: dict[str, FleetOrder] = {}  # a robot process: this step's fleet orders
+        self._names: list[list[str]] = []  # the first process: each link's robots' names
+        self._sent: dict[int, Any] = {}  # each own robot's traffic path as last sent
         self._finalizer: weakref.finalize | None = None
 
     @classmethod
@@ -100,10 +107,16 @@ class RobotTeam:
 
     # ------------------------------------------------------------------ forking
     def fork(self, size: int, observed: bool, serve: Callable[[RobotTeam], None]) -> None:
-        """Fork ``size - 1`` robot processes; robot ``k`` decides in process ``k % size``.
-        In each robot process ``serve(team)`` runs the run's steps as the first process
-        orders them; it never returns there (the process exits)."""
+        """Fork ``size - 1`` robot processes; robot ``k`` decides in process
+        ``size - 1 - k % size`` (the first process, which also runs the fleet layer and
+        the observers, gets the fewer robots). In each robot process ``serve(team)`` runs
+        the run's steps as the first process orders them; it never returns there (the
+        process exits)."""
         n = len(self.robots)
+
+        def owned(p: int) -> list[int]:
+            return [k for k in range(n) if size - 1 - k % size == p]
+
         self.observed = observed
         sys.stdout.flush()
         sys.stderr.flush()
@@ -119,7 +132,7 @@ class RobotTeam:
                     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the first process decides
                     signal.signal(signal.SIGTERM, signal.SIG_IGN)
                     self.links, self.pids, self.parent = [], [], theirs
-                    self.own_indices = list(range(p, n, size))
+                    self.own_indices = owned(p)
                     self.own = [self.robots[k] for k in self.own_indices]
                     serve(self)
                 except BaseException:  # noqa: BLE001 - a robot process never returns
@@ -129,25 +142,58 @@ class RobotTeam:
             theirs.close()
             self.links.append(mine)
             self.pids.append(pid)
-        self.own_indices = list(range(0, n, size))
+            self._names.append([self.robots[k].name for k in owned(p)])
+        self.own_indices = owned(0)
         self.own = [self.robots[k] for k in self.own_indices]
         self._finalizer = weakref.finalize(self, _release, list(self.links), list(self.pids))
 
     # ------------------------------------------------------------------ a step
-    def begin_step(self) -> None:
-        """The first process: one more step for every robot process."""
-        for link in self.links:
-            link.send(("step",))
+    def begin_step(self, orders: dict[str, FleetOrder]) -> dict[str, FleetOrder]:
+        """One more step: the first process sends every robot process its robots' fleet
+        orders; the orders for this process's robots."""
+        if self.parent is not None:
+            return self.orders
+        if not self.links:
+            return orders
+        own = {self.robots[k].name for k in self.own_indices}
+        for link, names in zip(self.links, self._names, strict=True):
+            link.send(("step", {name: orders[name] for name in names if name in orders}))
+        return {name: order for name, order in orders.items() if name in own}
 
     def share_reports(self) -> None:
-        """After the own robots decided: every robot's report reaches every process."""
+        """After the own robots decided: every robot's report reaches the first process
+        (the fleet layer's there) and its command, outcome and wall contact every process.
+        A traffic path travels only when it changed."""
         if not self.parallel:
             return
-        mine = {k: self.robots[k].report() for k in self.own_indices}
-        merged = self._exchange("reports", mine)
-        for k, report in merged.items():
-            if k not in mine:
-                self.robots[k].take_report(report)
+        robots = self.robots
+        if self.parent is not None:
+            mine: dict[int, RobotReport] = {}
+            same: list[int] = []
+            for k in self.own_indices:
+                report = robots[k].report()
+                if report.traffic_path is self._sent.get(k, _UNSENT):
+                    same.append(k)
+                    report = dataclasses.replace(report, traffic_path=None)
+                else:
+                    self._sent[k] = report.traffic_path
+                mine[k] = report
+            self.parent.send(("reports", (mine, same)))
+            for k, report in self._receive(self.parent, "reports")[1].items():
+                if k not in mine:
+                    robots[k].take_report(report)
+            return
+        merged = {k: robots[k].report() for k in self.own_indices}
+        for link in self.links:
+            theirs, same = self._receive(link, "reports")[1]
+            for k, report in theirs.items():
+                if k in same:
+                    report = dataclasses.replace(report, traffic_path=robots[k].traffic_path)
+                robots[k].take_report(report)
+                merged[k] = report
+        light = {k: dataclasses.replace(r, traffic_path=None) for k, r in merged.items()}
+        for link in self.links:
+            link.send(("reports", light))
 
     def share_outcomes(self) -> dict[int, StepSample | None]:
         """After the own robots concluded: every robot's status everywhere; the other
@@ -235,6 +281,7 @@ class RobotTeam:
             except EOFError:
                 return
             if message[0] == "step":
+                self.orders = message[1]
                 try:
                     step()
                     continue

@@ -445,6 +445,7 @@ def fleet_record(run: MissionRun, records: list[RunRecord], wall_time: float) ->
         "wall_time": round(wall_time, 3),
         "real_time_factor": round(sim_time / wall_time, 2) if wall_time > 0 else None,
         "robots": len(records),
+        "processes": len(run.team.links) + 1,  # the robots decided in (missions.team)
         "distance_driven": round(sum(r.metrics["distance_driven"] for r in records), 4),
         "collisions": collisions + fleet["robot_robot_collisions"],
         "min_clearance": min(clearances) if clearances else None,

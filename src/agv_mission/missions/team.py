@@ -30,6 +30,7 @@ import sys
 import threading
 import traceback
 import weakref
+from pathlib import Path
 from collections.abc import Callable
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Any, Literal
@@ -303,10 +304,11 @@ class RobotTeam:
 
 
 def _failure(exc: BaseException) -> str:
-    """A robot process's failure in one line for the run's reason; the traceback on its
-    standard error."""
-    traceback.print_exc(file=sys.stderr)
-    return f"{type(exc).__name__}: {exc}"
+    """A robot process's failure in one line for the run's reason, with where it
+    happened."""
+    where = traceback.extract_tb(exc.__traceback__)[-1:]
+    at = f" (at {Path(where[0].filename).name}:{where[0].lineno})" if where else ""
+    return f"{type(exc).__name__}: {exc}{at}"
 
 
 def _without_samples(tag: str, merged: dict[int, Any]) -> dict[int, Any]:

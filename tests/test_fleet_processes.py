@@ -110,14 +110,41 @@ def test_auto_decides_alone_where_forking_is_unsafe_or_pointless() -> None:
     assert team_size(2, 8, object()) == 1
 
 
-def test_a_fleet_in_two_processes_runs_as_in_one(tmp_path: Path) -> None:
-    """The four-way crossing (waits, yields, deadlocks broken): trajectories byte for byte,
-    the result and the bag the same, whether the robots decide in one process or two."""
-    mission = SCENARIOS / "fleet_crossing.yaml"
+FAST_LIDAR = """\
+wheel_radius: 0.033
+wheel_separation: 0.16
+footprint_radius: 0.105
+max_linear_velocity: 0.22
+max_angular_velocity: 2.84
+encoder: {ticks_per_meter: 19754.0}
+lidar: {beams: 180, range_min: 0.12, range_max: 3.5, rate: 25.0, height: 0.17}
+"""
+
+
+@pytest.mark.parametrize(
+    ("scenario", "fast_lidar"),
+    [
+        # the first process steps the physics, the robot process mirrors its world
+        ("fleet_crossing", None),
+        # a lidar scans between control steps: every process steps the physics
+        ("fleet_head_on_aisle", "west"),
+    ],
+)
+def test_a_fleet_in_two_processes_runs_as_in_one(
+    tmp_path: Path, scenario: str, fast_lidar: str | None
+) -> None:
+    """Trajectories byte for byte, the result and the bag the same, whether the robots
+    decide in one process or two (waits, yields and deadlocks broken included)."""
+    mission = SCENARIOS / f"{scenario}.yaml"
+    sets = []
+    if fast_lidar is not None:
+        robot = tmp_path / "fast.robot.yaml"
+        robot.write_text(FAST_LIDAR)
+        sets.append(f"robots.{fast_lidar}.robot={robot}")
     runs = {}
     for processes in (1, 2):
         out = tmp_path / f"p{processes}"
-        r = run_cli(mission, out, f"simulation.processes={processes}")
+        r = run_cli(mission, out, f"simulation.processes={processes}", *sets)
         assert r.returncode == 0, r.stderr
         runs[processes] = only_run(out)
     one, two = runs[1], runs[2]

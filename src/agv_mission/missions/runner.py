@@ -232,7 +232,11 @@ class MissionRun:
         gc.freeze()
         size = team_size(self.mission.simulation.processes, len(self.robots), control)
         if size > 1 and not self.team.parallel and self.status is None:
-            self.team.fork(size, bool(self.observers), self._serve)
+            # a lidar scanning between control steps needs the physics there: stepped
+            # in every process then, else only in this one and mirrored
+            mirror = all(r.stack.scan_period >= CONTROL_PERIOD - 1e-9 for r in self.robots)
+            world = self.world if mirror else None
+            self.team.fork(size, bool(self.observers), self._serve, world)
         try:
             while True:
                 if control is not None:
@@ -305,6 +309,8 @@ class MissionRun:
         world = self.world
         if self.people is not None:
             self.people.move(CONTROL_PERIOD, self.robots)
+        if self.team.mirrors:  # the first process steps the physics
+            return
         dt = world.dt
         steps = int(round(CONTROL_PERIOD / dt))
         t0 = world.time

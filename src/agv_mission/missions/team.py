@@ -30,9 +30,9 @@ import sys
 import threading
 import traceback
 import weakref
-from pathlib import Path
 from collections.abc import Callable
 from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 if TYPE_CHECKING:
@@ -40,6 +40,7 @@ if TYPE_CHECKING:
     from agv_mission.missions.observe import StepSample
     from agv_mission.missions.record import RunRecord
     from agv_mission.missions.robot_run import RobotReport, RobotRun
+    from agv_mission.world.simulation import SimulatedWorld
 
 _UNSENT = object()
 
@@ -93,6 +94,7 @@ class RobotTeam:
         self.parent: Connection | None = None  # a robot process: its link to the first
         self.observed = False  # the first process has observers (samples go to it)
         self.orders: dict[str, FleetOrder] = {}  # a robot process: this step's fleet orders
+        self.world: SimulatedWorld | None = None  # the world mirrored in robot processes
         self._names: list[list[str]] = []  # the first process: each link's robots' names
         self._sent: dict[int, Any] = {}  # each own robot's traffic path as last sent
         self._finalizer: weakref.finalize | None = None
@@ -107,13 +109,22 @@ class RobotTeam:
         return bool(self.links) or self.parent is not None
 
     # ------------------------------------------------------------------ forking
-    def fork(self, size: int, observed: bool, serve: Callable[[RobotTeam], None]) -> None:
+    def fork(
+        self,
+        size: int,
+        observed: bool,
+        serve: Callable[[RobotTeam], None],
+        mirror: SimulatedWorld | None = None,
+    ) -> None:
         """Fork ``size - 1`` robot processes; robot ``k`` decides in process
         ``size - 1 - k % size`` (the first process, which also runs the fleet layer and
         the observers, gets the fewer robots). In each robot process ``serve(team)`` runs
         the run's steps as the first process orders them; it never returns there (the
-        process exits)."""
+        process exits). With ``mirror`` (the run's world, when no lidar scans between
+        control steps) only the first process steps the physics: each step's state reaches
+        the robot processes with the step's orders, and their worlds mirror it."""
         n = len(self.robots)
+        self.world = mirror
 
         def owned(p: int) -> list[int]:
             return [k for k in range(n) if size - 1 - k % size == p]
@@ -151,15 +162,23 @@ class RobotTeam:
     # ------------------------------------------------------------------ a step
     def begin_step(self, orders: dict[str, FleetOrder]) -> dict[str, FleetOrder]:
         """One more step: the first process sends every robot process its robots' fleet
-        orders; the orders for this process's robots."""
+        orders (and the world's state, when they mirror it); the orders for this
+        process's robots."""
         if self.parent is not None:
             return self.orders
         if not self.links:
             return orders
+        snapshot = self.world.snapshot() if self.world is not None else None
         own = {self.robots[k].name for k in self.own_indices}
         for link, names in zip(self.links, self._names, strict=True):
-            link.send(("step", {name: orders[name] for name in names if name in orders}))
+            mine = {name: orders[name] for name in names if name in orders}
+            link.send(("step", mine, snapshot))
         return {name: order for name, order in orders.items() if name in own}
+
+    @property
+    def mirrors(self) -> bool:
+        """A robot process whose world mirrors the first process's: it steps no physics."""
+        return self.parent is not None and self.world is not None
 
     def share_reports(self) -> None:
         """After the own robots decided: every robot's report reaches the first process
@@ -282,7 +301,9 @@ class RobotTeam:
             except EOFError:
                 return
             if message[0] == "step":
-                self.orders = message[1]
+                self.orders, snapshot = message[1], message[2]
+                if snapshot is not None and self.world is not None:
+                    self.world.mirror(snapshot)  # before the step reads the clock
                 try:
                     step()
                     continue

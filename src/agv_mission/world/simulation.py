@@ -124,6 +124,7 @@ class SimulatedWorld:
             sight = max((s for *_, s in bodies), default=0.0)
             self.window = WallWindow(m, self.walls, world.wall_height, radius=sight + 0.5)
         self._kinematics_at = -math.inf
+        self._mirrored: np.ndarray | None = None  # a mirror's touching geom pairs
         self._rays = np.zeros(6, dtype=np.uint8)
         self._rays[[WALL_GROUP, SEEN_GROUP]] = 1
 
@@ -146,6 +147,7 @@ class SimulatedWorld:
 
     def start(self) -> None:
         """Compute the state of the placed bodies (call once every body stands at its start)."""
+        self._mirrored = None  # the contacts are this model's own again
         self.follow_window()
         mujoco.mj_forward(self.model, self.data)
         self._kinematics_at = self.time
@@ -158,6 +160,31 @@ class SimulatedWorld:
             self.follow_window()
             mujoco.mj_step(self.model, self.data, min(chunk, n))
             n -= chunk
+
+    # ----------------------------------------------------------------- mirroring
+    _STATE = int(mujoco.mjtState.mjSTATE_PHYSICS | mujoco.mjtState.mjSTATE_TIME)
+
+    def snapshot(self) -> tuple[np.ndarray, np.ndarray]:
+        """What a mirror of this world needs to be it now: the physics state (time,
+        positions, velocities) and the geom pairs in contact."""
+        state = np.empty(mujoco.mj_stateSize(self.model, self._STATE))
+        mujoco.mj_getState(self.model, self.data, state, self._STATE)
+        return state, self._touching().copy()
+
+    def mirror(self, snapshot: tuple[np.ndarray, np.ndarray]) -> None:
+        """Be the world a :meth:`snapshot` was taken of (another process steps the
+        physics; this one senses in it): its state, and its contacts until this world
+        computes its own (:meth:`start`)."""
+        state, touching = snapshot
+        mujoco.mj_setState(self.model, self.data, state, self._STATE)
+        self._mirrored = touching
+        self._kinematics_at = -math.inf
+
+    def _touching(self) -> np.ndarray:
+        """(n, 2) geom ids of the contacts now."""
+        if self._mirrored is not None:
+            return self._mirrored
+        return self.data.contact.geom[: self.data.ncon]
 
     def follow_window(self) -> None:
         """Re-centre the wall window on the bodies that moved (large worlds)."""
@@ -231,10 +258,10 @@ class SimulatedWorld:
     def contacts(self) -> list[tuple[int, int]]:
         """Every contact between a body and a wall (``(index, WALL)``) or another body
         (``(i, j)``, ``i < j``), the floor and people left out (:meth:`person_contacts`)."""
-        n = self.data.ncon
-        if n == 0:
+        touching = self._touching()
+        if not len(touching):
             return []
-        owner = self._owner[self.data.contact.geom[:n]]
+        owner = self._owner[touching]
         found = []
         for a, b in owner.tolist():
             if a < WALL or b < WALL or a == b:  # the floor, a person
@@ -247,11 +274,11 @@ class SimulatedWorld:
 
     def person_contacts(self) -> set[tuple[int, int]]:
         """Every (body index, person index) pair touching now."""
-        n = self.data.ncon
-        if n == 0 or not len(self._person_mocap):
+        touching = self._touching()
+        if not len(touching) or not len(self._person_mocap):
             return set()
         found = set()
-        for a, b in self._owner[self.data.contact.geom[:n]].tolist():
+        for a, b in self._owner[touching].tolist():
             if a >= 0 and b <= PERSON:
                 found.add((a, PERSON - b))
             elif b >= 0 and a <= PERSON:

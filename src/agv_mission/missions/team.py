@@ -48,6 +48,11 @@ _UNSENT = object()
 Processes = int | Literal["auto"]
 
 
+#: ``auto`` spreads fleets of this many robots or more: below, the two exchanges a step
+#: cost about what a second core saves (bench_fleet).
+AUTO_FROM = 4
+
+
 def usable_cores() -> int:
     """The cores this process may run on."""
     if hasattr(os, "sched_getaffinity"):
@@ -64,10 +69,26 @@ def team_size(setting: Processes, robots: int, control: object | None) -> int:
     if threading.active_count() > 1 or threading.current_thread() is not threading.main_thread():
         return 1  # forking a process with other threads may copy a lock one of them held
     if setting == "auto":
-        if multiprocessing.parent_process() is not None:
+        if multiprocessing.parent_process() is not None or robots < AUTO_FROM:
             return 1
         return min(usable_cores(), robots)
     return max(1, min(int(setting), robots))
+
+
+#: The first process's own work besides its robots (the physics, the fleet layer, the
+#: observers), per robot of the fleet, in robots' decisions: bench_fleet's breakdown has
+#: the physics at ~7 % and the traffic layer at ~5 % of a robot's cost.
+FIRST_EXTRA = 0.125
+
+
+def shares(robots: int, size: int, first_extra: float = 0.0) -> list[range]:
+    """Contiguous blocks of robot indices for ``size`` processes, even in work when the
+    first process also carries ``first_extra`` of a robot's work per robot."""
+    total = robots * (1.0 + first_extra)
+    first = min(robots, max(1, round(total / size - robots * first_extra)))
+    rest, others = robots - first, max(size - 1, 1)
+    bounds = [0, first] + [first + (rest * p) // others for p in range(1, others + 1)]
+    return [range(bounds[p], bounds[p + 1]) for p in range(size)]
 
 
 class TeamError(RuntimeError):
@@ -116,18 +137,17 @@ class RobotTeam:
         serve: Callable[[RobotTeam], None],
         mirror: SimulatedWorld | None = None,
     ) -> None:
-        """Fork ``size - 1`` robot processes; robot ``k`` decides in process
-        ``size - 1 - k % size`` (the first process, which also runs the fleet layer and
-        the observers, gets the fewer robots). In each robot process ``serve(team)`` runs
-        the run's steps as the first process orders them; it never returns there (the
-        process exits). With ``mirror`` (the run's world, when no lidar scans between
-        control steps) only the first process steps the physics: each step's state reaches
-        the robot processes with the step's orders, and their worlds mirror it."""
-        n = len(self.robots)
+        """Fork ``size - 1`` robot processes and share the robots out (:func:`shares`). In
+        each robot process ``serve(team)`` runs the run's steps as the first process orders
+        them; it never returns there (the process exits). With ``mirror`` (the run's world,
+        when no lidar scans between control steps) only the first process steps the
+        physics: each step's state reaches the robot processes with the step's orders, and
+        their worlds mirror it."""
         self.world = mirror
+        blocks = shares(len(self.robots), size, first_extra=FIRST_EXTRA)
 
         def owned(p: int) -> list[int]:
-            return [k for k in range(n) if size - 1 - k % size == p]
+            return list(blocks[p])
 
         self.observed = observed
         sys.stdout.flush()

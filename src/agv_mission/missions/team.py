@@ -14,9 +14,9 @@ which also owns robots and alone talks to observers): the robots' reports after 
 decided, their outcomes (and the observers' samples) after they concluded. At the end
 the first process gathers the other processes' robots' records.
 
-Processes are forked (POSIX), only from a process that runs no other thread; in ``auto``
-mode not from a worker process (regress and the service run missions side by side
-already) and only with two robots or more.
+Processes are forked (POSIX), only from a process that runs no other thread. ``auto``
+forks one per idle core for fleets of :data:`AUTO_FROM` robots or more, not from a
+worker process (regress and the service run missions side by side already).
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ import os
 import signal
 import sys
 import threading
+import time
 import traceback
 import weakref
 from collections.abc import Callable
@@ -60,6 +61,25 @@ def usable_cores() -> int:
     return max(1, os.cpu_count() or 1)
 
 
+def idle_cores(samples: int = 3, gap: float = 0.01) -> int:
+    """The usable cores nothing else runs on now (this process's own included): the
+    fewest over a few readings of the kernel's runnable-task count (Linux; elsewhere all
+    usable cores). Robots in lockstep across processes wait for the slowest one: a
+    process sharing its core with another program would hold every step up."""
+    cores = usable_cores()
+    stat = Path("/proc/stat")
+    if not stat.is_file():
+        return cores
+    others = cores
+    for i in range(samples):
+        if i:
+            time.sleep(gap)
+        for line in stat.read_text().splitlines():
+            if line.startswith("procs_running"):  # this process included
+                others = min(others, int(line.split()[1]) - 1)
+    return max(1, cores - others)
+
+
 def team_size(setting: Processes, robots: int, control: object | None) -> int:
     """How many processes a run of ``robots`` robots decides in (1: this one alone)."""
     if robots < 2 or not hasattr(os, "fork"):
@@ -71,7 +91,7 @@ def team_size(setting: Processes, robots: int, control: object | None) -> int:
     if setting == "auto":
         if multiprocessing.parent_process() is not None or robots < AUTO_FROM:
             return 1
-        return min(usable_cores(), robots)
+        return min(idle_cores(), robots)
     return max(1, min(int(setting), robots))
 
 

@@ -22,7 +22,14 @@ from typing import Any
 from agv_mission.localization.base import Localizer
 from agv_mission.missions.fleet import FleetCoordinator, queue_fleet_tasks
 from agv_mission.missions.loader import LoadedMission
-from agv_mission.missions.observe import RobotStart, RunControl, RunObserver, RunStart, tree_nodes
+from agv_mission.missions.observe import (
+    RobotStart,
+    RunControl,
+    RunObserver,
+    RunStart,
+    StepSample,
+    tree_nodes,
+)
 from agv_mission.missions.people_record import PeopleRun, fleet_people_metrics
 from agv_mission.missions.record import TRAJECTORY_COLUMNS, RunRecord, bare_record
 from agv_mission.missions.robot_run import RobotRun
@@ -134,6 +141,7 @@ class MissionRun:
         ]
         self.by_name = {r.name: r for r in self.robots}
         self.team = RobotTeam.alone(self.robots)  # who decides here (see :meth:`drive`)
+        self._samples: list[StepSample] = []  # the latest step's, not yet observed
         self.people = (
             PeopleRun(loaded.people, self.world, self.mission.seed) if loaded.people else None
         )
@@ -245,8 +253,16 @@ class MissionRun:
                     break
                 if progress is not None:
                     progress(self.world.time, self.mission.limits.time)
+            self._observe()
         finally:
             gc.unfreeze()
+
+    def _observe(self) -> None:
+        """Hand the observers the samples of the latest step not yet observed."""
+        batch, self._samples = self._samples, []
+        for sample in batch:
+            for observer in self.observers:
+                observer.on_step(sample)
 
     def _serve(self, team: RobotTeam) -> None:
         """A robot process: step as the first process orders (it alone has observers)."""
@@ -270,6 +286,7 @@ class MissionRun:
         # where it decides
         orders = coordinator.decide(now) if coordinator and team.parent is None else {}
         orders = team.begin_step(orders)
+        self._observe()  # the step before's samples, while the robot processes decide
         if coordinator is not None:
             coordinator.hand_out(orders)
         if self.people is not None:
@@ -289,13 +306,16 @@ class MissionRun:
         if self.status is None and all(r.status is not None for r in robots):
             self._conclude()
         if self.observers:
+            batch = []
             for k, r in enumerate(robots):
-                sample = samples[k] if k in samples else r.sample()
+                sample = samples[k] if team.parallel else r.sample()
                 if sample is not None and k == 0 and self.people is not None:
                     sample.people = self.people.present()
                 if sample is not None:
-                    for observer in self.observers:
-                        observer.on_step(sample)
+                    batch.append(sample)
+            self._samples = batch
+            if not team.parallel:  # with robot processes: once the next step is under way
+                self._observe()
         if self.status is not None:
             return False
         for r in robots:
@@ -406,6 +426,7 @@ class MissionRun:
         """The outcome so far, as the run directory will hold it."""
         if self.status is None:
             self.end("error", "the run ended without an outcome")
+        self._observe()
         wall_time = time.perf_counter() - self.wall_start
         team = self.team
         assert self.status is not None

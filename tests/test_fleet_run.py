@@ -63,3 +63,25 @@ def test_dispatched_tasks_go_to_the_quickest_robot_and_queue_behind_its_own(tmp_
     )
     assert check(expect, result) == []
     assert [f.metric for f in check(Expectations(makespan_max=1.0), result)] == ["makespan_max"]
+
+
+def test_a_fleet_robot_maps_from_its_own_start_and_rooms_reach_the_result(tmp_path):
+    """The mixed house fleet: the mapper's SLAM is anchored at its own start (it once took
+    the first robot's, 7.5 m away, and the fleet layer then saw it there), its map and
+    the visitor's recorded rooms are in result.json, fleet-wide and per robot."""
+    loaded = load_mission(Path(__file__).parent / "scenarios" / "fleet_mixed_house.yaml")
+    run_dir = open_run_dir(tmp_path / "runs", loaded)
+    record = run_mission(loaded, run_dir)
+    result = write_run(run_dir, loaded, record)
+    assert result["status"] == "succeeded", result["reason"]
+    [built] = result["maps"]
+    assert built["robot"] == "mapper" and built["map"] == "bedroom_map"
+    assert built["slam_rmse"] < 0.15 and built["free_iou"] > 0.8
+    assert result["robots"]["mapper"]["maps"][0]["free_iou"] == built["free_iou"]
+    assert (run_dir / "bedroom_map.yaml").is_file()
+    rooms = result["rooms_recorded"]
+    assert sorted(rooms) == ["bedroom", "kitchen"]
+    assert result["robots"]["visitor"]["rooms_recorded"] == rooms
+    for label, recorded in rooms.items():
+        room = loaded.rooms[label]
+        assert room.contains(recorded["x"], recorded["y"]), (label, recorded)

@@ -45,11 +45,10 @@ class MapBuilder:
 
     def begin(self, bounds: Bounds | None) -> MappingSession:
         """SLAM takes over pose and map, starting from the current estimate."""
-        loaded = self.stack.loaded
+        loaded, setup = self.stack.loaded, self.stack.setup  # a fleet: this robot's own
         bounds = bounds or loaded.world.map.extent
-        costmap_config = loaded.mission.stack.costmap
         session = MappingSession(
-            self.stack.new_slam(bounds), bounds, loaded.robot.footprint_radius, costmap_config
+            self.stack.new_slam(bounds), bounds, setup.robot.footprint_radius, setup.stack.costmap
         )
         session.start(self._anchor(), self.stack.odom)
         self.session = session
@@ -62,29 +61,29 @@ class MapBuilder:
         filter estimate there only adds its initial spread to every cell of the map.
         """
         if not self.stack.has_moved():
-            return self.stack.loaded.start
+            return self.stack.setup.start
         return self.handle.state.estimate
 
     def end(self, stem: str) -> dict[str, Any]:
         """Save the map, judge it against the world, and navigate on it from now on."""
         session = self.session
         assert session is not None, "end() without begin()"
-        loaded = self.stack.loaded
+        loaded, setup = self.stack.loaded, self.stack.setup
         grid = crop_to_known(session.grid)  # what was seen, not SLAM's canvas
         summary: dict[str, Any] = {"map": stem}
         if self.run_dir is not None:
             save_ros_map(grid, self.run_dir / stem)
             grid = load_ros_map(self.run_dir / f"{stem}.yaml")  # navigate on what was saved
         quality = map_quality(
-            grid, loaded.world.map, session.bounds, start=(loaded.start.x, loaded.start.y)
+            grid, loaded.world.map, session.bounds, start=(setup.start.x, setup.start.y)
         )
         summary.update({k: round(v, 4) for k, v in quality.items()})
         summary["slam_rmse"] = round(self._slam_rmse(session), 4)
         summary["known_fraction"] = round(session.known_fraction(), 4)
         self.maps.append(summary)
         self.built_map = grid
-        costmap_config = loaded.mission.stack.costmap
-        static = Costmap.from_grid(grid, loaded.robot.footprint_radius, costmap_config)
+        costmap_config = setup.stack.costmap
+        static = Costmap.from_grid(grid, setup.robot.footprint_radius, costmap_config)
         self.navigator.layer = ObstacleLayer(static, costmap_config.obstacles)
         self.stack.localizer = self.stack.new_localizer(grid)
         self.stack.localizer.reset(session.slam.pose, self.stack.odom)

@@ -66,6 +66,7 @@ def result_document(loaded: LoadedMission, record: RunRecord, run_dir: Path) -> 
                 "robot": setup.robot.name,
                 "tasks": own.tasks,
                 "metrics": own.metrics,
+                **{k: own.extras[k] for k in ("rooms_recorded", "maps") if k in own.extras},
             }
     return {
         "name": loaded.name,

@@ -492,6 +492,18 @@ def fleet_record(run: MissionRun, records: list[RunRecord], wall_time: float) ->
         paths=[p for record in records for p in record.paths],
         events=events,
         tree_text="\n".join(f"[{name}]\n{record.tree_text}" for name, record in by_name.items()),
-        extras={"fleet": fleet, "collisions": log["robot_robot_collisions"]},
+        extras={"fleet": fleet, "collisions": log["robot_robot_collisions"], **_gathered(by_name)},
         robots=by_name,
     )
+
+
+def _gathered(by_name: dict[str, RunRecord]) -> dict[str, Any]:
+    """The robots' recorded rooms (one table, in robot order: a label recorded twice keeps
+    the later robot's) and built maps (each naming its robot), as a one-robot result has
+    them."""
+    rooms: dict[str, Any] = {}
+    maps: list[dict[str, Any]] = []
+    for name, record in by_name.items():
+        rooms.update(record.extras.get("rooms_recorded", {}))
+        maps += [{"robot": name, **m} for m in record.extras.get("maps", [])]
+    return {**({"rooms_recorded": rooms} if rooms else {}), **({"maps": maps} if maps else {})}

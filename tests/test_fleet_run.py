@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 from agv_mission.missions.expectations import Expectations, check
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.outputs import open_run_dir, write_run
@@ -85,3 +87,42 @@ def test_a_fleet_robot_maps_from_its_own_start_and_rooms_reach_the_result(tmp_pa
     for label, recorded in rooms.items():
         room = loaded.rooms[label]
         assert room.contains(recorded["x"], recorded["y"]), (label, recorded)
+
+
+KIDNAP = """\
+name: fleet-kidnap
+world: turtlebot3_world
+seed: 5
+stack: {localization: {type: ground_truth}}
+robots:
+  - name: a
+    robot: burger
+    start: {x: -2.0, y: -0.5, yaw: 0.0}
+    tasks: [{type: go_to, pose: {x: -1.6, y: -0.5, yaw: 0.0}}]
+  - name: b
+    robot: burger
+    start: {x: -2.0, y: 0.5, yaw: 0.0}
+    tasks: [{type: go_to, pose: {x: -1.6, y: 0.5, yaw: 0.0}}]
+faults:
+  - {type: kidnap, time: 1.0, pose: {x: 0.5, y: -1.5, yaw: 0.0}, robot: b}
+  - {type: wheel_slip, factor: 0.2}
+limits: {time: 4.0}
+"""
+
+
+def test_a_fault_aimed_at_one_robot_of_a_fleet_hits_only_it(tmp_path):
+    path = tmp_path / "kidnap.yaml"
+    path.write_text(KIDNAP)
+    loaded = load_mission(path)
+    record = run_mission(loaded)
+    a, b = record.robots["a"], record.robots["b"]
+    assert [f["type"] for f in a.extras["faults"]] == ["wheel_slip"]
+    assert [(f["type"], f["fired"]) for f in b.extras["faults"]] == [
+        ("kidnap", True),
+        ("wheel_slip", True),
+    ]
+
+    def jumps(rows):  # the farthest the true position moved in one control step
+        return float(np.hypot(*np.diff(rows[:, 1:3], axis=0).T).max())
+
+    assert jumps(a.trajectory) < 0.05 < 2.0 < jumps(b.trajectory)

@@ -282,6 +282,10 @@ def load_mission(
         return loaded
     tree = None
     if isinstance(mission, Mission):
+        for i, fault in enumerate(mission.faults):
+            if fault.robot is not None:
+                log.add(("faults", i, "robot"), "robot: names a fleet robot; this mission has one")
+        log.raise_if_any()
         tree = assemble(tree_source(mission, data, log, base_dir, path_guard))
     loaded = _resolve(mission, base_dir, path.stem or "mission", log, path_guard, tree)
     loaded.source = path
@@ -607,6 +611,16 @@ def _resolve_fleet(
     for i, name in sorted(assigned.items()):
         if name not in names:
             log.add(("tasks", i, "robot"), f"no robot {name!r} in robots: ({', '.join(names)})")
+    for i, fault in enumerate(mission.faults):
+        if fault.robot is not None and fault.robot not in names:
+            log.add(
+                ("faults", i, "robot"), f"no robot {fault.robot!r} in robots: ({', '.join(names)})"
+            )
+        elif fault.robot is None and fault.type == "kidnap":
+            log.add(
+                ("faults", i, "robot"),
+                "a kidnap in a fleet carries one robot off: name it (robot: NAME)",
+            )
     log.raise_if_any()
     file, lines = log.file, log.lines
     fleet_tasks = []

@@ -120,7 +120,8 @@ class RobotRun:
             blackboard=dict(setup.tree.source.blackboard),
         )
         self.tree = build_tree(setup.tree, context)
-        self.faults = FaultInjector(self.mission.faults, self.sim, stack.fault_rng)
+        aimed = [f for f in self.mission.faults if f.robot in (None, self.name)]
+        self.faults = FaultInjector(aimed, self.sim, stack.fault_rng)
         self.monitor = CollisionMonitor(
             setup.stack.collision_monitor, robot.footprint_radius, CONTROL_PERIOD
         )

@@ -33,7 +33,15 @@ class CylinderObstacle(StrictModel):
 Obstacle = Annotated[Union[BoxObstacle, CylinderObstacle], Field(discriminator="type")]  # noqa: UP007
 
 
-class Window(StrictModel):
+class Aimed(StrictModel):
+    """A fault of a fleet mission hits one robot (``robot``) or every robot (unset)."""
+
+    robot: str | None = Field(
+        None, description="the fleet robot it hits (unset: every robot); a kidnap names one"
+    )
+
+
+class Window(Aimed):
     start: float = Field(0.0, ge=0.0, description="simulated seconds")
     end: float | None = Field(None, gt=0.0, description="simulated seconds; None: to the end")
 
@@ -65,7 +73,7 @@ class OdometryNoiseFault(Window):
     scale: float = Field(gt=0.0)
 
 
-class KidnapFault(StrictModel):
+class KidnapFault(Aimed):
     """The robot is carried to ``pose`` at ``time`` (the localiser is not told)."""
 
     type: Literal["kidnap"]

@@ -33,6 +33,7 @@ class ObstacleLayer:
         self._layered: Costmap = static
         self._dirty: list[int] | None = None  # row0, row1, col0, col1 of changed cells
         self._any: bool | None = False  # whether any cell is marked (None: not known)
+        self.revision = 0  # counts the changes of :attr:`costmap` (patched in place)
         res = static.resolution
         self._reach = static.robot_radius + static.config.inflation_radius + 0.5
         self._pad = int(np.ceil(self._reach / res))
@@ -57,6 +58,7 @@ class ObstacleLayer:
             self.marks[:] = False
             self._layered = self.static
             self._dirty = None
+            self.revision += 1
         self._any = False
 
     def _touch(self, rows: np.ndarray, cols: np.ndarray) -> None:
@@ -70,6 +72,7 @@ class ObstacleLayer:
         """Recompute distance and cost within reach of the changed cells."""
         static, (r0, r1, c0, c1) = self.static, self._dirty
         self._dirty = None
+        self.revision += 1
         if self._layered is static:
             self._layered = Costmap(
                 static.grid,
@@ -124,6 +127,8 @@ class ObstacleLayer:
 
     def _clear(self, pose: Pose2D, scan: LaserScan) -> bool:
         """Unmark the marked cells within reach that a beam passes through."""
+        if self._any is False:  # nothing marked: nothing to clear (no window scan)
+            return False
         grid = self.static.grid
         res = grid.resolution
         reach_max = self.config.raytrace_range

@@ -279,7 +279,7 @@ class MissionRun:
         if self.status is not None:
             return False
         team = self.team
-        now = self.world.time
+        now = team.clock(self.world)
         robots = self.robots
         coordinator = self.coordinator
         # the fleet layer decides in the first process; each robot's order reaches it
@@ -329,10 +329,11 @@ class MissionRun:
         world = self.world
         if self.people is not None:
             self.people.move(CONTROL_PERIOD, self.robots)
-        if self.team.mirrors:  # the first process steps the physics
-            return
         dt = world.dt
         steps = int(round(CONTROL_PERIOD / dt))
+        if not self.team.physics:  # another process steps it (missions.team)
+            self.team.advanced(steps)
+            return
         t0 = world.time
         due: dict[int, list[RobotRun]] = {}
         for r in self.team.own:
@@ -345,6 +346,7 @@ class MissionRun:
             for r in due[k]:
                 r.stack.take_scan(r._scan_filter)
         world.step(steps - done)
+        self.team.advanced(steps)
 
     def _watch_collisions(self, now: float) -> None:
         """End the run once the robots together touched walls more often than allowed."""

@@ -136,7 +136,9 @@ class RobotTeam:
         self.parent: Connection | None = None  # a robot process: its link to the first
         self.observed = False  # the first process has observers (samples go to it)
         self.orders: dict[str, FleetOrder] = {}  # a robot process: this step's fleet orders
-        self.world: SimulatedWorld | None = None  # the world mirrored in robot processes
+        self.world: SimulatedWorld | None = None  # the world, when mirrored
+        self.physics = True  # this process steps the physics
+        self._stepped = 0  # the first process: physics steps taken elsewhere since its mirror
         self._names: list[list[str]] = []  # the first process: each link's robots' names
         self._sent: dict[int, Any] = {}  # each own robot's traffic path as last sent
         self._finalizer: weakref.finalize | None = None
@@ -161,10 +163,11 @@ class RobotTeam:
         """Fork ``size - 1`` robot processes and share the robots out (:func:`shares`). In
         each robot process ``serve(team)`` runs the run's steps as the first process orders
         them; it never returns there (the process exits). With ``mirror`` (the run's world,
-        when no lidar scans between control steps) only the first process steps the
-        physics: each step's state reaches the robot processes with the step's orders, and
-        their worlds mirror it."""
+        when no lidar scans between control steps) only the last process steps the
+        physics, while the first runs the fleet layer: each step's state reaches the first
+        process, then the others with the step's orders, and their worlds mirror it."""
         self.world = mirror
+        self.physics = mirror is None
         blocks = shares(len(self.robots), size, OBSERVED_EXTRA if observed else 0.0)
 
         def owned(p: int) -> list[int]:
@@ -185,6 +188,7 @@ class RobotTeam:
                     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the first process decides
                     signal.signal(signal.SIGTERM, signal.SIG_IGN)
                     self.links, self.pids, self.parent = [], [], theirs
+                    self.physics = mirror is None or p == size - 1
                     self.own_indices = owned(p)
                     self.own = [self.robots[k] for k in self.own_indices]
                     serve(self)
@@ -201,25 +205,46 @@ class RobotTeam:
         self._finalizer = weakref.finalize(self, _release, list(self.links), list(self.pids))
 
     # ------------------------------------------------------------------ a step
+    def clock(self, world: SimulatedWorld) -> float:
+        """The step's time: the world's, or in the first process while the physics
+        process still steps, the time it will reach (the same additions MuJoCo makes)."""
+        t = world.time
+        for _ in range(self._stepped):
+            t += world.dt
+        return t
+
+    def advanced(self, steps: int) -> None:
+        """The world advanced ``steps`` physics steps: the physics process sends its state
+        to the first process; the first process will wait for it."""
+        if self.world is None:
+            return
+        if self.physics and self.parent is not None:
+            self.parent.send(("world", self.world.snapshot()))
+        elif self.parent is None:
+            self._stepped = steps
+
     def begin_step(self, orders: dict[str, FleetOrder]) -> dict[str, FleetOrder]:
-        """One more step: the first process sends every robot process its robots' fleet
-        orders (and the world's state, when they mirror it); the orders for this
-        process's robots."""
+        """One more step: the first process takes the world's state from the physics
+        process (when mirrored), then sends every robot process its robots' fleet orders
+        (and the state, when it mirrors it); the orders for this process's robots."""
         if self.parent is not None:
             return self.orders
         if not self.links:
             return orders
-        snapshot = self.world.snapshot() if self.world is not None else None
+        snapshot = None
+        if self.world is not None and self._stepped:
+            expected = self.clock(self.world)
+            snapshot = self._receive(self.links[-1], "world")[1]
+            self.world.mirror(snapshot)
+            self._stepped = 0
+            if self.world.time != expected:
+                raise TeamError(f"robot processes out of step: {self.world.time} != {expected}")
         own = {self.robots[k].name for k in self.own_indices}
-        for link, names in zip(self.links, self._names, strict=True):
+        last = len(self.links) - 1
+        for i, (link, names) in enumerate(zip(self.links, self._names, strict=True)):
             mine = {name: orders[name] for name in names if name in orders}
-            link.send(("step", mine, snapshot))
+            link.send(("step", mine, snapshot if i != last else None))
         return {name: order for name, order in orders.items() if name in own}
-
-    @property
-    def mirrors(self) -> bool:
-        """A robot process whose world mirrors the first process's: it steps no physics."""
-        return self.parent is not None and self.world is not None
 
     def share_reports(self) -> None:
         """After the own robots decided: every robot's report reaches the first process

@@ -144,3 +144,23 @@ class _Blind(ReservationTraffic):
         update = super().decide(t, robots)
         update.decisions = {r.name: type(update.decisions[r.name])() for r in robots}
         return update
+
+
+def test_a_robot_standing_too_close_to_another_may_still_move_away() -> None:
+    """Nearer another's space than its own radius already (the depot livelock: two robots
+    braking 0.35 m apart each yielding in turn, neither ever let go): moving away is
+    granted; moving closer is not."""
+    from agv_mission.fleet.base import TrafficRobot
+
+    traffic = ReservationTraffic()
+    stands = TrafficRobot("stands", P(-0.27, 0.0, 0.0), 0.105, 0.22)
+    away = TrafficRobot(
+        "away", P(0.0, 0.0, 0.0), 0.105, 0.22, path=np.array([[0.0, 0.0], [1.5, 0.0]])
+    )
+    decision = traffic.decide(0.0, [stands, away]).decisions["away"]
+    assert decision.action == "go" and (decision.limit is None or decision.limit > 0.5)
+    closer = TrafficRobot(
+        "closer", P(0.0, 0.0, math.pi), 0.105, 0.22, path=np.array([[0.0, 0.0], [-1.5, 0.3]])
+    )
+    decision = ReservationTraffic().decide(0.0, [stands, closer]).decisions["closer"]
+    assert decision.limit is not None and decision.limit < 0.05

@@ -204,7 +204,8 @@ class ReservationTraffic:
     ) -> tuple[float | None, str | None]:
         """How far along its prefix a robot may go, and who stops it: its centre keeps
         ``keep`` metres from every other's space, or, where it is closer already, gets no
-        closer (so it can back away or pass alongside) and never nearer than ``floor``."""
+        closer (so it can back away or pass alongside) and never nearer than ``floor``
+        (unless it stands nearer already: then it may still move away)."""
         (x0, y0), (x1, y1) = g.pts.min(axis=0), g.pts.max(axis=0)
         limit, blocker = None, None
         for name, space in others:
@@ -212,7 +213,10 @@ class ReservationTraffic:
             if bx0 > x1 + keep or bx1 < x0 - keep or by0 > y1 + keep or by1 < y0 - keep:
                 continue
             d = space.distance(g.pts)
-            ok = (d >= keep - TOL) | ((d >= d[0] - TOL) & (d >= floor))
+            no_closer = d >= d[0] - TOL
+            if d[0] >= floor:
+                no_closer &= d >= floor
+            ok = (d >= keep - TOL) | no_closer
             if ok.all():
                 continue
             k = int(np.argmin(ok))

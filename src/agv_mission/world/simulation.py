@@ -17,6 +17,7 @@ import numpy as np
 from agv_mission.geometry import Pose2D, wrap_angle, yaw_from_quaternion
 from agv_mission.maps.worlds import World
 from agv_mission.world.model import (
+    BODY_BIT,
     PARKED_Z,
     PERSON_HEIGHT,
     PERSON_PREFIX,
@@ -32,6 +33,9 @@ WINDOW_CHECK_PERIOD = 0.1  # s of simulated motion between wall-window checks
 WALL = -1  # owner of a wall or pillar geom
 FLOOR = -2  # owner of the floor and anything else static
 PERSON = -3  # owner of person i's geom: PERSON - i
+# m beyond a body's footprint and a person's radius within which people collide with it: a
+# control period's walk (1.5 m/s) and a body's drive (2 m/s) with room to spare
+PERSON_REACH = 1.0
 
 
 @dataclass(frozen=True)
@@ -90,7 +94,7 @@ class SimulatedWorld:
         self.data = mujoco.MjData(model)
         self.bodies: dict[str, Body] = {}
         owner = np.full(m.ngeom, FLOOR, dtype=np.int64)
-        mocap: list[int] = []
+        people: dict[int, int] = {}
         for i in range(m.ngeom):
             name = m.geom(i).name
             if name.startswith(("wall", "pillar")):
@@ -98,8 +102,12 @@ class SimulatedWorld:
             elif name.startswith(PERSON_PREFIX):
                 k = int(name[len(PERSON_PREFIX) :])
                 owner[i] = PERSON - k
-                mocap.append(int(m.body_mocapid[m.geom_bodyid[i]]))
-        self._person_mocap = np.array(mocap, dtype=np.int64)  # person i's mocap slot
+                people[k] = i
+        self._person_geoms = np.array([people[k] for k in sorted(people)], dtype=np.int64)
+        self._people_body = -1
+        self._person_leaves = self._people_tree()
+        self._people_xy: np.ndarray | None = None  # (x, y, z) of each person's geom
+        self._person_radii = m.geom_size[self._person_geoms, 0].copy()
         for k, (name, base, radius, _) in enumerate(bodies):
             body_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, base)
             joint = int(m.body_jntadr[body_id])
@@ -126,6 +134,24 @@ class SimulatedWorld:
         self._kinematics_at = -math.inf
         self._rays = np.zeros(6, dtype=np.uint8)
         self._rays[[WALL_GROUP, SEEN_GROUP]] = 1
+
+    def _people_tree(self) -> np.ndarray:
+        """The people body's bounding-volume tree leaf of each person's geom. MuJoCo keeps
+        the tree it compiled and culls contacts with it: its inner boxes are made to cover
+        everything once, the leaves follow the people (:meth:`move_people`)."""
+        m = self.model
+        if not len(self._person_geoms):
+            return np.zeros(0, dtype=np.int64)
+        body = self._people_body = int(m.geom_bodyid[self._person_geoms[0]])
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, m.body_iquat[body])
+        self._people_frame = (m.body_ipos[body].copy(), rot.reshape(3, 3))  # at the origin
+        adr, num = int(m.body_bvhadr[body]), int(m.body_bvhnum[body])
+        nodes = np.arange(adr, adr + num)
+        geom = m.bvh_nodeid[adr : adr + num]
+        m.bvh_aabb[nodes[geom < 0]] = (0.0, 0.0, 0.0, 1e9, 1e9, 1e9)
+        leaf = {int(g): int(n) for g, n in zip(geom, nodes, strict=True) if g >= 0}
+        return np.array([leaf[int(g)] for g in self._person_geoms], dtype=np.int64)
 
     def _descends(self, body: int, root: int) -> bool:
         while body > 0:
@@ -191,6 +217,7 @@ class SimulatedWorld:
         self.place(body, pose)
         self.data.qvel[list(body.dofs)] = 0.0
         self.data.qacc_warmstart[:] = 0.0
+        self._arm_people()
         self.start()
 
     # ----------------------------------------------------------------- sensing
@@ -248,7 +275,7 @@ class SimulatedWorld:
     def person_contacts(self) -> set[tuple[int, int]]:
         """Every (body index, person index) pair touching now."""
         n = self.data.ncon
-        if n == 0 or not len(self._person_mocap):
+        if n == 0 or not len(self._person_geoms):
             return set()
         found = set()
         for a, b in self._owner[self.data.contact.geom[:n]].tolist():
@@ -262,17 +289,37 @@ class SimulatedWorld:
     @property
     def people(self) -> int:
         """How many people bodies the model holds."""
-        return len(self._person_mocap)
+        return len(self._person_geoms)
 
     def move_people(self, xy: np.ndarray, present: np.ndarray) -> None:
         """Put the people where the crowd says (standing on the floor), those not present
         under it, out of every ray's and chassis' way."""
-        slots = self._person_mocap
-        pos = self.data.mocap_pos
-        pos[slots, 0] = xy[:, 0]
-        pos[slots, 1] = xy[:, 1]
-        pos[slots, 2] = np.where(present, PERSON_HEIGHT / 2, PARKED_Z)
+        if not len(self._person_geoms):
+            return
+        m = self.model
+        pos = np.column_stack([xy, np.where(present, PERSON_HEIGHT / 2, PARKED_Z)])
+        m.geom_pos[self._person_geoms] = pos
+        # a cylinder's box is centred on it, in the body's inertial frame
+        m.bvh_aabb[self._person_leaves, 0:3] = (pos - self._people_frame[0]) @ self._people_frame[1]
         self._kinematics_at = -math.inf  # the geoms moved: rays need them where they are
+        self._people_xy = pos
+        self._arm_people()
+
+    def _arm_people(self) -> None:
+        """Let only the people near a body collide (the rest could not touch one within a
+        control period): with nobody near, the contact search skips the people's body."""
+        if self._people_xy is None or not self._order:
+            return
+        m, q = self.model, self.data.qpos
+        xy = self._people_xy
+        near = np.zeros(len(xy), dtype=bool)
+        for b in self._order:
+            dx, dy = xy[:, 0] - q[b.qadr], xy[:, 1] - q[b.qadr + 1]
+            reach = self._person_radii + (b.radius + PERSON_REACH)
+            near |= dx * dx + dy * dy <= reach * reach
+        near &= xy[:, 2] > 0.0
+        m.geom_contype[self._person_geoms] = np.where(near, BODY_BIT, 0)
+        m.body_contype[self._people_body] = BODY_BIT if near.any() else 0
 
     def wall_contacts(self, body: Body) -> int:
         """Contact points between ``body`` and walls/pillars."""

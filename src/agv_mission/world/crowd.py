@@ -258,6 +258,11 @@ class Crowd:
         for i in np.flatnonzero(self.start_times <= 0.0):  # in the world from the start
             self._enter(int(i))
 
+    @property
+    def everyone(self) -> bool:
+        """Whether everyone has entered the world."""
+        return len(self._agents) == len(self.active)
+
     # -- set up ------------------------------------------------------------------------
 
     def _place(self, groups: Sequence[PeopleGroup]) -> None:
@@ -290,8 +295,9 @@ class Crowd:
             taken = self.positions[:k]
             size = min(len(pool), max(WANDER_GOALS_MIN, 2 * group.count), WANDER_GOALS_MAX)
             goals = [int(c) for c in self.rng.choice(pool, size=size, replace=False)]
+            centres = router.centres(np.stack(np.divmod(pool, router.shape[1]), axis=1))
             for _ in range(group.count):
-                self.positions[k] = self._free_start(router, pool, taken, group.radius)
+                self.positions[k] = self._free_start(centres, taken, group.radius)
                 taken = self.positions[: k + 1]
                 self._goals.append(goals)
                 k += 1
@@ -305,12 +311,9 @@ class Crowd:
         cells = cells[inside]
         return cells[:, 0] * router.shape[1] + cells[:, 1]
 
-    def _free_start(
-        self, router: RouteGrid, pool: np.ndarray, taken: np.ndarray, radius: float
-    ) -> np.ndarray:
-        """A random cell of ``pool`` not overlapping anyone placed so far (the best of a
-        few draws when the area is crowded)."""
-        centres = router.centres(np.stack(np.divmod(pool, router.shape[1]), axis=1))
+    def _free_start(self, centres: np.ndarray, taken: np.ndarray, radius: float) -> np.ndarray:
+        """A random one of the pool's cell ``centres`` not overlapping anyone placed so far
+        (the best of a few draws when the area is crowded)."""
         best, best_gap = centres[0], -np.inf
         for _ in range(20):
             point = centres[self.rng.integers(len(centres))]
@@ -390,7 +393,7 @@ class Crowd:
             sim.do_step()  # robots alone: keep the simulator's clock with the world's
             self.time += dt
             return
-        everyone = len(self._agents) == len(self.active)
+        everyone = self.everyone
         people = self.ids if everyone else np.flatnonzero(self.active)
         who = slice(None) if everyone else people  # views, not copies, when all are in
         pref = self._steer(people, who)

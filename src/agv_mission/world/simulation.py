@@ -107,6 +107,7 @@ class SimulatedWorld:
         self._people_body = -1
         self._person_leaves = self._people_tree()
         self._people_xy: np.ndarray | None = None  # (x, y, z) of each person's geom
+        self._people_armed = len(self._person_geoms) > 0  # someone may touch a body
         self._person_radii = m.geom_size[self._person_geoms, 0].copy()
         for k, (name, base, radius, _) in enumerate(bodies):
             body_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, base)
@@ -143,9 +144,8 @@ class SimulatedWorld:
         if not len(self._person_geoms):
             return np.zeros(0, dtype=np.int64)
         body = self._people_body = int(m.geom_bodyid[self._person_geoms[0]])
-        rot = np.zeros(9)
-        mujoco.mju_quat2Mat(rot, m.body_iquat[body])
-        self._people_frame = (m.body_ipos[body].copy(), rot.reshape(3, 3))  # at the origin
+        if m.body_ipos[body].any() or not np.array_equal(m.body_iquat[body], (1, 0, 0, 0)):
+            raise ValueError("the people's body must have the world's frame as its own")
         adr, num = int(m.body_bvhadr[body]), int(m.body_bvhnum[body])
         nodes = np.arange(adr, adr + num)
         geom = m.bvh_nodeid[adr : adr + num]
@@ -275,7 +275,7 @@ class SimulatedWorld:
     def person_contacts(self) -> set[tuple[int, int]]:
         """Every (body index, person index) pair touching now."""
         n = self.data.ncon
-        if n == 0 or not len(self._person_geoms):
+        if n == 0 or not self._people_armed:
             return set()
         found = set()
         for a, b in self._owner[self.data.contact.geom[:n]].tolist():
@@ -297,10 +297,12 @@ class SimulatedWorld:
         if not len(self._person_geoms):
             return
         m = self.model
-        pos = np.column_stack([xy, np.where(present, PERSON_HEIGHT / 2, PARKED_Z)])
+        pos = np.empty((len(xy), 3))
+        pos[:, 0:2] = xy
+        pos[:, 2] = np.where(present, PERSON_HEIGHT / 2, PARKED_Z)
         m.geom_pos[self._person_geoms] = pos
-        # a cylinder's box is centred on it, in the body's inertial frame
-        m.bvh_aabb[self._person_leaves, 0:3] = (pos - self._people_frame[0]) @ self._people_frame[1]
+        # a cylinder's box is centred on it, in the body's inertial frame (the world's)
+        m.bvh_aabb[self._person_leaves, 0:3] = pos
         self._kinematics_at = -math.inf  # the geoms moved: rays need them where they are
         self._people_xy = pos
         self._arm_people()
@@ -319,7 +321,8 @@ class SimulatedWorld:
             near |= dx * dx + dy * dy <= reach * reach
         near &= xy[:, 2] > 0.0
         m.geom_contype[self._person_geoms] = np.where(near, BODY_BIT, 0)
-        m.body_contype[self._people_body] = BODY_BIT if near.any() else 0
+        self._people_armed = bool(near.any())
+        m.body_contype[self._people_body] = BODY_BIT if self._people_armed else 0
 
     def wall_contacts(self, body: Body) -> int:
         """Contact points between ``body`` and walls/pillars."""

@@ -222,8 +222,11 @@ class PeopleMarkersCdr:
         self._ids = np.zeros(0, dtype=np.int64)
         self._radii = np.zeros(0)
         self._template = np.zeros(0, dtype=np.uint8)
+        self._length = 0  # of the message (the template may run on)
         self._stamps = np.zeros(0, dtype=np.int64)  # every stamp's bytes, in order
         self._positions = np.zeros(0, dtype=np.int64)  # every marker's x and y bytes
+        # (first marker's start, marker size, its stamps' offsets, its x's offset)
+        self._layout: tuple[int, int, tuple[int, int], int] | None = None
 
     def pack(self, t: float, ids: np.ndarray, xy: np.ndarray, radii: np.ndarray) -> bytes:
         ids, radii = np.asarray(ids), np.asarray(radii, float)
@@ -231,9 +234,17 @@ class PeopleMarkersCdr:
             self._compile(ids, radii)
         buf = self._template.copy()
         stamp = np.frombuffer(_STAMP.pack(*sec_nsec(t)), dtype=np.uint8)
-        buf[self._stamps] = np.tile(stamp, len(self._stamps) // 8)
-        buf[self._positions] = np.ascontiguousarray(xy, dtype="<f8").view(np.uint8).ravel()
-        return buf.tobytes()
+        xy_bytes = np.ascontiguousarray(xy, dtype="<f8").view(np.uint8).reshape(-1, 16)
+        if self._layout is not None:  # markers of one size: a table, a column per field
+            start, size, stamps, at = self._layout
+            table = buf[start : start + size * len(xy_bytes)].reshape(-1, size)
+            for offset in stamps:
+                table[:, offset : offset + 8] = stamp
+            table[:, at : at + 16] = xy_bytes
+        else:
+            buf[self._stamps] = np.tile(stamp, len(self._stamps) // 8)
+            buf[self._positions] = xy_bytes.ravel()
+        return buf[: self._length].tobytes()
 
     def _compile(self, ids: np.ndarray, radii: np.ndarray) -> None:
         from agv_mission.bags import ros_messages as rm
@@ -254,7 +265,21 @@ class PeopleMarkersCdr:
         self._stamps = (np.array(stamps, dtype=np.int64)[:, None] + np.arange(8)).ravel()
         self._positions = (np.array(positions, dtype=np.int64)[:, None] + np.arange(16)).ravel()
         self._template = np.frombuffer(data, dtype=np.uint8).copy()
+        self._length = len(data)
         self._ids, self._radii = ids.copy(), radii.copy()
+        self._layout = None
+        first = np.array(stamps[0::2], dtype=np.int64)
+        size = np.diff(first)
+        if n > 1 and (size == size[0]).all():  # the same layout every ``size`` bytes
+            start, size = int(first[0]), int(size[0])
+            others = [stamps[1] - start, positions[0] - start]
+            if (np.array(stamps[1::2]) - first == others[0]).all() and (
+                np.array(positions) - first == others[1]
+            ).all():
+                self._layout = (start, size, (0, others[0]), others[1])
+                # the last marker has no padding after it: the table's last row needs room
+                pad = start + n * size - len(self._template)
+                self._template = np.concatenate([self._template, np.zeros(max(0, pad), np.uint8)])
 
 
 _STAMP = struct.Struct("<iI")

@@ -1,12 +1,13 @@
 """What people cost a run (issue 25): one burger patrolling the built-in 30 x 50 m warehouse
-with 0, 10 and 50 people wandering it, everything a ``agv-mission run`` does included (the
+with 0, 10 and 50 people wandering it, with the default stack (amcl and the MPC: what a
+user's run costs) and with a perfect localiser (``ground_truth``: the robot's own software
+cheaper, so people's share larger), everything a ``agv-mission run`` does included (the
 crowd, their bodies in the physics and the lidar's rays, the bag's ``/people``,
-``people.csv``) over 120 simulated seconds. Thread CPU time per simulated second, the three
+``people.csv``) over 120 simulated seconds. Thread CPU time per simulated second, the six
 runs interleaved and repeated, medians of the per-round ratios to the run without people
-(a CPU speed change between rounds cancels out); the loop alone and the set-up (building
-the crowd: the free space's outline, the routing grid, ORCA's obstacles) apart, and the
-crowd's own step.
-"""
+with the same stack (a CPU speed change between rounds cancels out); the loop alone and the
+set-up (building the crowd: the free space's outline, the routing grid, ORCA's obstacles)
+apart, and the crowd's own step."""
 
 from __future__ import annotations
 
@@ -96,28 +97,35 @@ def _crowd_ms_per_sim_s(count: int) -> float:
 
 
 def run() -> dict[str, float]:
-    whole: dict[int, list[float]] = {n: [] for n in COUNTS}
-    loop: dict[int, list[float]] = {n: [] for n in COUNTS}
-    setup: dict[int, list[float]] = {n: [] for n in COUNTS}
+    """``people.nN.*``: the default stack's runs (amcl and the MPC, what a user's run
+    costs); ``people.ground_truth.nN.*``: the same with a perfect localiser."""
+    runs = [(stack, n) for stack in STACKS for n in COUNTS]
+    whole: dict[tuple[str, int], list[float]] = {k: [] for k in runs}
+    loop: dict[tuple[str, int], list[float]] = {k: [] for k in runs}
+    setup: dict[tuple[str, int], list[float]] = {k: [] for k in runs}
     with tempfile.TemporaryDirectory() as tmp:
         tmp_path = Path(tmp)
-        paths = {n: _mission(tmp_path, n) for n in COUNTS}
-        for n in COUNTS:  # warm the caches (casadi, typestore, matplotlib) first
-            _cpu_per_sim_s(paths[n], tmp_path)
+        paths = {(stack, n): _mission(tmp_path, n, stack) for stack, n in runs}
+        for k in runs:  # warm the caches (casadi, typestore, matplotlib) first
+            _cpu_per_sim_s(paths[k], tmp_path)
         for _ in range(ROUNDS):
-            for n in COUNTS:
-                a, b, c = _cpu_per_sim_s(paths[n], tmp_path)
-                whole[n].append(a)
-                loop[n].append(b)
-                setup[n].append(c)
+            for k in runs:
+                a, b, c = _cpu_per_sim_s(paths[k], tmp_path)
+                whole[k].append(a)
+                loop[k].append(b)
+                setup[k].append(c)
     results: dict[str, float] = {}
-    for n in COUNTS:
-        results[f"people.n{n}.cpu_ms_per_sim_s"] = round(statistics.median(whole[n]) * 1e3, 3)
-        results[f"people.n{n}.loop_ms_per_sim_s"] = round(statistics.median(loop[n]) * 1e3, 3)
-        results[f"people.n{n}.setup_ms"] = round(statistics.median(setup[n]) * 1e3, 1)
+    for stack, n in runs:
+        key = f"people.n{n}" if stack == "default" else f"people.{stack}.n{n}"
+        k = (stack, n)
+        results[f"{key}.cpu_ms_per_sim_s"] = round(statistics.median(whole[k]) * 1e3, 3)
+        results[f"{key}.loop_ms_per_sim_s"] = round(statistics.median(loop[k]) * 1e3, 3)
+        results[f"{key}.setup_ms"] = round(statistics.median(setup[k]) * 1e3, 1)
         if n:
             for name, costs in (("cost_ratio", whole), ("loop_cost_ratio", loop)):
-                ratios = [a / b for a, b in zip(costs[n], costs[0], strict=True)]
-                results[f"people.n{n}.{name}"] = round(statistics.median(ratios), 4)
+                ratios = [a / b for a, b in zip(costs[k], costs[(stack, 0)], strict=True)]
+                results[f"{key}.{name}"] = round(statistics.median(ratios), 4)
+    for n in COUNTS:
+        if n:
             results[f"people.n{n}.crowd_ms_per_sim_s"] = round(_crowd_ms_per_sim_s(n), 3)
     return results

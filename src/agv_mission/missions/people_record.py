@@ -143,6 +143,10 @@ class PeopleRun:
 
     def move(self, dt: float, robots: list[Any]) -> None:
         """Walk everyone one control period among the robots where they truly are."""
+        if not self.crowd.deciding:  # walking on what they decided: no robots needed
+            self.crowd.step(dt)
+            self.world.move_people(self.crowd.positions, self.crowd.active)
+            return
         rows = np.zeros((len(robots), 5))
         for k, r in enumerate(robots):
             pose = r.sim.true_pose()

@@ -268,6 +268,11 @@ class Crowd:
             self._enter(int(i))
 
     @property
+    def deciding(self) -> bool:
+        """Whether the next step decides (ORCA): only then does it look at the robots."""
+        return self._steps_left <= 0
+
+    @property
     def everyone(self) -> bool:
         """Whether everyone has entered the world."""
         return len(self._agents) == len(self.active)

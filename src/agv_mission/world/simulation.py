@@ -33,9 +33,11 @@ WINDOW_CHECK_PERIOD = 0.1  # s of simulated motion between wall-window checks
 WALL = -1  # owner of a wall or pillar geom
 FLOOR = -2  # owner of the floor and anything else static
 PERSON = -3  # owner of person i's geom: PERSON - i
-# m beyond a body's footprint and a person's radius within which people collide with it: a
-# control period's walk (1.5 m/s) and a body's drive (2 m/s) with room to spare
+# m beyond a body's footprint and a person's radius within which people collide with it,
+# looked at every ARM_EVERY moves of the people (control periods): that long's walk (1.5
+# m/s) and a body's drive (2 m/s) with room to spare
 PERSON_REACH = 1.0
+ARM_EVERY = 2
 
 
 @dataclass(frozen=True)
@@ -106,9 +108,10 @@ class SimulatedWorld:
         self._person_geoms = np.array([people[k] for k in sorted(people)], dtype=np.int64)
         self._people_body = -1
         self._person_leaves = self._people_tree()
-        self._people_xy: np.ndarray | None = None  # (x, y, z) of each person's geom
+        self._people_xy = np.zeros((len(self._person_geoms), 3))  # each one's geom's place
         self._people_armed = len(self._person_geoms) > 0  # someone may touch a body
-        self._person_radii = m.geom_size[self._person_geoms, 0].copy()
+        self._moves = 0
+        self._geom_pos, self._bvh_aabb = m.geom_pos, m.bvh_aabb  # views, kept
         for k, (name, base, radius, _) in enumerate(bodies):
             body_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, base)
             joint = int(m.body_jntadr[body_id])
@@ -127,6 +130,8 @@ class SimulatedWorld:
             owner[np.isin(m.geom_bodyid, list(tree))] = k
         self._owner = owner  # geom id -> WALL, FLOOR or a body's index
         self._order = list(self.bodies.values())
+        radii = m.geom_size[self._person_geoms, 0]  # each body's squared reach for people
+        self._person_reach2 = [(radii + b.radius + PERSON_REACH) ** 2 for b in self._order]
         self.walls = Walls(world)
         self.window: WallWindow | None = None
         if uses_wall_slots(world, windows):
@@ -296,29 +301,28 @@ class SimulatedWorld:
         under it, out of every ray's and chassis' way."""
         if not len(self._person_geoms):
             return
-        m = self.model
-        pos = np.empty((len(xy), 3))
+        pos = self._people_xy
         pos[:, 0:2] = xy
         pos[:, 2] = np.where(present, PERSON_HEIGHT / 2, PARKED_Z)
-        m.geom_pos[self._person_geoms] = pos
+        self._geom_pos[self._person_geoms] = pos
         # a cylinder's box is centred on it, in the body's inertial frame (the world's)
-        m.bvh_aabb[self._person_leaves, 0:3] = pos
+        self._bvh_aabb[self._person_leaves, 0:3] = pos
         self._kinematics_at = -math.inf  # the geoms moved: rays need them where they are
-        self._people_xy = pos
-        self._arm_people()
+        self._moves += 1
+        if self._moves % ARM_EVERY == 0 or self._moves == 1:
+            self._arm_people()
 
     def _arm_people(self) -> None:
         """Let only the people near a body collide (the rest could not touch one within a
         control period): with nobody near, the contact search skips the people's body."""
-        if self._people_xy is None or not self._order:
+        if not self._moves or not self._order:
             return
         m, q = self.model, self.data.qpos
         xy = self._people_xy
         near = np.zeros(len(xy), dtype=bool)
-        for b in self._order:
+        for b, reach2 in zip(self._order, self._person_reach2, strict=True):
             dx, dy = xy[:, 0] - q[b.qadr], xy[:, 1] - q[b.qadr + 1]
-            reach = self._person_radii + (b.radius + PERSON_REACH)
-            near |= dx * dx + dy * dy <= reach * reach
+            near |= dx * dx + dy * dy <= reach2
         near &= xy[:, 2] > 0.0
         m.geom_contype[self._person_geoms] = np.where(near, BODY_BIT, 0)
         self._people_armed = bool(near.any())

@@ -38,6 +38,7 @@ SPEED_HEADROOM = 1.2  # a person may briefly walk this much faster than preferre
 ROBOT_MARGIN = 0.3  # m people keep from a machine on top of its footprint (they give AGVs room)
 ROUTE_CELL = 0.25  # m, the routing grid (a person is 0.5 m wide: doors still pass)
 WALL_SIMPLIFY = 0.02  # m, how far the walls' outline may move when simplified
+HULL_SLACK = 0.1  # m an obstacle's convex hull may stand out of it to stand for it (a notch)
 REACHED = 0.5  # m: a waypoint on the way counts as passed
 ARRIVED = 0.3  # m: a goal counts as reached
 # Wander goals: a pool per group drawn from the seed (each costs one routing tree, kept).
@@ -245,7 +246,7 @@ class Crowd:
             # (counter-clockwise) is walked clockwise to keep them in, its holes the other way.
             self._sim.add_obstacle([list(p) for p in polygon.exterior.coords[:-1][::-1]])
             for hole in polygon.interiors:
-                self._sim.add_obstacle([list(p) for p in hole.coords[:-1][::-1]])
+                self._sim.add_obstacle(_obstacle(hole))
         self._sim.process_obstacles()
         self._agent = np.full(n, -1, dtype=np.int64)  # RVO2 index once a person is in
         self._robot_agents: list[int] = []
@@ -586,6 +587,19 @@ class Crowd:
             self._sim.set_agent_velocity(a, (0.0, 0.0))
             self._to[i] = back
             self.velocities[i] = 0.0
+
+
+def _obstacle(hole: shapely.LinearRing) -> list[list[float]]:
+    """A hole of the free space (clockwise) as an RVO2 obstacle (counter-clockwise): its
+    convex hull where that lies within ``HULL_SLACK`` of it. A rack's uprights stand out of
+    its face: 54 corners instead of 4, and ORCA's obstacle tree costs per corner (the
+    warehouse's 972 built in 37 ms against 1 ms; a step of 50 people 30 % dearer)."""
+    hull = shapely.Polygon(hole).convex_hull
+    if isinstance(hull, shapely.Polygon) and (
+        shapely.hausdorff_distance(hull.exterior, hole) <= HULL_SLACK + 1e-9
+    ):
+        return [list(p) for p in shapely.orient_polygons(hull).exterior.coords[:-1]]
+    return [list(p) for p in hole.coords[:-1][::-1]]
 
 
 def _along_loop(points: np.ndarray, fraction: float) -> tuple[np.ndarray, int]:

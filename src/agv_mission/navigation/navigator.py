@@ -103,12 +103,17 @@ def beams_on_people(scan: LaserScan, pose: Pose2D, people: np.ndarray) -> np.nda
     beams = _beams_towards(people, pose, scan.angle_min, inc, n) if inc > 0.0 else None
     if beams is None:
         beams = np.arange(n)
-    r = scan.ranges[beams].astype(float)
+    r = scan.ranges[beams]
+    returned = np.isfinite(r)  # no-return beams (inf or nan) end on nobody
+    beams, r = beams[returned], r[returned].astype(float)
     a = (scan.angle_min + inc * beams) + pose.yaw  # as ``scan.angles`` has them
+    ex, ey = pose.x + r * np.cos(a), pose.y + r * np.sin(a)
+    hit = np.zeros(len(beams), dtype=bool)
+    for x, y, radius in people[:, 0:3].tolist():  # as :func:`on_people`, a person at a time
+        reach = radius + PERSON_TOLERANCE
+        hit |= (ex - x) ** 2 + (ey - y) ** 2 <= reach * reach
     mask = np.zeros(n, dtype=bool)
-    with np.errstate(invalid="ignore"):  # no-return beams: inf or nan, on nobody
-        ends = np.stack([pose.x + r * np.cos(a), pose.y + r * np.sin(a)], axis=1)
-        mask[beams] = on_people(ends, people)
+    mask[beams] = hit
     return mask
 
 

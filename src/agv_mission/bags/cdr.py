@@ -221,6 +221,10 @@ class PeopleMarkersCdr:
         self.frame = frame
         self._ids = np.zeros(0, dtype=np.int64)
         self._radii = np.zeros(0)
+        # the arrays last passed: the same objects again are the same people (the caller's
+        # arrays of who is in the world, never changed in place)
+        self._ids_seen: object = None
+        self._radii_seen: object = None
         self._template = np.zeros(0, dtype=np.uint8)
         self._length = 0  # of the message (the template may run on)
         self._stamps = np.zeros(0, dtype=np.int64)  # every stamp's bytes, in order
@@ -229,9 +233,13 @@ class PeopleMarkersCdr:
         self._layout: tuple[int, int, tuple[int, int], int] | None = None
 
     def pack(self, t: float, ids: np.ndarray, xy: np.ndarray, radii: np.ndarray) -> bytes:
-        ids, radii = np.asarray(ids), np.asarray(radii, float)
-        if not (np.array_equal(ids, self._ids) and np.array_equal(radii, self._radii)):
-            self._compile(ids, radii)
+        """The markers at time ``t`` (``ids`` and ``radii`` passed again as the same array
+        objects are taken to hold the same people: pass new arrays when someone enters)."""
+        if ids is not self._ids_seen or radii is not self._radii_seen:  # else as last time
+            self._ids_seen, self._radii_seen = ids, radii
+            ids, radii = np.asarray(ids), np.asarray(radii, float)
+            if not (np.array_equal(ids, self._ids) and np.array_equal(radii, self._radii)):
+                self._compile(ids, radii)
         buf = self._template.copy()
         stamp = np.frombuffer(_STAMP.pack(*sec_nsec(t)), dtype=np.uint8)
         xy_bytes = np.ascontiguousarray(xy, dtype="<f8").view(np.uint8).reshape(-1, 16)

@@ -111,6 +111,10 @@ class SimulatedWorld:
         self._people_xy = np.zeros((len(self._person_geoms), 3))  # each one's geom's place
         self._people_armed = len(self._person_geoms) > 0  # someone may touch a body
         self._moves = 0
+        self._all_present = False
+        geoms = self._person_geoms  # a slice when in a row (they are: one body's)
+        in_row = len(geoms) and (np.diff(geoms) == 1).all()
+        self._person_slots = slice(int(geoms[0]), int(geoms[-1]) + 1) if in_row else geoms
         self._geom_pos, self._bvh_aabb = m.geom_pos, m.bvh_aabb  # views, kept
         for k, (name, base, radius, _) in enumerate(bodies):
             body_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, base)
@@ -303,8 +307,10 @@ class SimulatedWorld:
             return
         pos = self._people_xy
         pos[:, 0:2] = xy
-        pos[:, 2] = np.where(present, PERSON_HEIGHT / 2, PARKED_Z)
-        self._geom_pos[self._person_geoms] = pos
+        if not self._all_present:  # once everyone is in, they all stand on the floor
+            pos[:, 2] = np.where(present, PERSON_HEIGHT / 2, PARKED_Z)
+            self._all_present = bool(present.all())
+        self._geom_pos[self._person_slots] = pos
         # a cylinder's box is centred on it, in the body's inertial frame (the world's)
         self._bvh_aabb[self._person_leaves, 0:3] = pos
         self._kinematics_at = -math.inf  # the geoms moved: rays need them where they are

@@ -1,12 +1,14 @@
 """What people cost a run (issue 25): one burger patrolling the built-in 30 x 50 m warehouse
-with 0, 10 and 50 people wandering it, everything a ``agv-mission run`` does included (the
+with 0, 10 and 50 people wandering it, with the default stack (amcl and the MPC: what a
+user's run costs) and with a perfect localiser (``ground_truth``: the robot's own software
+cheaper, so people's share larger), everything a ``agv-mission run`` does included (the
 crowd, their bodies in the physics and the lidar's rays, the bag's ``/people``,
-``people.csv``) over 120 simulated seconds. Thread CPU time per simulated second, the three
-runs interleaved and repeated, medians of the per-round ratios to the run without people
-(a CPU speed change between rounds cancels out); the loop alone and the set-up (building
-the crowd: the free space's outline, the routing grid, ORCA's obstacles) apart, and the
-crowd's own step.
-"""
+``people.csv``) over 120 simulated seconds. Thread CPU time per simulated second, the six
+runs interleaved, three rounds of a seed each (who meets the robot where, and so what they
+cost it, varies with the seed), medians of the per-round ratios to the run without people
+with the same stack (a CPU speed change between rounds cancels out); the loop alone and the
+set-up (building the crowd: the free space's outline, the routing grid, ORCA's obstacles)
+apart, and the crowd's own step."""
 
 from __future__ import annotations
 
@@ -24,7 +26,7 @@ from agv_mission.missions.outputs import write_run
 from agv_mission.missions.runner import MissionRun
 from agv_mission.world.crowd import Crowd, PeopleGroup
 
-ROUNDS = 3
+SEEDS = (5, 6, 7)  # one round each
 SIM_SECONDS = 120.0
 COUNTS = (0, 10, 50)
 WHOLE = "[[-14.9, -24.9], [14.9, -24.9], [14.9, 24.9], [-14.9, 24.9]]"
@@ -33,10 +35,8 @@ name: people-bench
 world: warehouse
 robot: burger
 start: {{x: 0.0, y: -22.0, yaw: 1.5708}}
-seed: 5
-stack:
-  localization: {{type: ground_truth}}
-{people}
+seed: {seed}
+{stack}{people}
 tasks:
   - type: patrol
     loops: 20
@@ -47,10 +47,16 @@ limits: {{time: {limit}}}
 """
 
 
-def _mission(tmp: Path, count: int) -> Path:
+# the stack a one-robot run gets by default (amcl, the MPC: mission-format.md), and the same
+# with a perfect localiser (what the robot's software alone costs drops, people's share rises)
+STACKS = {"default": "", "ground_truth": "stack:\n  localization: {type: ground_truth}\n"}
+
+
+def _mission(tmp: Path, count: int, stack: str = "default", seed: int = 5) -> Path:
     people = f"people:\n  - {{count: {count}, area: {WHOLE}}}" if count else ""
-    path = tmp / f"people_{count}.yaml"
-    path.write_text(MISSION.format(people=people, limit=SIM_SECONDS))
+    path = tmp / f"people_{stack}_{count}_{seed}.yaml"
+    text = MISSION.format(stack=STACKS[stack], people=people, limit=SIM_SECONDS, seed=seed)
+    path.write_text(text)
     return path
 
 
@@ -93,28 +99,34 @@ def _crowd_ms_per_sim_s(count: int) -> float:
 
 
 def run() -> dict[str, float]:
-    whole: dict[int, list[float]] = {n: [] for n in COUNTS}
-    loop: dict[int, list[float]] = {n: [] for n in COUNTS}
-    setup: dict[int, list[float]] = {n: [] for n in COUNTS}
+    """``people.nN.*``: the default stack's runs (amcl and the MPC, what a user's run
+    costs); ``people.ground_truth.nN.*``: the same with a perfect localiser."""
+    runs = [(stack, n) for stack in STACKS for n in COUNTS]
+    whole: dict[tuple[str, int], list[float]] = {k: [] for k in runs}
+    loop: dict[tuple[str, int], list[float]] = {k: [] for k in runs}
+    setup: dict[tuple[str, int], list[float]] = {k: [] for k in runs}
     with tempfile.TemporaryDirectory() as tmp:
         tmp_path = Path(tmp)
-        paths = {n: _mission(tmp_path, n) for n in COUNTS}
-        for n in COUNTS:  # warm the caches (casadi, typestore, matplotlib) first
-            _cpu_per_sim_s(paths[n], tmp_path)
-        for _ in range(ROUNDS):
-            for n in COUNTS:
-                a, b, c = _cpu_per_sim_s(paths[n], tmp_path)
-                whole[n].append(a)
-                loop[n].append(b)
-                setup[n].append(c)
+        for k in runs:  # warm the caches (casadi, typestore, matplotlib) first
+            _cpu_per_sim_s(_mission(tmp_path, k[1], k[0]), tmp_path)
+        for seed in SEEDS:  # a round per seed: who meets the robot where varies with it
+            for k in runs:
+                a, b, c = _cpu_per_sim_s(_mission(tmp_path, k[1], k[0], seed), tmp_path)
+                whole[k].append(a)
+                loop[k].append(b)
+                setup[k].append(c)
     results: dict[str, float] = {}
-    for n in COUNTS:
-        results[f"people.n{n}.cpu_ms_per_sim_s"] = round(statistics.median(whole[n]) * 1e3, 3)
-        results[f"people.n{n}.loop_ms_per_sim_s"] = round(statistics.median(loop[n]) * 1e3, 3)
-        results[f"people.n{n}.setup_ms"] = round(statistics.median(setup[n]) * 1e3, 1)
+    for stack, n in runs:
+        key = f"people.n{n}" if stack == "default" else f"people.{stack}.n{n}"
+        k = (stack, n)
+        results[f"{key}.cpu_ms_per_sim_s"] = round(statistics.median(whole[k]) * 1e3, 3)
+        results[f"{key}.loop_ms_per_sim_s"] = round(statistics.median(loop[k]) * 1e3, 3)
+        results[f"{key}.setup_ms"] = round(statistics.median(setup[k]) * 1e3, 1)
         if n:
             for name, costs in (("cost_ratio", whole), ("loop_cost_ratio", loop)):
-                ratios = [a / b for a, b in zip(costs[n], costs[0], strict=True)]
-                results[f"people.n{n}.{name}"] = round(statistics.median(ratios), 4)
+                ratios = [a / b for a, b in zip(costs[k], costs[(stack, 0)], strict=True)]
+                results[f"{key}.{name}"] = round(statistics.median(ratios), 4)
+    for n in COUNTS:
+        if n:
             results[f"people.n{n}.crowd_ms_per_sim_s"] = round(_crowd_ms_per_sim_s(n), 3)
     return results

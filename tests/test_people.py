@@ -183,6 +183,95 @@ def test_people_enter_at_their_start_time() -> None:
     assert not np.isnan(walked[12:]).any()
 
 
+def test_people_decide_every_other_step_and_walk_every_step() -> None:
+    """ORCA decides every DECISION_PERIOD (two control steps): in between, a person walks
+    the decided velocity, a step at a time, and the robots are not looked at."""
+    crowd = Crowd(
+        [PeopleGroup(count=1, behaviour="route", route=((-8.0, 0.0), (8.0, 0.0)))],
+        WAREHOUSE.map,
+        np.random.default_rng(0),
+    )
+    assert crowd.decision_period == pytest.approx(0.2) and crowd.deciding
+    walked = _walk(crowd, 41)[:, 0, :]  # decisions at steps 1, 3, 5, ...
+    moves = np.diff(walked, axis=0)  # moves[2k + 1], moves[2k + 2]: one decision's steps
+    assert (np.hypot(*moves[4:].T) > 0.05).all()  # walks every control step
+    assert np.allclose(moves[1:-1:2], moves[2::2])  # the same velocity within a decision
+    assert not np.allclose(moves[1:-1:2], moves[3::2])  # decisions differ (the noise at least)
+    crowd.step(0.1)  # the second step of a decision needs no robots
+    assert crowd.deciding
+
+
+def test_a_notched_obstacle_goes_to_orca_as_its_hull_an_l_shape_does_not() -> None:
+    """A rack with uprights standing 0.1 m out of its face reaches ORCA as its hull (4
+    corners, not one per notch); an L-shaped piece of furniture keeps its shape."""
+    import shapely
+
+    from agv_mission.world.crowd import _obstacle
+
+    rack = shapely.Polygon(
+        [(0, 0), (0.1, 0), (0.1, 0.1), (1.0, 0.1), (1.0, 0.0), (1.1, 0), (1.1, 3), (0, 3)]
+    )
+    hole = shapely.orient_polygons(rack).exterior.reverse()  # a hole of the free space: CW
+    corners = _obstacle(hole)
+    assert len(corners) == 4
+    assert shapely.LinearRing(corners).is_ccw and shapely.Polygon(corners).equals(rack.convex_hull)
+    ell = shapely.Polygon([(0, 0), (2, 0), (2, 0.5), (0.5, 0.5), (0.5, 2), (0, 2)])
+    corners = _obstacle(shapely.orient_polygons(ell).exterior.reverse())
+    assert len(corners) == 6 and shapely.LinearRing(corners).is_ccw
+    assert shapely.Polygon(corners).equals(ell)
+
+
+def test_beams_on_people_are_every_beam_ending_on_someone() -> None:
+    """The lidar filter looks only at the beams pointing at someone: the same beams as
+    checking every beam's end against every person, on scans of every kind."""
+    from agv_mission.geometry import Pose2D
+    from agv_mission.messages import LaserScan
+    from agv_mission.navigation.navigator import PERSON_TOLERANCE, beams_on_people
+
+    rng = np.random.default_rng(3)
+    hits = 0
+    for _ in range(300):
+        n = int(rng.choice([90, 360, 1000]))
+        fov = float(rng.choice([2 * np.pi, 1.5 * np.pi]))
+        angle_min = float(rng.choice([0.0, -fov / 2]))
+        pose = Pose2D(*rng.uniform(-2, 2, 2), rng.uniform(-7, 7))
+        count = int(rng.integers(1, 5))
+        people = np.column_stack(
+            [rng.uniform(-5, 5, (count, 2)), rng.uniform(0.1, 0.4, count), np.zeros((count, 2))]
+        )
+        angles = angle_min + fov / n * np.arange(n) + pose.yaw
+        ranges = rng.uniform(0.2, 4.0, n)
+        for x, y, r, *_ in people:  # beams that see someone end on their body
+            d = np.hypot(x - pose.x, y - pose.y)
+            off = np.abs(
+                (angles - np.arctan2(y - pose.y, x - pose.x) + np.pi) % (2 * np.pi) - np.pi
+            )
+            ranges[off < np.arcsin(min(1.0, r / d))] = d - 0.8 * r
+        ranges[(ranges > 3.5) | (rng.random(n) < 0.1)] = np.inf  # nothing within range
+        ranges[rng.random(n) < 0.05] = np.nan
+        scan = LaserScan(
+            ranges=ranges.astype(np.float32),
+            angle_min=angle_min,
+            angle_increment=fov / n,
+            range_min=0.1,
+            range_max=3.5,
+            time=0.0,
+        )
+        r64 = scan.ranges.astype(float)
+        with np.errstate(invalid="ignore"):
+            ex = pose.x + r64 * np.cos(scan.angles + pose.yaw)
+            ey = pose.y + r64 * np.sin(scan.angles + pose.yaw)
+            d2 = (ex[:, None] - people[:, 0]) ** 2 + (ey[:, None] - people[:, 1]) ** 2
+            expected = (d2 <= (people[:, 2] + PERSON_TOLERANCE) ** 2).any(axis=1)
+        mask = beams_on_people(scan, pose, people)
+        if mask is None:  # nobody within the lidar's reach
+            assert not expected.any()
+            continue
+        assert np.array_equal(mask, expected)
+        hits += int(mask.sum())
+    assert hits > 1000
+
+
 # --- schema ------------------------------------------------------------------------------
 
 PEOPLE = TypeAdapter(People)

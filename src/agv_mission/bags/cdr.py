@@ -214,28 +214,45 @@ class PeopleMarkersCdr:
     """``/people`` (:func:`~agv_mission.bags.ros_messages.people_markers`) without message
     objects: the array of the people in the world is serialised once by rosbags with a
     marked stamp and position per marker, and each step writes its numbers where the
-    marks were (a new template when someone enters). 50 markers as message objects cost
-    milliseconds a step; this costs microseconds."""
+    marks were, all at once (a new template when someone enters). 50 markers as message
+    objects cost milliseconds a step; this costs microseconds."""
 
     def __init__(self, frame: str = "map") -> None:
         self.frame = frame
-        self._key: tuple[Any, ...] | None = None
-        self._template = b""
-        self._stamps: list[int] = []
-        self._positions: list[int] = []
+        self._ids = np.zeros(0, dtype=np.int64)
+        self._radii = np.zeros(0)
+        # the arrays last passed: the same objects again are the same people (the caller's
+        # arrays of who is in the world, never changed in place)
+        self._ids_seen: object = None
+        self._radii_seen: object = None
+        self._template = np.zeros(0, dtype=np.uint8)
+        self._length = 0  # of the message (the template may run on)
+        self._stamps = np.zeros(0, dtype=np.int64)  # every stamp's bytes, in order
+        self._positions = np.zeros(0, dtype=np.int64)  # every marker's x and y bytes
+        # (first marker's start, marker size, its stamps' offsets, its x's offset)
+        self._layout: tuple[int, int, tuple[int, int], int] | None = None
 
     def pack(self, t: float, ids: np.ndarray, xy: np.ndarray, radii: np.ndarray) -> bytes:
-        key = (tuple(np.asarray(ids).tolist()), tuple(np.asarray(radii, float).tolist()))
-        if key != self._key:
-            self._compile(np.asarray(ids), np.asarray(radii, float))
-            self._key = key
-        buf = bytearray(self._template)
-        stamp = _STAMP.pack(*sec_nsec(t))
-        for offset in self._stamps:
-            buf[offset : offset + 8] = stamp
-        for offset, (x, y) in zip(self._positions, np.asarray(xy, float).tolist(), strict=True):
-            _XY.pack_into(buf, offset, x, y)
-        return bytes(buf)
+        """The markers at time ``t`` (``ids`` and ``radii`` passed again as the same array
+        objects are taken to hold the same people: pass new arrays when someone enters)."""
+        if ids is not self._ids_seen or radii is not self._radii_seen:  # else as last time
+            self._ids_seen, self._radii_seen = ids, radii
+            ids, radii = np.asarray(ids), np.asarray(radii, float)
+            if not (np.array_equal(ids, self._ids) and np.array_equal(radii, self._radii)):
+                self._compile(ids, radii)
+        buf = self._template.copy()
+        stamp = np.frombuffer(_STAMP.pack(*sec_nsec(t)), dtype=np.uint8)
+        xy_bytes = np.ascontiguousarray(xy, dtype="<f8").view(np.uint8).reshape(-1, 16)
+        if self._layout is not None:  # markers of one size: a table, a column per field
+            start, size, stamps, at = self._layout
+            table = buf[start : start + size * len(xy_bytes)].reshape(-1, size)
+            for offset in stamps:
+                table[:, offset : offset + 8] = stamp
+            table[:, at : at + 16] = xy_bytes
+        else:
+            buf[self._stamps] = np.tile(stamp, len(self._stamps) // 8)
+            buf[self._positions] = xy_bytes.ravel()
+        return buf[: self._length].tobytes()
 
     def _compile(self, ids: np.ndarray, radii: np.ndarray) -> None:
         from agv_mission.bags import ros_messages as rm
@@ -248,12 +265,29 @@ class PeopleMarkersCdr:
             m.texture.header.stamp.sec = 1_100_000_000 + i
             m.texture.header.stamp.nanosec = 777_000_000 + i
         data = rm.serialize(msg, rm.MARKER_ARRAY)
-        self._stamps, self._positions = [], []
+        stamps, positions = [], []
         for i in range(n):
             for sec in (1_000_000_000 + i, 1_100_000_000 + i):
-                self._stamps.append(_find_once(data, _STAMP.pack(sec, 777_000_000 + i)))
-            self._positions.append(_find_once(data, _XY.pack(*marks[i])))
-        self._template = data
+                stamps.append(_find_once(data, _STAMP.pack(sec, 777_000_000 + i)))
+            positions.append(_find_once(data, _XY.pack(*marks[i])))
+        self._stamps = (np.array(stamps, dtype=np.int64)[:, None] + np.arange(8)).ravel()
+        self._positions = (np.array(positions, dtype=np.int64)[:, None] + np.arange(16)).ravel()
+        self._template = np.frombuffer(data, dtype=np.uint8).copy()
+        self._length = len(data)
+        self._ids, self._radii = ids.copy(), radii.copy()
+        self._layout = None
+        first = np.array(stamps[0::2], dtype=np.int64)
+        size = np.diff(first)
+        if n > 1 and (size == size[0]).all():  # the same layout every ``size`` bytes
+            start, size = int(first[0]), int(size[0])
+            others = [stamps[1] - start, positions[0] - start]
+            if (np.array(stamps[1::2]) - first == others[0]).all() and (
+                np.array(positions) - first == others[1]
+            ).all():
+                self._layout = (start, size, (0, others[0]), others[1])
+                # the last marker has no padding after it: the table's last row needs room
+                pad = start + n * size - len(self._template)
+                self._template = np.concatenate([self._template, np.zeros(max(0, pad), np.uint8)])
 
 
 _STAMP = struct.Struct("<iI")

@@ -17,6 +17,7 @@ from agv_mission.world.crowd import Crowd, PeopleGroup
 from agv_mission.world.simulation import SimulatedWorld
 
 PEOPLE_COLUMNS = ("t", "id", "x", "y")
+CSV_CHUNK = 20_000  # rows formatted at once
 
 
 class PeopleTrack:
@@ -29,9 +30,12 @@ class PeopleTrack:
         self._t: list[float] = []
         self._xy: list[np.ndarray] = []
 
-    def add(self, t: float, positions: np.ndarray, active: np.ndarray) -> None:
-        row = np.full((len(self.ids), 2), np.nan, dtype=np.float32)
-        row[active] = positions[active]
+    def add(self, t: float, positions: np.ndarray, active: np.ndarray, everyone: bool) -> None:
+        if everyone:
+            row = positions.astype(np.float32)
+        else:
+            row = np.full((len(self.ids), 2), np.nan, dtype=np.float32)
+            row[active] = positions[active]
         self._t.append(float(t))
         self._xy.append(row)
 
@@ -57,8 +61,10 @@ def write_people_csv(path: Path, t: np.ndarray, xy: np.ndarray, ids: np.ndarray)
     table = np.column_stack([times, who, flat])[present]
     buf = io.StringIO()
     buf.write(",".join(PEOPLE_COLUMNS) + "\n")
-    if table.size:
-        np.savetxt(buf, table, delimiter=",", fmt=["%.6f", "%d", "%.4f", "%.4f"])
+    # np.savetxt's text, a chunk of rows at a time through one format (3x faster)
+    for start in range(0, len(table), CSV_CHUNK):
+        chunk = table[start : start + CSV_CHUNK]
+        buf.write(("%.6f,%d,%.4f,%.4f\n" * len(chunk)) % tuple(chunk.ravel().tolist()))
     atomic_write_text(path, buf.getvalue())
 
 
@@ -104,14 +110,20 @@ class PeopleRun:
         vy) (a perfect tracker, as HuNavSim's robots get), and note who touches whom (each
         new touch an event of that robot)."""
         crowd = self.crowd
-        self.track.add(now, crowd.positions, crowd.active)
-        present = crowd.active
-        rows = np.column_stack(
-            [crowd.positions[present], crowd.radii[present], crowd.velocities[present]]
-        )
+        everyone = crowd.everyone
+        self.track.add(now, crowd.positions, crowd.active, everyone)
+        rows = np.empty((len(crowd.ids), 5))
+        rows[:, 0:2] = crowd.positions
+        rows[:, 2] = crowd.radii
+        rows[:, 3:5] = crowd.velocities
+        if not everyone:
+            rows = rows[crowd.active]
         for r in robots:
             r.handle.state.people = rows
         touching = self.world.person_contacts()
+        if not touching and not self.touching:
+            self.touches.append([])
+            return
         for k, person in sorted(touching - self.touching):
             p = robots[k].sim.true_pose()
             robots[k].handle.log(
@@ -121,13 +133,20 @@ class PeopleRun:
         self.touches.append(sorted(touching))
 
     def present(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(ids, xy, radii) of the people in the world now (copies: observers keep them)."""
+        """(ids, xy, radii) of the people in the world now (observers keep them: the
+        positions a copy; ids and radii, which never change, may be the crowd's own)."""
         crowd = self.crowd
+        if crowd.everyone:  # the ids and radii do not change: the same arrays each step
+            return crowd.ids, crowd.positions.copy(), crowd.radii
         on = crowd.active
-        return crowd.ids[on].copy(), crowd.positions[on].copy(), crowd.radii[on].copy()
+        return crowd.ids[on], crowd.positions[on], crowd.radii[on]
 
     def move(self, dt: float, robots: list[Any]) -> None:
         """Walk everyone one control period among the robots where they truly are."""
+        if not self.crowd.deciding:  # walking on what they decided: no robots needed
+            self.crowd.step(dt)
+            self.world.move_people(self.crowd.positions, self.crowd.active)
+            return
         rows = np.zeros((len(robots), 5))
         for k, r in enumerate(robots):
             pose = r.sim.true_pose()

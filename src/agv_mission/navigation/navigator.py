@@ -88,18 +88,54 @@ def on_people(points: np.ndarray, people: np.ndarray) -> np.ndarray:
 
 def beams_on_people(scan: LaserScan, pose: Pose2D, people: np.ndarray) -> np.ndarray | None:
     """Which beams of ``scan`` seen from ``pose`` end on a tracked person (rows x, y,
-    radius, ...); None when no person is within the lidar's reach."""
+    radius, ...); None when no person is within the lidar's reach. Only the beams pointing
+    at someone (each person's angular window) are looked at: a few of the scan's hundreds."""
     if not len(people):
         return None
+    people = np.asarray(people, dtype=float)
     reach = scan.range_max + people[:, 2] + PERSON_TOLERANCE
-    people = people[np.hypot(people[:, 0] - pose.x, people[:, 1] - pose.y) <= reach]
-    if not len(people):
+    dx, dy = people[:, 0] - pose.x, people[:, 1] - pose.y
+    near = np.hypot(dx, dy) <= reach
+    if not near.any():
         return None
-    r = scan.ranges.astype(float)
-    a = scan.angles + pose.yaw
-    with np.errstate(invalid="ignore"):  # no-return beams: inf or nan, on nobody
-        ends = np.stack([pose.x + r * np.cos(a), pose.y + r * np.sin(a)], axis=1)
-        return on_people(ends, people)
+    people = people[near]
+    n, inc = len(scan.ranges), scan.angle_increment
+    beams = _beams_towards(people, pose, scan.angle_min, inc, n) if inc > 0.0 else None
+    if beams is None:
+        beams = np.arange(n)
+    r = scan.ranges[beams]
+    returned = np.isfinite(r)  # no-return beams (inf or nan) end on nobody
+    beams, r = beams[returned], r[returned].astype(float)
+    a = (scan.angle_min + inc * beams) + pose.yaw  # as ``scan.angles`` has them
+    ex, ey = pose.x + r * np.cos(a), pose.y + r * np.sin(a)
+    hit = np.zeros(len(beams), dtype=bool)
+    for x, y, radius in people[:, 0:3].tolist():  # as :func:`on_people`, a person at a time
+        reach = radius + PERSON_TOLERANCE
+        hit |= (ex - x) ** 2 + (ey - y) ** 2 <= reach * reach
+    mask = np.zeros(n, dtype=bool)
+    mask[beams] = hit
+    return mask
+
+
+def _beams_towards(
+    people: np.ndarray, pose: Pose2D, angle_min: float, inc: float, n: int
+) -> np.ndarray | None:
+    """Indices of the beams whose direction passes within a person's reach (a beam more
+    either side); None when the lidar is inside someone's reach (every beam may)."""
+    towards = np.zeros(n, dtype=bool)
+    for x, y, radius in people[:, 0:3].tolist():
+        dx, dy, reach = x - pose.x, y - pose.y, radius + PERSON_TOLERANCE
+        dist = math.hypot(dx, dy)
+        if dist <= reach:
+            return None
+        half = math.asin(reach / dist)
+        centre = (math.atan2(dy, dx) - pose.yaw - angle_min) % math.tau
+        for shift in (-math.tau, 0.0, math.tau):  # a window across the scan's start
+            lo = max(0, math.floor((centre + shift - half) / inc) - 1)
+            hi = min(n - 1, math.ceil((centre + shift + half) / inc) + 1)
+            if lo <= hi:
+                towards[lo : hi + 1] = True
+    return np.flatnonzero(towards)
 
 
 class Navigator:
@@ -414,7 +450,12 @@ class Navigator:
             d = np.hypot(near[:, 0] - state.estimate.x, near[:, 1] - state.estimate.y)
             near = near[d <= self.config.obstacle_range]
         if moving is not None and len(moving) and len(near):
-            near = near[~on_people(near, moving)]
+            # only someone within the range can have points on them
+            gap = np.hypot(moving[:, 0] - state.estimate.x, moving[:, 1] - state.estimate.y)
+            gap -= moving[:, 2] + PERSON_TOLERANCE
+            within = moving[gap <= self.config.obstacle_range + 0.01]
+            if len(within):
+                near = near[~on_people(near, within)]
         if self.zones is not None:
             edge = self.zones.boundary_near(
                 state.estimate.x, state.estimate.y, self.config.obstacle_range

@@ -49,6 +49,7 @@ BODY_BIT = 4  # chassis against chassis and people
 
 PERSON_HEIGHT = 1.7  # m: a standing adult, as the bag's /people markers draw them
 PERSON_PREFIX = "person_"
+PEOPLE_BODY = "people"
 PARKED_Z = -5.0  # m: where a person not yet in the world waits, under the floor
 
 GRAVITY = 9.81
@@ -202,16 +203,25 @@ def world_spec(
 
 
 def add_people(spec: mujoco.MjSpec, radii: list[float]) -> None:
-    """One mocap body per person (``person_<i>``, moved by the crowd every control step):
-    a cylinder in :data:`SEEN_GROUP` the lidars see, colliding with chassis only (people
-    do not collide with each other or with walls: the pedestrian model keeps them apart),
-    parked under the floor until the person enters."""
+    """People: one mocap body (``people``) holding a cylinder per person (``person_<i>``,
+    moved by the crowd every control step: :meth:`SimulatedWorld.move_people`), in
+    :data:`SEEN_GROUP` the lidars see, colliding with chassis only (people do not collide
+    with each other or with walls: the pedestrian model keeps them apart), parked under the
+    floor until the person enters. One body and not one each: MuJoCo's step and its ray
+    casts cost per body, whatever its groups (measured: 50 bodies added 4.3 us to a 5.6 us
+    step and 114 us to a 360-beam cast of 58 us; 50 geoms of one body 1.4 and 17 us)."""
+    if not radii:
+        return
+    body = spec.worldbody.add_body(name=PEOPLE_BODY, mocap=True)
+    # its frame the world's, inertial frame included (the frame of its bounding-volume tree)
+    body.explicitinertial = True
+    body.mass, body.inertia = 1.0, [1.0, 1.0, 1.0]
+    body.ipos, body.iquat = [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]
     for i, r in enumerate(radii):
-        body = spec.worldbody.add_body(name=f"{PERSON_PREFIX}{i}", mocap=True)
-        body.pos = [0.0, 0.0, PARKED_Z]
         body.add_geom(
             name=f"{PERSON_PREFIX}{i}",
             type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+            pos=[0.0, 0.0, PARKED_Z],
             size=sig6(r, PERSON_HEIGHT / 2, 0.0),
             group=SEEN_GROUP,
             contype=BODY_BIT,

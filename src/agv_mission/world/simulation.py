@@ -17,6 +17,7 @@ import numpy as np
 from agv_mission.geometry import Pose2D, wrap_angle, yaw_from_quaternion
 from agv_mission.maps.worlds import World
 from agv_mission.world.model import (
+    BODY_BIT,
     PARKED_Z,
     PERSON_HEIGHT,
     PERSON_PREFIX,
@@ -32,6 +33,11 @@ WINDOW_CHECK_PERIOD = 0.1  # s of simulated motion between wall-window checks
 WALL = -1  # owner of a wall or pillar geom
 FLOOR = -2  # owner of the floor and anything else static
 PERSON = -3  # owner of person i's geom: PERSON - i
+# m beyond a body's footprint and a person's radius within which people collide with it,
+# looked at every ARM_EVERY moves of the people (control periods): that long's walk (1.5
+# m/s) and a body's drive (2 m/s) with room to spare
+PERSON_REACH = 1.0
+ARM_EVERY = 2
 
 
 @dataclass(frozen=True)
@@ -90,7 +96,7 @@ class SimulatedWorld:
         self.data = mujoco.MjData(model)
         self.bodies: dict[str, Body] = {}
         owner = np.full(m.ngeom, FLOOR, dtype=np.int64)
-        mocap: list[int] = []
+        people: dict[int, int] = {}
         for i in range(m.ngeom):
             name = m.geom(i).name
             if name.startswith(("wall", "pillar")):
@@ -98,8 +104,18 @@ class SimulatedWorld:
             elif name.startswith(PERSON_PREFIX):
                 k = int(name[len(PERSON_PREFIX) :])
                 owner[i] = PERSON - k
-                mocap.append(int(m.body_mocapid[m.geom_bodyid[i]]))
-        self._person_mocap = np.array(mocap, dtype=np.int64)  # person i's mocap slot
+                people[k] = i
+        self._person_geoms = np.array([people[k] for k in sorted(people)], dtype=np.int64)
+        self._people_body = -1
+        self._person_leaves = self._people_tree()
+        self._people_xy = np.zeros((len(self._person_geoms), 3))  # each one's geom's place
+        self._people_armed = len(self._person_geoms) > 0  # someone may touch a body
+        self._moves = 0
+        self._all_present = False
+        geoms = self._person_geoms  # a slice when in a row (they are: one body's)
+        in_row = len(geoms) and (np.diff(geoms) == 1).all()
+        self._person_slots = slice(int(geoms[0]), int(geoms[-1]) + 1) if in_row else geoms
+        self._geom_pos, self._bvh_aabb = m.geom_pos, m.bvh_aabb  # views, kept
         for k, (name, base, radius, _) in enumerate(bodies):
             body_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, base)
             joint = int(m.body_jntadr[body_id])
@@ -118,6 +134,8 @@ class SimulatedWorld:
             owner[np.isin(m.geom_bodyid, list(tree))] = k
         self._owner = owner  # geom id -> WALL, FLOOR or a body's index
         self._order = list(self.bodies.values())
+        radii = m.geom_size[self._person_geoms, 0]  # each body's squared reach for people
+        self._person_reach2 = [(radii + b.radius + PERSON_REACH) ** 2 for b in self._order]
         self.walls = Walls(world)
         self.window: WallWindow | None = None
         if uses_wall_slots(world, windows):
@@ -127,6 +145,23 @@ class SimulatedWorld:
         self._mirrored: np.ndarray | None = None  # a mirror's touching geom pairs
         self._rays = np.zeros(6, dtype=np.uint8)
         self._rays[[WALL_GROUP, SEEN_GROUP]] = 1
+
+    def _people_tree(self) -> np.ndarray:
+        """The people body's bounding-volume tree leaf of each person's geom. MuJoCo keeps
+        the tree it compiled and culls contacts with it: its inner boxes are made to cover
+        everything once, the leaves follow the people (:meth:`move_people`)."""
+        m = self.model
+        if not len(self._person_geoms):
+            return np.zeros(0, dtype=np.int64)
+        body = self._people_body = int(m.geom_bodyid[self._person_geoms[0]])
+        if m.body_ipos[body].any() or not np.array_equal(m.body_iquat[body], (1, 0, 0, 0)):
+            raise ValueError("the people's body must have the world's frame as its own")
+        adr, num = int(m.body_bvhadr[body]), int(m.body_bvhnum[body])
+        nodes = np.arange(adr, adr + num)
+        geom = m.bvh_nodeid[adr : adr + num]
+        m.bvh_aabb[nodes[geom < 0]] = (0.0, 0.0, 0.0, 1e9, 1e9, 1e9)
+        leaf = {int(g): int(n) for g, n in zip(geom, nodes, strict=True) if g >= 0}
+        return np.array([leaf[int(g)] for g in self._person_geoms], dtype=np.int64)
 
     def _descends(self, body: int, root: int) -> bool:
         while body > 0:
@@ -218,6 +253,7 @@ class SimulatedWorld:
         self.place(body, pose)
         self.data.qvel[list(body.dofs)] = 0.0
         self.data.qacc_warmstart[:] = 0.0
+        self._arm_people()
         self.start()
 
     # ----------------------------------------------------------------- sensing
@@ -275,7 +311,7 @@ class SimulatedWorld:
     def person_contacts(self) -> set[tuple[int, int]]:
         """Every (body index, person index) pair touching now."""
         touching = self._touching()
-        if not len(touching) or not len(self._person_mocap):
+        if not len(touching) or not self._people_armed:
             return set()
         found = set()
         for a, b in self._owner[touching].tolist():
@@ -289,17 +325,41 @@ class SimulatedWorld:
     @property
     def people(self) -> int:
         """How many people bodies the model holds."""
-        return len(self._person_mocap)
+        return len(self._person_geoms)
 
     def move_people(self, xy: np.ndarray, present: np.ndarray) -> None:
         """Put the people where the crowd says (standing on the floor), those not present
         under it, out of every ray's and chassis' way."""
-        slots = self._person_mocap
-        pos = self.data.mocap_pos
-        pos[slots, 0] = xy[:, 0]
-        pos[slots, 1] = xy[:, 1]
-        pos[slots, 2] = np.where(present, PERSON_HEIGHT / 2, PARKED_Z)
+        if not len(self._person_geoms):
+            return
+        pos = self._people_xy
+        pos[:, 0:2] = xy
+        if not self._all_present:  # once everyone is in, they all stand on the floor
+            pos[:, 2] = np.where(present, PERSON_HEIGHT / 2, PARKED_Z)
+            self._all_present = bool(present.all())
+        self._geom_pos[self._person_slots] = pos
+        # a cylinder's box is centred on it, in the body's inertial frame (the world's)
+        self._bvh_aabb[self._person_leaves, 0:3] = pos
         self._kinematics_at = -math.inf  # the geoms moved: rays need them where they are
+        self._moves += 1
+        if self._moves % ARM_EVERY == 0 or self._moves == 1:
+            self._arm_people()
+
+    def _arm_people(self) -> None:
+        """Let only the people near a body collide (the rest could not touch one within a
+        control period): with nobody near, the contact search skips the people's body."""
+        if not self._moves or not self._order:
+            return
+        m, q = self.model, self.data.qpos
+        xy = self._people_xy
+        near = np.zeros(len(xy), dtype=bool)
+        for b, reach2 in zip(self._order, self._person_reach2, strict=True):
+            dx, dy = xy[:, 0] - q[b.qadr], xy[:, 1] - q[b.qadr + 1]
+            near |= dx * dx + dy * dy <= reach2
+        near &= xy[:, 2] > 0.0
+        m.geom_contype[self._person_geoms] = np.where(near, BODY_BIT, 0)
+        self._people_armed = bool(near.any())
+        m.body_contype[self._people_body] = BODY_BIT if self._people_armed else 0
 
     def wall_contacts(self, body: Body) -> int:
         """Contact points between ``body`` and walls/pillars."""

@@ -231,3 +231,37 @@ def test_a_failure_in_a_robot_process_ends_the_run_with_status_error(tmp_path: P
     assert sorted(result["robots"]) == ["east", "south", "west"]
     assert 2.5 <= result["sim_time"] <= 3.5
     assert os.path.exists(only_run(out) / "trajectory.csv")
+
+
+def test_on_a_terminal_the_progress_bar_leaves_the_robots_their_processes(
+    tmp_path: Path,
+) -> None:
+    """A live progress bar that redrew itself from a thread of its own made every run
+    started from a terminal decide in one process (forking only from a process with no
+    other thread): the bar is redrawn by the run's progress calls instead."""
+    import pty
+
+    mission = tmp_path / "short.yaml"
+    mission.write_text(LONG.replace("time: 600.0", "time: 6.0"))
+    out = tmp_path / "out"
+    master, slave = pty.openpty()
+    proc = subprocess.Popen(
+        [*EXE, "run", str(mission), "--output", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=slave,
+    )
+    os.close(slave)
+    shown = b""
+    while True:  # drain the terminal (the bar's redraws) until the run closes it
+        try:
+            chunk = os.read(master, 4096)
+        except OSError:
+            break
+        if not chunk:
+            break
+        shown += chunk
+    os.close(master)
+    assert proc.wait(timeout=300) in (0, 1)
+    assert b"sim s" in shown  # the bar was on the terminal
+    result = json.loads((only_run(out) / "result.json").read_text())
+    assert result["metrics"]["processes"] == 2

@@ -83,8 +83,10 @@ def failure(title: str, message: str, code: int = 2) -> typer.Exit:
     return typer.Exit(code)
 
 
-def progress_bar(counter: str) -> Progress:
-    """A progress bar on stderr, shown only on a terminal and gone when it ends."""
+def progress_bar(counter: str, auto_refresh: bool = True) -> Progress:
+    """A progress bar on stderr, shown only on a terminal and gone when it ends. Without
+    ``auto_refresh`` it runs no thread of its own (the caller refreshes it): a run whose
+    robots decide in forked processes forks only from a process with no other thread."""
     return Progress(
         TextColumn("[progress.description]{task.description}"),
         BarColumn(),
@@ -93,6 +95,7 @@ def progress_bar(counter: str) -> Progress:
         console=err,
         transient=True,
         disable=not err.is_terminal,
+        auto_refresh=auto_refresh,
     )
 
 

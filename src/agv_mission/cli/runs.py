@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import math
+import time
 from pathlib import Path
 from typing import Annotated
 
@@ -22,6 +24,8 @@ from agv_mission.cli.console import (
 )
 from agv_mission.cli.startup import quiet_until_started, started_as_program
 from agv_mission.missions.errors import MissionError
+
+REFRESH_PERIOD = 0.1  # s of wall time between redraws of the progress bar
 
 
 def run(
@@ -75,14 +79,19 @@ def run(
             f"{len(loaded.tree.task_types()) if loaded.tree else 0} task(s) in "
             f"{loaded.world.name} with {loaded.robot.name}, seed {loaded.mission.seed}"
         )
-    with progress_bar("{task.completed:.1f}/{task.total:.0f} sim s") as bar:
+    with progress_bar("{task.completed:.1f}/{task.total:.0f} sim s", auto_refresh=False) as bar:
         job = bar.add_task("running", total=loaded.mission.limits.time)
+        shown = [-math.inf]
+
+        def progress(t: float, _total: float) -> None:
+            bar.update(job, completed=t)
+            now = time.monotonic()
+            if now - shown[0] >= REFRESH_PERIOD:  # refreshed here: the bar runs no thread
+                bar.refresh()
+                shown[0] = now
+
         record = run_mission(
-            loaded,
-            run_dir,
-            progress=lambda t, total: bar.update(job, completed=t),
-            control=stopper,
-            observers=observers,
+            loaded, run_dir, progress=progress, control=stopper, observers=observers
         )
     stopper.phase = "writing"  # a signal now is too late to stop anything: outputs first
     try:

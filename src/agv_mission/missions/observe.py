@@ -157,5 +157,6 @@ class RunControl(Protocol):
         """Called before every control step; may block (pause), may call
         ``run.cancel(reason)`` (the run ends ``aborted``), may set a robot's
         ``handle.remote_command = (v, w)`` for a teleop task (``run.handle``: the first
-        robot's)."""
+        robot's). A control class with ``only_cancels = True`` promises it never commands
+        a robot, so a fleet's robots may decide in other processes (missions.team)."""
         ...

@@ -96,15 +96,17 @@ def team_size(setting: Processes, robots: int, control: object | None) -> int:
 
 
 #: The observers' work (the bag's messages of every robot), which the first process does
-#: while the others decide, in robots' decisions per robot (bench_fleet: ~0.7 ms of a
-#: robot's ~11 ms per simulated second).
+#: while the others decide, in robots' decisions per robot: bench_fleet's 10-robot
+#: mission with a BagWriter spent 0.21 s of CPU in on_step over 30 simulated seconds
+#: (0.7 ms per robot per simulated second) against ~11 ms per robot deciding.
 OBSERVED_EXTRA = 0.065
 
 
 def shares(robots: int, size: int, first_extra: float = 0.0) -> list[range]:
     """Contiguous blocks of robot indices for ``size`` processes, even in work when the
     first process also carries ``first_extra`` of a robot's decisions per robot while
-    the others decide (its physics and fleet layer run while they wait: not counted)."""
+    the others decide (the fleet layer and the physics run between the steps' decisions,
+    while the others wait: not counted)."""
     total = robots * (1.0 + first_extra)
     first = min(robots, max(0, round(total / size - robots * first_extra - 1e-9)))
     rest, others = robots - first, max(size - 1, 1)
@@ -113,7 +115,8 @@ def shares(robots: int, size: int, first_extra: float = 0.0) -> list[range]:
 
 
 class TeamError(RuntimeError):
-    """A robot process failed (its traceback is the message) or ended unexpectedly."""
+    """A robot process failed (the message names the exception and where) or ended
+    unexpectedly."""
 
 
 class _Finish(Exception):

@@ -226,10 +226,10 @@ def test_beams_on_people_are_every_beam_ending_on_someone() -> None:
     checking every beam's end against every person, on scans of every kind."""
     from agv_mission.geometry import Pose2D
     from agv_mission.messages import LaserScan
-    from agv_mission.navigation.navigator import PERSON_TOLERANCE, beams_on_people
+    from agv_mission.navigation.navigator import PERSON_TOLERANCE, STILL_TIME, beams_on_people
 
     rng = np.random.default_rng(3)
-    hits = 0
+    hits = passing_hits = 0
     for _ in range(300):
         n = int(rng.choice([90, 360, 1000]))
         fov = float(rng.choice([2 * np.pi, 1.5 * np.pi]))
@@ -237,7 +237,12 @@ def test_beams_on_people_are_every_beam_ending_on_someone() -> None:
         pose = Pose2D(*rng.uniform(-2, 2, 2), rng.uniform(-7, 7))
         count = int(rng.integers(1, 5))
         people = np.column_stack(
-            [rng.uniform(-5, 5, (count, 2)), rng.uniform(0.1, 0.4, count), np.zeros((count, 2))]
+            [
+                rng.uniform(-5, 5, (count, 2)),
+                rng.uniform(0.1, 0.4, count),
+                rng.uniform(-1.0, 1.0, (count, 2)),
+                rng.choice([0.0, 0.4, 1.5], count),  # s standing: some have stood long
+            ]
         )
         angles = angle_min + fov / n * np.arange(n) + pose.yaw
         ranges = rng.uniform(0.2, 4.0, n)
@@ -262,14 +267,19 @@ def test_beams_on_people_are_every_beam_ending_on_someone() -> None:
             ex = pose.x + r64 * np.cos(scan.angles + pose.yaw)
             ey = pose.y + r64 * np.sin(scan.angles + pose.yaw)
             d2 = (ex[:, None] - people[:, 0]) ** 2 + (ey[:, None] - people[:, 1]) ** 2
-            expected = (d2 <= (people[:, 2] + PERSON_TOLERANCE) ** 2).any(axis=1)
-        mask = beams_on_people(scan, pose, people)
-        if mask is None:  # nobody within the lidar's reach
+            ends_on = d2 <= (people[:, 2] + PERSON_TOLERANCE) ** 2
+            expected = ends_on.any(axis=1)
+            expected_passing = ends_on[:, people[:, 5] < STILL_TIME].any(axis=1)
+        on = beams_on_people(scan, pose, people)
+        if on is None:  # nobody within the lidar's reach
             assert not expected.any()
             continue
+        mask, passing = on
         assert np.array_equal(mask, expected)
+        assert np.array_equal(passing, expected_passing)
+        passing_hits += int(passing.sum())
         hits += int(mask.sum())
-    assert hits > 1000
+    assert hits > 1000 and 0 < passing_hits < hits
 
 
 # --- schema ------------------------------------------------------------------------------
@@ -565,6 +575,36 @@ def test_a_run_with_people_writes_people_csv_the_bag_topic_and_metrics(tmp_path:
     assert marker.pose.position.x == pytest.approx(final[final[:, 1] == 0][0, 2], abs=0.2)
 
 
+def test_the_tracker_counts_how_long_each_person_has_stood(tmp_path: Path) -> None:
+    """``RobotState.people``'s last column: seconds a person has been slower than
+    STANDING, 0 while they walk (someone whose route is one place stands; a wanderer walks)."""
+    from agv_mission.missions.runner import MissionRun
+    from agv_mission.navigation.state import STANDING, TRACKED_PERSON
+
+    mission = tmp_path / "still.yaml"
+    mission.write_text(
+        "name: still\nworld: small_house\nstart: {x: -1.5, y: -2.0, yaw: 0.0}\nseed: 2\n"
+        "stack:\n  localization: {type: ground_truth}\n"
+        "people:\n  - {count: 1, behaviour: route, route: [{x: 3.5, y: 3.0}, {x: 3.5, y: 3.0}]}\n"
+        "  - {count: 1, area: livingroom}\n"
+        "tasks:\n  - {type: wander, duration: 4.0}\nlimits: {time: 4.0}\n"
+    )
+    run = MissionRun(load_mission(mission), tmp_path, [])
+    run.notify_start()
+    seen = []
+    while run.step():
+        rows = run.robots[0].handle.state.people
+        assert rows.shape == (2, len(TRACKED_PERSON))
+        seen.append(rows.copy())
+    rows = np.array(seen)
+    speed = np.hypot(rows[:, :, 3], rows[:, :, 4])
+    assert (rows[speed >= STANDING, 5] == 0.0).all()  # walking: not still
+    assert (rows[:, 1, 5] == 0.0).mean() > 0.8  # the wanderer walks nearly all the time
+    stander = rows[:, 0, 5]
+    assert stander[-1] == pytest.approx(stander[10] + (len(stander) - 11) * 0.1)  # counts up
+    assert stander[-1] > 3.0
+
+
 def test_the_dashboards_stream_carries_the_people(tmp_path: Path) -> None:
     """The run's stream (live and ``stream.jsonl``, which the run page replays) has
     ``people`` messages: ``[id, x, y, radius]`` of everyone present."""
@@ -638,9 +678,12 @@ def test_the_mpc_keeps_off_where_a_crossing_person_will_be() -> None:
     assert closest(predicted_with) > 0.05  # keeps off their predicted place (0.13 m)
 
 
-def test_the_costmap_leaves_out_people_walking_by_but_not_people_standing() -> None:
+def test_the_costmap_leaves_out_people_passing_by_but_not_people_standing() -> None:
+    """Someone walking by, or pausing less than STILL_TIME, is the controller's to avoid;
+    someone who has stood that long is in the way like a box."""
     from agv_mission.geometry import Pose2D
     from agv_mission.messages import LaserScan
+    from agv_mission.navigation.navigator import STILL_TIME
 
     navigator = sample_context().handle.navigator  # a real navigator in a 4 m room
     pose = Pose2D(1.0, 1.0, 0.0)
@@ -650,14 +693,18 @@ def test_the_costmap_leaves_out_people_walking_by_but_not_people_standing() -> N
         ranges[0] = ahead
         return LaserScan(ranges, 0.0, 2 * np.pi / 360, 0.12, 3.5, 0.0)
 
-    walking = np.array([[2.25, 1.0, 0.25, 0.0, 1.0]])  # x, y, radius, vx, vy
+    walking = np.array([[2.25, 1.0, 0.25, 0.0, 1.0, 0.0]])  # x, y, radius, vx, vy, still
     navigator.observe(pose, scan(1.0), walking)  # the return at (2, 1) is on them
     assert not navigator.layer.marks.any()
+    pausing = walking.copy()
+    pausing[0, 3:] = (0.0, 0.0, STILL_TIME - 0.1)
+    navigator.observe(pose, scan(1.0), pausing)
+    assert not navigator.layer.marks.any()
     standing = walking.copy()
-    standing[0, 3:] = 0.0
+    standing[0, 3:] = (0.0, 0.0, STILL_TIME)
     navigator.observe(pose, scan(1.0), standing)
     assert navigator.layer.marks.sum() == 1  # someone standing is in the way like a box
-    navigator.observe(pose, scan(np.inf), np.zeros((0, 5)))  # gone: the beam clears it
+    navigator.observe(pose, scan(np.inf), np.zeros((0, 6)))  # gone: the beam clears it
     assert not navigator.layer.marks.any()
     navigator.observe(pose, scan(1.0), None)  # not a person: marked as before
     assert navigator.layer.marks.sum() == 1

@@ -12,7 +12,7 @@ from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.rooms import Room
 from agv_mission.missions.schema.people import PeopleSpec
 from agv_mission.missions.yaml_lines import FieldPath
-from agv_mission.world.crowd import PeopleGroup, RouteGrid, clearance
+from agv_mission.world.crowd import PeopleGroup, RouteGrid, clearance, route_grid
 
 Report = Callable[[FieldPath, str], None]
 
@@ -26,12 +26,9 @@ def resolve_people(
         return []
     room_left = clearance(grid)
     groups: list[PeopleGroup] = []
-    grids: dict[float, RouteGrid] = {}
     for i, spec in enumerate(specs):
         where: FieldPath = ("people", i)
-        router = grids.get(spec.radius)
-        if router is None:
-            router = grids[spec.radius] = RouteGrid(grid, room_left, spec.radius)
+        router = route_grid(grid, spec.radius)
         ok = True
         area: tuple[tuple[float, float], ...] = ()
         route: tuple[tuple[float, float], ...] = ()

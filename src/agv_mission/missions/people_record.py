@@ -13,6 +13,7 @@ import numpy as np
 
 from agv_mission.atomic import atomic_write_text
 from agv_mission.missions.people_metrics import people_metrics
+from agv_mission.navigation.state import STANDING, TRACKED_PERSON
 from agv_mission.world.crowd import Crowd, PeopleGroup
 from agv_mission.world.simulation import SimulatedWorld
 
@@ -103,19 +104,23 @@ class PeopleRun:
         self.track = PeopleTrack(self.crowd.ids, self.crowd.radii)
         self.touching: set[tuple[int, int]] = set()
         self.touches: list[list[tuple[int, int]]] = []  # (robot, person) pairs at each step
+        self._still_since = np.full(len(self.crowd.ids), np.inf)  # when each stopped
         world.move_people(self.crowd.positions, self.crowd.active)
 
     def sense(self, now: float, robots: list[Any]) -> None:
         """Before the robots decide: hand each the people present, rows (x, y, radius, vx,
-        vy) (a perfect tracker, as HuNavSim's robots get), and note who touches whom (each
-        new touch an event of that robot)."""
+        vy, still) (a perfect tracker, as HuNavSim's robots get; still: seconds standing),
+        and note who touches whom (each new touch an event of that robot)."""
         crowd = self.crowd
         everyone = crowd.everyone
         self.track.add(now, crowd.positions, crowd.active, everyone)
-        rows = np.empty((len(crowd.ids), 5))
+        rows = np.empty((len(crowd.ids), len(TRACKED_PERSON)))
         rows[:, 0:2] = crowd.positions
         rows[:, 2] = crowd.radii
-        rows[:, 3:5] = crowd.velocities
+        rows[:, 3:5] = v = crowd.velocities
+        standing = v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] < STANDING * STANDING
+        self._still_since = np.where(standing, np.minimum(self._still_since, now), np.inf)
+        rows[:, 5] = np.where(standing, now - self._still_since, 0.0)
         if not everyone:
             rows = rows[crowd.active]
         for r in robots:

@@ -65,6 +65,19 @@ class RobotReport:
     traffic_path: np.ndarray | None
 
 
+def _without(
+    scan: LaserScan | None, on_people: tuple[np.ndarray, np.ndarray] | None
+) -> LaserScan | None:
+    """The scan for the localiser (or SLAM) without the returns on tracked people (as a
+    laser filter would take them out): a crowd is not on the map and would pull the
+    estimate towards whatever it hides, or be mapped."""
+    if scan is None or on_people is None or not on_people[0].any():
+        return scan
+    ranges = scan.ranges.copy()
+    ranges[on_people[0]] = np.inf
+    return dataclasses.replace(scan, ranges=ranges)
+
+
 def _vw(cmd: Any) -> tuple[float, float]:
     return float(cmd.v), float(cmd.w)
 
@@ -302,8 +315,17 @@ class RobotRun:
         scan into the obstacle layer, at the sensing's own time; the estimate then."""
         handle, scan, t = self.handle, sensing.scan, sensing.time
         mapping = self.mapper.session
+        people = handle.state.people
+        # the beams on tracked people, seen from the last estimate (once for the localiser
+        # and the obstacle layer: the robot moves centimetres in a step, the filters take
+        # returns within PERSON_TOLERANCE of a body)
+        on_people = (
+            None
+            if scan is None or not len(people)
+            else beams_on_people(scan, self.estimate, np.asarray(people, dtype=float))
+        )
         if mapping is not None:
-            estimate = mapping.update(sensing.odom, self._without_people(scan), sensing.truth, t)
+            estimate = mapping.update(sensing.odom, _without(scan, on_people), sensing.truth, t)
             costmap = mapping.refreshed_costmap(t)
             if costmap is not None:
                 self.navigator.layer = ObstacleLayer(costmap, costmap.config.obstacles)
@@ -317,27 +339,16 @@ class RobotRun:
                 scan if scan is None else self.navigator.without_fleet(handle.state.estimate, scan)
             )
             estimate = self.localizer.update(
-                sensing.odom, self._without_people(seen), sensing.truth, t
+                sensing.odom, _without(seen, on_people), sensing.truth, t
             )
         if scan is not None:
             handle.state.scan = scan
             handle.state.obstacles = scan.points(estimate)
-            self.navigator.observe(estimate, scan, handle.state.people)
+            if on_people is None:
+                self.navigator.observe(estimate, scan)
+            else:  # returns on people walking by are not obstacles of the costmap
+                self.navigator.observe(estimate, scan, ignore=on_people[1])
         return estimate
-
-    def _without_people(self, scan: LaserScan | None) -> LaserScan | None:
-        """The scan for the localiser (or SLAM) without the returns on tracked people (as a
-        laser filter would take them out): a crowd is not on the map and would pull the
-        estimate towards whatever it hides, or be mapped. Seen from the last estimate."""
-        people = self.handle.state.people
-        if scan is None or not len(people):
-            return scan
-        mask = beams_on_people(scan, self.estimate, np.asarray(people, dtype=float))
-        if mask is None or not mask.any():
-            return scan
-        ranges = scan.ranges.copy()
-        ranges[mask] = np.inf
-        return dataclasses.replace(scan, ranges=ranges)
 
     def _estimate_covariance(self) -> tuple[np.ndarray | None, LocalizerDiagnostics | None]:
         """The current estimate's covariance: SLAM's while mapping, else the localiser's

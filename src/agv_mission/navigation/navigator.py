@@ -73,7 +73,11 @@ BODY_SLACK = 0.1
 
 
 PERSON_TOLERANCE = 0.15  # m beyond a tracked person's radius: a lidar return is theirs
-STANDING = 0.2  # m/s: a person slower than this stands (the costmap marks them)
+# s a person must have stood before the costmap marks them: someone pausing a moment (to
+# let the robot by, held up in a crowd) is left to the controller, which predicts them, so
+# the plan is not thrown around by it (the obstacle layer marked 40-85 stops a 120 s
+# warehouse patrol among 50 people when they counted at once)
+STILL_TIME = 1.0
 PEOPLE_REACH = 5.0  # m beyond the obstacle range: people farther cannot matter this horizon
 
 
@@ -86,16 +90,20 @@ def on_people(points: np.ndarray, people: np.ndarray) -> np.ndarray:
     return (d2 <= (reach * reach)[None, :]).any(axis=1)
 
 
-def beams_on_people(scan: LaserScan, pose: Pose2D, people: np.ndarray) -> np.ndarray | None:
+def beams_on_people(
+    scan: LaserScan, pose: Pose2D, people: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
     """Which beams of ``scan`` seen from ``pose`` end on a tracked person (rows x, y,
-    radius, ...); None when no person is within the lidar's reach. Only the beams pointing
-    at someone (each person's angular window) are looked at: a few of the scan's hundreds."""
+    radius, vx, vy, still), and which on one passing by (not standing for
+    :data:`STILL_TIME` yet): the localiser leaves out the first, the obstacle layer the
+    second. None when no person is within the lidar's reach. Only the beams pointing at
+    someone (each person's angular window) are looked at: a few of the scan's hundreds."""
     if not len(people):
         return None
     people = np.asarray(people, dtype=float)
     reach = scan.range_max + people[:, 2] + PERSON_TOLERANCE
     dx, dy = people[:, 0] - pose.x, people[:, 1] - pose.y
-    near = np.hypot(dx, dy) <= reach
+    near = dx * dx + dy * dy <= reach * reach
     if not near.any():
         return None
     people = people[near]
@@ -109,12 +117,18 @@ def beams_on_people(scan: LaserScan, pose: Pose2D, people: np.ndarray) -> np.nda
     a = (scan.angle_min + inc * beams) + pose.yaw  # as ``scan.angles`` has them
     ex, ey = pose.x + r * np.cos(a), pose.y + r * np.sin(a)
     hit = np.zeros(len(beams), dtype=bool)
-    for x, y, radius in people[:, 0:3].tolist():  # as :func:`on_people`, a person at a time
-        reach = radius + PERSON_TOLERANCE
-        hit |= (ex - x) ** 2 + (ey - y) ** 2 <= reach * reach
-    mask = np.zeros(n, dtype=bool)
-    mask[beams] = hit
-    return mask
+    hit_passing = np.zeros(len(beams), dtype=bool)
+    passing = (people[:, 5] < STILL_TIME).tolist()
+    for (x, y, radius), passes in zip(people[:, 0:3].tolist(), passing, strict=True):
+        reach = radius + PERSON_TOLERANCE  # as :func:`on_people`, a person at a time
+        theirs = (ex - x) ** 2 + (ey - y) ** 2 <= reach * reach
+        hit |= theirs
+        if passes:
+            hit_passing |= theirs
+    on, on_passing = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+    on[beams] = hit
+    on_passing[beams] = hit_passing
+    return on, on_passing
 
 
 def _beams_towards(
@@ -282,19 +296,25 @@ class Navigator:
         """The static map with the obstacles the lidar marked."""
         return self.layer.costmap
 
-    def observe(self, pose: Pose2D, scan: LaserScan, people: np.ndarray | None = None) -> None:
+    def observe(
+        self,
+        pose: Pose2D,
+        scan: LaserScan,
+        people: np.ndarray | None = None,
+        ignore: np.ndarray | None = None,
+    ) -> None:
         """Mark and clear unmapped obstacles from a new scan (other robots' returns
-        left out: they clear, but do not mark). Returns on tracked ``people`` walking by
-        (rows x, y, radius, vx, vy) are not obstacles of the costmap either (the controller
-        avoids them where they go; a plan does not swerve round where they were), though
-        their beams still clear what they pass; someone standing still is an obstacle like
-        any other until they walk on."""
+        left out: they clear, but do not mark). Returns on tracked ``people`` passing by
+        (rows x, y, radius, vx, vy, still) are not obstacles of the costmap either (the
+        controller avoids them where they go; a plan does not swerve round where they
+        were), though their beams still clear what they pass; someone who has stood for
+        :data:`STILL_TIME` is an obstacle like any other until they walk on. A caller that
+        already knows the beams on people passing by passes them as ``ignore``
+        (:func:`beams_on_people`)."""
         scan = self.without_fleet(pose, scan)
-        ignore = None
-        if people is not None and len(people):
-            people = np.asarray(people, dtype=float)
-            walking = people[np.hypot(people[:, 3], people[:, 4]) >= STANDING]
-            ignore = beams_on_people(scan, pose, walking)
+        if ignore is None and people is not None and len(people):
+            on = beams_on_people(scan, pose, people)
+            ignore = None if on is None else on[1]
         if ignore is None:
             self.layer.update(pose, scan)
         else:

@@ -9,6 +9,11 @@ import numpy as np
 from agv_mission.geometry import Pose2D, wrap_angles
 from agv_mission.messages import LaserScan
 
+#: The columns of a tracked person's row (:attr:`RobotState.people`).
+TRACKED_PERSON = ("x", "y", "radius", "vx", "vy", "still")
+#: m/s: a tracked person slower than this stands (their ``still`` counts up).
+STANDING = 0.2
+
 
 @dataclass
 class RobotState:
@@ -19,9 +24,10 @@ class RobotState:
     velocity: tuple[float, float] = (0.0, 0.0)  # the last command (v, w)
     scan: LaserScan | None = None  # the newest scan
     obstacles: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # map-frame points
-    # People the robot tracks, rows (x, y, radius, vx, vy) in the map frame, refreshed by
-    # the run each step (a perfect tracker, as HuNavSim gives its robots); none: (0, 5).
-    people: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
+    # People the robot tracks, rows (x, y, radius, vx, vy, still) in the map frame (still:
+    # seconds the person has stood, slower than STANDING; 0 while walking), refreshed by the
+    # run each step (a perfect tracker, as HuNavSim gives its robots); none: (0, 6).
+    people: np.ndarray = field(default_factory=lambda: np.zeros((0, len(TRACKED_PERSON))))
 
     def path_ahead_blocked(self, length: float, half_width: float, margin: float) -> bool:
         """Whether a scan point lies in the corridor the robot would sweep driving

@@ -157,26 +157,25 @@ class MpcController(PathFollower):
         who cannot come within ``ring`` in the horizon are left out)."""
         if moving is None or not len(moving):
             return None
-        rows = np.asarray(moving, dtype=float).reshape(-1, 5)
-        dx, dy = rows[:, 0] - pose.x, rows[:, 1] - pose.y
-        horizon = len(stage_xy) * self.config.dt
-        speed = np.hypot(rows[:, 3], rows[:, 4])
-        reach = ring + rows[:, 2] + self.config.people_margin + speed * horizon
-        rows = rows[dx * dx + dy * dy <= reach * reach]
-        if not len(rows):
+        rows = np.asarray(moving, dtype=float)  # x, y, radius, vx, vy, ...
+        cfg = self.config
+        # points as complex numbers: half the array operations of x and y apart
+        z = rows[:, 0] - pose.x + 1j * (rows[:, 1] - pose.y)
+        vel = rows[:, 3] + 1j * rows[:, 4]
+        n = len(stage_xy)
+        grow = rows[:, 2] + cfg.people_margin
+        keep = np.abs(z) <= ring + grow + np.abs(vel) * (n * cfg.dt)
+        if not keep.any():
             return None
-        dx, dy = rows[:, 0] - pose.x, rows[:, 1] - pose.y
-        px, py = c * dx + s * dy, c * dy - s * dx  # now, robot frame
-        vx, vy = c * rows[:, 3] + s * rows[:, 4], c * rows[:, 4] - s * rows[:, 3]
-        t = (np.arange(len(stage_xy)) + 1.0)[:, None] * self.config.dt  # stages 1..N-1
-        cx, cy = px[None, :] + vx[None, :] * t, py[None, :] + vy[None, :] * t
-        ex, ey = stage_xy[:, 0, None] - cx, stage_xy[:, 1, None] - cy
-        dist = np.maximum(np.hypot(ex, ey), 1e-6)
-        grow = (rows[:, 2] + self.config.people_margin)[None, :]
+        turn = complex(c, -s)  # map frame to the robot's
+        z, vel, grow = z[keep] * turn, vel[keep] * turn, grow[keep]
+        centre = z + vel * (np.arange(1.0, n + 1.0)[:, None] * cfg.dt)  # stages 1..N-1
+        gap = (stage_xy[:, 0] + 1j * stage_xy[:, 1])[:, None] - centre
+        dist = np.maximum(np.abs(gap), 1e-6)
         # a stage guessed inside the grown body: a point between it and the centre, so the
         # constraint still pushes the stage out
-        out = np.where(dist > grow, grow, 0.5 * dist) / dist
-        return cx + ex * out, cy + ey * out
+        point = centre + gap * (np.where(dist > grow, grow, 0.5 * dist) / dist)
+        return point.real, point.imag
 
     @property
     def last_stats(self) -> dict:

@@ -12,6 +12,7 @@ shortest path on a coarse grid of the free space, pulled taut where the walls al
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -20,11 +21,13 @@ import contourpy
 import numpy as np
 import pyrvo
 import shapely
-from scipy.ndimage import distance_transform_edt, label
+from scipy.ndimage import label
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order
 
+from agv_mission.maps.distance import obstacle_distance
 from agv_mission.maps.grid import FREE, OccupancyGrid
+from agv_mission.maps.map_cache import map_table
 
 # ORCA's parameters for walking people: RVO2's examples use 1.5-2 s horizons and about 10
 # neighbours; a person notices others a few metres away. Measured (50 people, warehouse):
@@ -106,16 +109,47 @@ def _polygons(geometry: shapely.Geometry) -> list[shapely.Polygon]:
 
 
 def clearance(grid: OccupancyGrid) -> np.ndarray:
-    """Each cell's distance to the nearest cell that is not free (walls, unknown), m."""
-    free = grid.data == FREE
-    return distance_transform_edt(free) * grid.resolution - grid.resolution / 2
+    """Each cell's distance to the nearest cell that is not free (walls, unknown), m, from
+    the costmap's own distance transform (one per map, shared: tens of ms on a warehouse).
+    Read-only."""
+    res = grid.resolution
+
+    def build() -> np.ndarray:
+        room = obstacle_distance(grid.data != FREE, res) - np.float32(res / 2)
+        room.setflags(write=False)
+        return room
+
+    return map_table("person_clearance", grid, (), build)
+
+
+def route_grid(grid: OccupancyGrid, radius: float) -> RouteGrid:
+    """The :class:`RouteGrid` of ``grid`` for people of ``radius``, one per map and size,
+    shared by the mission's checks and its runs (its ways to goals are kept)."""
+    return map_table("route_grid", grid, float(radius), lambda: RouteGrid(grid, radius))
+
+
+def wall_obstacles(grid: OccupancyGrid) -> list[list[list[float]]]:
+    """The map's walls as RVO2 obstacles (vertex lists, one per outline), one per map:
+    the free space's outline walked clockwise keeps people in, its holes (as their hulls
+    where close enough) keep them out."""
+
+    def build() -> list[list[list[float]]]:
+        out = []
+        for polygon in _polygons(shapely.orient_polygons(free_space(grid))):
+            # RVO2 keeps agents outside counter-clockwise polygons: the free space's outline
+            # (counter-clockwise) is walked clockwise to keep them in, its holes the other way.
+            out.append([list(p) for p in polygon.exterior.coords[:-1][::-1]])
+            out.extend(_obstacle(hole) for hole in polygon.interiors)
+        return out
+
+    return map_table("wall_obstacles", grid, (WALL_SIMPLIFY, HULL_SLACK), build)
 
 
 class RouteGrid:
     """Ways on a coarse grid of the cells a person of ``radius`` fits in; one tree per goal
-    cell, computed when first asked for and kept."""
+    cell, computed when first asked for and kept (:func:`route_grid`: one per map)."""
 
-    def __init__(self, grid: OccupancyGrid, clearance: np.ndarray, radius: float):
+    def __init__(self, grid: OccupancyGrid, radius: float):
         self.cell = max(ROUTE_CELL, grid.resolution)
         x0, x1, y0, y1 = grid.extent
         self.origin = np.array([x0, y0])
@@ -127,10 +161,10 @@ class RouteGrid:
         rows, cols = grid.world_to_cell(centres)
         inside = grid.in_bounds(rows, cols)
         room = np.zeros(len(centres))
-        room[inside] = clearance[rows[inside], cols[inside]]
+        room[inside] = clearance(grid)[rows[inside], cols[inside]]
         self.walkable = (room >= radius + grid.resolution).reshape(self.shape)
         self.graph = self._graph()
-        self._trees: dict[int, np.ndarray] = {}
+        self._trees: dict[int, list[int]] = {}  # goal: predecessors
         self._labels: np.ndarray | None = None
 
     @property
@@ -186,16 +220,16 @@ class RouteGrid:
         if tree is None:
             # fewest cells (8-connected, a breadth-first tree: 18x faster than Dijkstra's on
             # the warehouse, 0.6 against 11 ms a goal); pulling the way taut straightens it
-            _, tree = breadth_first_order(
+            _, order = breadth_first_order(
                 self.graph, goal, directed=False, return_predecessors=True
             )
-            self._trees[goal] = tree
+            tree = self._trees[goal] = order.tolist()  # walked a node at a time: a list
         if start != goal and tree[start] < 0:
             return None
         nodes = [start]
         node = start
         while node != goal:
-            node = int(tree[node])
+            node = tree[node]
             nodes.append(node)
         rows, cols = np.divmod(np.array(nodes), self.shape[1])
         return self.centres(np.stack([rows, cols], axis=1))
@@ -225,28 +259,21 @@ class Crowd:
         self.velocities = np.zeros((n, 2))
         self.active = np.zeros(n, dtype=bool)
         self._grid = grid
-        self._clearance = clearance(grid)
         # the clearance with a border of -inf: a lookup needs no bounds check (off the map)
-        self._room = np.pad(self._clearance, 1, constant_values=-np.inf)
+        self._room = np.pad(clearance(grid), 1, constant_values=-np.inf)
         self._stall = STALL_SPEED * self.speeds  # each person's held-up speed
         self._dt = time_step
         self.decision_period = decision_period
         self._from = np.zeros((n, 2))  # where everyone was at the last decision...
         self._to = np.zeros((n, 2))  # ... and will be at the next
         self._steps = self._steps_left = 0  # steps of the decided walk, still to walk
-        routers: dict[float, RouteGrid] = {}
-        for radius in sorted({g.radius for g in groups}):
-            routers[radius] = RouteGrid(grid, self._clearance, radius)
+        routers = {r: route_grid(grid, r) for r in sorted({g.radius for g in groups})}
         self._routers = [routers[s.radius] for s in specs]  # each person's (by its size)
         self._sim = pyrvo.RVOSimulator(
             time_step, NEIGHBOR_DIST, MAX_NEIGHBORS, TIME_HORIZON, TIME_HORIZON_OBST, 0.25, 1.5
         )
-        for polygon in _polygons(shapely.orient_polygons(free_space(grid))):
-            # RVO2 keeps agents outside counter-clockwise polygons: the free space's outline
-            # (counter-clockwise) is walked clockwise to keep them in, its holes the other way.
-            self._sim.add_obstacle([list(p) for p in polygon.exterior.coords[:-1][::-1]])
-            for hole in polygon.interiors:
-                self._sim.add_obstacle(_obstacle(hole))
+        for vertices in wall_obstacles(grid):
+            self._sim.add_obstacle(vertices)
         self._sim.process_obstacles()
         self._agent = np.full(n, -1, dtype=np.int64)  # RVO2 index once a person is in
         self._robot_agents: list[int] = []
@@ -378,19 +405,21 @@ class Crowd:
 
     def _taut(self, start: np.ndarray, path: np.ndarray, radius: float) -> np.ndarray:
         """The path's corners only: from each kept point, the farthest point in sight."""
+        visible = self._sim.query_visibility
+        points = path.tolist()
         kept = []
-        here = start
+        here = start.tolist()
         i = 0
-        last = len(path) - 1
+        last = len(points) - 1
         while i < last:
             j = last
             step = max(1, (last - i) // 8)
-            while j > i + 1 and not self._sim.query_visibility(list(here), list(path[j]), radius):
+            while j > i + 1 and not visible(here, points[j], radius):
                 j = max(i + 1, j - step)
-            kept.append(path[j])
-            here, i = path[j], j
+            kept.append(points[j])
+            here, i = points[j], j
         if not kept:
-            kept.append(path[-1])
+            kept.append(points[-1])
         return np.array(kept)
 
     def step(self, dt: float, robots: np.ndarray | None = None) -> None:
@@ -525,20 +554,22 @@ class Crowd:
     def _advance(self, i: int) -> None:
         """Pass reached waypoints; a reached goal draws the next; one lost from sight
         (pushed aside by a crowd or a robot) is planned anew."""
-        pos = self.positions[i]
+        x, y = self.positions[i].tolist()
         points = self._waypoints[i]
         k = int(self._waypoint[i])
         last = len(points) - 1
-        while k < last and np.hypot(*(points[k] - pos)) < REACHED:
+        px, py = points[k].tolist()
+        while k < last and math.hypot(px - x, py - y) < REACHED:
             k += 1
+            px, py = points[k].tolist()
         self._set_waypoint(i, k)
-        if k == last and np.hypot(*(points[k] - pos)) < ARRIVED:
+        if k == last and math.hypot(px - x, py - y) < ARRIVED:
             self._next_goal(i)
             return
         if self.time >= self._next_check[i]:
             self._next_check[i] = self.time + REPLAN_PERIOD
             radius = float(self.radii[i]) * 0.9
-            if not self._sim.query_visibility(list(pos), list(points[k]), radius):
+            if not self._sim.query_visibility([x, y], [px, py], radius):
                 goals = self._goals[i]
                 if goals:
                     self._route_to(i, goals[int(self._goal_index[i])])

@@ -14,6 +14,7 @@ import pytest
 from py_trees.common import Status
 from pydantic import TypeAdapter, ValidationError
 
+from agv_mission.bags.writer import PEOPLE_PERIOD
 from agv_mission.behaviors.check import sample_context
 from agv_mission.behaviors.conditions import PersonNear
 from agv_mission.maps.builtin_worlds import small_house, warehouse
@@ -23,7 +24,7 @@ from agv_mission.missions.people import resolve_people
 from agv_mission.missions.people_metrics import people_metrics
 from agv_mission.missions.runner import run_mission
 from agv_mission.missions.schema.people import MAX_PEOPLE, People, PeopleSpec
-from agv_mission.world.crowd import Crowd, PeopleGroup, clearance
+from agv_mission.world.crowd import DECISION_PERIOD, Crowd, PeopleGroup, clearance
 
 WAREHOUSE = warehouse()
 HOUSE = small_house()
@@ -566,13 +567,20 @@ def test_a_run_with_people_writes_people_csv_the_bag_topic_and_metrics(tmp_path:
     with AnyReader([run_dir / "bag"]) as reader:
         conns = [c for c in reader.connections if c.topic == "/people"]
         assert conns and conns[0].msgtype == "visualization_msgs/msg/MarkerArray"
-        last = None
-        for conn, _, raw in reader.messages(connections=conns):
-            last = reader.deserialize(raw, conn.msgtype)
-    assert last is not None and sorted(m.id for m in last.markers) == [0, 1, 2, 3]
-    final = table[table[:, 0] == table[:, 0].max()]
-    marker = next(m for m in last.markers if m.id == 0)
-    assert marker.pose.position.x == pytest.approx(final[final[:, 1] == 0][0, 2], abs=0.2)
+        arrays = [
+            (stamp * 1e-9, reader.deserialize(raw, conn.msgtype))
+            for conn, stamp, raw in reader.messages(connections=conns)
+        ]
+    # every PEOPLE_PERIOD (the people's decisions: they walk straight in between), each
+    # marker where people.csv has them then
+    times = np.array([t for t, _ in arrays])
+    assert np.allclose(np.diff(times), PEOPLE_PERIOD) and PEOPLE_PERIOD == DECISION_PERIOD
+    assert sorted(m.id for m in arrays[-1][1].markers) == [0, 1, 2, 3]
+    for t, markers in arrays:
+        at = table[np.isclose(table[:, 0], t)]
+        for m in markers.markers:
+            row = at[at[:, 1] == m.id][0]
+            assert (m.pose.position.x, m.pose.position.y) == pytest.approx(row[2:4], abs=1e-3)
 
 
 def test_the_tracker_counts_how_long_each_person_has_stood(tmp_path: Path) -> None:

@@ -240,7 +240,7 @@ class PeopleMarkersCdr:
             ids, radii = np.asarray(ids), np.asarray(radii, float)
             if not (np.array_equal(ids, self._ids) and np.array_equal(radii, self._radii)):
                 self._compile(ids, radii)
-        buf = self._template.copy()
+        buf = self._template  # every stamp and position is written anew: no copy
         stamp = np.frombuffer(_STAMP.pack(*sec_nsec(t)), dtype=np.uint8)
         xy_bytes = np.ascontiguousarray(xy, dtype="<f8").view(np.uint8).reshape(-1, 16)
         if self._layout is not None:  # markers of one size: a table, a column per field

@@ -72,8 +72,11 @@ TOPICS: dict[str, tuple[str, bool]] = {
     "/battery_state": (rm.BATTERY_STATE, False),
 }
 
-#: The people of the world (people-and-zones.md), a cylinder each, every control step.
+#: The people of the world (people-and-zones.md), a cylinder each, every PEOPLE_PERIOD.
 PEOPLE_TOPIC = ("/people", rm.MARKER_ARRAY)
+#: s: the people's decision period (``world.crowd.DECISION_PERIOD``, not imported: the crowd
+#: brings ORCA and scipy's graphs with it).
+PEOPLE_PERIOD = 0.2
 
 #: Nav2's filter masks (people-and-zones.md), latched, in a bag of a mission with zones.
 ZONE_TOPICS: dict[str, tuple[str, bool]] = {
@@ -159,7 +162,8 @@ class BagWriter:
     (30 MB per 40 s). A growing SLAM map goes to ``/map`` at most every ``map_period``
     simulated seconds (gmapping's ``map_update_interval``), its last state always.
     ``/battery_state`` goes out every ``battery_period`` simulated seconds and when
-    charging starts or stops. The bag is closed by :meth:`on_end` (or :meth:`close`), so it is complete
+    charging starts or stops. ``/people`` goes out every ``people_period`` simulated
+    seconds, the people's decision period: they walk straight in between, so its markers hold every corner of their walks. The bag is closed by :meth:`on_end` (or :meth:`close`), so it is complete
     even when the run ends aborted or in error.
 
     A fleet run (fleet.md) shares ``/clock``, ``/tf``, ``/tf_static``, ``/map``, ``/rooms``
@@ -178,12 +182,15 @@ class BagWriter:
         max_particles: int = 1000,
         map_period: float = 2.0,
         battery_period: float = 1.0,
+        people_period: float = PEOPLE_PERIOD,
     ) -> None:
         self.path = path
         self.particle_period = particle_period
         self.max_particles = max_particles
         self.map_period = map_period
         self.battery_period = battery_period
+        self.people_period = people_period
+        self._next_people = 0.0
         self.messages = 0
         self._writer: Writer | None = None
         self._conns: dict[str, Any] = {}
@@ -315,7 +322,8 @@ class BagWriter:
             if self._fleet:
                 event = {**event, "robot": bag.name}
             self._write("/events", t, rm.string(json.dumps(event, default=_jsonable)))
-        if sample.people is not None:  # the world's people, once a step (the first robot's)
+        if sample.people is not None and t >= self._next_people - 1e-9:  # the world's people
+            self._next_people = t + self.people_period
             name, msgtype = PEOPLE_TOPIC
             if name not in self._conns:
                 self._conns[name] = self._writer.add_connection(

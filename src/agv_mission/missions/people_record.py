@@ -70,8 +70,9 @@ def write_people_csv(path: Path, t: np.ndarray, xy: np.ndarray, ids: np.ndarray)
 
 
 def plot_people(ax: Any, xy: np.ndarray, radii: np.ndarray) -> None:
-    """Everyone's walk as faint lines (one artist) and where they stood at the end as discs
-    (one collection): a figure with 50 people draws about as fast as one without."""
+    """Everyone's walk as faint lines (one artist, not antialiased: 50 walks of smooth
+    lines made the PNG 4x larger and its encoding most of their cost) and where they stood
+    at the end as discs (one collection)."""
     from matplotlib.collections import PatchCollection
     from matplotlib.patches import Circle
 
@@ -80,7 +81,16 @@ def plot_people(ax: Any, xy: np.ndarray, radii: np.ndarray) -> None:
     gap = np.full((1, xy.shape[1], 2), np.nan)
     thin = xy[:: max(1, len(xy) // 400)]  # 400 points a walk draw the same at this size
     lines = np.concatenate([thin, gap]).transpose(1, 0, 2).reshape(-1, 2)  # NaN between
-    ax.plot(lines[:, 0], lines[:, 1], "-", lw=0.5, color="tab:brown", alpha=0.35, label="people")
+    ax.plot(
+        lines[:, 0],
+        lines[:, 1],
+        "-",
+        lw=0.5,
+        color="tab:brown",
+        alpha=0.35,
+        antialiased=False,
+        label="people",
+    )
     discs = []
     for i in range(xy.shape[1]):
         seen = xy[~np.isnan(xy[:, i, 0]), i]
@@ -105,6 +115,10 @@ class PeopleRun:
         self.touching: set[tuple[int, int]] = set()
         self.touches: list[list[tuple[int, int]]] = []  # (robot, person) pairs at each step
         self._still_since = np.full(len(self.crowd.ids), np.inf)  # when each stopped
+        # the tracked rows, refreshed in place (velocities and who stands: at decisions)
+        self._rows = np.zeros((len(self.crowd.ids), len(TRACKED_PERSON)))
+        self._rows[:, 2] = self.crowd.radii
+        self._decided = -1  # the crowd's decision the rows' velocities are from
         world.move_people(self.crowd.positions, self.crowd.active)
 
     def sense(self, now: float, robots: list[Any]) -> None:
@@ -114,15 +128,17 @@ class PeopleRun:
         crowd = self.crowd
         everyone = crowd.everyone
         self.track.add(now, crowd.positions, crowd.active, everyone)
-        rows = np.empty((len(crowd.ids), len(TRACKED_PERSON)))
+        rows = self._rows
+        if crowd.decisions != self._decided:  # new velocities: who stands, since when
+            self._decided = crowd.decisions
+            rows[:, 3:5] = v = crowd.velocities
+            standing = v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] < STANDING * STANDING
+            self._still_since = np.where(standing, np.minimum(self._still_since, now), np.inf)
         rows[:, 0:2] = crowd.positions
-        rows[:, 2] = crowd.radii
-        rows[:, 3:5] = v = crowd.velocities
-        standing = v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] < STANDING * STANDING
-        self._still_since = np.where(standing, np.minimum(self._still_since, now), np.inf)
-        rows[:, 5] = np.where(standing, now - self._still_since, 0.0)
-        if not everyone:
-            rows = rows[crowd.active]
+        still = rows[:, 5]
+        np.subtract(now, self._still_since, out=still)  # -inf for those walking
+        np.maximum(still, 0.0, out=still)
+        rows = rows.copy() if everyone else rows[crowd.active]
         for r in robots:
             r.handle.state.people = rows
         touching = self.world.person_contacts()

@@ -150,6 +150,7 @@ class RobotRun:
         self.command = (0.0, 0.0)
         self.sensing: Sensing | None = None
         self.estimate = setup.start
+        self._perceived: tuple[Pose2D, Pose2D] | None = None  # the last odometry, estimate
         self._covariance: np.ndarray | None = None
         self._diagnostics: LocalizerDiagnostics | None = None
         # What the others (the fleet layer, the run, other processes) read of this robot
@@ -316,14 +317,16 @@ class RobotRun:
         handle, scan, t = self.handle, sensing.scan, sensing.time
         mapping = self.mapper.session
         people = handle.state.people
-        # the beams on tracked people, seen from the last estimate (once for the localiser
-        # and the obstacle layer: the robot moves centimetres in a step, the filters take
-        # returns within PERSON_TOLERANCE of a body)
-        on_people = (
-            None
-            if scan is None or not len(people)
-            else beams_on_people(scan, self.estimate, np.asarray(people, dtype=float))
-        )
+        # the beams on tracked people, once for the localiser and the obstacle layer, seen
+        # from the last estimate moved on by the odometry since (a robot turning in place
+        # turns a beam by up to 0.3 rad a step: at 1.5 m a person's width)
+        on_people = None
+        if scan is not None and len(people):
+            seen_from = self.estimate
+            if self._perceived is not None:
+                odom, estimate = self._perceived
+                seen_from = estimate.compose(sensing.odom.relative_to(odom))
+            on_people = beams_on_people(scan, seen_from, np.asarray(people, dtype=float))
         if mapping is not None:
             estimate = mapping.update(sensing.odom, _without(scan, on_people), sensing.truth, t)
             costmap = mapping.refreshed_costmap(t)
@@ -346,8 +349,9 @@ class RobotRun:
             handle.state.obstacles = scan.points(estimate)
             if on_people is None:
                 self.navigator.observe(estimate, scan)
-            else:  # returns on people walking by are not obstacles of the costmap
+            else:  # returns on people passing by are not obstacles of the costmap
                 self.navigator.observe(estimate, scan, ignore=on_people[1])
+        self._perceived = (sensing.odom, estimate)
         return estimate
 
     def _estimate_covariance(self) -> tuple[np.ndarray | None, LocalizerDiagnostics | None]:

@@ -12,7 +12,7 @@ from agv_mission.messages import LaserScan
 #: The columns of a tracked person's row (:attr:`RobotState.people`).
 TRACKED_PERSON = ("x", "y", "radius", "vx", "vy", "still")
 #: m/s: a tracked person slower than this stands (their ``still`` counts up).
-STANDING = 0.2
+STANDING = 0.1
 
 
 @dataclass

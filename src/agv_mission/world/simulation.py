@@ -310,8 +310,10 @@ class SimulatedWorld:
 
     def person_contacts(self) -> set[tuple[int, int]]:
         """Every (body index, person index) pair touching now."""
+        if not self._people_armed:  # nobody near a body: no contact to look for
+            return set()
         touching = self._touching()
-        if not len(touching) or not self._people_armed:
+        if not len(touching):
             return set()
         found = set()
         for a, b in self._owner[touching].tolist():

@@ -583,6 +583,31 @@ def test_a_run_with_people_writes_people_csv_the_bag_topic_and_metrics(tmp_path:
             assert (m.pose.position.x, m.pose.position.y) == pytest.approx(row[2:4], abs=1e-3)
 
 
+def test_people_csv_rows_are_what_percent_formatting_writes(tmp_path: Path) -> None:
+    """people.csv's digits are made by array arithmetic: the same bytes as formatting each
+    row with "%.6f,%d,%.4f,%.4f", for people absent (NaN), negative, tiny and far."""
+    from agv_mission.missions.people_record import write_people_csv
+
+    rng = np.random.default_rng(4)
+    for scale in (0.0001, 1.0, 40.0, 9000.0):
+        steps, n = 60, 7
+        t = np.arange(steps) * 0.1
+        xy = rng.normal(0.0, scale, (steps, n, 2)).astype(np.float32).astype(float)
+        xy[rng.random((steps, n)) < 0.2] = np.nan
+        xy[3, 2] = (-0.0, 0.0)
+        ids = np.arange(n) * 11
+        write_people_csv(tmp_path / "people.csv", t, xy, ids)
+        rows = [
+            "%.6f,%d,%.4f,%.4f" % (t[k], ids[i], *xy[k, i])  # noqa: UP031 (the reference)
+            for k in range(steps)
+            for i in range(n)
+            if not np.isnan(xy[k, i, 0])
+        ]
+        assert (tmp_path / "people.csv").read_text() == "t,id,x,y\n" + "".join(
+            r + "\n" for r in rows
+        )
+
+
 def test_the_tracker_counts_how_long_each_person_has_stood(tmp_path: Path) -> None:
     """``RobotState.people``'s last column: seconds a person has been slower than
     STANDING, 0 while they walk (someone whose route is one place stands; a wanderer walks)."""

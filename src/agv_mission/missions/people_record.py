@@ -4,7 +4,6 @@ per person present at each control step), their tracks on ``run.png``, ``metrics
 
 from __future__ import annotations
 
-import io
 import math
 from pathlib import Path
 from typing import Any
@@ -18,7 +17,6 @@ from agv_mission.world.crowd import Crowd, PeopleGroup
 from agv_mission.world.simulation import SimulatedWorld
 
 PEOPLE_COLUMNS = ("t", "id", "x", "y")
-CSV_CHUNK = 20_000  # rows formatted at once
 
 
 class PeopleTrack:
@@ -53,20 +51,62 @@ class PeopleTrack:
 
 
 def write_people_csv(path: Path, t: np.ndarray, xy: np.ndarray, ids: np.ndarray) -> None:
-    """``people.csv``: the contract's ``t, id, x, y``, time-major, people present only."""
+    """``people.csv``: the contract's ``t, id, x, y``, time-major, people present only;
+    the bytes ``"%.6f,%d,%.4f,%.4f"`` gives each row (the track's float32 positions times
+    10^4 are exact in float64, so rounding them to integers rounds as ``%.4f`` does), the
+    positions' digits made by array arithmetic: half the time of formatting each number."""
     steps, n = xy.shape[:2]
-    times = np.repeat(np.asarray(t, float), n)
-    who = np.tile(np.asarray(ids, float), steps)
-    flat = xy.reshape(-1, 2)
-    present = ~np.isnan(flat[:, 0])
-    table = np.column_stack([times, who, flat])[present]
-    buf = io.StringIO()
-    buf.write(",".join(PEOPLE_COLUMNS) + "\n")
-    # np.savetxt's text, a chunk of rows at a time through one format (3x faster)
-    for start in range(0, len(table), CSV_CHUNK):
-        chunk = table[start : start + CSV_CHUNK]
-        buf.write(("%.6f,%d,%.4f,%.4f\n" * len(chunk)) % tuple(chunk.ravel().tolist()))
-    atomic_write_text(path, buf.getvalue())
+    flat = np.asarray(xy, dtype=float).reshape(-1, 2)
+    present = np.flatnonzero(~np.isnan(flat[:, 0]))
+    step, person = np.divmod(present, max(n, 1))
+    t_text = _right_aligned([f"{v:.6f}" for v in np.asarray(t, float).tolist()])
+    id_text = _right_aligned([str(i) for i in np.asarray(ids).tolist()])
+    fields = [
+        (t_text[0][step], t_text[1][step]),
+        (id_text[0][person], id_text[1][person]),
+        _fixed_point(flat[present, 0], 4),
+        _fixed_point(flat[present, 1], 4),
+    ]
+    rows = len(present)
+    blocks, keep = [], []
+    for k, (chars, first) in enumerate(fields):
+        end = np.full((rows, 1), 10 if k == len(fields) - 1 else 44, np.uint8)  # "\n" or ","
+        blocks += [chars, end]
+        keep += [np.arange(chars.shape[1]) >= first[:, None], np.ones((rows, 1), bool)]
+    table = np.hstack(blocks) if rows else np.zeros((0, 0), np.uint8)
+    body = table[np.hstack(keep)].tobytes() if rows else b""
+    atomic_write_text(path, ",".join(PEOPLE_COLUMNS) + "\n" + body.decode("ascii"))
+
+
+def _right_aligned(texts: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """``texts`` as rows of right-aligned ASCII (n, width) and each one's first column."""
+    width = max((len(s) for s in texts), default=1)
+    chars = np.frombuffer("".join(s.rjust(width) for s in texts).encode("ascii"), np.uint8)
+    first = width - np.array([len(s) for s in texts], dtype=np.int64)
+    return chars.reshape(len(texts), width), first
+
+
+def _fixed_point(values: np.ndarray, decimals: int) -> tuple[np.ndarray, np.ndarray]:
+    """``values`` as ``%.{decimals}f`` writes them, as :func:`_right_aligned` rows."""
+    scale = 10**decimals
+    q = np.rint(np.abs(values) * scale).astype(np.int64)
+    whole, frac = np.divmod(q, scale)
+    digits = 1 + np.searchsorted(10 ** np.arange(1, 19, dtype=np.int64), whole, side="right")
+    negative = np.signbit(values)  # "-0.0000" for a small negative, as %f writes it
+    wide = int(digits.max(initial=1))
+    width = 2 + wide + decimals
+    chars = np.empty((len(values), width), dtype=np.uint8)
+    for k in range(decimals):
+        chars[:, width - 1 - k] = 48 + frac % 10
+        frac //= 10
+    chars[:, width - 1 - decimals] = ord(".")
+    for k in range(wide):
+        chars[:, width - 2 - decimals - k] = 48 + whole % 10
+        whole //= 10
+    chars[:, 0] = ord(" ")
+    first = width - 1 - decimals - digits - negative
+    chars[np.flatnonzero(negative), first[negative]] = ord("-")
+    return chars, first
 
 
 def plot_people(ax: Any, xy: np.ndarray, radii: np.ndarray) -> None:

@@ -58,7 +58,8 @@ PERTURBATION = (
 )
 STALL_SPEED = 0.2  # of the preferred speed: below it a person is held up...
 STALL_TIME = 1.0  # s ... and after this long bears right
-SIDESTEP = np.pi / 4  # rad  # s between checks that a person still sees its next waypoint
+SIDESTEP = np.pi / 4  # rad a held-up person turns their way to the right
+_BEAR_RIGHT = complex(np.cos(-SIDESTEP), np.sin(-SIDESTEP))
 
 
 @dataclass(frozen=True)
@@ -263,16 +264,22 @@ class Crowd:
         self.start_times = np.array([s.start_time for s in specs], dtype=float)
         self.positions = np.zeros((n, 2))
         self.velocities = np.zeros((n, 2))
+        # Points and velocities of the plane as complex numbers too (views of the same
+        # memory): a step's arithmetic is half the array operations, and the crowd runs
+        # between the robots' work with cold caches, where each operation costs most.
+        self._p, self._v = _plane(self.positions), _plane(self.velocities)
         self.active = np.zeros(n, dtype=bool)
         self._grid = grid
         # the clearance with a border of -inf: a lookup needs no bounds check (off the map)
         self._room = np.pad(clearance(grid), 1, constant_values=-np.inf)
         self._stall = STALL_SPEED * self.speeds  # each person's held-up speed
+        self._half_radii = 0.5 * self.radii  # a step ending nearer a wall is refused
         self._dt = time_step
         self.decision_period = decision_period
-        self._from = np.zeros((n, 2))  # where everyone was at the last decision...
-        self._to = np.zeros((n, 2))  # ... and will be at the next
-        self._steps = self._steps_left = 0  # steps of the decided walk, still to walk
+        self._to = np.zeros((n, 2))  # where everyone will be at the next decision...
+        self._t = _plane(self._to)
+        self._walk = np.zeros(n, dtype=complex)  # ... and how far they walk a step there
+        self._steps_left = 0  # steps of the decided walk still to walk
         self.decisions = 0  # ORCA steps so far (the velocities change with each)
         routers = {r: route_grid(grid, r) for r in sorted({g.radius for g in groups})}
         self._routers = [routers[s.radius] for s in specs]  # each person's (by its size)
@@ -289,7 +296,9 @@ class Crowd:
         self._waypoints: list[np.ndarray] = [np.zeros((0, 2))] * n
         self._waypoint = np.zeros(n, dtype=np.int64)
         self._target = np.zeros((n, 2))  # each person's current waypoint
+        self._g = _plane(self._target)
         self._final = np.zeros(n, dtype=bool)  # ... is its goal
+        self._reach = np.full(n, REACHED)  # ... counts as reached this near
         self._next_check = np.zeros(n)
         self._ways: dict[tuple[int, int | None, int], np.ndarray] = {}  # goal to goal, kept
         self._slow_since = np.full(n, np.inf)  # since when each walks slower than it wants
@@ -400,12 +409,19 @@ class Crowd:
             self._waypoints[i] = known
             self._set_waypoint(i, 0)
             return
-        path = None if start is None else router.path(start, goal)
-        if path is None:  # cut off (a door shut by a robot's body is not a wall): stand
-            path = self.positions[i : i + 1].copy()
-        elif goal in self._exact:
-            path[-1] = self._exact[goal]
-        self._waypoints[i] = self._taut(self.positions[i], path, float(self.radii[i]))
+        radius = float(self.radii[i])
+        end = self._exact.get(goal)
+        if end is None:
+            end = router.centres(np.divmod(goal, router.shape[1]))[0]
+        if self._sim.query_visibility(self.positions[i].tolist(), end.tolist(), radius):
+            self._waypoints[i] = end[None, :].copy()  # in sight: straight there
+        else:
+            path = None if start is None else router.path(start, goal)
+            if path is None:  # cut off (a door shut by a robot's body is not a wall): stand
+                path = self.positions[i : i + 1].copy()
+            else:
+                path[-1] = end
+            self._waypoints[i] = self._taut(self.positions[i], path, radius)
         self._set_waypoint(i, 0)
         if reached is not None and len(self._ways) < MAX_WAYS:
             self._ways[key] = self._waypoints[i]
@@ -439,11 +455,10 @@ class Crowd:
                 self._enter(int(i))  # stands where they enter until the next decision
         if self._steps_left <= 0:
             self._decide(dt, robots)
-        k, left = self._steps, self._steps_left
-        if left == 1:  # the decided walk's end: where ORCA put everyone
+        if self._steps_left == 1:  # the decided walk's end: where ORCA put everyone
             self.positions[:] = self._to
         else:
-            self.positions[:] = self._from + (self._to - self._from) * ((k - left + 1) / k)
+            self._p += self._walk
         self._steps_left -= 1
         self.time += dt
 
@@ -452,41 +467,39 @@ class Crowd:
         will be at its end (``_to``) and the velocity that takes them there."""
         sim = self._sim
         self.decisions += 1
-        self._steps = max(1, round(self.decision_period / dt))
-        self._steps_left = self._steps
-        period = self._steps * dt
+        steps = self._steps_left = max(1, round(self.decision_period / dt))
+        period = steps * dt
         if abs(self._dt - period) > 1e-12:
             sim.set_time_step(period)
             self._dt = period
         self._set_robots(np.zeros((0, 5)) if robots is None else np.asarray(robots, float))
-        self._from[:] = self.positions
         if not self._agents:
             sim.do_step()  # robots alone: keep the simulator's clock with the world's
             self._to[:] = self.positions
+            self._walk[:] = 0.0
             return
         everyone = self.everyone
         people = self.ids if everyone else np.flatnonzero(self.active)
         who = slice(None) if everyone else people  # views, not copies, when all are in
         pref = self._steer(people, who)
-        before = self.positions[who].copy()
+        before = self._p[who].copy()
         sim.do_step()
         # pyrvo has no call for many agents: one C call per person (map: no Python frame)
-        at = list(map(pyrvo.Vector2.to_tuple, map(sim.get_agent_position, self._agents)))
-        to = self._to
-        to[who] = at
+        self._to[who] = list(map(pyrvo.Vector2.to_tuple, map(sim.get_agent_position, self._agents)))
         if self._blind:
             self._walk_blind(people, before, pref, period)
-        # RVO2 moves each agent by its new velocity times the step: no need to ask for it
-        self.velocities[who] = (to[who] - before) / period
         self._keep_off_walls(people, who, before)
-        v = self.velocities[who]
-        going = np.hypot(v[:, 0], v[:, 1]) >= self._stall[who]
+        # RVO2 moves each agent by its new velocity times the step: no need to ask for it
+        gone = self._t[who] - before
+        self._walk[who] = gone / steps
+        self._v[who] = v = gone / period
+        going = np.abs(v) >= self._stall[who]
         final = self._final[who]
         if final.any():
-            gap = self._target[who] - to[who]
-            going |= final & (np.hypot(gap[:, 0], gap[:, 1]) < 2 * ARRIVED)
-        since = self._slow_since[who]
-        self._slow_since[who] = np.where(going, np.inf, np.minimum(since, self.time))
+            going |= final & (np.abs(self._g[who] - self._t[who]) < 2 * ARRIVED)
+        self._slow_since[who] = np.where(
+            going, np.inf, np.minimum(self._slow_since[who], self.time)
+        )
 
     def _enter(self, i: int) -> None:
         r = float(self.radii[i])
@@ -501,7 +514,8 @@ class Crowd:
         )
         self.active[i] = True
         self._agents = self._agent[self.active].tolist()
-        self._from[i] = self._to[i] = self.positions[i]
+        self._to[i] = self.positions[i]
+        self._walk[i] = 0.0
         self._next_check[i] = self.time + REPLAN_PERIOD * (1 + i % 10) / 10
         goals = self._goals[i]
         if not goals:
@@ -517,7 +531,7 @@ class Crowd:
             self._robot_agents.append(sim.add_agent([1e6, 1e6 + 10 * len(self._robot_agents)]))
         for k, a in enumerate(self._robot_agents):
             if k < len(robots):
-                x, y, vx, vy, r = (float(v) for v in robots[k])
+                x, y, vx, vy, r = robots[k].tolist()
                 sim.set_agent_position(a, (x, y))
                 sim.set_agent_velocity(a, (vx, vy))
                 sim.set_agent_pref_velocity(a, (vx, vy))
@@ -528,35 +542,32 @@ class Crowd:
                 sim.set_agent_pref_velocity(a, (0.0, 0.0))
 
     def _steer(self, people: np.ndarray, who: slice | np.ndarray) -> np.ndarray:
-        """Each walking person's preferred velocity: towards its waypoint at its speed
-        (slowing into its goal); ``who`` selects ``people`` from the arrays."""
-        delta = self._target[who] - self.positions[who]
-        dist = np.hypot(delta[:, 0], delta[:, 1])
-        final = self._final[who]
+        """Each walking person's preferred velocity (complex): towards its waypoint at its
+        speed (slowing into its goal); ``who`` selects ``people`` from the arrays."""
+        here = self._p[who]
+        delta = self._g[who] - here
+        dist = np.abs(delta)
         slow = self._slow_since[who]
         # a waypoint reached, or someone held up (pushed aside, maybe out of its sight) due
         # for a look at its way
-        due = dist < np.where(final, ARRIVED, REACHED)
-        due |= (self._next_check[who] <= self.time) & (slow < np.inf)
+        due = (dist < self._reach[who]) | ((self._next_check[who] <= self.time) & (slow < np.inf))
         if due.any():
             for i in people[due].tolist():
                 self._advance(i)
-            delta = self._target[who] - self.positions[who]
-            dist = np.hypot(delta[:, 0], delta[:, 1])
-            final = self._final[who]
+            delta = self._g[who] - here
+            dist = np.abs(delta)
         speeds = self.speeds[who]
-        speed = np.where(final, np.minimum(speeds, dist), speeds)
-        pref = delta * (speed / np.maximum(dist, 1e-9))[:, None]
+        speed = np.where(self._final[who], np.minimum(speeds, dist), speeds)
+        pref = delta * (speed / np.maximum(dist, 1e-9))
         # ORCA stalls in perfect symmetry (head on into someone standing): RVO2's own
         # examples perturb the preferred velocities a little; one held up for a while
         # also bears right, as people do.
         blocked = slow <= self.time - STALL_TIME
         if blocked.any():
-            c, s = np.cos(-SIDESTEP), np.sin(-SIDESTEP)
-            vx, vy = pref[blocked, 0], pref[blocked, 1]
-            pref[blocked] = np.stack([c * vx - s * vy, s * vx + c * vy], axis=1)
-        pref += self.rng.normal(0.0, PERTURBATION, pref.shape)
-        list(map(self._sim.set_agent_pref_velocity, self._agents, pref.tolist()))
+            pref[blocked] *= _BEAR_RIGHT
+        pref += _plane(self.rng.normal(0.0, PERTURBATION, (len(pref), 2)))
+        xy = pref.view(np.float64).reshape(-1, 2).tolist()
+        list(map(self._sim.set_agent_pref_velocity, self._agents, xy))
         return pref
 
     def _advance(self, i: int) -> None:
@@ -585,7 +596,8 @@ class Crowd:
     def _set_waypoint(self, i: int, k: int) -> None:
         self._waypoint[i] = k
         self._target[i] = self._waypoints[i][k]
-        self._final[i] = k == len(self._waypoints[i]) - 1
+        self._final[i] = final = k == len(self._waypoints[i]) - 1
+        self._reach[i] = ARRIVED if final else REACHED
 
     def _room_at(self, points: np.ndarray) -> np.ndarray:
         """Distance from each point to the nearest wall or unknown cell, m (-inf off the map)."""
@@ -607,25 +619,30 @@ class Crowd:
         blind = self._inattentive[people]
         for j in np.flatnonzero(blind):
             i = int(people[j])
-            x, y = (before[j] + pref[j] * dt).tolist()
+            there = complex(before[j] + pref[j] * dt)
+            x, y = there.real, there.imag
             self._to[i] = (x, y)
             a = int(self._agent[i])
             self._sim.set_agent_position(a, (x, y))
-            self._sim.set_agent_velocity(a, (float(pref[j, 0]), float(pref[j, 1])))
+            self._sim.set_agent_velocity(a, (float(pref[j].real), float(pref[j].imag)))
 
     def _keep_off_walls(
         self, people: np.ndarray, who: slice | np.ndarray, before: np.ndarray
     ) -> None:
         """The guard under ORCA: a person whose step would end in a wall stays put."""
         room = self._room_at(self._to[who])
-        for j in np.flatnonzero(room < 0.5 * self.radii[who]).tolist():
+        for j in np.flatnonzero(room < self._half_radii[who]).tolist():
             i = int(people[j])
-            back = before[j]
+            back = complex(before[j])
             a = int(self._agent[i])
-            self._sim.set_agent_position(a, (float(back[0]), float(back[1])))
+            self._sim.set_agent_position(a, (back.real, back.imag))
             self._sim.set_agent_velocity(a, (0.0, 0.0))
-            self._to[i] = back
-            self.velocities[i] = 0.0
+            self._t[i] = back
+
+
+def _plane(xy: np.ndarray) -> np.ndarray:
+    """(n, 2) float64 points (C-ordered) as n complex numbers sharing their memory."""
+    return xy.view(np.complex128)[:, 0]
 
 
 def _obstacle(hole: shapely.LinearRing) -> list[list[float]]:

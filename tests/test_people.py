@@ -417,6 +417,11 @@ def test_hunavsim_metrics_from_arrays() -> None:
     assert m["time_not_moving"] == pytest.approx(5.0, abs=0.11)
     assert m["legs"][0] == {"path_length": pytest.approx(2.5), "time": 5.0}
     assert m["legs"][1]["path_length"] == pytest.approx(0.0)
+    # turning on the spot from t = 7 is moving (HuNavSim: not moving is < 0.01 m/s and
+    # < 0.02 rad/s)
+    yaw = np.where(t > 7.0, (t - 7.0) * 0.5, 0.0)
+    m = people_metrics(t, robot, people, 0.2, np.array([0.25, 0.25]), robot_yaw=yaw)
+    assert m["time_not_moving"] == pytest.approx(2.0, abs=0.11)
     # driving on into the person: one contact begun, however long it lasts
     people[:, 0] = [2.6, 0.0]
     m = people_metrics(t, robot, people, 0.2, np.array([0.25, 0.25]))

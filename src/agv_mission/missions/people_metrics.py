@@ -10,7 +10,10 @@ import numpy as np
 
 INTIMATE = 0.45  # m: Hall's intimate space (HuNavSim's threshold)
 PERSONAL = 1.2  # m: Hall's personal space
-NOT_MOVING = 0.01  # m/s: below it the robot stands (HuNavSim's "time not moving")
+# HuNavSim's "time not moving": the robot slower than 0.01 m/s and turning slower than
+# 0.02 rad/s (hunav_evaluator's hunav_metrics.py): one turning on the spot moves
+NOT_MOVING = 0.01  # m/s
+NOT_TURNING = 0.02  # rad/s
 
 
 def people_metrics(
@@ -21,6 +24,7 @@ def people_metrics(
     people_radii: np.ndarray,
     legs: Sequence[tuple[float, float]] = (),
     touching: np.ndarray | None = None,
+    robot_yaw: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """``metrics.people`` of result.json.
 
@@ -28,8 +32,9 @@ def people_metrics(
     is not in the world yet; ``robot_radius`` the footprint's; ``people_radii`` (n,); ``legs``
     the navigation legs as (start, end) times; ``touching`` (m, n), when given, says who
     the robot's body touched at each sample (the world's contacts), else bodies closer
-    than 0 touch. Distances are edge to edge (footprint to a person's body); each sample
-    counts for the time to the next one.
+    than 0 touch; ``robot_yaw`` (m,), when given, the robot's heading (a robot turning on
+    the spot is moving). Distances are edge to edge (footprint to a person's body); each
+    sample counts for the time to the next one.
     """
     t = np.asarray(t, dtype=float)
     robot_xy = np.asarray(robot_xy, dtype=float).reshape(-1, 2)
@@ -54,16 +59,21 @@ def people_metrics(
     onsets = int(np.count_nonzero(touching & ~before))
 
     speed = np.zeros(m)
+    turn = np.zeros(m)
     if m > 1:
         speed[:-1] = np.hypot(*np.diff(robot_xy, axis=0).T) / np.maximum(dt, 1e-12)
         speed[-1] = speed[-2]
+        if robot_yaw is not None:
+            yaw = np.unwrap(np.asarray(robot_yaw, dtype=float).reshape(-1))
+            turn[:-1] = np.abs(np.diff(yaw)) / np.maximum(dt, 1e-12)
+            turn[-1] = turn[-2]
     return {
         "people": int(people_xy.shape[1]),
         "min_distance": float(nearest[seen].min()) if seen.any() else None,
         "intimate_time": float(weights[seen & (nearest < INTIMATE)].sum()),
         "personal_time": float(weights[seen & (nearest < PERSONAL)].sum()),
         "collisions": onsets,
-        "time_not_moving": float(weights[speed < NOT_MOVING].sum()),
+        "time_not_moving": float(weights[(speed < NOT_MOVING) & (turn < NOT_TURNING)].sum()),
         "legs": [_leg(t, robot_xy, start, end) for start, end in legs],
     }
 

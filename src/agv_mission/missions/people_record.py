@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from agv_mission.atomic import atomic_write_text
+from agv_mission.missions.crowd_process import CrowdProcess
 from agv_mission.missions.people_metrics import people_metrics
 from agv_mission.navigation.state import STANDING, TRACKED_PERSON
 from agv_mission.world.crowd import Crowd, PeopleGroup
@@ -140,6 +141,17 @@ def plot_people(ax: Any, xy: np.ndarray, radii: np.ndarray) -> None:
         ax.add_collection(PatchCollection(discs, color="tab:brown", alpha=0.7))
 
 
+def _robot_rows(robots: list[Any]) -> np.ndarray:
+    """The robots as the crowd sees them: rows (x, y, vx, vy, radius), true poses."""
+    rows = np.zeros((len(robots), 5))
+    for k, r in enumerate(robots):
+        pose = r.sim.true_pose()
+        v, _ = r.sim.true_velocity()
+        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+        rows[k] = (pose.x, pose.y, v * c, v * s, r.robot.footprint_radius)
+    return rows
+
+
 PEOPLE_STREAM = 0x9E0_91E  # the people's random stream: the seed's, apart from the robots'
 
 
@@ -149,7 +161,10 @@ class PeopleRun:
 
     def __init__(self, groups: list[PeopleGroup], world: SimulatedWorld, seed: int) -> None:
         rng = np.random.default_rng(np.random.SeedSequence([seed, PEOPLE_STREAM]))
-        self.crowd = Crowd(groups, world.world.map, rng)
+        robots = np.array(
+            [(*world.pose(b).xy, b.radius) for b in world.bodies.values()], dtype=float
+        ).reshape(-1, 3)
+        self.crowd: Crowd | CrowdProcess = Crowd(groups, world.world.map, rng, robots=robots)
         self.world = world
         self.track = PeopleTrack(self.crowd.ids, self.crowd.radii)
         self.touching: set[tuple[int, int]] = set()
@@ -202,25 +217,41 @@ class PeopleRun:
         on = crowd.active
         return crowd.ids[on], crowd.positions[on], crowd.radii[on]
 
+    def walk_apart(self) -> None:
+        """Let the crowd walk in a process of its own from now on (:mod:`crowd_process`)."""
+        if isinstance(self.crowd, Crowd):
+            self.crowd = CrowdProcess(self.crowd)
+
+    @property
+    def cpu_elsewhere(self) -> float:
+        """CPU seconds the crowd spent in its own process (0 while it walks here)."""
+        return self.crowd.cpu_seconds if isinstance(self.crowd, CrowdProcess) else 0.0
+
+    def close(self) -> None:
+        """End the crowd's own process, if it has one."""
+        if isinstance(self.crowd, CrowdProcess):
+            self.crowd.close()
+
+    def ask(self, dt: float, robots: list[Any]) -> None:
+        """The robots are where they will be when the people move (faults applied): a
+        crowd in its own process starts deciding now, while the robots decide."""
+        crowd = self.crowd
+        if isinstance(crowd, CrowdProcess) and crowd.deciding:
+            crowd.ask(dt, _robot_rows(robots))
+
     def move(self, dt: float, robots: list[Any]) -> None:
         """Walk everyone one control period among the robots where they truly are."""
         if not self.crowd.deciding:  # walking on what they decided: no robots needed
             self.crowd.step(dt)
-            self.world.move_people(self.crowd.positions, self.crowd.active)
-            return
-        rows = np.zeros((len(robots), 5))
-        for k, r in enumerate(robots):
-            pose = r.sim.true_pose()
-            v, _ = r.sim.true_velocity()
-            c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-            rows[k] = (pose.x, pose.y, v * c, v * s, r.robot.footprint_radius)
-        self.crowd.step(dt, rows)
+        else:
+            self.crowd.step(dt, _robot_rows(robots))
         self.world.move_people(self.crowd.positions, self.crowd.active)
 
     def metrics(
         self, k: int, trajectory: np.ndarray, robot_radius: float, legs: list[Any], end: float
     ) -> dict[str, Any]:
-        """``metrics.people`` of robot ``k`` (its trajectory rows align with the track's)."""
+        """``metrics.people`` of robot ``k`` (its trajectory rows align with the track's),
+        and whether the crowd walked in a process of its own (``crowd_process``)."""
         steps = min(len(trajectory), len(self.touches))
         touched = np.zeros((steps, len(self.crowd.ids)), dtype=bool)
         for i, pairs in enumerate(self.touches[:steps]):
@@ -228,7 +259,7 @@ class PeopleRun:
                 if robot == k:
                     touched[i, person] = True
         spans = [(leg.t_start, leg.t_end if leg.t_end is not None else end) for leg in legs]
-        return people_metrics(
+        metrics = people_metrics(
             trajectory[:steps, 0],
             trajectory[:steps, 1:3],
             self.track.xy[:steps],
@@ -236,7 +267,10 @@ class PeopleRun:
             self.crowd.radii,
             spans,
             touching=touched,
+            robot_yaw=trajectory[:steps, 3],
         )
+        metrics["crowd_process"] = isinstance(self.crowd, CrowdProcess)
+        return metrics
 
 
 def fleet_people_metrics(records: list[Any]) -> dict[str, Any]:

@@ -40,6 +40,9 @@ TIME_HORIZON = 2.0  # s, people
 TIME_HORIZON_OBST = 0.5  # s, walls
 SPEED_HEADROOM = 1.2  # a person may briefly walk this much faster than preferred to avoid
 ROBOT_MARGIN = 0.3  # m people keep from a machine on top of its footprint (they give AGVs room)
+# m more between a person's start and a robot's footprint than ROBOT_MARGIN: nobody starts
+# in (or at) a robot's reach; someone due to enter where a robot stands waits until it left
+START_GAP = 0.3
 ROUTE_CELL = 0.25  # m, the routing grid (a person is 0.5 m wide: doors still pass)
 WALL_SIMPLIFY = 0.02  # m, how far the walls' outline may move when simplified
 HULL_SLACK = 0.1  # m an obstacle's convex hull may stand out of it to stand for it (a notch)
@@ -244,7 +247,9 @@ class RouteGrid:
 
 class Crowd:
     """The people of a run: built from resolved ``PeopleGroup``\\ s, the map's walkable
-    space and the run's random generator; ``step`` moves them one control period."""
+    space and the run's random generator; ``step`` moves them one control period.
+    ``robots``: rows (x, y, radius) of the robots' footprints at the start, kept clear of
+    everyone's start."""
 
     def __init__(
         self,
@@ -253,8 +258,11 @@ class Crowd:
         rng: np.random.Generator,
         time_step: float = 0.1,
         decision_period: float = DECISION_PERIOD,
+        robots: np.ndarray | None = None,
     ):
         self.rng = rng
+        # the robots' footprints (x, y, radius): at the start, then as last decided among
+        self._robot_discs = np.zeros((0, 3)) if robots is None else np.asarray(robots, float)
         self.time = 0.0
         specs = [g for g in groups for _ in range(g.count)]
         n = len(specs)
@@ -337,7 +345,7 @@ class Crowd:
                 exact = {c: p for c, p in zip(cells, points, strict=True) if c is not None}
                 self._exact.update(exact)  # walk to the route's points, not their cells
                 for j in range(group.count):
-                    start, leg = _along_loop(points, j / group.count)
+                    start, leg = self._route_start(points, j / group.count, group.radius)
                     if self._room_at(start[None, :])[0] < group.radius:
                         cell = router.node(start)  # a corner cut by the loop: the nearest cell
                         if cell is not None:
@@ -354,6 +362,9 @@ class Crowd:
             size = min(len(pool), max(WANDER_GOALS_MIN, 2 * group.count), WANDER_GOALS_MAX)
             goals = [int(c) for c in self.rng.choice(pool, size=size, replace=False)]
             centres = router.centres(np.stack(np.divmod(pool, router.shape[1]), axis=1))
+            clear = self._clear_of_robots(centres, group.radius, START_GAP)
+            if clear.any():  # else a robot fills the area: start where it least is
+                centres = centres[clear]
             for _ in range(group.count):
                 self.positions[k] = self._free_start(centres, taken, group.radius)
                 taken = self.positions[: k + 1]
@@ -368,6 +379,34 @@ class Crowd:
         inside = shapely.contains_xy(shapely.Polygon(area), centres[:, 0], centres[:, 1])
         cells = cells[inside]
         return cells[:, 0] * router.shape[1] + cells[:, 1]
+
+    def _clear_of_robots(self, points: np.ndarray, radius: float, gap: float) -> np.ndarray:
+        """Which of ``points`` a person of ``radius`` may stand on: more than ROBOT_MARGIN
+        and ``gap`` from every robot's footprint."""
+        discs = self._robot_discs
+        points = np.asarray(points, dtype=float)
+        if not len(discs):
+            return np.ones(points.shape[:-1], dtype=bool)
+        d = np.hypot(
+            points[..., None, 0] - discs[:, 0], points[..., None, 1] - discs[:, 1]
+        ) - discs[:, 2]
+        return (d > radius + ROBOT_MARGIN + gap).all(axis=-1)
+
+    def _route_start(
+        self, points: np.ndarray, fraction: float, radius: float
+    ) -> tuple[np.ndarray, int]:
+        """Where on the loop a route's person starts: ``fraction`` of the way round, or on
+        from there to the first place clear of the robots (steps of a tenth of a metre)."""
+        ends = np.roll(points, -1, axis=0)
+        total = float(np.hypot(*(ends - points).T).sum()) if len(points) > 1 else 0.0
+        step = 0.1 / total if total > 0.0 else 1.0
+        at = fraction
+        for _ in range(max(1, int(1.0 / step))):
+            start, leg = _along_loop(points, at % 1.0)
+            if self._clear_of_robots(start, radius, START_GAP):
+                return start, leg
+            at += step
+        return _along_loop(points, fraction)  # the whole loop near a robot: as placed
 
     def _free_start(self, centres: np.ndarray, taken: np.ndarray, radius: float) -> np.ndarray:
         """A random one of the pool's cell ``centres`` not overlapping anyone placed so far
@@ -452,7 +491,8 @@ class Crowd:
         velocity over it, a step at a time."""
         if len(self._agents) < len(self.active):
             for i in np.flatnonzero(~self.active & (self.start_times <= self.time + 1e-9)):
-                self._enter(int(i))  # stands where they enter until the next decision
+                if self._clear_of_robots(self.positions[i], float(self.radii[i]), 0.0):
+                    self._enter(int(i))  # stands where they enter until the next decision
         if self._steps_left <= 0:
             self._decide(dt, robots)
         if self._steps_left == 1:  # the decided walk's end: where ORCA put everyone
@@ -527,6 +567,7 @@ class Crowd:
 
     def _set_robots(self, robots: np.ndarray) -> None:
         sim = self._sim
+        self._robot_discs = robots[:, (0, 1, 4)]
         while len(self._robot_agents) < len(robots):
             self._robot_agents.append(sim.add_agent([1e6, 1e6 + 10 * len(self._robot_agents)]))
         for k, a in enumerate(self._robot_agents):

@@ -35,6 +35,11 @@ def test_default_zones_from_the_footprint() -> None:
     assert (stop.type, slow.type, ttc.type) == ("stop", "slowdown", "approach")
     assert max(p[0] for p in stop.polygon) == pytest.approx(R + 0.05)
     assert max(abs(p[1]) for p in stop.polygon) == pytest.approx(R)
+    # the footprint driven on, not a box: a wall corner off the bumper's edge is outside
+    # (a rectangle's corner reaches hypot(R + 0.05, R) from the centre)
+    corner = np.array([[R + 0.04, 0.9 * R], [R + 0.04, 0.92 * R]])
+    assert monitor()(0.2, 0.0, corner).action != "stop"
+    assert monitor()(0.2, 0.0, corner * [1.0, 0.2]).action == "stop"  # straight ahead
 
 
 def test_stop_needs_min_points_and_only_ahead() -> None:
@@ -43,7 +48,8 @@ def test_stop_needs_min_points_and_only_ahead() -> None:
     assert cm(0.2, 0.0, one).action != "stop"  # one point is noise (min_points 2)
     two = np.array([[R + 0.02, 0.0], [R + 0.03, 0.01]])
     out = cm(0.2, 0.1, two)
-    assert (out.action, out.zone, out.v, out.w) == ("stop", "stop", 0.0, 0.0)
+    # stopped, but free to turn on the spot (a round footprint sweeps nothing new)
+    assert (out.action, out.zone, out.v, out.w) == ("stop", "stop", 0.0, 0.1)
     assert cm.changed
     back = cm(-0.1, 0.0, two)  # backing away from it is allowed
     assert back.action == "none" and back.v == -0.1

@@ -37,6 +37,8 @@ class ObstacleLayer:
         res = static.resolution
         self._reach = static.robot_radius + static.config.inflation_radius + 0.5
         self._pad = int(np.ceil(self._reach / res))
+        self._people = np.zeros(0, dtype=np.int64)  # flat cells marked for people standing
+        self._held = np.zeros(self.marks.shape, dtype=bool)  # ... which beams do not clear
 
     @property
     def has_marks(self) -> bool:
@@ -53,13 +55,16 @@ class ObstacleLayer:
         return self._layered
 
     def clear(self) -> None:
-        """Forget every marked obstacle (the 'clear costmap' recovery)."""
+        """Forget every marked obstacle (the 'clear costmap' recovery; people still standing
+        are marked again with the next scan)."""
         if self.marks.any():
             self.marks[:] = False
             self._layered = self.static
             self._dirty = None
             self.revision += 1
         self._any = False
+        self._people = np.zeros(0, dtype=np.int64)
+        self._held[:] = False
 
     def _touch(self, rows: np.ndarray, cols: np.ndarray) -> None:
         box = [int(rows.min()), int(rows.max()), int(cols.min()), int(cols.max())]
@@ -99,6 +104,37 @@ class ObstacleLayer:
         layered.distance[win] = distance
         layered.cost[win] = inflation_cost(distance, static.robot_radius, static.config)
 
+    def set_people(self, discs: np.ndarray) -> bool:
+        """Mark the discs (rows x, y, radius) of the people standing in the robot's way, as
+        a people layer of Nav2's social navigation does from a tracker, and unmark those
+        marked for people who have walked on; whether anything changed."""
+        if not self.config.enabled:
+            return False
+        grid = self.static.grid
+        cells: list[np.ndarray] = []
+        res = grid.resolution
+        for x, y, r in np.asarray(discs, dtype=float).reshape(-1, 3).tolist():
+            n = int(np.ceil(r / res)) + 1
+            row, col = grid.world_to_cell(np.array([x, y]))
+            rr, cc = np.mgrid[row - n : row + n + 1, col - n : col + n + 1]
+            rr, cc = rr.ravel(), cc.ravel()
+            inside = grid.in_bounds(rr, cc)
+            rr, cc = rr[inside], cc[inside]
+            centre = grid.cell_to_world(rr, cc)
+            on = np.hypot(centre[:, 0] - x, centre[:, 1] - y) <= r
+            cells.append(rr[on] * grid.width + cc[on])
+        new = np.unique(np.concatenate(cells)) if cells else np.zeros(0, dtype=np.int64)
+        if np.array_equal(new, self._people):
+            return False
+        flat, held = self.marks.reshape(-1), self._held.reshape(-1)
+        for changed, value in ((self._people, False), (new, True)):
+            if len(changed):
+                flat[changed] = held[changed] = value
+                self._touch(*np.divmod(changed, grid.width))
+        self._people = new
+        self._any = True if len(new) else None
+        return True
+
     def update(self, pose: Pose2D, scan: LaserScan, ignore: np.ndarray | None = None) -> bool:
         """Clear along the beams and mark the returns of ``scan`` seen from ``pose``, but
         for the beams ``ignore`` flags (their returns are not obstacles: tracked people)."""
@@ -126,7 +162,8 @@ class ObstacleLayer:
         return changed
 
     def _clear(self, pose: Pose2D, scan: LaserScan) -> bool:
-        """Unmark the marked cells within reach that a beam passes through."""
+        """Unmark the marked cells within reach that a beam passes through (but people's,
+        which :meth:`set_people` keeps)."""
         if self._any is False:  # nothing marked: nothing to clear (no window scan)
             return False
         grid = self.static.grid
@@ -138,7 +175,10 @@ class ObstacleLayer:
         c0, c1 = max(int(col) - k, 0), min(int(col) + k + 1, grid.width)
         if r0 >= r1 or c0 >= c1:
             return False
-        rr, cc = np.nonzero(self.marks[r0:r1, c0:c1])
+        window = self.marks[r0:r1, c0:c1]
+        if len(self._people):  # a person standing stays marked until they walk on
+            window = window & ~self._held[r0:r1, c0:c1]
+        rr, cc = np.nonzero(window)
         if not len(rr):
             return False
         rr += r0

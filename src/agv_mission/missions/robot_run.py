@@ -65,16 +65,14 @@ class RobotReport:
     traffic_path: np.ndarray | None
 
 
-def _without(
-    scan: LaserScan | None, on_people: tuple[np.ndarray, np.ndarray] | None
-) -> LaserScan | None:
+def _without(scan: LaserScan | None, on_people: np.ndarray | None) -> LaserScan | None:
     """The scan for the localiser (or SLAM) without the returns on tracked people (as a
     laser filter would take them out): a crowd is not on the map and would pull the
     estimate towards whatever it hides, or be mapped."""
-    if scan is None or on_people is None or not on_people[0].any():
+    if scan is None or on_people is None or not on_people.any():
         return scan
     ranges = scan.ranges.copy()
-    ranges[on_people[0]] = np.inf
+    ranges[on_people] = np.inf
     return dataclasses.replace(scan, ranges=ranges)
 
 
@@ -347,10 +345,9 @@ class RobotRun:
         if scan is not None:
             handle.state.scan = scan
             handle.state.obstacles = scan.points(estimate)
-            if on_people is None:
-                self.navigator.observe(estimate, scan)
-            else:  # returns on people passing by are not obstacles of the costmap
-                self.navigator.observe(estimate, scan, ignore=on_people[1])
+            # returns on people are not obstacles of the costmap: people standing are
+            # marked as themselves, from the tracker
+            self.navigator.observe(estimate, scan, people, on_people)
         self._perceived = (sensing.odom, estimate)
         return estimate
 

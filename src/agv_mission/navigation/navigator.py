@@ -42,6 +42,7 @@ from agv_mission.planners.base import (
     VelocityLimits,
 )
 from agv_mission.planners.cost_grid import CostGridPlanner
+from agv_mission.planners.free_space import EDGE_EPS
 from agv_mission.planners.path_tracking import Projection, Segments, closest_point
 
 
@@ -90,14 +91,11 @@ def on_people(points: np.ndarray, people: np.ndarray) -> np.ndarray:
     return (d2 <= (reach * reach)[None, :]).any(axis=1)
 
 
-def beams_on_people(
-    scan: LaserScan, pose: Pose2D, people: np.ndarray
-) -> tuple[np.ndarray, np.ndarray] | None:
+def beams_on_people(scan: LaserScan, pose: Pose2D, people: np.ndarray) -> np.ndarray | None:
     """Which beams of ``scan`` seen from ``pose`` end on a tracked person (rows x, y,
-    radius, vx, vy, still), and which on one passing by (not standing for
-    :data:`STILL_TIME` yet): the localiser leaves out the first, the obstacle layer the
-    second. None when no person is within the lidar's reach. Only the beams pointing at
-    someone (each person's angular window) are looked at: a few of the scan's hundreds."""
+    radius, ...): the localiser and the obstacle layer leave them out. None when no person
+    is within the lidar's reach. Only the beams pointing at someone (each person's angular
+    window) are looked at: a few of the scan's hundreds."""
     if not len(people):
         return None
     people = np.asarray(people, dtype=float)
@@ -117,18 +115,12 @@ def beams_on_people(
     a = (scan.angle_min + inc * beams) + pose.yaw  # as ``scan.angles`` has them
     ex, ey = pose.x + r * np.cos(a), pose.y + r * np.sin(a)
     hit = np.zeros(len(beams), dtype=bool)
-    hit_passing = np.zeros(len(beams), dtype=bool)
-    passing = (people[:, 5] < STILL_TIME).tolist()
-    for (x, y, radius), passes in zip(people[:, 0:3].tolist(), passing, strict=True):
-        reach = radius + PERSON_TOLERANCE  # as :func:`on_people`, a person at a time
-        theirs = (ex - x) ** 2 + (ey - y) ** 2 <= reach * reach
-        hit |= theirs
-        if passes:
-            hit_passing |= theirs
-    on, on_passing = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
-    on[beams] = hit
-    on_passing[beams] = hit_passing
-    return on, on_passing
+    for x, y, radius in people[:, 0:3].tolist():  # as :func:`on_people`, a person at a time
+        reach = radius + PERSON_TOLERANCE
+        hit |= (ex - x) ** 2 + (ey - y) ** 2 <= reach * reach
+    mask = np.zeros(n, dtype=bool)
+    mask[beams] = hit
+    return mask
 
 
 def _beams_towards(
@@ -304,21 +296,37 @@ class Navigator:
         ignore: np.ndarray | None = None,
     ) -> None:
         """Mark and clear unmapped obstacles from a new scan (other robots' returns
-        left out: they clear, but do not mark). Returns on tracked ``people`` passing by
-        (rows x, y, radius, vx, vy, still) are not obstacles of the costmap either (the
-        controller avoids them where they go; a plan does not swerve round where they
-        were), though their beams still clear what they pass; someone who has stood for
-        :data:`STILL_TIME` is an obstacle like any other until they walk on. A caller that
-        already knows the beams on people passing by passes them as ``ignore``
-        (:func:`beams_on_people`)."""
+        left out: they clear, but do not mark). Returns on tracked ``people`` (rows x, y,
+        radius, vx, vy, still) are not marked either, though their beams still clear what
+        they pass: someone passing by is the controller's to avoid where they go (a plan
+        does not swerve round where they were), and someone who has stood for
+        :data:`STILL_TIME` is marked as their body grown by the controller's margin (a
+        people layer) until they walk on. A caller that already knows the beams on people
+        passes them as ``ignore`` (:func:`beams_on_people`)."""
         scan = self.without_fleet(pose, scan)
-        if ignore is None and people is not None and len(people):
-            on = beams_on_people(scan, pose, people)
-            ignore = None if on is None else on[1]
-        if ignore is None:
-            self.layer.update(pose, scan)
+        if people is not None and len(people):
+            if ignore is None:
+                ignore = beams_on_people(scan, pose, people)
+            self.layer.update(pose, scan, ignore)
+            self.layer.set_people(self._standing(pose, scan.range_max, people))
         else:
             self.layer.update(pose, scan, ignore)
+
+    def _standing(self, pose: Pose2D, seen: float, people: np.ndarray) -> np.ndarray:
+        """Discs (x, y, radius) of the tracked people within ``seen`` who have stood
+        :data:`STILL_TIME`, grown by the room the controller keeps from people (its
+        ``people_margin``; else :data:`PERSON_TOLERANCE`): a plan round them that the
+        controller can follow. Marked from their lidar returns alone, a person standing by
+        a wall left a 0.65 m gap a plan went through and a waffle keeping 0.2 m more from
+        them could not: it stood 75 s there."""
+        rows = np.asarray(people, dtype=float)
+        if not len(rows):
+            return np.zeros((0, 3))
+        margin = getattr(getattr(self.local_planner, "config", None), "people_margin", None)
+        grow = PERSON_TOLERANCE if margin is None else float(margin)
+        near = np.hypot(rows[:, 0] - pose.x, rows[:, 1] - pose.y) <= seen + rows[:, 2]
+        rows = rows[near & (rows[:, 5] >= STILL_TIME)]
+        return np.column_stack([rows[:, 0], rows[:, 1], rows[:, 2] + grow])
 
     def without_fleet(self, pose: Pose2D, scan: LaserScan) -> LaserScan:
         """``scan`` with the returns off the other robots' bodies (``fleet_bodies``, as
@@ -635,9 +643,13 @@ class Navigator:
         planners require (it drifted close to a wall); ``None`` when it is free already."""
         margin = self.global_planner.clearance + 0.01
         here = np.array([pose.x, pose.y])
-        if bool(self.costmap.is_free(here, margin)):
-            return None
         grid = self.costmap.grid
+        # as the planners test a start (free_space.FreeSpace.point_free): on a cell's edge
+        # (a round-number pose on a 5 cm grid) both cells must be free
+        eps = EDGE_EPS * grid.resolution
+        probes = here + np.array([[0.0, 0.0], [eps, eps], [eps, -eps], [-eps, eps], [-eps, -eps]])
+        if bool(self.costmap.is_free(probes, margin).all()):
+            return None
         rows, cols = grid.world_to_cell(here)
         reach = int(np.ceil(self.config.escape_distance / grid.resolution))
         r0, r1 = max(int(rows) - reach, 0), min(int(rows) + reach + 1, grid.height)

@@ -174,7 +174,12 @@ class FreeSpace:
         if not (0.0 <= px < w and 0.0 <= py < h):
             raise PlanningError(f"{what} ({pose.x:.2f}, {pose.y:.2f}) is outside the map")
         if not self.point_free(px, py):
-            clr = float(self.costmap.clearance(np.array([pose.x, pose.y])))
+            # the least of the cells it stands on (two or four on a cell's edge)
+            eps = EDGE_EPS * self.res
+            corners = np.array(
+                [[pose.x + dx, pose.y + dy] for dx in (-eps, eps) for dy in (-eps, eps)]
+            )
+            clr = float(self.costmap.clearance(corners).min())
             raise PlanningError(
                 f"{what} ({pose.x:.2f}, {pose.y:.2f}) is not free: clearance {clr:.3f} m, "
                 f"needs more than {self.required:.3f} m (robot radius + clearance margin)"

@@ -812,3 +812,31 @@ def test_a_start_on_a_cell_edge_by_a_wall_escapes_as_the_planner_sees_it() -> No
     assert not space.point_free(pose.x - grid.origin.x, pose.y - grid.origin.y)
     out = navigator._escape_point(pose)
     assert out is not None and bool(costmap.is_free(np.array([out.x, out.y]), margin))
+
+
+def test_a_route_through_a_door_of_0_8_m_is_walked_wherever_the_grid_falls() -> None:
+    """Two rooms joined by a 0.8 m door (people of 0.25 m fit, with 0.15 m to spare), the
+    door shifted across the routing grid's 0.25 m cells: always one piece of walkable space
+    and a person walks through (cell centres alone lost such doors)."""
+    from agv_mission.geometry import Pose2D
+    from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
+
+    for shift in (0.0, 0.05, 0.10, 0.15, 0.20):
+        data = np.full((80, 160), FREE, dtype=np.int8)  # 8 x 4 m at 5 cm
+        data[[0, -1], :] = data[:, [0, -1]] = OCCUPIED
+        data[:, 78:82] = OCCUPIED  # a 0.2 m wall at x = 3.9..4.1
+        door = int(round((1.5 + shift) / 0.05))
+        data[door : door + 16, 78:82] = FREE  # 0.8 m wide
+        grid = OccupancyGrid(data, 0.05, Pose2D(0.0, 0.0, 0.0))
+        route = ((1.0, 3.0), (7.0, 3.0))
+        crowd = Crowd(
+            [PeopleGroup(count=1, behaviour="route", route=route, speed=1.2)],
+            grid,
+            np.random.default_rng(0),
+        )
+        router = crowd._routers[0]
+        west, east = (router.component(router.node(p)) for p in route)
+        assert west == east >= 0, shift
+        walk = _walk(crowd, 200)
+        assert (walk[:, 0, 0] > 6.5).any(), shift  # through the door to the far side
+        assert _wall_gap(grid, walk, crowd.radii) > -0.03

@@ -71,9 +71,8 @@ def _area(
     else:
         polygon = tuple((float(p[0]), float(p[1])) for p in spec.area or ())
         name = "the area"
-    cells = np.argwhere(router.walkable)
-    centres = router.centres(cells)
-    inside = shapely.contains_xy(shapely.Polygon(polygon), centres[:, 0], centres[:, 1])
+    points = router.points[router.walkable.ravel()]
+    inside = shapely.contains_xy(shapely.Polygon(polygon), points[:, 0], points[:, 1])
     walkable = float(np.count_nonzero(inside)) * router.cell_area
     if walkable <= 0.0:
         report(

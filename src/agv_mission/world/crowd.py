@@ -22,9 +22,8 @@ import contourpy
 import numpy as np
 import pyrvo
 import shapely
-from scipy.ndimage import label
 from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import breadth_first_order
+from scipy.sparse.csgraph import breadth_first_order, connected_components
 
 from agv_mission.maps.distance import obstacle_distance
 from agv_mission.maps.grid import FREE, OccupancyGrid
@@ -43,6 +42,7 @@ ROBOT_MARGIN = 0.3  # m people keep from a machine on top of its footprint (they
 # m more between a person's start and a robot's footprint than ROBOT_MARGIN: nobody starts
 # in (or at) a robot's reach; someone due to enter where a robot stands waits until it left
 START_GAP = 0.3
+WALL_SLACK = 0.05  # m a person's body may lean into a wall (a map cell: the outline's own error)
 ROUTE_CELL = 0.25  # m, the routing grid (a person is 0.5 m wide: doors still pass)
 WALL_SIMPLIFY = 0.02  # m, how far the walls' outline may move when simplified
 HULL_SLACK = 0.1  # m an obstacle's convex hull may stand out of it to stand for it (a notch)
@@ -151,24 +151,34 @@ def wall_obstacles(grid: OccupancyGrid) -> list[list[list[float]]]:
 
 
 class RouteGrid:
-    """Ways on a coarse grid of the cells a person of ``radius`` fits in; one tree per goal
-    cell, computed when first asked for and kept (:func:`route_grid`: one per map)."""
+    """Ways on a coarse grid of the space a person of ``radius`` fits in; one tree per goal
+    cell, computed when first asked for and kept (:func:`route_grid`: one per map).
+
+    A coarse cell is walkable when the person fits anywhere in it, and stands for the map
+    cell in it with the most room (its ``point``); two neighbouring cells are joined when
+    the person fits all along the straight line between their points. Cell centres alone
+    lost every gap narrower than about 0.85 m that the 0.25 m grid happened to straddle:
+    real 0.8 m doors, and routes through them refused as walled off."""
 
     def __init__(self, grid: OccupancyGrid, radius: float):
-        self.cell = max(ROUTE_CELL, grid.resolution)
-        x0, x1, y0, y1 = grid.extent
+        k = max(1, round(ROUTE_CELL / grid.resolution))  # map cells a side
+        self.cell = k * grid.resolution
+        x0, _, y0, _ = grid.extent
         self.origin = np.array([x0, y0])
-        self.shape = (
-            max(1, int((y1 - y0) / self.cell)),
-            max(1, int((x1 - x0) / self.cell)),
-        )
-        centres = self.centres(np.indices(self.shape).reshape(2, -1).T)
-        rows, cols = grid.world_to_cell(centres)
-        inside = grid.in_bounds(rows, cols)
-        room = np.zeros(len(centres))
-        room[inside] = clearance(grid)[rows[inside], cols[inside]]
-        self.walkable = (room >= radius + grid.resolution).reshape(self.shape)
-        self.graph = self._graph()
+        self.shape = (max(1, grid.height // k), max(1, grid.width // k))
+        height, width = self.shape
+        room = np.full((height * k, width * k), -np.inf, dtype=np.float32)
+        rows, cols = min(grid.height, height * k), min(grid.width, width * k)
+        room[:rows, :cols] = clearance(grid)[:rows, :cols]
+        blocks = room.reshape(height, k, width, k).transpose(0, 2, 1, 3).reshape(height, width, -1)
+        best = blocks.argmax(axis=2)
+        most = np.take_along_axis(blocks, best[..., None], axis=2)[..., 0]
+        self.walkable = most >= radius + grid.resolution
+        self._room = most.ravel()  # each cell's point's distance to a wall
+        r = np.arange(height)[:, None] * k + best // k
+        c = np.arange(width)[None, :] * k + best % k
+        self.points = grid.cell_to_world(r.ravel(), c.ravel())  # each cell's roomiest point
+        self.graph = self._graph(grid, radius)
         self._trees: dict[int, array[int]] = {}  # goal: predecessors
         self._labels: np.ndarray | None = None
 
@@ -177,15 +187,11 @@ class RouteGrid:
         return self.cell * self.cell
 
     def component(self, node: int) -> int:
-        """The connected piece of walkable space ``node`` lies in (0: none)."""
+        """The connected piece of walkable space ``node`` lies in (-1: none)."""
         if self._labels is None:
-            self._labels = label(self.walkable)[0].ravel()  # 4-connected, as the graph
+            _, labels = connected_components(self.graph, directed=False)
+            self._labels = np.where(self.walkable.ravel(), labels, -1)
         return int(self._labels[node])
-
-    def centres(self, cells: np.ndarray) -> np.ndarray:
-        """Map-frame centres of (row, col) cells, shape (n, 2)."""
-        cells = np.asarray(cells, dtype=float).reshape(-1, 2)
-        return self.origin + (cells[:, ::-1] + 0.5) * self.cell
 
     def node(self, xy: Sequence[float]) -> int | None:
         """The walkable routing cell nearest ``xy`` (None when there is none)."""
@@ -194,36 +200,50 @@ class RouteGrid:
         height, width = self.shape
         if 0 <= row < height and 0 <= col < width and self.walkable[row, col]:
             return row * width + col
-        near = np.argwhere(self.walkable)
+        near = np.flatnonzero(self.walkable.ravel())
         if near.size == 0:
             return None
-        best = near[np.argmin(np.hypot(near[:, 0] - row, near[:, 1] - col))]
-        return int(best[0] * width + best[1])
+        gap = self.points[near] - np.asarray(xy, dtype=float)
+        return int(near[np.argmin(np.hypot(gap[:, 0], gap[:, 1]))])
 
-    def _graph(self) -> csr_matrix:
+    def _graph(self, grid: OccupancyGrid, radius: float) -> csr_matrix:
+        """Neighbours (8-connected) joined where the person fits all along the line
+        between their points (sampled every half map cell)."""
         height, width = self.shape
         index = np.arange(height * width).reshape(height, width)
         ok = self.walkable
-        rows, cols, weights = [], [], []
+        a_all, b_all = [], []
         for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
             a = (slice(0, height - dr), slice(max(0, -dc), width - max(0, dc)))
             b = (slice(dr, height), slice(max(0, dc), width - max(0, -dc) or None))
             both = ok[a] & ok[b]
-            if dr and dc:  # no corner cutting: both orthogonal neighbours walkable too
-                both &= ok[a[0], b[1]] & ok[b[0], a[1]]
-            rows.append(index[a][both])
-            cols.append(index[b][both])
-            weights.append(np.full(int(both.sum()), np.hypot(dr, dc) * self.cell))
+            a_all.append(index[a][both])
+            b_all.append(index[b][both])
+        a, b = np.concatenate(a_all), np.concatenate(b_all)
+        length = np.hypot(*(self.points[b] - self.points[a]).T)
+        # the room shrinks at most as fast as one walks: a line no longer than twice the
+        # room its ends have, less the person, is clear; the others are looked along
+        doubt = np.flatnonzero(np.minimum(self._room[a], self._room[b]) - length / 2 < radius)
+        pa, pb = self.points[a[doubt]], self.points[b[doubt]]
+        samples = max(2, int(np.ceil(3 * self.cell * 2 / grid.resolution)))
+        t = np.linspace(0.0, 1.0, samples)[None, :, None]
+        along = pa[:, None, :] + (pb - pa)[:, None, :] * t  # (edges, samples, 2)
+        rows, cols = grid.world_to_cell(along.reshape(-1, 2))
+        inside = grid.in_bounds(rows, cols)
+        room = np.full(len(rows), -np.inf)
+        room[inside] = clearance(grid)[rows[inside], cols[inside]]
+        keep = np.ones(len(a), dtype=bool)
+        keep[doubt] = (room.reshape(len(doubt), samples) >= radius).all(axis=1)
+        a, b, length = a[keep], b[keep], length[keep]
         n = height * width
         # every edge both ways: a directed search needs no transposed copy per goal
-        a, b, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
         return csr_matrix(
-            (np.concatenate([w, w]), (np.concatenate([a, b]), np.concatenate([b, a]))),
+            (np.concatenate([length, length]), (np.concatenate([a, b]), np.concatenate([b, a]))),
             shape=(n, n),
         )
 
     def path(self, start: int, goal: int) -> np.ndarray | None:
-        """Cell centres from ``start`` to ``goal`` (None when they are not connected)."""
+        """The cells' points from ``start`` to ``goal`` (None when not connected)."""
         tree = self._trees.get(goal)
         if tree is None:
             # fewest cells (8-connected, a breadth-first tree: 18x faster than Dijkstra's on
@@ -241,8 +261,7 @@ class RouteGrid:
         while node != goal:
             node = tree[node]
             nodes.append(node)
-        rows, cols = np.divmod(np.array(nodes), self.shape[1])
-        return self.centres(np.stack([rows, cols], axis=1))
+        return self.points[nodes]
 
 
 class Crowd:
@@ -281,7 +300,7 @@ class Crowd:
         # the clearance with a border of -inf: a lookup needs no bounds check (off the map)
         self._room = np.pad(clearance(grid), 1, constant_values=-np.inf)
         self._stall = STALL_SPEED * self.speeds  # each person's held-up speed
-        self._half_radii = 0.5 * self.radii  # a step ending nearer a wall is refused
+        self._wall_room = self.radii - WALL_SLACK  # a step ending nearer a wall is refused
         self._dt = time_step
         self.decision_period = decision_period
         self._to = np.zeros((n, 2))  # where everyone will be at the next decision...
@@ -349,7 +368,7 @@ class Crowd:
                     if self._room_at(start[None, :])[0] < group.radius:
                         cell = router.node(start)  # a corner cut by the loop: the nearest cell
                         if cell is not None:
-                            start = router.centres(np.divmod(cell, router.shape[1]))[0]
+                            start = router.points[cell].copy()
                     self.positions[k] = start
                     self._goals.append(goals)
                     self._goal_index[k] = leg % max(1, len(goals))
@@ -361,7 +380,7 @@ class Crowd:
             taken = self.positions[:k]
             size = min(len(pool), max(WANDER_GOALS_MIN, 2 * group.count), WANDER_GOALS_MAX)
             goals = [int(c) for c in self.rng.choice(pool, size=size, replace=False)]
-            centres = router.centres(np.stack(np.divmod(pool, router.shape[1]), axis=1))
+            centres = router.points[pool]
             clear = self._clear_of_robots(centres, group.radius, START_GAP)
             if clear.any():  # else a robot fills the area: start where it least is
                 centres = centres[clear]
@@ -374,11 +393,10 @@ class Crowd:
     @staticmethod
     def _area_cells(router: RouteGrid, area: Sequence[tuple[float, float]]) -> np.ndarray:
         """Walkable routing cells inside ``area`` (the candidates for wander goals)."""
-        cells = np.argwhere(router.walkable)
-        centres = router.centres(cells)
-        inside = shapely.contains_xy(shapely.Polygon(area), centres[:, 0], centres[:, 1])
-        cells = cells[inside]
-        return cells[:, 0] * router.shape[1] + cells[:, 1]
+        cells = np.flatnonzero(router.walkable.ravel())
+        points = router.points[cells]
+        inside = shapely.contains_xy(shapely.Polygon(area), points[:, 0], points[:, 1])
+        return cells[inside]
 
     def _clear_of_robots(self, points: np.ndarray, radius: float, gap: float) -> np.ndarray:
         """Which of ``points`` a person of ``radius`` may stand on: more than ROBOT_MARGIN
@@ -452,7 +470,7 @@ class Crowd:
         radius = float(self.radii[i])
         end = self._exact.get(goal)
         if end is None:
-            end = router.centres(np.divmod(goal, router.shape[1]))[0]
+            end = router.points[goal]
         if self._sim.query_visibility(self.positions[i].tolist(), end.tolist(), radius):
             self._waypoints[i] = end[None, :].copy()  # in sight: straight there
         else:
@@ -715,9 +733,16 @@ class Crowd:
     def _keep_off_walls(
         self, people: np.ndarray, who: slice | np.ndarray, before: np.ndarray
     ) -> None:
-        """The guard under ORCA: a person whose step would end in a wall stays put."""
+        """The guard under ORCA: a step that would end with the person's body further into
+        a wall than WALL_SLACK, and further in than before, is refused (they stay put; a
+        step out is always allowed; a guard at half their radius let people stand 12 cm
+        into a wall, one refusing any step in stalled them there)."""
         room = self._room_at(self._to[who])
-        for j in np.flatnonzero(room < self._half_radii[who]).tolist():
+        deep = np.flatnonzero(room < self._wall_room[who])
+        if not len(deep):
+            return
+        deeper = room[deep] < self._room_at(before[deep].view(np.float64).reshape(-1, 2))
+        for j in deep[deeper].tolist():
             i = int(people[j])
             back = complex(before[j])
             a = int(self._agent[i])

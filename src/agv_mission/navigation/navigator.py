@@ -304,13 +304,15 @@ class Navigator:
         people layer) until they walk on. A caller that already knows the beams on people
         passes them as ``ignore`` (:func:`beams_on_people`)."""
         scan = self.without_fleet(pose, scan)
-        if people is not None and len(people):
-            if ignore is None:
-                ignore = beams_on_people(scan, pose, people)
-            self.layer.update(pose, scan, ignore)
-            self.layer.set_people(self._standing(pose, scan.range_max, people))
+        tracked = people is not None and len(people) > 0
+        if tracked and ignore is None:
+            ignore = beams_on_people(scan, pose, people)
+        if ignore is None:
+            self.layer.update(pose, scan)
         else:
             self.layer.update(pose, scan, ignore)
+        if tracked:
+            self.layer.set_people(self._standing(pose, scan.range_max, people))
 
     def _standing(self, pose: Pose2D, seen: float, people: np.ndarray) -> np.ndarray:
         """Discs (x, y, radius) of the tracked people within ``seen`` who have stood

@@ -234,3 +234,16 @@ def test_a_goal_in_a_keepout_zone_fails_with_the_reason(tmp_path: Path) -> None:
     record = run_mission(load_mission(path, ["limits.time=60"]))
     assert record.status == "failed"
     assert "(2.00, 1.00) lies in a keepout zone" in record.reason
+
+
+def test_from_the_middle_of_a_keepout_zone_the_way_out_nearest_the_goal(tmp_path: Path) -> None:
+    """Every side of a square zone is as near from its middle: the robot leaves by the one
+    towards its goal (ties broken by the goal), wherever the goal is."""
+    square = "  - {type: keepout, polygon: [[5.5, -5.0], [7.5, -5.0], [7.5, -3.0], [5.5, -3.0]]}\n"
+    zones = load_mission(write(tmp_path, square)).zones
+    assert zones is not None
+    margin = 0.1
+    for goal, side in (((9.0, -4.0), "east"), ((3.0, -4.0), "west"), ((6.5, 0.0), "north")):
+        x, y = zones.exit_point(6.5, -4.0, margin, goal)
+        assert {"east": x > 7.5, "west": x < 5.5, "north": y > -3.0}[side], (goal, x, y)
+        assert zones.keepout_clearance(x, y) > zones.robot_radius + margin

@@ -137,10 +137,19 @@ class ZoneFilters:
         """Whether a footprint centred at (x, y) overlaps a keepout zone."""
         return self.keepout_clearance(x, y) < self.robot_radius
 
-    def exit_point(self, x: float, y: float, margin: float) -> tuple[float, float] | None:
+    def exit_point(
+        self,
+        x: float,
+        y: float,
+        margin: float,
+        toward: tuple[float, float] | None = None,
+    ) -> tuple[float, float] | None:
         """The nearest point whose footprint (plus ``margin``) is clear of every keepout
-        zone and obstacle of the base map, in the free space the robot stands in, when the robot at (x, y) is within that margin
-        of a keepout zone; ``None`` when it is not (or there is no way out)."""
+        zone and obstacle of the base map, in the free space the robot stands in, when the
+        robot at (x, y) is within that margin of a keepout zone; ``None`` when it is not
+        (or there is no way out). Of ways out as short (to a map cell), the one nearest
+        ``toward`` (the goal): from the middle of a square zone any side is as near, and
+        leaving away from the goal cost a patrol 20 s."""
         need = self.robot_radius + margin
         if self.keepout_clearance(x, y) > need:
             return None
@@ -150,7 +159,11 @@ class ZoneFilters:
         if rows.size == 0:
             return None
         centres = self.grid.cell_to_world(rows, cols)
-        best = centres[int(np.argmin(np.hypot(centres[:, 0] - x, centres[:, 1] - y)))]
+        d = np.hypot(centres[:, 0] - x, centres[:, 1] - y)
+        best = centres[int(np.argmin(d))]
+        if toward is not None:
+            short = centres[d <= d.min() + self.grid.resolution]
+            best = short[np.argmin(np.hypot(short[:, 0] - toward[0], short[:, 1] - toward[1]))]
         return float(best[0]), float(best[1])
 
     @functools.cached_property

@@ -627,7 +627,8 @@ class Navigator:
         point clear of it, reached straight, so it drives out instead of freezing."""
         if self.zones is None:
             return None
-        out = self.zones.exit_point(pose.x, pose.y, self.global_planner.clearance + 0.02)
+        goal = None if self.goal is None else (self.goal.x, self.goal.y)
+        out = self.zones.exit_point(pose.x, pose.y, self.global_planner.clearance + 0.02, goal)
         return None if out is None else Pose2D(out[0], out[1], pose.yaw)
 
     def _lead_out(self, start: Pose2D, exit_point: Pose2D, seed: int) -> np.ndarray:

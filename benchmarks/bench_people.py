@@ -30,7 +30,6 @@ import numpy as np
 
 from agv_mission.bags.writer import BagWriter
 from agv_mission.maps.builtin_worlds import warehouse
-from agv_mission.missions.crowd_process import own_process
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.outputs import write_run
 from agv_mission.missions.runner import MissionRun
@@ -80,15 +79,10 @@ class _Timed:
         self.run_dir = out / f"{path.stem}_{len(list(out.iterdir()))}"
         self.run_dir.mkdir()
         self.writer = BagWriter(self.run_dir / "bag").prepare()
-        self.setup = self.loop = self.post = self.elsewhere = 0.0
+        self.setup = self.loop = self.post = 0.0
         t = time.thread_time()
         self.run = run = MissionRun(self.loaded, self.run_dir, [self.writer])
         run.notify_start()
-        people = run.people
-        if people is not None and own_process(
-            run.mission.simulation.processes, len(people.crowd.ids)
-        ):
-            people.walk_apart()  # as MissionRun.drive does
         self.setup = time.thread_time() - t
 
     def step(self) -> bool:
@@ -103,15 +97,11 @@ class _Timed:
         self.writer.on_end(record)
         write_run(self.run_dir, self.loaded, record)
         self.post = time.thread_time() - t
-        people = self.run.people
-        self.elsewhere = people.cpu_elsewhere if people is not None else 0.0
 
     def per_sim_s(self) -> tuple[float, float]:
-        """(whole run, loop) CPU seconds per simulated second, the crowd's process's CPU
-        (spent while the loop ran) in both."""
+        """(whole run, loop) CPU seconds per simulated second."""
         sim = max(self.run.world.time, 1e-9)
-        loop = self.loop + self.elsewhere
-        return (self.setup + loop + self.post) / sim, loop / sim
+        return (self.setup + self.loop + self.post) / sim, self.loop / sim
 
 
 def _pair(tmp: Path, count: int, stack: str, seed: int) -> tuple[_Timed, _Timed]:

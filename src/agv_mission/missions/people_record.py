@@ -11,7 +11,6 @@ from typing import Any
 import numpy as np
 
 from agv_mission.atomic import atomic_write_text
-from agv_mission.missions.crowd_process import CrowdProcess
 from agv_mission.missions.people_metrics import people_metrics
 from agv_mission.navigation.state import STANDING, TRACKED_PERSON
 from agv_mission.world.crowd import Crowd, PeopleGroup
@@ -164,7 +163,7 @@ class PeopleRun:
         robots = np.array(
             [(*world.pose(b).xy, b.radius) for b in world.bodies.values()], dtype=float
         ).reshape(-1, 3)
-        self.crowd: Crowd | CrowdProcess = Crowd(groups, world.world.map, rng, robots=robots)
+        self.crowd = Crowd(groups, world.world.map, rng, robots=robots)
         self.world = world
         self.track = PeopleTrack(self.crowd.ids, self.crowd.radii)
         self.touching: set[tuple[int, int]] = set()
@@ -217,28 +216,6 @@ class PeopleRun:
         on = crowd.active
         return crowd.ids[on], crowd.positions[on], crowd.radii[on]
 
-    def walk_apart(self) -> None:
-        """Let the crowd walk in a process of its own from now on (:mod:`crowd_process`)."""
-        if isinstance(self.crowd, Crowd):
-            self.crowd = CrowdProcess(self.crowd)
-
-    @property
-    def cpu_elsewhere(self) -> float:
-        """CPU seconds the crowd spent in its own process (0 while it walks here)."""
-        return self.crowd.cpu_seconds if isinstance(self.crowd, CrowdProcess) else 0.0
-
-    def close(self) -> None:
-        """End the crowd's own process, if it has one."""
-        if isinstance(self.crowd, CrowdProcess):
-            self.crowd.close()
-
-    def ask(self, dt: float, robots: list[Any]) -> None:
-        """The robots are where they will be when the people move (faults applied): a
-        crowd in its own process starts deciding now, while the robots decide."""
-        crowd = self.crowd
-        if isinstance(crowd, CrowdProcess) and crowd.deciding:
-            crowd.ask(dt, _robot_rows(robots))
-
     def move(self, dt: float, robots: list[Any]) -> None:
         """Walk everyone one control period among the robots where they truly are."""
         if not self.crowd.deciding:  # walking on what they decided: no robots needed
@@ -250,8 +227,7 @@ class PeopleRun:
     def metrics(
         self, k: int, trajectory: np.ndarray, robot_radius: float, legs: list[Any], end: float
     ) -> dict[str, Any]:
-        """``metrics.people`` of robot ``k`` (its trajectory rows align with the track's),
-        and whether the crowd walked in a process of its own (``crowd_process``)."""
+        """``metrics.people`` of robot ``k`` (its trajectory rows align with the track's)."""
         steps = min(len(trajectory), len(self.touches))
         touched = np.zeros((steps, len(self.crowd.ids)), dtype=bool)
         for i, pairs in enumerate(self.touches[:steps]):
@@ -259,7 +235,7 @@ class PeopleRun:
                 if robot == k:
                     touched[i, person] = True
         spans = [(leg.t_start, leg.t_end if leg.t_end is not None else end) for leg in legs]
-        metrics = people_metrics(
+        return people_metrics(
             trajectory[:steps, 0],
             trajectory[:steps, 1:3],
             self.track.xy[:steps],
@@ -269,8 +245,6 @@ class PeopleRun:
             touching=touched,
             robot_yaw=trajectory[:steps, 3],
         )
-        metrics["crowd_process"] = isinstance(self.crowd, CrowdProcess)
-        return metrics
 
 
 def fleet_people_metrics(records: list[Any]) -> dict[str, Any]:

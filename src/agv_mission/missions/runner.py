@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import Any
 
 from agv_mission.localization.base import Localizer
-from agv_mission.missions.crowd_process import own_process
 from agv_mission.missions.fleet import FleetCoordinator, queue_fleet_tasks
 from agv_mission.missions.loader import LoadedMission
 from agv_mission.missions.observe import (
@@ -246,16 +245,6 @@ class MissionRun:
             mirror = all(r.stack.scan_period >= CONTROL_PERIOD - 1e-9 for r in self.robots)
             world = self.world if mirror else None
             self.team.fork(size, bool(self.observers), self._serve, world)
-        # robot processes each walk the crowd as they step the world; alone, the crowd may
-        # walk in a process of its own while the robots decide
-        people = self.people
-        if (
-            people is not None
-            and size == 1
-            and self.status is None
-            and own_process(self.mission.simulation.processes, len(people.crowd.ids))
-        ):
-            people.walk_apart()
         try:
             while True:
                 if control is not None:
@@ -304,8 +293,6 @@ class MissionRun:
             self.people.sense(now, robots)
         for r in robots:
             r.prepare(now)
-        if self.people is not None:  # the robots are where the people will see them
-            self.people.ask(CONTROL_PERIOD, robots)
         for r in team.own:
             r.decide(now)
         team.share_reports()
@@ -442,8 +429,6 @@ class MissionRun:
         if self.status is None:
             self.end("error", "the run ended without an outcome")
         self._observe()
-        if self.people is not None:
-            self.people.close()
         wall_time = time.perf_counter() - self.wall_start
         team = self.team
         assert self.status is not None

@@ -72,6 +72,13 @@ class Expectations(BaseModel):
         description="seconds with a person closer than 1.2 m to the footprint "
         "(metrics.people.personal_time), at most",
     )
+    not_moving_share_max: float | None = Field(
+        None,
+        ge=0.0,
+        le=1.0,
+        description="share of the run the robot stood among people (metrics.people."
+        "time_not_moving / sim_time), at most",
+    )
     driven_vs_shortest_max: float | None = Field(
         None,
         ge=1.0,
@@ -247,6 +254,9 @@ def check(expect: Expectations | None, result: dict[str, Any]) -> list[Failure]:
     at_most("people_collisions_max", e.people_collisions_max, people.get("collisions"))
     at_least("people_min_distance_min", e.people_min_distance_min, people.get("min_distance"))
     at_most("personal_time_max", e.personal_time_max, people.get("personal_time"))
+    stood, sim = people.get("time_not_moving"), result.get("sim_time")
+    share = stood / sim if _is_number(stood) and _is_number(sim) and sim > 0 else stood
+    at_most("not_moving_share_max", e.not_moving_share_max, share)
     navigation = metrics.get("navigation") or {}
     for key, bound in (
         ("driven_vs_shortest_max", e.driven_vs_shortest_max),

@@ -163,8 +163,9 @@ class BagWriter:
     simulated seconds (gmapping's ``map_update_interval``), its last state always.
     ``/battery_state`` goes out every ``battery_period`` simulated seconds and when
     charging starts or stops. ``/people`` goes out every ``people_period`` simulated
-    seconds, the people's decision period: they walk straight in between, so its markers hold every corner of their walks. The bag is closed by :meth:`on_end` (or :meth:`close`), so it is complete
-    even when the run ends aborted or in error.
+    seconds, the people's decision period: they walk straight in between, so its markers
+    hold every corner of their walks. The bag is closed by :meth:`on_end` (or
+    :meth:`close`), so it is complete even when the run ends aborted or in error.
 
     A fleet run (fleet.md) shares ``/clock``, ``/tf``, ``/tf_static``, ``/map``, ``/rooms``
     and ``/events`` (each event once, with its ``robot``, as ``result.json`` lists them);

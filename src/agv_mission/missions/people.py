@@ -6,7 +6,6 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import numpy as np
-import shapely
 
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.rooms import Room
@@ -71,9 +70,7 @@ def _area(
     else:
         polygon = tuple((float(p[0]), float(p[1])) for p in spec.area or ())
         name = "the area"
-    points = router.points[router.walkable.ravel()]
-    inside = shapely.contains_xy(shapely.Polygon(polygon), points[:, 0], points[:, 1])
-    walkable = float(np.count_nonzero(inside)) * router.cell_area
+    walkable = float(len(router.cells_within(polygon))) * router.cell_area
     if walkable <= 0.0:
         report(
             (*where, "area"),

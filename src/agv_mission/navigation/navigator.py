@@ -42,7 +42,7 @@ from agv_mission.planners.base import (
     VelocityLimits,
 )
 from agv_mission.planners.cost_grid import CostGridPlanner
-from agv_mission.planners.free_space import EDGE_EPS
+from agv_mission.planners.free_space import FreeSpace
 from agv_mission.planners.path_tracking import Projection, Segments, closest_point
 
 
@@ -647,11 +647,10 @@ class Navigator:
         margin = self.global_planner.clearance + 0.01
         here = np.array([pose.x, pose.y])
         grid = self.costmap.grid
-        # as the planners test a start (free_space.FreeSpace.point_free): on a cell's edge
-        # (a round-number pose on a 5 cm grid) both cells must be free
-        eps = EDGE_EPS * grid.resolution
-        probes = here + np.array([[0.0, 0.0], [eps, eps], [eps, -eps], [-eps, eps], [-eps, -eps]])
-        if bool(self.costmap.is_free(probes, margin).all()):
+        # the planners' own test of a start (on a cell's edge, a round-number pose on a
+        # 5 cm grid, both cells must be free)
+        space = FreeSpace(self.costmap, margin)
+        if space.point_free(*space.to_local(pose.x, pose.y)):
             return None
         rows, cols = grid.world_to_cell(here)
         reach = int(np.ceil(self.config.escape_distance / grid.resolution))

@@ -81,8 +81,8 @@ class _Timed:
         self.writer = BagWriter(self.run_dir / "bag").prepare()
         self.setup = self.loop = self.post = 0.0
         t = time.thread_time()
-        self.run = run = MissionRun(self.loaded, self.run_dir, [self.writer])
-        run.notify_start()
+        self.run = MissionRun(self.loaded, self.run_dir, [self.writer])
+        self.run.notify_start()
         self.setup = time.thread_time() - t
 
     def step(self) -> bool:
@@ -105,7 +105,8 @@ class _Timed:
 
 
 def _pair(tmp: Path, count: int, stack: str, seed: int) -> tuple[_Timed, _Timed]:
-    """The run without people and the run with ``count``, stepped side by side."""
+    """The run without people and the run with ``count``, stepped side by side (their
+    steps as ``MissionRun.drive`` takes them, one run's then the other's)."""
     runs = (
         _Timed(_mission(tmp, 0, stack, seed), tmp),
         _Timed(_mission(tmp, count, stack, seed), tmp),

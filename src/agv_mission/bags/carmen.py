@@ -33,7 +33,7 @@ Stamps are the ``ipc_timestamp``. Some logs print them with six digits (CSAIL's:
 scans share one stamp): the log's order is kept, and stamps that do not increase are
 spread 1 ms apart, which the report counts.
 
-Bad input is a :class:`~agv_mission.bags.reader.BagError` naming the file, the line and
+Bad input is a :class:`~agv_mission.bags.recording.BagError` naming the file, the line and
 what is wrong with it; lines are read one at a time, at most ``MAX_LINE`` characters.
 """
 
@@ -47,7 +47,7 @@ from typing import IO
 
 import numpy as np
 
-from agv_mission.bags.reader import BagData, BagError
+from agv_mission.bags.recording import BagData, BagError
 from agv_mission.geometry import Pose2D
 from agv_mission.messages import LaserScan
 

@@ -24,12 +24,14 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from agv_mission.bags.carmen import is_carmen_log, read_carmen
+from agv_mission.bags.recording import BagData, BagError
 from agv_mission.geometry import Pose2D
 from agv_mission.messages import LaserScan
 
@@ -40,10 +42,6 @@ POSE_TYPES = (
     "geometry_msgs/msg/PoseStamped",
     "geometry_msgs/msg/PoseWithCovarianceStamped",
 )
-
-
-class BagError(Exception):
-    """The bag cannot be mapped as given (invalid input: exit code 2)."""
 
 
 @dataclass
@@ -63,28 +61,6 @@ class Transform:
         return Pose2D(float(m[0, 3]), float(m[1, 3]), math.atan2(m[1, 0], m[0, 0])), bool(
             m[2, 2] < 0.0
         )
-
-
-@dataclass
-class BagData:
-    """What mapping needs from a bag, in the robot's base frame."""
-
-    scans: list[LaserScan]  # as recorded (angles in the scan frame), nan = invalid
-    scan_topic: str
-    scan_frame: str
-    odom: np.ndarray  # (m, 4) t, x, y, yaw of the base frame in the odometry frame
-    odom_source: str  # the topic, or "/tf odom->base_footprint"
-    base_frame: str
-    mount: Pose2D  # the scan frame on the base frame (planar)
-    flipped: bool  # the lidar is upside down
-    mount_found: bool
-    map_to_odom: np.ndarray | None = None  # (k, 4) t, x, y, yaw when the bag has map->odom
-    truth: np.ndarray | None = None  # (k, 4) t, x, y, yaw
-    truth_topic: str | None = None
-    topics: dict[str, str] = field(default_factory=dict)  # topic -> type
-    robot: str | None = None  # the robot's namespace, when its topics have one
-    duration: float = 0.0
-    notes: dict[str, Any] = field(default_factory=dict)  # what the report should say
 
 
 def _matrix(x: float, y: float, z: float, qx: float, qy: float, qz: float, qw: float) -> np.ndarray:
@@ -167,8 +143,6 @@ def read_bag(
 ) -> BagData:
     """Scans, odometry, mount and ground truth of the bag (or CARMEN log) at ``path``;
     ``robot``: whose, in a bag of several robots (their namespace)."""
-    from agv_mission.bags.carmen import is_carmen_log, read_carmen
-
     if is_carmen_log(path):
         if robot is not None:
             raise BagError(f"{path}: a CARMEN log holds one robot, no namespace {robot!r}")

@@ -500,6 +500,10 @@ class ErrorCodesPresent(Nav2Leaf):
         return Status.SUCCESS if int(code) in self.codes else Status.FAILURE
 
 
+class AreErrorCodesPresent(ErrorCodesPresent):
+    """The error code is one of ``error_codes_to_check``."""
+
+
 def _checker(node_type: str) -> type[ErrorCodesPresent]:
     class Checker(ErrorCodesPresent):
         def __init__(self, name: str, handle: RobotHandle, context: TreeContext, **ports: Any):
@@ -571,6 +575,37 @@ class TransformAvailable(Nav2Leaf):
         return Status.SUCCESS
 
 
+class GoalUpdatedCondition(GoalUpdated):
+    """Nav2's GoalUpdated."""
+
+
+class GlobalUpdatedGoal(GoalUpdated):
+    """Nav2's GlobalUpdatedGoal."""
+
+
+class ValidatePath(PathValid):
+    """Nav2's ValidatePath."""
+
+
+class IsPathValid(PathValid):
+    """Nav2's IsPathValid."""
+
+
+class PathExpiringTimer(TimeExpired):
+    """Succeeds when ``seconds`` passed since the path last changed."""
+
+
+def _selector(xml: str) -> type[Selector]:
+    return type(xml, (Selector,), {"__doc__": f"Nav2's {xml}: writes its default."})
+
+
+PlannerSelector = _selector("PlannerSelector")
+ControllerSelector = _selector("ControllerSelector")
+SmootherSelector = _selector("SmootherSelector")
+GoalCheckerSelector = _selector("GoalCheckerSelector")
+ProgressCheckerSelector = _selector("ProgressCheckerSelector")
+PathHandlerSelector = _selector("PathHandlerSelector")
+
 from agv_mission.behaviors import ports_nav2 as _p  # noqa: E402
 
 # The ports of each node type this module's behaviours are (registry slot `behavior`).
@@ -589,3 +624,18 @@ IsGoalNearby.Config = _p.IsGoalNearbyPorts
 TimeExpired.Config = _p.TimeExpiredPorts
 DistanceTraveled.Config = _p.DistanceTraveledPorts
 TransformAvailable.Config = _p.TransformAvailablePorts
+AreErrorCodesPresent.Config = _p.AreErrorCodesPresentPorts
+WouldAControllerRecoveryHelp.Config = _p.WouldAControllerRecoveryHelpPorts
+WouldAPlannerRecoveryHelp.Config = _p.WouldAPlannerRecoveryHelpPorts
+WouldASmootherRecoveryHelp.Config = _p.WouldASmootherRecoveryHelpPorts
+GoalUpdatedCondition.Config = _p.GoalUpdatedPorts
+GlobalUpdatedGoal.Config = _p.GlobalUpdatedGoalPorts
+ValidatePath.Config = _p.ValidatePathPorts
+IsPathValid.Config = _p.IsPathValidPorts
+PathExpiringTimer.Config = _p.PathExpiringTimerPorts
+PlannerSelector.Config = _p.PlannerSelectorPorts
+ControllerSelector.Config = _p.ControllerSelectorPorts
+SmootherSelector.Config = _p.SmootherSelectorPorts
+GoalCheckerSelector.Config = _p.GoalCheckerSelectorPorts
+ProgressCheckerSelector.Config = _p.ProgressCheckerSelectorPorts
+PathHandlerSelector.Config = _p.PathHandlerSelectorPorts

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import py_trees
 from py_trees.common import Status
@@ -17,9 +17,6 @@ from agv_mission.behaviors.decorators import _Gate, _Throttle
 from agv_mission.behaviors.nav2 import NavPath, _arc, _here
 from agv_mission.geometry import Pose2D
 from agv_mission.navigation.handle import RobotHandle
-
-if TYPE_CHECKING:
-    from agv_mission.missions.tree import Node
 
 Behaviour = py_trees.behaviour.Behaviour
 
@@ -175,7 +172,8 @@ class BtNavigator(py_trees.decorators.Decorator):
     time it starts, the tree's blackboard (its own entries, ``prefix.*``) is cleared and
     ``goal`` (or ``goals``) written to it; then the tree runs. Its status is the tree's."""
 
-    def __init__(self, name: str, child: Behaviour, context: TreeContext, node: Node, prefix: str):
+    def __init__(self, name: str, child: Behaviour, context: TreeContext, node: Any, prefix: str):
+        """``node``: the validated navigator node (``missions.tree.Node``)."""
         super().__init__(name=name, child=child)
         self.context, self.node, self.prefix = context, node, prefix
         self.handle = context.handle

@@ -150,7 +150,8 @@ class _SelectorPorts(NodePorts):
 class PlannerSelectorPorts(_SelectorPorts):
     """Write the planner to use (Nav2's PlannerSelector: the default, no topic here)."""
 
-    plugin: ClassVar[str] = f"{NAV2}:Selector"
+    plugin: ClassVar[str] = f"{NAV2}:PlannerSelector"
+    example: ClassVar[dict[str, Any] | None] = {"selected_planner": "selected"}
     type: Literal["planner_selector"]
     xml_id: ClassVar[str | None] = "PlannerSelector"
     default_planner: str = Field("", description="written when nothing else is selected")
@@ -160,7 +161,8 @@ class PlannerSelectorPorts(_SelectorPorts):
 class ControllerSelectorPorts(_SelectorPorts):
     """Write the controller to use (Nav2's ControllerSelector)."""
 
-    plugin: ClassVar[str] = f"{NAV2}:Selector"
+    plugin: ClassVar[str] = f"{NAV2}:ControllerSelector"
+    example: ClassVar[dict[str, Any] | None] = {"selected_controller": "selected"}
     type: Literal["controller_selector"]
     xml_id: ClassVar[str | None] = "ControllerSelector"
     default_controller: str = Field("", description="written when nothing else is selected")
@@ -170,7 +172,8 @@ class ControllerSelectorPorts(_SelectorPorts):
 class SmootherSelectorPorts(_SelectorPorts):
     """Write the smoother to use (Nav2's SmootherSelector)."""
 
-    plugin: ClassVar[str] = f"{NAV2}:Selector"
+    plugin: ClassVar[str] = f"{NAV2}:SmootherSelector"
+    example: ClassVar[dict[str, Any] | None] = {"selected_smoother": "selected"}
     type: Literal["smoother_selector"]
     xml_id: ClassVar[str | None] = "SmootherSelector"
     default_smoother: str = Field("", description="written when nothing else is selected")
@@ -180,7 +183,8 @@ class SmootherSelectorPorts(_SelectorPorts):
 class GoalCheckerSelectorPorts(_SelectorPorts):
     """Write the goal checker to use (Nav2's GoalCheckerSelector)."""
 
-    plugin: ClassVar[str] = f"{NAV2}:Selector"
+    plugin: ClassVar[str] = f"{NAV2}:GoalCheckerSelector"
+    example: ClassVar[dict[str, Any] | None] = {"selected_goal_checker": "selected"}
     type: Literal["goal_checker_selector"]
     xml_id: ClassVar[str | None] = "GoalCheckerSelector"
     default_goal_checker: str = Field("", description="written when nothing else is selected")
@@ -190,7 +194,8 @@ class GoalCheckerSelectorPorts(_SelectorPorts):
 class ProgressCheckerSelectorPorts(_SelectorPorts):
     """Write the progress checker to use (Nav2's ProgressCheckerSelector)."""
 
-    plugin: ClassVar[str] = f"{NAV2}:Selector"
+    plugin: ClassVar[str] = f"{NAV2}:ProgressCheckerSelector"
+    example: ClassVar[dict[str, Any] | None] = {"selected_progress_checker": "selected"}
     type: Literal["progress_checker_selector"]
     xml_id: ClassVar[str | None] = "ProgressCheckerSelector"
     default_progress_checker: str = Field("", description="written when nothing else is selected")
@@ -200,7 +205,8 @@ class ProgressCheckerSelectorPorts(_SelectorPorts):
 class PathHandlerSelectorPorts(_SelectorPorts):
     """Write the path handler to use (Nav2's PathHandlerSelector)."""
 
-    plugin: ClassVar[str] = f"{NAV2}:Selector"
+    plugin: ClassVar[str] = f"{NAV2}:PathHandlerSelector"
+    example: ClassVar[dict[str, Any] | None] = {"selected_path_handler": "selected"}
     type: Literal["path_handler_selector"]
     xml_id: ClassVar[str | None] = "PathHandlerSelector"
     default_path_handler: str = Field("", description="written when nothing else is selected")
@@ -269,7 +275,7 @@ class ValidatePathPorts(_PathCheckPorts):
     """Succeeds when the path ahead of the robot is free on the costmap (Nav2's
     ValidatePath)."""
 
-    plugin: ClassVar[str] = f"{NAV2}:PathValid"
+    plugin: ClassVar[str] = f"{NAV2}:ValidatePath"
     type: Literal["validate_path"]
     xml_id: ClassVar[str | None] = "ValidatePath"
     example: ClassVar[dict[str, Any] | None] = None
@@ -278,7 +284,7 @@ class ValidatePathPorts(_PathCheckPorts):
 class IsPathValidPorts(_PathCheckPorts, ConditionPorts):
     """The path ahead of the robot is free on the costmap (Nav2's IsPathValid)."""
 
-    plugin: ClassVar[str] = f"{NAV2}:PathValid"
+    plugin: ClassVar[str] = f"{NAV2}:IsPathValid"
     type: Literal["is_path_valid"]
     xml_id: ClassVar[str | None] = "IsPathValid"
     example: ClassVar[dict[str, Any] | None] = None
@@ -295,7 +301,7 @@ class _GoalWatchPorts(ConditionPorts):
 class GoalUpdatedPorts(_GoalWatchPorts):
     """The goal (or goals) changed since it was first ticked (Nav2's GoalUpdated)."""
 
-    plugin: ClassVar[str] = f"{NAV2}:GoalUpdated"
+    plugin: ClassVar[str] = f"{NAV2}:GoalUpdatedCondition"
     type: Literal["goal_updated"]
     xml_id: ClassVar[str | None] = "GoalUpdated"
 
@@ -303,7 +309,7 @@ class GoalUpdatedPorts(_GoalWatchPorts):
 class GlobalUpdatedGoalPorts(_GoalWatchPorts):
     """The goal (or goals) changed since it was last ticked (Nav2's GlobalUpdatedGoal)."""
 
-    plugin: ClassVar[str] = f"{NAV2}:GoalUpdated"
+    plugin: ClassVar[str] = f"{NAV2}:GlobalUpdatedGoal"
     type: Literal["global_updated_goal"]
     xml_id: ClassVar[str | None] = "GlobalUpdatedGoal"
 
@@ -374,7 +380,7 @@ class WouldASmootherRecoveryHelpPorts(_ErrorCodePorts):
 class AreErrorCodesPresentPorts(_ErrorCodePorts):
     """The error code is one of ``error_codes_to_check`` (Nav2's AreErrorCodesPresent)."""
 
-    plugin: ClassVar[str] = f"{NAV2}:ErrorCodesPresent"
+    plugin: ClassVar[str] = f"{NAV2}:AreErrorCodesPresent"
     type: Literal["are_error_codes_present"]
     xml_id: ClassVar[str | None] = "AreErrorCodesPresent"
     example: ClassVar[dict[str, Any] | None] = None
@@ -393,7 +399,7 @@ class PathExpiringTimerPorts(ConditionPorts):
     """Succeeds when ``seconds`` passed since the path last changed (Nav2's
     PathExpiringTimer)."""
 
-    plugin: ClassVar[str] = f"{NAV2}:TimeExpired"
+    plugin: ClassVar[str] = f"{NAV2}:PathExpiringTimer"
     type: Literal["path_expiring_timer"]
     xml_id: ClassVar[str | None] = "PathExpiringTimer"
     example: ClassVar[dict[str, Any] | None] = None

@@ -271,7 +271,13 @@ class _Assembly:
         if kind == "decorator" and spec.single_child is False:
             self.problems.append(
                 spec.where.problem(
-                    f"a decorator ({spec.type}) takes one `child:` (a node), not `children:`",
+                    f"a decorator ({spec.type}) takes exactly one `child`, got {n}", "child"
+                )  # fmt: skip
+            )
+            self.problems.append(
+                spec.where.problem(
+                    f"`children:` is for control nodes; a decorator ({spec.type}) takes "
+                    "`child:` (one node)",
                     "children",
                     spec.port_lines.get("children"),
                 )  # fmt: skip
@@ -283,7 +289,7 @@ class _Assembly:
                 )  # fmt: skip
             )
         elif kind == "control" and (n == 0 or spec.single_child):
-            line = spec.port_lines.get("child" if spec.single_child else "children")
+            line = spec.port_lines.get("child") if spec.single_child else None
             self.problems.append(
                 spec.where.problem(
                     f"a control node ({spec.type}) needs a list of `children`", "children", line

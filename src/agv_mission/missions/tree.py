@@ -40,6 +40,8 @@ if TYPE_CHECKING:  # the behaviours' modules load only when a tree is built
 
 Behaviour = py_trees.behaviour.Behaviour
 SLOT = "behavior"
+#: Nodes nested deeper than this are refused (building and ticking recurse per level).
+MAX_TREE_DEPTH = 100
 #: Keys of a YAML node that are not ports.
 STRUCTURE_KEYS = ("type", "name", "children", "child")
 
@@ -156,13 +158,15 @@ def yaml_spec(value: Any, path: FieldPath, file: str, lines: dict[FieldPath, int
         raise MissionError([where.problem(f"a node is a mapping with a type, got {value!r}")])
     node_type = value.get("type")
     if not isinstance(node_type, str):
-        raise MissionError([where.problem("a node needs a `type` (a string)", "type")])
+        raise MissionError(
+            [where.problem("a node needs a `type` (a string)", "type", lines.get(path + ("type",)))]
+        )
     name = value.get("name")
     if name is not None and not isinstance(name, str):
-        raise MissionError([where.problem("name is a string", "name")])
+        raise MissionError([where.problem("name is a string", "name", lines.get(path + ("name",)))])
     ports = {k: v for k, v in value.items() if k not in STRUCTURE_KEYS}
     port_lines = {k: lines[path + (k,)] for k in ports if path + (k,) in lines}
-    for key in ("child", "children"):  # where a wrong structure is reported
+    for key in ("child", "children", "type", "name"):  # where a wrong structure is reported
         if path + (key,) in lines:
             port_lines[key] = lines[path + (key,)]
     spec = NodeSpec(node_type, where, name, ports, port_lines)
@@ -243,8 +247,20 @@ class _Assembly:
     writes: set[str] = field(default_factory=set)
     expanding: list[str] = field(default_factory=list)
     instances: int = 0
+    depth: int = 0
 
     def node(self, spec: NodeSpec, scope: _Scope) -> Node | None:
+        self.depth += 1
+        try:
+            if self.depth > MAX_TREE_DEPTH:
+                raise MissionError(
+                    [spec.where.problem(f"the tree nests deeper than {MAX_TREE_DEPTH} nodes")]
+                )
+            return self._node(spec, scope)
+        finally:
+            self.depth -= 1
+
+    def _node(self, spec: NodeSpec, scope: _Scope) -> Node | None:
         self.count += 1
         if self.count > MAX_TREE_NODES:
             raise MissionError(
@@ -306,7 +322,10 @@ class _Assembly:
             )
         elif kind in ("action", "condition") and n:
             self.problems.append(
-                spec.where.problem(f"a {kind} ({spec.type}) has no children", "children")
+                spec.where.problem(
+                    f"{'an' if kind == 'action' else 'a'} {kind} ({spec.type}) has no children",
+                    "children",
+                )
             )
         literal, bound = self.ports(spec, config, scope)
         children = [c for c in (self.node(child, scope) for child in spec.children) if c]

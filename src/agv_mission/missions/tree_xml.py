@@ -42,6 +42,10 @@ _KIND_TAGS = {"action": "Action", "condition": "Condition", "control": "Control"
               "decorator": "Decorator"}  # fmt: skip
 
 
+#: Elements nested deeper are refused (a tree that deep is a mistake; recursion stays bounded).
+MAX_DEPTH = 500
+
+
 class TreeSpellingWarning(UserWarning):
     """An XML tree in the earlier spelling (it loads; BT.CPP and Groot2 would not)."""
 
@@ -107,6 +111,9 @@ def _parse(text: str, file: str) -> _Element:
     root: list[_Element] = []
 
     def start(tag: str, attrs: dict[str, str]) -> None:
+        if len(stack) >= MAX_DEPTH:
+            message = f"the XML nests deeper than {MAX_DEPTH} elements"
+            raise MissionError([Problem(file, parser.CurrentLineNumber, tag, message)])
         element = _Element(tag, attrs, parser.CurrentLineNumber)
         (stack[-1].children if stack else root).append(element)
         stack.append(element)

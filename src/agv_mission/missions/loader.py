@@ -170,7 +170,22 @@ class LoadedMission:
         if isinstance(doc.get("tree"), str) and self.source is not None:
             # the copy in a run directory still finds the XML file
             doc["tree"] = str(input_path(doc["tree"].strip(), self.source.parent).resolve())
+        if self.source is not None:  # and its navigators' behavior_tree files
+            _absolute_tree_files([doc.get("tree"), doc.get("trees")], self.source.parent)
         return {k: doc[k] for k in FIELD_ORDER if k in doc}
+
+
+def _absolute_tree_files(value: Any, base: Path) -> None:
+    """Every ``behavior_tree`` file named in ``value`` (a YAML tree) made absolute."""
+    if isinstance(value, list):
+        for item in value:
+            _absolute_tree_files(item, base)
+    elif isinstance(value, dict):
+        tree_file = value.get("behavior_tree")
+        if isinstance(tree_file, str):
+            value["behavior_tree"] = str(input_path(tree_file.strip(), base).resolve())
+        for item in value.values():
+            _absolute_tree_files(item, base)
 
 
 DEMO_MISSION = "visit_rooms.yaml"  # what ``agv-mission run`` runs without a file

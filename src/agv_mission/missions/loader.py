@@ -248,6 +248,7 @@ def load_mission(
         data["seed"] = seed
         override_paths[("seed",)] = f"--seed {seed}"
     log = ProblemLog(file, lines, override_paths, type_swaps=applied.type_swaps)
+    log.warnings += applied.hints  # tasks[0].loops: taken as tasks.0.loops, saying so
     bad_keys = non_string_keys(data)
     if bad_keys:
         raise MissionError(

@@ -72,6 +72,8 @@ MISSION_KEYS = ("tasks", "tree", "robots")
 #: Keys of the mission file (``mission-format.md``) that no rooms, robot, world or map file
 #: has: a mapping with one of them is a mission, however broken.
 MISSION_ONLY_KEYS = (
+    "world",
+    "robot",
     "start",
     "stack",
     "limits",

@@ -434,11 +434,14 @@ class Master:
 
     def _send_new(self, peer: Peer, task: TaskRoute) -> None:
         state = peer.state or {}
-        pos = state.get("agvPosition") or {}
+        # where it stands: its state's agvPosition (optional), else the last seen in its
+        # visualization
+        x, y = peer.last_xy or (0.0, 0.0)
+        pos = state.get("agvPosition") or {"x": x, "y": y}
         here = RouteNode(
             str(state.get("lastNodeId") or "start"),
-            float(pos.get("x", 0.0)),
-            float(pos.get("y", 0.0)),
+            float(pos.get("x", x)),
+            float(pos.get("y", y)),
             None,
             task.start_actions,
         )

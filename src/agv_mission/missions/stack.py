@@ -28,7 +28,8 @@ from agv_mission.planners.base import VelocityLimits
 from agv_mission.registry import registry
 from agv_mission.robots.body import hull_top
 from agv_mission.robots.description import RobotDescription
-from agv_mission.robots.odometry import DiffDriveOdometry
+from agv_mission.robots.odometry import DiffDriveOdometry, GyroFusedOdometry
+from agv_mission.robots.sensors import ImuSamples
 from agv_mission.robots.simulation import DiffDriveBody, world_builder
 from agv_mission.world.model import add_people
 from agv_mission.world.simulation import SimulatedWorld
@@ -79,6 +80,13 @@ class Sensing:
     scan: LaserScan | None
     truth: Pose2D
     earlier: tuple[Sensing, ...] = ()
+    imu: ImuSamples | None = None  # the IMU's samples since the sensing before
+
+    @property
+    def imu_samples(self) -> tuple[ImuSamples, ...]:
+        """Every IMU sample this step brings, in batches, oldest first."""
+        found = [s.imu for s in self.earlier] + [self.imu]
+        return tuple(batch for batch in found if batch is not None and len(batch))
 
     @property
     def scans(self) -> tuple[LaserScan, ...]:
@@ -112,15 +120,21 @@ class RobotStack:
             np.random.default_rng(s) for s in seeds
         )
         self.sim = DiffDriveBody(
-            world, setup.name, robot, setup.start, loaded.mission.simulation, sim_rng
+            world,
+            setup.name,
+            robot,
+            setup.start,
+            loaded.mission.simulation,
+            sim_rng,
+            imu_rng=np.random.default_rng(seeds[0].spawn(1)[0]),
         )
-        self.odometry = DiffDriveOdometry(robot.encoder.ticks_per_meter, robot.wheel_separation)
+        self.odometry = new_odometry(robot, setup.stack.odometry.imu)
         self.limits = velocity_limits(robot)
         self.smoother = VelocitySmoother(self.limits, CONTROL_PERIOD)
         self.scan_period = 1.0 / robot.lidar.rate
         self.next_scan = 0.0
         self._between: list[Sensing] = []  # scans taken within the last control period
-        self.odom = self.odometry.update(*self.sim.encoder_ticks())
+        self.odom, _ = self._read_odometry()
         self.odom_start = self.odom
         self.localizer: Localizer = self.new_localizer(loaded.map)
         self.localizer.reset(setup.start, self.odom)
@@ -161,7 +175,7 @@ class RobotStack:
         scans taken within the last control period (:meth:`scan_steps`)."""
         sim = self.sim
         now = sim.time
-        self.odom = self.odometry.update(*sim.encoder_ticks())
+        self.odom, imu = self._read_odometry()
         scan = None
         if now >= self.next_scan - 1e-9:
             self.next_scan += self.scan_period
@@ -169,7 +183,7 @@ class RobotStack:
             if scan_filter is not None:
                 scan = scan_filter(now, scan)
         earlier, self._between = tuple(self._between), []
-        return Sensing(now, self.odom, scan, sim.true_pose(), earlier)
+        return Sensing(now, self.odom, scan, sim.true_pose(), earlier, imu)
 
     def has_moved(self) -> bool:
         """Whether odometry saw the robot move since the start."""
@@ -203,11 +217,38 @@ class RobotStack:
         the next :meth:`sense`."""
         sim = self.sim
         self.next_scan += self.scan_period
-        odom = self.odometry.update(*sim.encoder_ticks())
+        odom, imu = self._read_odometry()
         scan = sim.scan()
         if scan_filter is not None:
             scan = scan_filter(sim.time, scan)
-        self._between.append(Sensing(sim.time, odom, scan, sim.true_pose()))
+        self._between.append(Sensing(sim.time, odom, scan, sim.true_pose(), (), imu))
+
+    def _read_odometry(self) -> tuple[Pose2D, ImuSamples | None]:
+        """The encoders (and the IMU, when the robot has one) read into the odometry."""
+        sim = self.sim
+        ticks = sim.encoder_ticks()
+        imu = sim.imu_samples()
+        odometry = self.odometry
+        if imu is not None and isinstance(odometry, GyroFusedOdometry):
+            return odometry.update_fused(*ticks, imu.turn, len(imu) * imu.period), imu
+        return odometry.update(*ticks), imu
+
+
+def new_odometry(robot: RobotDescription, use_imu: bool = True) -> DiffDriveOdometry:
+    """The robot's odometry: wheels and gyro fused when it has an IMU and ``use_imu``,
+    else the wheels alone."""
+    enc = robot.encoder
+    if robot.imu is None or not use_imu:
+        return DiffDriveOdometry(enc.ticks_per_meter, robot.wheel_separation)
+    # a wheel's relative travel error: per-read noise, slip (uniform), scale error
+    wheel_noise = math.sqrt(enc.noise**2 + enc.slip**2 / 3.0 + enc.scale_error**2)
+    return GyroFusedOdometry(
+        enc.ticks_per_meter,
+        robot.wheel_separation,
+        wheel_noise,
+        robot.imu.gyro_noise_density,
+        robot.imu.gyro_bias_instability,
+    )
 
 
 def build_world(loaded: LoadedMission) -> tuple[SimulatedWorld, list[RobotStack]]:

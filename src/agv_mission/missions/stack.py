@@ -35,6 +35,15 @@ from agv_mission.world.model import add_people
 from agv_mission.world.simulation import SimulatedWorld
 
 CONTROL_PERIOD = 0.1
+#: amcl's refinement's heading noise when the odometry fuses a MEMS gyro: rad sd after a
+#: radian turned and after a metre driven. The MPU-9250's angle random walk and residual
+#: bias (see robots.description) give ~2e-4 rad per radian turned at 1 rad/s and ~5e-4
+#: rad per metre at 0.2 m/s; these are four to ten times that (the wheels': 0.02, 0.01).
+#: amcl's refinement on a map that is not the world's own: the covariance floor from the
+#: fit's residuals, no scan pinning x or y tighter than 1 cm (AmclConfig's defaults pin a
+#: surveyed map's pose to millimetres).
+MADE_MAP_FLOOR = {"refine_split_scale": 0.0, "refine_floor_xy": 0.01}
+GYRO_HEADING_NOISE = {"refine_noise_turn": 0.002, "refine_noise_yaw_per_m": 0.002}
 
 
 class VelocitySmoother:
@@ -140,10 +149,25 @@ class RobotStack:
         self.localizer.reset(setup.start, self.odom)
 
     def new_localizer(self, grid: OccupancyGrid) -> Localizer:
-        """The robot's localisation plugin on ``grid`` (not yet reset)."""
-        return registry.create(
-            "localization", self.setup.stack.localization, grid=grid, rng=self.loc_rng
-        )
+        """The robot's localisation plugin on ``grid`` (not yet reset).
+
+        On a map that is not the world's own (a mission's ``map:``, a map a map_area task
+        just made) amcl's refinement takes its covariance floor from the fit's residuals
+        (MADE_MAP_FLOOR) unless the mission sets it: such a map may be drawn
+        off by centimetres as a whole, which no scan can see (see AmclConfig). With the
+        gyro in the odometry its heading noise is the gyro's (GYRO_HEADING_NOISE), not the
+        wheels'."""
+        config = self.setup.stack.localization
+        update: dict[str, float] = {}
+        if grid is not self.loaded.world.map:
+            update.update(MADE_MAP_FLOOR)
+        if isinstance(self.odometry, GyroFusedOdometry):
+            update.update(GYRO_HEADING_NOISE)
+        fields, given = type(config).model_fields, config.model_fields_set
+        update = {k: v for k, v in update.items() if k in fields and k not in given}
+        if update:
+            config = config.model_copy(update=update)
+        return registry.create("localization", config, grid=grid, rng=self.loc_rng)
 
     def new_slam(self, bounds: Bounds) -> Slam:
         """The robot's SLAM plugin over ``bounds`` (not yet reset)."""

@@ -21,7 +21,7 @@ import yaml
 
 from agv_mission.missions.errors import MissionError
 from agv_mission.vda5050.master import Master, load_plan
-from agv_mission.vda5050.messages import ANGLE_BOUND
+from agv_mission.vda5050.protocol import ANGLE_BOUND
 from agv_mission.vda5050.transport import BrokerUrl
 from test_vda5050_vehicle import MAP, SERIAL, errors_of, here, mission_file, start_vehicle
 from vda5050_peers import MiniMaster, MiniVehicle, Mosquitto, action, edge, node

@@ -31,7 +31,7 @@ from agv_mission.vda5050.master_report import (
     new_run_dir,
     write_outputs,
 )
-from agv_mission.vda5050.messages import deviation_angle, schema_angle, split_topic
+from agv_mission.vda5050.protocol import deviation_angle, schema_angle, split_topic
 from agv_mission.vda5050.routes import (
     ChargeAction,
     MasterPlan,

@@ -6,7 +6,7 @@ loop after loop (``loops: 2`` visits each twice); ``visit_rooms`` its rooms' goa
 ``stopCharging`` where the vehicle stands, then the staging pose; ``charge`` a
 ``startCharging`` where it stands, done when the battery reaches ``until``. A fleet
 robot's own ``tasks:`` go to that robot first (``fleet.md``). Angles go out wrapped
-into the schemas' bounds (:func:`~agv_mission.vda5050.messages.schema_angle`).
+into the schemas' bounds (:func:`~agv_mission.vda5050.protocol.schema_angle`).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from agv_mission.missions.errors import MissionError, Problem
 from agv_mission.missions.loader import LoadedMission, load_mission
 from agv_mission.missions.yaml_lines import line_of, load_with_lines
 from agv_mission.registry import registry
-from agv_mission.vda5050.messages import schema_angle
+from agv_mission.vda5050.protocol import schema_angle
 
 #: the task kinds an order carries
 ORDER_TASKS = ("go_to", "patrol", "visit_rooms", "dock", "undock", "charge")

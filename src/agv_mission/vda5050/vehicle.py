@@ -26,7 +26,7 @@ from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.robots.description import RobotDescription
 from agv_mission.vda5050 import factsheet as fs
 from agv_mission.vda5050.body import BodySnapshot, VehicleBody, yaw_or_free
-from agv_mission.vda5050.messages import (
+from agv_mission.vda5050.protocol import (
     VERSION,
     Action,
     Edge,
@@ -129,7 +129,7 @@ class Vehicle:
         )
 
     def _topic(self, name: str) -> str:
-        from agv_mission.vda5050.messages import topic
+        from agv_mission.vda5050.protocol import topic
 
         return topic(self.manufacturer, self.serial, name)
 

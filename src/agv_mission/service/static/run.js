@@ -66,8 +66,32 @@
     $("pause").disabled = s !== "running";
     $("resume").disabled = s !== "paused";
     $("cancel").disabled = final;
+    $("pace").disabled = final;
+    treeDirty = true;  // the progress reads the status too
     updateTeleop();
   }
+
+  // ------------------------------------------------------------------ pace
+  /** the run's pace (simulated seconds per wall second, null: as fast as it goes) in the menu */
+  function showPace(pace) {
+    const sel = $("pace");
+    if (document.activeElement === sel) return;  // the user is choosing
+    const value = pace == null ? "" : String(+pace);
+    if (![...sel.options].some((o) => o.value === value)) {
+      const o = document.createElement("option");
+      o.value = value; o.textContent = `${value}×`;
+      sel.appendChild(o);
+    }
+    sel.value = value;
+  }
+  $("pace").addEventListener("change", async () => {
+    const value = $("pace").value;
+    const pace = value === "" ? null : parseFloat(value);
+    const r = await AGV.api(`/api/runs/${encodeURIComponent(runId)}/pace`, { method: "POST", body: { pace } });
+    if (r.ok) toast(pace == null ? "pace: as fast as it goes" : `pace: ${pace}× real time`, "good");
+    else { toast(`pace: ${r.status} ${r.data?.detail ?? ""}`, "bad"); if (run) showPace(run.pace); }
+    $("pace").blur();
+  });
 
   async function control(action) {
     const r = await AGV.api(`/api/runs/${encodeURIComponent(runId)}/${action}`, { method: "POST" });
@@ -110,6 +134,7 @@
     if (r.ok && r.data) {
       run = r.data;
       setMeta();
+      showPace(run.pace);
       if (!lastState || AGV.FINAL.has(run.status) || run.status === "queued") setStatus(run.status);
       if (AGV.FINAL.has(run.status)) { onFinal(run.status, run.reason, run.result); return; }
       if (!ws) connect();
@@ -280,15 +305,52 @@
     const level = st && typeof st.battery === "number" ? st.battery : null;
     box.hidden = level === null;
     if (level === null) return;
-    $("batterymeter").value = level;
+    $("batteryfill").style.width = `${Math.max(0, Math.min(1, level)) * 100}%`;
     const text = `${(level * 100).toFixed(1)} %` + (st.docked ? ` · docked at ${st.docked}` : "");
     if ($("batterytext").textContent !== text) $("batterytext").textContent = text;
     box.classList.toggle("charging", !!st.charging);
     box.classList.toggle("low", level <= 0.2);
   }
 
+  /** How far the tree is: of its task nodes ("task 2: patrol"), those finished; in a tree
+   *  without them, of the children of its first node with more than one child (the steps
+   *  below its decorators), those finished. */
+  function treeProgress(nodes) {
+    if (!nodes || !nodes.length) return null;
+    const st = (j) => String(nodes[j].status || "").toUpperCase();
+    const isDone = (j) => st(j) === "SUCCESS" || st(j) === "FAILURE";
+    const tasks = nodes.map((n, j) => j).filter((j) => /^task \d+: /.test(nodes[j].name || ""));
+    if (tasks.length) {
+      const current = tasks.find((j) => st(j) === "RUNNING");
+      return { done: tasks.filter(isDone).length, total: tasks.length, current: current != null ? nodes[current].name : null };
+    }
+    const childrenOf = (i) => {
+      const d = nodes[i].depth || 0, out = [];
+      for (let j = i + 1; j < nodes.length && (nodes[j].depth || 0) > d; j++) if ((nodes[j].depth || 0) === d + 1) out.push(j);
+      return out;
+    };
+    let at = 0, kids = childrenOf(0);
+    while (kids.length === 1) { at = kids[0]; kids = childrenOf(at); }
+    if (!kids.length) kids = [at];
+    const done = kids.filter(isDone).length;
+    const current = kids.find((j) => st(j) === "RUNNING");
+    return { done, total: kids.length, current: current != null ? nodes[current].name : null };
+  }
+  function updateProgress() {
+    const p = treeProgress(treeNodes);
+    $("progress").hidden = !p;
+    if (!p) return;
+    const succeeded = status === "succeeded";
+    const done = succeeded ? p.total : p.done;
+    $("progressbar").value = p.total ? done / p.total : 0;
+    const tk = lastState?.task ? `task ${lastState.task.index + 1} ${lastState.task.type}` : p.current;
+    const text = `${done}/${p.total}` + (tk && !AGV.FINAL.has(status || "") ? ` · ${tk}` : "");
+    if ($("progresstext").textContent !== text) $("progresstext").textContent = text;
+  }
+
   function renderTree() {
     treeDirty = false;
+    updateProgress();
     if (!treeNodes) return;
     const el = $("tree");
     const rows = treeNodes.map((n) => {

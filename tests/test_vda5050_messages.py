@@ -4,7 +4,6 @@ what the models produce valid."""
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import pytest
@@ -14,8 +13,8 @@ from agv_mission.robots.description import BUILTIN_ROBOTS
 from agv_mission.vda5050 import messages as m
 from agv_mission.vda5050.factsheet import factsheet_body
 from agv_mission.vda5050.master import TaskRoute
-from agv_mission.vda5050.transport import BrokerUrl, BrokerUrlError, MqttLink
 from agv_mission.vda5050.schemas import TOPICS, load_schema
+from agv_mission.vda5050.transport import BrokerUrl, BrokerUrlError, MqttLink
 from vda5050_peers import SCHEMAS, SHARED_SCHEMAS, schema_validators
 
 
@@ -26,9 +25,7 @@ def schema(name: str) -> dict[str, Any]:
 def test_the_package_ships_the_schemas_with_their_licence() -> None:
     """A plain install validates messages: the six schemas and the MIT licence are package
     data, byte for byte the standard's (compared with ../shared's copy when present)."""
-    assert {p.name for p in SCHEMAS.iterdir()} >= {f"{t}.schema" for t in TOPICS} | {
-        "LICENSE.txt"
-    }
+    assert {p.name for p in SCHEMAS.iterdir()} >= {f"{t}.schema" for t in TOPICS} | {"LICENSE.txt"}
     licence = (SCHEMAS / "LICENSE.txt").read_text(encoding="utf-8")
     assert "MIT" in licence or "Permission is hereby granted" in licence
     assert "Verband der Automobilindustrie" in licence

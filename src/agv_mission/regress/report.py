@@ -41,6 +41,11 @@ def plan_line(plan: Plan, seeds: int, backend: str, workers: int, address: str |
     )
 
 
+def skipped_lines(plan: Plan) -> list[str]:
+    """One line per file found that is not a mission: the file and why it does not run."""
+    return [f"skipped {f}: {why}" for f, why in plan.skipped]
+
+
 def interrupted_line(results: Sequence[dict[str, Any]], plan: Plan) -> str:
     """How much of an interrupted suite ran."""
     return (
@@ -319,6 +324,8 @@ def junit_xml(results: Sequence[dict[str, Any]], plan: Plan, wall_time: float) -
             {"classname": f"scenarios.{Path(p.file).stem}", "name": "load", "file": p.file},
         )
         ET.SubElement(case, "error", {"message": str(p), "type": "InvalidInput"}).text = str(p)
+    if plan.skipped:  # not test cases: files that are not missions, and why
+        ET.SubElement(suite, "system-out").text = "\n".join(skipped_lines(plan))
     ET.indent(root)
     return ET.tostring(root, encoding="utf-8", xml_declaration=True) + b"\n"
 
@@ -350,6 +357,7 @@ def summary(
             "invalid": len(plan.problems),
         },
         "problems": [str(p) for p in plan.problems],
+        "skipped": [{"file": str(f), "reason": why} for f, why in plan.skipped],
         "runs": list(results),
         "comparison": compare(results),
     }

@@ -33,6 +33,7 @@ from agv_mission.vda5050.messages import (
     InstantActions,
     Node,
     Order,
+    schema_angle,
 )
 from agv_mission.vda5050.transport import BrokerUrl, MqttLink
 
@@ -56,6 +57,8 @@ class ActionRun:
     result: str | None = None
     elapsed: float = 0.0  # simulated seconds of work done (frozen while paused)
     request: int = 0  # the body's charge request it waits for (start/stopCharging)
+    #: its node was reached: it starts as soon as the blocking types let it (still WAITING)
+    triggered: bool = False
 
     def doc(self) -> dict[str, Any]:
         d = {
@@ -191,7 +194,7 @@ class Vehicle:
         return {
             "x": p.x,
             "y": p.y,
-            "theta": p.yaw,
+            "theta": schema_angle(p.yaw),  # [-pi, pi] as the standard's agvPosition
             "mapId": self.body.map_id,
             "positionInitialized": True,
         }
@@ -260,14 +263,21 @@ class Vehicle:
     def _on_message(self, topic_name: str, payload: bytes, _retain: bool) -> None:
         kind = topic_name.rsplit("/", 1)[-1]
         with self._lock:
-            doc = self._parse(kind, payload)
-            if doc is None:
-                pass
-            elif kind == "order":
-                self._receive_order(doc)
-            elif kind == "instantActions":
-                self._receive_instant(doc)
-            self._advance(self.body.snapshot())
+            try:
+                doc = self._parse(kind, payload)
+                if doc is None:
+                    pass
+                elif kind == "order":
+                    self._receive_order(doc)
+                elif kind == "instantActions":
+                    self._receive_instant(doc)
+                self._advance(self.body.snapshot())
+            except Exception as exc:  # noqa: BLE001 (a message must never go unanswered)
+                self._error(
+                    "validationError" if kind in ("order", "instantActions") else "internalError",
+                    f"{kind}: cannot be handled: {exc!r}",
+                    topic=kind,
+                )
         self.publish_state()
 
     def _parse(self, kind: str, payload: bytes) -> dict[str, Any] | None:
@@ -351,7 +361,8 @@ class Vehicle:
         problems = self._order_problems(order)
         if problems:
             key, value, text = problems[0]
-            self._error("orderError", text, orderId=order.orderId, **{key: value})
+            refs = {"orderId": order.orderId, "orderUpdateId": order.orderUpdateId, key: value}
+            self._error("orderError", text, **refs)
             return
         o = self.order
         busy = bool(o.nodes) or any(
@@ -552,7 +563,7 @@ class Vehicle:
         for action in node.actions:
             run = self.actions.get(action.actionId)
             if run is not None and run.status == "WAITING":
-                run.status = "INITIALIZING"  # triggered; started in order by _advance
+                run.triggered = True  # started in list order by _run_actions
 
     def _advance(self, snap: BodySnapshot) -> bool:
         """Move the order and the actions on; True when something changed."""
@@ -610,32 +621,34 @@ class Vehicle:
         )
 
     def _blocked(self) -> bool:
-        """A SOFT or HARD action stops driving while it is not finished (6.12)."""
+        """A SOFT or HARD action stops driving while it runs or waits to run (6.12)."""
         return any(
-            a.action.blockingType != "NONE" and a.status in ("INITIALIZING", "RUNNING")
+            a.action.blockingType != "NONE"
+            and (a.status in ("INITIALIZING", "RUNNING") or (a.triggered and a.status == "WAITING"))
             for a in self.actions.values()
         )
 
     # ---------------------------------------------------------------- actions (6.8, 6.11, 6.12)
 
     def _run_actions(self, snap: BodySnapshot) -> None:
-        hard_running = any(
-            a.action.blockingType == "HARD" and a.status == "RUNNING" for a in self.actions.values()
-        )
+        """Carry the running actions on, then start the triggered ones in list order as
+        their blocking types allow (6.12, figure 17): a HARD action starts only when no
+        other action runs, and nothing starts while it runs; SOFT and NONE run beside
+        each other (SOFT and HARD stop driving: :meth:`_blocked`)."""
         for run in list(self.actions.values()):
-            if run.status == "INITIALIZING" and run.started is None:
-                others = any(
-                    a is not run and a.status == "RUNNING" and a.node_seq is not None
-                    for a in self.actions.values()
-                )
-                if hard_running or (run.action.blockingType == "HARD" and others):
-                    break  # started after what runs now, in list order
-                self._start_action(run, snap)
-                hard_running = hard_running or (
-                    run.action.blockingType == "HARD" and run.status == "RUNNING"
-                )
-            elif run.status == "RUNNING":
+            if run.status == "RUNNING":
                 self._continue_action(run, snap)
+        for run in list(self.actions.values()):
+            if not (run.triggered and run.status == "WAITING"):
+                continue
+            active = [a for a in self.actions.values() if a.status in ("INITIALIZING", "RUNNING")]
+            if any(a.action.blockingType == "HARD" for a in active):
+                break
+            if run.action.blockingType == "HARD" and active:
+                break  # waits for what runs now; the actions after it wait for it
+            self._start_action(run, snap)
+            if run.action.blockingType == "HARD" and run.status == "RUNNING":
+                break
 
     def _start_action(self, run: ActionRun, snap: BodySnapshot) -> None:
         a, kind = run.action, run.action.actionType

@@ -50,26 +50,9 @@ def said(proc: subprocess.CompletedProcess[str]) -> str:
     return f"exit {proc.returncode}\n--- stdout\n{proc.stdout[-3000:]}\n--- stderr\n{proc.stderr[-3000:]}"
 
 
-def slow_unless(*fast: str, known: dict[str, str] | None = None) -> list[Any]:
-    """The kinds as parameters, all but ``fast`` marked slow; ``known``: kinds whose cell
-    fails today, with why and whose it is to mend (strict: the mark goes once it passes)."""
-    known = known or {}
-    return [
-        pytest.param(
-            k,
-            marks=[
-                *(() if k in fast else [pytest.mark.slow]),
-                *([pytest.mark.xfail(strict=True, reason=known[k])] if k in known else []),
-            ],
-            id=k,
-        )
-        for k in KINDS
-    ]
-
-
-#: The master meets a tree mission with a TypeError (load_plan's len(loaded.mission.tasks)
-#: of a mission with tree:, not tasks:) where it should refuse it, exit 2 (VDA 5050: h34a).
-TREE_DISPATCH = "vda5050 dispatch of a tree mission: TypeError, not exit 2 (h34a's master)"
+def slow_unless(*fast: str) -> list[Any]:
+    """The kinds as parameters, all but ``fast`` marked slow."""
+    return [pytest.param(k, marks=() if k in fast else [pytest.mark.slow], id=k) for k in KINDS]
 
 
 # ---------------------------------------------------------------------------- run
@@ -177,10 +160,7 @@ def broker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     mosquitto.stop()
 
 
-@pytest.mark.parametrize(
-    "kind",
-    slow_unless("task_list", "map_area", known={k: TREE_DISPATCH for k in TREES}),
-)
+@pytest.mark.parametrize("kind", slow_unless("task_list", "yaml_tree"))
 def test_vda5050_master(broker: str, kind: str, tmp_path: Path) -> None:
     """Kinds an order carries: our vehicles driven by our master to the mission's result.
     The others: refused before anything is sent, exit 2 with the reason."""

@@ -155,7 +155,11 @@ class FleetWatch:
         now = time.monotonic()
         with self._lock:
             vehicles = [v.doc(now) for _k, v in sorted(self.vehicles.items(), key=_serial_order)]
-        for k, v in enumerate(vehicles):  # run.png's and the dashboard's colours, in order
+        # run.png's and the dashboard's colours: a fleet's vehicles (one manufacturer) in
+        # serial order, as its mission lists its robots
+        fleets: dict[str, int] = {}
+        for v in vehicles:
+            k = fleets[v["manufacturer"]] = fleets.get(v["manufacturer"], -1) + 1
             v["colour"] = robot_colour(k)
         return {
             "broker": str(self.url),

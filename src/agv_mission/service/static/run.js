@@ -312,29 +312,25 @@
     box.classList.toggle("low", level <= 0.2);
   }
 
-  /** How far the tree is: of its task nodes ("task 2: patrol"), those finished; in a tree
-   *  without them, of the children of its first node with more than one child (the steps
-   *  below its decorators), those finished. */
+  /** How far the tree is, from its nodes' statuses: of a task list's tasks ("task 2:
+   *  patrol"), those finished; of one task (or a tree without tasks), the steps of its
+   *  first node with more than one child (a visit's rooms, a round's waypoints). */
   function treeProgress(nodes) {
     if (!nodes || !nodes.length) return null;
     const st = (j) => String(nodes[j].status || "").toUpperCase();
     const isDone = (j) => st(j) === "SUCCESS" || st(j) === "FAILURE";
+    const runningOf = (js) => { const j = js.find((k) => st(k) === "RUNNING"); return j != null ? nodes[j].name : null; };
     const tasks = nodes.map((n, j) => j).filter((j) => /^task \d+: /.test(nodes[j].name || ""));
-    if (tasks.length) {
-      const current = tasks.find((j) => st(j) === "RUNNING");
-      return { done: tasks.filter(isDone).length, total: tasks.length, current: current != null ? nodes[current].name : null };
-    }
+    if (tasks.length > 1) return { done: tasks.filter(isDone).length, total: tasks.length, current: runningOf(tasks) };
     const childrenOf = (i) => {
       const d = nodes[i].depth || 0, out = [];
       for (let j = i + 1; j < nodes.length && (nodes[j].depth || 0) > d; j++) if ((nodes[j].depth || 0) === d + 1) out.push(j);
       return out;
     };
-    let at = 0, kids = childrenOf(0);
+    let at = tasks.length ? tasks[0] : 0, kids = childrenOf(at);
     while (kids.length === 1) { at = kids[0]; kids = childrenOf(at); }
     if (!kids.length) kids = [at];
-    const done = kids.filter(isDone).length;
-    const current = kids.find((j) => st(j) === "RUNNING");
-    return { done, total: kids.length, current: current != null ? nodes[current].name : null };
+    return { done: kids.filter(isDone).length, total: kids.length, current: runningOf(kids) };
   }
   function updateProgress() {
     const p = treeProgress(treeNodes);
@@ -343,7 +339,7 @@
     const succeeded = status === "succeeded";
     const done = succeeded ? p.total : p.done;
     $("progressbar").value = p.total ? done / p.total : 0;
-    const tk = lastState?.task ? `task ${lastState.task.index + 1} ${lastState.task.type}` : p.current;
+    const tk = p.current || (lastState?.task ? `task ${lastState.task.index + 1} ${lastState.task.type}` : null);
     const text = `${done}/${p.total}` + (tk && !AGV.FINAL.has(status || "") ? ` · ${tk}` : "");
     if ($("progresstext").textContent !== text) $("progresstext").textContent = text;
   }

@@ -73,7 +73,9 @@ def serve(
 
 def submit(
     mission: Annotated[Path, typer.Argument(help="mission file")],
-    server: Annotated[str, typer.Option(help="service URL, e.g. http://127.0.0.1:8080")],
+    server: Annotated[
+        str, typer.Option(help="service URL (default: serve's default address)")
+    ] = "http://127.0.0.1:8080",
     set_: Overrides = [],  # noqa: B006
     seed: Seed = None,
     pace: Pace = None,

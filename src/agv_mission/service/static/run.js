@@ -305,6 +305,7 @@
     const level = st && typeof st.battery === "number" ? st.battery : null;
     box.hidden = level === null;
     if (level === null) return;
+    box.dataset.level = String(level);  // the state of charge, 0..1 (tests read it)
     $("batteryfill").style.width = `${Math.max(0, Math.min(1, level)) * 100}%`;
     const text = `${(level * 100).toFixed(1)} %` + (st.docked ? ` · docked at ${st.docked}` : "");
     if ($("batterytext").textContent !== text) $("batterytext").textContent = text;

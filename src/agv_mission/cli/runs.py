@@ -120,7 +120,7 @@ def mission_outline(loaded: Any) -> str:
         return "no tasks"
     tasks = tree.task_types()
     if tasks:
-        return f"{len(tasks)} task(s) ({', '.join(tasks)}), a tree of {tree.count} node(s)"
+        return f"{tree.count} tree node(s), {len(tasks)} task(s)"
     root = tree.root
     named = f" '{root.name}'" if getattr(root, "name", None) not in (None, root.type) else ""
     return f"a behaviour tree of {tree.count} node(s) (root: {root.type}{named})"

@@ -4,6 +4,7 @@ And the dashboard's 404 answers, and tree missions summarised by their tree."""
 
 from __future__ import annotations
 
+import asyncio
 import subprocess
 import time
 from collections.abc import Iterator
@@ -17,7 +18,7 @@ from agv_mission.missions.loader import load_mission
 from agv_mission.missions.pacing import PacedControl, Pacer, check_pace
 from agv_mission.missions.runner import run_mission
 from mission_texts import ENDLESS_PATROL, mission_file, tb3_mission
-from service_server import AGV, SHORT_MISSION, Server, submit, wait_status
+from service_server import AGV, SHORT_MISSION, Server, collect_live, submit, wait_status
 
 LONG = tb3_mission(
     ENDLESS_PATROL,
@@ -99,6 +100,14 @@ def test_a_paced_run_can_be_watched_paused_resumed_and_repaced(service: Server) 
         while client.get(f"/api/runs/{run_id}").json()["progress"]["sim_time"] <= held:
             assert time.monotonic() < deadline, "the run did not go on after resume"
             time.sleep(0.2)
+        # a client that connects late gets the events so far after the snapshot
+        while client.get(f"/api/runs/{run_id}").json()["progress"]["sim_time"] < 6.0:
+            assert time.monotonic() < deadline, "the patrol did not get on"
+            time.sleep(0.2)
+        late = asyncio.run(collect_live(f"{service.ws_url}/api/runs/{run_id}/live", limit=60))
+        first_state = next(m for m in late if m["type"] == "state")
+        past = [m for m in late if m["type"] == "event" and m["t"] <= first_state["t"]]
+        assert any(m["event"] == "goal_reached" for m in past), [m["type"] for m in late]
         for bad in ({"pace": 0}, {"pace": "fast"}, {"speed": 2}):
             assert client.post(f"/api/runs/{run_id}/pace", json=bad).status_code == 422
         flat = client.post(f"/api/runs/{run_id}/pace", json={"pace": None})

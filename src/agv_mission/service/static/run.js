@@ -215,6 +215,7 @@
     // 25 of each frequent message a second: the map draws at most 20 frames a second, and
     // every message parsed is CPU taken from the simulation running beside the browser
     ws = new WebSocket(AGV.wsUrl(`/api/runs/${encodeURIComponent(runId)}/live`, { rate: LIVE_RATE }));
+    events = []; eventsDirty = true;  // the stream sends the events so far after its snapshot
     ws.onmessage = (e) => {
       let msg;
       try { msg = JSON.parse(e.data); } catch (_) { return; }

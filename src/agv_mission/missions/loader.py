@@ -56,6 +56,7 @@ from agv_mission.missions.schema.zones import KeepoutMask, KeepoutZone, SpeedMas
 from agv_mission.missions.tree import (
     TreeSource,
     TreeSpec,
+    Where,
     assemble,
     tasks_spec,
     tasks_tree,
@@ -169,7 +170,22 @@ class LoadedMission:
         if isinstance(doc.get("tree"), str) and self.source is not None:
             # the copy in a run directory still finds the XML file
             doc["tree"] = str(input_path(doc["tree"].strip(), self.source.parent).resolve())
+        if self.source is not None:  # and its navigators' behavior_tree files
+            _absolute_tree_files([doc.get("tree"), doc.get("trees")], self.source.parent)
         return {k: doc[k] for k in FIELD_ORDER if k in doc}
+
+
+def _absolute_tree_files(value: Any, base: Path) -> None:
+    """Every ``behavior_tree`` file named in ``value`` (a YAML tree) made absolute."""
+    if isinstance(value, list):
+        for item in value:
+            _absolute_tree_files(item, base)
+    elif isinstance(value, dict):
+        tree_file = value.get("behavior_tree")
+        if isinstance(tree_file, str):
+            value["behavior_tree"] = str(input_path(tree_file.strip(), base).resolve())
+        for item in value.values():
+            _absolute_tree_files(item, base)
 
 
 DEMO_MISSION = "visit_rooms.yaml"  # what ``agv-mission run`` runs without a file
@@ -355,17 +371,42 @@ def tree_source(
         tree_id: yaml_spec(body, ("trees", tree_id), file, lines)
         for tree_id, body in (data.get("trees") or {}).items()
     }
+    load = tree_loader(base_dir, path_guard)
     if mission.tasks is not None:
         main = tasks_spec(data["tasks"], file, lines)
-        return TreeSource(main, trees, dict(mission.blackboard))
+        return TreeSource(main, trees, dict(mission.blackboard), load=load)
     if isinstance(mission.tree, dict):
         main = yaml_spec(data["tree"], ("tree",), file, lines)
-        return TreeSource(main, trees, dict(mission.blackboard))
+        return TreeSource(main, trees, dict(mission.blackboard), load=load)
     assert isinstance(mission.tree, str)
     source = _xml_source(mission.tree, ("tree",), log, base_dir, path_guard)
     source.trees = {**trees, **source.trees}
     source.blackboard = dict(mission.blackboard)
+    source.load = load
     return source
+
+
+def tree_loader(base_dir: Path, path_guard: PathGuard | None) -> Callable[[str, Where], TreeSource]:
+    """How a navigator node's ``behavior_tree`` file is read (relative to the mission
+    file), its problems reported at the node's port."""
+
+    def load(name: str, where: Where) -> TreeSource:
+        xml_path = input_path(name.strip(), base_dir)
+        refused = path_guard("tree", xml_path) if path_guard is not None else None
+        if refused:
+            raise MissionError([where.problem(refused, "behavior_tree")])
+        try:
+            text = read_input_bytes(xml_path).decode("utf-8")
+        except InputFileError as exc:
+            raise MissionError(
+                [where.problem(f"cannot read {name!r}: {exc}", "behavior_tree")]
+            ) from None
+        except (OSError, UnicodeDecodeError) as exc:
+            message = f"cannot read {name!r}: {os_message(exc)}"
+            raise MissionError([where.problem(message, "behavior_tree")]) from None
+        return parse_xml(text, str(xml_path))
+
+    return load
 
 
 def _xml_source(
@@ -590,6 +631,7 @@ def _robot_tree(
     else:
         return None
     source.blackboard = dict(mission.blackboard)
+    source.load = tree_loader(base_dir, path_guard)
     return assemble(source)
 
 

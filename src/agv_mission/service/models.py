@@ -325,7 +325,7 @@ def request_body(
     return {"requestBody": {"required": True, "content": content}}
 
 
-BODY_MODELS: tuple[type[BaseModel], ...] = (Submit, SubmitWithFiles, Goal)
+BODY_MODELS: tuple[type[BaseModel], ...] = (Submit, SubmitWithFiles, Goal, Pace)
 STREAM_MODELS: tuple[type[BaseModel], ...] = (StreamRobots,)  # live-stream messages
 
 

@@ -200,9 +200,14 @@ def test_discovery_keeps_every_kind_of_mission_and_says_what_it_skips(tmp_path: 
     (tmp_path / "uses.yaml").write_text("tree: tree.xml\n")
     why = {p.name: reason for p, reason in planning.survey([tmp_path]).skipped}
     assert "uses.yaml" in why["tree.xml"]
+    with pytest.raises(planning.RegressError, match="uses.yaml"):
+        planning.survey([tmp_path / "tree.xml"])  # named alone: the mission that runs it
     plan = planning.plan_jobs([tmp_path], output_root=tmp_path / "runs")
     bad = {Path(p.file).name for p in plan.problems}
     assert {"broken.yaml", "no_tasks.yaml"} <= bad  # failed on, not dropped
+    suite = ET.fromstring(report.junit_xml([], plan, 0.0))  # one error case per such file
+    cases = [c.get("file") for c in suite.iter("testcase")]
+    assert len(cases) == len(set(cases)) == len(bad) and suite.get("errors") == str(len(bad))
 
 
 def test_the_scenario_suite_is_one_run_per_mission_file() -> None:

@@ -150,7 +150,7 @@ def test_invalid_mission_422_names_line_and_field(client: httpx.Client) -> None:
     response = client.post("/api/runs", json={"mission": bad})
     assert response.status_code == 422
     errors = response.json()["errors"]
-    assert errors[0]["field"] == "tasks[0].pose.x"  # the contract's spelling
+    assert errors[0]["field"] == "tasks.0.pose.x"  # the command line's spelling, everywhere
     assert errors[0]["line"] == 6
     yaml_body = client.post("/api/runs", content=bad, headers={"Content-Type": "application/yaml"})
     assert yaml_body.status_code == 422

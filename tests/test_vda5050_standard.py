@@ -373,3 +373,58 @@ def test_vehicle_theta_is_within_bounds_and_angle_bounds_are_kept(rig) -> None:
     s = master.wait(SERIAL, "state", lambda s: errors_of(s, "validationError"), 5, t1)
     assert any("theta" in e["errorDescription"] for e in errors_of(s, "validationError"))
     assert s["orderId"] != "o-theta"
+
+
+# ------------------------------------------------------------- our master, our vehicle
+
+
+@pytest.mark.slow  # about 40 s: the vehicle drives at 8x real time
+def test_our_master_docks_charges_and_undocks_our_vehicle(tmp_path: Path) -> None:
+    """The whole dock / charge / undock of a mission, with a goal written ``yaw: 3.1416``,
+    through our master to our simulated vehicle: the charge rises to ``until``, and the
+    vehicle leaves the dock uncharged."""
+    from agv_mission.vda5050.fleet import VehicleSet, load_vehicles
+    from agv_mission.vda5050.transport import EmbeddedBroker, free_port
+
+    mission = {
+        "name": "dock-e2e",
+        "world": "turtlebot3_world",
+        "robot": "burger",
+        "start": {"x": -2.0, "y": -0.5, "yaw": 0.0},
+        "simulation": {"battery_level": 0.6},
+        "stack": {
+            "localization": {"type": "ground_truth"},
+            "global_planner": {"type": "cost_grid"},
+            "local_planner": {"type": "pure_pursuit"},
+        },
+        "tasks": [
+            {"type": "go_to", "pose": {"x": -1.5, "y": -0.5, "yaw": 3.1416}},
+            {"type": "dock", "dock": "charger"},
+            {"type": "charge", "until": 0.62},
+            {"type": "undock"},
+        ],
+        "limits": {"time": 120.0},
+    }
+    path = write(tmp_path / "dock.yaml", mission)
+    embedded = EmbeddedBroker(port=free_port())
+    url = embedded.start()
+    watcher = MiniMaster(url.port)
+    fleet = VehicleSet(load_vehicles(path), url, time_scale=8.0)
+    fleet.start()
+    try:
+        result = Master(load_plan(path), url).run()
+    finally:
+        fleet.stop()
+        watcher.close()
+        embedded.stop()
+    assert result["status"] == "succeeded", (result["tasks"], result["fleet"]["events"])
+    assert not watcher.invalid, watcher.invalid
+    states = watcher.of("agv1", "state")
+    charging = [s for s in states if s["batteryState"]["charging"]]
+    assert charging and max(s["batteryState"]["batteryCharge"] for s in charging) >= 62.0
+    assert states[-1]["batteryState"]["charging"] is False  # undocked
+    assert [a["type"] for t in result["tasks"] for a in t["actions"]] == [
+        "startCharging",
+        "startCharging",
+        "stopCharging",
+    ]

@@ -128,6 +128,8 @@ class LoadedMission:
     people: list[PeopleGroup] = field(default_factory=list)  # resolved ``people:``
     fleet: list[RobotSetup] = field(default_factory=list)  # a fleet mission's robots
     fleet_tasks: list[FleetTask] = field(default_factory=list)  # its tasks: dispatched, assigned
+    #: inputs taken as near as they could be (a person's route point moved off a wall)
+    warnings: list[Problem] = field(default_factory=list)
 
     @property
     def is_fleet(self) -> bool:
@@ -246,6 +248,7 @@ def load_mission(
         data["seed"] = seed
         override_paths[("seed",)] = f"--seed {seed}"
     log = ProblemLog(file, lines, override_paths, type_swaps=applied.type_swaps)
+    log.warnings += applied.hints  # tasks[0].loops: taken as tasks.0.loops, saying so
     bad_keys = non_string_keys(data)
     if bad_keys:
         raise MissionError(
@@ -294,7 +297,7 @@ def load_mission(
         loaded = _resolve_fleet(
             mission, data, assigned, base_dir, path.stem or "mission", log, path_guard
         )
-        loaded.source = path
+        loaded.source, loaded.warnings = path, list(log.warnings)
         return loaded
     tree = None
     if isinstance(mission, Mission):
@@ -304,7 +307,7 @@ def load_mission(
         log.raise_if_any()
         tree = assemble(tree_source(mission, data, log, base_dir, path_guard))
     loaded = _resolve(mission, base_dir, path.stem or "mission", log, path_guard, tree)
-    loaded.source = path
+    loaded.source, loaded.warnings = path, list(log.warnings)
     return loaded
 
 
@@ -534,7 +537,7 @@ def _resolve(
     zones = _zone_filters(mission, robot, rooms, costmap, base_dir, log)
     if zones is not None:
         costmap = zones.costmap  # keepout zones are obstacles of every plan
-    people = resolve_people(mission.people, rooms, world.map, log.add)  # they walk the world
+    people = resolve_people(mission.people, rooms, world.map, log.add, log.warn)  # the world's
     recorder = None
     if mission.recorder is not None:
         try:
@@ -592,6 +595,9 @@ class _RobotLog:
         problem = self.at(field_path, message)
         if problem not in self.problems:
             self.problems.append(problem)
+
+    def warn(self, field_path: FieldPath, message: str) -> None:
+        self.log.warn(self._path(field_path), message)
 
     def raise_if_any(self) -> None:
         if self.problems:

@@ -83,6 +83,7 @@ def result_document(loaded: LoadedMission, record: RunRecord, run_dir: Path) -> 
         "events": record.events,
         **record.extras,
         **({"robots": robots} if robots else {}),
+        **({"warnings": [str(w) for w in loaded.warnings]} if loaded.warnings else {}),
         "run_dir": str(run_dir),
     }
 

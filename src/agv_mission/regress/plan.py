@@ -72,6 +72,8 @@ MISSION_KEYS = ("tasks", "tree", "robots")
 #: Keys of the mission file (``mission-format.md``) that no rooms, robot, world or map file
 #: has: a mapping with one of them is a mission, however broken.
 MISSION_ONLY_KEYS = (
+    "world",
+    "robot",
     "start",
     "stack",
     "limits",
@@ -118,6 +120,14 @@ def survey(paths: Iterable[str | Path]) -> Discovery:
                         skipped.append((f.resolve(), why))
                 elif f.suffix.lower() == ".xml":
                     xml.append(f.resolve())
+        elif p.is_file() and p.suffix.lower() == ".xml":
+            by = _trees_named(
+                [f for f in sorted(p.parent.glob("*.y*ml")) if not_a_mission(f) is None]
+            ).get(p.resolve())
+            raise RegressError(
+                f"{p}: a behaviour tree (XML), not a mission: regress runs the mission that "
+                "names it in `tree:`" + (f" ({', '.join(str(m) for m in by)})" if by else "")
+            )
         elif p.is_file():
             found.append(p)
         else:

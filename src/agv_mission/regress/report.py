@@ -266,8 +266,11 @@ def junit_xml(results: Sequence[dict[str, Any]], plan: Plan, wall_time: float) -
     ``<error>`` for runs that did not finish."""
     variants, seeds = len(plan.variants), plan.seeds
     failures = sum(1 for r in results if r["status"] != "error" and not r["passed"])
-    errors = sum(1 for r in results if r["status"] == "error") + len(plan.problems)
-    tests = len(results) + len(plan.problems)
+    invalid: dict[str, list[str]] = {}  # one test case per invalid file, every problem in it
+    for p in plan.problems:
+        invalid.setdefault(p.file, []).append(str(p))
+    errors = sum(1 for r in results if r["status"] == "error") + len(invalid)
+    tests = len(results) + len(invalid)
     attrs = {
         "name": "agv-mission regress",
         "tests": str(tests),
@@ -317,13 +320,14 @@ def junit_xml(results: Sequence[dict[str, Any]], plan: Plan, wall_time: float) -
             + (f", overrides {' '.join(r['overrides'])}" if r["overrides"] else "")
             + f"\nrun directory: {r['run_dir']}"
         )
-    for p in plan.problems:
+    for file, problems in invalid.items():
         case = ET.SubElement(
             suite,
             "testcase",
-            {"classname": f"scenarios.{Path(p.file).stem}", "name": "load", "file": p.file},
+            {"classname": f"scenarios.{Path(file).stem}", "name": "load", "file": file},
         )
-        ET.SubElement(case, "error", {"message": str(p), "type": "InvalidInput"}).text = str(p)
+        error = ET.SubElement(case, "error", {"message": problems[0], "type": "InvalidInput"})
+        error.text = "\n".join(problems)
     if plan.skipped:  # not test cases: files that are not missions, and why
         ET.SubElement(suite, "system-out").text = "\n".join(skipped_lines(plan))
     ET.indent(root)

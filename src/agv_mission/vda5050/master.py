@@ -23,17 +23,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from agv_mission.atomic import atomic_write_text
 from agv_mission.fleet.base import DispatchError, FleetTask, RobotWork
 from agv_mission.geometry import Pose2D
-from agv_mission.missions.outputs import make_run_dir, write_json
+from agv_mission.vda5050.master_report import (
+    TRAJECTORY_HEADER,
+    master_result,
+    new_run_dir,
+    write_outputs,
+)
 from agv_mission.vda5050.messages import deviation_angle, schema_angle, split_topic
 from agv_mission.vda5050.routes import (
     ChargeAction,
     MasterPlan,
     NodeAction,
+    NodeReservations,
     OrderAction,
     RouteNode,
     TaskRoute,
@@ -43,6 +46,7 @@ from agv_mission.vda5050.routes import (
 from agv_mission.vda5050.transport import BrokerUrl, MqttLink
 
 __all__ = [
+    "TRAJECTORY_HEADER",
     "ChargeAction",
     "Master",
     "MasterPlan",
@@ -60,23 +64,6 @@ ORDER_ERRORS = ("validationError", "orderError", "orderUpdateError", "noRouteErr
 RESEND_AFTER = 2.0  # s: an order (update) the state does not show by then is sent again
 ORDER_TIMEOUT = 15.0  # s: an order the vehicle has not taken by then fails its task
 START_DEVIATION = 0.5  # m: the first node is where the vehicle stands, within this
-
-
-class NodeReservations:
-    """Traffic control as the master can do it without a fleet world: a node's place is
-    granted to one vehicle at a time; a vehicle frees a place when it has left it."""
-
-    def __init__(self) -> None:
-        self.holder: dict[str, str] = {}
-
-    def grant(self, robot: str, node: RouteNode) -> bool:
-        owner = self.holder.setdefault(place(node), robot)
-        return owner == robot
-
-    def keep_only(self, robot: str, places: set[str]) -> None:
-        for key, owner in list(self.holder.items()):
-            if owner == robot and key not in places:
-                del self.holder[key]
 
 
 @dataclass
@@ -189,7 +176,7 @@ class Master:
             if status != "succeeded":
                 self._cancel_all()
             self.link.stop()
-        return self._result(status, reason)
+        return master_result(self, status, reason)
 
     def _drain(self) -> None:
         while True:
@@ -351,7 +338,7 @@ class Master:
         if error is not None:
             self._finish(peer, "failed", error)
         elif not state.get("nodeStates") and last_seq == final_seq and actions_done:
-            if self._charged(order.task, state):
+            if order.task.charged(state):
                 self._finish(peer, "succeeded", None)
         elif not state.get("nodeStates") and last_seq != final_seq:
             self._finish(
@@ -359,18 +346,6 @@ class Master:
             )
         else:
             self._extend(peer, order, last_seq // 2 if last_seq >= 0 else 0)
-
-    @staticmethod
-    def _charged(task: TaskRoute, state: dict[str, Any]) -> bool:
-        """A ``charge`` task is done when the battery reached its level (always True for
-        the other tasks)."""
-        if task.charge_until is None:
-            return True
-        try:
-            level = float((state.get("batteryState") or {}).get("batteryCharge", 0.0))
-        except (TypeError, ValueError):
-            return False
-        return level >= 100.0 * task.charge_until - 1e-6
 
     def _follow_actions(self, peer: Peer, order: ActiveOrder, state: dict[str, Any]) -> str | None:
         """Note how the order's pick/drop went (in the task, an event when one ends); why
@@ -434,11 +409,14 @@ class Master:
 
     def _send_new(self, peer: Peer, task: TaskRoute) -> None:
         state = peer.state or {}
-        pos = state.get("agvPosition") or {}
+        # where it stands: its state's agvPosition (optional), else the last seen in its
+        # visualization
+        x, y = peer.last_xy or (0.0, 0.0)
+        pos = state.get("agvPosition") or {"x": x, "y": y}
         here = RouteNode(
             str(state.get("lastNodeId") or "start"),
-            float(pos.get("x", 0.0)),
-            float(pos.get("y", 0.0)),
+            float(pos.get("x", x)),
+            float(pos.get("y", y)),
             None,
             task.start_actions,
         )
@@ -556,78 +534,3 @@ class Master:
         if all(t.status in ("succeeded", "skipped") for t in tasks):
             return "succeeded", None
         return None
-
-    def _result(self, status: str, reason: str | None) -> dict[str, Any]:
-        robots = {}
-        for name, peer in self.peers.items():
-            mine = [t for t in self.plan.tasks if t.assigned == name]
-            bad = [t for t in mine if t.status == "failed"]
-            robots[name] = {
-                "status": "failed"
-                if bad
-                else (
-                    "succeeded"
-                    if all(t.status in ("succeeded", "skipped") for t in mine)
-                    else "not_run"
-                    if not mine
-                    else "incomplete"
-                ),
-                "reason": bad[0].reason if bad else None,
-                "connection": peer.connection,
-                "tasks": [
-                    {"index": t.index, "type": t.type, "status": t.status, "reason": t.reason}
-                    for t in mine
-                ],
-                "metrics": {
-                    "orders": peer.orders,
-                    "order_updates": peer.updates,
-                    "distance": round(peer.distance, 3),
-                },
-            }
-        return {
-            "name": self.plan.name,
-            "status": status,
-            "reason": reason,
-            "broker": str(self.url),
-            "manufacturer": self.manufacturer,
-            "wall_time": round(self.now(), 3),
-            "tasks": [
-                {
-                    "index": t.index,
-                    "type": t.type,
-                    "robot": t.assigned,
-                    "status": t.status,
-                    "reason": t.reason,
-                    "nodes": [n.node_id for n in t.nodes],
-                    "actions": list(t.actions.values()),
-                }
-                for t in self.plan.tasks
-            ],
-            "robots": robots,
-            "fleet": {
-                "dispatch": self.dispatch,
-                "events": self.events,
-                "makespan": round(self.now(), 3),
-            },
-        }
-
-
-TRAJECTORY_HEADER = "robot,t,x,y,theta,vx,omega"
-
-
-def write_outputs(run_dir: Path, master: Master, result: dict[str, Any]) -> None:
-    """``mission.yaml``, ``trajectory.csv`` (from the vehicles' state and visualization)
-    and, last, ``result.json``."""
-    atomic_write_text(
-        run_dir / "mission.yaml", yaml.safe_dump(master.plan.resolved, sort_keys=False)
-    )
-    lines = [TRAJECTORY_HEADER] + [
-        f"{r[0]},{r[1]:.3f},{r[2]:.6f},{r[3]:.6f},{r[4]:.6f},{float(r[5]):.6f},{float(r[6]):.6f}"
-        for r in master.rows
-    ]
-    atomic_write_text(run_dir / "trajectory.csv", "\n".join(lines) + "\n")
-    write_json(run_dir / "result.json", {**result, "run_dir": str(run_dir)})
-
-
-def new_run_dir(plan: MasterPlan, output: Path | None) -> Path:
-    return make_run_dir(output if output is not None else plan.output, f"{plan.name}-vda5050")

@@ -105,6 +105,17 @@ class TaskRoute:
     #: where the task is written in the mission file (``tasks.2``, ``robots.0.tasks.1``)
     where: str = ""
 
+    def charged(self, state: dict[str, Any]) -> bool:
+        """A ``charge`` task is done when the vehicle's ``batteryCharge`` reached its level
+        (always True for the other tasks)."""
+        if self.charge_until is None:
+            return True
+        try:
+            level = float((state.get("batteryState") or {}).get("batteryCharge", 0.0))
+        except (TypeError, ValueError):
+            return False
+        return level >= 100.0 * self.charge_until - 1e-6
+
 
 @dataclass
 class MasterPlan:
@@ -448,3 +459,20 @@ def place(node: RouteNode) -> str:
     """Where a node is, to the decimetre: two orders' nodes at one place are one resource
     whatever their ids (every patrol calls its waypoints wp1, wp2, ...)."""
     return f"{round(node.x, 1):g},{round(node.y, 1):g}"
+
+
+class NodeReservations:
+    """Traffic control as the master can do it without a fleet world: a node's place is
+    granted to one vehicle at a time; a vehicle frees a place when it has left it."""
+
+    def __init__(self) -> None:
+        self.holder: dict[str, str] = {}
+
+    def grant(self, robot: str, node: RouteNode) -> bool:
+        owner = self.holder.setdefault(place(node), robot)
+        return owner == robot
+
+    def keep_only(self, robot: str, places: set[str]) -> None:
+        for key, owner in list(self.holder.items()):
+            if owner == robot and key not in places:
+                del self.holder[key]

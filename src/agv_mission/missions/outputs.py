@@ -17,6 +17,7 @@ from agv_mission.atomic import atomic_write_bytes, atomic_write_text
 from agv_mission.maps.zones import ZoneFilters
 from agv_mission.messages import json_default
 from agv_mission.missions.loader import LoadedMission
+from agv_mission.missions.palette import ROBOT_COLOURS
 from agv_mission.missions.people_record import plot_people, write_people_csv
 from agv_mission.missions.run_report import COVARIANCE_COLUMNS
 from agv_mission.missions.runner import TRAJECTORY_COLUMNS, RunRecord
@@ -237,13 +238,6 @@ def _zone_labels(zones: ZoneFilters) -> list[tuple[float, tuple[int, int]]]:
     return out
 
 
-#: A fleet's robots in run.png (and the dashboard), in robot order.
-ROBOT_COLOURS = (
-    "tab:blue", "tab:red", "tab:green", "tab:purple", "tab:brown",
-    "tab:pink", "tab:olive", "tab:cyan", "navy", "darkorange",
-)  # fmt: skip
-
-
 def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
     """The map with rooms, planned paths, the driven and estimated trajectory, and goals."""
     import matplotlib
@@ -324,9 +318,9 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
             )
     traj = record.trajectory
     if traj.size:
-        ax.plot(traj[:, 1], traj[:, 2], "-", lw=1.4, color="tab:blue", label="driven (true)")
+        ax.plot(traj[:, 1], traj[:, 2], "-", lw=1.4, color=ROBOT_COLOURS[0], label="driven (true)")
         ax.plot(traj[:, 4], traj[:, 5], ":", lw=1.0, color="tab:green", label="estimated")
-        ax.plot(traj[0, 1], traj[0, 2], "o", color="tab:blue", label="start")
+        ax.plot(traj[0, 1], traj[0, 2], "o", color=ROBOT_COLOURS[0], label="start")
     for k, (name, own) in enumerate(record.robots.items()):  # a fleet: a colour a robot
         t = own.trajectory
         if not t.size:

@@ -95,6 +95,9 @@ class Quirks:
     truth_topic: bool = True
     scan_frame: str = "laser"
     base_frame: str = "base_footprint"
+    #: Every stamp floored to this many seconds, odometry one message per scan at the
+    #: scan's time (a log printed with six-digit stamps); 0: exact stamps.
+    coarse_stamps: float = 0.0
 
 
 def write_quirk_bag(path: Path, drive: Drive, q: Quirks) -> Path:
@@ -113,7 +116,11 @@ def write_quirk_bag(path: Path, drive: Drive, q: Quirks) -> Path:
     types = store.types
     rng = np.random.default_rng(3)
 
+    def coarse(t: float) -> float:
+        return math.floor(t / q.coarse_stamps) * q.coarse_stamps if q.coarse_stamps else t
+
     def header(t: float, frame: str):
+        t = coarse(t)
         sec, nsec = divmod(int(round(t * 1e9)), 1_000_000_000)
         stamp = types["builtin_interfaces/msg/Time"](sec=int(sec), nanosec=int(nsec))
         if ros1:
@@ -178,7 +185,10 @@ def write_quirk_bag(path: Path, drive: Drive, q: Quirks) -> Path:
 
     # Odometry (and the dynamic /tf) at the odometry rate, starting late if asked.
     odom_start = float(t[0]) + q.scans_before_odom
-    for s in np.arange(odom_start, t_end + 1e-9, 1.0 / q.odom_rate):
+    odom_times = np.arange(odom_start, t_end + 1e-9, 1.0 / q.odom_rate)
+    if q.coarse_stamps:
+        odom_times = np.arange(float(t[0]) + 0.05, t_end + 1e-9, 1.0 / q.scan_rate)
+    for s in odom_times:
         if in_gap(s):
             continue
         p = _interp(t, drive.odom, s)
@@ -232,6 +242,7 @@ def write_quirk_bag(path: Path, drive: Drive, q: Quirks) -> Path:
         )
         messages.append((s, "/scan", "sensor_msgs/msg/LaserScan", scan))
 
+    messages = [(coarse(m[0]), *m[1:]) for m in messages]
     messages.sort(key=lambda m: m[0])
     if ros1:
         from rosbags.rosbag1 import Writer as Writer1

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -291,9 +291,16 @@ def _read(
     # The base frame: the odometry's child, or the first moving frame above the scan frame.
     chain = _static_chain(scan_frame, static)
     odom_source = odom_topic or ""
+    notes: dict[str, Any] = {}
     if odom_rows:
         base_frame = odom_child or chain[-1][0]
-        odom = np.array(sorted(odom_rows))
+        # Sorted by stamp only: messages of one stamp keep the order they were written in.
+        odom_rows.sort(key=lambda r: r[0])
+        truth_rows.sort(key=lambda r: r[0])
+        spread = _spread_shared_stamps(scans, odom_rows, truth_rows)
+        if spread:
+            notes["stamps_spread"] = spread
+        odom = np.array(odom_rows)
     else:
         moving_children = {c: (p, c) for (p, c) in moving if p != "map"}
         base_frame = next((f for f, _ in chain if f in moving_children), "")
@@ -318,7 +325,7 @@ def _read(
 
     odom_parent = next((p for (p, c) in moving if c == base_frame), "odom")
     map_to_odom = links.get(("map", odom_parent))
-    truth = np.array(sorted(truth_rows)) if truth_rows else None
+    truth = np.array(sorted(truth_rows, key=lambda r: r[0])) if truth_rows else None
     times = [s.time for s in scans]
     return BagData(
         scans=scans,
@@ -336,7 +343,41 @@ def _read(
         topics=topics,
         robot=robot,
         duration=float(max(times) - min(times)) if times else 0.0,
+        notes=notes,
     )
+
+
+def _spread_shared_stamps(
+    scans: list[LaserScan],
+    odom: list[tuple[float, float, float, float]],
+    truth: list[tuple[float, float, float, float]],
+) -> int:
+    """Scans stamped in coarse steps, each with an odometry message of its very stamp (a
+    CARMEN log converted with its six-digit stamps: CSAIL's 365 scans share one), carry
+    their pairing in their order, not their time: stamps that do not increase are spread
+    1 ms apart (as :mod:`~agv_mission.bags.carmen` does), in the scans, the odometry and a
+    ground truth stamped alike, so that each scan meets its own odometry. How many moved;
+    0 (nothing changed) unless scans and odometry share every stamp."""
+    times = [s.time for s in scans]
+    if len(odom) != len(times) or all(b > a for a, b in zip(times, times[1:], strict=False)):
+        return 0
+    if any(abs(o[0] - t) > 1e-9 for o, t in zip(odom, times, strict=True)):
+        return 0
+    new = list(times)
+    moved = 0
+    for k in range(1, len(new)):
+        if new[k] <= new[k - 1]:
+            new[k] = new[k - 1] + 1e-3
+            moved += 1
+    for k, t in enumerate(new):
+        scans[k] = replace(scans[k], time=t)
+        odom[k] = (t, *odom[k][1:])
+    if len(truth) == len(times) and all(
+        abs(g[0] - t) <= 1e-9 for g, t in zip(truth, times, strict=True)
+    ):
+        for k, t in enumerate(new):
+            truth[k] = (t, *truth[k][1:])
+    return moved
 
 
 def _looks_like_truth(topic: str) -> bool:

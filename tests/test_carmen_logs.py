@@ -192,6 +192,45 @@ def test_a_cell_that_returned_beams_is_free_only_within_free_max_hits(max_hits):
     assert grid.value_at(np.array([4.02, 0.0])) == OCCUPIED  # the wall behind
 
 
+@pytest.mark.parametrize("min_hits", [1, 2])
+def test_a_wall_needs_occupied_min_hits_returns(min_hits):
+    """One return at the end of a long beam is a wall only with ``occupied_min_hits`` 1;
+    a wall that returned beams twice is one either way. Neither is ever FREE."""
+    config = GridSlamConfig(occupied_min_hits=min_hits, free_max_hits=0, initial_size=20.0)
+    grid_map = LogOddsMap(config, None, Pose2D(0.0, 0.0, 0.0))
+    once = LaserScan(np.array([4.02, 6.02, 4.02], np.float32), -0.1, 0.1, 0.1, 10.0, 0.0)
+    grid_map.integrate(once, Pose2D(0.0, 0.0, 0.0))
+    twice = LaserScan(np.array([4.02, np.nan, 4.02], np.float32), -0.1, 0.1, 0.1, 10.0, 0.0)
+    grid_map.integrate(twice, Pose2D(0.0, 0.0, 0.0))
+    grid = grid_map.occupancy_grid()
+    assert grid.value_at(np.array([6.02, 0.0])) == (OCCUPIED if min_hits == 1 else UNKNOWN)
+    wall = np.array([4.02 * math.cos(0.1), 4.02 * math.sin(0.1)])
+    assert grid.value_at(wall) == OCCUPIED
+
+
+def test_reference_coverage_of_a_map_with_half_its_walls():
+    from agv_mission.mapping.quality import reference_agreement, reference_coverage
+
+    data = np.full((100, 100), UNKNOWN, np.int8)
+    data[20:80, 21:79] = FREE
+    data[20:80, 20] = OCCUPIED
+    data[20:80, 79] = OCCUPIED
+    ref = OccupancyGrid(data, 0.05, Pose2D(0.0, 0.0, 0.0))
+    assert reference_coverage(ref, ref) == {"walls_found": 1.0, "free_found": 1.0}
+    half = data.copy()
+    half[20:80, 79] = UNKNOWN  # one wall never seen
+    half[20:50, 21:79] = UNKNOWN  # nor the room's lower half
+    built = OccupancyGrid(half, 0.05, Pose2D(0.0, 0.0, 0.0))
+    found = reference_coverage(built, ref)
+    assert found["walls_found"] == pytest.approx(0.5, abs=0.01)
+    assert found["free_found"] == pytest.approx(0.5, abs=0.02)
+    # What it holds is right: agreement alone would call it perfect.
+    assert reference_agreement(built, ref)["walls_within"] == 1.0
+    # 0.3 m off, in the built map's frame: its walls no longer cover the reference's.
+    moved = reference_coverage(ref, ref, frame=Pose2D(0.3, 0.0, 0.0))
+    assert moved["walls_found"] < 0.1 and moved["free_found"] < 0.95
+
+
 def test_crop_keeps_what_was_seen_plus_margin_in_place():
     data = np.full((200, 300), UNKNOWN, np.int8)
     data[50:60, 100:130] = FREE

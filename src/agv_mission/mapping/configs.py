@@ -51,6 +51,13 @@ class GridSlamConfig(PluginConfig):
         "beams crossed it (a person walking by, a door that swung: no place a planner can "
         "trust); below hit_memory; None: the log-odds alone decide",
     )
+    occupied_min_hits: int = Field(
+        1,
+        ge=1,
+        description="a cell is OCCUPIED only once at least this many end points fell in it: "
+        "one return at the end of a long beam through a door is no wall to trust (a person, "
+        "a grazed edge, a beam's footprint 10 cm wide at 20 m); below hit_memory",
+    )
     hit_memory: int = Field(
         20, ge=1, description="end points averaged per cell anchor (older ones fade out)"
     )

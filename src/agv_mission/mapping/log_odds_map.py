@@ -91,7 +91,10 @@ class LogOddsMap:
             # hn counts end points up to hit_memory, so small counts are exact.
             free &= self.hn < self.config.free_max_hits + 1
         data[free] = FREE
-        data[self.logodds > self._occ_l] = OCCUPIED
+        occupied = self.logodds > self._occ_l
+        if self.config.occupied_min_hits > 1:
+            occupied &= self.hn >= self.config.occupied_min_hits - 1e-3
+        data[occupied] = OCCUPIED
         return OccupancyGrid(data, self.resolution, Pose2D(self.ox, self.oy, 0.0))
 
     def likelihood_field(self) -> LikelihoodField:

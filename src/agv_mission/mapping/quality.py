@@ -98,6 +98,40 @@ def reference_agreement(
     }
 
 
+def reference_coverage(
+    built: OccupancyGrid,
+    reference: OccupancyGrid,
+    wall_tolerance: float = 0.1,
+    frame: Pose2D | None = None,
+) -> dict[str, float]:
+    """How much of a reference map the built map holds: the other side of
+    :func:`reference_agreement` (a map of a few sure cells agrees well and shows little).
+
+    ``walls_found``: the share of the reference's OCCUPIED cells within ``wall_tolerance``
+    metres of a built OCCUPIED cell; ``free_found``: the share of its FREE cells the built
+    map shows FREE. ``frame``: the built map's frame in the reference's (None: the same).
+    """
+    rows, cols = np.indices(reference.data.shape)
+    centres = reference.cell_to_world(rows, cols)
+    if frame is not None:  # reference cell centres in the built map's frame
+        c, s = np.cos(frame.yaw), np.sin(frame.yaw)
+        x, y = centres[..., 0] - frame.x, centres[..., 1] - frame.y
+        centres = np.stack([c * x + s * y, -s * x + c * y], axis=-1)
+    ref_walls = reference.data == OCCUPIED
+    dist = ndimage.distance_transform_edt(built.data != OCCUPIED) * built.resolution
+    br, bc = built.world_to_cell(centres[ref_walls])
+    inside = built.in_bounds(br, bc)
+    near = np.zeros(len(br), bool)
+    near[inside] = dist[br[inside], bc[inside]] <= wall_tolerance + 0.5 * built.resolution
+    ref_free = reference.data == FREE
+    n_free, n_occ = int(ref_free.sum()), int(ref_walls.sum())
+    found_free = int((built.value_at(centres[ref_free]) == FREE).sum())
+    return {
+        "walls_found": float(near.sum() / n_occ) if n_occ else 1.0,
+        "free_found": float(found_free / n_free) if n_free else 1.0,
+    }
+
+
 def relative_pose_error(
     estimate: np.ndarray, truth: np.ndarray, delta: float = 1.0
 ) -> dict[str, float]:

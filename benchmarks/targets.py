@@ -67,6 +67,8 @@ TARGETS = {
     "slam.real_logs.freiburg_079.rpe_m": ("<=", 0.025),
     "slam.real_logs.freiburg_079.free_in_reference": (">=", 0.85),
     "slam.real_logs.freiburg_079.walls_within_0.15m": (">=", 0.95),
+    # issue 32: the hidden log's bar is walls within 0.1 m
+    "slam.real_logs.freiburg_079.walls_within_0.1m": (">=", 0.95),
     "slam.real_logs.freiburg_079.x_log_duration": (">=", 40.0),
     "trees.patrol.tree_over_tasks_cost": ("<=", 1.05),  # issue 23
     "trees.patrol_tree.tree_ms_per_sim_s": ("<=", 1.5),

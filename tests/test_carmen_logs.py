@@ -21,7 +21,15 @@ from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.messages import LaserScan
 from bagtools import ray_march, simulated_drive, wall_precision
 
-SHARED_LOGS = Path(__file__).resolve().parents[2] / "shared" / "data" / "real_logs"
+#: ``../shared`` beside the clone (or beside the folder of worktrees it is one of).
+SHARED_LOGS = (
+    next(
+        (p / "shared" for p in Path(__file__).resolve().parents[1:] if (p / "shared").is_dir()),
+        Path(__file__).resolve().parents[2] / "shared",
+    )
+    / "data"
+    / "real_logs"
+)
 
 
 def _carmen_log(path: Path, kind: str, every: int = 2) -> Path:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -86,3 +87,37 @@ def test_graph_slam_closes_a_100m_loop_with_slipping_wheels(tmp_path):
     # unaligned RMSE also carries the heading error picked up before the first closure.
     assert graph["rmse"]["ate_aligned"] < 0.5 * grid["rmse"]["ate_aligned"]
     assert graph["rmse"]["position_rmse"] < 0.75 * grid["rmse"]["position_rmse"]
+
+
+def test_final_smoothing_keeps_the_slam_poses_and_the_odometry_motion():
+    """Poses jittering 2 cm about a 100 m loop (a scan matcher's) and odometry 1 % long
+    with a heading drift (a wheel's): the smoothed trajectory moves as the odometry does
+    over a metre and stays where the poses are over the loop, better than either."""
+    from agv_mission.mapping.graph_slam import smooth_trajectory
+    from agv_mission.mapping.quality import relative_pose_error
+
+    rng = np.random.default_rng(4)
+    truth, pose = [], Pose2D(0.0, 0.0, 0.0)
+    for k in range(1000):  # a 25 x 25 m square, 0.1 m steps
+        truth.append(pose.as_array())
+        pose = pose.compose(Pose2D(0.1, 0.0, math.pi / 2 if (k + 1) % 250 == 0 else 0.0))
+    truth = np.array(truth)
+    slam = truth + rng.normal(0.0, [0.02, 0.02, 0.005], truth.shape)
+    odom, o = [], Pose2D(0.0, 0.0, 0.0)
+    for a, b in zip(truth[:-1], truth[1:], strict=True):
+        odom.append(o.as_array())
+        d = Pose2D(*b).relative_to(Pose2D(*a))
+        o = o.compose(Pose2D(1.01 * d.x, 1.01 * d.y, d.yaw + 0.0005))
+    odom.append(o.as_array())
+    smoothed = smooth_trajectory(slam, np.array(odom), (0.02, 0.05, 0.03), (0.04, 0.02))
+    stamps = np.arange(len(truth), dtype=float)[:, None]
+
+    def rpe(poses: np.ndarray) -> float:
+        rows = np.hstack([stamps, poses])
+        return relative_pose_error(rows, np.hstack([stamps, truth]))["translation_mean"]
+
+    assert rpe(smoothed) < 0.5 * rpe(slam)
+    assert rpe(smoothed) < rpe(np.array(odom))
+    worst = np.hypot(*(smoothed[:, :2] - truth[:, :2]).T).max()
+    assert worst < 0.1  # the odometry alone ends metres off
+    assert np.hypot(*(np.array(odom)[-1, :2] - truth[-1, :2])) > 1.0

@@ -17,6 +17,10 @@ when a keyframe moved by more than ``rebuild_threshold``, the map is rebuilt fro
 keyframes' scans at their optimised poses (Karto / slam_toolbox do the same). The front
 end continues from the optimised pose, and :attr:`trajectory` is corrected too (each
 pose rides on the keyframe before it).
+
+Offline, once a recording ends, :meth:`GraphSlam.finish` (with ``final_smoothing``)
+smooths the whole trajectory with the odometry (:func:`smooth_trajectory`) and renders the
+map again from the smoothed poses.
 """
 
 from __future__ import annotations

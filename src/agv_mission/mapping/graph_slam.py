@@ -286,8 +286,10 @@ class GraphSlam(GridSlam):
 
     def finish(self) -> None:
         """The whole recording seen (``agv-mission map``): with ``final_smoothing`` the
-        trajectory is smoothed with the odometry (:func:`smooth_trajectory`) and the map
-        rendered again from the smoothed poses."""
+        trajectory is smoothed with the odometry (:func:`smooth_trajectory`); the map is
+        rendered again from it when that moved the integrated scans by more than
+        ``rebuild_threshold`` on average (about a centimetre on the real logs: less than
+        a cell is not worth the time, as for a rebuild)."""
         c = self.config
         if not c.final_smoothing or len(self.trajectory) < 2:
             return
@@ -299,8 +301,10 @@ class GraphSlam(GridSlam):
             (row[0], float(p[0]), float(p[1]), float(p[2]))
             for row, p in zip(self.trajectory, new, strict=True)
         ]
-        self._stale = False
-        self._render([Pose2D(*new[idx]) for *_, idx in self._integrated])
+        idx = [i for *_, i in self._integrated]
+        if float(np.hypot(*(new[idx, :2] - poses[idx, :2]).T).mean()) > c.rebuild_threshold:
+            self._stale = False
+            self._render([Pose2D(*new[i]) for i in idx])
         self._pose = Pose2D(*new[-1])
         self.smoothing_s = perf_counter() - t0
 
@@ -318,24 +322,23 @@ def smooth_trajectory(
     end's prior): a fixed-interval smoother. Over a metre wheel odometry errs by a
     centimetre or two, a scan match against a map by about as much per pose and without
     drift: together they beat either. Solved as a pose graph (:func:`optimize_pose_graph`)
-    of the poses and a fixed origin node, Huber-robust against a slipping wheel."""
+    of the odometry's edges with the SLAM's poses as priors, Huber-robust against a
+    slipping wheel."""
     n = len(poses)
-    nodes = np.vstack([np.zeros((1, 3)), poses])
-    k = np.arange(n)
-    rel = []
-    for a, b in zip(odom[:-1], odom[1:], strict=True):
-        rel.append(Pose2D(*b).relative_to(Pose2D(*a)).as_array())
-    z_odo = np.array(rel).reshape(-1, 3)
-    d = np.hypot(z_odo[:, 0], z_odo[:, 1])
+    rel = [
+        Pose2D(*b).relative_to(Pose2D(*a)).as_array()
+        for a, b in zip(odom[:-1], odom[1:], strict=True)
+    ]
+    z = np.array(rel).reshape(-1, 3)
+    d = np.hypot(z[:, 0], z[:, 1])
     st = odom_noise[0] * d + 1e-3
-    sa = odom_noise[1] * np.abs(z_odo[:, 2]) + odom_noise[2] * d + 1e-3
-    sig_odo = np.stack([st, st, sa], axis=1)
-    sig_pose = np.tile([pose_sigma[0], pose_sigma[0], pose_sigma[1]], (n, 1))
-    ii = np.concatenate([np.zeros(n, np.int64), k[:-1] + 1])
-    jj = np.concatenate([k + 1, k[1:] + 1])
-    z = np.vstack([poses, z_odo])
-    sigma = np.vstack([sig_pose, sig_odo])
-    return optimize_pose_graph(nodes, ii, jj, z, sigma, huber, iterations=10)[1:]
+    sa = odom_noise[1] * np.abs(z[:, 2]) + odom_noise[2] * d + 1e-3
+    sigma = np.stack([st, st, sa], axis=1)
+    k = np.arange(n - 1)
+    spread = np.tile([pose_sigma[0], pose_sigma[0], pose_sigma[1]], (n, 1))
+    return optimize_pose_graph(
+        poses, k, k + 1, z, sigma, huber, iterations=10, prior=(poses, spread)
+    )
 
 
 def optimize_pose_graph(
@@ -346,8 +349,10 @@ def optimize_pose_graph(
     sigma: np.ndarray,
     huber: float = 3.0,
     iterations: int = 20,
+    prior: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
-    """Least-squares poses (n, 3) of a 2D pose graph; node 0 stays fixed.
+    """Least-squares poses (n, 3) of a 2D pose graph; node 0 stays fixed unless a
+    ``prior`` (poses (n, 3) and their stds (n, 3)) holds every node near a pose of its own.
 
     Edge ``k`` measures node ``jj[k]`` in the frame of node ``ii[k]`` as ``z[k]`` with
     standard deviations ``sigma[k]`` (x, y, yaw). Gauss-Newton on the sparse normal
@@ -367,9 +372,14 @@ def optimize_pose_graph(
     for a in range(3):
         cols[:, a, :3] = 3 * ii[:, None] + np.arange(3)
         cols[:, a, 3:] = 3 * jj[:, None] + np.arange(3)
-    # Node 0 is the gauge; a little damping elsewhere.
+    # Node 0 is the gauge (or the prior is); a little damping elsewhere.
     diag = np.full(3 * n, 1e-6)
-    diag[:3] += 1e9
+    if prior is None:
+        diag[:3] += 1e9
+    else:
+        target = np.asarray(prior[0], dtype=float)
+        info = (1.0 / np.asarray(prior[1], dtype=float) ** 2).ravel()
+        diag += info
     damping = diags(diag, format="csc")
     for _ in range(iterations):
         pi, pj = x[ii], x[jj]
@@ -396,7 +406,12 @@ def optimize_pose_graph(
         jac = csr_matrix(((j * scale).ravel(), (rows.ravel(), cols.ravel())), shape=(3 * m, 3 * n))
         res = (rw * np.sqrt(robust)[:, None]).ravel()
         h = (jac.T @ jac).tocsc() + damping
-        step = spsolve(h, -(jac.T @ res))
+        g = jac.T @ res
+        if prior is not None:
+            e = x - target
+            e[:, 2] = wrap_angles(e[:, 2])
+            g = g + info * e.ravel()
+        step = spsolve(h, -g)
         x += step.reshape(n, 3)
         x[:, 2] = wrap_angles(x[:, 2])
         if np.abs(step).max() < 1e-6:

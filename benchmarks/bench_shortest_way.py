@@ -16,6 +16,13 @@ side in this one run:
   ``.time_ms.p50``): every leg of a tour on the built-in tb3 arena and the real tb3 and
   house maps, planned by each global planner (OMPL's with seeds 0..2), burger radius,
   inflation 0.3 m; ``ompl_RRTConnect_before`` as above.
+* **Exploring** (``shortest_way.explore.<world>.<slam>.*``): ``map_area`` with the
+  default sensors of the real AWS house (waffle), the real tb3 map (burger) and the
+  built-in 30 x 15 m depot (burger), then a patrol on the saved map, with ``grid``
+  SLAM (no loop closure) and ``graph`` SLAM (loop closure): ``succeeded`` (both tasks),
+  ``rmse_m`` / ``max_error_m`` (the estimate, after the first 10 s, over the whole run),
+  ``free_iou`` (the saved map's free cells against the real map), ``slam_rmse_m``,
+  ``goals_cancelled`` (frontier goals given up for another) and ``real_time_factor``.
 """
 
 from __future__ import annotations
@@ -179,8 +186,70 @@ def plans() -> dict[str, float]:
     return out
 
 
+# world -> (world spec, robot, start, patrol on the saved map)
+EXPLORE: dict[str, tuple[str, str, tuple[float, float], list[tuple[float, float]]]] = {
+    "aws_small_house": (str(HOUSE_REAL), "waffle", (3.83, -1.23), [(-6.0, -1.0), (7.0, -3.0)]),
+    "tb3_real": (str(TB3_REAL), "burger", (-2.0, -0.5), [(1.13, -1.6), (0.13, 1.93)]),
+    "depot": ("depot", "burger", (-12.0, 0.0), [(12.0, -4.5), (0.0, 4.0)]),
+}
+EXPLORE_SLAM = ("grid", "graph")  # the map_area SLAM before (grid) and after (graph)
+
+
+def explore_mission(world: str, slam: str) -> dict:
+    """``map_area`` with the default sensors, then a patrol on the map it saved."""
+    spec, robot, (x, y), patrol = EXPLORE[world]
+    return {
+        "name": f"explore-{world}-{slam}",
+        "world": spec,
+        "robot": robot,
+        "start": {"x": x, "y": y, "yaw": 0.0},
+        "seed": 1,
+        "stack": {"slam": {"type": slam}, "localization": {"type": "amcl"}},
+        "tasks": [
+            {"type": "map_area", "save_map": "explored"},
+            {"type": "patrol", "waypoints": [{"x": px, "y": py, "yaw": 0.0} for px, py in patrol]},
+        ],
+        "limits": {"time": 2400.0},
+    }
+
+
+def _explore_run(world: str, slam: str) -> dict[str, float]:
+    from agv_mission.missions.loader import load_mission
+    from agv_mission.missions.runner import run_mission
+
+    with tempfile.TemporaryDirectory() as tmp:
+        mission = {**explore_mission(world, slam), "output": tmp}
+        path = Path(tmp) / "mission.yaml"
+        path.write_text(yaml.safe_dump(mission))
+        record = run_mission(load_mission(path))
+    loc = record.metrics["localization"]
+    legs = record.metrics["navigation"]["legs"]
+    maps = record.extras.get("maps") or [{}]
+    out = {
+        "succeeded": float(record.status == "succeeded"),
+        "rmse_m": float(loc.get("position_rmse_settled") or math.nan),
+        "max_error_m": float(loc.get("position_max_error_settled") or math.nan),
+        "free_iou": float(maps[0].get("free_iou", math.nan)),
+        "slam_rmse_m": float(maps[0].get("slam_rmse", math.nan)),
+        "goals_cancelled": float(sum(leg["status"] == "cancelled" for leg in legs)),
+        "real_time_factor": float(record.metrics.get("real_time_factor") or math.nan),
+    }
+    return out
+
+
+def explore() -> dict[str, float]:
+    """Each world mapped with each SLAM, then patrolled: keys
+    ``shortest_way.explore.<world>.<slam>.*``."""
+    out: dict[str, float] = {}
+    for world in EXPLORE:
+        for slam in EXPLORE_SLAM:
+            for key, value in _explore_run(world, slam).items():
+                out[f"shortest_way.explore.{world}.{slam}.{key}"] = value
+    return out
+
+
 def run() -> dict[str, float]:
-    return {**plans(), **missions()}
+    return {**plans(), **missions(), **explore()}
 
 
 if __name__ == "__main__":

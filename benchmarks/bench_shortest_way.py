@@ -234,7 +234,7 @@ def _explore_run(world: str, slam: str) -> dict[str, float]:
         "goals_cancelled": float(sum(leg["status"] == "cancelled" for leg in legs)),
         "real_time_factor": float(record.metrics.get("real_time_factor") or math.nan),
     }
-    return out
+    return {k: v for k, v in out.items() if not math.isnan(v)}  # (no map saved: no IoU)
 
 
 def explore() -> dict[str, float]:

@@ -95,6 +95,12 @@ TARGETS = {
         for case in ("demo", "ros_turtlebot3_world", "ros_aws_small_house")
         for name, bound in (("inside_2sigma", (">=", 0.9)), ("radius_over_error", ("<=", 5.0)))
     },
+    # issue 32: every leg planned and driven within 1.25x the shortest free path
+    **{
+        f"shortest_way.{mission}.after.max.{ratio}": ("<=", 1.25)
+        for mission in ("demo_patrol", "visit_rooms", "tb3_real_rrtconnect")
+        for ratio in ("planned_vs_shortest_free", "driven_vs_shortest_free")
+    },
 }
 # metric name suffix -> (comparison, target), for keys of every map (issue 15)
 SUFFIX_TARGETS = {

@@ -91,6 +91,15 @@ class Expectations(BaseModel):
     planned_vs_shortest_max: float | None = Field(
         None, ge=1.0, description="on every leg that succeeded, first plan's length / shortest"
     )
+    driven_vs_shortest_free_max: float | None = Field(
+        None,
+        ge=1.0,
+        description="on every leg that succeeded, distance driven / the shortest free path "
+        "(any-angle, in the robot's configuration space; metrics.navigation.legs), at most",
+    )
+    planned_vs_shortest_free_max: float | None = Field(
+        None, ge=1.0, description="on every leg that succeeded, first plan's length / shortest free"
+    )
     stops_max: int | None = Field(
         None,
         ge=0,
@@ -262,6 +271,8 @@ def check(expect: Expectations | None, result: dict[str, Any]) -> list[Failure]:
         ("driven_vs_shortest_max", e.driven_vs_shortest_max),
         ("driven_vs_planned_max", e.driven_vs_planned_max),
         ("planned_vs_shortest_max", e.planned_vs_shortest_max),
+        ("driven_vs_shortest_free_max", e.driven_vs_shortest_free_max),
+        ("planned_vs_shortest_free_max", e.planned_vs_shortest_free_max),
     ):
         at_most(key, bound, navigation.get(key))
     at_most("stops_max", e.stops_max, navigation.get("stops"))

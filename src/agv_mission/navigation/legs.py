@@ -17,7 +17,10 @@ class Leg:
 
     ``planned`` is the length of the leg's first plan; ``shortest`` the length of the
     shortest path at the planner's clearance between the same points, on the same costmap
-    (no inflation cost, no fillets). The driven distance comes from the trajectory.
+    (no inflation cost, no fillets); ``shortest_free`` the shortest free path's (any-angle,
+    in the robot's configuration space: no margin beyond its radius, as the field
+    measures planners; :mod:`agv_mission.planners.shortest_free`). The driven distance
+    comes from the trajectory.
     """
 
     goal: Pose2D
@@ -25,6 +28,7 @@ class Leg:
     start: Pose2D
     planned: float | None = None
     shortest: float | None = None
+    shortest_free: float | None = None
     t_end: float | None = None
     status: str = "running"
     replans: int = 0
@@ -42,6 +46,13 @@ class NavigationStats:
     legs: list[Leg] = field(default_factory=list)
 
 
+RATIOS = (
+    "driven_vs_planned",
+    "driven_vs_shortest",
+    "planned_vs_shortest",
+    "driven_vs_shortest_free",
+    "planned_vs_shortest_free",
+)
 MOVING, STOPPED = 0.05, 0.01  # m/s: a stop is moving -> stopped -> moving within one leg
 
 
@@ -65,6 +76,7 @@ def leg_report(
             "t_end": round(t1, 3),
             "planned": _r(leg.planned),
             "shortest": _r(leg.shortest),
+            "shortest_free": _r(leg.shortest_free),
             "driven": round(driven, 4),
             "replans": leg.replans,
             "stops": _stops(v[inside]),
@@ -73,12 +85,14 @@ def leg_report(
             ("driven_vs_planned", driven, leg.planned),
             ("driven_vs_shortest", driven, leg.shortest),
             ("planned_vs_shortest", leg.planned, leg.shortest),
+            ("driven_vs_shortest_free", driven, leg.shortest_free),
+            ("planned_vs_shortest_free", leg.planned, leg.shortest_free),
         ):
             row[key] = round(num / den, 4) if num is not None and den and den > 0.2 else None
         rows.append(row)
     done = [r for r in rows if r["status"] == "succeeded"]
     report: dict[str, Any] = {"legs": rows}
-    for key in ("driven_vs_planned", "driven_vs_shortest", "planned_vs_shortest"):
+    for key in RATIOS:
         values = [r[key] for r in done if r[key] is not None]
         report[f"{key}_max"] = max(values) if values else None
     report["stops"] = sum(r["stops"] for r in done)
@@ -86,6 +100,9 @@ def leg_report(
     # what was shortest; the distance driven is ``metrics.distance_driven``.
     report["planned_length"] = _r(sum(leg.planned for leg in legs if leg.planned is not None))
     report["shortest_length"] = _r(sum(leg.shortest for leg in legs if leg.shortest is not None))
+    report["shortest_free_length"] = _r(
+        sum(leg.shortest_free for leg in legs if leg.shortest_free is not None)
+    )
     return report
 
 

@@ -44,6 +44,7 @@ from agv_mission.planners.base import (
 from agv_mission.planners.cost_grid import CostGridPlanner
 from agv_mission.planners.free_space import FreeSpace
 from agv_mission.planners.path_tracking import Projection, Segments, closest_point
+from agv_mission.planners.shortest_free import ShortestFreePath
 
 
 class NavStatus(Enum):
@@ -194,6 +195,7 @@ class Navigator:
         self._now = 0.0
         self._takes_prior = "prior" in inspect.signature(global_planner.plan).parameters
         self._shortest = CostGridPlanner.shortest(float(global_planner.clearance))
+        self._shortest_free = ShortestFreePath()
         # Fleet traffic: this step's order, the detour being driven to, the other bodies.
         self.order: TrafficOrder | None = None
         self.detour: Pose2D | None = None
@@ -387,6 +389,7 @@ class Navigator:
             leg = self.stats.legs[-1]
             leg.planned = self.path.length if self.path is not None else None
             leg.shortest = self._shortest_length(state.estimate, goal)
+            leg.shortest_free = self._shortest_free.length(self.costmap, state.estimate, goal)
 
     def follow(self, path: PlannedPath, goal: Pose2D, state: RobotState) -> None:
         """Follow a path planned elsewhere (Nav2's FollowPath with ComputePathToPose in the

@@ -43,22 +43,29 @@ What OMPL 2.0.1 (PyPI wheel, nanobind) does, as probed for this module:
   samplers, planner and simplifier right after reseeding, so a plan is a function of
   (costmap, start, goal, config, seed) for every single-threaded planner (not for plans
   run concurrently from several Python threads: the seed is process-global).
-* Budgets. A plan stops on a count, never on the clock: the termination condition
-  counts its own evaluations (one per planner iteration) up to ``iterations``, so a run
-  is byte-identical with or without other processes loading the CPU. Optimising
-  planners run in doubling rounds (round k: ``round_iterations * 2**k`` iterations,
-  within the same total) and stop once the simplified path costs no more than
-  ``cost_threshold`` times a reference: the cost, under the same objective, of the path
-  ``cost_grid`` would plan (used as a yardstick only, never as the plan). The objective
-  carries the same threshold, so a planner whose raw solution gets there stops inside a
-  round. ``time_limit`` is only a watchdog.
+* Budgets (:mod:`ompl_budget`). A plan stops on a count, never on the clock: the
+  termination condition counts its own evaluations (one per planner iteration) up to
+  ``iterations``, so a run is byte-identical with or without other processes loading
+  the CPU. The yardstick is the path ``cost_grid`` would plan (never the plan): a plan
+  is good enough when it costs no more than ``cost_threshold`` times its cost under the
+  same objective and is no longer than ``length_threshold`` times its length.
+  Optimising planners run in doubling rounds (round k: ``round_iterations * 2**k``
+  iterations, within the same total) until their simplified path is good enough (the
+  objective carries the cost threshold, so a planner whose raw solution gets there
+  stops inside a round). Planners that stop at their first solution (RRTConnect, ...)
+  run again from scratch, up to ``restarts`` times, until one is: a first solution goes
+  whichever way round the obstacles the trees met first (on the demo's pillars, twice
+  the shortest), and no simplifier changes the way round. ``time_limit`` is only a
+  watchdog.
+* Range. Planners that stop at their first solution get 0.5 m edges unless ``range``
+  says otherwise: with OMPL's default (a fifth of the map's extent) a tree's first
+  branches leap over a row of pillars and connect round the outside.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
 
 import numpy as np
 
@@ -68,17 +75,25 @@ from agv_mission.planners.base import PlannedPath, PlanningError
 from agv_mission.planners.configs import CostGridConfig, OmplPlannerConfig
 from agv_mission.planners.cost_grid import CostGridPlanner
 from agv_mission.planners.free_space import FreeSpace, FreeSpacePlanner, cost_factor
+from agv_mission.planners.ompl_budget import (
+    THREADED_PLANNERS,
+    Yardstick,
+    run_restarts,
+    run_rounds,
+    taut_length,
+)
+from agv_mission.planners.path_smoothing import path_length
 
 # Anytime planners, worth running past their first solution: they improve it on the
 # objective (AORRTC: on path length, which the simplifier then weighs by the objective).
 OPTIMIZING_PLANNERS = frozenset(
     {"RRTstar", "InformedRRTstar", "SORRTstar", "BITstar", "PRMstar", "AORRTC"}
 )
-# Planners that evaluate the termination condition and the objective from a second thread.
-THREADED_PLANNERS = frozenset({"PRM", "PRMstar"})
 SAMPLES_PER_CELL = 2  # the cost integral samples a motion every half cell
 VECTORISE_FROM = 24  # samples beyond which numpy beats a Python loop
 COST_CACHE = 4  # cost-factor tables kept (one per costmap content and weight)
+# The longest edge of planners that stop at their first solution (see OmplPlannerConfig.range).
+FIRST_SOLUTION_RANGE = 0.5
 
 
 def _pieces(length: float, piece: float) -> int:
@@ -255,16 +270,19 @@ class OmplPlanner(FreeSpacePlanner[OmplPlannerConfig]):
     ) -> np.ndarray | None:
         """Local-frame waypoints from ``start`` to ``goal``, or None if none was found."""
         cfg = self.config
-        anytime = cfg.planner in OPTIMIZING_PLANNERS
-        threshold = -math.inf  # no threshold: nothing is cheap enough
-        if anytime and cfg.cost_threshold is not None:
+        yardstick = Yardstick()  # none: nothing is good enough
+        looks = cfg.planner in OPTIMIZING_PLANNERS or cfg.planner not in THREADED_PLANNERS
+        if looks and cfg.cost_threshold is not None:  # (PRM alone plans once, on the clock)
             ref = self._reference.local_path(space, start, goal)
             if ref is None:
                 return None  # not connected: no sampling planner will do better
             self._last["reference_cost"] = round(cost.path(ref), 4)
-            threshold = cfg.cost_threshold * cost.path(ref)
+            self._last["reference_length"] = round(path_length(ref), 4)
+            yardstick = Yardstick(
+                cfg.cost_threshold * cost.path(ref), cfg.length_threshold * path_length(ref)
+            )
         return _solve(
-            space, cost, start, goal, cfg, seed, t0 + cfg.time_limit, threshold, self._last
+            space, cost, start, goal, cfg, seed, t0 + cfg.time_limit, yardstick, self._last
         )
 
 
@@ -333,7 +351,7 @@ def _solve(
     cfg: OmplPlannerConfig,
     seed: int,
     deadline: float,
-    threshold: float,
+    yardstick: Yardstick,
     report: dict[str, float],
 ) -> np.ndarray | None:
     """Set up, solve and simplify one OMPL problem (every OMPL object dies here)."""
@@ -376,12 +394,13 @@ def _solve(
     planner_objective = ob.PathLengthOptimizationObjective(si) if threaded else objective
     if not anytime:  # any path satisfies (else PRM grows its roadmap until the timeout)
         planner_objective.setCostThreshold(ob.Cost(math.inf))
-    elif threshold > 0.0:
-        planner_objective.setCostThreshold(ob.Cost(threshold))
+    elif yardstick.cost > 0.0:
+        planner_objective.setCostThreshold(ob.Cost(yardstick.cost))
     ss.setOptimizationObjective(planner_objective)
     planner = getattr(og, cfg.planner)(si)
-    if cfg.range is not None and hasattr(planner, "setRange"):
-        planner.setRange(cfg.range)
+    edge = cfg.range if cfg.range is not None or anytime else FIRST_SOLUTION_RANGE
+    if edge is not None and hasattr(planner, "setRange"):
+        planner.setRange(edge)
     if cfg.goal_bias is not None and hasattr(planner, "setGoalBias"):
         planner.setGoalBias(cfg.goal_bias)
     ss.setPlanner(planner)
@@ -389,83 +408,45 @@ def _solve(
     pdef = ss.getProblemDefinition()
     simplifier = og.PathSimplifier(si, pdef.getGoal(), objective) if cfg.simplify else None
 
+    def states(path) -> np.ndarray:
+        return np.array([[st[0], st[1]] for st in path.getStates()], dtype=float)
+
+    def simplified(path) -> tuple[np.ndarray, float]:
+        """``path`` simplified in place, as waypoints with their cost; the raw waypoints
+        when the simplifier made it worse (never seen; the raw path is checked edge by
+        edge)."""
+        raw = states(path)
+        if simplifier is None:
+            return raw, cost.path(raw)
+        simplifier.simplifyMax(path)  # bounded by work, not by time: deterministic
+        pts = states(path)
+        if not _path_ok(space, pts) or cost.path(pts) > cost.path(raw):
+            pts = raw
+        return pts, cost.path(pts)
+
     def current() -> tuple[np.ndarray, float]:
         """The planner's best solution, simplified on a copy: waypoints and cost."""
         path = og.PathGeometric(pdef.getSolutionPath())
-        raw = np.array([[st[0], st[1]] for st in path.getStates()], dtype=float)
-        pts = raw
-        if simplifier is not None:
-            simplifier.simplifyMax(path)  # bounded by work, not by time: deterministic
-            pts = np.array([[st[0], st[1]] for st in path.getStates()], dtype=float)
-            if not _path_ok(space, pts) or cost.path(pts) > cost.path(raw):
-                pts = raw  # (never seen; the raw path is checked edge by edge)
-        del path
-        return pts, cost.path(pts)
+        try:
+            return simplified(path)
+        finally:
+            del path
+
+    def restarts() -> np.ndarray | None:
+        """:func:`ompl_budget.run_restarts` with this problem's OMPL objects."""
+        return run_restarts(
+            ob, ss, pdef, lambda: og.PathGeometric(pdef.getSolutionPath()),
+            lambda path: taut_length(space, states(path)),
+            simplified, cfg, yardstick, deadline, report,
+        )  # fmt: skip
 
     try:
         if anytime:
-            return _run_rounds(ob, ss, pdef, current, cfg, threshold, deadline, report)
+            return run_rounds(ob, ss, pdef, current, cfg, yardstick, deadline, report)
         if threaded:  # the documented exception: the wall clock
             ss.solve(ob.timedPlannerTerminationCondition(max(deadline - time.perf_counter(), 1e-3)))
-        else:
-            budget = _IterationBudget(cfg.iterations, deadline)
-            ss.solve(ob.PlannerTerminationCondition(budget))
-            report["iterations"] = float(cfg.iterations - max(budget.left, 0))
-        return current()[0] if pdef.hasExactSolution() else None
+            return current()[0] if pdef.hasExactSolution() else None
+        return restarts()
     finally:  # nothing of OMPL's may outlive the plan (nanobind reports leaks at exit)
         simplifier = pdef = planner = objective = planner_objective = validator = None
         si = ss = s_state = g_state = bounds = ompl_space = None
-
-
-class _IterationBudget:
-    """A termination condition that counts its own evaluations (one per planner
-    iteration) instead of reading the clock; the wall-clock ``deadline`` is a watchdog."""
-
-    def __init__(self, iterations: int, deadline: float) -> None:
-        self.left = iterations
-        self.deadline = deadline
-
-    def __call__(self) -> bool:
-        self.left -= 1
-        return self.left < 0 or time.perf_counter() >= self.deadline
-
-
-def _run_rounds(
-    ob,
-    ss,
-    pdef,
-    current: Callable[[], tuple[np.ndarray, float]],
-    cfg: OmplPlannerConfig,
-    threshold: float,
-    deadline: float,
-    report: dict[str, float],
-) -> np.ndarray | None:
-    """Run an anytime planner in doubling rounds until the simplified path's cost meets
-    ``threshold`` or the iteration budget is spent (PRMstar: rounds of wall time)."""
-    threaded = cfg.planner in THREADED_PLANNERS
-    slice_s = cfg.time_limit / 32.0
-    spent, limit = 0, cfg.round_iterations
-    best_pts, best_cost, last_raw = None, math.inf, math.inf
-    while time.perf_counter() < deadline and (threaded or spent < cfg.iterations):
-        if threaded:
-            remaining = deadline - time.perf_counter()
-            ss.solve(ob.timedPlannerTerminationCondition(min(slice_s, remaining)))
-            slice_s *= 2.0
-        else:
-            budget = _IterationBudget(min(limit, cfg.iterations - spent), deadline)
-            ss.solve(ob.PlannerTerminationCondition(budget))
-            spent += max(1, min(limit, cfg.iterations - spent) - max(budget.left, 0))
-            limit *= 2
-        if not pdef.hasExactSolution():
-            continue
-        raw = pdef.getSolutionPath().length()
-        if raw != last_raw:  # simplify only what changed
-            last_raw = raw
-            pts, path_cost = current()
-            if path_cost < best_cost:
-                best_pts, best_cost = pts, path_cost
-        if best_cost <= threshold:  # (never, without a threshold: use the whole budget)
-            break
-    report["iterations"] = float(spent)
-    report["met_threshold"] = float(best_cost <= threshold)
-    return best_pts

@@ -80,6 +80,11 @@ TARGETS = {
     # issue 25: 50 people in the warehouse add at most 25 % to a one-robot run (the default
     # stack's run; people.ground_truth.n50.cost_ratio is reported beside it)
     "people.n50.cost_ratio": ("<=", 1.25),
+    # issue 33: BARN's 300 public worlds (read from AGV_MISSION_BARN), default stack
+    "barn.default.success_rate": (">=", 0.95),
+    "barn.default.collision_rate": ("<=", 0.02),
+    "barn.default.mean_metric": (">=", 0.35),
+    "barn.default.wall_s": ("<=", 600.0),
 }
 # metric name suffix -> (comparison, target), for keys of every map (issue 15)
 SUFFIX_TARGETS = {

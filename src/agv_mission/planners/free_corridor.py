@@ -25,7 +25,7 @@ def free_distance(
 ) -> float:
     """Arclength along a path sampled every ``step`` from ``step`` on (``samples``, (n, 2),
     map frame) to the last sample before the corridor of ``half_width`` on each side holds
-    an obstacle point, or its middle half is hidden from the lidar at ``origin`` by one
+    an obstacle point, or its middle three quarters are hidden from the lidar at ``origin`` by one
     (all n free: n steps)."""
     n = len(samples)
     if not len(points) or not n:
@@ -37,9 +37,9 @@ def free_distance(
     norm = np.maximum(np.hypot(tx, ty), 1e-9)
     nx, ny = -ty / norm, tx / norm
     pts = np.asarray(points, dtype=float).reshape(-1, 2)
-    # each sample: its centre and halfway to both edges, relative to the lidar (a ray
-    # grazing a return by the corridor's edge hides no obstacle that could reach in far)
-    w = 0.5 * half_width
+    # each sample: its centre and three quarters of the way to both edges, relative to the
+    # lidar (a ray grazing a return by the corridor's edge hides nothing that reaches in far)
+    w = 0.75 * half_width
     qx = np.stack([x, x + w * nx, x - w * nx], axis=1) - origin[0]
     qy = np.stack([y, y + w * ny, y - w * ny], axis=1) - origin[1]
     px, py = pts[:, 0] - origin[0], pts[:, 1] - origin[1]

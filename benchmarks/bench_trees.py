@@ -10,6 +10,12 @@
   stack's cost, whoever calls them), per simulated second.
 * ``trees.assemble_10k_nodes_ms``: validating and expanding a tree of 8 200 nodes (subtree
   fan-out), near the 10 000 a mission may hold.
+* ``trees.nav2_jazzy.*``: Nav2's Jazzy navigator tree
+  (``navigate_to_pose_w_replanning_and_recovery.xml``, as shipped: replanning at 1 Hz)
+  driving the burger from the living room to the kitchen of the house (amcl, cost_grid,
+  MPC), against our ``navigate_to_pose`` to the same goal; alternated twice, each keeping
+  its fastest: the Nav2 tree's real-time factor (simulated over wall seconds), CPU
+  seconds over ours, and how many times it planned.
 """
 
 from __future__ import annotations
@@ -94,6 +100,39 @@ def _run(path: Path) -> tuple[float, float, np.ndarray, str]:
     return cpu, tick[0] - nav[0], record.trajectory, record.status
 
 
+NAV2_TREE = (
+    REPO / "tests" / "nav2_trees" / "jazzy" / "navigate_to_pose_w_replanning_and_recovery.xml"
+)
+HOUSE = "world: small_house\nrobot: burger\nstart: livingroom\nseed: 1\nlimits: {time: 120.0}\n"
+
+
+def _nav2(base: Path) -> dict[str, float]:
+    (base / "nav2.yaml").write_text(
+        HOUSE + f"tree: {{type: navigate_to_pose, goal: kitchen, behavior_tree: {NAV2_TREE}}}\n"
+    )
+    (base / "ours.yaml").write_text(HOUSE + "tree: {type: navigate_to_pose, goal: kitchen}\n")
+    cpu = {"nav2": np.inf, "ours": np.inf}
+    rtf, plans = 0.0, 0
+    for _ in range(2):
+        for kind in ("nav2", "ours"):
+            loaded = load_mission(base / f"{kind}.yaml")
+            wall, start = time.perf_counter(), time.process_time()
+            run = MissionRun(loaded, None)
+            run.drive()
+            used, wall = time.process_time() - start, time.perf_counter() - wall
+            record = run.record()
+            assert record.status == "succeeded", (kind, record.reason)
+            cpu[kind] = min(cpu[kind], used)
+            if kind == "nav2":
+                rtf = max(rtf, record.sim_time / wall)
+                plans = run.navigator.stats.plans
+    return {
+        "trees.nav2_jazzy.real_time_factor": round(rtf, 2),
+        "trees.nav2_jazzy.cpu_over_ours": round(cpu["nav2"] / cpu["ours"], 3),
+        "trees.nav2_jazzy.plans": float(plans),
+    }
+
+
 def run(tmp: Path | None = None) -> dict[str, float]:
     import tempfile
 
@@ -125,6 +164,8 @@ def run(tmp: Path | None = None) -> dict[str, float]:
             results[f"trees.patrol_{kind}.tree_ms_per_sim_s"] = round(own[kind] * 1e3, 4)
         cpu, tree_cpu, traj, status = _run(REPO / "missions" / "wander_tree.yaml")
         results["trees.wander_tree.tree_ms_per_sim_s"] = round(tree_cpu / traj[-1, 0] * 1e3, 4)
+
+        results.update(_nav2(base))
 
     fan = {"type": "sequence", "children": [{"type": "subtree", "id": "L1"}] * 9}
     trees = {

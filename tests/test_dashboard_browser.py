@@ -177,7 +177,7 @@ def test_submit_page_shows_errors_beside_their_lines_and_takes_overrides(
     # the service's problem shows beside its line, with the field, and in the list
     mark = page.locator(f'#marks div[data-line="{line}"]')
     mark.wait_for(timeout=30_000)
-    assert "tasks[0].loops" in mark.inner_text()
+    assert "tasks.0.loops" in mark.inner_text()  # spelled as the command line spells it
     assert "greater than or equal to 1" in mark.inner_text()
     assert page.locator("#gutter div.err").first.inner_text() == str(line)
     assert f"line {line}" in page.inner_text("#checks")

@@ -178,3 +178,20 @@ def test_teleop_options_are_named_in_their_errors() -> None:
     )
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "(from --world nowhere)" in r.stderr
+
+
+def test_one_spelling_of_a_field_path_brackets_taken_with_a_hint(mission: Path) -> None:
+    """``tasks.0.loops`` is the spelling of every message (command line and service);
+    ``--set tasks[0].loops=2`` is taken as it, with a hint naming the accepted spelling."""
+    loaded = load_mission(mission, ["tasks[0].loops=2", "tasks[0].waypoints[0].x=-1.5"])
+    patrol = loaded.mission.tasks[0]
+    assert patrol.loops == 2 and patrol.waypoints[0].x == -1.5
+    hints = [str(w) for w in loaded.warnings]
+    assert len(hints) == 2 and "is spelled tasks.0.loops" in hints[0]
+    assert "tasks.0.waypoints.0.x" in hints[1]
+    assert load_mission(mission, ["tasks.0.loops=2"]).warnings == []  # the spelling: no hint
+    with pytest.raises(MissionError) as exc:  # problems spell the path one way
+        load_mission(mission, ["tasks[0].loops=0"])
+    assert exc.value.problems[0].field == "tasks.0.loops"
+    done = cli("validate", str(mission), "--set", "tasks[0].loops=2")
+    assert done.returncode == 0 and "is spelled tasks.0.loops" in done.stderr

@@ -395,6 +395,93 @@ def test_a_route_point_walled_off_from_the_first_is_refused() -> None:
     assert "walls are in the way" in problems[0][1]
 
 
+def _near_wall(grid, xy: tuple[float, float], room: float) -> tuple[float, float]:
+    """The free cell nearest ``xy`` whose room to the nearest wall is ``room`` (+-0.01 m)."""
+    left = clearance(grid)
+    rows, cols = np.nonzero(np.abs(left - room) <= 0.01)
+    centres = grid.cell_to_world(rows, cols)
+    best = centres[np.argmin(np.hypot(*(centres - np.asarray(xy)).T))]
+    return float(best[0]), float(best[1])
+
+
+def test_a_route_point_too_near_a_wall_is_walked_to_as_near_as_the_person_fits() -> None:
+    """Picked by eye 0.22 m from a wall, for a person of radius 0.25 m: the person walks to
+    the nearest point where they fit, with a warning at the point's field; only a point in a
+    wall or off the map is invalid."""
+    x, y = _near_wall(HOUSE.map, (-5.0, -4.0), 0.22)
+    warnings: list[tuple[tuple, str]] = []
+    problems: list[tuple[tuple, str]] = []
+    [group] = resolve_people(
+        PEOPLE.validate_python(
+            [
+                {
+                    "behaviour": "route",
+                    "radius": 0.25,
+                    "route": [{"x": -5.0, "y": -2.0}, {"x": x, "y": y}],
+                }
+            ]
+        ),
+        HOUSE.rooms,
+        HOUSE.map,
+        lambda where, message: problems.append((where, message)),
+        lambda where, message: warnings.append((where, message)),
+    )
+    assert problems == []
+    [(where, message)] = warnings
+    assert where == ("people", 0, "route", 1) and "0.22 m from a wall" in message
+    moved = group.route[1]
+    assert group.route[0] == (-5.0, -2.0) and moved != (x, y)
+    assert np.hypot(moved[0] - x, moved[1] - y) < 0.1  # as near as they fit
+    rows, cols = HOUSE.map.world_to_cell(np.array(moved))
+    assert clearance(HOUSE.map)[int(rows), int(cols)] >= 0.25
+
+
+def test_an_area_too_near_a_wall_is_walked_as_near_as_the_people_fit() -> None:
+    x, y = _near_wall(HOUSE.map, (-5.0, -4.0), 0.15)
+    square = [[x - 0.1, y - 0.1], [x + 0.1, y - 0.1], [x + 0.1, y + 0.1], [x - 0.1, y + 0.1]]
+    warnings: list[tuple[tuple, str]] = []
+    problems: list[tuple[tuple, str]] = []
+    [group] = resolve_people(
+        PEOPLE.validate_python([{"count": 1, "area": square}]),
+        HOUSE.rooms,
+        HOUSE.map,
+        lambda where, message: problems.append((where, message)),
+        lambda where, message: warnings.append((where, message)),
+    )
+    assert problems == [] and [w for w, _ in warnings] == [("people", 0, "area")]
+    assert "as near as they fit" in warnings[0][1]
+    crowd = Crowd([group], HOUSE.map, np.random.default_rng(1))
+    walked = _walk(crowd, 50)
+    assert _wall_gap(HOUSE.map, walked, crowd.radii) > -0.03  # they walk where they fit
+
+
+def test_a_people_mission_with_a_point_near_a_wall_validates_and_runs(tmp_path: Path) -> None:
+    x, y = _near_wall(HOUSE.map, (-5.0, -4.0), 0.22)
+    mission = tmp_path / "near.yaml"
+    mission.write_text(
+        "name: near\nworld: small_house\nstart: {x: -1.5, y: -2.0, yaw: 0.0}\nseed: 2\n"
+        "stack:\n  localization: {type: ground_truth}\n"
+        f"people:\n  - {{behaviour: route, radius: 0.25, route: [{{x: -5.0, y: -2.0}}, {{x: {x}, y: {y}}}]}}\n"
+        "tasks:\n  - {type: go_to, pose: {x: -1.0, y: -2.0, yaw: 0.0}}\n"
+        f"limits: {{time: 6.0}}\noutput: {tmp_path / 'runs'}\n"
+    )
+    agv = str(Path(sys.executable).parent / "agv-mission")
+    valid = subprocess.run([agv, "validate", str(mission)], capture_output=True, text=True)
+    assert valid.returncode == 0, valid.stdout + valid.stderr
+    assert "warning" in valid.stderr and "people.0.route.1" in valid.stderr
+    assert f"{mission}:8: people.0.route.1" in valid.stderr  # file, line and field
+    done = subprocess.run([agv, "run", str(mission)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "people.0.route.1" in done.stderr
+    run_dir = next((tmp_path / "runs").iterdir())
+    result = __import__("json").loads((run_dir / "result.json").read_text())
+    assert any("people.0.route.1" in w for w in result["warnings"])
+    inside = mission.read_text().replace(f"x: {x}, y: {y}", "x: -2.4, y: -3.0")  # in a wall
+    mission.write_text(inside)
+    bad = subprocess.run([agv, "validate", str(mission)], capture_output=True, text=True)
+    assert bad.returncode == 2 and "in a wall" in bad.stderr
+
+
 # --- metrics and expectations -----------------------------------------------------------
 
 

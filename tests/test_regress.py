@@ -165,8 +165,99 @@ def test_discovery_skips_non_missions_and_recurses(tmp_path: Path) -> None:
     with pytest.raises(planning.RegressError, match="no such file"):
         planning.discover([tmp_path / "nope"])
     (tmp_path / "empty").mkdir()
-    with pytest.raises(planning.RegressError, match="no scenario files"):
+    with pytest.raises(planning.RegressError, match="no mission files"):
         planning.discover([tmp_path / "empty"])
+
+
+def test_discovery_keeps_every_kind_of_mission_and_says_what_it_skips(tmp_path: Path) -> None:
+    files = {
+        "list.yaml": "tasks: []\n",
+        "tree.yaml": "tree: {type: wait, seconds: 1}\n",
+        "fleet.yaml": "robots: [{name: a}]\n",
+        "broken.yaml": "tasks: [\n",  # unreadable: the loader must fail on it
+        "no_tasks.yaml": "world: small_house\nexpect: {status: succeeded}\n",  # ditto
+        "rooms.yaml": "rooms: {kitchen: {polygon: [[0, 0], [1, 0], [1, 1]]}}\n",
+        "robot.yaml": "name: r\nwheel_radius: 0.03\nwheel_separation: 0.16\n",
+        "map.yaml": "image: m.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n",
+        "record.yaml": "kitchen: {position: {x: 1}, orientation: {w: 1}}\n",
+        "other.yaml": "jobs: {build: 1}\n",
+        "tree.xml": "<root/>\n",
+    }
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    found = planning.survey([tmp_path])
+    assert sorted(p.name for p in found.missions) == [
+        "broken.yaml",
+        "fleet.yaml",
+        "list.yaml",
+        "no_tasks.yaml",
+        "tree.yaml",
+    ]
+    why = {p.name: reason for p, reason in found.skipped}
+    assert why["rooms.yaml"] == "a rooms file" and why["robot.yaml"] == "a robot file"
+    assert "map_server" in why["map.yaml"] and "room record" in why["record.yaml"]
+    assert "not a mission" in why["other.yaml"] and "XML" in why["tree.xml"]
+    (tmp_path / "uses.yaml").write_text("tree: tree.xml\n")
+    why = {p.name: reason for p, reason in planning.survey([tmp_path]).skipped}
+    assert "uses.yaml" in why["tree.xml"]
+    with pytest.raises(planning.RegressError, match="uses.yaml"):
+        planning.survey([tmp_path / "tree.xml"])  # named alone: the mission that runs it
+    plan = planning.plan_jobs([tmp_path], output_root=tmp_path / "runs")
+    bad = {Path(p.file).name for p in plan.problems}
+    assert {"broken.yaml", "no_tasks.yaml"} <= bad  # failed on, not dropped
+    suite = ET.fromstring(report.junit_xml([], plan, 0.0))  # one error case per such file
+    cases = [c.get("file") for c in suite.iter("testcase")]
+    assert len(cases) == len(set(cases)) == len(bad) and suite.get("errors") == str(len(bad))
+
+
+def test_the_scenario_suite_is_one_run_per_mission_file() -> None:
+    yaml_files = sorted(SCENARIOS.rglob("*.yaml"))
+    found = planning.survey([SCENARIOS])
+    assert len(found.missions) == len(yaml_files)
+    assert {p.suffix for p, _ in found.skipped} == {".xml"}
+
+
+SHORT_GO_TO = "{type: go_to, pose: {x: -1.4, y: -0.5, yaw: 0.0}}"
+
+
+def test_cli_runs_a_task_list_a_tree_and_a_fleet(tmp_path: Path) -> None:
+    """Three kinds of mission, three test cases; a rooms file and a robot file skipped,
+    saying so."""
+    from mission_texts import GROUND_TRUTH, tb3_mission
+
+    suite = tmp_path / "suite"
+    suite.mkdir()
+    (suite / "list.yaml").write_text(tb3_mission(SHORT_GO_TO, limits="{time: 20.0}"))
+    (suite / "tree.yaml").write_text(
+        "world: turtlebot3_world\nrobot: burger\nstart: {x: -2.0, y: -0.5, yaw: 0.0}\n"
+        f"stack: {GROUND_TRUTH}\n"
+        "tree: {type: sequence, children: [" + SHORT_GO_TO + ", {type: wait, seconds: 1}]}\n"
+        "limits: {time: 20.0}\n"
+    )
+    (suite / "fleet.yaml").write_text(
+        f"world: turtlebot3_world\nstack: {GROUND_TRUTH}\nrobots:\n"
+        "  - {name: a, robot: burger, start: {x: -2.0, y: -0.5, yaw: 0.0}}\n"
+        "  - {name: b, robot: burger, start: {x: -2.0, y: 0.5, yaw: 0.0}}\n"
+        "tasks:\n  - {type: go_to, pose: {x: -1.4, y: 0.5, yaw: 0.0}, robot: b}\n"
+        "limits: {time: 20.0}\n"
+    )
+    (suite / "rooms.yaml").write_text("rooms: {k: {polygon: [[0, 0], [1, 0], [1, 1]]}}\n")
+    (suite / "robot.yaml").write_text("name: r\nwheel_radius: 0.03\nwheel_separation: 0.2\n")
+    junit = tmp_path / "j.xml"
+    r = cli(
+        "regress", str(suite), "--junit", str(junit), "--output", str(tmp_path / "runs"),
+        "--workers", "2",
+    )  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "3/3 passed" in r.stdout
+    assert "rooms.yaml: a rooms file" in r.stderr and "robot.yaml: a robot file" in r.stderr
+    root = ET.parse(junit).getroot()
+    assert root.get("tests") == "3"
+    assert sorted(c.get("file").rsplit("/", 1)[-1] for c in root.iter("testcase")) == [
+        "fleet.yaml",
+        "list.yaml",
+        "tree.yaml",
+    ]
 
 
 def test_scenario_suite_is_valid_and_covers_the_stack() -> None:
@@ -176,7 +267,7 @@ def test_scenario_suite_is_valid_and_covers_the_stack() -> None:
     loaded = [load_mission(p) for p in suite]
     missions = [x.mission for x in loaded]
     assert all(m.expect is not None for m in missions)
-    tasks = {t.type for m in missions for t in m.tasks}
+    tasks = {t.type for m in missions for t in m.tasks or ()}
     assert {"go_to", "patrol", "wander", "visit_rooms", "record_room", "map_area"} <= tasks
     worlds = {Path(m.world).parent.name or m.world for m in missions}
     assert {"turtlebot3_world", "small_house", "aws_small_house"} <= worlds
@@ -193,9 +284,12 @@ def test_scenario_suite_is_valid_and_covers_the_stack() -> None:
     faults = {f.type for m in missions for f in m.faults}
     assert {"lidar_dropout", "wheel_slip", "kidnap"} <= faults
     assert any(m.obstacles for m in missions)
-    assert any(getattr(t, "on_failure", "abort") == "skip" for m in missions for t in m.tasks)
+    assert any(getattr(t, "on_failure", "abort") == "skip" for m in missions for t in m.tasks or ())
+    # the fast half stays short: task lists within 100 s, trees and fleets within 240 s
     assert len(FAST) >= 6 and all(
-        m.limits.time <= 100 for m, p in zip(missions, suite, strict=True) if p in FAST
+        m.limits.time <= (100 if m.tasks and not m.robots else 240)
+        for m, p in zip(missions, suite, strict=True)
+        if p in FAST
     )
 
 

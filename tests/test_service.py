@@ -18,6 +18,7 @@ import yaml
 from service_server import (
     AGV,
     FINAL,
+    SHORT_FLEET,
     SHORT_MISSION,
     WANDER_MISSION,
     Server,
@@ -94,12 +95,62 @@ def test_submit_follow_files(server: Server, client: httpx.Client) -> None:
     assert late[-1]["type"] == "end" and late[-1]["status"] == "succeeded"
 
 
+TREE_MISSION = """\
+name: short-tree
+world: turtlebot3_world
+start: {x: -2.0, y: -0.5, yaw: 0.0}
+stack: {localization: {type: ground_truth}, global_planner: {type: grid_astar}}
+tree:
+  type: sequence
+  children:
+    - {type: go_to, pose: {x: -1.5, y: -0.5, yaw: 0.0}}
+    - {type: wait, seconds: 0.5}
+limits: {time: 30}
+"""
+
+
+def test_a_tree_and_a_fleet_succeed_and_every_file_is_listed_and_served(
+    client: httpx.Client,
+) -> None:
+    """A YAML tree and a fleet submitted as they are; each run lists every file of its
+    directory, its bag's too, and serves each one by the listed path (the bag also whole,
+    as a zip); nothing outside the run directory."""
+    import io
+    import zipfile
+
+    runs = [submit(client, TREE_MISSION), submit(client, SHORT_FLEET)]
+    for run in runs:
+        final = wait_status(client, run["id"], FINAL)
+        assert final["status"] == "succeeded", final.get("reason")
+        base = f"/api/runs/{run['id']}/files"
+        files = client.get(base).json()["files"]
+        assert {"result.json", "mission.yaml", "bag/metadata.yaml"} <= set(files), files
+        [mcap] = [f for f in files if f.startswith("bag/") and f.endswith(".mcap")]
+        body = client.get(f"{base}/{mcap}")
+        assert body.status_code == 200 and body.content[:5] == b"\x89MCAP"
+        meta = yaml.safe_load(client.get(f"{base}/bag/metadata.yaml").text)
+        assert meta["rosbag2_bagfile_information"]["storage_identifier"] == "mcap"
+        for name in files:  # every listed file is served
+            assert client.get(f"{base}/{name}").status_code == 200, name
+        whole = client.get(f"{base}/bag")
+        assert whole.headers["content-type"] == "application/zip"
+        names = zipfile.ZipFile(io.BytesIO(whole.content)).namelist()
+        assert sorted(names) == sorted(f for f in files if f.startswith("bag/"))
+        for bad in (
+            "bag/..%2F..%2Fregistry.sqlite3",
+            "bag/%2E%2E/result.json",
+            ".hidden",
+            "bag//x",
+        ):
+            assert client.get(f"{base}/{bad}").status_code == 404, bad
+
+
 def test_invalid_mission_422_names_line_and_field(client: httpx.Client) -> None:
     bad = SHORT_MISSION.replace("x: -1.5", "x: fast")
     response = client.post("/api/runs", json={"mission": bad})
     assert response.status_code == 422
     errors = response.json()["errors"]
-    assert errors[0]["field"] == "tasks[0].pose.x"  # the contract's spelling
+    assert errors[0]["field"] == "tasks.0.pose.x"  # the command line's spelling, everywhere
     assert errors[0]["line"] == 6
     yaml_body = client.post("/api/runs", content=bad, headers={"Content-Type": "application/yaml"})
     assert yaml_body.status_code == 422

@@ -138,6 +138,43 @@ CASES = [
          XML_HEAD + '  <BehaviorTree ID="Main">\n    <NavigateToPose goal="{target}"/>\n'
          "  </BehaviorTree>\n</root>\n", in_xml=True),
     Case("xml file missing", "tree: nowhere.xml\n", 4, "tree", "cannot read 'nowhere.xml'"),
+    # ---- issue 34 (every malformed tree names its line) and 36 (BT.CPP, Nav2)
+    Case("decorator given children", "tree:\n  type: sequence\n  children:\n"
+         "    - type: inverter\n      children:\n        - {type: stop}\n", 8,
+         "tree.children.0.children", "a decorator (inverter) takes `child:`"),
+    Case("control given child", "tree:\n  type: sequence\n  child: {type: stop}\n", 6,
+         "tree.children", "needs a list of `children`"),
+    Case("if_then_else with one child", "tree:\n  type: if_then_else\n"
+         "  children: [{type: stop}]\n", 6, "tree.children", "2 to 3 children, got 1"),
+    Case("type not a string", "tree:\n  type: sequence\n  children:\n    - name: x\n"
+         "      type: 5\n", 8, "tree.children.0.type", "needs a `type`"),
+    Case("too deep", "tree:\n" + "".join("  " * (i + 1) + "type: inverter\n" + "  " * (i + 1)
+         + "child:\n" for i in range(101)) + "  " * 102 + "type: stop\n", 204,
+         "tree" + ".child" * 100, "nests deeper than 100"),
+    Case("xml script", "tree: tree.xml\n", 4, "BehaviorTree.Main.0.type", "BT.CPP scripting",
+         XML_HEAD + '  <BehaviorTree ID="Main">\n    <Sequence>\n      <Script code="a:=1"/>\n'
+         "    </Sequence>\n  </BehaviorTree>\n</root>\n", in_xml=True),
+    Case("xml precondition attribute", "tree: tree.xml\n", 3, "BehaviorTree.Main._skipIf",
+         "BT.CPP scripting",
+         XML_HEAD + '  <BehaviorTree ID="Main">\n    <AlwaysSuccess _skipIf="a==1"/>\n'
+         "  </BehaviorTree>\n</root>\n", in_xml=True),
+    Case("xml timeout msec not a number", "tree: tree.xml\n", 3, "BehaviorTree.Main.seconds",
+         "valid number",
+         XML_HEAD + '  <BehaviorTree ID="Main">\n    <Timeout msec="soon">\n'
+         "      <AlwaysSuccess/>\n    </Timeout>\n  </BehaviorTree>\n</root>\n", in_xml=True),
+    Case("xml nests too deep", "tree: tree.xml\n", 3, "Inverter", "nests deeper than 500",
+         XML_HEAD + '  <BehaviorTree ID="Main">\n' + "<Inverter>" * 600 + "<Stop/>"
+         + "</Inverter>" * 600 + "\n  </BehaviorTree>\n</root>\n", in_xml=True),
+    Case("navigator tree missing", "tree:\n  type: navigate_to_pose\n"
+         "  goal: {x: -1.0, y: -0.5}\n  behavior_tree: nowhere.xml\n", 7,
+         "tree.behavior_tree", "cannot read 'nowhere.xml'"),
+    Case("navigator tree with an unknown port", "tree:\n  type: navigate_to_pose\n"
+         "  goal: {x: -1.0, y: -0.5}\n  behavior_tree: tree.xml\n", 4,
+         "BehaviorTree.Main.0.colour", "unknown port 'colour'",
+         XML_HEAD + '  <BehaviorTree ID="Main">\n    <PipelineSequence>\n'
+         '      <ComputePathToPose goal="{goal}" path="{path}" colour="red"/>\n'
+         '      <FollowPath path="{path}"/>\n    </PipelineSequence>\n  </BehaviorTree>\n'
+         "</root>\n", in_xml=True),
 ]  # fmt: skip
 
 

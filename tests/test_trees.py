@@ -331,7 +331,8 @@ def test_a_third_party_node_registered_at_run_time(tmp_path: Path) -> None:
         capture_output=True, text=True, check=True, timeout=120,
     ).stdout  # fmt: skip
     ids = {e.get("ID") for e in ET.fromstring(listed).iter() if e.get("ID")}
-    assert {"GoTo", "NavigateToPose", "RangeAheadBelow", "Timeout", "Patrol"} <= ids
+    assert {"GoTo", "NavigateToPose", "RangeAheadBelow", "Patrol", "ComputePathToPose"} <= ids
+    assert not {"Timeout", "Sequence", "RetryUntilSuccessful"} & ids  # BT.CPP's own: not declared
 
 
 def test_xml_subtree_ports_remap_to_the_callers_entries() -> None:

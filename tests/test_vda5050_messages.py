@@ -1,9 +1,9 @@
-"""The pydantic message models against the VDA 5050 2.1.0 JSON schemas in ../shared: the
-same fields, the schema's required fields required, and what the models produce valid."""
+"""The pydantic message models against the VDA 5050 2.1.0 JSON schemas the package ships
+(the same as ../shared's): the same fields, the schema's required fields required, and
+what the models produce valid."""
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import pytest
@@ -13,14 +13,29 @@ from agv_mission.robots.description import BUILTIN_ROBOTS
 from agv_mission.vda5050 import messages as m
 from agv_mission.vda5050.factsheet import factsheet_body
 from agv_mission.vda5050.master import TaskRoute
+from agv_mission.vda5050.schemas import TOPICS, load_schema
 from agv_mission.vda5050.transport import BrokerUrl, BrokerUrlError, MqttLink
-from vda5050_peers import SCHEMAS, schema_validators
+from vda5050_peers import SCHEMAS, SHARED_SCHEMAS, schema_validators
 
 
 def schema(name: str) -> dict[str, Any]:
-    if not SCHEMAS.is_dir():
-        pytest.skip(f"the VDA 5050 2.1.0 schemas are not at {SCHEMAS} (../shared absent)")
-    return json.loads((SCHEMAS / f"{name}.schema").read_text(encoding="utf-8"))
+    return load_schema(name)
+
+
+def test_the_package_ships_the_schemas_with_their_licence() -> None:
+    """A plain install validates messages: the six schemas and the MIT licence are package
+    data, byte for byte the standard's (compared with ../shared's copy when present)."""
+    assert {p.name for p in SCHEMAS.iterdir()} >= {f"{t}.schema" for t in TOPICS} | {"LICENSE.txt"}
+    licence = (SCHEMAS / "LICENSE.txt").read_text(encoding="utf-8")
+    assert "MIT" in licence or "Permission is hereby granted" in licence
+    assert "Verband der Automobilindustrie" in licence
+    for topic in TOPICS:
+        assert load_schema(topic)["title"] or load_schema(topic)["$schema"]
+        if SHARED_SCHEMAS.is_dir():
+            shipped = (SCHEMAS / f"{topic}.schema").read_bytes()
+            assert shipped == (SHARED_SCHEMAS / f"{topic}.schema").read_bytes()
+    with pytest.raises(KeyError, match="no VDA 5050 schema"):
+        load_schema("nope")
 
 
 def at(doc: dict[str, Any], path: str) -> dict[str, Any]:

@@ -1,6 +1,6 @@
 """Our VDA 5050 vehicle against a minimal master written from the standard (tests/
 vda5050_peers.py), over Debian's mosquitto: every message the master receives validates
-against the 2.1.0 schemas read from ../shared."""
+against the 2.1.0 schemas the package ships."""
 
 from __future__ import annotations
 

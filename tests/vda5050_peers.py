@@ -20,14 +20,19 @@ import jsonschema
 import paho.mqtt.client as mqtt
 import pytest
 
-SCHEMAS = Path(__file__).resolve().parents[2] / "shared" / "spec" / "vda5050" / "json_schemas"
+from agv_mission.vda5050.schemas import schema_dir
+
+#: the 2.1.0 schemas as the package ships them (with their MIT licence): a plain clone has them
+SCHEMAS = schema_dir()
+#: the same schemas in ../shared, when it is there (the package's copy is checked against it)
+SHARED_SCHEMAS = (
+    Path(__file__).resolve().parents[2] / "shared" / "spec" / "vda5050" / "json_schemas"
+)
 TOPICS = ("connection", "factsheet", "state", "visualization", "order", "instantActions")
 
 
 def schema_validators() -> dict[str, jsonschema.protocols.Validator]:
-    """One validator per topic, from ../shared (skip, saying so, without it)."""
-    if not SCHEMAS.is_dir():
-        pytest.skip(f"the VDA 5050 2.1.0 schemas are not at {SCHEMAS} (../shared absent)")
+    """One validator per topic, from the schemas the package ships."""
     out = {}
     for name in TOPICS:
         schema = json.loads((SCHEMAS / f"{name}.schema").read_text(encoding="utf-8"))
@@ -224,7 +229,11 @@ def action(action_id: str, kind: str, blocking: str = "HARD", **params: Any) -> 
 class MiniVehicle:
     """A vehicle reduced to the standard: drives its base along straight edges at ``speed``,
     stops at the decision point, stitches updates, reports state at 5 Hz and on change,
-    connection with last will. Every order it receives is checked against the schema."""
+    connection with last will. Every order it receives is checked against the schema; one
+    that fails it is rejected with a ``validationError`` (6.6.4.1). Node actions run as 6.12
+    says: in list order, HARD alone, SOFT and HARD stop driving; an action takes its
+    ``duration`` parameter in seconds (0 by default); ``startCharging`` / ``stopCharging``
+    set ``batteryState.charging`` (the charge rises 20 % a second while charging)."""
 
     def __init__(
         self,
@@ -247,10 +256,16 @@ class MiniVehicle:
         self.nodes: list[dict[str, Any]] = []
         self.edges: list[dict[str, Any]] = []
         self.last_node, self.last_seq = "", 0
-        self.actions: dict[str, dict[str, Any]] = {}  # node actions, done on reaching the node
+        self.actions: dict[str, dict[str, Any]] = {}  # actionStates, by actionId
+        self.running: list[dict[str, Any]] = []  # triggered node actions, in list order
+        self.errors: list[dict[str, Any]] = []
+        self.battery, self.charging = 50.0, False
         self.lock = threading.Lock()
         self.stopped = threading.Event()
-        self.log: list[tuple[float, str, str]] = []  # (time, "released" | "reached", nodeId)
+        #: (time, "released" | "reached" | "started" | "finished", nodeId or actionId);
+        #: reached entries also in ``visits`` as (nodeId, sequenceId, x, y, theta)
+        self.log: list[tuple[float, str, str]] = []
+        self.visits: list[tuple[str, int, float, float, float | None]] = []
         self._seen: list[tuple[int, str]] = []
         c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"mini-{serial}-{port}")
         c.will_set(
@@ -277,44 +292,142 @@ class MiniVehicle:
             True,
         )
 
+    def _reject(self, kind: str, text: str, **refs: Any) -> None:
+        self.errors.append(
+            {
+                "errorType": kind,
+                "errorLevel": "WARNING",
+                "errorDescription": text[:200],
+                "errorReferences": [
+                    {"referenceKey": k, "referenceValue": str(v)} for k, v in refs.items()
+                ],
+            }
+        )
+
     def _message(self, _c: Any, _u: Any, msg: mqtt.MQTTMessage) -> None:
         kind = msg.topic.rsplit("/", 1)[-1]
         doc = json.loads(msg.payload)
         errors = [e.message for e in self.validators[kind].iter_errors(doc)]
         if errors:
             self.invalid.append(f"{kind}: {errors[:3]}")
-            return
-        if kind != "order":
+            with self.lock:
+                self._reject("validationError", f"{kind}: {errors[0]}", topic=kind)
             return
         with self.lock:
-            self.orders.append(doc)
-            if doc["orderId"] != self.order_id:
-                self.order_id, self.update_id = doc["orderId"], doc["orderUpdateId"]
-                self.nodes, self.edges = list(doc["nodes"]), list(doc["edges"])
-                first = self.nodes.pop(0)  # where we stand
-                self.last_node, self.last_seq = first["nodeId"], first["sequenceId"]
-            elif doc["orderUpdateId"] > self.update_id:
-                self.update_id = doc["orderUpdateId"]
-                base = [n for n in self.nodes if n["released"]]
-                self.nodes = base + doc["nodes"][1:]
-                self.edges = [e for e in self.edges if e["released"]] + doc["edges"]
+            if kind == "instantActions":
+                self._instant(doc)
             else:
+                self._order(doc)
+
+    def _instant(self, doc: dict[str, Any]) -> None:
+        for a in doc["actions"]:
+            self.actions[a["actionId"]] = {
+                "actionId": a["actionId"],
+                "actionType": a["actionType"],
+                "actionStatus": "FINISHED",
+            }
+            if a["actionType"] in ("startCharging", "stopCharging"):
+                self.charging = a["actionType"] == "startCharging"
+            elif a["actionType"] == "cancelOrder":
+                self.nodes, self.edges, self.running = [], [], []
+
+    def _order(self, doc: dict[str, Any]) -> None:
+        self.orders.append(doc)
+        nodes, edges = doc["nodes"], doc["edges"]
+        if len(edges) != len(nodes) - 1 or any(
+            e["startNodeId"] != a["nodeId"] or e["endNodeId"] != b["nodeId"]
+            for e, a, b in zip(edges, nodes, nodes[1:], strict=False)
+        ):
+            self._reject("orderError", "nodes and edges do not join", orderId=doc["orderId"])
+            return
+        if doc["orderId"] != self.order_id:
+            if self.nodes:
+                self._reject("orderUpdateError", "an order runs", orderId=doc["orderId"])
                 return
-            for n in self.nodes:
-                for a in n.get("actions", []):
-                    self.actions.setdefault(
-                        a["actionId"],
-                        {
-                            "actionId": a["actionId"],
-                            "actionType": a["actionType"],
-                            "actionStatus": "WAITING",
-                        },
-                    )
-                if n["released"] and not any(
-                    e == (n["sequenceId"], doc["orderId"]) for e in self._seen
-                ):
-                    self._seen.append((n["sequenceId"], doc["orderId"]))
-                    self.log.append((time.monotonic(), "released", n["nodeId"]))
+            self.errors = []
+            self.order_id, self.update_id = doc["orderId"], doc["orderUpdateId"]
+            self.nodes, self.edges = list(nodes), list(edges)
+            first = self.nodes.pop(0)  # where we stand
+            self.last_node, self.last_seq = first["nodeId"], first["sequenceId"]
+            self._trigger(first)
+        elif doc["orderUpdateId"] > self.update_id:
+            base = [n for n in self.nodes if n["released"]]
+            decision = (
+                (base[-1]["nodeId"], base[-1]["sequenceId"])
+                if base
+                else (self.last_node, self.last_seq)
+            )
+            if (nodes[0]["nodeId"], nodes[0]["sequenceId"]) != decision:
+                self._reject("orderUpdateError", "not stitched", orderId=doc["orderId"])
+                return
+            self.update_id = doc["orderUpdateId"]
+            self.nodes = base + nodes[1:]
+            self.edges = [e for e in self.edges if e["released"]] + list(edges)
+        else:
+            return
+        for n in self.nodes:
+            for a in n.get("actions", []):
+                self.actions.setdefault(
+                    a["actionId"],
+                    {
+                        "actionId": a["actionId"],
+                        "actionType": a["actionType"],
+                        "actionStatus": "WAITING",
+                    },
+                )
+            if n["released"] and not any(
+                e == (n["sequenceId"], doc["orderId"]) for e in self._seen
+            ):
+                self._seen.append((n["sequenceId"], doc["orderId"]))
+                self.log.append((time.monotonic(), "released", n["nodeId"]))
+
+    def _trigger(self, n: dict[str, Any]) -> None:
+        for a in n.get("actions", []):
+            self.actions.setdefault(
+                a["actionId"],
+                {
+                    "actionId": a["actionId"],
+                    "actionType": a["actionType"],
+                    "actionStatus": "WAITING",
+                },
+            )
+            params = {p["key"]: p["value"] for p in a.get("actionParameters", [])}
+            self.running.append(
+                {"action": a, "duration": float(params.get("duration", 0.0)), "ends": None}
+            )
+
+    def _run_actions(self) -> None:
+        """6.12: in list order; a HARD action alone; finished ones leave the list."""
+        now = time.monotonic()
+        for r in self.running:
+            if r["ends"] is not None and now >= r["ends"]:
+                a = r["action"]
+                self.actions[a["actionId"]]["actionStatus"] = "FINISHED"
+                self.log.append((now, "finished", a["actionId"]))
+                if a["actionType"] in ("startCharging", "stopCharging"):
+                    self.charging = a["actionType"] == "startCharging"
+        self.running = [
+            r
+            for r in self.running
+            if self.actions[r["action"]["actionId"]]["actionStatus"] != "FINISHED"
+        ]
+        for r in self.running:
+            if r["ends"] is not None:
+                if r["action"]["blockingType"] == "HARD":
+                    return
+                continue
+            active = [x for x in self.running if x["ends"] is not None]
+            hard = r["action"]["blockingType"] == "HARD"
+            if hard and active:
+                return
+            r["ends"] = now + r["duration"]
+            self.actions[r["action"]["actionId"]]["actionStatus"] = "RUNNING"
+            self.log.append((now, "started", r["action"]["actionId"]))
+            if hard:
+                return
+
+    def _may_drive(self) -> bool:
+        return not any(r["action"]["blockingType"] in ("SOFT", "HARD") for r in self.running)
 
     def _state(self, driving: bool) -> dict[str, Any]:
         return self.header(
@@ -339,10 +452,10 @@ class MiniVehicle:
                 "positionInitialized": True,
             },
             driving=driving,
-            actionStates=list(self.actions.values()),
-            batteryState={"batteryCharge": 80.0, "charging": False},
+            actionStates=[dict(a) for a in self.actions.values()],
+            batteryState={"batteryCharge": round(self.battery, 3), "charging": self.charging},
             operatingMode="AUTOMATIC",
-            errors=[],
+            errors=list(self.errors),
             safetyState={"eStop": "NONE", "fieldViolation": False},
         )
 
@@ -352,27 +465,44 @@ class MiniVehicle:
         while not self.stopped.is_set():
             driving = False
             with self.lock:
-                if self.nodes and self.nodes[0]["released"]:
+                before = json.dumps([self.actions, self.last_seq, self.errors, self.charging])
+                self._run_actions()
+                if self.charging:
+                    self.battery = min(100.0, self.battery + 20.0 * dt)
+                if self.nodes and self.nodes[0]["released"] and self._may_drive():
                     target = self.nodes[0]["nodePosition"]
                     dx, dy = target["x"] - self.x, target["y"] - self.y
                     dist = math.hypot(dx, dy)
                     step = self.speed * dt
                     if dist <= step:
                         self.x, self.y = target["x"], target["y"]
+                        if "theta" in target:
+                            self.theta = target["theta"]
                         done = self.nodes.pop(0)
                         if self.edges:
                             self.edges.pop(0)
                         self.last_node, self.last_seq = done["nodeId"], done["sequenceId"]
                         self.log.append((time.monotonic(), "reached", done["nodeId"]))
-                        for a in done.get("actions", []):  # instantly done (6.11 allows it)
-                            self.actions[a["actionId"]]["actionStatus"] = "FINISHED"
-                        n = 0
+                        self.visits.append(
+                            (
+                                done["nodeId"],
+                                done["sequenceId"],
+                                self.x,
+                                self.y,
+                                target.get("theta"),
+                            )
+                        )
+                        self._trigger(done)
+                        self._run_actions()
                     else:
                         self.x += step * dx / dist
                         self.y += step * dy / dist
                         self.theta = math.atan2(dy, dx)
                         driving = True
-                if n % 4 == 0:
+                changed = before != json.dumps(
+                    [self.actions, self.last_seq, self.errors, self.charging]
+                )
+                if changed or n % 4 == 0:
                     self.client.publish(f"{self.base}/state", json.dumps(self._state(driving)), 0)
             n += 1
             time.sleep(dt)

@@ -54,24 +54,41 @@ class Stop(py_trees.behaviour.Behaviour):
 
 
 class WaitFor(Dwell):
-    """Stand still for ``seconds`` of simulated time."""
+    """Stand still for ``seconds`` of simulated time (Nav2's Wait; its ROS ports ignored)."""
 
-    def __init__(self, name: str, handle: RobotHandle, seconds: float):
+    def __init__(self, name: str, handle: RobotHandle, seconds: float, **_ros: Any):
         super().__init__(name, handle, seconds)
 
 
 class SpinBy(Spin):
-    """Turn in place by ``angle`` (counter-clockwise positive) at ``rate``."""
+    """Turn in place by ``angle`` (counter-clockwise positive) at ``rate`` (Nav2's Spin:
+    fails after ``time_allowance``; a recovery event unless ``is_recovery`` is false)."""
 
     def __init__(
-        self, name: str, handle: RobotHandle, angle: float, context: TreeContext, rate: float = 1.0
-    ):
+        self, name: str, handle: RobotHandle, angle: float, context: TreeContext,
+        rate: float = 1.0, time_allowance: float = 10.0, is_recovery: bool = True,
+        **_ros: Any,
+    ):  # fmt: skip
         rate = min(rate, context.robot.max_angular_velocity)
         super().__init__(name, handle, abs(angle), rate if angle >= 0 else -rate)
+        self.time_allowance = time_allowance
+        self.is_recovery = is_recovery
+        self._until = 0.0
 
     def initialise(self) -> None:
         self._turned = 0.0
         self._last_yaw = self.handle.state.estimate.yaw
+        self._until = self.handle.state.time + self.time_allowance
+        self.feedback_message = ""
+        event = "recovery" if self.is_recovery else "behavior"
+        self.handle.log(event, kind="spin", node=self.name, angle=round(self.angle, 4))
+
+    def update(self) -> Status:
+        if self.handle.state.time > self._until + 1e-9:
+            self.handle.stop()
+            self.feedback_message = f"spin not done within {self.time_allowance:g} s"
+            return Status.FAILURE
+        return super().update()
 
 
 class SetBlackboard(py_trees.behaviour.Behaviour):

@@ -45,7 +45,9 @@ class IsBatteryLow(py_trees.behaviour.Behaviour):
         "min_battery": (float, ..., "battery level (0..1) at or below which it is low")
     }
 
-    def __init__(self, name: str, handle: RobotHandle, *, min_battery: float) -> None:
+    def __init__(
+        self, name: str, handle: RobotHandle, *, min_battery: float, **_ros: object
+    ) -> None:
         super().__init__(name)
         if not 0.0 <= min_battery <= 1.0:
             raise ValueError(f"min_battery must be within 0..1, got {min_battery}")
@@ -66,7 +68,7 @@ class IsBatteryCharging(py_trees.behaviour.Behaviour):
 
     PORTS: ClassVar[Ports] = {}
 
-    def __init__(self, name: str, handle: RobotHandle) -> None:
+    def __init__(self, name: str, handle: RobotHandle, **_ros: object) -> None:
         super().__init__(name)
         self.handle = handle
 

@@ -7,6 +7,8 @@ from collections.abc import Iterator
 import py_trees
 from py_trees.common import Status
 
+from agv_mission.navigation.handle import RobotHandle
+
 Behaviour = py_trees.behaviour.Behaviour
 
 
@@ -136,7 +138,7 @@ class RoundRobin(_Control):
     """Nav2's RoundRobin: ticks one child at a time in turn; succeeds on the first success
     (the next tick starts at the next child); fails when every child failed in a row."""
 
-    def __init__(self, name: str, children: list[Behaviour]):
+    def __init__(self, name: str, children: list[Behaviour], wrap_around: bool = False):
         super().__init__(name, children)
         self._index = 0
 
@@ -160,11 +162,15 @@ class Recovery(_Control):
     the action fails the recovery runs, then the action again, ``number_of_retries``
     times; fails when the recovery fails or the retries are spent."""
 
-    def __init__(self, name: str, children: list[Behaviour], number_of_retries: int = 1):
+    def __init__(
+        self, name: str, children: list[Behaviour], number_of_retries: int = 1,
+        handle: RobotHandle | None = None,
+    ):  # fmt: skip
         if len(children) != 2:
             raise ValueError("a recovery node has exactly two children")
         super().__init__(name, children)
         self.number_of_retries = number_of_retries
+        self.handle = handle
         self._retries = 0
         self._current = 0
 
@@ -186,6 +192,11 @@ class Recovery(_Control):
                     self.feedback_message = child.feedback_message
                     return Status.FAILURE
                 self._current = 1
+                if self.handle is not None:  # what the tree's recoveries do, in the events
+                    self.handle.log(
+                        "tree_recovery", node=self.name, retry=self._retries + 1,
+                        of=self.number_of_retries, reason=child.feedback_message or "failed",
+                    )  # fmt: skip
             else:
                 if child.status is Status.FAILURE:
                     self.feedback_message = child.feedback_message or "the recovery failed"

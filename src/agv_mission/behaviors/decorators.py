@@ -136,25 +136,67 @@ class Delay(_Gate):
         return None
 
 
-class RateController(_Gate):
-    """Ticks its child at most ``hz`` times per simulated second; between, it returns the
-    child's last status (a running child keeps its last command: the robot stops)."""
+class _Throttle(_Gate):
+    """Ticks its child when :meth:`due` says so or while it runs; between, returns what
+    it returned last. Its state lasts until it is halted (Nav2's decorators keep theirs
+    across successes)."""
 
-    def __init__(self, name: str, child: Behaviour, hz: float, handle: RobotHandle):
+    def __init__(self, name: str, child: Behaviour, handle: RobotHandle):
         super().__init__(name=name, child=child)
-        self.period = 1.0 / hz
         self.handle = handle
-        self._next = -math.inf
+        self._last: Status | None = None
 
     def initialise(self) -> None:
-        self._next = -math.inf
+        pass
+
+    def terminate(self, new_status: Status) -> None:
+        if new_status is Status.INVALID:
+            self.reset()
+            self._last = None
+
+    def reset(self) -> None:
+        """Forget the state: the next tick ticks the child."""
+
+    def due(self) -> bool:
+        return True
+
+    def ticked(self, status: Status) -> None:
+        """The child ended with ``status`` (success or failure)."""
 
     def gate(self) -> Status | None:
-        now = self.handle.state.time
-        if now < self._next - 1e-9 and self.decorated.status is Status.RUNNING:
-            return Status.RUNNING
-        self._next = now + self.period
-        return None
+        if self._last is None or self.decorated.status is Status.RUNNING or self.due():
+            return None
+        return self._last
+
+    def update(self) -> Status:
+        status = self.decorated.status
+        if status is not Status.RUNNING:
+            self.ticked(status)
+        self._last = status
+        if status is Status.FAILURE:
+            self.feedback_message = self.decorated.feedback_message
+        return status
+
+
+class RateController(_Throttle):
+    """Ticks its child at most ``hz`` times per simulated second (Nav2's RateController):
+    once it has ended, not again until the period has passed (in between it returns what
+    the child last returned); a running child is ticked every tick."""
+
+    def __init__(self, name: str, child: Behaviour, hz: float, handle: RobotHandle):
+        super().__init__(name, child, handle)
+        self.period = 1.0 / hz
+        self._next = -math.inf
+
+    def reset(self) -> None:
+        self._next = -math.inf
+
+    def due(self) -> bool:
+        return self.handle.state.time >= self._next - 1e-9
+
+    def ticked(self, status: Status) -> None:
+        if status is Status.SUCCESS:
+            self._next = self.handle.state.time + self.period
 
 
 class RunOnce(_Gate):

@@ -208,6 +208,16 @@ class NodePorts(PluginConfig):
     #: Ports the conformance check builds the node with (None: it needs a run's mapper,
     #: checked statically only).
     example: ClassVar[dict[str, Any] | None] = {}
+    # ---- its BT.CPP XML spelling (missions/tree_xml.py): the element's ID (default: the
+    # type in CamelCase), attribute names of ports named otherwise in YAML, the factor from
+    # a YAML value to its XML one (seconds -> msec), and whether BT.CPP itself has the node
+    # (an exported <TreeNodesModel> never declares those)
+    xml_id: ClassVar[str | None] = None
+    xml_ports: ClassVar[dict[str, str]] = {}
+    xml_scale: ClassVar[dict[str, float]] = {}
+    btcpp_builtin: ClassVar[bool] = False
+    #: (least, most) children of a control node, where it is particular
+    children_range: ClassVar[tuple[int, int] | None] = None
 
     # ---- what the world checks ask of a node before it runs (paths relative to it)
 
@@ -250,6 +260,20 @@ class DecoratorPorts(NodePorts):
 
 class ConditionPorts(NodePorts):
     kind: ClassVar[NodeKind] = "condition"
+
+
+class RosPlumbing(StrictModel):
+    """Nav2's ports that name ROS plumbing (servers, services, topics): accepted, ignored."""
+
+    server_name: Any = Field(None, description="ROS plumbing (Nav2): accepted and ignored")
+    server_timeout: Any = Field(None, description="ROS plumbing (Nav2): accepted and ignored")
+
+
+class ErrorOutputs(StrictModel):
+    """Nav2's error outputs: the action's error code (Nav2's numbering) and message."""
+
+    error_code_id: str | None = output_port("entry written with Nav2's error code", None)
+    error_msg: str | None = output_port("entry written with the error's message", None)
 
 
 # ------------------------------------------------------------------------ task types
@@ -501,12 +525,16 @@ Task = Annotated[
 class SequencePorts(ControlPorts):
     """Ticks its children in order; fails on the first failure, resumes at the running one."""
 
+    btcpp_builtin: ClassVar[bool] = True
+
     plugin: ClassVar[str] = "agv_mission.behaviors.controls:Sequence"
     type: Literal["sequence"]
 
 
 class ReactiveSequencePorts(ControlPorts):
     """Re-ticks every earlier child each tick: conditions guard a running action."""
+
+    btcpp_builtin: ClassVar[bool] = True
 
     plugin: ClassVar[str] = "agv_mission.behaviors.controls:ReactiveSequence"
     type: Literal["reactive_sequence"]
@@ -515,6 +543,8 @@ class ReactiveSequencePorts(ControlPorts):
 class FallbackPorts(ControlPorts):
     """Succeeds on the first child that succeeds; resumes at the running one."""
 
+    btcpp_builtin: ClassVar[bool] = True
+
     plugin: ClassVar[str] = "agv_mission.behaviors.controls:Fallback"
     type: Literal["fallback"]
 
@@ -522,12 +552,16 @@ class FallbackPorts(ControlPorts):
 class ReactiveFallbackPorts(ControlPorts):
     """Re-ticks earlier children every tick; one that starts running halts the later one."""
 
+    btcpp_builtin: ClassVar[bool] = True
+
     plugin: ClassVar[str] = "agv_mission.behaviors.controls:ReactiveFallback"
     type: Literal["reactive_fallback"]
 
 
 class ParallelPorts(ControlPorts):
     """Ticks every child each tick; succeeds or fails on counts of children (BT.CPP v4)."""
+
+    btcpp_builtin: ClassVar[bool] = True
 
     plugin: ClassVar[str] = "agv_mission.behaviors.controls:Parallel"
     type: Literal["parallel"]
@@ -547,10 +581,14 @@ class RoundRobinPorts(ControlPorts):
 
     plugin: ClassVar[str] = "agv_mission.behaviors.controls:RoundRobin"
     type: Literal["round_robin"]
+    wrap_around: bool = Field(False, description="Nav2's: accepted (children are tried in turn)")
 
 
 class RecoveryPorts(ControlPorts):
     """Nav2's RecoveryNode: two children, the action and its recovery, retried."""
+
+    xml_id: ClassVar[str | None] = "RecoveryNode"
+    children_range: ClassVar[tuple[int, int] | None] = (2, 2)
 
     plugin: ClassVar[str] = "agv_mission.behaviors.controls:Recovery"
     type: Literal["recovery"]
@@ -563,12 +601,16 @@ class RecoveryPorts(ControlPorts):
 class InverterPorts(DecoratorPorts):
     """Success becomes failure and failure success."""
 
+    btcpp_builtin: ClassVar[bool] = True
+
     plugin: ClassVar[str] = "agv_mission.behaviors.decorators:Inverter"
     type: Literal["inverter"]
 
 
 class ForceSuccessPorts(DecoratorPorts):
     """Succeeds whenever its child ends."""
+
+    btcpp_builtin: ClassVar[bool] = True
 
     plugin: ClassVar[str] = "agv_mission.behaviors.decorators:ForceSuccess"
     type: Literal["force_success"]
@@ -577,12 +619,17 @@ class ForceSuccessPorts(DecoratorPorts):
 class ForceFailurePorts(DecoratorPorts):
     """Fails whenever its child ends."""
 
+    btcpp_builtin: ClassVar[bool] = True
+
     plugin: ClassVar[str] = "agv_mission.behaviors.decorators:ForceFailure"
     type: Literal["force_failure"]
 
 
 class RetryPorts(DecoratorPorts):
     """Runs its child again after a failure, up to ``num_attempts`` tries in all."""
+
+    btcpp_builtin: ClassVar[bool] = True
+    xml_id: ClassVar[str | None] = "RetryUntilSuccessful"
 
     plugin: ClassVar[str] = "agv_mission.behaviors.decorators:Retry"
     type: Literal["retry"]
@@ -593,6 +640,8 @@ class RetryPorts(DecoratorPorts):
 class RepeatPorts(DecoratorPorts):
     """Runs its child again after a success, ``num_cycles`` times; fails on a failure."""
 
+    btcpp_builtin: ClassVar[bool] = True
+
     plugin: ClassVar[str] = "agv_mission.behaviors.decorators:Repeat"
     type: Literal["repeat"]
     example: ClassVar[dict[str, Any] | None] = {"num_cycles": 2}
@@ -602,6 +651,10 @@ class RepeatPorts(DecoratorPorts):
 class TimeoutPorts(DecoratorPorts):
     """Halts its child and fails after ``seconds`` of simulated time."""
 
+    btcpp_builtin: ClassVar[bool] = True
+    xml_ports: ClassVar[dict[str, str]] = {"seconds": "msec"}
+    xml_scale: ClassVar[dict[str, float]] = {"seconds": 1000.0}
+
     plugin: ClassVar[str] = "agv_mission.behaviors.decorators:Timeout"
     type: Literal["timeout"]
     example: ClassVar[dict[str, Any] | None] = {"seconds": 1.0}
@@ -610,6 +663,10 @@ class TimeoutPorts(DecoratorPorts):
 
 class DelayPorts(DecoratorPorts):
     """Waits ``seconds`` of simulated time (robot stopped), then runs its child."""
+
+    btcpp_builtin: ClassVar[bool] = True
+    xml_ports: ClassVar[dict[str, str]] = {"seconds": "delay_msec"}
+    xml_scale: ClassVar[dict[str, float]] = {"seconds": 1000.0}
 
     plugin: ClassVar[str] = "agv_mission.behaviors.decorators:Delay"
     type: Literal["delay"]
@@ -630,12 +687,16 @@ class RateControllerPorts(DecoratorPorts):
 class KeepRunningUntilFailurePorts(DecoratorPorts):
     """Runs its child again after every success; fails when it fails."""
 
+    btcpp_builtin: ClassVar[bool] = True
+
     plugin: ClassVar[str] = "agv_mission.behaviors.decorators:KeepRunningUntilFailure"
     type: Literal["keep_running_until_failure"]
 
 
 class RunOncePorts(DecoratorPorts):
     """Runs its child once; afterwards returns its result (or succeeds: ``then_skip``)."""
+
+    btcpp_builtin: ClassVar[bool] = True
 
     plugin: ClassVar[str] = "agv_mission.behaviors.decorators:RunOnce"
     type: Literal["run_once"]
@@ -696,6 +757,15 @@ class IsBatteryLowPorts(ConditionPorts):
     type: Literal["is_battery_low"]
     example: ClassVar[dict[str, Any] | None] = {"min_battery": 0.3}
     min_battery: float = Field(ge=0.0, le=1.0, description="battery level, 0..1")
+    battery_topic: Any = Field(None, description="ROS plumbing (Nav2): accepted and ignored")
+    is_voltage: bool = Field(False, description="Nav2's: min_battery is a voltage (refused)")
+
+    @field_validator("is_voltage")
+    @classmethod
+    def _level(cls, v: bool) -> bool:
+        if v:
+            raise ValueError("the battery model gives a level, not a voltage")
+        return v
 
 
 class IsBatteryChargingPorts(ConditionPorts):
@@ -704,6 +774,7 @@ class IsBatteryChargingPorts(ConditionPorts):
     plugin: ClassVar[str] = "agv_mission.behaviors.battery:IsBatteryCharging"
     type: Literal["is_battery_charging"]
     example: ClassVar[dict[str, Any] | None] = {}
+    battery_topic: Any = Field(None, description="ROS plumbing (Nav2): accepted and ignored")
 
 
 class TimeElapsedPorts(ConditionPorts):
@@ -746,8 +817,10 @@ class IsPathClearPorts(ConditionPorts):
 # ------------------------------------------------------------------------ actions
 
 
-class NavigateToPosePorts(NodePorts):
-    """Plan and drive to ``goal``, with recoveries between attempts (Nav2's navigator)."""
+class NavigateToPosePorts(NodePorts, RosPlumbing, ErrorOutputs):
+    """Plan and drive to ``goal``, with recoveries between attempts (Nav2's navigator);
+    with ``behavior_tree``, the goal is ``{goal}`` of that tree, which is run instead
+    (Nav2's NavigateToPose action)."""
 
     plugin: ClassVar[str] = "agv_mission.behaviors.tasks:NavigateToGoal"
     type: Literal["navigate_to_pose"]
@@ -755,6 +828,11 @@ class NavigateToPosePorts(NodePorts):
     goal: Goal = Field(description="a pose, a room label, or {key}")
     recoveries: list[Literal["clear_costmap", "spin", "wait", "back_up"]] | None = Field(
         None, description="between attempts; default: stack.navigation.recoveries"
+    )
+    behavior_tree: str | None = Field(
+        None,
+        description="a BT.CPP XML file (e.g. one of Nav2's navigator trees), relative to "
+        "the mission file, run with the goal as {goal}",
     )
 
     def goal_poses(self) -> list[tuple[FieldPath, Pose]]:
@@ -782,8 +860,10 @@ class StopPorts(NodePorts):
     type: Literal["stop"]
 
 
-class WaitPorts(NodePorts):
-    """Stand still for ``seconds`` of simulated time."""
+class WaitPorts(NodePorts, RosPlumbing, ErrorOutputs):
+    """Stand still for ``seconds`` of simulated time (Nav2's Wait)."""
+
+    xml_ports: ClassVar[dict[str, str]] = {"seconds": "wait_duration"}
 
     plugin: ClassVar[str] = "agv_mission.behaviors.actions:WaitFor"
     type: Literal["wait"]
@@ -791,34 +871,54 @@ class WaitPorts(NodePorts):
     seconds: float = Field(ge=0.0, le=MAX_SIM_SECONDS, description="simulated seconds")
 
 
-class SpinPorts(NodePorts):
-    """Turn in place by ``angle``."""
+class SpinPorts(NodePorts, RosPlumbing, ErrorOutputs):
+    """Turn in place by ``angle`` (Nav2's Spin)."""
+
+    xml_ports: ClassVar[dict[str, str]] = {"angle": "spin_dist"}
 
     plugin: ClassVar[str] = "agv_mission.behaviors.actions:SpinBy"
     type: Literal["spin"]
     example: ClassVar[dict[str, Any] | None] = {"angle": 1.0}
-    angle: float = Field(description="rad, counter-clockwise positive")
+    angle: float = Field(1.57, description="rad, counter-clockwise positive")
     rate: float = Field(1.0, gt=0.0, description="rad/s, clipped to the robot's limit")
+    time_allowance: float = Field(10.0, gt=0.0, description="simulated seconds before it fails")
+    is_recovery: bool = Field(True, description="logged as a recovery event")
+    disable_collision_checks: bool = Field(False, description="accepted; turning in place")
 
 
-class BackUpPorts(NodePorts):
-    """Reverse ``distance`` at ``speed`` if the costmap says the space behind is free."""
+class BackUpPorts(NodePorts, RosPlumbing, ErrorOutputs):
+    """Reverse ``distance`` at ``speed`` if the costmap says the space behind is free
+    (Nav2's BackUp)."""
+
+    xml_ports: ClassVar[dict[str, str]] = {"distance": "backup_dist", "speed": "backup_speed"}
 
     plugin: ClassVar[str] = "agv_mission.behaviors.recoveries:BackUp"
     type: Literal["back_up"]
     distance: float = Field(0.15, gt=0.0, description="m")
     speed: float = Field(0.05, gt=0.0, description="m/s")
+    time_allowance: float | None = Field(
+        None, gt=0.0, description="simulated seconds before it fails (default: 3 x d / v)"
+    )
+    disable_collision_checks: bool = Field(False, description="back up without the costmap")
 
 
-class ClearCostmapPorts(NodePorts):
-    """Forget the obstacles the lidar marked."""
+class ClearCostmapPorts(NodePorts, RosPlumbing):
+    """Forget the obstacles the lidar marked (Nav2's ClearEntireCostmap: one costmap here,
+    local and global alike)."""
+
+    xml_id: ClassVar[str | None] = "ClearEntireCostmap"
 
     plugin: ClassVar[str] = "agv_mission.behaviors.recoveries:ClearCostmap"
     type: Literal["clear_costmap"]
+    service_name: Any = Field(None, description="ROS plumbing (Nav2): accepted and ignored")
+    plugins: Any = Field(None, description="the costmap layers (one here): accepted, ignored")
 
 
 class SetBlackboardPorts(NodePorts):
     """Write ``value`` to blackboard entry ``key``."""
+
+    btcpp_builtin: ClassVar[bool] = True
+    xml_ports: ClassVar[dict[str, str]] = {"key": "output_key"}
 
     plugin: ClassVar[str] = "agv_mission.behaviors.actions:SetBlackboard"
     type: Literal["set_blackboard"]

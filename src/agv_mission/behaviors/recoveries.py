@@ -72,13 +72,13 @@ class RecoveryNode(py_trees.composites.Composite):
 class ClearCostmap(py_trees.behaviour.Behaviour):
     """Forget the obstacles the lidar marked (they may have gone, or been misread)."""
 
-    def __init__(self, name: str, handle: RobotHandle):
+    def __init__(self, name: str, handle: RobotHandle, **_ros: object):
         super().__init__(name)
         self.handle = handle
 
     def update(self) -> Status:
         self.handle.navigator.clear_costmap()
-        self.handle.log("recovery", kind="clear_costmap")
+        self.handle.log("recovery", kind="clear_costmap", node=self.name)
         return Status.SUCCESS
 
 
@@ -120,18 +120,28 @@ class Wait(Dwell):
 class BackUp(py_trees.behaviour.Behaviour):
     """Reverse ``distance`` metres slowly, only if the costmap says the space behind is free."""
 
-    def __init__(self, name: str, handle: RobotHandle, distance: float, speed: float):
+    direction = -1.0  # backwards (DriveOnHeading: forwards)
+    kind = "back_up"
+
+    def __init__(
+        self, name: str, handle: RobotHandle, distance: float, speed: float,
+        time_allowance: float | None = None, disable_collision_checks: bool = False,
+        **_ros: object,
+    ):  # fmt: skip
         super().__init__(name)
         self.handle = handle
         self.distance = distance
         self.speed = speed
+        self.time_allowance = time_allowance
+        self.check_collisions = not disable_collision_checks
         self._start = (0.0, 0.0)
         self._until = 0.0
 
     def initialise(self) -> None:
         est = self.handle.state.estimate
         self._start = (est.x, est.y)
-        self._until = self.handle.state.time + 3.0 * self.distance / self.speed
+        allowance = self.time_allowance or 3.0 * self.distance / self.speed
+        self._until = self.handle.state.time + allowance
         self.feedback_message = ""
 
     def update(self) -> Status:
@@ -146,18 +156,20 @@ class BackUp(py_trees.behaviour.Behaviour):
         costmap = self.handle.navigator.costmap
         back = np.array(
             [
-                [est.x - d * math.cos(est.yaw), est.y - d * math.sin(est.yaw)]
-                for d in np.linspace(0.05, self.distance + 0.05, 5)
+                [est.x + s * math.cos(est.yaw), est.y + s * math.sin(est.yaw)]
+                for s in self.direction * np.linspace(0.05, self.distance + 0.05, 5)
             ]
         )
-        if not costmap.is_free(back).all():
+        if self.check_collisions and not costmap.is_free(back).all():
             self.handle.stop()
-            self.feedback_message = "no free space behind the robot"
-            self.handle.log("recovery", kind="back_up", done=False, reason=self.feedback_message)
+            self.feedback_message = (
+                f"no free space {'behind' if self.direction < 0 else 'ahead of'} the robot"
+            )
+            self.handle.log("recovery", kind=self.kind, done=False, reason=self.feedback_message)
             return Status.FAILURE
         if self.status != Status.RUNNING:
-            self.handle.log("recovery", kind="back_up")
-        self.handle.drive(-self.speed, 0.0)
+            self.handle.log("recovery", kind=self.kind, node=self.name)
+        self.handle.drive(self.direction * self.speed, 0.0)
         return Status.RUNNING
 
 

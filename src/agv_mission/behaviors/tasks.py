@@ -226,7 +226,7 @@ class NavigateToGoal(py_trees.decorators.Decorator):
 
     def __init__(
         self, name: str, handle: RobotHandle, goal: Any, context: TreeContext,
-        recoveries: list[str] | None = None,
+        recoveries: list[str] | None = None, behavior_tree: str | None = None, **_ros: Any,
     ):  # fmt: skip
         p = context.goal_pose(goal)
         super().__init__(

@@ -56,6 +56,8 @@ def regress(
         plan = planning.plan_jobs(paths, sweep, seeds, output)
     except planning.RegressError as exc:
         raise failure("invalid input", str(exc)) from None
+    for line in report.skipped_lines(plan):
+        err.print(f"[yellow]{escape(line)}[/]", highlight=False)
     if plan.problems:
         invalid(MissionError(plan.problems))
         report.write_reports([], plan, 0.0, backend, workers, junit, json_)

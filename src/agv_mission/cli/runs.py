@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.markup import escape
 
 from agv_mission.cli.console import (
     EXIT_CODES,
@@ -59,6 +60,7 @@ def run(
         err.print("stopped before the run started", highlight=False)
         raise typer.Exit(stopper.exit_code or 130) from None
 
+    print_warnings(loaded)
     bag = loaded.mission.output.bag and not no_bag
     observers = [BagWriter().prepare()] if bag else []
     root = output if output is not None else Path(loaded.mission.output)
@@ -121,12 +123,18 @@ def validate(
     bad = 0
     for path in files_:
         try:
-            load_mission(path, set_, seed)
+            print_warnings(load_mission(path, set_, seed))
             out.print(f"{path}: [green]valid[/]", highlight=False)
         except MissionError as exc:
             bad += 1
             invalid(exc)
     raise typer.Exit(2 if bad else 0)
+
+
+def print_warnings(loaded: object) -> None:
+    """What the loader took as near as it could (``file:line: field: ...``), on stderr."""
+    for warning in getattr(loaded, "warnings", ()):
+        err.print(f"[yellow]warning[/]: {escape(str(warning))}", highlight=False)
 
 
 def schema(

@@ -63,6 +63,7 @@ from agv_mission.missions.schema.zones import KeepoutMask, KeepoutZone, SpeedMas
 from agv_mission.missions.tree import (
     TreeSource,
     TreeSpec,
+    Where,
     assemble,
     tasks_spec,
     tasks_tree,
@@ -134,6 +135,8 @@ class LoadedMission:
     people: list[PeopleGroup] = field(default_factory=list)  # resolved ``people:``
     fleet: list[RobotSetup] = field(default_factory=list)  # a fleet mission's robots
     fleet_tasks: list[FleetTask] = field(default_factory=list)  # its tasks: dispatched, assigned
+    #: inputs taken as near as they could be (a person's route point moved off a wall)
+    warnings: list[Problem] = field(default_factory=list)
 
     @property
     def is_fleet(self) -> bool:
@@ -176,7 +179,22 @@ class LoadedMission:
         if isinstance(doc.get("tree"), str) and self.source is not None:
             # the copy in a run directory still finds the XML file
             doc["tree"] = str(input_path(doc["tree"].strip(), self.source.parent).resolve())
+        if self.source is not None:  # and its navigators' behavior_tree files
+            _absolute_tree_files([doc.get("tree"), doc.get("trees")], self.source.parent)
         return {k: doc[k] for k in FIELD_ORDER if k in doc}
+
+
+def _absolute_tree_files(value: Any, base: Path) -> None:
+    """Every ``behavior_tree`` file named in ``value`` (a YAML tree) made absolute."""
+    if isinstance(value, list):
+        for item in value:
+            _absolute_tree_files(item, base)
+    elif isinstance(value, dict):
+        tree_file = value.get("behavior_tree")
+        if isinstance(tree_file, str):
+            value["behavior_tree"] = str(input_path(tree_file.strip(), base).resolve())
+        for item in value.values():
+            _absolute_tree_files(item, base)
 
 
 DEMO_MISSION = "visit_rooms.yaml"  # what ``agv-mission run`` runs without a file
@@ -237,6 +255,7 @@ def load_mission(
         data["seed"] = seed
         override_paths[("seed",)] = f"--seed {seed}"
     log = ProblemLog(file, lines, override_paths, type_swaps=applied.type_swaps)
+    log.warnings += applied.hints  # tasks[0].loops: taken as tasks.0.loops, saying so
     bad_keys = non_string_keys(data)
     if bad_keys:
         raise MissionError(
@@ -286,7 +305,7 @@ def load_mission(
         loaded = _resolve_fleet(
             mission, data, assigned, base_dir, path.stem or "mission", log, path_guard
         )
-        loaded.source = path
+        loaded.source, loaded.warnings = path, list(log.warnings)
         return loaded
     tree = None
     if isinstance(mission, Mission):
@@ -296,7 +315,7 @@ def load_mission(
         log.raise_if_any()
         tree = assemble(tree_source(mission, data, log, base_dir, path_guard))
     loaded = _resolve(mission, base_dir, path.stem or "mission", log, path_guard, tree)
-    loaded.source = path
+    loaded.source, loaded.warnings = path, list(log.warnings)
     return loaded
 
 
@@ -363,17 +382,42 @@ def tree_source(
         tree_id: yaml_spec(body, ("trees", tree_id), file, lines)
         for tree_id, body in (data.get("trees") or {}).items()
     }
+    load = tree_loader(base_dir, path_guard)
     if mission.tasks is not None:
         main = tasks_spec(data["tasks"], file, lines)
-        return TreeSource(main, trees, dict(mission.blackboard))
+        return TreeSource(main, trees, dict(mission.blackboard), load=load)
     if isinstance(mission.tree, dict):
         main = yaml_spec(data["tree"], ("tree",), file, lines)
-        return TreeSource(main, trees, dict(mission.blackboard))
+        return TreeSource(main, trees, dict(mission.blackboard), load=load)
     assert isinstance(mission.tree, str)
     source = _xml_source(mission.tree, ("tree",), log, base_dir, path_guard)
     source.trees = {**trees, **source.trees}
     source.blackboard = dict(mission.blackboard)
+    source.load = load
     return source
+
+
+def tree_loader(base_dir: Path, path_guard: PathGuard | None) -> Callable[[str, Where], TreeSource]:
+    """How a navigator node's ``behavior_tree`` file is read (relative to the mission
+    file), its problems reported at the node's port."""
+
+    def load(name: str, where: Where) -> TreeSource:
+        xml_path = input_path(name.strip(), base_dir)
+        refused = path_guard("tree", xml_path) if path_guard is not None else None
+        if refused:
+            raise MissionError([where.problem(refused, "behavior_tree")])
+        try:
+            text = read_input_bytes(xml_path).decode("utf-8")
+        except InputFileError as exc:
+            raise MissionError(
+                [where.problem(f"cannot read {name!r}: {exc}", "behavior_tree")]
+            ) from None
+        except (OSError, UnicodeDecodeError) as exc:
+            message = f"cannot read {name!r}: {os_message(exc)}"
+            raise MissionError([where.problem(message, "behavior_tree")]) from None
+        return parse_xml(text, str(xml_path))
+
+    return load
 
 
 def _xml_source(
@@ -514,7 +558,7 @@ def _resolve(
     zones = _zone_filters(mission, robot, rooms, costmap, base_dir, log)
     if zones is not None:
         costmap = zones.costmap  # keepout zones are obstacles of every plan
-    people = resolve_people(mission.people, rooms, world.map, log.add)  # they walk the world
+    people = resolve_people(mission.people, rooms, world.map, log.add, log.warn)  # the world's
     recorder = None
     if mission.recorder is not None:
         try:
@@ -573,6 +617,9 @@ class _RobotLog:
         if problem not in self.problems:
             self.problems.append(problem)
 
+    def warn(self, field_path: FieldPath, message: str) -> None:
+        self.log.warn(self._path(field_path), message)
+
     def raise_if_any(self) -> None:
         if self.problems:
             raise MissionError(self.problems)
@@ -611,6 +658,7 @@ def _robot_tree(
     else:
         return None
     source.blackboard = dict(mission.blackboard)
+    source.load = tree_loader(base_dir, path_guard)
     return assemble(source)
 
 

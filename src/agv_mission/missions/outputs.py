@@ -85,6 +85,7 @@ def result_document(loaded: LoadedMission, record: RunRecord, run_dir: Path) -> 
         "events": record.events,
         **record.extras,
         **({"robots": robots} if robots else {}),
+        **({"warnings": [str(w) for w in loaded.warnings]} if loaded.warnings else {}),
         "run_dir": str(run_dir),
     }
 
@@ -107,6 +108,7 @@ def write_run(run_dir: Path, loaded: LoadedMission, record: RunRecord) -> dict[s
         ("trajectory.csv", lambda p: write_run_trajectory(p, record)),
         ("tree.txt", lambda p: atomic_write_text(p, strip_ansi(record.tree_text) + "\n")),
         ("run.png", lambda p: plot_run(p, loaded, record)),
+        *_btlogs(record),
         *(
             [("people.csv", lambda p: write_people(p, record.people))]
             if record.people is not None
@@ -122,6 +124,20 @@ def write_run(run_dir: Path, loaded: LoadedMission, record: RunRecord) -> dict[s
         with contextlib.suppress(OSError):
             write_json(run_dir / "result.json", result)
     return result
+
+
+def _btlogs(record: RunRecord) -> list[tuple[str, Any]]:
+    """``tree.btlog`` (a fleet: ``tree.<robot>.btlog`` per robot), for Groot2."""
+    logs = (
+        {f"tree.{name}.btlog": r.btlog for name, r in record.robots.items()}
+        if record.robots
+        else {"tree.btlog": record.btlog}
+    )
+    return [
+        (name, lambda p, data=data: atomic_write_bytes(p, data))
+        for name, data in logs.items()
+        if data is not None
+    ]
 
 
 _ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")

@@ -12,6 +12,7 @@ the new plugin does not have is then an error that names both overrides.
 from __future__ import annotations
 
 import copy
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -49,6 +50,18 @@ class Applied:
 
     paths: dict[FieldPath, str] = field(default_factory=dict)
     type_swaps: dict[FieldPath, str] = field(default_factory=dict)
+    #: keys written with list indices in brackets, taken in the dotted spelling
+    hints: list[Problem] = field(default_factory=list)
+
+
+#: ``tasks[0]``: a list index in brackets (the dotted ``tasks.0`` is the one spelling)
+BRACKET_INDEX = re.compile(r"\[\s*(\d+)\s*\]")
+
+
+def dotted_key(key: str) -> str:
+    """``tasks[0].loops`` -> ``tasks.0.loops``: the field path as the command line, the
+    service and every message spell it."""
+    return BRACKET_INDEX.sub(r".\1", key).lstrip(".")
 
 
 def override_error(item: str, message: str, option: str = "--set") -> MissionError:
@@ -74,9 +87,24 @@ def parse_override(override: str | Override) -> tuple[FieldPath, Any]:
         )
     value = override_value(raw)
     parts: list[str | int] = [
-        int(p) if p.isascii() and p.isdigit() else p for p in key.strip().split(".")
+        int(p) if p.isascii() and p.isdigit() else p for p in dotted_key(key.strip()).split(".")
     ]  # not int("²"): str.isdigit() takes superscripts
     return tuple(parts), value
+
+
+def bracket_hint(override: Override) -> Problem | None:
+    """A hint for a key written ``tasks[0].loops``: taken as ``tasks.0.loops``, the one
+    spelling of a field's path."""
+    key = override.item.partition("=")[0].strip()
+    if not BRACKET_INDEX.search(key):
+        return None
+    return Problem(
+        override.option,
+        None,
+        override.item,
+        f"{key} is spelled {dotted_key(key)} (list indices after a dot, as every message "
+        "spells a field's path); taken as that",
+    )
 
 
 def apply_overrides(data: dict, overrides: Sequence[str | Override]) -> Applied:
@@ -85,6 +113,9 @@ def apply_overrides(data: dict, overrides: Sequence[str | Override]) -> Applied:
     written: list[tuple[FieldPath, Any]] = []
     for override in map(as_override, overrides):
         field_path, value = parse_override(override)
+        hint = bracket_hint(override)
+        if hint is not None:
+            applied.hints.append(hint)
         block = plugin_block(field_path)
         if block is not None and swaps_plugin(data, block, value):
             kept = earlier_writes(block, written)

@@ -28,6 +28,8 @@ class ProblemLog:
     override_paths: dict[FieldPath, str]
     problems: list[Problem] = field(default_factory=list)
     type_swaps: dict[FieldPath, str] = field(default_factory=dict)  # block -> its --set type
+    #: what was taken as near as it could be, not as written: the run goes on, saying so
+    warnings: list[Problem] = field(default_factory=list)
 
     def at(self, field_path: FieldPath, message: str) -> Problem:
         """The problem at ``field_path``; a value an override gave blames the override
@@ -57,6 +59,12 @@ class ProblemLog:
     def add(self, field_path: FieldPath, message: str) -> None:
         """Note a problem and go on, so one ``validate`` names them all."""
         self.problems.append(self.at(field_path, message))
+
+    def warn(self, field_path: FieldPath, message: str) -> None:
+        """Note a warning (once) at its file, line and field."""
+        warning = self.at(field_path, message)
+        if warning not in self.warnings:
+            self.warnings.append(warning)
 
     def raise_if_any(self) -> None:
         """Stop here when a problem so far makes the next step meaningless."""

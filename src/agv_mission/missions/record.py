@@ -36,6 +36,7 @@ class RunRecord:
     battery: np.ndarray | None = None  # (steps,) the level 0..1; None: not modelled
     robots: dict[str, RunRecord] = field(default_factory=dict)  # a fleet's, by robot name
     people: Any = None  # the run's PeopleTrack (people.csv, run.png); None: nobody walked
+    btlog: bytes | None = None  # tree.btlog (Groot2's FileLogger2 format); None: no tree ran
 
 
 def bare_record(

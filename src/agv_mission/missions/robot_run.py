@@ -23,6 +23,7 @@ from agv_mission.maps.obstacle_layer import ObstacleLayer
 from agv_mission.maps.recorder import LocationRecorder
 from agv_mission.maps.zones import zone_metrics
 from agv_mission.messages import LaserScan
+from agv_mission.missions.btlog import TreeLog
 from agv_mission.missions.faults import FaultInjector
 from agv_mission.missions.loader import LoadedMission
 from agv_mission.missions.map_building import MapBuilder
@@ -130,6 +131,7 @@ class RobotRun:
             blackboard=dict(setup.tree.source.blackboard),
         )
         self.tree = build_tree(setup.tree, context)
+        self.tree_log = TreeLog(setup.tree, self.tree, self.handle)
         aimed = [f for f in self.mission.faults if f.robot in (None, self.name)]
         self.faults = FaultInjector(aimed, self.sim, stack.fault_rng)
         self.monitor = CollisionMonitor(
@@ -485,6 +487,7 @@ class RobotRun:
             paths=self.navigator.paths,
             events=self.handle.events,
             tree_text=self.tree.render(),
+            btlog=self.tree_log.to_bytes(),
             extras=extras,
             particle_snapshots=list(diagnostics.snapshots),
             built_map=self.mapper.built_map,

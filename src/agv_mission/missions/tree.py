@@ -20,7 +20,7 @@ import dataclasses
 import inspect
 import types
 import typing
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -40,6 +40,8 @@ if TYPE_CHECKING:  # the behaviours' modules load only when a tree is built
 
 Behaviour = py_trees.behaviour.Behaviour
 SLOT = "behavior"
+#: Nodes nested deeper than this are refused (building and ticking recurse per level).
+MAX_TREE_DEPTH = 100
 #: Keys of a YAML node that are not ports.
 STRUCTURE_KEYS = ("type", "name", "children", "child")
 
@@ -72,6 +74,13 @@ class NodeSpec:
     single_child: bool | None = None
 
 
+#: Reads a ``behavior_tree`` file a navigator node names (relative to the mission file).
+TreeLoader = Callable[[str, Where], "TreeSource"]
+#: Node types that run a navigator tree of their own given ``behavior_tree`` (Nav2's
+#: NavigateToPose and NavigateThroughPoses actions), and the entry they set in it.
+NAVIGATORS = {"navigate_to_pose": "goal", "navigate_through_poses": "goals"}
+
+
 @dataclass
 class TreeSource:
     """What the user wrote: the main tree, the named subtrees, the initial blackboard."""
@@ -80,6 +89,7 @@ class TreeSource:
     trees: dict[str, NodeSpec] = field(default_factory=dict)
     blackboard: dict[str, Any] = field(default_factory=dict)
     main_id: str = "MainTree"
+    load: TreeLoader | None = None  # how navigator nodes read their behavior_tree files
 
 
 @dataclass
@@ -94,7 +104,8 @@ class Node:
     bound: dict[str, str]  # input port -> blackboard key read when the node starts
     children: list[Node]
     where: Where
-    tree_id: str | None = None  # a subtree's root: the subtree's ID
+    tree_id: str | None = None  # a subtree's root: the subtree's ID; a navigator's tree's
+    navigator: str | None = None  # a navigator running a tree: its entries' prefix
 
 
 @dataclass
@@ -147,12 +158,17 @@ def yaml_spec(value: Any, path: FieldPath, file: str, lines: dict[FieldPath, int
         raise MissionError([where.problem(f"a node is a mapping with a type, got {value!r}")])
     node_type = value.get("type")
     if not isinstance(node_type, str):
-        raise MissionError([where.problem("a node needs a `type` (a string)", "type")])
+        raise MissionError(
+            [where.problem("a node needs a `type` (a string)", "type", lines.get(path + ("type",)))]
+        )
     name = value.get("name")
     if name is not None and not isinstance(name, str):
-        raise MissionError([where.problem("name is a string", "name")])
+        raise MissionError([where.problem("name is a string", "name", lines.get(path + ("name",)))])
     ports = {k: v for k, v in value.items() if k not in STRUCTURE_KEYS}
     port_lines = {k: lines[path + (k,)] for k in ports if path + (k,) in lines}
+    for key in ("child", "children", "type", "name"):  # where a wrong structure is reported
+        if path + (key,) in lines:
+            port_lines[key] = lines[path + (key,)]
     spec = NodeSpec(node_type, where, name, ports, port_lines)
     if "child" in value and "children" in value:
         raise MissionError([where.problem("give `child` or `children`, not both", "children")])
@@ -231,8 +247,20 @@ class _Assembly:
     writes: set[str] = field(default_factory=set)
     expanding: list[str] = field(default_factory=list)
     instances: int = 0
+    depth: int = 0
 
     def node(self, spec: NodeSpec, scope: _Scope) -> Node | None:
+        self.depth += 1
+        try:
+            if self.depth > MAX_TREE_DEPTH:
+                raise MissionError(
+                    [spec.where.problem(f"the tree nests deeper than {MAX_TREE_DEPTH} nodes")]
+                )
+            return self._node(spec, scope)
+        finally:
+            self.depth -= 1
+
+    def _node(self, spec: NodeSpec, scope: _Scope) -> Node | None:
         self.count += 1
         if self.count > MAX_TREE_NODES:
             raise MissionError(
@@ -255,21 +283,49 @@ class _Assembly:
             return None
         kind = config.kind
         n = len(spec.children)
-        if kind == "decorator" and (n != 1 or spec.single_child is False):
+        least, most = config.children_range or (1, 1 << 30)
+        if kind == "decorator" and spec.single_child is False:
+            self.problems.append(
+                spec.where.problem(
+                    f"a decorator ({spec.type}) takes exactly one `child`, got {n}", "child"
+                )  # fmt: skip
+            )
+            self.problems.append(
+                spec.where.problem(
+                    f"`children:` is for control nodes; a decorator ({spec.type}) takes "
+                    "`child:` (one node)",
+                    "children",
+                    spec.port_lines.get("children"),
+                )  # fmt: skip
+            )
+        elif kind == "decorator" and n != 1:
             self.problems.append(
                 spec.where.problem(
                     f"a decorator ({spec.type}) takes exactly one `child`, got {n}", "child"
                 )  # fmt: skip
             )
         elif kind == "control" and (n == 0 or spec.single_child):
+            line = spec.port_lines.get("child") if spec.single_child else None
             self.problems.append(
                 spec.where.problem(
-                    f"a control node ({spec.type}) needs a list of `children`", "children"
+                    f"a control node ({spec.type}) needs a list of `children`", "children", line
+                )  # fmt: skip
+            )
+        elif kind == "control" and not least <= n <= most:
+            count = f"{least}" if least == most else f"{least} to {most}"
+            self.problems.append(
+                spec.where.problem(
+                    f"a {spec.type} node has {count} children, got {n}",
+                    "children",
+                    spec.port_lines.get("children"),
                 )  # fmt: skip
             )
         elif kind in ("action", "condition") and n:
             self.problems.append(
-                spec.where.problem(f"a {kind} ({spec.type}) has no children", "children")
+                spec.where.problem(
+                    f"{'an' if kind == 'action' else 'a'} {kind} ({spec.type}) has no children",
+                    "children",
+                )
             )
         literal, bound = self.ports(spec, config, scope)
         children = [c for c in (self.node(child, scope) for child in spec.children) if c]
@@ -277,7 +333,43 @@ class _Assembly:
         if literal is not None and not bound:
             model = config.model_validate({"type": spec.type, **literal})
         name = spec.name or _default_name(spec.type)
-        return Node(spec.type, name, kind, model, literal or {}, bound, children, spec.where)
+        node = Node(spec.type, name, kind, model, literal or {}, bound, children, spec.where)
+        tree_file = (literal or {}).get("behavior_tree")
+        if spec.type in NAVIGATORS and isinstance(tree_file, str) and literal is not None:
+            return self.navigator(spec, node, tree_file)
+        return node
+
+    def navigator(self, spec: NodeSpec, node: Node, tree_file: str) -> Node | None:
+        """A navigator node with its ``behavior_tree``: the file's main tree, expanded in a
+        scope of its own (Nav2's navigator has its own blackboard) holding the goal."""
+        where = Where(spec.where.file, spec.where.path, spec.port_lines.get("behavior_tree")
+                      or spec.where.line)  # fmt: skip
+        if self.source.load is None:
+            self.problems.append(where.problem("no file can be read here", "behavior_tree"))
+            return None
+        try:
+            loaded = self.source.load(tree_file, where)
+        except MissionError as exc:
+            self.problems.extend(exc.problems)
+            return None
+        if tree_file in self.expanding:
+            chain = " -> ".join([*self.expanding, tree_file])
+            raise MissionError([where.problem(f"the tree runs itself ({chain})", "behavior_tree")])
+        self.instances += 1
+        prefix = f"{loaded.main_id}#{self.instances}"
+        self.writes.add(f"{prefix}.{NAVIGATORS[spec.type]}")
+        outer, self.source = self.source, dataclasses.replace(loaded, load=self.source.load)
+        self.expanding.append(tree_file)
+        try:
+            child = self.node(loaded.main, _Scope(ROOT_SCOPE, {}, False, prefix))
+        finally:
+            self.expanding.pop()
+            self.source = outer
+        if child is None:
+            return None
+        node.children = [child]
+        node.tree_id, node.navigator = loaded.main_id, prefix
+        return node
 
     def ports(
         self, spec: NodeSpec, config: type[NodePorts], scope: _Scope
@@ -341,6 +433,12 @@ class _Assembly:
                     ok = False
                     continue
             literal[port] = raw
+        for port, info in fields.items():  # entries read by default go through the scope too
+            extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+            if extra.get("entry") and port not in spec.ports and isinstance(info.default, str):
+                kind, target = scope.resolve(info.default)
+                if kind == "key":
+                    literal[port] = target
         if not ok:
             return None, bound
         try:
@@ -527,6 +625,10 @@ class _Builder:
             from agv_mission.behaviors.decorators import SubTree
 
             behaviour: Behaviour = SubTree(node.name, children[0], node.tree_id or "")
+        elif node.navigator is not None:
+            from agv_mission.behaviors.nav2_flow import BtNavigator
+
+            behaviour = BtNavigator(node.name, children[0], self.context, node, node.navigator)
         else:
             config = registry.config(SLOT, node.type)
             cls = registry.get(SLOT, node.type)
@@ -709,14 +811,26 @@ def _plain(value: Any) -> Any:
 
 
 def _type_name(annotation: Any) -> str:
-    """A port's type as ``tree nodes`` and Groot2's palette show it."""
+    """A port's type as BT.CPP and Groot2 name it: ``double``, ``int``, ``bool``,
+    ``std::string``, or one type name of ours (``Pose``, ``Goal``, ``PoseList``...)."""
     origin, args = typing.get_origin(annotation), typing.get_args(annotation)
-    if origin is typing.Literal:
-        return "|".join(map(str, args))
     if origin in (typing.Union, types.UnionType):
-        return " | ".join(_type_name(a) for a in args)
+        inner = [a for a in args if a is not type(None)]
+        names = {_type_name(a) for a in inner}
+        if names == {"Pose", "std::string"}:
+            return "Goal"  # a pose or a room label
+        return _type_name(inner[0]) if len(names) == 1 else "std::string"
+    if origin is typing.Annotated:
+        return _type_name(args[0])
+    if origin is typing.Literal:
+        return "std::string"
     if origin is list:
-        return f"list[{_type_name(args[0])}]"
-    if annotation is typing.Any:
-        return "any"
-    return getattr(annotation, "__name__", None) or str(annotation)
+        item = _type_name(args[0]) if args else "Value"
+        plain = {"double": "Double", "int": "Int", "bool": "Bool", "std::string": "String"}
+        return f"{plain.get(item, item)}List"
+    simple = {float: "double", int: "int", bool: "bool", str: "std::string"}
+    if annotation in simple:
+        return simple[annotation]
+    if annotation is typing.Any or annotation is None:
+        return "std::string"
+    return getattr(annotation, "__name__", None) or "std::string"

@@ -3,42 +3,98 @@
 line), and any mission's tree is written back as XML with a ``<TreeNodesModel>`` that
 Groot2 reads as its palette.
 
-Each YAML type maps mechanically to a CamelCase ID (``reactive_fallback`` <->
-``ReactiveFallback``); ports are attributes; structured values (poses, lists) are YAML
-flow text. expat reads the file (it reports each element's line; ``xml.etree`` does not),
-and expat refuses entity expansion attacks (billion laughs) itself.
+The dialect is BT.CPP's: a node type's ports model names its XML ID and the attributes
+of ports spelled otherwise in YAML (``timeout``'s ``seconds`` is BT.CPP's ``Timeout
+msec``, ``wait``'s Nav2's ``Wait wait_duration``, ``retry`` is ``RetryUntilSuccessful``);
+other types map mechanically to CamelCase (``reactive_fallback`` <->
+``ReactiveFallback``); structured values (poses, lists) are YAML flow text. The earlier
+spelling (``<Timeout seconds>``, ``<Wait seconds>``, ``<SetBlackboard key>``, ``<Retry>``)
+still loads, with a :class:`TreeSpellingWarning` naming the line. BT.CPP's scripting is
+refused at its line. expat reads the file (it reports each element's line;
+``xml.etree`` does not), and expat refuses entity expansion attacks (billion laughs).
 """
 
 from __future__ import annotations
 
 import re
+import warnings
 from dataclasses import dataclass, field
+from functools import cache
 from typing import Any
 from xml.parsers import expat
 from xml.sax.saxutils import escape, quoteattr
 
 import yaml
 
+from agv_mission.behaviors.ports import blackboard_key
 from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.tree import NodeSpec, TreeSource, Where, node_types
+from agv_mission.missions.tree import SLOT, NodeSpec, TreeSource, Where, node_types
+from agv_mission.registry import UnknownPluginError, registry
 
-#: BT.CPP built-ins whose ID and ports are ours exactly: Groot2 knows them already.
-BTCPP_BUILTINS = {
-    "Sequence", "ReactiveSequence", "Fallback", "ReactiveFallback", "Parallel", "Inverter",
-    "ForceSuccess", "ForceFailure", "KeepRunningUntilFailure", "Repeat", "RunOnce",
-}  # fmt: skip
-#: BT.CPP spellings read as ours.
-ALIASES = {"RetryUntilSuccessful": "retry", "SetBlackboard": "set_blackboard"}
+#: Old names still read: BT.CPP's (quietly) and our earlier spelling (with a warning).
+ALIASES = {"SequenceStar": "sequence_with_memory"}
+OLD_TAGS = {"Retry": "retry", "Recovery": "recovery", "ClearCostmap": "clear_costmap"}
+#: BT.CPP's scripting, which is not run here.
+SCRIPT_TAGS = {"Script", "ScriptCondition", "Precondition"}
+SCRIPT_ATTRIBUTES = {"_skipIf", "_failureIf", "_successIf", "_while", "_onSuccess",
+                     "_onFailure", "_onHalted", "_post"}  # fmt: skip
 _KIND_TAGS = {"action": "Action", "condition": "Condition", "control": "Control",
               "decorator": "Decorator"}  # fmt: skip
+
+
+#: Elements nested deeper are refused (a tree that deep is a mistake; recursion stays bounded).
+MAX_DEPTH = 500
+
+
+class TreeSpellingWarning(UserWarning):
+    """An XML tree in the earlier spelling (it loads; BT.CPP and Groot2 would not)."""
 
 
 def to_camel(node_type: str) -> str:
     return "".join(part.capitalize() for part in node_type.split("_"))
 
 
+@cache
+def _dialect() -> dict[str, str]:
+    """XML ID -> node type, for every registered type."""
+    out: dict[str, str] = {}
+    for name in registry.names(SLOT):
+        try:
+            config = registry.config(SLOT, name)
+        except UnknownPluginError:
+            continue
+        out[getattr(config, "xml_id", None) or to_camel(name)] = name
+    return out
+
+
+def xml_id(node_type: str) -> str:
+    """The XML element of ``node_type``."""
+    try:
+        config = registry.config(SLOT, node_type)
+    except UnknownPluginError:
+        return to_camel(node_type)
+    return getattr(config, "xml_id", None) or to_camel(node_type)
+
+
 def to_snake(tag: str) -> str:
-    return ALIASES.get(tag) or re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", tag).lower()
+    known = _dialect()
+    if tag in known:
+        return known[tag]
+    return (
+        ALIASES.get(tag) or OLD_TAGS.get(tag) or re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", tag).lower()
+    )
+
+
+def _config(node_type: str) -> Any:
+    try:
+        return registry.config(SLOT, node_type)
+    except UnknownPluginError:
+        return None
+
+
+def warn(file: str, line: int, message: str) -> None:
+    """A warning naming the file and line (Python's warnings show that line's text)."""
+    warnings.warn_explicit(message, TreeSpellingWarning, file, line)
 
 
 @dataclass
@@ -55,6 +111,9 @@ def _parse(text: str, file: str) -> _Element:
     root: list[_Element] = []
 
     def start(tag: str, attrs: dict[str, str]) -> None:
+        if len(stack) >= MAX_DEPTH:
+            message = f"the XML nests deeper than {MAX_DEPTH} elements"
+            raise MissionError([Problem(file, parser.CurrentLineNumber, tag, message)])
         element = _Element(tag, attrs, parser.CurrentLineNumber)
         (stack[-1].children if stack else root).append(element)
         stack.append(element)
@@ -121,6 +180,16 @@ def parse_xml(text: str, file: str) -> TreeSource:
 
 
 def _spec(element: _Element, path: tuple[str | int, ...], file: str) -> NodeSpec:
+    where = Where(file, path, element.line)
+    if element.tag in SCRIPT_TAGS:
+        raise MissionError([where.problem(
+            f"<{element.tag}> is BT.CPP scripting, which is not supported: use node types "
+            "(check_blackboard, set_blackboard, ...)", "type")])  # fmt: skip
+    scripted = sorted(SCRIPT_ATTRIBUTES & set(element.attrs))
+    if scripted:
+        raise MissionError([where.problem(
+            f"{scripted[0]} is BT.CPP scripting (a pre/post condition), which is not "
+            "supported: use a condition node", scripted[0])])  # fmt: skip
     attrs = dict(element.attrs)
     name = attrs.pop("name", None)
     if element.tag == "SubTree":
@@ -128,10 +197,42 @@ def _spec(element: _Element, path: tuple[str | int, ...], file: str) -> NodeSpec
         attrs = {("id" if k == "ID" else k): v for k, v in attrs.items()}
     else:
         node_type = to_snake(element.tag)
-    where = Where(file, path, element.line)
+        if element.tag in OLD_TAGS:
+            warn(file, element.line, f"<{element.tag}> is the earlier spelling; BT.CPP and "
+                 f"Nav2 write <{xml_id(node_type)}>")  # fmt: skip
+        attrs = _ports_from_xml(node_type, attrs, file, element)
     spec = NodeSpec(node_type, where, name, attrs, {}, from_xml=True)
     spec.children = [_spec(child, path + (i,), file) for i, child in enumerate(element.children)]
     return spec
+
+
+def _ports_from_xml(
+    node_type: str, attrs: dict[str, str], file: str, element: _Element
+) -> dict[str, Any]:
+    """Attributes as our ports: BT.CPP's names and units read; our earlier names kept,
+    with a warning."""
+    config = _config(node_type)
+    if config is None:
+        return attrs
+    ours = {v: k for k, v in config.xml_ports.items()}
+    out: dict[str, Any] = {}
+    for attr, value in attrs.items():
+        port = ours.get(attr)
+        if port is None:
+            if attr in config.xml_ports:
+                warn(file, element.line, f"<{element.tag} {attr}> is the earlier spelling; "
+                     f"BT.CPP and Nav2 write {config.xml_ports[attr]}")  # fmt: skip
+            out[attr] = value
+            continue
+        scale = config.xml_scale.get(port)
+        if scale and blackboard_key(value) is None:
+            try:
+                out[port] = float(value) / scale
+            except ValueError:
+                out[port] = value  # reported by the port's validation
+            continue
+        out[port] = value
+    return out
 
 
 # --------------------------------------------------------------------- writing
@@ -155,8 +256,8 @@ def _write(spec: NodeSpec, depth: int, out: list[str]) -> None:
         attrs |= {k: v for k, v in spec.ports.items() if k not in ("id", "ID")}
         tag = "SubTree"
     else:
-        tag = to_camel(spec.type)
-        attrs = dict(spec.ports)
+        tag = xml_id(spec.type)
+        attrs = _ports_to_xml(spec.type, spec.ports)
     if spec.name:
         attrs = {"name": spec.name, **attrs}
     text = "".join(f" {k}={quoteattr(_flow(v))}" for k, v in attrs.items())
@@ -167,6 +268,20 @@ def _write(spec: NodeSpec, depth: int, out: list[str]) -> None:
     for child in spec.children:
         _write(child, depth + 1, out)
     out.append(f"{pad}</{tag}>")
+
+
+def _ports_to_xml(node_type: str, ports: dict[str, Any]) -> dict[str, Any]:
+    config = _config(node_type)
+    if config is None:
+        return dict(ports)
+    out: dict[str, Any] = {}
+    for port, value in ports.items():
+        scale = config.xml_scale.get(port)
+        if scale and isinstance(value, (int, float)) and not isinstance(value, bool):
+            scaled = value * scale
+            value = int(round(scaled)) if abs(scaled - round(scaled)) < 1e-6 else scaled
+        out[config.xml_ports.get(port, port)] = value
+    return out
 
 
 def export_xml(source: TreeSource) -> str:
@@ -195,17 +310,22 @@ def nodes_model(types: set[str] | None = None, indent: int = 0) -> str:
     for info in node_types():
         if types is not None and info["type"] not in types:
             continue
-        tag = to_camel(info["type"])
-        if tag in BTCPP_BUILTINS:
+        config = _config(info["type"])
+        if config is None or config.btcpp_builtin:
             continue
+        tag = xml_id(info["type"])
         out.append(f"{pad}  <{_KIND_TAGS[info['kind']]} ID={quoteattr(tag)}>")
+        names = config.xml_ports
         for port in info["ports"]:
             direction = "output_port" if port["direction"] == "output" else "input_port"
+            scale = config.xml_scale.get(port["name"])
+            if scale and isinstance(port["default"], (int, float)):
+                port = {**port, "default": port["default"] * scale}
             default = (
                 "" if port["default"] is None else f" default={quoteattr(_flow(port['default']))}"
             )
             out.append(
-                f"{pad}    <{direction} name={quoteattr(port['name'])} "
+                f"{pad}    <{direction} name={quoteattr(names.get(port['name'], port['name']))} "
                 f"type={quoteattr(port['type'])}{default}>{escape(port['description'])}"
                 f"</{direction}>"
             )

@@ -53,6 +53,14 @@ class NavStatus(Enum):
     FAILED = "failed"
 
 
+class NoPlan(Exception):
+    """No plan to the goal: why, and the name of Nav2's error code for it."""
+
+    def __init__(self, reason: str, code: str = "NO_VALID_PATH") -> None:
+        super().__init__(reason)
+        self.code = code
+
+
 class _Phase(Enum):
     FOLLOW = "follow"
     ROTATE = "rotate"
@@ -169,6 +177,8 @@ class Navigator:
         self.seed = seed
         self.status = NavStatus.IDLE
         self.reason: str | None = None
+        self.error_code: str | None = None  # Nav2's name for why it failed
+        self.external = False  # following a path the tree planned (Nav2's FollowPath)
         self.goal: Pose2D | None = None
         self.path: PlannedPath | None = None
         self._segments: Segments | None = None  # the path's, for _projection
@@ -354,6 +364,10 @@ class Navigator:
         ranges[theirs] = np.inf
         return replace(scan, ranges=ranges)
 
+    def last_progress_time(self) -> float:
+        """When the robot last came closer to its goal (simulated seconds)."""
+        return self._last_progress_time
+
     def clear_costmap(self) -> None:
         self.layer.clear()
 
@@ -368,25 +382,47 @@ class Navigator:
 
         Tolerances default to the configuration's; exploration passes looser ones.
         """
+        self._begin(goal, state, xy_tolerance, yaw_tolerance)
+        self.external = False
+        if self._plan(state):
+            leg = self.stats.legs[-1]
+            leg.planned = self.path.length if self.path is not None else None
+            leg.shortest = self._shortest_length(state.estimate, goal)
+
+    def follow(self, path: PlannedPath, goal: Pose2D, state: RobotState) -> None:
+        """Follow a path planned elsewhere (Nav2's FollowPath with ComputePathToPose in the
+        tree): the navigator never plans then, keeps driving when the path is blocked or
+        the robot strays (the tree replans), and fails when it makes no progress. A new
+        path to the same goal while it runs replaces the old one."""
+        if self.status is NavStatus.RUNNING and self.external and self.goal == goal:
+            self.path = path
+            return
+        self._begin(goal, state, None, None)
+        self.external = True
+        self.path = path
+        self.stats.legs[-1].planned = path.length
+
+    def _begin(
+        self, goal: Pose2D, state: RobotState, xy_tolerance: float | None,
+        yaw_tolerance: float | None,
+    ) -> None:  # fmt: skip
         self.goal = goal
         self._xy_tol = xy_tolerance or self.config.xy_goal_tolerance
         self._yaw_tol = yaw_tolerance or self.config.yaw_goal_tolerance
         self.status = NavStatus.RUNNING
         self.reason = None
+        self.error_code = None
         self._phase = _Phase.FOLLOW
         self._replans_for_goal = 0
         self._advanced = False  # progress made since the last plan
         self._best_distance = state.estimate.distance_to(goal)
         self._last_progress_time = state.time
+        self._progress_pose = state.estimate
         self.local_planner.reset()
         self._now = state.time
         self._end_leg("cancelled")
         self.stats.legs.append(Leg(goal, state.time, state.estimate))
         self.path = None
-        if self._plan(state):
-            leg = self.stats.legs[-1]
-            leg.planned = self.path.length if self.path is not None else None
-            leg.shortest = self._shortest_length(state.estimate, goal)
 
     def _shortest_length(self, start: Pose2D, goal: Pose2D) -> float | None:
         """The shortest path's length at the planner's clearance (None if there is none)."""
@@ -431,8 +467,17 @@ class Navigator:
 
     def _follow(self, state: RobotState, distance: float) -> VelocityCommand:
         assert self.goal is not None
-        if distance < self._best_distance - self.config.progress_distance:
-            self._best_distance = distance
+        if self.external:  # Nav2's progress checker: the robot moved, wherever the path goes
+            progressed = (
+                state.estimate.distance_to(self._progress_pose) >= self.config.progress_distance
+            )
+            if progressed:
+                self._progress_pose = state.estimate
+        else:
+            progressed = distance < self._best_distance - self.config.progress_distance
+            if progressed:
+                self._best_distance = distance
+        if progressed:
             self._last_progress_time = state.time
             self._advanced = True
         elif state.time - self._last_progress_time > self.config.progress_timeout and not (
@@ -551,6 +596,14 @@ class Navigator:
 
     def _replan(self, state: RobotState, why: str, free: bool = False) -> bool:
         """Plan again; ``max_replans`` of them per goal unless ``free``."""
+        if self.external:  # the tree plans: keep following, or fail for its recoveries
+            if self.path is not None and not why.startswith("no progress"):
+                return True
+            self._fail(
+                f"goal ({self.goal.x:.2f}, {self.goal.y:.2f}) not reached: {why}",
+                "FAILED_TO_MAKE_PROGRESS" if self.path is not None else "INVALID_PATH",
+            )
+            return False
         if not free and self._replans_for_goal >= self.config.max_replans:
             self._fail(
                 f"goal ({self.goal.x:.2f}, {self.goal.y:.2f}) not reached: {why} "
@@ -570,40 +623,47 @@ class Navigator:
         """Plan from the current estimate; a replan hands the planner the old path, so
         planners that can (``cost_grid``) keep its way round obstacles unless blocked."""
         assert self.goal is not None
+        prior = self.path.points if self.path is not None else None
+        try:
+            self.path = self.plan_path(state.estimate, self.goal, prior)
+        except NoPlan as exc:
+            self._fail(str(exc), exc.code)
+            return False
+        return True
+
+    def plan_path(
+        self, start: Pose2D, goal: Pose2D, prior: np.ndarray | None = None
+    ) -> PlannedPath:
+        """A plan from ``start`` to ``goal`` on the costmap as it is (leaving a keepout
+        zone or the planners' margin first); :class:`NoPlan` says why there is none."""
         seed = self.seed + self.stats.plans
         self.stats.plans += 1
-        start = state.estimate
-        goal = self.goal
         if self.zones is not None and self.zones.in_keepout(goal.x, goal.y):
-            self._fail(f"goal ({goal.x:.2f}, {goal.y:.2f}) lies in a keepout zone")
-            return False
+            raise NoPlan(
+                f"goal ({goal.x:.2f}, {goal.y:.2f}) lies in a keepout zone", "GOAL_OCCUPIED"
+            )
         exit_point = self._keepout_exit(start)
         escape = exit_point or self._escape_point(start)
-        if not self._connected(escape or start, self.goal):
-            self._fail(
-                f"goal ({self.goal.x:.2f}, {self.goal.y:.2f}) is unreachable: no free corridor "
+        if not self._connected(escape or start, goal):
+            raise NoPlan(
+                f"goal ({goal.x:.2f}, {goal.y:.2f}) is unreachable: no free corridor "
                 f"leads there from ({start.x:.2f}, {start.y:.2f}) on the map and the obstacles seen"
             )
-            return False
         extra: dict[str, Any] = {}
-        if self._takes_prior and self.path is not None:
-            extra["prior"] = self.path.points
+        if self._takes_prior and prior is not None:
+            extra["prior"] = prior
         try:
-            path = self.global_planner.plan(
-                self.costmap, escape or start, self.goal, seed=seed, **extra
-            )
+            path = self.global_planner.plan(self.costmap, escape or start, goal, seed=seed, **extra)
         except PlanningError as exc:
-            self._fail(f"no path to ({self.goal.x:.2f}, {self.goal.y:.2f}): {exc}")
-            return False
+            raise NoPlan(f"no path to ({goal.x:.2f}, {goal.y:.2f}): {exc}") from None
         if exit_point is not None:  # out of the keepout zone first, on the map without it
             lead = self._lead_out(start, exit_point, seed)
             path = PlannedPath(np.vstack([lead, path.points]), path.planning_time)
         elif escape is not None:  # leave the inflated margin the shortest way first
             path = PlannedPath(np.vstack([[start.x, start.y], path.points]), path.planning_time)
-        self.path = path
         self.paths.append(path.points.copy())
         self.stats.planning_times.append(path.planning_time)
-        return True
+        return path
 
     def _connected(self, start: Pose2D, goal: Pose2D) -> bool:
         """Whether free space (with the planners' margin) joins start and goal: a cheap
@@ -674,8 +734,9 @@ class Navigator:
             return None
         return Pose2D(float(nearest[0]), float(nearest[1]), pose.yaw)
 
-    def _fail(self, reason: str) -> None:
+    def _fail(self, reason: str, code: str = "UNKNOWN") -> None:
         self.status = NavStatus.FAILED
         self.reason = reason
+        self.error_code = code
         self.path = None
         self._end_leg("failed")

@@ -2,9 +2,9 @@
 
 A *scenario* is a mission file; its ``expect:`` block (see ``expectations.py``) says what
 the run must achieve, and a scenario without one is expected to succeed. ``agv-mission
-regress PATHS...`` takes files and directories (searched recursively for ``*.yaml``
-files that look like missions, i.e. hold a ``tasks`` key), expands them into *jobs* and
-runs every job in its own process:
+regress PATHS...`` takes files and directories (searched recursively for YAML
+missions: task lists, trees, fleets; other YAML files are skipped, saying why), expands
+them into *jobs* and runs every job in its own process:
 
 * **Variants.** ``--sweep KEY=V1,V2,...`` (repeatable) gives values for one dotted mission
   key; several sweeps combine as a cartesian product. Each value is parsed as YAML and
@@ -66,30 +66,140 @@ class RegressError(Exception):
 
 # ----------------------------------------------------------------------------- discovery
 
+#: Keys that make a YAML mapping a mission: a task list, a tree, a fleet (the loader
+#: then says what else it lacks).
+MISSION_KEYS = ("tasks", "tree", "robots")
+#: Keys of the mission file (``mission-format.md``) that no rooms, robot, world or map file
+#: has: a mapping with one of them is a mission, however broken.
+MISSION_ONLY_KEYS = (
+    "world",
+    "robot",
+    "start",
+    "stack",
+    "limits",
+    "expect",
+    "trees",
+    "fleet",
+    "people",
+    "zones",
+    "faults",
+    "blackboard",
+    "seed",
+)
+SCENARIO_SUFFIXES = (".yaml", ".yml")
 
-def discover(paths: Iterable[str | Path]) -> list[Path]:
-    """Scenario files: files as given, directories searched recursively for ``*.yaml``
-    files holding a ``tasks`` key (rooms files and the like are skipped)."""
+
+@dataclass
+class Discovery:
+    """What a regress run found: the missions it runs and every other file it looked at,
+    with why it does not run it."""
+
+    missions: list[Path]
+    skipped: list[tuple[Path, str]] = field(default_factory=list)
+
+
+def survey(paths: Iterable[str | Path]) -> Discovery:
+    """Mission files under ``paths``: files as given; directories searched recursively for
+    YAML missions (task lists, trees, fleets). A YAML that is not a mission (a rooms,
+    robot, world or map file) is skipped with the reason; one that cannot be read is
+    kept, so that the loader fails on it rather than the suite dropping it."""
+    paths = list(map(Path, paths))
     found: list[Path] = []
-    for p in map(Path, paths):
+    skipped: list[tuple[Path, str]] = []
+    xml: list[Path] = []
+    for p in paths:
         if p.is_dir():
-            found += [f for f in sorted(p.rglob("*.yaml")) if _looks_like_mission(f)]
+            for f in sorted(p.rglob("*")):
+                if not f.is_file():
+                    continue
+                if f.suffix.lower() in SCENARIO_SUFFIXES:
+                    why = not_a_mission(f)
+                    if why is None:
+                        found.append(f)
+                    else:
+                        skipped.append((f.resolve(), why))
+                elif f.suffix.lower() == ".xml":
+                    xml.append(f.resolve())
+        elif p.is_file() and p.suffix.lower() == ".xml":
+            by = _trees_named(
+                [f for f in sorted(p.parent.glob("*.y*ml")) if not_a_mission(f) is None]
+            ).get(p.resolve())
+            raise RegressError(
+                f"{p}: a behaviour tree (XML), not a mission: regress runs the mission that "
+                "names it in `tree:`" + (f" ({', '.join(str(m) for m in by)})" if by else "")
+            )
         elif p.is_file():
             found.append(p)
         else:
             raise RegressError(f"{p}: no such file or directory")
     unique = list(dict.fromkeys(f.resolve() for f in found))
+    named = _trees_named(unique)
+    for f in xml:
+        by = named.get(f)
+        skipped.append(
+            (
+                f,
+                f"a behaviour tree (XML): it runs through {', '.join(m.name for m in by)}"
+                if by
+                else "a behaviour tree (XML) that no mission here names: it runs only "
+                "through a mission's `tree:`",
+            )
+        )
     if not unique:
-        raise RegressError(f"no scenario files (*.yaml with tasks) in {', '.join(map(str, paths))}")
-    return unique
+        raise RegressError(
+            f"no mission files (*.yaml with tasks, tree or robots) in {', '.join(map(str, paths))}"
+        )
+    return Discovery(unique, sorted(dict(skipped).items()))
 
 
-def _looks_like_mission(path: Path) -> bool:
+def discover(paths: Iterable[str | Path]) -> list[Path]:
+    """The mission files of :func:`survey`."""
+    return survey(paths).missions
+
+
+def not_a_mission(path: Path) -> str | None:
+    """Why ``path`` is not a mission file, or None when it is one (or may be one: a file
+    that cannot be read or parsed is the loader's to report)."""
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError):
-        return True  # let the loader report what is wrong with it
-    return isinstance(data, dict) and "tasks" in data
+        return None
+    if data is None:
+        return "empty"
+    if not isinstance(data, dict):
+        return f"not a mission: its top level is a {type(data).__name__}, not a mapping"
+    keys = set(map(str, data))
+    if keys & set(MISSION_KEYS):
+        return None
+    if {"image", "resolution"} <= keys:
+        return "a map (map_server YAML)"
+    if isinstance(data.get("rooms"), dict) and not keys & set(MISSION_ONLY_KEYS):
+        return "a rooms file"
+    if keys & {"wheel_radius", "wheel_separation", "lidar", "footprint_radius"}:
+        return "a robot file"
+    if "resolution" in keys and keys & {"bounds", "boxes", "walls", "spawn"}:
+        return "a world file"
+    if data and all(
+        isinstance(v, dict) and {"position", "orientation"} <= set(v) for v in data.values()
+    ):
+        return "a room record (location_recorder.yaml)"
+    if keys & set(MISSION_ONLY_KEYS):
+        return None  # a mission without tasks: the loader says so
+    return f"not a mission: none of {', '.join(MISSION_KEYS)} (its keys: {', '.join(sorted(keys)[:6])})"
+
+
+def _trees_named(missions: Sequence[Path]) -> dict[Path, list[Path]]:
+    """XML tree files by the missions that name them in ``tree:``."""
+    out: dict[Path, list[Path]] = {}
+    for m in missions:
+        try:
+            data = yaml.safe_load(m.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, yaml.YAMLError):
+            continue
+        tree = data.get("tree") if isinstance(data, dict) else None
+        if isinstance(tree, str) and tree.lower().endswith(".xml"):
+            out.setdefault((m.parent / tree).resolve(), []).append(m)
+    return out
 
 
 # ------------------------------------------------------------------------------ variants
@@ -175,6 +285,7 @@ class Plan:
     seeds: int
     output_root: Path
     problems: list[Problem] = field(default_factory=list)  # invalid scenarios / variants
+    skipped: list[tuple[Path, str]] = field(default_factory=list)  # not missions, and why
 
 
 def plan_jobs(
@@ -191,7 +302,8 @@ def plan_jobs(
 
     if seeds < 1:
         raise RegressError("--seeds must be at least 1")
-    scenarios = discover(paths)
+    found = survey(paths)
+    scenarios = found.missions
     variants = expand_variants(sweeps)
     if output_root is None:
         stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
@@ -230,4 +342,4 @@ def plan_jobs(
                 )
     # Longest first: a pool then finishes its last jobs together.
     jobs.sort(key=lambda j: -j["cost"])
-    return Plan(jobs, scenarios, variants, seeds, root, problems)
+    return Plan(jobs, scenarios, variants, seeds, root, problems, found.skipped)

@@ -41,6 +41,11 @@ def plan_line(plan: Plan, seeds: int, backend: str, workers: int, address: str |
     )
 
 
+def skipped_lines(plan: Plan) -> list[str]:
+    """One line per file found that is not a mission: the file and why it does not run."""
+    return [f"skipped {f}: {why}" for f, why in plan.skipped]
+
+
 def interrupted_line(results: Sequence[dict[str, Any]], plan: Plan) -> str:
     """How much of an interrupted suite ran."""
     return (
@@ -261,8 +266,11 @@ def junit_xml(results: Sequence[dict[str, Any]], plan: Plan, wall_time: float) -
     ``<error>`` for runs that did not finish."""
     variants, seeds = len(plan.variants), plan.seeds
     failures = sum(1 for r in results if r["status"] != "error" and not r["passed"])
-    errors = sum(1 for r in results if r["status"] == "error") + len(plan.problems)
-    tests = len(results) + len(plan.problems)
+    invalid: dict[str, list[str]] = {}  # one test case per invalid file, every problem in it
+    for p in plan.problems:
+        invalid.setdefault(p.file, []).append(str(p))
+    errors = sum(1 for r in results if r["status"] == "error") + len(invalid)
+    tests = len(results) + len(invalid)
     attrs = {
         "name": "agv-mission regress",
         "tests": str(tests),
@@ -312,13 +320,16 @@ def junit_xml(results: Sequence[dict[str, Any]], plan: Plan, wall_time: float) -
             + (f", overrides {' '.join(r['overrides'])}" if r["overrides"] else "")
             + f"\nrun directory: {r['run_dir']}"
         )
-    for p in plan.problems:
+    for file, problems in invalid.items():
         case = ET.SubElement(
             suite,
             "testcase",
-            {"classname": f"scenarios.{Path(p.file).stem}", "name": "load", "file": p.file},
+            {"classname": f"scenarios.{Path(file).stem}", "name": "load", "file": file},
         )
-        ET.SubElement(case, "error", {"message": str(p), "type": "InvalidInput"}).text = str(p)
+        error = ET.SubElement(case, "error", {"message": problems[0], "type": "InvalidInput"})
+        error.text = "\n".join(problems)
+    if plan.skipped:  # not test cases: files that are not missions, and why
+        ET.SubElement(suite, "system-out").text = "\n".join(skipped_lines(plan))
     ET.indent(root)
     return ET.tostring(root, encoding="utf-8", xml_declaration=True) + b"\n"
 
@@ -350,6 +361,7 @@ def summary(
             "invalid": len(plan.problems),
         },
         "problems": [str(p) for p in plan.problems],
+        "skipped": [{"file": str(f), "reason": why} for f, why in plan.skipped],
         "runs": list(results),
         "comparison": compare(results),
     }

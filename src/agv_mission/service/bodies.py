@@ -6,7 +6,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import re
 from collections.abc import AsyncIterator
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -152,9 +151,6 @@ def parse_json_submission(body: bytes) -> tuple[str, list[str], int | None]:
 
 
 def problem(line: int | None, field: str, message: str) -> dict[str, Any]:
-    """One problem as the contract spells it: list indices in brackets
-    (``tasks[0].waypoints[1].yaw``, where the command line prints ``tasks.0.waypoints.1.yaw``)."""
-    return {"line": line, "field": _INDEX.sub(r"[\1]", field), "message": message}
-
-
-_INDEX = re.compile(r"\.(\d+)(?=\.|$)")
+    """One problem as the contract spells it: the field's path as the command line spells
+    it, everywhere (``tasks.0.waypoints.1.yaw``)."""
+    return {"line": line, "field": field, "message": message}

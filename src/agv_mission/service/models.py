@@ -176,7 +176,8 @@ class GoalSent(BaseModel):
 
 
 class FileList(BaseModel):
-    """The run directory's files (names only; fetch each one by name)."""
+    """Every file of the run directory, those in folders too (``bag/metadata.yaml``,
+    ``bag/bag_0.mcap``) as paths relative to it; fetch each one by that path."""
 
     files: list[str]
 

@@ -1,7 +1,8 @@
 """The master: a mission's tasks as VDA 5050 orders to any vehicles, followed to a result.
 
-Each task becomes one order (``go_to`` one node, ``patrol`` its waypoints loop by loop,
-``visit_rooms`` its rooms' goals), starting at the vehicle's current position under its
+Each task becomes one order (:mod:`~agv_mission.vda5050.routes`: ``go_to`` one node,
+``patrol`` its waypoints loop by loop, ``visit_rooms`` its rooms' goals, ``dock`` /
+``undock`` / ``charge`` with ``startCharging`` / ``stopCharging``), starting at the vehicle's current position under its
 ``lastNodeId`` (6.6.3.1). Nodes are released through :class:`NodeReservations`, the
 stand-in for the fleet layer's traffic control: a node is granted to one vehicle at a time,
 at most ``lookahead`` nodes past the vehicle's last node; the rest of the route is horizon,
@@ -14,331 +15,55 @@ One thread decides: MQTT callbacks only queue messages.
 
 from __future__ import annotations
 
-import copy
 import json
 import math
 import queue
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
-
-from agv_mission.atomic import atomic_write_text
 from agv_mission.fleet.base import DispatchError, FleetTask, RobotWork
-from agv_mission.fleet.travel import GridTravelTime
 from agv_mission.geometry import Pose2D
-from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.loader import LoadedMission, load_mission
-from agv_mission.missions.outputs import make_run_dir, write_json
-from agv_mission.missions.yaml_lines import line_of, load_with_lines
-from agv_mission.registry import registry
-from agv_mission.vda5050.messages import split_topic
+from agv_mission.vda5050.master_report import (
+    TRAJECTORY_HEADER,
+    master_result,
+    new_run_dir,
+    write_outputs,
+)
+from agv_mission.vda5050.messages import deviation_angle, schema_angle, split_topic
+from agv_mission.vda5050.routes import (
+    ChargeAction,
+    MasterPlan,
+    NodeAction,
+    NodeReservations,
+    OrderAction,
+    RouteNode,
+    TaskRoute,
+    load_plan,
+    place,
+)
 from agv_mission.vda5050.transport import BrokerUrl, MqttLink
+
+__all__ = [
+    "TRAJECTORY_HEADER",
+    "ChargeAction",
+    "Master",
+    "MasterPlan",
+    "NodeAction",
+    "NodeReservations",
+    "RouteNode",
+    "TaskRoute",
+    "load_plan",
+    "new_run_dir",
+    "place",
+    "write_outputs",
+]
 
 ORDER_ERRORS = ("validationError", "orderError", "orderUpdateError", "noRouteError")
 RESEND_AFTER = 2.0  # s: an order (update) the state does not show by then is sent again
 ORDER_TIMEOUT = 15.0  # s: an order the vehicle has not taken by then fails its task
 START_DEVIATION = 0.5  # m: the first node is where the vehicle stands, within this
-
-
-class NodeAction(BaseModel):
-    """A load handling action at one of a task's nodes (a dispatched task's ``actions:``),
-    sent as a HARD node action of the order (6.8.2 ``pick`` / ``drop``)."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-    type: Literal["pick", "drop"]
-    at: str | None = Field(
-        None,
-        description="the node: go_to `goal`, patrol `wpN` (each loop), visit_rooms a room "
-        "label; default the task's last node",
-    )
-    duration: float | None = Field(
-        None, gt=0, le=3600, description="s the vehicle takes (its own default if not given)"
-    )
-    load_id: str | None = Field(None, min_length=1, max_length=128)
-    load_type: str | None = Field(None, min_length=1, max_length=128)
-
-    def doc(self, action_id: str) -> dict[str, Any]:
-        params = {"duration": self.duration, "loadId": self.load_id, "loadType": self.load_type}
-        out: dict[str, Any] = {
-            "actionId": action_id,
-            "actionType": self.type,
-            "blockingType": "HARD",
-        }
-        given = [{"key": k, "value": v} for k, v in params.items() if v is not None]
-        if given:
-            out["actionParameters"] = given
-        return out
-
-
-@dataclass(frozen=True)
-class RouteNode:
-    node_id: str
-    x: float
-    y: float
-    theta: float | None
-    actions: tuple[NodeAction, ...] = ()
-
-
-@dataclass
-class TaskRoute:
-    """One task as the nodes an order visits."""
-
-    index: int
-    type: str
-    nodes: list[RouteNode]
-    robot: str | None = None  # the vehicle the mission assigns, if any
-    retries: int = 0  # extra attempts left (on_failure: retry)
-    on_failure: str = "abort"
-    status: str = "pending"  # pending | running | succeeded | failed | skipped
-    reason: str | None = None
-    assigned: str | None = None
-    actions: dict[str, dict[str, Any]] = field(default_factory=dict)  # by actionId, as done
-
-
-@dataclass
-class MasterPlan:
-    """What ``dispatch`` drives: vehicles by serial number, tasks, the map, tolerances."""
-
-    name: str
-    robots: list[str]
-    tasks: list[TaskRoute]
-    map_id: str
-    xy_tolerance: float
-    yaw_tolerance: float
-    time_limit: float  # wall seconds
-    output: Path
-    resolved: dict[str, Any] = field(default_factory=dict)
-    #: the fleet layer's dispatcher (fleet.md's `fleet.dispatcher`) and its travel times
-    #: over the map (the mission's first robot's free space, at its top speed)
-    dispatcher: Any = None
-    travel: Any = None
-
-
-def _route(
-    task: Any,
-    index: int,
-    loaded: LoadedMission,
-    actions: list[NodeAction] | None = None,
-    lines: dict[Any, int] | None = None,
-) -> TaskRoute:
-    kind = task.type
-    nodes: list[RouteNode] = []
-    if kind == "go_to":
-        nodes = [RouteNode(f"goal{index + 1}", task.pose.x, task.pose.y, task.pose.yaw)]
-    elif kind == "patrol":
-        for _ in range(task.loops):
-            nodes += [
-                RouteNode(f"wp{k + 1}", p.x, p.y, p.yaw) for k, p in enumerate(task.waypoints)
-            ]
-    elif kind == "visit_rooms":
-        for label in task.rooms:
-            goal = loaded.room_goals[label]
-            nodes.append(RouteNode(label, goal.x, goal.y, None))
-    else:
-        raise MissionError(
-            [
-                Problem(
-                    str(loaded.source),
-                    None,
-                    f"tasks.{index}.type",
-                    f"{kind}: not a task a VDA 5050 order can carry (go_to, patrol, visit_rooms)",
-                )
-            ]
-        )
-    nodes = _with_actions(nodes, actions or [], kind, index, loaded, lines or {})
-    policy = getattr(task, "on_failure", "abort")
-    retries = getattr(task, "retries", 0) if policy == "retry" else 0
-    return TaskRoute(index, kind, nodes, retries=retries, on_failure=policy)
-
-
-def _with_actions(
-    nodes: list[RouteNode],
-    actions: list[NodeAction],
-    kind: str,
-    index: int,
-    loaded: LoadedMission,
-    lines: dict[Any, int],
-) -> list[RouteNode]:
-    """``nodes`` with each action on the nodes it names (``go_to``'s node is ``goal``)."""
-    ids = ["goal" if kind == "go_to" else n.node_id for n in nodes]
-    on: list[list[NodeAction]] = [[] for _ in nodes]
-    for j, act in enumerate(actions):
-        at = act.at if act.at is not None else ids[-1]
-        hits = [i for i, node_id in enumerate(ids) if node_id == at]
-        if not hits:
-            names = ", ".join(dict.fromkeys(ids))
-            raise MissionError(
-                [
-                    Problem(
-                        str(loaded.source),
-                        line_of(("tasks", index, "actions", j, "at"), lines),
-                        f"tasks.{index}.actions.{j}.at",
-                        f"{at!r} is not a node of this {kind} task (its nodes: {names})",
-                    )
-                ]
-            )
-        for i in hits:
-            on[i].append(act)
-    return [replace(n, actions=tuple(a)) for n, a in zip(nodes, on, strict=True)]
-
-
-def _lines(text: str) -> dict[Any, int]:
-    try:
-        return load_with_lines(text)[1]
-    except yaml.YAMLError:
-        return {}
-
-
-def _pop_actions(path: Path, lines: dict[Any, int], tasks: list[Any]) -> list[list[NodeAction]]:
-    """Take each task's ``actions:`` (a dispatch-only field) out of ``tasks``, validated."""
-    out: list[list[NodeAction]] = []
-    for i, task in enumerate(tasks):
-        raw = task.pop("actions", None) if isinstance(task, dict) else None
-        if raw is None:
-            out.append([])
-            continue
-        if not isinstance(raw, list):
-            where = ("tasks", i, "actions")
-            raise MissionError(
-                [
-                    Problem(
-                        str(path),
-                        line_of(where, lines),
-                        f"tasks.{i}.actions",
-                        "a list of {type: pick|drop, at: NODE, duration, load_id, load_type}",
-                    )
-                ]
-            )
-        acts = []
-        for j, item in enumerate(raw):
-            try:
-                acts.append(NodeAction.model_validate(item))
-            except ValidationError as exc:
-                err = exc.errors()[0]
-                sub = tuple(err["loc"])
-                where = ("tasks", i, "actions", j, *sub)
-                raise MissionError(
-                    [
-                        Problem(
-                            str(path),
-                            line_of(where, lines),
-                            ".".join(str(p) for p in where),
-                            err["msg"],
-                        )
-                    ]
-                ) from None
-        out.append(acts)
-    return out
-
-
-def load_plan(
-    path: Path,
-    overrides: list[str] | None = None,
-    seed: int | None = None,
-    robots: list[str] | None = None,
-) -> MasterPlan:
-    """The plan of mission file ``path``: a one-robot mission drives vehicle ``agv1`` (or
-    ``robots``); a ``robots:`` list names the vehicles and tasks may carry ``robot:``."""
-    try:
-        text = path.read_text(encoding="utf-8")
-        doc = yaml.safe_load(text)
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise MissionError(
-            [Problem(str(path), None, "", f"cannot read the mission: {exc}")]
-        ) from None
-    assigned: list[str | None] = []
-    lines = _lines(text)
-    if isinstance(doc, dict) and isinstance(doc.get("robots"), list) and doc["robots"]:
-        names = [r.get("name") for r in doc["robots"] if isinstance(r, dict)]
-        if not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
-            raise MissionError(
-                [Problem(str(path), None, "robots", "each robot needs a unique name")]
-            )
-        one = {k: copy.deepcopy(v) for k, v in doc.items() if k not in ("robots", "fleet", "tasks")}
-        first = doc["robots"][0]
-        for key in ("robot", "start"):
-            if key in first:
-                one[key] = first[key]
-        tasks = []
-        for task in doc.get("tasks") or []:
-            task = dict(task) if isinstance(task, dict) else task
-            assigned.append(task.pop("robot", None) if isinstance(task, dict) else None)
-            tasks.append(task)
-        actions = _pop_actions(path, lines, tasks)
-        one["tasks"] = tasks
-        loaded = load_mission(path, overrides, seed, text=yaml.safe_dump(one, sort_keys=False))
-        robot_names = list(names)
-    else:
-        tasks = doc.get("tasks") if isinstance(doc, dict) else None
-        if isinstance(tasks, list) and any(isinstance(t, dict) and "actions" in t for t in tasks):
-            tasks = [dict(t) if isinstance(t, dict) else t for t in tasks]
-            actions = _pop_actions(path, lines, tasks)
-            one = {**doc, "tasks": tasks}
-            loaded = load_mission(path, overrides, seed, text=yaml.safe_dump(one, sort_keys=False))
-        else:
-            loaded = load_mission(path, overrides, seed)
-            actions = []
-        robot_names = robots or ["agv1"]
-        assigned = [robot_names[0] if len(robot_names) == 1 else None] * len(loaded.mission.tasks)
-    routes = [
-        _route(task, i, loaded, actions[i] if i < len(actions) else None, lines)
-        for i, task in enumerate(loaded.mission.tasks)
-    ]
-    for route, robot in zip(routes, assigned, strict=True):
-        if robot is not None and robot not in robot_names:
-            raise MissionError(
-                [
-                    Problem(
-                        str(path),
-                        None,
-                        f"tasks.{route.index}.robot",
-                        f"{robot!r} is not one of robots {robot_names}",
-                    )
-                ]
-            )
-        route.robot = robot
-    nav = loaded.mission.stack.navigation
-    return MasterPlan(
-        loaded.name,
-        robot_names,
-        routes,
-        loaded.world.name,
-        nav.xy_goal_tolerance,
-        nav.yaw_goal_tolerance,
-        loaded.mission.limits.time,
-        Path(loaded.mission.output),
-        loaded.resolved(),
-        dispatcher=registry.create("dispatcher", loaded.mission.fleet.dispatcher),
-        travel=GridTravelTime(loaded.costmap, loaded.robot.max_linear_velocity),
-    )
-
-
-def place(node: RouteNode) -> str:
-    """Where a node is, to the decimetre: two orders' nodes at one place are one resource
-    whatever their ids (every patrol calls its waypoints wp1, wp2, ...)."""
-    return f"{round(node.x, 1):g},{round(node.y, 1):g}"
-
-
-class NodeReservations:
-    """Traffic control as the master can do it without a fleet world: a node's place is
-    granted to one vehicle at a time; a vehicle frees a place when it has left it."""
-
-    def __init__(self) -> None:
-        self.holder: dict[str, str] = {}
-
-    def grant(self, robot: str, node: RouteNode) -> bool:
-        owner = self.holder.setdefault(place(node), robot)
-        return owner == robot
-
-    def keep_only(self, robot: str, places: set[str]) -> None:
-        for key, owner in list(self.holder.items()):
-            if owner == robot and key not in places:
-                del self.holder[key]
 
 
 @dataclass
@@ -351,7 +76,7 @@ class ActiveOrder:
     sent_at: float = 0.0
     last_first: int = 0  # the first node index of the message last sent
     #: node actions by actionId: (node index, the action)
-    actions: dict[str, tuple[int, NodeAction]] = field(default_factory=dict)
+    actions: dict[str, tuple[int, OrderAction]] = field(default_factory=dict)
     last_sent: float = 0.0
 
 
@@ -451,7 +176,7 @@ class Master:
             if status != "succeeded":
                 self._cancel_all()
             self.link.stop()
-        return self._result(status, reason)
+        return master_result(self, status, reason)
 
     def _drain(self) -> None:
         while True:
@@ -520,6 +245,10 @@ class Master:
                 continue
             goals = tuple(Pose2D(n.x, n.y, n.theta or 0.0) for n in task.nodes)
             work = [self._work(p) for p in candidates]
+            if not goals:  # charge/undock where it stands: the robot with the least held
+                best = min(work, key=lambda w: w.held_time)
+                self._assign(task, self.peers[best.name])
+                continue
             try:
                 got = self.plan.dispatcher.assign(
                     FleetTask(str(task.index), goals), work, self._travel_time
@@ -606,10 +335,11 @@ class Master:
         actions_done = all(
             a.get("actionStatus") in ("FINISHED", "FAILED") for a in state.get("actionStates", [])
         )
-        if not state.get("nodeStates") and last_seq == final_seq and actions_done:
-            self._finish(peer, "succeeded", None)
-        elif error is not None:
+        if error is not None:
             self._finish(peer, "failed", error)
+        elif not state.get("nodeStates") and last_seq == final_seq and actions_done:
+            if order.task.charged(state):
+                self._finish(peer, "succeeded", None)
         elif not state.get("nodeStates") and last_seq != final_seq:
             self._finish(
                 peer, "failed", f"the vehicle dropped the order at node {state.get('lastNodeId')}"
@@ -679,12 +409,16 @@ class Master:
 
     def _send_new(self, peer: Peer, task: TaskRoute) -> None:
         state = peer.state or {}
-        pos = state.get("agvPosition") or {}
+        # where it stands: its state's agvPosition (optional), else the last seen in its
+        # visualization
+        x, y = peer.last_xy or (0.0, 0.0)
+        pos = state.get("agvPosition") or {"x": x, "y": y}
         here = RouteNode(
             str(state.get("lastNodeId") or "start"),
-            float(pos.get("x", 0.0)),
-            float(pos.get("y", 0.0)),
+            float(pos.get("x", x)),
+            float(pos.get("y", y)),
             None,
+            task.start_actions,
         )
         peer.orders_made += 1
         order = ActiveOrder(
@@ -734,9 +468,9 @@ class Master:
                 pos["allowedDeviationXY"] = START_DEVIATION
             else:
                 pos["allowedDeviationXY"] = self.plan.xy_tolerance
-                if n.theta is not None:
-                    pos["theta"] = n.theta
-                    pos["allowedDeviationTheta"] = self.plan.yaw_tolerance
+                if n.theta is not None:  # within the schema's [-pi, pi] after rounding
+                    pos["theta"] = schema_angle(n.theta)
+                    pos["allowedDeviationTheta"] = deviation_angle(self.plan.yaw_tolerance)
             nodes.append(
                 {
                     "nodeId": n.node_id,
@@ -800,78 +534,3 @@ class Master:
         if all(t.status in ("succeeded", "skipped") for t in tasks):
             return "succeeded", None
         return None
-
-    def _result(self, status: str, reason: str | None) -> dict[str, Any]:
-        robots = {}
-        for name, peer in self.peers.items():
-            mine = [t for t in self.plan.tasks if t.assigned == name]
-            bad = [t for t in mine if t.status == "failed"]
-            robots[name] = {
-                "status": "failed"
-                if bad
-                else (
-                    "succeeded"
-                    if all(t.status in ("succeeded", "skipped") for t in mine)
-                    else "not_run"
-                    if not mine
-                    else "incomplete"
-                ),
-                "reason": bad[0].reason if bad else None,
-                "connection": peer.connection,
-                "tasks": [
-                    {"index": t.index, "type": t.type, "status": t.status, "reason": t.reason}
-                    for t in mine
-                ],
-                "metrics": {
-                    "orders": peer.orders,
-                    "order_updates": peer.updates,
-                    "distance": round(peer.distance, 3),
-                },
-            }
-        return {
-            "name": self.plan.name,
-            "status": status,
-            "reason": reason,
-            "broker": str(self.url),
-            "manufacturer": self.manufacturer,
-            "wall_time": round(self.now(), 3),
-            "tasks": [
-                {
-                    "index": t.index,
-                    "type": t.type,
-                    "robot": t.assigned,
-                    "status": t.status,
-                    "reason": t.reason,
-                    "nodes": [n.node_id for n in t.nodes],
-                    "actions": list(t.actions.values()),
-                }
-                for t in self.plan.tasks
-            ],
-            "robots": robots,
-            "fleet": {
-                "dispatch": self.dispatch,
-                "events": self.events,
-                "makespan": round(self.now(), 3),
-            },
-        }
-
-
-TRAJECTORY_HEADER = "robot,t,x,y,theta,vx,omega"
-
-
-def write_outputs(run_dir: Path, master: Master, result: dict[str, Any]) -> None:
-    """``mission.yaml``, ``trajectory.csv`` (from the vehicles' state and visualization)
-    and, last, ``result.json``."""
-    atomic_write_text(
-        run_dir / "mission.yaml", yaml.safe_dump(master.plan.resolved, sort_keys=False)
-    )
-    lines = [TRAJECTORY_HEADER] + [
-        f"{r[0]},{r[1]:.3f},{r[2]:.6f},{r[3]:.6f},{r[4]:.6f},{float(r[5]):.6f},{float(r[6]):.6f}"
-        for r in master.rows
-    ]
-    atomic_write_text(run_dir / "trajectory.csv", "\n".join(lines) + "\n")
-    write_json(run_dir / "result.json", {**result, "run_dir": str(run_dir)})
-
-
-def new_run_dir(plan: MasterPlan, output: Path | None) -> Path:
-    return make_run_dir(output if output is not None else plan.output, f"{plan.name}-vda5050")

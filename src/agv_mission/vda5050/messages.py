@@ -9,6 +9,7 @@ Tests validate what these models produce against the schema files themselves.
 
 from __future__ import annotations
 
+import math
 from datetime import datetime, timezone
 from typing import Any, Literal
 
@@ -22,6 +23,24 @@ ActionStatus = Literal["WAITING", "INITIALIZING", "RUNNING", "FINISHED", "FAILED
 BlockingType = Literal["NONE", "SOFT", "HARD"]
 ErrorLevel = Literal["WARNING", "FATAL"]
 ConnectionState = Literal["ONLINE", "OFFLINE", "CONNECTIONBROKEN"]
+
+
+#: the schemas' bound of an angle (``nodePosition.theta``, ``edge.orientation``), rad
+ANGLE_BOUND = 3.14159265359
+#: the schema's bound of ``allowedDeviationTheta``, rad
+DEVIATION_THETA_BOUND = 3.141592654
+
+
+def schema_angle(angle: float) -> float:
+    """``angle`` wrapped into [-pi, pi] and kept within the schemas' bound (a mission's
+    ``yaw: 3.1416``, written to four decimals, is above pi: it goes out as -3.14159)."""
+    wrapped = (angle + math.pi) % (2.0 * math.pi) - math.pi
+    return max(-ANGLE_BOUND, min(ANGLE_BOUND, wrapped))
+
+
+def deviation_angle(angle: float) -> float:
+    """A tolerance angle within ``allowedDeviationTheta``'s bounds [0, pi]."""
+    return max(0.0, min(DEVIATION_THETA_BOUND, angle))
 
 
 def timestamp(now: datetime | None = None) -> str:
@@ -76,9 +95,9 @@ class Action(Message):
 class NodePosition(Message):
     x: float
     y: float
-    theta: float | None = None
+    theta: float | None = Field(None, ge=-ANGLE_BOUND, le=ANGLE_BOUND)
     allowedDeviationXY: float | None = Field(None, ge=0)
-    allowedDeviationTheta: float | None = Field(None, ge=0)
+    allowedDeviationTheta: float | None = Field(None, ge=0, le=DEVIATION_THETA_BOUND)
     mapId: str
     mapDescription: str | None = None
 
@@ -108,7 +127,7 @@ class Edge(Message):
     maxSpeed: float | None = None
     maxHeight: float | None = None
     minHeight: float | None = None
-    orientation: float | None = None
+    orientation: float | None = Field(None, ge=-ANGLE_BOUND, le=ANGLE_BOUND)
     orientationType: Literal["GLOBAL", "TANGENTIAL"] | None = None
     direction: str | None = None
     rotationAllowed: bool | None = None

@@ -33,6 +33,14 @@ from agv_mission.vda5050.messages import (
     InstantActions,
     Node,
     Order,
+    schema_angle,
+)
+from agv_mission.vda5050.order_checks import (
+    battery_state,
+    first_error,
+    node_state,
+    number,
+    order_problems,
 )
 from agv_mission.vda5050.transport import BrokerUrl, MqttLink
 
@@ -56,6 +64,8 @@ class ActionRun:
     result: str | None = None
     elapsed: float = 0.0  # simulated seconds of work done (frozen while paused)
     request: int = 0  # the body's charge request it waits for (start/stopCharging)
+    #: its node was reached: it starts as soon as the blocking types let it (still WAITING)
+    triggered: bool = False
 
     def doc(self) -> dict[str, Any]:
         d = {
@@ -191,7 +201,7 @@ class Vehicle:
         return {
             "x": p.x,
             "y": p.y,
-            "theta": p.yaw,
+            "theta": schema_angle(p.yaw),  # [-pi, pi] as the standard's agvPosition
             "mapId": self.body.map_id,
             "positionInitialized": True,
         }
@@ -218,7 +228,7 @@ class Vehicle:
                 "orderUpdateId": o.update_id,
                 "lastNodeId": self.last_node_id,
                 "lastNodeSequenceId": self.last_node_seq,
-                "nodeStates": [_node_state(n) for n in o.nodes],
+                "nodeStates": [node_state(n) for n in o.nodes],
                 "edgeStates": [
                     {"edgeId": e.edgeId, "sequenceId": e.sequenceId, "released": e.released}
                     for e in o.edges
@@ -230,7 +240,7 @@ class Vehicle:
                 "paused": self.paused,
                 "newBaseRequest": bool(o.nodes) and all(not n.released for n in o.nodes),
                 "actionStates": [a.doc() for a in self.actions.values()],
-                "batteryState": _battery_state(snap),
+                "batteryState": battery_state(snap),
                 "operatingMode": "AUTOMATIC",
                 "errors": list(self.errors),
                 "safetyState": {"eStop": "NONE", "fieldViolation": False},
@@ -260,14 +270,21 @@ class Vehicle:
     def _on_message(self, topic_name: str, payload: bytes, _retain: bool) -> None:
         kind = topic_name.rsplit("/", 1)[-1]
         with self._lock:
-            doc = self._parse(kind, payload)
-            if doc is None:
-                pass
-            elif kind == "order":
-                self._receive_order(doc)
-            elif kind == "instantActions":
-                self._receive_instant(doc)
-            self._advance(self.body.snapshot())
+            try:
+                doc = self._parse(kind, payload)
+                if doc is None:
+                    pass
+                elif kind == "order":
+                    self._receive_order(doc)
+                elif kind == "instantActions":
+                    self._receive_instant(doc)
+                self._advance(self.body.snapshot())
+            except Exception as exc:  # noqa: BLE001 (a message must never go unanswered)
+                self._error(
+                    "validationError" if kind in ("order", "instantActions") else "internalError",
+                    f"{kind}: cannot be handled: {exc!r}",
+                    topic=kind,
+                )
         self.publish_state()
 
     def _parse(self, kind: str, payload: bytes) -> dict[str, Any] | None:
@@ -311,7 +328,7 @@ class Vehicle:
             msg = InstantActions.model_validate(doc)
         except ValidationError as exc:
             self._error(
-                "validationError", f"instantActions: {_first_error(exc)}", topic="instantActions"
+                "validationError", f"instantActions: {first_error(exc)}", topic="instantActions"
             )
             return
         if len(msg.actions) > fs.MAX_INSTANT_ACTIONS:
@@ -343,15 +360,16 @@ class Vehicle:
         except ValidationError as exc:
             self._error(
                 "validationError",
-                f"order: {_first_error(exc)}",
+                f"order: {first_error(exc)}",
                 topic="order",
                 orderId=doc.get("orderId"),
             )
             return
-        problems = self._order_problems(order)
+        problems = order_problems(order, self.body.map_id)
         if problems:
             key, value, text = problems[0]
-            self._error("orderError", text, orderId=order.orderId, **{key: value})
+            refs = {"orderId": order.orderId, "orderUpdateId": order.orderUpdateId, key: value}
+            self._error("orderError", text, **refs)
             return
         o = self.order
         busy = bool(o.nodes) or any(
@@ -413,77 +431,6 @@ class Vehicle:
             )
             return
         self._stitch(order, base)
-
-    def _order_problems(self, order: Order) -> list[tuple[str, str, str]]:
-        """What makes ``order`` one this vehicle cannot take (6.6.4.2): (key, value, why)."""
-        out: list[tuple[str, str, str]] = []
-        nodes, edges = order.nodes, order.edges
-        if len(nodes) > fs.MAX_NODES:
-            out.append(("orderId", order.orderId, f"more than {fs.MAX_NODES} nodes"))
-        if len(edges) != len(nodes) - 1:
-            out.append(
-                (
-                    "orderId",
-                    order.orderId,
-                    f"{len(nodes)} nodes need {len(nodes) - 1} edges, not {len(edges)}",
-                )
-            )
-            return out
-        if not nodes[0].released:
-            out.append(("nodeId", nodes[0].nodeId, "the first node is not released"))
-        released = True
-        for i, node in enumerate(nodes):
-            if node.sequenceId != nodes[0].sequenceId + 2 * i:
-                out.append(("nodeId", node.nodeId, f"sequenceId {node.sequenceId} out of order"))
-            if node.nodePosition is None:
-                out.append(
-                    (
-                        "nodeId",
-                        node.nodeId,
-                        "no nodePosition (this vehicle navigates freely to positions)",
-                    )
-                )
-            elif node.nodePosition.mapId != self.body.map_id:
-                out.append(
-                    (
-                        "nodeId",
-                        node.nodeId,
-                        f"mapId {node.nodePosition.mapId!r}: this vehicle is on {self.body.map_id!r}",
-                    )
-                )
-            if node.released and not released:
-                out.append(("nodeId", node.nodeId, "a released node after the horizon began"))
-            released = released and node.released
-            if len(node.actions) > fs.MAX_NODE_ACTIONS:
-                out.append(("nodeId", node.nodeId, f"more than {fs.MAX_NODE_ACTIONS} actions"))
-            for action in node.actions:
-                spec = fs.ACTIONS.get(action.actionType)
-                if spec is None or "NODE" not in spec["scopes"]:
-                    why = "unknown action" if spec is None else "not allowed on a node"
-                    out.append(("actionId", action.actionId, f"{action.actionType}: {why}"))
-        for i, edge in enumerate(edges):
-            a, b = nodes[i], nodes[i + 1]
-            if (
-                edge.sequenceId != a.sequenceId + 1
-                or edge.startNodeId != a.nodeId
-                or edge.endNodeId != b.nodeId
-            ):
-                out.append(("edgeId", edge.edgeId, f"does not join {a.nodeId} and {b.nodeId}"))
-            if edge.released and not b.released or not edge.released and b.released:
-                out.append(("edgeId", edge.edgeId, "released differs from its end node's"))
-            if edge.trajectory is not None:
-                out.append(("edgeId", edge.edgeId, "trajectory: this vehicle plans its own path"))
-            if edge.actions:
-                out.append(
-                    (
-                        "edgeId",
-                        edge.edgeId,
-                        "edge actions are not supported (factsheet: edge.actions 0)",
-                    )
-                )
-            if edge.maxSpeed is not None and edge.maxSpeed <= 0:
-                out.append(("edgeId", edge.edgeId, f"maxSpeed {edge.maxSpeed} must be positive"))
-        return out
 
     def _at_node(self, node: Node, pose: Pose2D) -> bool:
         p = node.nodePosition
@@ -552,7 +499,7 @@ class Vehicle:
         for action in node.actions:
             run = self.actions.get(action.actionId)
             if run is not None and run.status == "WAITING":
-                run.status = "INITIALIZING"  # triggered; started in order by _advance
+                run.triggered = True  # started in list order by _run_actions
 
     def _advance(self, snap: BodySnapshot) -> bool:
         """Move the order and the actions on; True when something changed."""
@@ -610,32 +557,34 @@ class Vehicle:
         )
 
     def _blocked(self) -> bool:
-        """A SOFT or HARD action stops driving while it is not finished (6.12)."""
+        """A SOFT or HARD action stops driving while it runs or waits to run (6.12)."""
         return any(
-            a.action.blockingType != "NONE" and a.status in ("INITIALIZING", "RUNNING")
+            a.action.blockingType != "NONE"
+            and (a.status in ("INITIALIZING", "RUNNING") or (a.triggered and a.status == "WAITING"))
             for a in self.actions.values()
         )
 
     # ---------------------------------------------------------------- actions (6.8, 6.11, 6.12)
 
     def _run_actions(self, snap: BodySnapshot) -> None:
-        hard_running = any(
-            a.action.blockingType == "HARD" and a.status == "RUNNING" for a in self.actions.values()
-        )
+        """Carry the running actions on, then start the triggered ones in list order as
+        their blocking types allow (6.12, figure 17): a HARD action starts only when no
+        other action runs, and nothing starts while it runs; SOFT and NONE run beside
+        each other (SOFT and HARD stop driving: :meth:`_blocked`)."""
         for run in list(self.actions.values()):
-            if run.status == "INITIALIZING" and run.started is None:
-                others = any(
-                    a is not run and a.status == "RUNNING" and a.node_seq is not None
-                    for a in self.actions.values()
-                )
-                if hard_running or (run.action.blockingType == "HARD" and others):
-                    break  # started after what runs now, in list order
-                self._start_action(run, snap)
-                hard_running = hard_running or (
-                    run.action.blockingType == "HARD" and run.status == "RUNNING"
-                )
-            elif run.status == "RUNNING":
+            if run.status == "RUNNING":
                 self._continue_action(run, snap)
+        for run in list(self.actions.values()):
+            if not (run.triggered and run.status == "WAITING"):
+                continue
+            active = [a for a in self.actions.values() if a.status in ("INITIALIZING", "RUNNING")]
+            if any(a.action.blockingType == "HARD" for a in active):
+                break
+            if run.action.blockingType == "HARD" and active:
+                break  # waits for what runs now; the actions after it wait for it
+            self._start_action(run, snap)
+            if run.action.blockingType == "HARD" and run.status == "RUNNING":
+                break
 
     def _start_action(self, run: ActionRun, snap: BodySnapshot) -> None:
         a, kind = run.action, run.action.actionType
@@ -691,7 +640,7 @@ class Vehicle:
         if not self.paused and run.started is not None:
             run.elapsed += max(0.0, snap.time - run.started)
         run.started = snap.time
-        duration = _number(run.action.param("duration"), 5.0)
+        duration = number(run.action.param("duration"), 5.0)
         if run.elapsed + 1e-9 < duration:
             return
         if kind == "pick":
@@ -782,38 +731,3 @@ class Vehicle:
             run.status, run.result = "FAILED", f"cannot store the report: {exc}"
             return
         run.status, run.result = "FINISHED", str(self.log_dir / name)
-
-
-def _battery_state(snap: BodySnapshot) -> dict[str, Any]:
-    """``batteryState`` from the robot's battery; a robot without one reports the standard's
-    "good" level (80 %), as an AGV that only knows good or bad does."""
-    if snap.battery is None:
-        return {"batteryCharge": 80.0, "charging": False}
-    out: dict[str, Any] = {
-        "batteryCharge": round(100.0 * snap.battery, 3),
-        "charging": snap.charging,
-    }
-    if snap.voltage is not None:
-        out["batteryVoltage"] = snap.voltage
-    return out
-
-
-def _node_state(n: Node) -> dict[str, Any]:
-    d: dict[str, Any] = {"nodeId": n.nodeId, "sequenceId": n.sequenceId, "released": n.released}
-    if n.nodePosition is not None:
-        d["nodePosition"] = n.nodePosition.doc()
-    return d
-
-
-def _first_error(exc: ValidationError) -> str:
-    e = exc.errors()[0]
-    where = ".".join(str(p) for p in e["loc"])
-    return f"{where}: {e['msg']}"[:300]
-
-
-def _number(value: Any, default: float) -> float:
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        return default
-    return out if math.isfinite(out) and out >= 0 else default

@@ -14,9 +14,11 @@ import numpy as np
 import yaml
 
 from agv_mission.atomic import atomic_write_bytes, atomic_write_text
+from agv_mission.maps.worlds import World
 from agv_mission.maps.zones import ZoneFilters
 from agv_mission.messages import json_default
 from agv_mission.missions.loader import LoadedMission
+from agv_mission.missions.no_map import names_no_map
 from agv_mission.missions.people_record import plot_people, write_people_csv
 from agv_mission.missions.run_report import COVARIANCE_COLUMNS
 from agv_mission.missions.runner import TRAJECTORY_COLUMNS, RunRecord
@@ -76,6 +78,7 @@ def result_document(loaded: LoadedMission, record: RunRecord, run_dir: Path) -> 
         "wall_time": record.wall_time,
         "seed": loaded.mission.seed,
         "world": loaded.world.name,
+        **({"world_import": loaded.world.imported} if loaded.world.imported else {}),
         "robot": loaded.robot.name,
         "tasks": record.tasks,
         "metrics": record.metrics,
@@ -203,6 +206,21 @@ def write_trajectory(
         atomic_write_text(path, buf.getvalue())
 
 
+def _plot_world(ax: Any, world: World) -> None:
+    """The world's bodies, for a robot given no map (its map is blank)."""
+    from matplotlib.collections import PatchCollection
+    from matplotlib.patches import Circle, Polygon
+
+    patches: list[Any] = [Circle((c.x, c.y), c.radius) for c in world.cylinders]
+    for b in world.boxes:
+        c, s = np.cos(b.yaw), np.sin(b.yaw)
+        corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * [b.half_x, b.half_y]
+        patches.append(Polygon(corners @ np.array([[c, s], [-s, c]]) + [b.x, b.y], closed=True))
+    if patches:
+        ax.add_collection(PatchCollection(patches, color="0.35", lw=0))
+        ax.fill([], [], color="0.35", label="the world (no map given)")
+
+
 def _plot_zones(ax: Any, zones: ZoneFilters) -> None:
     """Keepout zones in red, speed zones in blue (darker: slower), as their rasters."""
     xmin, xmax, ymin, ymax = zones.grid.extent
@@ -269,6 +287,8 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
     )
     if loaded.zones is not None:
         _plot_zones(ax, loaded.zones)
+    if names_no_map(loaded.mission.map):
+        _plot_world(ax, loaded.world)
     for room in loaded.rooms.values():
         poly = np.asarray(room.polygon + (room.polygon[0],))
         ax.plot(poly[:, 0], poly[:, 1], "--", lw=0.8, color="tab:purple", alpha=0.7)

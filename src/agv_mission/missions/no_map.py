@@ -3,9 +3,9 @@
 It localises by odometry (a mission that says nothing of localisation gets it; ``amcl``,
 which needs a map to match scans against, is refused with that reason) and plans on a grid
 where unknown space is free, as BARN's move_base does without a static map: the obstacle
-layer marks and clears what the lidar shows. The grid covers the world's extent, the start
-and every pose the mission names, plus :data:`NO_MAP_MARGIN`; a goal is checked only
-against it.
+layer marks and clears what the lidar shows. The grid covers the world's extent (a Gazebo
+world's is its bodies' bounds plus 2 m), and the start and every pose the mission names
+with :data:`NO_MAP_MARGIN` around each; a goal is checked only against it.
 """
 
 from __future__ import annotations
@@ -66,8 +66,8 @@ def check_localization(mission: Setup, report: Report) -> None:
 def no_map_grid(
     mission: Setup, world: World, rooms: dict[str, Room], nodes: Sequence[NodeCheck]
 ) -> OccupancyGrid:
-    """The free grid a robot without a map plans on: the world's extent, the start and
-    every goal the mission's nodes and faults name, plus :data:`NO_MAP_MARGIN`.
+    """The free grid a robot without a map plans on: the world's extent, and the start and
+    every goal the mission's nodes and faults name with :data:`NO_MAP_MARGIN` around each.
 
     Raises ``ValueError`` when that grid would be too large for memory."""
     xmin, xmax, ymin, ymax = world.map.extent
@@ -84,13 +84,12 @@ def no_map_grid(
     for _, ports, _ in nodes:
         points += [pose.to_pose2d() for _, pose in ports.goal_poses()]
     points += [f.pose.to_pose2d() for f in mission.faults if f.type == "kidnap"]
-    for p in points:
-        xmin, xmax = min(xmin, p.x), max(xmax, p.x)
-        ymin, ymax = min(ymin, p.y), max(ymax, p.y)
+    for p in points:  # each with room around it; the world's extent as it is
+        xmin, xmax = min(xmin, p.x - NO_MAP_MARGIN), max(xmax, p.x + NO_MAP_MARGIN)
+        ymin, ymax = min(ymin, p.y - NO_MAP_MARGIN), max(ymax, p.y + NO_MAP_MARGIN)
     res = world.map.resolution
-    xmin, ymin = xmin - NO_MAP_MARGIN, ymin - NO_MAP_MARGIN
-    width = math.ceil((xmax + NO_MAP_MARGIN - xmin) / res - 1e-9)
-    height = math.ceil((ymax + NO_MAP_MARGIN - ymin) / res - 1e-9)
+    width = math.ceil((xmax - xmin) / res - 1e-9)
+    height = math.ceil((ymax - ymin) / res - 1e-9)
     if width * height > MAX_GRID_CELLS:
         raise ValueError(
             f"the grid around the world, the start and the goals would be {width * res:.0f} x "

@@ -92,7 +92,8 @@ class BarnReferee:
 
     only_cancels = True  # it never commands the robot (robot processes stay possible)
 
-    def __init__(self, stop: Any = None) -> None:
+    def __init__(self, stop: Any = None, time_limit: float = TIME_LIMIT) -> None:
+        self.time_limit = time_limit  # s after the clock started
         self.clock: float | None = None  # t of the first row 0.1 m from the start
         self.last: tuple[float, float, float] | None = None  # the latest row's t, x, y
         self.verdict: str | None = None  # succeeded | timeout, when the referee ended it
@@ -111,10 +112,10 @@ class BarnReferee:
         if math.hypot(x - GOAL[0], y - GOAL[1]) <= ARRIVED:
             self.verdict = "succeeded"
             run.end("succeeded", f"BARN: within {ARRIVED:g} m of the goal at t={t:.1f} s")
-        elif t - (self.clock if self.clock is not None else 0.0) >= TIME_LIMIT - 1e-9:
+        elif t - (self.clock if self.clock is not None else 0.0) >= self.time_limit - 1e-9:
             self.verdict = "timeout"
             since = "the clock started" if self.clock is not None else "the start (never moved)"
-            run.end("failed", f"BARN: timeout, {TIME_LIMIT:g} s after {since}")
+            run.end("failed", f"BARN: timeout, {self.time_limit:g} s after {since}")
 
     def outcome(
         self,

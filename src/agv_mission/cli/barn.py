@@ -52,12 +52,12 @@ def barn(
     if backend not in ("local", "ray"):
         raise failure("invalid input", f"--backend {backend}: local or ray")
     n_workers = workers or os.cpu_count() or 1
-    pool.warm_up(backend, n_workers)
     stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     root = output if output is not None else Path("runs") / f"barn-{stamp}"
     try:
         plan = suite.plan_worlds(directory, worlds)
         jobs = suite.world_jobs(plan, list(set_), seed, root)
+        pool.warm_up(backend, min(n_workers, len(jobs)))  # imports while we check
         suite.load_world_mission(jobs[0])  # --set and the first world checked here
         root.mkdir(parents=True, exist_ok=True)
         taken = [j["world"] for j in jobs if (root / f"world_{j['world']}").exists()]

@@ -45,6 +45,7 @@ MODULES = [
     "bench_vda5050",
     "bench_fleet",
     "bench_people",
+    "bench_barn",
 ]
 
 

@@ -93,6 +93,11 @@ TARGETS = {
         for case in ("demo", "ros_turtlebot3_world", "ros_aws_small_house")
         for name, bound in (("inside_2sigma", (">=", 0.9)), ("radius_over_error", ("<=", 5.0)))
     },
+    # issue 33: BARN's 300 public worlds (read from AGV_MISSION_BARN), default stack
+    "barn.default.success_rate": (">=", 0.95),
+    "barn.default.collision_rate": ("<=", 0.02),
+    "barn.default.mean_metric": (">=", 0.35),
+    "barn.default.wall_s": ("<=", 600.0),
 }
 # metric name suffix -> (comparison, target), for keys of every map (issue 15)
 SUFFIX_TARGETS = {

@@ -547,7 +547,7 @@ def _resolve(
     known = given_map if given_map is not None else world.map
     if not costmap_fits(mission, known, log.add):
         raise MissionError(log.problems)
-    costmap = Costmap.from_grid(known, robot.footprint_radius, mission.stack.costmap)
+    costmap = Costmap.from_grid(known, robot.inscribed_radius, mission.stack.costmap)
     if isinstance(mission.start, str) and mission.start not in rooms and mission.start in docks:
         dock = docks[mission.start].pose  # a robot may start on its dock
         mission = mission.model_copy(

@@ -262,6 +262,20 @@ ROBOT_COLOURS = (
 )  # fmt: skip
 
 
+def _plot_bodies(ax: Any, loaded: LoadedMission, record: RunRecord, patch: Any) -> None:
+    """Each robot's footprint (its polygon, or its circle) where it started and ended."""
+    own = record.robots or ({loaded.robots[0].name: record} if loaded.robots else {})
+    outlines = {r.name: r.robot.outline for r in loaded.robots}
+    for k, (name, rec) in enumerate(own.items()):
+        t, outline = rec.trajectory, outlines.get(name)
+        if outline is None or not t.size:
+            continue
+        colour = ROBOT_COLOURS[k % len(ROBOT_COLOURS)] if record.robots else "tab:blue"
+        for row in (t[0], t[-1]):
+            xy = outline.in_map(float(row[1]), float(row[2]), float(row[3]))
+            ax.add_patch(patch(xy, closed=True, fill=False, lw=0.8, ec=colour, alpha=0.8))
+
+
 def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
     """The map with rooms, planned paths, the driven and estimated trajectory, and goals."""
     import matplotlib
@@ -356,6 +370,7 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
         ax.plot(t[:, 4], t[:, 5], ":", lw=0.8, color=colour, alpha=0.7)
         ax.plot(t[0, 1], t[0, 2], "o", color=colour)
         ax.plot(t[-1, 1], t[-1, 2], "s", color=colour)
+    _plot_bodies(ax, loaded, record, Polygon)
     for e in record.events:
         if e["event"] == "goal_reached":
             ax.plot(e["x"], e["y"], "*", color="gold", markeredgecolor="k", ms=11)

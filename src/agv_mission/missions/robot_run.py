@@ -136,7 +136,7 @@ class RobotRun:
         aimed = [f for f in self.mission.faults if f.robot in (None, self.name)]
         self.faults = FaultInjector(aimed, self.sim, stack.fault_rng)
         self.monitor = CollisionMonitor(
-            setup.stack.collision_monitor, robot.footprint_radius, CONTROL_PERIOD
+            setup.stack.collision_monitor, robot.footprint_radius, CONTROL_PERIOD, robot.polygon
         )
         self.task_status = ["not_run"] * len(self.tree.tasks)
         self.collisions: list[dict[str, float]] = []
@@ -326,6 +326,7 @@ class RobotRun:
             if self._perceived is not None:
                 odom, estimate = self._perceived
                 seen_from = estimate.compose(sensing.odom.relative_to(odom))
+            seen_from = self.setup.robot.lidar.scan_pose(seen_from)
             on_people = beams_on_people(scan, seen_from, np.asarray(people, dtype=float))
         if mapping is not None:
             estimate = mapping.update(sensing.odom, _without(scan, on_people), sensing.truth, t)
@@ -346,10 +347,11 @@ class RobotRun:
             )
         if scan is not None:
             handle.state.scan = scan
-            handle.state.obstacles = scan.points(estimate)
+            sensor = self.setup.robot.lidar.scan_pose(estimate)
+            handle.state.obstacles = scan.points(sensor)
             # returns on people are not obstacles of the costmap: people standing are
             # marked as themselves, from the tracker
-            self.navigator.observe(estimate, scan, people, on_people)
+            self.navigator.observe(sensor, scan, people, on_people)
         self._perceived = (sensing.odom, estimate)
         return estimate
 
@@ -388,9 +390,9 @@ class RobotRun:
             }
             self.collisions.append(self.new_collision)
         self.in_contact = contacts > 0
-        if bound < self.min_clearance:
-            clearance = self.sim.min_clearance()
-            self._clearance_at = (truth.x, truth.y, clearance)
+        if bound < self.min_clearance:  # the footprint's is at least the circle's
+            circle, clearance = self.sim.clearances()
+            self._clearance_at = (truth.x, truth.y, circle)
             self.min_clearance = min(self.min_clearance, clearance)
 
     def _failure(self) -> str:

@@ -112,9 +112,11 @@ def test_barn_runs_a_world_by_its_protocol_and_the_metric_agrees_with_its_trajec
     assert result["robot"] == "jackal" and result["barn"]["metric"] == world["metric"]
     status, time, score = recomputed(run_dir, world["path_length"])
     assert world["metric"] == pytest.approx(score, abs=1e-6)
-    assert world["time"] == pytest.approx(time, abs=1e-6)
-    if status == "succeeded":
-        assert world["status"] == "succeeded"
+    assert (status == "succeeded") == (world["status"] == "succeeded")
+    if world["status"] in ("succeeded", "collided"):
+        assert world["time"] == pytest.approx(time, abs=1e-6)
+    elif world["status"] == "timeout":
+        assert world["time"] == 100.0  # BARN's clock ran out (or would have: it stands)
     summary = doc["summary"]
     assert summary["worlds"] == 1
     assert summary["mean_metric"] == pytest.approx(world["metric"], abs=1e-4)
@@ -165,3 +167,17 @@ def test_the_ray_backend_gives_the_local_results(tmp_path):
     for a, b in zip(local, remote, strict=True):
         assert (a["status"], a["time"], a["metric"]) == (b["status"], b["time"], b["metric"])
         assert Path(b["run_dir"]).parent == tmp_path / "ray"
+
+
+def test_a_robot_that_stops_short_of_the_goal_is_a_timeout_without_simulating_the_wait(tmp_path):
+    # navigation sent 3 m ahead only: it arrives there, stands, and the clock would run out
+    job = world_job(tmp_path, 0, ["tree.children.0.child.pose.y=6.0", "output.bag=false"])
+    result = suite.run_world(job)
+    assert result["status"] == "timeout" and result["time"] == 100.0 and result["metric"] == 0.0
+    doc = json.loads((Path(result["run_dir"]) / "result.json").read_text())
+    assert doc["sim_time"] < 15.0 and "stands" in doc["reason"]
+    rows = np.genfromtxt(Path(result["run_dir"]) / "trajectory.csv", delimiter=",", names=True)
+    assert (
+        abs(rows["y"][-1] - 6.0) < 0.5
+        and np.hypot(rows["x"][-1] - GOAL[0], rows["y"][-1] - GOAL[1]) > 1.0
+    )

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from py_trees.common import Status
 
 START = (-2.25, 3.0, math.pi / 2.0)  # x, y, yaw: run.py's INIT_POSITION (yaw 1.57)
 GOAL = (-2.25, 13.0)  # INIT_POSITION + GOAL_POSITION (0, 10)
@@ -37,6 +38,9 @@ ROBOT = "jackal"
 MISSION_TIME = 2.0 * TIME_LIMIT
 
 STATUSES = ("succeeded", "collided", "timeout", "failed")
+STAND = "stand"  # the mission tree's node that holds the robot once navigation ended
+REST_ROWS = 5  # control steps (0.5 s) ...
+REST_STEP = 1e-4  # ... in which the true pose moved less than this (m, rad) a step
 
 
 class PathFileError(ValueError):
@@ -88,16 +92,21 @@ class BarnReferee:
     """The run control that applies BARN's protocol: reads the true pose of the latest
     control step (a row of ``trajectory.csv``) before the next one and ends the run when
     the robot arrived or the time is up. A collision ends the run by itself (the mission
-    allows none)."""
+    allows none).
+
+    A robot whose navigation has ended (its tree stands in :data:`STAND`) short of the
+    goal, and that has come to rest, can do nothing more in a static world: the run ends
+    there as the timeout BARN's clock would give it (time: the full limit), instead of
+    simulating it standing until then."""
 
     only_cancels = True  # it never commands the robot (robot processes stay possible)
 
     def __init__(self, stop: Any = None, time_limit: float = TIME_LIMIT) -> None:
         self.time_limit = time_limit  # s after the clock started
         self.clock: float | None = None  # t of the first row 0.1 m from the start
-        self.last: tuple[float, float, float] | None = None  # the latest row's t, x, y
         self.verdict: str | None = None  # succeeded | timeout, when the referee ended it
         self.stop = stop  # another control asked first (Ctrl-C)
+        self._stand: Any = None  # the tree's STAND node, once found
 
     def before_step(self, run: Any) -> None:
         if self.stop is not None:
@@ -106,16 +115,35 @@ class BarnReferee:
         if not rows or run.status is not None:
             return
         t, x, y = rows[-1][:3]
-        self.last = (t, x, y)
         if self.clock is None and math.hypot(x - START[0], y - START[1]) >= MOVED:
             self.clock = t
+        since = t - (self.clock if self.clock is not None else 0.0)
         if math.hypot(x - GOAL[0], y - GOAL[1]) <= ARRIVED:
             self.verdict = "succeeded"
             run.end("succeeded", f"BARN: within {ARRIVED:g} m of the goal at t={t:.1f} s")
-        elif t - (self.clock if self.clock is not None else 0.0) >= self.time_limit - 1e-9:
+        elif since >= self.time_limit - 1e-9:
             self.verdict = "timeout"
-            since = "the clock started" if self.clock is not None else "the start (never moved)"
-            run.end("failed", f"BARN: timeout, {self.time_limit:g} s after {since}")
+            after = "the clock started" if self.clock is not None else "the start (never moved)"
+            run.end("failed", f"BARN: timeout, {self.time_limit:g} s after {after}")
+        elif self._standing(run, rows):
+            self.verdict = "timeout"
+            gap = math.hypot(x - GOAL[0], y - GOAL[1])
+            run.end(
+                "failed",
+                f"BARN: timeout: navigation ended at t={t:.1f} s with the robot {gap:.2f} m "
+                "from the goal, and it stands",
+            )
+
+    def _standing(self, run: Any, rows: list[Any]) -> bool:
+        """Navigation has ended (the tree's :data:`STAND` runs) and the robot rests."""
+        if self._stand is None:
+            self._stand = next((n for n in run.lead.tree.root.iterate() if n.name == STAND), False)
+        if not self._stand or self._stand.status is not Status.RUNNING or len(rows) < REST_ROWS:
+            return False
+        recent = np.asarray([r[:4] for r in rows[-REST_ROWS:]], dtype=float)
+        moved = np.hypot(*(recent[1:, 1:3] - recent[:-1, 1:3]).T).max()
+        turned = np.abs(np.diff(np.unwrap(recent[:, 3]))).max()
+        return bool(moved < REST_STEP and turned < REST_STEP)
 
     def outcome(
         self,
@@ -131,12 +159,12 @@ class BarnReferee:
             barn = "collided"
         elif self.verdict is not None:
             barn = self.verdict
-        elif status == "failed" and "time limit" in (reason or ""):
-            barn = "timeout"
-        else:
+        else:  # the run did not reach the protocol's end: an error, or it was stopped
             barn = "failed"
         end = float(trajectory[-1, 0]) if len(trajectory) else 0.0
         elapsed = max(end - (self.clock if self.clock is not None else 0.0), 0.0)
+        if barn == "timeout":
+            elapsed = self.time_limit  # BARN's clock ran out (or would have: see above)
         return BarnOutcome(
             status=barn,
             time=round(elapsed, 6),
@@ -147,8 +175,14 @@ class BarnReferee:
 
 
 def mission_text(world_file: Path, seed: int, output: Path) -> str:
-    """A BARN world as a mission (YAML): the protocol's start, goal, robot and no map."""
+    """A BARN world as a mission (YAML): the protocol's start, goal, robot and no map.
+
+    The robot is sent to the goal once, as ``run.py`` sends move_base its goal; whatever
+    navigation reports (arrived by its odometry, or gave up), the robot then stands and
+    the referee's clock decides, as BARN's does (a robot that stopped short is a
+    timeout)."""
     yaw = repr(START[2])
+    goal = f"{{x: {GOAL[0]!r}, y: {GOAL[1]!r}, yaw: {yaw}}}"
     return (
         f"name: barn_{world_file.stem}\n"
         f"world: {_quoted(world_file)}\n"
@@ -158,8 +192,12 @@ def mission_text(world_file: Path, seed: int, output: Path) -> str:
         f"seed: {int(seed)}\n"
         "stack:\n"
         "  localization: {type: odometry}\n"
-        "tasks:\n"
-        f"  - {{type: go_to, pose: {{x: {GOAL[0]!r}, y: {GOAL[1]!r}, yaw: {yaw}}}}}\n"
+        "tree:\n"
+        "  type: sequence\n"
+        "  name: barn\n"
+        "  children:\n"
+        f"    - {{type: force_success, child: {{type: go_to, pose: {goal}}}}}\n"
+        f"    - {{type: wait, name: {STAND}, seconds: {MISSION_TIME!r}}}\n"
         f"limits: {{time: {MISSION_TIME!r}, collisions: 0}}\n"
         f"output: {_quoted(output)}\n"
     )

@@ -348,14 +348,14 @@ def tuned_for_speed(
     leaves them unset: a robot that needs ``d`` metres to stop from full speed (braking at
     half its deceleration, as the MPC's reference does) checks its path for new obstacles
     ``2 d`` ahead, marks what its lidar sees up to ``2 d + 1`` m (within its range) and
-    hands the controller the points within ``d``. A TurtleBot3 (d < 3 cm) keeps the
+    hands the controller the points within ``d + 1`` m. A TurtleBot3 (d < 3 cm) keeps the
     defaults; a Jackal at 2 m/s (d = 2 m) replans 4 m ahead on 5 m of marks."""
     d = robot.max_linear_velocity**2 / robot.max_linear_acceleration
     nav: dict[str, float] = {}
     if "blocked_lookahead" not in navigation.model_fields_set:
         nav["blocked_lookahead"] = max(navigation.blocked_lookahead, 2.0 * d)
     if "obstacle_range" not in navigation.model_fields_set:
-        nav["obstacle_range"] = max(navigation.obstacle_range, d)
+        nav["obstacle_range"] = max(navigation.obstacle_range, d + 1.0)
     layer: dict[str, float] = {}
     if "max_range" not in obstacles.model_fields_set:
         layer["max_range"] = max(obstacles.max_range, min(robot.lidar.range_max, 2.0 * d + 1.0))

@@ -19,8 +19,10 @@ import numpy as np
 from agv_mission.geometry import Footprint, Pose2D, wrap_angle
 from agv_mission.planners.base import VelocityCommand, VelocityLimits
 from agv_mission.planners.configs import MpcConfig
+from agv_mission.planners.free_corridor import free_distance
 from agv_mission.planners.mpc_problem import NU, NX, MpcProblem, RtiStep, mpc_problem
 from agv_mission.planners.path_follower import PathFollower, PathStep
+from agv_mission.planners.path_tracking import ReferenceProfile
 
 _FAR = 50.0  # where unused obstacle slots are parked (robot frame, metres)
 
@@ -71,6 +73,11 @@ class MpcController(PathFollower):
             footprint.discs() if footprint is not None else ((0.0,), robot_radius)
         )
         self._problem = pb = mpc_problem(config.model_dump_json(), limits, self.discs)
+        # a robot that cannot stop within its safety margin watches the way ahead
+        margin = config.safety_margin
+        self._fast = limits.max_v**2 > 2.0 * limits.max_acc_v * margin
+        self._half_width = footprint.half_width if footprint is not None else robot_radius
+        self._front = footprint.front if footprint is not None else robot_radius
         self._rti = RtiStep(pb.rti_fn) if pb.kind == "rti" else None
         # The parameter vector, filled in place (the RTI's own argument buffer) through
         # views of its reference (N+1, 4) and obstacle (N-1, m, 2) parts.
@@ -92,6 +99,26 @@ class MpcController(PathFollower):
         self._final_turn_done = False
 
     # -- helpers -----------------------------------------------------------------------
+
+    def _seen_free(self, step: PathStep, profile: ReferenceProfile) -> float:
+        """The arclength the robot's origin must stop at: where the corridor its body
+        sweeps along the path is on an obstacle point or hidden behind one, less its
+        front and the safety margin (inf: free as far as it could need)."""
+        cfg, lim = self.config, self.limits
+        dec = cfg.decel_fraction * lim.max_acc_v
+        reach = lim.max_v**2 / (2.0 * dec) + self._front + cfg.safety_margin + 0.3
+        spacing = 0.1
+        n = int(min(reach, step.total - step.s) / spacing)
+        if n < 1 or step.obstacles is None or not len(step.obstacles):
+            return math.inf
+        samples = np.array([profile.point(step.s + spacing * (k + 1))[0:2] for k in range(n)])
+        pose = step.pose
+        free = free_distance(
+            samples, spacing, (pose.x, pose.y), step.obstacles, self._half_width + cfg.safety_margin
+        )
+        if free >= n * spacing:
+            return math.inf
+        return step.s + free - self._front - cfg.safety_margin
 
     def _disc_centres(self, states: np.ndarray) -> np.ndarray:
         """The discs' centres at the guessed ``states`` (rows x, y, theta, ...): one row
@@ -319,8 +346,10 @@ class MpcController(PathFollower):
             ref[:, 3] = 0.0
             speed_weight, heading_weight, position_weight = cfg.rotate_speed_weight, 1.0, 1.0
         else:
-            # Arclengths at the speed profile, in the robot frame.
-            s_ref, v_ref = profile.sample(s0, v0, pb.n, cfg.dt)
+            # Arclengths at the speed profile, in the robot frame; a fast robot stops
+            # within the stretch of path its lidar has seen free.
+            stop_at = self._seen_free(step, profile) if self._fast else math.inf
+            s_ref, v_ref = profile.sample(s0, v0, pb.n, cfg.dt, stop_at)
             self._p[pb.p_ref] = profile.in_frame(s_ref, v_ref, pose)
             # Path heading and speed stop mattering at the goal (the navigator turns in
             # place there): fading them lets the position terms remove a last offset.

@@ -177,3 +177,83 @@ def test_mpc_keeps_the_jackals_box_clear_through_a_gap_its_circle_does_not_fit()
         nearest = min(nearest, float(shapely.distance(shapely.points(pillars), placed).min()))
     assert pose.x > 4.0  # through the gap
     assert nearest > 0.0  # never touched a pillar
+
+
+# -- navigation at speed ---------------------------------------------------------------
+
+
+def test_free_distance_stops_at_a_point_on_the_corridor_and_behind_an_occluder() -> None:
+    from agv_mission.planners.free_corridor import free_distance
+
+    samples = np.column_stack([np.arange(1, 31) * 0.1, np.zeros(30)])  # 0.1 .. 3.0 m ahead
+    half = 0.265
+    assert free_distance(samples, 0.1, (0.0, 0.0), np.zeros((0, 2)), half) == pytest.approx(3.0)
+    # a return on the way 1.5 m ahead: free up to the sample before it reaches it
+    on_path = np.array([[1.5, 0.1]])
+    assert free_distance(samples, 0.1, (0.0, 0.0), on_path, half) == pytest.approx(1.2)
+    # round a bend (1 m ahead, then left), a pillar by the inner corner hides the way on
+    s = np.arange(1, 31) * 0.1
+    bend = np.column_stack([np.minimum(s, 1.0), np.maximum(s - 1.0, 0.0)])
+    a = np.linspace(0.0, 2 * math.pi, 36, endpoint=False)
+    pillar = np.column_stack([0.6 + 0.075 * np.cos(a), 0.45 + 0.075 * np.sin(a)])
+    hidden = free_distance(bend, 0.1, (0.0, 0.0), pillar, half)
+    assert 1.0 <= hidden < 2.0
+    assert free_distance(bend, 0.1, (0.0, 0.0), np.zeros((0, 2)), half) == pytest.approx(3.0)
+
+
+def test_the_reference_stands_where_it_must_stop() -> None:
+    from agv_mission.planners.path_tracking import ReferenceProfile
+
+    path = np.array([[0.0, 0.0], [10.0, 0.0]])
+    profile = ReferenceProfile(path, np.array([0.0, 10.0]), 2.0, 4.0, 2.0, 1.0)
+    s, v = profile.sample(0.0, 1.0, 30, 0.1, stop_at=1.5)
+    assert max(s) <= 1.5 + 0.01 and v[-1] == pytest.approx(0.0, abs=0.05)  # to a step
+    # too close to stop at the reference's braking: it brakes from the first step (the
+    # MPC itself may brake harder, to its acceleration limit)
+    s, v = profile.sample(0.0, 2.0, 30, 0.1, stop_at=1.5)
+    assert all(b <= a for a, b in zip(v, v[1:], strict=False)) and v[1] < 2.0
+    free_s, free_v = profile.sample(0.0, 2.0, 30, 0.1)
+    assert free_s[-1] > 5.0 and min(free_v) == pytest.approx(2.0)
+
+
+def test_a_fast_robot_looks_further_ahead_a_turtlebot_as_before() -> None:
+    from agv_mission.maps.costmap import ObstacleLayerConfig
+    from agv_mission.missions.stack import tuned_for_speed
+    from agv_mission.navigation.config import NavigationConfig
+
+    nav, layer = NavigationConfig(), ObstacleLayerConfig()
+    fast_nav, fast_layer = tuned_for_speed(JACKAL, nav, layer)
+    assert fast_nav.blocked_lookahead == pytest.approx(4.0)  # twice its 2 m to stop
+    assert fast_layer.max_range == pytest.approx(5.0) and fast_layer.raytrace_range >= 5.5
+    for name in ("burger", "waffle"):
+        assert tuned_for_speed(BUILTIN_ROBOTS[name], nav, layer) == (nav, layer)
+    # what the mission sets stands
+    mine = NavigationConfig(blocked_lookahead=1.0)
+    assert tuned_for_speed(JACKAL, mine, layer)[0].blocked_lookahead == 1.0
+
+
+@pytest.mark.slow
+def test_a_jackal_crosses_pillars_it_cannot_see_past_at_speed(tmp_path: Path) -> None:
+    """map: none, a pillar hidden behind another on the straight line to the goal (as in
+    BARN's world 260, which a Jackal at full speed hit): it gets there untouched."""
+    from agv_mission.missions.loader import load_mission
+    from agv_mission.missions.runner import run_mission
+
+    pillars = [(0.45, 2.0), (-0.45, 2.0), (0.0, 3.2), (0.3, 4.4), (-0.55, 4.4), (0.0, 5.6)]
+    world = tmp_path / "pillars.yaml"
+    world.write_text(
+        "spawn: {x: 0.0, y: 0.0, yaw: 1.5708}\n"
+        "bounds: {xmin: -3, xmax: 3, ymin: -1, ymax: 9}\ncylinders:\n"
+        + "".join(f"  - {{x: {x}, y: {y}, radius: 0.075}}\n" for x, y in pillars)
+    )
+    mission = tmp_path / "m.yaml"
+    mission.write_text(
+        "world: pillars.yaml\nmap: none\nrobot: jackal\nseed: 2\n"
+        "start: {x: 0.0, y: 0.0, yaw: 1.5708}\n"
+        "tasks:\n  - {type: go_to, pose: {x: 0.0, y: 8.0, yaw: 1.5708}}\n"
+        "limits: {time: 60.0}\noutput: {bag: false}\n"
+    )
+    record = run_mission(load_mission(mission))
+    assert record.status == "succeeded", record.reason
+    assert record.metrics["collisions"] == 0 and record.metrics["min_clearance"] > 0.0
+    assert record.trajectory[:, 7].max() > 1.0  # it drove fast where it could

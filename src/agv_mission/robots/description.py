@@ -386,9 +386,9 @@ BUILTIN_ROBOTS: dict[str, RobotDescription] = {
         max_linear_acceleration=2.0,
         max_angular_acceleration=8.0,
         mass=17.0,
-        # 78,000 quadrature pulses per metre (datasheet); skid steering on four wheels
-        # slips more than a TurtleBot3's two (our estimate: twice its slip and noise).
-        encoder=EncoderSpec(ticks_per_meter=78000.0, noise=0.01, slip=0.01, scale_error=0.002),
+        # 78,000 quadrature pulses per metre (datasheet); Clearpath publishes no error
+        # figures: the TurtleBot3's (BARN's Jackal fuses its wheels with its IMU's gyro).
+        encoder=EncoderSpec(ticks_per_meter=78000.0, **TB3_ENCODER),
         # On the front mount (0.12 m ahead of the mid mount) moved by BARN's
         # JACKAL_LASER_OFFSET "-0.065 0 0.01": 0.055 m ahead of the origin.
         lidar=LidarSpec(height=0.29, mount=LidarMount(x=0.055), **UST_10LX),

@@ -257,3 +257,13 @@ def test_a_jackal_crosses_pillars_it_cannot_see_past_at_speed(tmp_path: Path) ->
     assert record.status == "succeeded", record.reason
     assert record.metrics["collisions"] == 0 and record.metrics["min_clearance"] > 0.0
     assert record.trajectory[:, 7].max() > 1.0  # it drove fast where it could
+
+
+def test_the_vda5050_factsheet_gives_the_polygon() -> None:
+    from agv_mission.vda5050.factsheet import factsheet_body
+
+    def envelope(robot: RobotDescription) -> list[dict]:
+        return factsheet_body(robot, 1.0, 1.0)["agvGeometry"]["envelopes2d"][0]["polygonPoints"]
+
+    assert [(p["x"], p["y"]) for p in envelope(JACKAL)] == [tuple(p) for p in JACKAL.footprint]
+    assert len(envelope(BUILTIN_ROBOTS["burger"])) == 8  # a round robot: its octagon

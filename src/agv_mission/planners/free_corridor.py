@@ -25,8 +25,8 @@ def free_distance(
 ) -> float:
     """Arclength along a path sampled every ``step`` from ``step`` on (``samples``, (n, 2),
     map frame) to the last sample before the corridor of ``half_width`` on each side holds
-    an obstacle point or is hidden from the lidar at ``origin`` by one (all n free: n
-    steps)."""
+    an obstacle point, or its middle half is hidden from the lidar at ``origin`` by one
+    (all n free: n steps)."""
     n = len(samples)
     if not len(points) or not n:
         return n * step
@@ -37,9 +37,11 @@ def free_distance(
     norm = np.maximum(np.hypot(tx, ty), 1e-9)
     nx, ny = -ty / norm, tx / norm
     pts = np.asarray(points, dtype=float).reshape(-1, 2)
-    # each sample: its centre and both edges of the corridor, relative to the lidar
-    qx = np.stack([x, x + half_width * nx, x - half_width * nx], axis=1) - origin[0]
-    qy = np.stack([y, y + half_width * ny, y - half_width * ny], axis=1) - origin[1]
+    # each sample: its centre and halfway to both edges, relative to the lidar (a ray
+    # grazing a return by the corridor's edge hides no obstacle that could reach in far)
+    w = 0.5 * half_width
+    qx = np.stack([x, x + w * nx, x - w * nx], axis=1) - origin[0]
+    qy = np.stack([y, y + w * ny, y - w * ny], axis=1) - origin[1]
     px, py = pts[:, 0] - origin[0], pts[:, 1] - origin[1]
     # on an obstacle: a point within the corridor's half-width of the sample
     d2 = (x[:, None] - pts[None, :, 0]) ** 2 + (y[:, None] - pts[None, :, 1]) ** 2

@@ -108,7 +108,7 @@ def tables(values: dict[str, float]) -> list[Table]:
     """The README's table: each stack beside BARN's DWA baseline."""
     if not values.get("barn.available"):
         return []
-    table = Table(title="BARN, 300 public worlds", header_style="bold")
+    table = Table(title="BARN's public worlds", header_style="bold")
     for column in ("stack", "worlds", "success", "collisions", "timeouts", "mean time s"):
         table.add_column(column, justify="right")
     table.add_column("mean metric", justify="right")

@@ -4,7 +4,7 @@
 The worlds are read from a clone of ``Daffan/the-barn-challenge`` (MIT licence): its root or
 its ``jackal_helper/worlds/BARN`` folder, named by the environment variable
 ``AGV_MISSION_BARN`` or the first argument (``python benchmarks/bench_barn.py DIR``).
-Without it the module reports ``barn.available = 0`` and nothing else.
+Without it the module reports ``barn.available = 0`` and the DWA baseline only.
 ``AGV_MISSION_BARN_WORLDS`` (e.g. ``0-19``) runs a subset, for a quick look; the keys then
 say how many worlds ran (``barn.<stack>.worlds``).
 
@@ -95,7 +95,7 @@ def run(argument: str | None = None) -> dict[str, float]:
             "  BARN not available: set AGV_MISSION_BARN to a clone of "
             "Daffan/the-barn-challenge (or its jackal_helper/worlds/BARN)"
         )
-        return {"barn.available": 0.0}
+        return {"barn.available": 0.0, **{f"barn.dwa.{k}": v for k, v in DWA_BASELINE.items()}}
     results: dict[str, float] = {"barn.available": 1.0}
     with tempfile.TemporaryDirectory() as tmp:
         for name, extra in STACKS.items():
@@ -108,7 +108,7 @@ def tables(values: dict[str, float]) -> list[Table]:
     """The README's table: each stack beside BARN's DWA baseline."""
     if not values.get("barn.available"):
         return []
-    table = Table(title="BARN, 300 public worlds", header_style="bold")
+    table = Table(title="BARN's public worlds", header_style="bold")
     for column in ("stack", "worlds", "success", "collisions", "timeouts", "mean time s"):
         table.add_column(column, justify="right")
     table.add_column("mean metric", justify="right")

@@ -32,6 +32,7 @@ MODULES = [
     "bench_amcl",
     "bench_slam",
     "bench_localization",
+    "bench_imu",
     "bench_mission",
     "bench_breakdown",
     "bench_regress",

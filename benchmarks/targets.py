@@ -80,6 +80,19 @@ TARGETS = {
     # issue 25: 50 people in the warehouse add at most 25 % to a one-robot run (the default
     # stack's run; people.ground_truth.n50.cost_ratio is reported beside it)
     "people.n50.cost_ratio": ("<=", 1.25),
+    # issue 32: the IMU; Nav2's depot, burger; an honest covariance on the demo and real maps
+    **{
+        f"imu.depot_{route}.amcl.imu.{name}": bound
+        for route in ("columns", "open")
+        for name, bound in (("rmse_m", ("<=", 0.08)), ("max_error_m", ("<=", 0.25)))
+    },
+    **{f"imu.depot_{route}.odometry.imu.rmse_m": ("<=", 1.0) for route in ("columns", "open")},
+    "imu.demo_real_time_factor.imu": (">=", 100.0),
+    **{
+        f"imu.consistency.{case}.after.{name}": bound
+        for case in ("demo", "ros_turtlebot3_world", "ros_aws_small_house")
+        for name, bound in (("inside_2sigma", (">=", 0.9)), ("radius_over_error", ("<=", 5.0)))
+    },
     # issue 33: BARN's 300 public worlds (read from AGV_MISSION_BARN), default stack
     "barn.default.success_rate": (">=", 0.95),
     "barn.default.collision_rate": ("<=", 0.02),

@@ -37,6 +37,7 @@ CONTRACT = {
     "/rooms": "visualization_msgs/msg/MarkerArray",
     "/events": "std_msgs/msg/String",
     "/battery_state": "sensor_msgs/msg/BatteryState",  # behaviour-trees.md
+    "/imu": "sensor_msgs/msg/Imu",  # robots-and-worlds.md (a robot with an IMU)
 }
 
 

@@ -21,7 +21,7 @@ import yaml
 
 from agv_mission.missions.errors import MissionError
 from agv_mission.vda5050.master import Master, load_plan
-from agv_mission.vda5050.messages import ANGLE_BOUND
+from agv_mission.vda5050.protocol import ANGLE_BOUND
 from agv_mission.vda5050.transport import BrokerUrl
 from test_vda5050_vehicle import MAP, SERIAL, errors_of, here, mission_file, start_vehicle
 from vda5050_peers import MiniMaster, MiniVehicle, Mosquitto, action, edge, node
@@ -383,7 +383,7 @@ def test_our_master_docks_charges_and_undocks_our_vehicle(tmp_path: Path) -> Non
     """The whole dock / charge / undock of a mission, with a goal written ``yaw: 3.1416``,
     through our master to our simulated vehicle: the charge rises to ``until``, and the
     vehicle leaves the dock uncharged."""
-    from agv_mission.vda5050.fleet import VehicleSet, load_vehicles
+    from agv_mission.vda5050.vehicle_set import VehicleSet, load_vehicles
     from agv_mission.vda5050.transport import EmbeddedBroker, free_port
 
     mission = {

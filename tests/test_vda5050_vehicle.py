@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 from agv_mission.vda5050.body import VehicleWorld
-from agv_mission.vda5050.fleet import load_vehicles
+from agv_mission.vda5050.vehicle_set import load_vehicles
 from agv_mission.vda5050.transport import BrokerUrl, EmbeddedBroker, free_port
 from agv_mission.vda5050.vehicle import Vehicle
 from vda5050_peers import MiniMaster, Mosquitto, action, edge, node

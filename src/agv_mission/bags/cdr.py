@@ -59,6 +59,9 @@ class CdrWriter:
         self.buf += data
 
 
+#: m/s^2: what an accelerometer at rest on a level floor reads upwards (REP 145: an IMU
+#: reports the specific force, gravity included).
+STANDARD_GRAVITY = 9.80665
 _ENCAPSULATION = b"\x00\x01\x00\x00"
 _NO_COVARIANCE = (0.0,) * 36
 
@@ -181,6 +184,27 @@ def odometry_cdr(
         return _odometry_layout(frame, child, False).pack(sec_nsec(t), _pose7(p), twist)
     layout = _odometry_layout(frame, child, True)
     return layout.pack(sec_nsec(t), _pose7(p) + _covariance36(cov3) + twist)
+
+
+@cache
+def _imu_layout(frame: str) -> FixedCdr:
+    # orientation, its covariance, angular velocity, its covariance, linear acceleration
+    # and its covariance
+    return FixedCdr([("time",), ("string", frame), ("f64", 4 + 9 + 3 + 9 + 3 + 9)])
+
+
+def imu_cdr(
+    t: float, frame: str, gz: float, ax: float, ay: float, gyro_var: float, accel_var: float
+) -> bytes:
+    """``sensor_msgs/Imu`` of a planar IMU: no orientation estimate (its covariance's first
+    element -1, REP 145), the z rate, the x, y acceleration and gravity on z."""
+    g, a = gyro_var, accel_var
+    values = (
+        (0.0, 0.0, 0.0, 1.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        + (0.0, 0.0, gz, g, 0.0, 0.0, 0.0, g, 0.0, 0.0, 0.0, g)
+        + (ax, ay, STANDARD_GRAVITY, a, 0.0, 0.0, 0.0, a, 0.0, 0.0, 0.0, a)
+    )
+    return _imu_layout(frame).pack(sec_nsec(t), values)
 
 
 @cache

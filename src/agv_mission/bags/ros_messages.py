@@ -30,6 +30,7 @@ PATH = "nav_msgs/msg/Path"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 STRING = "std_msgs/msg/String"
 BATTERY_STATE = "sensor_msgs/msg/BatteryState"
+IMU = "sensor_msgs/msg/Imu"
 
 # sensor_msgs/BatteryState constants
 POWER_SUPPLY_STATUS_CHARGING, POWER_SUPPLY_STATUS_DISCHARGING = 1, 2
@@ -127,6 +128,24 @@ def odometry(
         twist=types["geometry_msgs/msg/TwistWithCovariance"](
             twist=twist(v, w), covariance=np.zeros(36, dtype=np.float64)
         ),
+    )
+
+
+def imu(
+    t: float, frame: str, gz: float, ax: float, ay: float, gyro_var: float, accel_var: float
+) -> Any:
+    """``sensor_msgs/Imu`` of a planar IMU (see :func:`agv_mission.bags.cdr.imu_cdr`)."""
+    types = typestore().types
+    no_orientation = np.zeros(9)
+    no_orientation[0] = -1.0
+    return types[IMU](
+        header=header(t, frame),
+        orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+        orientation_covariance=no_orientation,
+        angular_velocity=_vector(0.0, 0.0, gz),
+        angular_velocity_covariance=np.diag([gyro_var] * 3).ravel(),
+        linear_acceleration=_vector(ax, ay, 9.80665),
+        linear_acceleration_covariance=np.diag([accel_var] * 3).ravel(),
     )
 
 

@@ -70,6 +70,7 @@ TOPICS: dict[str, tuple[str, bool]] = {
     "/rooms": (rm.MARKER_ARRAY, True),
     "/events": (rm.STRING, False),
     "/battery_state": (rm.BATTERY_STATE, False),
+    "/imu": (rm.IMU, False),  # robots-and-worlds.md: a robot with an IMU only
 }
 
 #: The people of the world (people-and-zones.md), a cylinder each, every PEOPLE_PERIOD.
@@ -111,6 +112,7 @@ class _RobotBag:
     scan_frame: str
     scan_time: float
     battery: Any  # the robot's BatterySpec, None: not modelled
+    imu: Any  # the robot's ImuSpec, None: no IMU
     next_battery: float = 0.0
     charging: bool = False
     next_particles: float = 0.0
@@ -131,6 +133,7 @@ class _RobotBag:
             scan_frame=robot_frame(SCAN_FRAME, ns),
             scan_time=1.0 / float(start.robot.lidar.rate),
             battery=start.robot.battery,
+            imu=start.robot.imu,
         )
 
 
@@ -233,7 +236,11 @@ class BagWriter:
             names = (
                 [topic]
                 if topic in SHARED_TOPICS
-                else [bag.topics[topic] for bag in self._robots.values()]
+                else [
+                    bag.topics[topic]
+                    for bag in self._robots.values()
+                    if topic != "/imu" or bag.imu is not None
+                ]
             )
             for name in names:
                 self._connect(name, *TOPICS[topic])
@@ -274,6 +281,9 @@ class BagWriter:
                 float(scan.time),
                 cdr.laser_scan_cdr(scan, bag.scan_frame, bag.scan_time),
             )
+        if bag.imu is not None:
+            for batch in sample.imu:
+                self._write_imu(topic["/imu"], bag, batch)
         if self._clock is None or t > self._clock:  # once per step, however many robots
             self._clock = t
             raw("/clock", t, cdr.clock_cdr(t))
@@ -339,6 +349,23 @@ class BagWriter:
 
     def on_end(self, record: Any) -> None:
         self.close()
+
+    def _write_imu(self, name: str, bag: _RobotBag, batch: Any) -> None:
+        """``sensor_msgs/Imu`` per sample, in the base frame: no orientation (covariance
+        -1, as a raw IMU publishes), the gyro's z rate, the accelerometer's x, y and
+        gravity, each with its per-sample noise variance."""
+        spec = bag.imu
+        rate = 1.0 / batch.period
+        gyro_var = spec.gyro_noise_density**2 * rate
+        accel_var = spec.accel_noise_density**2 * rate
+        write = self._writer.write  # type: ignore[union-attr]
+        conn = self._conns[name]
+        frame = bag.base_frame
+        for t, gz, (ax, ay) in zip(
+            batch.times.tolist(), batch.gyro.tolist(), batch.accel.tolist(), strict=True
+        ):
+            write(conn, rm.nanoseconds(t), cdr.imu_cdr(t, frame, gz, ax, ay, gyro_var, accel_var))
+        self.messages += len(batch.times)
 
     def _flush_map(self, bag: _RobotBag) -> None:
         assert bag.pending_map is not None

@@ -16,6 +16,7 @@ import tarfile
 import tempfile
 import time
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -99,9 +100,14 @@ def plan_worlds(root: Path, selection: str | None = None) -> BarnPlan:
 
 
 def world_jobs(
-    plan: BarnPlan, overrides: list[str], seed: int, output_root: Path
+    plan: BarnPlan,
+    overrides: list[str],
+    seed: int,
+    output_root: Path,
+    observers: Callable[[Any], list[Any]] | None = None,
 ) -> list[dict[str, Any]]:
-    """One job a world."""
+    """One job a world; ``observers`` (module level: a worker receives it by name) gives
+    each run what the front door adds to a run, e.g. its bag writer."""
     return [
         {
             "world": k,
@@ -110,6 +116,7 @@ def world_jobs(
             "overrides": list(overrides),
             "seed": seed,
             "output_root": str(output_root.resolve()),
+            "observers": observers,
         }
         for k in sorted(plan.worlds)
     ]
@@ -128,7 +135,6 @@ def load_world_mission(job: dict[str, Any], world_file: Path | None = None) -> A
 def run_world(job: dict[str, Any], stop: Any = None) -> dict[str, Any]:
     """Run one world into ``OUTPUT/world_K/``; barn.md's entry for it, never raising (an
     error is a ``failed`` world with ``error`` set)."""
-    from agv_mission.bags.writer import BagWriter
     from agv_mission.missions.errors import MissionError
     from agv_mission.missions.outputs import write_mission, write_run
     from agv_mission.missions.runner import run_mission
@@ -148,7 +154,7 @@ def run_world(job: dict[str, Any], stop: Any = None) -> dict[str, Any]:
         run_dir.mkdir(parents=True, exist_ok=False)
         write_mission(run_dir, loaded)
         referee = BarnReferee(stop)
-        observers = [BagWriter().prepare()] if loaded.mission.output.bag else []
+        observers = job["observers"](loaded) if job.get("observers") else []
         record = run_mission(loaded, run_dir, control=referee, observers=observers)
         result = write_run(run_dir, loaded, record)
         outcome = referee.outcome(

@@ -13,6 +13,7 @@ from rich.console import Console
 from rich.table import Table
 
 from agv_mission.cli.console import Overrides, err, failure, invalid, out, progress_bar
+from agv_mission.cli.service import run_observers
 from agv_mission.missions.errors import MissionError
 
 
@@ -56,7 +57,7 @@ def barn(
     root = output if output is not None else Path("runs") / f"barn-{stamp}"
     try:
         plan = suite.plan_worlds(directory, worlds)
-        jobs = suite.world_jobs(plan, list(set_), seed, root)
+        jobs = suite.world_jobs(plan, list(set_), seed, root, run_observers)
         pool.warm_up(backend, min(n_workers, len(jobs)))  # imports while we check
         suite.load_world_mission(jobs[0])  # --set and the first world checked here
         root.mkdir(parents=True, exist_ok=True)

@@ -78,7 +78,7 @@ def vehicles(
     seed: Seed = None,
 ) -> None:
     """Every robot of MISSION as a VDA 5050 vehicle, until Ctrl-C or SIGTERM."""
-    from agv_mission.vda5050.fleet import VehicleSet, load_vehicles
+    from agv_mission.vda5050.vehicle_set import VehicleSet, load_vehicles
 
     try:
         fleet_mission = load_vehicles(mission, set_, seed)

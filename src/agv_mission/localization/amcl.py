@@ -122,6 +122,7 @@ class AmclLocalizer:
                     noise_yaw_per_m=c.refine_noise_yaw_per_m,
                     map_error_scale=c.refine_map_error_scale,
                     map_error_lever=c.refine_map_error_lever,
+                    split_scale=c.refine_split_scale,
                     adaptive_noise=c.refine_adaptive_noise,
                 ),
             )

@@ -138,7 +138,7 @@ class AmclConfig(PluginConfig):
     refine_min_beams: int = Field(20, ge=3)
     refine_max_beams: int = Field(360, ge=3)
     refine_floor_xy: float = Field(
-        0.01, gt=0, description="m: no single scan pins x or y tighter (beams correlate)"
+        0.003, gt=0, description="m: no single scan pins x or y tighter (beams correlate)"
     )
     refine_floor_yaw: float = Field(0.005, gt=0, description="rad: the same for yaw")
     refine_noise_along: float = Field(
@@ -149,6 +149,13 @@ class AmclConfig(PluginConfig):
     refine_noise_yaw_per_m: float = Field(0.01, ge=0, description="rad sd after 1 m driven")
     refine_map_error_scale: float = Field(
         1.0, ge=0, description="covariance floor: x, y sd = this times the fit's residual RMS"
+    )
+    refine_split_scale: float = Field(
+        1.85,
+        ge=0,
+        description="> 0: the covariance floor is this times the pose spread implied by the "
+        "disagreement of the scan's two halves (the map's own error where the robot is); "
+        "0: refine_map_error_scale times the fit's residual RMS",
     )
     refine_map_error_lever: float = Field(
         2.0, gt=0, description="m: the yaw sd floor is the x, y floor over this"

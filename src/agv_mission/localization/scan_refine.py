@@ -73,6 +73,15 @@ class RefineParams:
     # ``map_error_scale`` in x and y, divided by ``map_error_lever`` (m) for the yaw.
     map_error_scale: float = 1.0
     map_error_lever: float = 2.0
+    # Or (> 0) the floor from how far the scan's two halves (left and right of the robot)
+    # disagree on the pose: each half solved alone at the fit, their difference smoothed
+    # over scans, this many times the spread it implies for the whole scan's pose. Where
+    # the map is the world (a surveyed map, the world's own grid) the halves agree to
+    # millimetres, where its walls are drawn off (a rasterised curve, a SLAM map's blur)
+    # they disagree by as much: the floor follows the error the map makes, not the
+    # lidar's noise (which the residual RMS mostly is). 0: the residual RMS floor.
+    split_scale: float = 0.0
+    split_min: float = 0.0015  # m, the floor's least x, y standard deviation
     # The walls' faces as the lidar sees them, relative to the map's cell faces: the median
     # signed distance of the fitting end points, smoothed at this rate over accepted scans
     # (within half a cell; 0 disables). A map that marks every cell a wall touches (a
@@ -129,6 +138,7 @@ class PoseTracker:
         self.active = False
         self.last: Correction | None = None
         self.fit_rms = math.nan  # smoothed residual RMS of the accepted scans, m
+        self.split_cov = np.full((3, 3), math.nan)  # smoothed half-scan disagreement
         self.wall_offset = 0.0  # m, where the scans see the walls' faces (see RefineParams)
         self.noise_scale = 1.0  # adaptive factor on the odometry noise (see correct)
         self._floor = np.array([self.params.floor_xy, self.params.floor_xy, self.params.floor_yaw])
@@ -286,13 +296,40 @@ class PoseTracker:
                 limit = 0.5 * self.sdf.resolution
                 moved = self.wall_offset + p.wall_offset_rate * step
                 self.wall_offset = max(-limit, min(limit, moved))
-            err = p.map_error_scale * self.fit_rms
-            cov = floor_covariance(cov, np.array([err, err, err / p.map_error_lever]))
+            if p.split_scale > 0.0:
+                cov = floor_covariance(cov, self._split_floor(system, w, w_beam))
+            else:
+                err = p.map_error_scale * self.fit_rms
+                cov = floor_covariance(cov, np.array([err, err, err / p.map_error_lever]))
         out = Correction(accepted, x, cov, len(pts), inlier, rms, iterations)
         if accepted and commit:
             self.mean, self.cov = x, cov
         self.last = out
         return out
+
+    def _split_floor(self, system: np.ndarray, w: np.ndarray, w_beam: float) -> np.ndarray:
+        """The covariance floor (x, y, yaw standard deviations) from the disagreement of
+        the scan's two halves (see RefineParams.split_scale), smoothed over scans."""
+        p = self.params
+        n = system.shape[1]
+        steps = []
+        weak = np.diag([1.0 / 0.05**2, 1.0 / 0.05**2, 1.0 / 0.05**2])  # a half blind along
+        for part in (slice(0, n // 2), slice(n // 2, n)):
+            rows = system[:, part]
+            normal = (rows * w[part]) @ rows.T
+            normal *= w_beam
+            steps.append(np.linalg.solve(normal[:3, :3] + weak, normal[:3, 3]))
+        d = steps[0] - steps[1]
+        d[2] = wrap_angle(float(d[2]))
+        spread = np.outer(d, d) / 4.0  # the whole scan's error: half the halves' difference
+        if np.isfinite(self.split_cov).all():
+            self.split_cov = 0.9 * self.split_cov + 0.1 * spread
+        else:
+            self.split_cov = spread
+        c = self.split_cov
+        sd_xy = max(p.split_scale * math.sqrt(max(c[0, 0], c[1, 1])), p.split_min)
+        sd_yaw = max(p.split_scale * math.sqrt(c[2, 2]), p.split_min / p.map_error_lever)
+        return np.array([sd_xy, sd_xy, sd_yaw])
 
 
 def _median(values: np.ndarray) -> float:

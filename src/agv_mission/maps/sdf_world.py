@@ -38,22 +38,23 @@ from defusedxml import ElementTree as DefusedTree
 from lxml import etree
 
 from agv_mission.atomic import InputFileError, read_input_bytes
-from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
-from agv_mission.maps.rasterize import grid_shape, occupancy_mask
+from agv_mission.maps.sdf_pose import (
+    IDENTITY,
+    Transform,
+    compose,
+    rotation_quaternion,
+    rotation_rpy,
+)
 from agv_mission.maps.worlds import Box, Cylinder
 
 SDF_SUFFIXES = (".world", ".sdf")
 SDF_MAX_BYTES = 32 * 1024 * 1024  # a saved Gazebo world holds each model twice: they grow
 SDF_VERSIONS = ("1.4", "1.5", "1.6", "1.7", "1.8", "1.9")
-MAP_MARGIN = 2.0  # m around the geometry's bounds (robots-and-worlds.md)
-MAP_RESOLUTION = 0.05  # m
 UPRIGHT = 1.0 - 1e-6  # |cos| of an axis to the vertical that counts as upright
 MAX_PROBLEMS = 50  # refusals named before the rest are counted
 FLOOR_MODELS = ("ground_plane",)  # model:// names that are the floor
 IGNORED_MODELS = ("sun",)  # model:// names without geometry (Gazebo's light)
 UNSUPPORTED_GEOMETRY = ("mesh", "heightmap", "capsule", "ellipsoid", "polyline", "image")
-
-Transform = tuple[np.ndarray, np.ndarray]  # rotation (3, 3), translation (3,)
 
 
 class SdfError(ValueError):
@@ -75,41 +76,9 @@ class SdfWorld:
     skipped: list[dict[str, Any]] = field(default_factory=list)  # refused, then skipped
     not_cut: list[dict[str, Any]] = field(default_factory=list)  # above or under the scan
 
-    def bounds(self, margin: float = MAP_MARGIN) -> tuple[float, float, float, float]:
-        """The geometry's bounds plus ``margin`` (around the origin for an empty world)."""
-        xs, ys = [], []
-        for b in self.boxes:
-            c, s = abs(math.cos(b.yaw)), abs(math.sin(b.yaw))
-            ex, ey = c * b.half_x + s * b.half_y, s * b.half_x + c * b.half_y
-            xs += [b.x - ex, b.x + ex]
-            ys += [b.y - ey, b.y + ey]
-        for cyl in self.cylinders:
-            xs += [cyl.x - cyl.radius, cyl.x + cyl.radius]
-            ys += [cyl.y - cyl.radius, cyl.y + cyl.radius]
-        if not xs:
-            xs, ys = [0.0], [0.0]
-        return (min(xs) - margin, max(xs) + margin, min(ys) - margin, max(ys) + margin)
-
-    def occupancy(
-        self,
-        bounds: tuple[float, float, float, float] | None = None,
-        resolution: float = MAP_RESOLUTION,
-    ) -> OccupancyGrid:
-        """The world's own map: the bodies rasterised at ``resolution`` over ``bounds``
-        (default: the geometry's + 2 m). A Gazebo world is open floor: every cell no body
-        touches is free."""
-        from agv_mission.geometry import Pose2D
-
-        bounds = bounds or self.bounds()
-        shape = grid_shape(bounds, resolution)
-        origin = Pose2D(float(bounds[0]), float(bounds[2]), 0.0)
-        occupied = occupancy_mask(self.boxes, self.cylinders, shape, resolution, origin)
-        data = np.where(occupied, OCCUPIED, FREE).astype(np.int8)
-        return OccupancyGrid(data, resolution, origin)
-
 
 def is_sdf_path(path: Path) -> bool:
-    return path.suffix.lower() in SDF_SUFFIXES
+    return path.suffix.lower() in SDF_SUFFIXES  # as Gazebo names its worlds
 
 
 def read_sdf_world(path: Path, scan_height: float, skip_unsupported: bool = False) -> SdfWorld:
@@ -171,47 +140,6 @@ def _refuse_entities(path: Path, data: bytes) -> None:
         raise SdfError(problem, [problem]) from None
     except Exception:  # not well-formed: lxml names the line next
         return
-
-
-# --------------------------------------------------------------------------- poses
-
-
-def _rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """SDF's rpy: about fixed x, then y, then z (R = Rz Ry Rx)."""
-    cr, sr, cp, sp, cy, sy = (
-        math.cos(roll),
-        math.sin(roll),
-        math.cos(pitch),
-        math.sin(pitch),
-        math.cos(yaw),
-        math.sin(yaw),
-    )
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
-
-
-def _quaternion_rotation(x: float, y: float, z: float, w: float) -> np.ndarray:
-    n = math.sqrt(x * x + y * y + z * z + w * w)
-    x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-IDENTITY: Transform = (np.eye(3), np.zeros(3))
-
-
-def _compose(a: Transform, b: Transform) -> Transform:
-    return a[0] @ b[0], a[0] @ b[1] + a[1]
 
 
 # --------------------------------------------------------------------------- the reader
@@ -296,12 +224,12 @@ class _Reader:
         if quat:
             if math.sqrt(sum(q * q for q in v[3:])) < 1e-9:
                 raise _Refused(el, "<pose>: a zero quaternion")
-            rotation = _quaternion_rotation(*v[3:])
+            rotation = rotation_quaternion(*v[3:])
         else:
             angles = v[3:]
             if el.get("degrees", "false").strip().lower() in ("true", "1"):
                 angles = [math.radians(a) for a in angles]
-            rotation = _rotation(*angles)
+            rotation = rotation_rpy(*angles)
         return rotation, np.array(v[:3])
 
     # ---------------------------------------------------------------- the document
@@ -423,7 +351,7 @@ class _Reader:
             transform = self.pose(state_pose)
         else:
             own = placed if placed is not None else self.pose(_child(el, "pose"))
-            transform = _compose(parent, own)
+            transform = compose(parent, own)
         scale = _child(state, "scale") if state is not None else None
         if scale is not None and any(
             abs(s - 1.0) > 1e-9 for s in self.number_list(scale, (3,), "<scale>")
@@ -437,12 +365,12 @@ class _Reader:
                 link_transform = self.pose(link_pose)
             else:
                 own = self.pose(_child(link, "pose"), ("", _name(el), "__model__"))
-                link_transform = _compose(transform, own)
+                link_transform = compose(transform, own)
             for collision in _children(link, "collision"):
                 where = f"model {name!r} link {_name(link)!r} collision {_name(collision)!r}"
                 try:
                     own = self.pose(_child(collision, "pose"), ("", _name(link)))
-                    self.collision(collision, _compose(link_transform, own), where)
+                    self.collision(collision, compose(link_transform, own), where)
                 except _Refused as exc:
                     self.refuse(exc, where)
         nested_states = (

@@ -59,7 +59,7 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
 from agv_mission.maps.docks import Dock, DockModel, dock_problem
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
-from agv_mission.maps.rasterize import rasterize
+from agv_mission.maps.rasterize import grid_shape, occupancy_mask, rasterize
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.rooms_file import (
     RoomsFileError,
@@ -76,6 +76,7 @@ from agv_mission.suggest import unknown_key
 SPAWN_CLEARANCE = 0.3  # metres of free space the spawn of a ROS map must have around it
 DEFAULT_RESOLUTION = 0.05
 DEFAULT_MARGIN = 0.5
+SDF_MAP_MARGIN = 2.0  # m around a Gazebo world's bodies (robots-and-worlds.md)
 #: The scan plane a Gazebo world is cut at when no robot says (LidarSpec's default height).
 DEFAULT_SCAN_HEIGHT = 0.17
 
@@ -154,11 +155,29 @@ def world_from_sdf(path: Path, scan_height: float, skip_unsupported: bool = Fals
         name=sdf.name,
         boxes=sdf.boxes,
         cylinders=sdf.cylinders,
-        map=sdf.occupancy(),
+        map=open_floor_map(sdf.boxes, sdf.cylinders),
         spawn=Pose2D(0.0, 0.0, 0.0),
         rooms={},
         wall_height=max(scan_height + 0.3, 0.5),
         imported=imported,
+    )
+
+
+def open_floor_map(
+    boxes: list[Box], cylinders: list[Cylinder], margin: float = SDF_MAP_MARGIN
+) -> OccupancyGrid:
+    """A Gazebo world's own map: its bodies rasterised at :data:`DEFAULT_RESOLUTION` over
+    their bounds plus ``margin`` (around the origin for an empty world). A Gazebo world is
+    open floor: every cell no body touches is free."""
+    if boxes or cylinders:
+        bounds = _geometry_bounds(boxes, cylinders, None, margin)
+    else:
+        bounds = (-margin, margin, -margin, margin)
+    shape = grid_shape(bounds, DEFAULT_RESOLUTION)
+    origin = Pose2D(float(bounds[0]), float(bounds[2]), 0.0)
+    occupied = occupancy_mask(boxes, cylinders, shape, DEFAULT_RESOLUTION, origin)
+    return OccupancyGrid(
+        np.where(occupied, OCCUPIED, FREE).astype(np.int8), DEFAULT_RESOLUTION, origin
     )
 
 
@@ -409,9 +428,9 @@ def _rooms_of(
 
 
 def _geometry_bounds(
-    boxes: list[Box], cylinders: list[Cylinder], spawn: Pose2D, margin: float
+    boxes: list[Box], cylinders: list[Cylinder], spawn: Pose2D | None, margin: float
 ) -> tuple[float, float, float, float]:
-    xs, ys = [spawn.x], [spawn.y]
+    xs, ys = ([spawn.x], [spawn.y]) if spawn is not None else ([], [])
     for b in boxes:
         c, s = abs(math.cos(b.yaw)), abs(math.sin(b.yaw))
         ex, ey = c * b.half_x + s * b.half_y, s * b.half_x + c * b.half_y

@@ -138,6 +138,8 @@ class StepSample:
     # the people in the world, (ids, xy (n, 2), radii) of those present, in the samples of
     # the run's first robot (the world's, not any robot's view); None: a run without people
     people: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    # the IMU's samples since the last step (ImuSamples batches, oldest first); () without one
+    imu: tuple[Any, ...] = ()
 
 
 class RunObserver(Protocol):

@@ -106,4 +106,5 @@ class StepSampler:
             charging=battery is not None and battery.charging,
             docked=handle.docked.name if handle.docked is not None else None,
             robot=run.name,
+            imu=sensing.imu_samples,
         )

@@ -31,12 +31,22 @@ from agv_mission.planners.base import VelocityLimits
 from agv_mission.registry import registry
 from agv_mission.robots.body import hull_top
 from agv_mission.robots.description import RobotDescription
-from agv_mission.robots.odometry import DiffDriveOdometry
+from agv_mission.robots.odometry import DiffDriveOdometry, GyroFusedOdometry
+from agv_mission.robots.sensors import ImuSamples
 from agv_mission.robots.simulation import DiffDriveBody, world_builder
 from agv_mission.world.model import add_people
 from agv_mission.world.simulation import SimulatedWorld
 
 CONTROL_PERIOD = 0.1
+#: amcl's refinement's heading noise when the odometry fuses a MEMS gyro: rad sd after a
+#: radian turned and after a metre driven. The MPU-9250's angle random walk and residual
+#: bias (see robots.description) give ~2e-4 rad per radian turned at 1 rad/s and ~5e-4
+#: rad per metre at 0.2 m/s; these are four to ten times that (the wheels': 0.02, 0.01).
+#: amcl's refinement on a map that is not the world's own: the covariance floor from the
+#: fit's residuals, no scan pinning x or y tighter than 1 cm (AmclConfig's defaults pin a
+#: surveyed map's pose to millimetres).
+MADE_MAP_FLOOR = {"refine_split_scale": 0.0, "refine_floor_xy": 0.01}
+GYRO_HEADING_NOISE = {"refine_noise_turn": 0.002, "refine_noise_yaw_per_m": 0.002}
 
 
 class VelocitySmoother:
@@ -82,6 +92,13 @@ class Sensing:
     scan: LaserScan | None
     truth: Pose2D
     earlier: tuple[Sensing, ...] = ()
+    imu: ImuSamples | None = None  # the IMU's samples since the sensing before
+
+    @property
+    def imu_samples(self) -> tuple[ImuSamples, ...]:
+        """Every IMU sample this step brings, in batches, oldest first."""
+        found = [s.imu for s in self.earlier] + [self.imu]
+        return tuple(batch for batch in found if batch is not None and len(batch))
 
     @property
     def scans(self) -> tuple[LaserScan, ...]:
@@ -115,24 +132,45 @@ class RobotStack:
             np.random.default_rng(s) for s in seeds
         )
         self.sim = DiffDriveBody(
-            world, setup.name, robot, setup.start, loaded.mission.simulation, sim_rng
+            world,
+            setup.name,
+            robot,
+            setup.start,
+            loaded.mission.simulation,
+            sim_rng,
+            imu_rng=np.random.default_rng(seeds[0].spawn(1)[0]),
         )
-        self.odometry = DiffDriveOdometry(robot.encoder.ticks_per_meter, robot.wheel_separation)
+        self.odometry = new_odometry(robot, setup.stack.odometry.imu)
         self.limits = velocity_limits(robot)
         self.smoother = VelocitySmoother(self.limits, CONTROL_PERIOD)
         self.scan_period = 1.0 / robot.lidar.rate
         self.next_scan = 0.0
         self._between: list[Sensing] = []  # scans taken within the last control period
-        self.odom = self.odometry.update(*self.sim.encoder_ticks())
+        self.odom, _ = self._read_odometry()
         self.odom_start = self.odom
         self.localizer: Localizer = self.new_localizer(loaded.map)
         self.localizer.reset(setup.start, self.odom)
 
     def new_localizer(self, grid: OccupancyGrid) -> Localizer:
-        """The robot's localisation plugin on ``grid`` (not yet reset)."""
-        return registry.create(
-            "localization", self.setup.stack.localization, grid=grid, rng=self.loc_rng
-        )
+        """The robot's localisation plugin on ``grid`` (not yet reset).
+
+        On a map that is not the world's own (a mission's ``map:``, a map a map_area task
+        just made) amcl's refinement takes its covariance floor from the fit's residuals
+        (MADE_MAP_FLOOR) unless the mission sets it: such a map may be drawn
+        off by centimetres as a whole, which no scan can see (see AmclConfig). With the
+        gyro in the odometry its heading noise is the gyro's (GYRO_HEADING_NOISE), not the
+        wheels'."""
+        config = self.setup.stack.localization
+        update: dict[str, float] = {}
+        if grid is not self.loaded.world.map:
+            update.update(MADE_MAP_FLOOR)
+        if isinstance(self.odometry, GyroFusedOdometry):
+            update.update(GYRO_HEADING_NOISE)
+        fields, given = type(config).model_fields, config.model_fields_set
+        update = {k: v for k, v in update.items() if k in fields and k not in given}
+        if update:
+            config = config.model_copy(update=update)
+        return registry.create("localization", config, grid=grid, rng=self.loc_rng)
 
     def new_slam(self, bounds: Bounds) -> Slam:
         """The robot's SLAM plugin over ``bounds`` (not yet reset)."""
@@ -169,7 +207,7 @@ class RobotStack:
         scans taken within the last control period (:meth:`scan_steps`)."""
         sim = self.sim
         now = sim.time
-        self.odom = self.odometry.update(*sim.encoder_ticks())
+        self.odom, imu = self._read_odometry()
         scan = None
         if now >= self.next_scan - 1e-9:
             self.next_scan += self.scan_period
@@ -177,7 +215,7 @@ class RobotStack:
             if scan_filter is not None:
                 scan = scan_filter(now, scan)
         earlier, self._between = tuple(self._between), []
-        return Sensing(now, self.odom, scan, sim.true_pose(), earlier)
+        return Sensing(now, self.odom, scan, sim.true_pose(), earlier, imu)
 
     def has_moved(self) -> bool:
         """Whether odometry saw the robot move since the start."""
@@ -211,11 +249,38 @@ class RobotStack:
         the next :meth:`sense`."""
         sim = self.sim
         self.next_scan += self.scan_period
-        odom = self.odometry.update(*sim.encoder_ticks())
+        odom, imu = self._read_odometry()
         scan = sim.scan()
         if scan_filter is not None:
             scan = scan_filter(sim.time, scan)
-        self._between.append(Sensing(sim.time, odom, scan, sim.true_pose()))
+        self._between.append(Sensing(sim.time, odom, scan, sim.true_pose(), (), imu))
+
+    def _read_odometry(self) -> tuple[Pose2D, ImuSamples | None]:
+        """The encoders (and the IMU, when the robot has one) read into the odometry."""
+        sim = self.sim
+        ticks = sim.encoder_ticks()
+        imu = sim.imu_samples()
+        odometry = self.odometry
+        if imu is not None and isinstance(odometry, GyroFusedOdometry):
+            return odometry.update_fused(*ticks, imu.turn, len(imu) * imu.period), imu
+        return odometry.update(*ticks), imu
+
+
+def new_odometry(robot: RobotDescription, use_imu: bool = True) -> DiffDriveOdometry:
+    """The robot's odometry: wheels and gyro fused when it has an IMU and ``use_imu``,
+    else the wheels alone."""
+    enc = robot.encoder
+    if robot.imu is None or not use_imu:
+        return DiffDriveOdometry(enc.ticks_per_meter, robot.wheel_separation)
+    # a wheel's relative travel error: per-read noise, slip (uniform), scale error
+    wheel_noise = math.sqrt(enc.noise**2 + enc.slip**2 / 3.0 + enc.scale_error**2)
+    return GyroFusedOdometry(
+        enc.ticks_per_meter,
+        robot.wheel_separation,
+        wheel_noise,
+        robot.imu.gyro_noise_density,
+        robot.imu.gyro_bias_instability,
+    )
 
 
 def build_world(loaded: LoadedMission) -> tuple[SimulatedWorld, list[RobotStack]]:

@@ -25,8 +25,8 @@ def free_distance(
 ) -> float:
     """Arclength along a path sampled every ``step`` from ``step`` on (``samples``, (n, 2),
     map frame) to the last sample before the corridor of ``half_width`` on each side holds
-    an obstacle point, or its middle three quarters are hidden from the lidar at ``origin`` by one
-    (all n free: n steps)."""
+    an obstacle point, or its middle three quarters are hidden from the lidar at ``origin``
+    by one (all n free: n steps)."""
     n = len(samples)
     if not len(points) or not n:
         return n * step

@@ -129,6 +129,24 @@ class EncoderSpec(BaseModel):
     )
 
 
+class ImuSpec(BaseModel):
+    """A MEMS IMU on the robot's base: the gyro's z rate and the accelerometer's x, y,
+    published as ``sensor_msgs/Imu`` (noise densities as datasheets give them)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    rate: float = Field(100.0, gt=0, le=1000.0, description="samples per second, Hz")
+    gyro_noise_density: float = Field(
+        ..., ge=0, le=0.1, description="gyro rate noise density, rad/s/sqrt(Hz)"
+    )
+    gyro_bias_instability: float = Field(
+        ..., ge=0, le=0.1, description="gyro bias left after the start-up calibration, rad/s"
+    )
+    accel_noise_density: float = Field(
+        ..., ge=0, le=10.0, description="accelerometer noise density, m/s^2/sqrt(Hz)"
+    )
+
+
 class RobotDescription(BaseModel):
     """A differential-drive robot: geometry, limits and sensors."""
 
@@ -159,6 +177,9 @@ class RobotDescription(BaseModel):
     lidar: LidarSpec = LidarSpec()
     battery: BatterySpec | None = Field(
         None, description="capacity, level, idle and charge power; none: not modelled"
+    )
+    imu: ImuSpec | None = Field(
+        None, description="gyro and accelerometer; odometry fuses the gyro; none: no IMU"
     )
 
     @field_validator("footprint")
@@ -246,6 +267,29 @@ RPLIDAR_A1: dict[str, Any] = {
 #: UMBmark finds wheel-diameter mismatches of this order on uncalibrated robots). Measured
 #: on 2 m straight runs (six seeds): 0.7-10 cm off, median 2 cm; heading 0.1-5.6 degrees.
 TB3_ENCODER: dict[str, Any] = {"noise": 0.005, "slip": 0.005, "scale_error": 0.002}
+#: The OpenCR 1.0 board's InvenSense MPU-9250 (TurtleBot3 burger and waffle), from its
+#: product specification (PS-MPU-9250A-01 rev 1.1): gyro rate noise spectral density
+#: 0.01 deg/s/sqrt(Hz), accelerometer noise power spectral density 300 ug/sqrt(Hz);
+#: published at 200 Hz (the firmware's IMU_PUBLISH_FREQUENCY, turtlebot3_core_config.h).
+#: The datasheet gives no bias instability: 10 deg/h, what Allan-variance measurements of
+#: consumer MEMS gyros of its class find once the start-up calibration (the OpenCR's
+#: calibrationGyro) has taken the turn-on bias out. See docs/imu-and-localisation.md.
+MPU_9250: dict[str, Any] = {
+    "rate": 200.0,
+    "gyro_noise_density": math.radians(0.01),
+    "gyro_bias_instability": math.radians(10.0 / 3600.0),
+    "accel_noise_density": 300e-6 * 9.80665,
+}
+#: InvenSense MPU-6050 (the GY-521 breakout of hobby kits; our choice for rosbots, whose
+#: seed names no IMU), from its product specification (PS-MPU-6000A-00 rev 3.4): gyro
+#: rate noise spectral density 0.005 deg/s/sqrt(Hz), accelerometer 400 ug/sqrt(Hz); read
+#: at 100 Hz over I2C; bias instability as the MPU-9250's (not in the datasheet).
+MPU_6050: dict[str, Any] = {
+    "rate": 100.0,
+    "gyro_noise_density": math.radians(0.005),
+    "gyro_bias_instability": math.radians(10.0 / 3600.0),
+    "accel_noise_density": 400e-6 * 9.80665,
+}
 
 #: Hokuyo UST-10LX (the Jackal's laser in BARN: ``JACKAL_LASER_MODEL=ust10``), from its
 #: datasheet: 270 degrees at 0.25 degree steps (1081 beams), 25 ms a scan (40 Hz), range
@@ -286,6 +330,7 @@ BUILTIN_ROBOTS: dict[str, RobotDescription] = {
             idle_power=7.9,
             charge_power=19.98,
         ),
+        imu=ImuSpec(**MPU_9250),
     ),
     "waffle": RobotDescription(
         name="waffle",
@@ -306,6 +351,7 @@ BUILTIN_ROBOTS: dict[str, RobotDescription] = {
             idle_power=9.7,
             charge_power=19.98,
         ),
+        imu=ImuSpec(**MPU_9250),
     ),
     # The seed's home-built robot: RPLidar A1 (12 m), 190 encoder ticks per metre.
     "rosbots": RobotDescription(
@@ -327,6 +373,7 @@ BUILTIN_ROBOTS: dict[str, RobotDescription] = {
         battery=BatterySpec(
             capacity=7.4 * 2.2, voltage=7.4, initial_level=1.0, idle_power=5.0, charge_power=16.28
         ),
+        imu=ImuSpec(**MPU_6050),
     ),
     # Clearpath Jackal as BARN runs it (docs/robots.md gives each figure's source).
     "jackal": RobotDescription(

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
+from agv_mission.geometry import wrap_angle
 from agv_mission.messages import LaserScan
-from agv_mission.robots.description import LidarSpec
+from agv_mission.robots.description import ImuSpec, LidarSpec
 from agv_mission.world.simulation import Body, SimulatedWorld
 
 
@@ -156,3 +158,103 @@ class WheelEncoders:
     def rebase(self) -> None:
         """Forget wheel motion since the last read (after a teleport rewrote the joints)."""
         self._last_angle = self._angles()
+
+
+@dataclass(frozen=True)
+class ImuSamples:
+    """The IMU's samples since its previous read: stamps (n,), the gyro's z rate (n,,
+    rad/s) and the accelerometer's x, y (n, 2, m/s^2), in the robot's frame."""
+
+    times: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    period: float  # s between samples
+
+    @property
+    def turn(self) -> float:
+        """The heading change the gyro measured over these samples, rad."""
+        return float(self.gyro.sum()) * self.period
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+
+class Imu:
+    """A MEMS gyro (z) and accelerometer (x, y) on the robot's base, sampled at its rate.
+
+    Each sample is the true mean rate over its sample period plus the gyro's bias (drawn
+    once per run: what is left after the start-up calibration, ``gyro_bias_instability``)
+    and white noise of ``noise_density * sqrt(rate)``, so integrated over any stretch the
+    heading's error is a random walk of ``gyro_noise_density * sqrt(t)`` plus ``bias * t``.
+    The truth is read once per :meth:`read` (the physics runs at 100 Hz, a TurtleBot3's
+    IMU at 200 Hz): between reads the heading follows the cubic that matches the headings
+    and the yaw rates at both ends, and the speed a straight line, so the samples add up
+    to the true heading change exactly. ``ideal``: no noise and no bias.
+    """
+
+    def __init__(
+        self,
+        world: SimulatedWorld,
+        body: Body,
+        spec: ImuSpec,
+        rng: np.random.Generator,
+        ideal: bool = False,
+    ) -> None:
+        self.world, self.body, self.spec, self.rng = world, body, spec, rng
+        self.period = 1.0 / spec.rate
+        root_rate = math.sqrt(spec.rate)
+        self.gyro_sd = 0.0 if ideal else spec.gyro_noise_density * root_rate
+        self.accel_sd = 0.0 if ideal else spec.accel_noise_density * root_rate
+        b = spec.gyro_bias_instability
+        self.bias = 0.0 if ideal or b == 0.0 else float(rng.normal(0.0, b))
+        self._theta = 0.0  # the true heading turned since the start, unwrapped
+        self._start_reads()
+
+    def _start_reads(self) -> None:
+        world = self.world
+        self._t = world.time
+        self._yaw = world.pose(self.body).yaw
+        self._v, self._w = world.velocity(self.body)
+        self._next = math.floor(self._t / self.period + 1e-9) + 1  # index of the next sample
+        self._theta_sample, self._v_sample = self._theta, self._v
+
+    def rebase(self) -> None:
+        """Forget the motion since the last read (a teleport is not a turn)."""
+        self._start_reads()
+
+    def read(self) -> ImuSamples:
+        """The samples due since the last read, up to the world's current time."""
+        world = self.world
+        now = world.time
+        yaw = world.pose(self.body).yaw
+        v1, w1 = world.velocity(self.body)
+        t0, v0, w0, h = self._t, self._v, self._w, now - self._t
+        turned = wrap_angle(yaw - self._yaw)
+        k0, k1 = self._next, math.floor(now / self.period + 1e-9)
+        theta0 = self._theta
+        self._t, self._yaw, self._v, self._w = now, yaw, v1, w1
+        self._theta = theta0 + turned
+        if k1 < k0 or h <= 0.0:
+            empty = np.zeros(0)
+            return ImuSamples(empty, empty, np.zeros((0, 2)), self.period)
+        self._next = k1 + 1
+        times = np.arange(k0, k1 + 1) * self.period
+        s = (times - t0) / h
+        s2 = s * s
+        s3 = s2 * s
+        # cubic Hermite of the heading: theta(0) = theta0, theta(1) = theta0 + turned,
+        # slopes w0 h and w1 h
+        theta = theta0 + (s3 - 2.0 * s2 + s) * (w0 * h) + (3.0 * s2 - 2.0 * s3) * turned
+        theta += (s3 - s2) * (w1 * h)
+        speed = v0 + s * (v1 - v0)
+        rate = np.diff(theta, prepend=self._theta_sample) / self.period
+        accel = np.empty((len(times), 2))
+        accel[:, 0] = np.diff(speed, prepend=self._v_sample) / self.period
+        accel[:, 1] = speed * rate
+        self._theta_sample, self._v_sample = float(theta[-1]), float(speed[-1])
+        gyro = rate + self.bias
+        if self.gyro_sd > 0.0 or self.accel_sd > 0.0:
+            noise = self.rng.standard_normal((len(times), 3))
+            gyro += self.gyro_sd * noise[:, 0]
+            accel += self.accel_sd * noise[:, 1:]
+        return ImuSamples(times, gyro, accel, self.period)

@@ -11,7 +11,7 @@ from agv_mission.maps.worlds import World
 from agv_mission.messages import LaserScan
 from agv_mission.robots.body import LIFTED_WHEEL_TAU, add_diff_drive_body, hull_top
 from agv_mission.robots.description import RobotDescription
-from agv_mission.robots.sensors import Lidar, WheelEncoders
+from agv_mission.robots.sensors import Imu, ImuSamples, Lidar, WheelEncoders
 from agv_mission.robots.sim_config import SimConfig
 from agv_mission.world.simulation import Body, SimulatedWorld, WorldBuilder
 
@@ -63,9 +63,11 @@ class DiffDriveBody:
         start: Pose2D,
         config: SimConfig | None = None,
         rng: np.random.Generator | None = None,
+        imu_rng: np.random.Generator | None = None,
     ) -> None:
         """Take hold of the body ``name`` of ``world`` and place it at ``start`` (call
-        ``world.start()`` once every body is placed)."""
+        ``world.start()`` once every body is placed). The IMU draws from ``imu_rng`` (its
+        own stream, so the lidar's and the encoders' draws do not depend on it)."""
         self.world = world
         self.name = name
         self.robot = robot
@@ -104,6 +106,13 @@ class DiffDriveBody:
             scale_error=cfg.pick("wheel_scale_error", enc.scale_error),
             joints=(f"{name}/wheel_left", f"{name}/wheel_right"),
         )
+        self.imu: Imu | None = None
+        if robot.imu is not None:
+            if imu_rng is None:  # a stream of its own beside the body's
+                seeds = getattr(self.rng.bit_generator, "seed_seq", None)
+                seeds = seeds if isinstance(seeds, np.random.SeedSequence) else None
+                imu_rng = np.random.default_rng((seeds or np.random.SeedSequence(0)).spawn(1)[0])
+            self.imu = Imu(world, self.body, robot.imu, imu_rng, ideal=cfg.ideal)
 
     # ----------------------------------------------------------------- time and commands
     @property
@@ -145,13 +154,20 @@ class DiffDriveBody:
         return self.world.velocity(self.body)
 
     def teleport(self, pose: Pose2D) -> None:
-        """Put the robot at ``pose`` at rest (kidnapping); encoders do not see the jump."""
+        """Put the robot at ``pose`` at rest (kidnapping); encoders and IMU do not see the
+        jump."""
         self.world.teleport(self.body, pose)
+        if self.imu is not None:
+            self.imu.rebase()
 
     # ----------------------------------------------------------------- sensors
     def encoder_ticks(self) -> tuple[int, int]:
         """Cumulative (left, right) encoder ticks; noise/slip applied per read."""
         return self.encoders.read()
+
+    def imu_samples(self) -> ImuSamples | None:
+        """The IMU's samples since the last read (None: the robot has no IMU)."""
+        return self.imu.read() if self.imu is not None else None
 
     def scan(self) -> LaserScan:
         """A lidar scan at the current state (stamped with the simulation time)."""

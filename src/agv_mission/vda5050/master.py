@@ -2,8 +2,9 @@
 
 Each task becomes one order (:mod:`~agv_mission.vda5050.routes`: ``go_to`` one node,
 ``patrol`` its waypoints loop by loop, ``visit_rooms`` its rooms' goals, ``dock`` /
-``undock`` / ``charge`` with ``startCharging`` / ``stopCharging``), starting at the vehicle's current position under its
-``lastNodeId`` (6.6.3.1). Nodes are released through :class:`NodeReservations`, the
+``undock`` / ``charge`` with ``startCharging`` / ``stopCharging``), sent as
+:mod:`~agv_mission.vda5050.master_orders` builds it: from the vehicle's current position under
+its ``lastNodeId`` (6.6.3.1). Nodes are released through :class:`NodeReservations`, the
 stand-in for the fleet layer's traffic control: a node is granted to one vehicle at a time,
 at most ``lookahead`` nodes past the vehicle's last node; the rest of the route is horizon,
 extended by order updates as the vehicle moves on (6.6.2). A vehicle that goes
@@ -25,19 +26,19 @@ from typing import Any
 
 from agv_mission.fleet.base import DispatchError, FleetTask, RobotWork
 from agv_mission.geometry import Pose2D
+from agv_mission.vda5050.master_orders import ActiveOrder, cancel_body, order_body, start_order
 from agv_mission.vda5050.master_report import (
     TRAJECTORY_HEADER,
     master_result,
     new_run_dir,
     write_outputs,
 )
-from agv_mission.vda5050.messages import deviation_angle, schema_angle, split_topic
+from agv_mission.vda5050.protocol import split_topic
 from agv_mission.vda5050.routes import (
     ChargeAction,
     MasterPlan,
     NodeAction,
     NodeReservations,
-    OrderAction,
     RouteNode,
     TaskRoute,
     load_plan,
@@ -63,21 +64,6 @@ __all__ = [
 ORDER_ERRORS = ("validationError", "orderError", "orderUpdateError", "noRouteError")
 RESEND_AFTER = 2.0  # s: an order (update) the state does not show by then is sent again
 ORDER_TIMEOUT = 15.0  # s: an order the vehicle has not taken by then fails its task
-START_DEVIATION = 0.5  # m: the first node is where the vehicle stands, within this
-
-
-@dataclass
-class ActiveOrder:
-    task: TaskRoute
-    order_id: str
-    nodes: list[RouteNode]  # the start node first
-    update_id: int = 0
-    released: int = 0  # index of the decision point (last released node)
-    sent_at: float = 0.0
-    last_first: int = 0  # the first node index of the message last sent
-    #: node actions by actionId: (node index, the action)
-    actions: dict[str, tuple[int, OrderAction]] = field(default_factory=dict)
-    last_sent: float = 0.0
 
 
 @dataclass
@@ -408,27 +394,13 @@ class Master:
         self.event(f"task_{task.status}", task=task.index, robot=peer.serial, reason=reason)
 
     def _send_new(self, peer: Peer, task: TaskRoute) -> None:
-        state = peer.state or {}
-        # where it stands: its state's agvPosition (optional), else the last seen in its
-        # visualization
-        x, y = peer.last_xy or (0.0, 0.0)
-        pos = state.get("agvPosition") or {"x": x, "y": y}
-        here = RouteNode(
-            str(state.get("lastNodeId") or "start"),
-            float(pos.get("x", x)),
-            float(pos.get("y", y)),
-            None,
-            task.start_actions,
-        )
         peer.orders_made += 1
-        order = ActiveOrder(
+        order = start_order(
             task,
             f"{self.plan.name}-t{task.index}-{peer.serial}-{peer.orders_made}",
-            [here, *task.nodes],
+            peer.state or {},
+            peer.last_xy,
         )
-        for i, n in enumerate(order.nodes):
-            for k, act in enumerate(n.actions):
-                order.actions[f"{order.order_id}-n{2 * i}-{k}-{act.type}"] = (i, act)
         order.released = self._grantable(peer, order, 0)
         order.sent_at = self.now()
         task.status = "running"
@@ -459,69 +431,15 @@ class Master:
 
     def _publish_order(self, peer: Peer, order: ActiveOrder, first: int) -> None:
         """Nodes ``first``.. of ``order`` (the stitching node first on an update)."""
-        nodes, edges = [], []
-        for i in range(first, len(order.nodes)):
-            n = order.nodes[i]
-            released = i <= order.released
-            pos: dict[str, Any] = {"x": n.x, "y": n.y, "mapId": self.plan.map_id}
-            if i == 0:
-                pos["allowedDeviationXY"] = START_DEVIATION
-            else:
-                pos["allowedDeviationXY"] = self.plan.xy_tolerance
-                if n.theta is not None:  # within the schema's [-pi, pi] after rounding
-                    pos["theta"] = schema_angle(n.theta)
-                    pos["allowedDeviationTheta"] = deviation_angle(self.plan.yaw_tolerance)
-            nodes.append(
-                {
-                    "nodeId": n.node_id,
-                    "sequenceId": 2 * i,
-                    "released": released,
-                    "nodePosition": pos,
-                    "actions": [
-                        act.doc(action_id)
-                        for action_id, (at, act) in order.actions.items()
-                        if at == i
-                    ],
-                }
-            )
-            if i > first:
-                a = order.nodes[i - 1]
-                edges.append(
-                    {
-                        "edgeId": f"{a.node_id}-{n.node_id}",
-                        "sequenceId": 2 * i - 1,
-                        "released": released,
-                        "startNodeId": a.node_id,
-                        "endNodeId": n.node_id,
-                        "actions": [],
-                    }
-                )
+        body = order_body(order, first, self.plan)
         order.last_first, order.last_sent = first, self.now()
-        body = {
-            "orderId": order.order_id,
-            "orderUpdateId": order.update_id,
-            "nodes": nodes,
-            "edges": edges,
-        }
         self.link.publish("order", body, qos=0, serial=peer.serial)
 
     def _cancel_all(self) -> None:
         for peer in self.peers.values():
             if peer.order is not None and peer.online:
-                self.link.publish(
-                    "instantActions",
-                    {
-                        "actions": [
-                            {
-                                "actionId": f"cancel-{peer.order.order_id}",
-                                "actionType": "cancelOrder",
-                                "blockingType": "HARD",
-                            }
-                        ]
-                    },
-                    qos=0,
-                    serial=peer.serial,
-                )
+                body = cancel_body(peer.order)
+                self.link.publish("instantActions", body, qos=0, serial=peer.serial)
 
     # ---------------------------------------------------------------- the end
 

@@ -3,8 +3,9 @@ fleet's dispatch and events), ``trajectory.csv`` from the vehicles' states, ``mi
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import yaml
 
@@ -12,11 +13,24 @@ from agv_mission.atomic import atomic_write_text
 from agv_mission.missions.outputs import make_run_dir, write_json
 from agv_mission.vda5050.routes import MasterPlan
 
-if TYPE_CHECKING:
-    from agv_mission.vda5050.master import Master
+
+class DispatchRecord(Protocol):
+    """What a master's report reads (:class:`~agv_mission.vda5050.master.Master` is one):
+    the plan, each vehicle as it saw it, what it dispatched and when, and the trajectory
+    rows of the vehicles' states."""
+
+    plan: MasterPlan
+    peers: Mapping[str, Any]
+    url: Any
+    manufacturer: str
+    dispatch: list[dict[str, Any]]
+    events: list[dict[str, Any]]
+    rows: list[tuple[Any, ...]]
+
+    def now(self) -> float: ...
 
 
-def master_result(master: Master, status: str, reason: str | None) -> dict[str, Any]:
+def master_result(master: DispatchRecord, status: str, reason: str | None) -> dict[str, Any]:
     """The dispatch's ``result.json``: the mission's status, each task, each vehicle."""
     robots = {}
     for name, peer in master.peers.items():
@@ -75,7 +89,7 @@ def master_result(master: Master, status: str, reason: str | None) -> dict[str, 
 TRAJECTORY_HEADER = "robot,t,x,y,theta,vx,omega"
 
 
-def write_outputs(run_dir: Path, master: Master, result: dict[str, Any]) -> None:
+def write_outputs(run_dir: Path, master: DispatchRecord, result: dict[str, Any]) -> None:
     """``mission.yaml``, ``trajectory.csv`` (from the vehicles' state and visualization)
     and, last, ``result.json``."""
     atomic_write_text(

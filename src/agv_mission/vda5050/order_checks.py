@@ -10,7 +10,7 @@ from pydantic import ValidationError
 
 from agv_mission.vda5050 import factsheet as fs
 from agv_mission.vda5050.body import BodySnapshot
-from agv_mission.vda5050.messages import Node, Order
+from agv_mission.vda5050.protocol import Node, Order
 
 
 def order_problems(order: Order, map_id: str) -> list[tuple[str, str, str]]:

@@ -6,59 +6,26 @@ loop after loop (``loops: 2`` visits each twice); ``visit_rooms`` its rooms' goa
 ``stopCharging`` where the vehicle stands, then the staging pose; ``charge`` a
 ``startCharging`` where it stands, done when the battery reaches ``until``. A fleet
 robot's own ``tasks:`` go to that robot first (``fleet.md``). Angles go out wrapped
-into the schemas' bounds (:func:`~agv_mission.vda5050.messages.schema_angle`).
+into the schemas' bounds (:func:`~agv_mission.vda5050.protocol.schema_angle`).
 """
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
-
 from agv_mission.fleet.travel import GridTravelTime
+from agv_mission.geometry import Pose2D
 from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.loader import LoadedMission, load_mission
-from agv_mission.missions.yaml_lines import line_of, load_with_lines
+from agv_mission.missions.loader import LoadedMission
+from agv_mission.missions.yaml_lines import line_of
 from agv_mission.registry import registry
-from agv_mission.vda5050.messages import schema_angle
+from agv_mission.vda5050.dispatch_mission import NodeAction, field_steps, load_dispatch_mission
+from agv_mission.vda5050.protocol import schema_angle
 
 #: the task kinds an order carries
 ORDER_TASKS = ("go_to", "patrol", "visit_rooms", "dock", "undock", "charge")
-
-
-class NodeAction(BaseModel):
-    """A load handling action at one of a task's nodes (a dispatched task's ``actions:``),
-    sent as a HARD node action of the order (6.8.2 ``pick`` / ``drop``)."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-    type: Literal["pick", "drop"]
-    at: str | None = Field(
-        None,
-        description="the node: go_to `goal`, patrol `wpN` (each loop), visit_rooms a room "
-        "label; default the task's last node",
-    )
-    duration: float | None = Field(
-        None, gt=0, le=3600, description="s the vehicle takes (its own default if not given)"
-    )
-    load_id: str | None = Field(None, min_length=1, max_length=128)
-    load_type: str | None = Field(None, min_length=1, max_length=128)
-
-    def doc(self, action_id: str) -> dict[str, Any]:
-        params = {"duration": self.duration, "loadId": self.load_id, "loadType": self.load_type}
-        out: dict[str, Any] = {
-            "actionId": action_id,
-            "actionType": self.type,
-            "blockingType": "HARD",
-        }
-        given = [{"key": k, "value": v} for k, v in params.items() if v is not None]
-        if given:
-            out["actionParameters"] = given
-        return out
 
 
 @dataclass(frozen=True)
@@ -144,11 +111,14 @@ def _route(
     task: Any,
     index: int,
     loaded: LoadedMission,
+    room_goals: dict[str, Pose2D],
     actions: list[NodeAction] | None = None,
     lines: dict[Any, int] | None = None,
     where: str | None = None,
     last_dock: str | None = None,
 ) -> TaskRoute:
+    """``task`` (the mission's model of it) as the nodes of an order; ``room_goals`` where
+    the robot that does it enters each room."""
     kind = task.type
     where = where or f"tasks.{index}"
     nodes: list[RouteNode] = []
@@ -164,7 +134,7 @@ def _route(
             ]
     elif kind == "visit_rooms":
         for label in task.rooms:
-            goal = loaded.room_goals[label]
+            goal = room_goals[label]
             nodes.append(RouteNode(label, goal.x, goal.y, None))
     elif kind in ("dock", "undock"):
         name = task.dock if kind == "dock" else (last_dock or "charger")
@@ -235,7 +205,7 @@ def _with_actions(
         hits = [i for i, node_id in enumerate(ids) if node_id == at]
         if not hits:
             names = ", ".join(dict.fromkeys(ids))
-            path = (*_steps(where), "actions", j, "at")
+            path = (*field_steps(where), "actions", j, "at")
             raise MissionError(
                 [
                     Problem(
@@ -251,68 +221,30 @@ def _with_actions(
     return [replace(n, actions=tuple(a)) for n, a in zip(nodes, on, strict=True)]
 
 
-def _steps(where: str) -> tuple[Any, ...]:
-    return tuple(int(p) if p.isdigit() else p for p in where.split("."))
+@dataclass(frozen=True)
+class _PlannedTask:
+    """One task of the mission as the plan takes it: the model, the vehicle it goes to
+    (None: dispatched), where it is written and the room goals of the robot doing it."""
+
+    task: Any
+    robot: str | None
+    where: str
+    room_goals: dict[str, Pose2D]
 
 
-def _lines(text: str) -> dict[Any, int]:
-    try:
-        return load_with_lines(text)[1]
-    except yaml.YAMLError:
-        return {}
-
-
-def _pop_actions(
-    path: Path, lines: dict[Any, int], tasks: list[Any], prefix: tuple[Any, ...] = ("tasks",)
-) -> list[list[NodeAction]]:
-    """Take each task's ``actions:`` (a dispatch-only field) out of ``tasks``, validated."""
-    out: list[list[NodeAction]] = []
-    for i, task in enumerate(tasks):
-        raw = task.pop("actions", None) if isinstance(task, dict) else None
-        if raw is None:
-            out.append([])
-            continue
-        if not isinstance(raw, list):
-            where = (*prefix, i, "actions")
-            raise MissionError(
-                [
-                    Problem(
-                        str(path),
-                        line_of(where, lines),
-                        ".".join(map(str, where)),
-                        "a list of {type: pick|drop, at: NODE, duration, load_id, load_type}",
-                    )
-                ]
-            )
-        acts = []
-        for j, item in enumerate(raw):
-            try:
-                acts.append(NodeAction.model_validate(item))
-            except ValidationError as exc:
-                err = exc.errors()[0]
-                where = (*prefix, i, "actions", j, *tuple(err["loc"]))
-                raise MissionError(
-                    [
-                        Problem(
-                            str(path),
-                            line_of(where, lines),
-                            ".".join(str(p) for p in where),
-                            err["msg"],
-                        )
-                    ]
-                ) from None
-        out.append(acts)
-    return out
-
-
-def _no_tree(path: Path, lines: dict[Any, int], doc: dict[str, Any], where: tuple) -> None:
-    if "tree" in doc:
+def _no_tree(loaded: LoadedMission, lines: dict[Any, int]) -> None:
+    """A behaviour tree runs on the robot: the master refuses one (the mission's or a
+    fleet robot's)."""
+    mission = loaded.mission
+    trees = [("tree",)] if getattr(mission, "tree", None) is not None else []
+    trees += [("robots", k, "tree") for k, r in enumerate(mission.robots) if r.tree is not None]
+    if trees:
         raise MissionError(
             [
                 Problem(
-                    str(path),
-                    line_of((*where, "tree"), lines),
-                    ".".join(map(str, (*where, "tree"))),
+                    str(loaded.source),
+                    line_of(trees[0], lines),
+                    ".".join(map(str, trees[0])),
                     "a behaviour tree runs on the robot, not as VDA 5050 orders: give the "
                     f"master a `tasks:` list ({', '.join(ORDER_TASKS)})",
                 )
@@ -320,30 +252,38 @@ def _no_tree(path: Path, lines: dict[Any, int], doc: dict[str, Any], where: tupl
         )
 
 
-def _load_as_written(
-    path: Path,
-    overrides: list[str] | None,
-    seed: int | None,
-    one: dict[str, Any],
-    wheres: list[str],
-    lines: dict[Any, int],
-) -> LoadedMission:
-    """Load the one-robot mission made of a fleet's tasks; its problems name the fields
-    and lines of the file as written (``robots.0.tasks.1.pose``, not ``tasks.1.pose``)."""
-    try:
-        return load_mission(path, overrides, seed, text=yaml.safe_dump(one, sort_keys=False))
-    except MissionError as exc:
-        problems = []
-        for p in exc.problems:
-            head, _, rest = p.field.partition(".")
-            index, _, tail = rest.partition(".")
-            if head == "tasks" and index.isdigit() and int(index) < len(wheres):
-                field_ = wheres[int(index)] + (f".{tail}" if tail else "")
-                line = line_of(_steps(field_), lines) or p.line
-                problems.append(replace(p, field=field_, line=line))
-            else:
-                problems.append(p)
-        raise MissionError(problems) from None
+def _planned_tasks(loaded: LoadedMission, robots: list[str]) -> list[_PlannedTask]:
+    """Every task of the loaded mission in plan order: a fleet's robots' own tasks first
+    (each to its robot), then the fleet's (``robot:`` or dispatched); a one-robot
+    mission's tasks to its one vehicle, or dispatched among ``robots``."""
+    mission = loaded.mission
+    if not mission.robots:
+        sole = robots[0] if len(robots) == 1 else None
+        return [
+            _PlannedTask(task, sole, f"tasks.{i}", loaded.room_goals)
+            for i, task in enumerate(mission.tasks or [])
+        ]
+    planned = [
+        _PlannedTask(task, robot.name, f"robots.{k}.tasks.{j}", loaded.fleet[k].room_goals)
+        for k, robot in enumerate(mission.robots)
+        for j, task in enumerate(robot.tasks or [])
+    ]
+    planned += [
+        _PlannedTask(task, loaded.fleet_tasks[j].robot, f"tasks.{j}", loaded.room_goals)
+        for j, task in enumerate(mission.tasks or [])
+    ]
+    if not planned:
+        raise MissionError(
+            [
+                Problem(
+                    str(loaded.source),
+                    None,
+                    "tasks",
+                    "the master needs tasks: the fleet's `tasks:` or a robot's own",
+                )
+            ]
+        )
+    return planned
 
 
 def load_plan(
@@ -352,105 +292,44 @@ def load_plan(
     seed: int | None = None,
     robots: list[str] | None = None,
 ) -> MasterPlan:
-    """The plan of mission file ``path``: a one-robot mission drives vehicle ``agv1`` (or
-    ``robots``); a ``robots:`` list names the vehicles, each robot's own ``tasks:`` go
-    to it first, and fleet tasks may carry ``robot:``."""
-    try:
-        text = path.read_text(encoding="utf-8")
-        doc = yaml.safe_load(text)
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise MissionError(
-            [Problem(str(path), None, "", f"cannot read the mission: {exc}")]
-        ) from None
-    lines = _lines(text)
-    if not isinstance(doc, dict):
-        raise MissionError([Problem(str(path), None, "", "a mission is a YAML mapping")])
-    _no_tree(path, lines, doc, ())
-    assigned: list[str | None] = []
-    wheres: list[str] = []
-    if isinstance(doc.get("robots"), list) and doc["robots"]:
-        names = [r.get("name") for r in doc["robots"] if isinstance(r, dict)]
-        if not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
-            raise MissionError(
-                [Problem(str(path), None, "robots", "each robot needs a unique name")]
-            )
-        one = {k: copy.deepcopy(v) for k, v in doc.items() if k not in ("robots", "fleet", "tasks")}
-        first = doc["robots"][0]
-        for key in ("robot", "start"):
-            if key in first:
-                one[key] = first[key]
-        tasks: list[Any] = []
-        actions: list[list[NodeAction]] = []
-        for k, robot in enumerate(doc["robots"]):  # a robot's own tasks run first
-            _no_tree(path, lines, robot, ("robots", k))
-            own = [dict(t) if isinstance(t, dict) else t for t in robot.get("tasks") or []]
-            actions += _pop_actions(path, lines, own, ("robots", k, "tasks"))
-            tasks += own
-            assigned += [robot["name"]] * len(own)
-            wheres += [f"robots.{k}.tasks.{j}" for j in range(len(own))]
-        fleet = [dict(t) if isinstance(t, dict) else t for t in doc.get("tasks") or []]
-        for j, task in enumerate(fleet):
-            assigned.append(task.pop("robot", None) if isinstance(task, dict) else None)
-            wheres.append(f"tasks.{j}")
-        actions += _pop_actions(path, lines, fleet)
-        one["tasks"] = tasks + fleet
-        loaded = _load_as_written(path, overrides, seed, one, wheres, lines)
-        robot_names = list(names)
-    else:
-        tasks = doc.get("tasks")
-        if isinstance(tasks, list) and any(isinstance(t, dict) and "actions" in t for t in tasks):
-            tasks = [dict(t) if isinstance(t, dict) else t for t in tasks]
-            actions = _pop_actions(path, lines, tasks)
-            one = {**doc, "tasks": tasks}
-            loaded = load_mission(path, overrides, seed, text=yaml.safe_dump(one, sort_keys=False))
-        else:
-            loaded = load_mission(path, overrides, seed)
-            actions = []
-        robot_names = robots or ["agv1"]
-        n = len(loaded.mission.tasks or [])
-        assigned = [robot_names[0] if len(robot_names) == 1 else None] * n
-        wheres = [f"tasks.{i}" for i in range(n)]
+    """The plan of mission file ``path``, built from the loaded mission's models: a
+    one-robot mission drives vehicle ``agv1`` (or ``robots``); a ``robots:`` list names
+    the vehicles, each robot's own ``tasks:`` go to it first, and fleet tasks may carry
+    ``robot:``."""
+    dispatch = load_dispatch_mission(path, overrides, seed)
+    loaded, lines = dispatch.loaded, dispatch.lines
+    _no_tree(loaded, lines)
+    mission = loaded.mission
+    names = [r.name for r in mission.robots] or robots or ["agv1"]
     routes: list[TaskRoute] = []
     last_dock: dict[str | None, str] = {}
-    for i, task in enumerate(loaded.mission.tasks or []):
-        robot = assigned[i]
+    for i, p in enumerate(_planned_tasks(loaded, names)):
         route = _route(
-            task,
+            p.task,
             i,
             loaded,
-            actions[i] if i < len(actions) else None,
+            p.room_goals,
+            dispatch.actions.get(p.where),
             lines,
-            wheres[i],
-            last_dock.get(robot) or last_dock.get(None),
+            p.where,
+            last_dock.get(p.robot) or last_dock.get(None),
         )
-        if task.type == "dock":
-            last_dock[robot] = task.dock
+        if p.task.type == "dock":
+            last_dock[p.robot] = p.task.dock
+        route.robot = p.robot
         routes.append(route)
-    for route, robot in zip(routes, assigned, strict=True):
-        if robot is not None and robot not in robot_names:
-            raise MissionError(
-                [
-                    Problem(
-                        str(path),
-                        None,
-                        f"{route.where}.robot",
-                        f"{robot!r} is not one of robots {robot_names}",
-                    )
-                ]
-            )
-        route.robot = robot
-    nav = loaded.mission.stack.navigation
+    nav = mission.stack.navigation
     return MasterPlan(
         loaded.name,
-        robot_names,
+        names,
         routes,
         loaded.world.name,
         nav.xy_goal_tolerance,
         nav.yaw_goal_tolerance,
-        loaded.mission.limits.time,
-        Path(loaded.mission.output),
+        mission.limits.time,
+        Path(mission.output),
         loaded.resolved(),
-        dispatcher=registry.create("dispatcher", loaded.mission.fleet.dispatcher),
+        dispatcher=registry.create("dispatcher", mission.fleet.dispatcher),
         travel=GridTravelTime(loaded.costmap, loaded.robot.max_linear_velocity),
     )
 

@@ -24,7 +24,7 @@ from urllib.parse import urlsplit
 
 import paho.mqtt.client as mqtt
 
-from agv_mission.vda5050.messages import TOPIC_MODELS, VERSION, timestamp, topic
+from agv_mission.vda5050.protocol import TOPIC_MODELS, VERSION, timestamp, topic
 
 DEFAULT_HOST, DEFAULT_PORT = "127.0.0.1", 1883
 KEEPALIVE = 15  # seconds; the standard suggests "around 15 seconds" for the heartbeat (6.14)

@@ -72,6 +72,16 @@ def _default(slot: str, name: str) -> Any:
     return registry.config(slot, name)()
 
 
+class OdometrySource(StrictModel):
+    """What the odometry (``/odom``, the localiser's motion) is made of."""
+
+    imu: bool = Field(
+        True,
+        description="fuse the IMU's gyro with the wheels, as robot_localization's EKF on a "
+        "TurtleBot3 or Jackal; false: the wheels alone (a robot without an IMU always)",
+    )
+
+
 class Stack(StrictModel):
     """The navigation stack: one plugin per slot, chosen by ``type``."""
 
@@ -88,6 +98,7 @@ class Stack(StrictModel):
         default_factory=lambda: _default("slam", DEFAULT_PLUGINS["slam"]),
         description="used while a map_area task maps",
     )
+    odometry: OdometrySource = Field(default_factory=OdometrySource)
     costmap: CostmapConfig = Field(default_factory=CostmapConfig)
     navigation: NavigationConfig = Field(default_factory=NavigationConfig)
     collision_monitor: CollisionMonitorConfig = Field(

@@ -11,14 +11,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-import yaml
-
-from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.loader import LoadedMission, load_mission
+from agv_mission.missions.loader import LoadedMission
 from agv_mission.robots.description import RobotDescription
 from agv_mission.vda5050.body import VehicleWorld
+from agv_mission.vda5050.dispatch_mission import load_dispatch_mission
 from agv_mission.vda5050.transport import BrokerUrl
 from agv_mission.vda5050.vehicle import Vehicle
 
@@ -45,36 +42,16 @@ class VehicleMission:
 def load_vehicles(
     path: Path, overrides: list[str] | None = None, seed: int | None = None
 ) -> VehicleMission:
-    """The vehicles of mission file ``path``. Raises :class:`MissionError` (exit code 2)."""
-    try:
-        text = path.read_text(encoding="utf-8")
-        doc = yaml.safe_load(text)
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise MissionError(
-            [Problem(str(path), None, "", f"cannot read the mission: {exc}")]
-        ) from None
-    if isinstance(doc, dict) and _without_node_actions(doc):
-        text = yaml.safe_dump(doc, sort_keys=False)
-    loaded = load_mission(path, overrides, seed, text=text, tasks_required=False)
+    """The vehicles of mission file ``path`` (its tasks' ``actions:`` ignored). Raises
+    :class:`MissionError` (exit code 2)."""
+    loaded = load_dispatch_mission(
+        path, overrides, seed, tasks_required=False, check_actions=False
+    ).loaded
     if not loaded.is_fleet:
         return VehicleMission(
             loaded, [VehicleSpec(DEFAULT_SERIAL, loaded.robots[0].name, loaded.robot)]
         )
     return VehicleMission(loaded, [VehicleSpec(r.name, r.name, r.robot) for r in loaded.robots])
-
-
-def _without_node_actions(doc: dict[str, Any]) -> bool:
-    """Take the master's node ``actions`` (a ``dispatch``-only field, not the vehicle's
-    business) out of every task of ``doc``; True if there were any."""
-    lists = [doc.get("tasks")]
-    lists += [r.get("tasks") for r in doc.get("robots") or [] if isinstance(r, dict)]
-    found = False
-    for tasks in lists:
-        for task in tasks if isinstance(tasks, list) else []:
-            if isinstance(task, dict) and "actions" in task:
-                del task["actions"]
-                found = True
-    return found
 
 
 class VehicleSet:

@@ -1,4 +1,5 @@
-"""VDA 5050 2.1.0 messages as pydantic models, field for field as the standard's JSON schemas.
+"""The VDA 5050 2.1.0 protocol: its messages as pydantic models, field for field as the
+standard's JSON schemas, its topics, timestamps and angle bounds.
 
 Incoming messages (``order``, ``instantActions``) are parsed strictly: a field of the wrong
 type or a missing required one is the standard's ``validationError`` (6.6.4.1). Outgoing

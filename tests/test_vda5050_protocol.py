@@ -10,7 +10,7 @@ import pytest
 from pydantic import BaseModel, ValidationError
 
 from agv_mission.robots.description import BUILTIN_ROBOTS
-from agv_mission.vda5050 import messages as m
+from agv_mission.vda5050 import protocol as m
 from agv_mission.vda5050.factsheet import factsheet_body
 from agv_mission.vda5050.master import TaskRoute
 from agv_mission.vda5050.schemas import TOPICS, load_schema

@@ -351,7 +351,8 @@ setInterval(() => {
   const box = document.getElementById("battery");
   if (!box || box.hidden) return;
   window.__battery.push({
-    value: document.getElementById("batterymeter").value,
+    value: +box.dataset.level,
+    label: box.querySelector(".label").textContent,
     text: document.getElementById("batterytext").textContent,
     charging: box.classList.contains("charging"),
   });
@@ -388,8 +389,9 @@ def test_run_page_shows_the_battery_level_and_charging(
     assert charging and max(charging) > min(charging)  # it rose while charging
     final = run_state(page)["state"]
     assert final["battery"] == pytest.approx(
-        page.evaluate("() => +document.getElementById('batterymeter').value")
+        page.evaluate("() => +document.getElementById('battery').dataset.level")
     )
+    assert all(s["label"].strip().lower() == "battery" for s in seen)  # said, not guessed
 
 
 def test_run_page_draws_the_people(page: Any, base_url: str, shots: Path) -> None:

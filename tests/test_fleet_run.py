@@ -47,14 +47,14 @@ def test_dispatched_tasks_go_to_the_quickest_robot_and_queue_behind_its_own(tmp_
     # there), beats west, which would need the door; task 1, in the west room, goes to
     # west, behind its own task
     assert result["fleet"]["dispatch"] == [
-        {"task": 0, "robot": "east", "t": 0.0},
-        {"task": 1, "robot": "west", "t": 0.0},
+        {"task": 1, "robot": "east", "t": 0.0},
+        {"task": 2, "robot": "west", "t": 0.0},
     ]
     west, east = result["robots"]["west"], result["robots"]["east"]
     assert [t["status"] for t in west["tasks"]] == ["succeeded", "succeeded"]
     assert [t["status"] for t in east["tasks"]] == ["succeeded", "succeeded"]
     dispatch_events = [e for e in result["events"] if e["event"] == "dispatch"]
-    assert {(e["robot"], e["task"]) for e in dispatch_events} == {("east", 0), ("west", 1)}
+    assert {(e["robot"], e["task"]) for e in dispatch_events} == {("east", 1), ("west", 2)}
     assert result["fleet"]["robot_robot_collisions"] == 0
     expect = Expectations.model_validate(
         {

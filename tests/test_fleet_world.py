@@ -203,4 +203,4 @@ def test_fleet_tasks_queue_in_the_order_given(tmp_path):
     loaded, log = queue_fleet_tasks(load_mission(path))
     goals = [(g.x, g.y) for g in tree_goals(loaded.robots[0].tree, {}, {})]
     assert goals == [(-2.0, 1.0), (1.8, -1.0), (1.8, 1.0), (0.0, -2.0)]
-    assert [d["task"] for d in log] == [0, 2] and {d["robot"] for d in log} == {"agv1"}
+    assert [d["task"] for d in log] == [1, 3] and {d["robot"] for d in log} == {"agv1"}

@@ -17,13 +17,13 @@ def test_late_client_gets_snapshot_in_order_then_live() -> None:
         hub = Hub()
         for kind in ("state", "tree", "map", "rooms", "recorded", "plan", "goal"):
             hub.publish(kind, json.dumps({"type": kind}))
-        hub.publish("event", json.dumps({"type": "event"}))  # not part of the snapshot
+        hub.publish("event", json.dumps({"type": "event"}))  # not the snapshot: after it
         hub.publish("state", _state(1.0), 1.0)
         client = hub.subscribe()
         items, _ = client.take(0.0)
         kinds = [k for k, _ in items]
-        assert kinds == ["map", "rooms", "recorded", "tree", "plan", "goal", "state"]
-        assert json.loads(items[-1][1])["t"] == 1.0  # the current state, not the first
+        assert kinds == ["map", "rooms", "recorded", "tree", "plan", "goal", "state", "event"]
+        assert json.loads(items[-2][1])["t"] == 1.0  # the current state, not the first
         hub.set_status("paused")
         items, _ = client.take(1.0)
         assert json.loads(items[-1][1])["status"] == "paused"

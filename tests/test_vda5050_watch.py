@@ -202,3 +202,37 @@ def test_watch_cli_serves_and_rejects_a_bad_world(tmp_path: Path) -> None:
         proc.terminate()
         proc.wait(20)
     assert proc.returncode == 0, proc.stderr.read() if proc.stderr else ""
+
+
+def test_the_watch_page_at_phone_width(rig: dict[str, Any]) -> None:
+    """At 390 px the map takes the page's width above the cards (not a squeezed column),
+    and a vehicle has its fleet's colour: the first of a manufacturer run.png's first."""
+    from playwright.sync_api import sync_playwright
+
+    from agv_mission.missions.palette import ROBOT_COLOURS
+
+    base = rig["base"]
+    fleet(base, lambda vs: {"agv1", "forklift1"} <= set(vs))
+    root = os.environ.get("AGV_ARTEFACTS")
+    shots = Path(root) / "vda5050" if root else rig["folder"]
+    shots.mkdir(parents=True, exist_ok=True)
+    with sync_playwright() as p:
+        browser = launch_chromium(p)
+        try:
+            page = browser.new_page(viewport={"width": 390, "height": 844})
+            problems: list[str] = []
+            page.on("pageerror", lambda e: problems.append(str(e)))
+            page.on("console", lambda m: m.type == "error" and problems.append(m.text))
+            page.goto(base + "/")
+            page.wait_for_selector('.agv[data-serial="agv1"]', timeout=20000)
+            box = page.locator("#map").bounding_box()
+            cards = page.locator("#fleet").bounding_box()
+            assert box is not None and cards is not None
+            assert box["width"] >= 300 and box["height"] >= 260, box
+            assert cards["y"] >= box["y"] + box["height"] - 1, (box, cards)  # below the map
+            colours = page.evaluate("() => view.vehicles.map((v) => [v.serial, v.color])")
+            assert dict(colours)["agv1"] == ROBOT_COLOURS[0], colours
+            page.screenshot(path=str(shots / "vda5050-watch-390.png"), full_page=True)
+            assert not problems, problems
+        finally:
+            browser.close()

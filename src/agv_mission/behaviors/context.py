@@ -32,7 +32,8 @@ class TreeContext:
     tasks: int = 0  # task nodes numbered so far
 
     def next_task(self) -> int:
-        """The 0-based index of the next task node (its events carry it as ``task``)."""
+        """The 0-based index of the next task node (its events carry its number, the index
+        plus 1, as ``task``: tasks count from 1 in every report, as in result.json)."""
         self.tasks += 1
         return self.tasks - 1
 

@@ -96,8 +96,8 @@ class GoTo(TaskNode):
         p = context.goal_pose(pose)
         leg = _leg(
             f"{name} ({p.x:g}, {p.y:g}, {p.yaw:.2f})",
-            goal_leg("go", p, context, task=i),
-            handle, on_failure, retries, task=i,
+            goal_leg("go", p, context, task=i + 1),
+            handle, on_failure, retries, task=i + 1,
         )  # fmt: skip
         super().__init__(name, leg, i, {"pose": pose})
 
@@ -113,7 +113,7 @@ class Patrol(TaskNode):
         legs: list[Behaviour] = []
         for j, wp in enumerate(waypoints):
             p = context.goal_pose(wp)
-            details = {"task": i, "loop": 1, "waypoint": j + 1}
+            details = {"task": i + 1, "loop": 1, "waypoint": j + 1}
             goal = goal_leg("go", p, context, **details)
             name_j = f"waypoint {j + 1} ({p.x:g}, {p.y:g})"
             legs.append(_leg(name_j, goal, handle, on_failure, retries, **details))
@@ -134,7 +134,9 @@ class VisitRooms(TaskNode):
         visits: list[Behaviour] = []
         for room in rooms:
             steps: list[Behaviour] = [
-                NavigateToPose(f"enter {room}", handle, context.goal_pose(room), task=i, room=room)
+                NavigateToPose(
+                    f"enter {room}", handle, context.goal_pose(room), task=i + 1, room=room
+                )
             ]
             kinds = context.nav.recoveries
             if kinds:
@@ -146,9 +148,9 @@ class VisitRooms(TaskNode):
                 steps.append(_settle(settle, handle))
             steps.append(InRoom(f"in {room}?", handle, handle.rooms[room]))
             if record:
-                steps.append(RecordRoom(f"record {room}", handle, room, task=i))
+                steps.append(RecordRoom(f"record {room}", handle, room, task=i + 1))
             visit = py_trees.composites.Sequence(name=f"visit {room}", memory=True, children=steps)
-            visits.append(_leg(room, visit, handle, on_failure, retries, task=i, room=room))
+            visits.append(_leg(room, visit, handle, on_failure, retries, task=i + 1, room=room))
         seq = py_trees.composites.Sequence(name="rooms", memory=True, children=visits)
         super().__init__(name, seq, i, {"rooms": rooms})
 
@@ -164,7 +166,7 @@ class RecordRoomTaskNode(TaskNode):
         self, name: str, handle: RobotHandle, context: TreeContext, room: str, settle: float = 1.0
     ):
         i = context.next_task()
-        record = RecordRoom(f"record {room}", handle, room, task=i)
+        record = RecordRoom(f"record {room}", handle, room, task=i + 1)
         seq = py_trees.composites.Sequence(
             name="settle, record", memory=True, children=[_settle(settle, handle), record]
         )
@@ -217,7 +219,7 @@ class Teleop(TaskNode):
         self, name: str, handle: RobotHandle, context: TreeContext, duration: float | None = None
     ):
         i = context.next_task()
-        super().__init__(name, RemoteControl("remote control", handle, duration, task=i), i, {})
+        super().__init__(name, RemoteControl("remote control", handle, duration, task=i + 1), i, {})
 
 
 class NavigateToGoal(py_trees.decorators.Decorator):

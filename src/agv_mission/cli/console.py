@@ -20,6 +20,14 @@ EXIT_CODES = {"succeeded": 0, "failed": 1, "error": 3, "aborted": 130, "interrup
 # Options several commands share.
 Overrides = Annotated[list[str], typer.Option("--set", help="KEY=VALUE override (YAML value)")]
 Seed = Annotated[Optional[int], typer.Option(help="override the mission's seed")]  # noqa: UP007, UP045
+Pace = Annotated[
+    Optional[float],  # noqa: UP007, UP045
+    typer.Option(
+        min=0.001,
+        help="simulated seconds per wall second, to watch the run (1.0: real time); "
+        "default: as fast as it goes",
+    ),
+]
 
 
 class PipeSafeStdout:
@@ -101,7 +109,13 @@ def progress_bar(counter: str, auto_refresh: bool = True) -> Progress:
 
 def print_summary(result: dict) -> None:
     """A run's result document as a status line, a task table and the metrics."""
-    from agv_mission.missions.summary import LEG_COLUMNS, leg_rows, metrics_line, task_rows
+    from agv_mission.missions.summary import (
+        LEG_COLUMNS,
+        leg_rows,
+        metrics_line,
+        task_rows,
+        tree_rows,
+    )
 
     ok = result["status"] == "succeeded"
     colour = "green" if ok else "red"
@@ -109,12 +123,17 @@ def print_summary(result: dict) -> None:
         f"[bold {colour}]{result['status']}[/]" + ("" if ok else f": {result['reason']}"),
         highlight=False,
     )
+    rows = task_rows(result)
+    by_tree = not rows and bool(result.get("tree") or result.get("robots"))
+    if by_tree:  # a tree mission: its tree says what it did
+        rows = tree_rows(result)
     table = Table(show_header=True, header_style="bold", box=None)
-    for column in ("task", "status", "detail"):
+    for column in ("tree node" if by_tree else "task", "status", "detail"):
         table.add_column(column)
-    for row in task_rows(result):
+    for row in rows:
         table.add_row(*row)
-    out.print(table)
+    if rows:
+        out.print(table)
     legs = leg_rows(result)
     if legs:
         table = Table(

@@ -6,7 +6,7 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.markup import escape
@@ -14,6 +14,7 @@ from rich.markup import escape
 from agv_mission.cli.console import (
     EXIT_CODES,
     Overrides,
+    Pace,
     PipeSafeStdout,
     Seed,
     err,
@@ -37,6 +38,7 @@ def run(
     no_bag: Annotated[
         bool, typer.Option("--no-bag", help="do not write bag/ (same as output.bag: false)")
     ] = False,
+    pace: Pace = None,
 ) -> None:
     """Validate and run a mission in simulation; write a run directory."""
     if started_as_program():  # Ctrl-C during the imports below: exit 130, no traceback
@@ -44,6 +46,7 @@ def run(
     from agv_mission.bags.writer import BagWriter
     from agv_mission.missions.loader import load_demo_mission, load_mission
     from agv_mission.missions.outputs import RunDirError, open_run_dir, write_run
+    from agv_mission.missions.pacing import PacedControl
     from agv_mission.missions.runner import RunStopped, run_mission
     from agv_mission.missions.signals import SignalStop
 
@@ -77,8 +80,7 @@ def run(
         )
     else:
         out.print(
-            f"[bold]{loaded.name}[/]: {loaded.tree.count if loaded.tree else 0} tree node(s), "
-            f"{len(loaded.tree.task_types()) if loaded.tree else 0} task(s) in "
+            f"[bold]{loaded.name}[/]: {mission_outline(loaded)} in "
             f"{loaded.world.name} with {loaded.robot.name}, seed {loaded.mission.seed}"
         )
     with progress_bar("{task.completed:.1f}/{task.total:.0f} sim s", auto_refresh=False) as bar:
@@ -92,8 +94,9 @@ def run(
                 bar.refresh()
                 shown[0] = now
 
+        control = stopper if pace is None else PacedControl(stopper, pace)
         record = run_mission(
-            loaded, run_dir, progress=progress, control=stopper, observers=observers
+            loaded, run_dir, progress=progress, control=control, observers=observers
         )
     stopper.phase = "writing"  # a signal now is too late to stop anything: outputs first
     try:
@@ -110,6 +113,19 @@ def run(
         code = stopper.exit_code
     stopper.ignore()  # everything is written: a signal now must not turn the code into a kill
     raise typer.Exit(code)
+
+
+def mission_outline(loaded: Any) -> str:
+    """A one-robot mission in a few words: its tasks, or its tree when it has none."""
+    tree = loaded.tree
+    if tree is None:
+        return "no tasks"
+    tasks = tree.task_types()
+    if tasks:
+        return f"{tree.count} tree node(s), {len(tasks)} task(s)"
+    root = tree.root
+    named = f" '{root.name}'" if getattr(root, "name", None) not in (None, root.type) else ""
+    return f"a behaviour tree of {tree.count} node(s) (root: {root.type}{named})"
 
 
 def validate(

@@ -11,6 +11,7 @@ import typer
 from agv_mission.cli.console import (
     EXIT_CODES,
     Overrides,
+    Pace,
     Seed,
     failure,
     invalid,
@@ -72,9 +73,12 @@ def serve(
 
 def submit(
     mission: Annotated[Path, typer.Argument(help="mission file")],
-    server: Annotated[str, typer.Option(help="service URL, e.g. http://127.0.0.1:8080")],
+    server: Annotated[
+        str, typer.Option(help="service URL (default: serve's default address)")
+    ] = "http://127.0.0.1:8080",
     set_: Overrides = [],  # noqa: B006
     seed: Seed = None,
+    pace: Pace = None,
     follow: Annotated[bool, typer.Option("--follow", help="stream progress until it ends")] = False,
     token: Annotated[
         Optional[str],  # noqa: UP007, UP045
@@ -86,10 +90,11 @@ def submit(
 
     Exit codes: as ``run`` (0 succeeded, 1 failed, 2 invalid input, 3 error, 130
     aborted) once followed; 69 when the service cannot be reached or refuses."""
+    from agv_mission.missions.summary import headline
     from agv_mission.service import client
 
     try:
-        run = client.submit(mission, set_, seed, server, token)
+        run = client.submit(mission, set_, seed, server, token, pace)
     except MissionError as exc:
         raise invalid(exc) from None
     except client.ClientError as exc:
@@ -119,7 +124,7 @@ def submit(
         print_summary(result)
     elif result:
         out.print(
-            f"[bold]{result['name']}[/]: {len(result.get('tasks', []))} task(s) in "
+            f"[bold]{result['name']}[/]: {headline(result)} in "
             f"{result.get('world')} with {result.get('robot')}, seed {result.get('seed')}"
         )
         print_summary(result)

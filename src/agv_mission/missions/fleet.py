@@ -53,7 +53,8 @@ def tree_goals(
 def queue_fleet_tasks(loaded: LoadedMission) -> tuple[LoadedMission, list[dict[str, Any]]]:
     """``loaded`` with every fleet task queued behind its robot's own tree, in the order of
     ``tasks:`` (assigned by ``robot:`` or dispatched), and the dispatch log ``[{task, type,
-    robot, t, finish}]`` (``task``: its index in ``tasks:``)."""
+    robot, t, finish}]`` (``task``: its number in ``tasks:``, from 1 as every report counts
+    tasks)."""
     queued: dict[str, list[NodeSpec]] = {s.name: [] for s in loaded.fleet}
     log: list[dict[str, Any]] = []
     if any(t.robot is None for t in loaded.fleet_tasks):
@@ -103,7 +104,7 @@ def _dispatch(loaded: LoadedMission, queued: dict[str, list[NodeSpec]]) -> list[
         work[got.robot] = RobotWork(got.robot, end, got.finish)
         log.append(
             {
-                "task": task.index,
+                "task": task.index + 1,
                 "type": task.type,
                 "robot": got.robot,
                 "t": 0.0,

@@ -19,6 +19,7 @@ from agv_mission.maps.zones import ZoneFilters
 from agv_mission.messages import json_default
 from agv_mission.missions.loader import LoadedMission
 from agv_mission.missions.no_map import names_no_map
+from agv_mission.missions.palette import ROBOT_COLOURS
 from agv_mission.missions.people_record import plot_people, write_people_csv
 from agv_mission.missions.run_report import COVARIANCE_COLUMNS
 from agv_mission.missions.runner import TRAJECTORY_COLUMNS, RunRecord
@@ -255,13 +256,6 @@ def _zone_labels(zones: ZoneFilters) -> list[tuple[float, tuple[int, int]]]:
     return out
 
 
-#: A fleet's robots in run.png (and the dashboard), in robot order.
-ROBOT_COLOURS = (
-    "tab:blue", "tab:red", "tab:green", "tab:purple", "tab:brown",
-    "tab:pink", "tab:olive", "tab:cyan", "navy", "darkorange",
-)  # fmt: skip
-
-
 def _plot_bodies(ax: Any, loaded: LoadedMission, record: RunRecord, patch: Any) -> None:
     """Each robot's footprint (its polygon, or its circle) where it started and ended."""
     own = record.robots or ({loaded.robots[0].name: record} if loaded.robots else {})
@@ -270,7 +264,7 @@ def _plot_bodies(ax: Any, loaded: LoadedMission, record: RunRecord, patch: Any) 
         t, outline = rec.trajectory, outlines.get(name)
         if outline is None or not t.size:
             continue
-        colour = ROBOT_COLOURS[k % len(ROBOT_COLOURS)] if record.robots else "tab:blue"
+        colour = ROBOT_COLOURS[k % len(ROBOT_COLOURS)]
         for row in (t[0], t[-1]):
             xy = outline.in_map(float(row[1]), float(row[2]), float(row[3]))
             ax.add_patch(patch(xy, closed=True, fill=False, lw=0.8, ec=colour, alpha=0.8))
@@ -358,9 +352,9 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
             )
     traj = record.trajectory
     if traj.size:
-        ax.plot(traj[:, 1], traj[:, 2], "-", lw=1.4, color="tab:blue", label="driven (true)")
+        ax.plot(traj[:, 1], traj[:, 2], "-", lw=1.4, color=ROBOT_COLOURS[0], label="driven (true)")
         ax.plot(traj[:, 4], traj[:, 5], ":", lw=1.0, color="tab:green", label="estimated")
-        ax.plot(traj[0, 1], traj[0, 2], "o", color="tab:blue", label="start")
+        ax.plot(traj[0, 1], traj[0, 2], "o", color=ROBOT_COLOURS[0], label="start")
     for k, (name, own) in enumerate(record.robots.items()):  # a fleet: a colour a robot
         t = own.trajectory
         if not t.size:

@@ -30,7 +30,7 @@ def task_reports(
         if "task" in e:
             by_task.setdefault(e["task"], []).append(e)
     for i, (node, behaviour) in enumerate(zip(tree.task_nodes, tree.tasks, strict=True)):
-        mine = by_task.get(i, [])
+        mine = by_task.get(i + 1, [])  # events number tasks from 1, as the reports do
         status = task_status[i]
         ports = node.ports or _started_ports(behaviour)
         extra = ports.report(status, mine) if ports is not None else {"status": status}

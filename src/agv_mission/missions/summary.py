@@ -30,6 +30,44 @@ def task_rows(result: dict[str, Any]) -> list[tuple[str, str, str]]:
     return rows
 
 
+#: Tree nodes a summary lists at most (a generated tree can be large; result.json has all).
+TREE_ROWS = 40
+
+
+def tree_rows(result: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """``(node, status, detail)`` a node of the mission's tree, indented by depth: what a
+    tree mission did, where a task list has :func:`task_rows`. A fleet's rows name each
+    robot's tree."""
+    rows: list[tuple[str, str, str]] = []
+    trees = [("", result.get("tree") or [])]
+    if result.get("robots"):
+        trees = [(f"{name}: ", r.get("tree") or []) for name, r in result["robots"].items()]
+    for who, nodes in trees:
+        for node in nodes:
+            depth = node["path"].count("/") - (node["path"] == "/")
+            label = (
+                node["name"] if node["name"] == node["type"] else f"{node['name']} ({node['type']})"
+            )
+            detail = []
+            if node.get("started"):
+                detail.append(f"started {node['started']}x")
+            if node.get("running_time"):
+                detail.append(f"ran {node['running_time']:g} s")
+            rows.append((f"{who}{'  ' * depth}{label}", str(node.get("status")), ", ".join(detail)))
+    if len(rows) > TREE_ROWS:
+        rest = len(rows) - TREE_ROWS
+        rows = [*rows[:TREE_ROWS], (f"... {rest} more node(s) in result.json", "", "")]
+    return rows
+
+
+def headline(result: dict[str, Any]) -> str:
+    """What the mission was: its tasks, or its tree when it has no tasks."""
+    tasks = result.get("tasks") or []
+    if tasks or not result.get("tree"):
+        return f"{len(tasks)} task(s)"
+    return f"a behaviour tree of {len(result['tree'])} node(s)"
+
+
 def metrics_line(result: dict[str, Any]) -> str:
     """Time, speed, distance, collisions, clearance and localisation error in one line."""
     m = result["metrics"]

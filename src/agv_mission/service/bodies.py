@@ -45,15 +45,15 @@ def content_type(request: Request) -> str:
     return request.headers.get("content-type", "").split(";")[0].strip().lower()
 
 
-async def mission_input(request: Request) -> tuple[str, list[str], int | None]:
-    """The mission text, ``--set`` overrides and seed of a request: JSON
-    ``{mission, set, seed}`` or YAML text (422 for a malformed body, 415 for another media
-    type). Submitting and validating read bodies the same way."""
+async def mission_input(request: Request) -> tuple[str, list[str], int | None, float | None]:
+    """The mission text, ``--set`` overrides, seed and pace of a request: JSON
+    ``{mission, set, seed, pace}`` or YAML text (422 for a malformed body, 415 for another
+    media type). Submitting and validating read bodies the same way."""
     body = await read_body(request)
     ctype = content_type(request)
     if ctype in YAML_TYPES:
         try:
-            return body.decode("utf-8"), [], None
+            return body.decode("utf-8"), [], None, None
         except UnicodeDecodeError:
             raise ApiError(422, {"errors": [problem(None, "", "the body is not UTF-8")]}) from None
     if ctype == "application/json":
@@ -68,9 +68,9 @@ async def submission(service: Service, request: Request) -> tuple[Submission, st
         from agv_mission.service.uploads import upload
 
         return await upload(service, request)
-    text, sets, seed = await mission_input(request)
+    text, sets, seed, pace = await mission_input(request)
     loaded = await asyncio.to_thread(validate, service, text, sets, seed)
-    return Submission(loaded.name, text, sets, seed), None
+    return Submission(loaded.name, text, sets, seed, pace=pace), None
 
 
 def validate(
@@ -127,7 +127,7 @@ def _line_of(text: str, path: tuple[str, ...]) -> int | None:
     return None
 
 
-def parse_json_submission(body: bytes) -> tuple[str, list[str], int | None]:
+def parse_json_submission(body: bytes) -> tuple[str, list[str], int | None, float | None]:
     try:
         doc = json.loads(body)
     except ValueError as exc:
@@ -136,18 +136,27 @@ def parse_json_submission(body: bytes) -> tuple[str, list[str], int | None]:
         raise ApiError(
             422, {"errors": [problem(None, "mission", "the body needs 'mission': the YAML text")]}
         )
-    unknown = set(doc) - {"mission", "set", "seed"}
+    unknown = set(doc) - {"mission", "set", "seed", "pace"}
     if unknown:
-        raise ApiError(
-            422, {"errors": [problem(None, sorted(unknown)[0], "unknown key (mission, set, seed)")]}
-        )
+        message = "unknown key (mission, set, seed, pace)"
+        raise ApiError(422, {"errors": [problem(None, sorted(unknown)[0], message)]})
     sets = doc.get("set") or []
     if not isinstance(sets, list) or not all(isinstance(s, str) for s in sets):
         raise ApiError(422, {"errors": [problem(None, "set", "a list of KEY=VALUE strings")]})
     seed = doc.get("seed")
     if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool) or seed < 0):
         raise ApiError(422, {"errors": [problem(None, "seed", "a non-negative integer")]})
-    return doc["mission"], sets, seed
+    return doc["mission"], sets, seed, pace_of(doc.get("pace"))
+
+
+def pace_of(given: object) -> float | None:
+    """A submission's pace (None: as fast as it goes); 422 unless a positive number."""
+    from agv_mission.missions.pacing import check_pace
+
+    try:
+        return check_pace(given)  # type: ignore[arg-type]
+    except ValueError as exc:
+        raise ApiError(422, {"errors": [problem(None, "pace", str(exc))]}) from None
 
 
 def problem(line: int | None, field: str, message: str) -> dict[str, Any]:

@@ -26,9 +26,15 @@ def _headers(token: str | None) -> dict[str, str]:
 
 
 def submit(
-    mission: Path, sets: list[str], seed: int | None, server: str, token: str | None
+    mission: Path,
+    sets: list[str],
+    seed: int | None,
+    server: str,
+    token: str | None,
+    pace: float | None = None,
 ) -> dict[str, Any]:
-    """POST the mission, with the files it names (multipart) when it names any; the run
+    """POST the mission, with the files it names (multipart) when it names any, at
+    ``pace`` simulated seconds per wall second (None: as fast as it goes); the run
     object. Raises MissionError on invalid input (naming the file), ClientError when the
     service cannot be reached or refuses."""
     try:
@@ -39,11 +45,13 @@ def submit(
     url, headers = server.rstrip("/") + "/api/runs", _headers(token)
     try:
         if files:
-            response = _post_with_files(url, headers, mission, text, sets, seed, files)
+            response = _post_with_files(url, headers, mission, text, sets, seed, files, pace)
         else:
             body: dict[str, Any] = {"mission": text, "set": sets}
             if seed is not None:
                 body["seed"] = seed
+            if pace is not None:
+                body["pace"] = pace
             response = httpx.post(url, json=body, headers=headers, timeout=60.0)
     except httpx.HTTPError as exc:
         raise ClientError(f"cannot reach {server}: {exc}") from None
@@ -96,6 +104,7 @@ def _post_with_files(
     sets: list[str],
     seed: int | None,
     files: list[Path],
+    pace: float | None = None,
 ) -> httpx.Response:
     """Multipart: the mission and its files, named by their paths relative to the folder
     that holds them all (so ``../maps/house.yaml`` keeps its place beside the mission)."""
@@ -108,6 +117,8 @@ def _post_with_files(
     }
     if seed is not None:
         data["seed"] = str(seed)
+    if pace is not None:
+        data["pace"] = repr(pace)
     with ExitStack() as stack:
         parts = [
             ("files", (p.relative_to(root).as_posix(), stack.enter_context(p.open("rb"))))

@@ -9,7 +9,7 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
 from fastapi.responses import FileResponse
 
 from agv_mission.service.models import Templates
@@ -30,11 +30,19 @@ _TEMPLATE_ORDER = (
 )
 
 
-def _page(name: str) -> FileResponse:
+def _page(name: str, status_code: int = 200) -> FileResponse:
     # no-cache: a dashboard upgraded in place must not run stale scripts against a new API
     return FileResponse(
-        STATIC_DIR / name, media_type="text/html", headers={"Cache-Control": "no-cache"}
+        STATIC_DIR / name,
+        status_code=status_code,
+        media_type="text/html",
+        headers={"Cache-Control": "no-cache"},
     )
+
+
+def not_found_page() -> FileResponse:
+    """The dashboard's 404 page: what a browser gets for an address that shows nothing."""
+    return _page("notfound.html", 404)
 
 
 @router.get("/", include_in_schema=False)
@@ -44,8 +52,11 @@ def runs_page() -> FileResponse:
 
 
 @router.get("/runs/{run_id}", include_in_schema=False)
-def run_page(run_id: str) -> FileResponse:
-    """One run: live, then replayable from its directory (the page reads ``run_id`` itself)."""
+async def run_page(run_id: str, request: Request) -> FileResponse:
+    """One run: live, then replayable from its directory (the page reads ``run_id`` itself);
+    a 404 page for a run the service does not know."""
+    if await request.app.state.registry.aget(run_id) is None:
+        return not_found_page()
     return _page("run.html")
 
 

@@ -33,6 +33,7 @@ SPACING = {"state": 0.2, "scan": 0.2, "horizon": 0.2, "particles": 0.5, "people"
 THINNABLE = frozenset(SPACING)
 URGENT = frozenset({"end", "pong", "recorded"})  # sent without waiting for the next period
 SNAPSHOT_ORDER = ("map", "rooms", "recorded", "robots", "tree", "plan", "goal", "state")
+EVENT_BACKLOG = 1000  # a run's latest events a late client is sent after the snapshot
 CLIENT_QUEUE = 500  # messages a client may lag behind before the oldest frequent ones go
 CLIENT_HARD_LIMIT = 5000  # backlog of other messages at which a client is dropped
 KIND_BUDGET = 600.0  # messages of one frequent kind per wall second, over all clients
@@ -144,6 +145,8 @@ class Hub:
         self.clients: set[Client] = set()
         # kind -> robot (None: the run's, not one robot's) -> the latest message's text
         self.latest: dict[str, dict[str | None, str]] = {}
+        # the events so far (robot, text): a page opened late still shows what happened
+        self.events: deque[tuple[str | None, str]] = deque(maxlen=EVENT_BACKLOG)
         self.end: str | None = None
 
     def publish(
@@ -156,6 +159,8 @@ class Hub:
     ) -> None:
         if kind in SNAPSHOT_ORDER:
             self.latest.setdefault(kind, {})[robot] = text
+        elif kind == "event":
+            self.events.append((robot, text))
         for client in self.clients:
             client.put(kind, text, t, urgent, robot)
 
@@ -176,13 +181,15 @@ class Hub:
             client.put("end", text)
 
     def subscribe(self, max_rate: float = KIND_BUDGET) -> Client:
-        """A new client: the snapshot first (in the agreed order), then live messages; at
-        most ``max_rate`` messages of each frequent kind per wall second (a page that draws
+        """A new client: the snapshot first (in the agreed order), the events so far, then
+        live messages; at most ``max_rate`` messages of each frequent kind per wall second (a page that draws
         20 frames a second needs no more)."""
         client = Client(max_rate)
         for kind in SNAPSHOT_ORDER:
             for robot, text in self.latest.get(kind, {}).items():
                 client.queue.append((kind, text, None, thin_key(kind, robot)))
+        for robot, text in self.events:
+            client.queue.append(("event", text, None, thin_key("event", robot)))
         if self.end is not None:
             client.queue.append(("end", self.end, None, "end"))
         client.ready.set()

@@ -6,7 +6,7 @@ text, t, robot)`` live-stream messages (JSON text, encoded once in the worker; `
 None for what is the run's, not one robot's), ``("robots", {name: (v_max, w_max)})``,
 ``("status", status)``, ``("progress", dict)``, ``("reply", request_id, code, body)`` and
 finally ``("end", status, reason, result)``. Service -> worker: ``("cancel", reason)``,
-``("pause",)``, ``("resume",)``, ``("cmd_vel", robot, v, w)``, ``("goal", request_id,
+``("pause",)``, ``("resume",)``, ``("pace", pace)``, ``("cmd_vel", robot, v, w)``, ``("goal", request_id,
 robot, x, y, yaw)``, ``("record", request_id, robot, label)``.
 
 Neither end waits for the other: the worker sends from a thread of its own

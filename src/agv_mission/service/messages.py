@@ -21,7 +21,7 @@ from agv_mission.maps.rooms import Room
 from agv_mission.maps.ros_map import saver_pixels
 from agv_mission.messages import json_default
 from agv_mission.missions.observe import RunStart, TreeNode
-from agv_mission.missions.outputs import ROBOT_COLOURS
+from agv_mission.missions.palette import robot_colour
 
 MAX_PARTICLES = 300
 TREE_STATUS = {
@@ -129,13 +129,6 @@ def tree_nodes(nodes: list[TreeNode]) -> list[dict[str, Any]]:
 
 def tree_message(nodes: list[TreeNode], robot: str) -> dict[str, Any]:
     return {"type": "tree", "robot": robot, "nodes": tree_nodes(nodes)}
-
-
-def robot_colour(index: int) -> str:
-    """The ``index``-th robot's colour as ``#rrggbb``: run.png's (outputs.ROBOT_COLOURS)."""
-    from matplotlib.colors import to_hex
-
-    return to_hex(ROBOT_COLOURS[index % len(ROBOT_COLOURS)])
 
 
 def robots_message(start: RunStart) -> dict[str, Any]:

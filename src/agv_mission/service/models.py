@@ -70,6 +70,11 @@ class Run(Open):
     progress: Progress
     seed: int | None = Field(None, description="the seed the submission overrode, if any")
     set: list[str] = Field(default_factory=list, description="the submission's --set overrides")
+    pace: float | None = Field(
+        None,
+        description="simulated seconds per wall second (null: as fast as it goes); "
+        "POST /api/runs/{id}/pace changes it while the run runs",
+    )
     result: dict[str, Any] | None = Field(
         None, description="the content of result.json, once final"
     )
@@ -114,6 +119,30 @@ class Submit(BaseModel):
         examples=[["stack.local_planner.type=pure_pursuit"]],
     )
     seed: int | None = Field(None, ge=0, description="overrides the mission's seed")
+    pace: float | None = Field(
+        None,
+        gt=0,
+        description="simulated seconds per wall second, so that a person can watch and "
+        "steer (1.0: real time); absent: as fast as the run goes",
+        examples=[1.0],
+    )
+
+
+class Pace(BaseModel):
+    """A new pace for a run: simulated seconds per wall second (null: as fast as it goes)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    pace: float | None = Field(
+        gt=0,
+        description="simulated seconds per wall second; null: as fast as it goes",
+        examples=[4.0],
+    )
+
+
+class PaceSet(BaseModel):
+    id: str
+    pace: float | None
 
 
 def _no_default(schema: dict[str, Any]) -> None:
@@ -137,6 +166,11 @@ class SubmitWithFiles(BaseModel):
     set: list[str] = Field(default_factory=list, description="KEY=VALUE overrides")
     seed: Annotated[int, Field(ge=0)] | SkipJsonSchema[None] = Field(
         None, description="overrides the mission's seed", json_schema_extra=_no_default
+    )
+    pace: Annotated[float, Field(gt=0)] | SkipJsonSchema[None] = Field(
+        None,
+        description="simulated seconds per wall second (absent: as fast as it goes)",
+        json_schema_extra=_no_default,
     )
     files: list[bytes] = Field(
         default_factory=list,
@@ -294,7 +328,7 @@ def request_body(
     return {"requestBody": {"required": True, "content": content}}
 
 
-BODY_MODELS: tuple[type[BaseModel], ...] = (Submit, SubmitWithFiles, Goal)
+BODY_MODELS: tuple[type[BaseModel], ...] = (Submit, SubmitWithFiles, Goal, Pace)
 STREAM_MODELS: tuple[type[BaseModel], ...] = (StreamRobots,)  # live-stream messages
 
 

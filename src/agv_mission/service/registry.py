@@ -52,6 +52,9 @@ MIGRATIONS: tuple[str, ...] = (
     """
     ALTER TABLE runs ADD COLUMN mission_path TEXT;
     """,
+    """
+    ALTER TABLE runs ADD COLUMN pace REAL;
+    """,
 )
 
 
@@ -70,6 +73,7 @@ class Submission:
     # where the mission sits in its run directory when it came with its files
     # (``inputs/...``); None: it names built-in and data-directory files only
     mission_path: str | None = None
+    pace: float | None = None  # simulated seconds per wall second; None: flat out
 
 
 class Registry:
@@ -184,14 +188,15 @@ class Registry:
             "progress": dict(NO_PROGRESS),
             "seed": submission.seed,
             "set": list(submission.sets),
+            "pace": submission.pace,
         }
         self._remember(run)
         self._subs[run_id] = submission
         done = self._later(
             self._insert,
             run_id,
-            "INSERT INTO runs (id, name, status, created, mission, sets, seed, mission_path) "
-            "VALUES (?, ?, 'queued', ?, ?, ?, ?, ?)",
+            "INSERT INTO runs (id, name, status, created, mission, sets, seed, mission_path, "
+            "pace) VALUES (?, ?, 'queued', ?, ?, ?, ?, ?, ?)",
             (
                 run_id,
                 submission.name,
@@ -200,6 +205,7 @@ class Registry:
                 json.dumps(submission.sets),
                 submission.seed,
                 submission.mission_path,
+                submission.pace,
             ),
         )
         return self._cached(run_id) or run, done
@@ -228,7 +234,7 @@ class Registry:
 
         def read() -> Submission:
             row = self._db.execute(
-                "SELECT name, mission, sets, seed, mission_path FROM runs WHERE id = ?",
+                "SELECT name, mission, sets, seed, mission_path, pace FROM runs WHERE id = ?",
                 (run_id,),
             ).fetchone()
             return Submission(
@@ -237,6 +243,7 @@ class Registry:
                 json.loads(row["sets"]),
                 row["seed"],
                 row["mission_path"],
+                row["pace"],
             )
 
         return self._call(read)
@@ -339,4 +346,5 @@ def _row(row: sqlite3.Row) -> dict[str, Any]:
         "progress": progress or dict(NO_PROGRESS),
         "seed": row["seed"],
         "set": json.loads(row["sets"]),
+        "pace": row["pace"],
     }

@@ -90,6 +90,7 @@ class RunManager:
         self.workers = workers
         self.queue_size = queue_size
         self.queue: deque[str] = deque()
+        self.paces: dict[str, float | None] = {}  # paces set while queued, by run id
         self.active: dict[str, ActiveRun] = {}
         self.loop: asyncio.AbstractEventLoop | None = None
         self.stopping = False
@@ -172,6 +173,7 @@ class RunManager:
             "sets": sub.sets,
             "seed": sub.seed,
             "mission_path": sub.mission_path,
+            "pace": self.paces.pop(run_id, sub.pace),
             "observers": self.observers,
         }
         run = ActiveRun(run_id)
@@ -288,6 +290,7 @@ class RunManager:
     def cancel(self, run_id: str) -> None:
         if run_id in self.queue:
             self.queue.remove(run_id)
+            self.paces.pop(run_id, None)
             self.registry.forget_submission(run_id)
             reason = "cancelled before it started"
             self.registry.set_status(run_id, "aborted", reason)
@@ -311,6 +314,18 @@ class RunManager:
             raise NotActive("the run is not paused")
         run.status = "running"
         self._send(run, ("resume",))
+
+    def set_pace(self, run_id: str, pace: float | None) -> None:
+        """A new pace (simulated seconds per wall second; None: flat out) for a run queued
+        or under way."""
+        if run_id in self.queue:
+            self.paces[run_id] = pace
+        else:
+            run = self.active.get(run_id)
+            if run is None or run.ended:
+                raise NotActive("the run is already final")
+            self._send(run, ("pace", pace))
+        self.registry.update(run_id, pace=pace)
 
     def cmd_vel(
         self, run_id: str, robot: str | None, v: float, w: float

@@ -25,6 +25,8 @@ from agv_mission.service.models import (
     Command,
     Goal,
     GoalSent,
+    Pace,
+    PaceSet,
     RobotName,
     RoomRecord,
     Run,
@@ -85,7 +87,7 @@ def runs_router(service: Service) -> APIRouter:
         openapi_extra=request_body(Submit, yaml=True),
     )
     async def submit(request: Request) -> JSONResponse:
-        """Submit a mission: JSON ``{mission, set, seed}`` or the YAML text alone
+        """Submit a mission: JSON ``{mission, set, seed, pace}`` or the YAML text alone
         (``application/yaml``). A multipart body with the files the mission names is taken
         here too, as at ``POST /api/runs/upload``."""
         return await accept(request)
@@ -113,7 +115,7 @@ def runs_router(service: Service) -> APIRouter:
     )
     async def validate_route(request: Request) -> dict[str, Any]:
         """Validate a mission without running it; the resolved mission."""
-        text, sets, seed = await mission_input(request)
+        text, sets, seed, _pace = await mission_input(request)
         loaded = await asyncio.to_thread(validate_mission, service, text, sets, seed)
         return {"ok": True, "mission": loaded.resolved()}
 
@@ -159,6 +161,36 @@ def runs_router(service: Service) -> APIRouter:
         """Carry on from where it paused."""
         await service.get_run(run_id)
         return control(run_id, manager.resume, "running")
+
+    @router.post(
+        "/api/runs/{run_id}/pace",
+        status_code=202,
+        response_model=PaceSet,
+        responses=answers(404, 409, 413, 422),
+        openapi_extra=request_body(Pace),
+    )
+    async def pace(run_id: str, request: Request) -> dict[str, Any]:
+        """Change a run's pace (simulated seconds per wall second) while it is queued,
+        running or paused; 409 once it is final."""
+        run = await service.get_run(run_id)
+        try:
+            wanted = Pace.model_validate_json(await read_body(request))
+        except ValidationError as exc:
+            raise ApiError(
+                422,
+                {
+                    "errors": [
+                        problem(None, ".".join(map(str, e["loc"])), e["msg"]) for e in exc.errors()
+                    ]
+                },
+            ) from None
+        if run["status"] in FINAL:
+            raise ApiError(409, f"the run is already {run['status']}")
+        try:
+            manager.set_pace(run_id, wanted.pace)
+        except NotActive as exc:
+            raise ApiError(409, str(exc)) from None
+        return {"id": run_id, "pace": wanted.pace}
 
     @router.post(
         "/api/runs/{run_id}/goal",

@@ -2,7 +2,7 @@
 
 Parts: ``mission`` (the YAML text, as a text field or a file part), ``mission_path``
 (where the mission file sits among the files; default the mission part's filename, else
-``mission.yaml``), ``set`` (repeated), ``seed``, and ``files`` (repeated): each file's
+``mission.yaml``), ``set`` (repeated), ``seed``, ``pace``, and ``files`` (repeated): each file's
 filename is its path relative to the mission file's folder, as the mission names it
 (``maps/house.yaml``).
 
@@ -23,7 +23,7 @@ from fastapi import Request
 from starlette.datastructures import FormData, UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
 
-from agv_mission.service.bodies import bounded_stream, problem, validate
+from agv_mission.service.bodies import bounded_stream, pace_of, problem, validate
 from agv_mission.service.context import ApiError, Service
 from agv_mission.service.registry import Submission
 from agv_mission.service.sandbox import NamedFiles
@@ -102,6 +102,7 @@ async def upload(service: Service, request: Request) -> tuple[Submission, str]:
         if len(sets) != len(form.getlist("set")):
             raise invalid("set", "each set part is a KEY=VALUE text field")
         seed = _seed(form.get("seed"))
+        pace = _pace(form.get("pace"))
         files = form.getlist("files")
         if len(files) > MAX_FILES:
             raise invalid("files", f"at most {MAX_FILES} files travel with a mission")
@@ -136,7 +137,18 @@ async def upload(service: Service, request: Request) -> tuple[Submission, str]:
             raise
     finally:
         await form.close()
-    return Submission(loaded.name, text, sets, seed, f"{INPUTS}/{mission_path}"), run_id
+    return Submission(loaded.name, text, sets, seed, f"{INPUTS}/{mission_path}", pace), run_id
+
+
+def _pace(given: object) -> float | None:
+    """A multipart ``pace`` text field (absent or empty: as fast as it goes)."""
+    if given is None or given == "":
+        return None
+    try:
+        value = float(str(given))
+    except ValueError:
+        raise invalid("pace", "simulated seconds per wall second: a number") from None
+    return pace_of(value)
 
 
 def _seed(given: object) -> int | None:

@@ -21,6 +21,7 @@ import numpy as np
 
 from agv_mission.geometry import Pose2D
 from agv_mission.messages import finite
+from agv_mission.missions.pacing import Pacer
 from agv_mission.service import messages as msg
 from agv_mission.service.stream import StreamObserver
 
@@ -28,22 +29,24 @@ REMOTE_TIMEOUT = 0.5  # wall seconds without cmd_vel before a teleop robot stops
 
 
 class PipeControl:
-    """Steers the run from the service's commands: pause, resume, cancel, remote driving,
-    goals and room records, each for the robot it names. Paces simulated time at wall
-    speed while any robot's current task is teleop."""
+    """Steers the run from the service's commands: pause, resume, pace, cancel, remote
+    driving, goals and room records, each for the robot it names. Holds simulated time to
+    the run's pace (none: flat out), and to wall speed while any robot's current task is
+    teleop."""
 
-    def __init__(self, conn: Connection, stream: StreamObserver) -> None:
+    def __init__(self, conn: Connection, stream: StreamObserver, pace: float | None = None) -> None:
         self.conn = conn
         self.stream = stream
         self.paused = False
         self.cmds: dict[str, tuple[tuple[float, float], float]] = {}  # robot -> (v, w), wall
-        self.pace_origin: tuple[float, float] | None = None  # (wall, sim) of pacing start
+        self.pacer = Pacer(pace)
         self.run: Any = None
         self.cancel_reason: str | None = None
 
     def before_step(self, run: Any) -> None:
         self.run = run
         self._drain(0.0)
+        self._pace(run)
         while self.paused and self.cancel_reason is None:
             self._drain(1.0)
         if self.cancel_reason is not None:
@@ -76,8 +79,11 @@ class PipeControl:
             self._set_status("paused")
         elif kind == "resume" and self.paused:
             self.paused = False
-            self.pace_origin = None
+            self.pacer.restart()
             self._set_status("running")
+        elif kind == "pace":
+            with contextlib.suppress(ValueError):  # the service checked it
+                self.pacer.set(command[1])
         elif kind == "cmd_vel":
             self.cmds[str(command[1])] = (float(command[2]), float(command[3])), time.monotonic()
         elif kind == "goal":
@@ -129,31 +135,28 @@ class PipeControl:
         handle.remote_goal = goal
         self.stream.send(("reply", request_id, 202, {}))
 
+    def _driven(self, run: Any) -> list[Any]:
+        """The robots whose current task is teleop."""
+        return [
+            robot
+            for robot in run.robots
+            if (self.stream.task_of(robot.name) or {}).get("type") == "teleop"
+        ]
+
+    def _pace(self, run: Any) -> None:
+        """Wait until the next step is due: the run's pace, or wall speed while a robot is
+        driven remotely (also while it drives to a goal it was sent: the dashboard shows
+        the drive as it happens). Commands are answered meanwhile."""
+        wait = self.pacer.delay(run.world.time, 1.0 if self._driven(run) else None)
+        if wait > 0 and not self.paused:
+            self._drain(wait)
+
     def _teleop(self, run: Any) -> None:
-        """While a robot's task is teleop: its latest remote command (stale after 0.5 s
-        wall), and simulated time paced at wall speed, also while it drives to a goal it
-        was sent (the dashboard shows the drive as it happens)."""
+        """Each teleop robot's latest remote command (stale after 0.5 s wall)."""
         now = time.monotonic()
-        driven = False
-        for robot in run.robots:
-            task = self.stream.task_of(robot.name)
-            if task is None or task.get("type") != "teleop":
-                continue
-            driven = True
+        for robot in self._driven(run):
             cmd, at = self.cmds.get(robot.name, ((0.0, 0.0), -math.inf))
             robot.handle.remote_command = cmd if now - at <= REMOTE_TIMEOUT else None
-        if not driven:
-            self.pace_origin = None
-            return
-        if self.pace_origin is None:
-            self.pace_origin = (now, run.sim.time)
-            return
-        wall0, sim0 = self.pace_origin
-        wait = (run.sim.time - sim0) - (now - wall0)
-        if wait > 0.5:  # far ahead (after a pause): re-anchor
-            self.pace_origin = (now, run.sim.time)
-        elif wait > 0:
-            self._drain(wait)  # sleep, but answer commands at once
 
 
 def unreachable(navigator: Any, start: Pose2D, goal: Pose2D) -> str | None:
@@ -221,7 +224,7 @@ def _run(job: dict[str, Any], conn: Connection) -> None:
         return
     write_mission(run_dir, loaded)
     stream = StreamObserver(conn, run_dir)
-    control = PipeControl(conn, stream)
+    control = PipeControl(conn, stream, job.get("pace"))
     stream.send(("status", "running"))
     limits = {
         r.name: (r.robot.max_linear_velocity, r.robot.max_angular_velocity) for r in loaded.robots

@@ -16,6 +16,7 @@ import base64
 import contextlib
 import io
 import json
+import re
 import threading
 import time
 from dataclasses import dataclass, field
@@ -30,6 +31,7 @@ from PIL import Image
 from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
 from agv_mission.maps.ros_map import saver_pixels
 from agv_mission.maps.worlds import World
+from agv_mission.missions.palette import robot_colour
 from agv_mission.vda5050.protocol import split_topic
 from agv_mission.vda5050.transport import BrokerUrl, MqttLink
 
@@ -152,7 +154,13 @@ class FleetWatch:
     def snapshot(self) -> dict[str, Any]:
         now = time.monotonic()
         with self._lock:
-            vehicles = [v.doc(now) for _k, v in sorted(self.vehicles.items())]
+            vehicles = [v.doc(now) for _k, v in sorted(self.vehicles.items(), key=_serial_order)]
+        # run.png's and the dashboard's colours: a fleet's vehicles (one manufacturer) in
+        # serial order, as its mission lists its robots
+        fleets: dict[str, int] = {}
+        for v in vehicles:
+            k = fleets[v["manufacturer"]] = fleets.get(v["manufacturer"], -1) + 1
+            v["colour"] = robot_colour(k)
         return {
             "broker": str(self.url),
             "connected": self.link.connected.is_set(),
@@ -168,6 +176,14 @@ class FleetWatch:
                 world = BUILTIN_WORLDS[map_id]()
             self._maps[map_id] = None if world is None else _map_doc(world)
         return self._maps[map_id]
+
+
+def _serial_order(item: tuple[tuple[str, str], Watched]) -> tuple[Any, ...]:
+    """Vehicles by manufacturer, then serial number in natural order (agv2 before agv10):
+    a fleet mission's robots named in order keep their order, and so their colours."""
+    (manufacturer, serial), _ = item
+    parts = re.split(r"(\d+)", serial)
+    return (manufacturer, [(0, int(p), "") if p.isdigit() else (1, 0, p) for p in parts if p])
 
 
 def _map_doc(world: World) -> dict[str, Any]:

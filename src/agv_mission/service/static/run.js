@@ -66,8 +66,32 @@
     $("pause").disabled = s !== "running";
     $("resume").disabled = s !== "paused";
     $("cancel").disabled = final;
+    $("pace").disabled = final;
+    treeDirty = true;  // the progress reads the status too
     updateTeleop();
   }
+
+  // ------------------------------------------------------------------ pace
+  /** the run's pace (simulated seconds per wall second, null: as fast as it goes) in the menu */
+  function showPace(pace) {
+    const sel = $("pace");
+    if (document.activeElement === sel) return;  // the user is choosing
+    const value = pace == null ? "" : String(+pace);
+    if (![...sel.options].some((o) => o.value === value)) {
+      const o = document.createElement("option");
+      o.value = value; o.textContent = `${value}×`;
+      sel.appendChild(o);
+    }
+    sel.value = value;
+  }
+  $("pace").addEventListener("change", async () => {
+    const value = $("pace").value;
+    const pace = value === "" ? null : parseFloat(value);
+    const r = await AGV.api(`/api/runs/${encodeURIComponent(runId)}/pace`, { method: "POST", body: { pace } });
+    if (r.ok) toast(pace == null ? "pace: as fast as it goes" : `pace: ${pace}× real time`, "good");
+    else { toast(`pace: ${r.status} ${r.data?.detail ?? ""}`, "bad"); if (run) showPace(run.pace); }
+    $("pace").blur();
+  });
 
   async function control(action) {
     const r = await AGV.api(`/api/runs/${encodeURIComponent(runId)}/${action}`, { method: "POST" });
@@ -110,6 +134,7 @@
     if (r.ok && r.data) {
       run = r.data;
       setMeta();
+      showPace(run.pace);
       if (!lastState || AGV.FINAL.has(run.status) || run.status === "queued") setStatus(run.status);
       if (AGV.FINAL.has(run.status)) { onFinal(run.status, run.reason, run.result); return; }
       if (!ws) connect();
@@ -190,6 +215,7 @@
     // 25 of each frequent message a second: the map draws at most 20 frames a second, and
     // every message parsed is CPU taken from the simulation running beside the browser
     ws = new WebSocket(AGV.wsUrl(`/api/runs/${encodeURIComponent(runId)}/live`, { rate: LIVE_RATE }));
+    events = []; eventsDirty = true;  // the stream sends the events so far after its snapshot
     ws.onmessage = (e) => {
       let msg;
       try { msg = JSON.parse(e.data); } catch (_) { return; }
@@ -280,15 +306,49 @@
     const level = st && typeof st.battery === "number" ? st.battery : null;
     box.hidden = level === null;
     if (level === null) return;
-    $("batterymeter").value = level;
+    box.dataset.level = String(level);  // the state of charge, 0..1 (tests read it)
+    $("batteryfill").style.width = `${Math.max(0, Math.min(1, level)) * 100}%`;
     const text = `${(level * 100).toFixed(1)} %` + (st.docked ? ` · docked at ${st.docked}` : "");
     if ($("batterytext").textContent !== text) $("batterytext").textContent = text;
     box.classList.toggle("charging", !!st.charging);
     box.classList.toggle("low", level <= 0.2);
   }
 
+  /** How far the tree is, from its nodes' statuses: of a task list's tasks ("task 2:
+   *  patrol"), those finished; of one task (or a tree without tasks), the steps of its
+   *  first node with more than one child (a visit's rooms, a round's waypoints). */
+  function treeProgress(nodes) {
+    if (!nodes || !nodes.length) return null;
+    const st = (j) => String(nodes[j].status || "").toUpperCase();
+    const isDone = (j) => st(j) === "SUCCESS" || st(j) === "FAILURE";
+    const runningOf = (js) => { const j = js.find((k) => st(k) === "RUNNING"); return j != null ? nodes[j].name : null; };
+    const tasks = nodes.map((n, j) => j).filter((j) => /^task \d+: /.test(nodes[j].name || ""));
+    if (tasks.length > 1) return { done: tasks.filter(isDone).length, total: tasks.length, current: runningOf(tasks) };
+    const childrenOf = (i) => {
+      const d = nodes[i].depth || 0, out = [];
+      for (let j = i + 1; j < nodes.length && (nodes[j].depth || 0) > d; j++) if ((nodes[j].depth || 0) === d + 1) out.push(j);
+      return out;
+    };
+    let at = tasks.length ? tasks[0] : 0, kids = childrenOf(at);
+    while (kids.length === 1) { at = kids[0]; kids = childrenOf(at); }
+    if (!kids.length) kids = [at];
+    return { done: kids.filter(isDone).length, total: kids.length, current: runningOf(kids) };
+  }
+  function updateProgress() {
+    const p = treeProgress(treeNodes);
+    $("progress").hidden = !p;
+    if (!p) return;
+    const succeeded = status === "succeeded";
+    const done = succeeded ? p.total : p.done;
+    $("progressbar").value = p.total ? done / p.total : 0;
+    const tk = p.current || (lastState?.task ? `task ${lastState.task.index + 1} ${lastState.task.type}` : null);
+    const text = `${done}/${p.total}` + (tk && !AGV.FINAL.has(status || "") ? ` · ${tk}` : "");
+    if ($("progresstext").textContent !== text) $("progresstext").textContent = text;
+  }
+
   function renderTree() {
     treeDirty = false;
+    updateProgress();
     if (!treeNodes) return;
     const el = $("tree");
     const rows = treeNodes.map((n) => {

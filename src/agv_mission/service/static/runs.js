@@ -108,6 +108,7 @@
   });
 
   async function refresh() {
+    if (AGV.refreshHealth) AGV.refreshHealth();
     const r = await AGV.api("/api/runs?limit=200");
     if (r.ok && r.data && Array.isArray(r.data.runs)) {
       runs = r.data.runs;

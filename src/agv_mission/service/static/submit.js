@@ -24,6 +24,13 @@
     if (seed !== "") b.seed = parseInt(seed, 10);
     return b;
   }
+  /** a submission: what is checked, and the pace to run it at */
+  function submission() {
+    const b = body();
+    const pace = $("pace").value;
+    if (pace !== "") b.pace = parseFloat(pace);
+    return b;
+  }
 
   function renderGutter() {
     const n = ta.value.split("\n").length;
@@ -108,7 +115,7 @@
   $("submit").onclick = async () => {
     $("submit").disabled = true;
     try {
-      const r = await AGV.api("/api/runs", { method: "POST", body: body() });
+      const r = await AGV.api("/api/runs", { method: "POST", body: submission() });
       if (r.ok && r.data && r.data.id) {
         location.href = `/runs/${encodeURIComponent(r.data.id)}`;
         return;

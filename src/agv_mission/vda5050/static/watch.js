@@ -2,7 +2,6 @@
 // MapView), with a card of its state. Polls /api/vehicles five times a second.
 "use strict";
 
-const HUES = ["#4aa3ff", "#3ecf8e", "#ffb020", "#ff7ad9", "#b58cff", "#ffe066", "#ff2e63", "#7cdfff"];
 const esc = (s) => String(s ?? "").replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]);
 
 class FleetView extends MapView {
@@ -31,7 +30,6 @@ class FleetView extends MapView {
 const view = new FleetView(document.getElementById("map"));
 view.mapId = null;
 const maps = {};
-const colors = {};
 
 async function showMap(mapId) {
   if (view.mapId === mapId) return;
@@ -75,11 +73,7 @@ async function poll() {
     const r = await fetch("/api/vehicles");
     const doc = await r.json();
     const vs = doc.vehicles;
-    for (const v of vs) {
-      const key = v.manufacturer + "/" + v.serial;
-      if (!colors[key]) colors[key] = HUES[Object.keys(colors).length % HUES.length];
-      v.color = colors[key];
-    }
+    for (const v of vs) v.color = v.colour;  // the server's: run.png's and the dashboard's palette
     view.vehicles = vs;
     const ids = [...new Set(vs.filter((v) => v.position).map((v) => v.position.mapId))];
     const sel = document.getElementById("mapsel");

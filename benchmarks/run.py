@@ -46,6 +46,7 @@ MODULES = [
     "bench_fleet",
     "bench_people",
     "bench_shortest_way",
+    "bench_barn",
 ]
 
 

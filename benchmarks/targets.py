@@ -101,6 +101,11 @@ TARGETS = {
         for mission in ("demo_patrol", "visit_rooms", "tb3_real_rrtconnect")
         for ratio in ("planned_vs_shortest_free", "driven_vs_shortest_free")
     },
+    # issue 33: BARN's 300 public worlds (read from AGV_MISSION_BARN), default stack
+    "barn.default.success_rate": (">=", 0.95),
+    "barn.default.collision_rate": ("<=", 0.02),
+    "barn.default.mean_metric": (">=", 0.35),
+    "barn.default.wall_s": ("<=", 600.0),
 }
 # metric name suffix -> (comparison, target), for keys of every map (issue 15)
 SUFFIX_TARGETS = {

@@ -15,6 +15,7 @@ FLOORS = {
     "cli": 8,
     "service": 7,
     "regress": 7,
+    "barn": 7,
     "teleop": 7,
     "bags": 7,
     "vda5050": 7,

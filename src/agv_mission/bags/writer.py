@@ -95,12 +95,8 @@ def lidar_mount(robot: Any) -> tuple[Pose2D, float]:
     """The lidar's planar pose on ``base_footprint`` and its height (upside-down mounts
     and offsets come with the robot description when it has them)."""
     lidar = robot.lidar
-    offset = Pose2D(
-        float(getattr(lidar, "x", 0.0)),
-        float(getattr(lidar, "y", 0.0)),
-        float(getattr(lidar, "yaw", 0.0)),
-    )
-    return offset, float(lidar.height)
+    mount = lidar.mount
+    return Pose2D(float(mount.x), float(mount.y), float(mount.yaw)), float(lidar.height)
 
 
 @dataclass

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from agv_mission.cli import bags, regress, runs, service, teleop, trees, vda5050, worlds
+from agv_mission.cli import bags, barn, regress, runs, service, teleop, trees, vda5050, worlds
 from agv_mission.cli.startup import started
 
 app = typer.Typer(
@@ -22,6 +22,7 @@ app.command()(teleop.teleop)
 app.command("map")(bags.map_)
 app.command()(worlds.world)
 app.command()(regress.regress)
+app.command()(barn.barn)
 app.command()(service.serve)
 app.command()(service.submit)
 app.add_typer(vda5050.app, name="vda5050")

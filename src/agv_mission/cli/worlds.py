@@ -17,14 +17,29 @@ def world(
         Optional[Path],  # noqa: UP007, UP045
         typer.Option("--save-map", help="map_saver stem: writes PATH.pgm + PATH.yaml"),
     ] = None,
+    robot: Annotated[
+        Optional[str],  # noqa: UP007, UP045
+        typer.Option(help="a Gazebo world is cut at this robot's scan height (default 0.17 m)"),
+    ] = None,
 ) -> None:
     """Describe a world (extent, spawn, rooms, docks) and optionally save its map."""
     from agv_mission.maps.ros_map import save_ros_map
-    from agv_mission.maps.world_loader import WorldError, load_world
+    from agv_mission.maps.world_loader import DEFAULT_SCAN_HEIGHT, WorldError, load_world
     from agv_mission.maps.worlds import describe
+    from agv_mission.robots.description import RobotFileError, load_robot
 
+    height = DEFAULT_SCAN_HEIGHT
+    if robot is not None:
+        try:
+            height = load_robot(robot, Path.cwd()).lidar.height
+        except FileNotFoundError:
+            raise failure(
+                "invalid input", f"--robot {robot}: no built-in robot or robot file"
+            ) from None
+        except (RobotFileError, OSError, ValueError) as exc:
+            raise failure("invalid input", f"--robot {robot}: {exc}") from None
     try:
-        loaded = load_world(name, Path.cwd())
+        loaded = load_world(name, Path.cwd(), height)
     except WorldError as exc:
         raise failure("invalid input", str(exc)) from None
     except (OSError, ValueError, RuntimeError) as exc:

@@ -13,7 +13,10 @@
    the free cell nearest the map-frame origin (0, 0) with at least
    :data:`SPAWN_CLEARANCE` of free space around it (in the largest free region),
    else (0, 0). No rooms: give a rooms file;
-3. a path to a world file in this module's own YAML format::
+3. a path to a Gazebo world (``.world`` or ``.sdf``, :mod:`agv_mission.maps.sdf_world`),
+   its bodies cut at ``scan_height``; its map the cut rasterised at 0.05 m over the
+   geometry's bounds plus 2 m; spawn (0, 0, 0), where Gazebo spawns; no rooms;
+4. a path to a world file in this module's own YAML format::
 
        name: my_arena              # optional; default: the file's stem
        resolution: 0.05            # optional, metres per map cell
@@ -56,7 +59,7 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
 from agv_mission.maps.docks import Dock, DockModel, dock_problem
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
-from agv_mission.maps.rasterize import rasterize
+from agv_mission.maps.rasterize import grid_shape, occupancy_mask, rasterize
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.rooms_file import (
     RoomsFileError,
@@ -66,12 +69,16 @@ from agv_mission.maps.rooms_file import (
     rooms_from_doc,
 )
 from agv_mission.maps.ros_map import MapLoadError, is_ros_map_yaml, load_ros_map
+from agv_mission.maps.sdf_world import SdfError, is_sdf_path, read_sdf_world
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.suggest import unknown_key
 
 SPAWN_CLEARANCE = 0.3  # metres of free space the spawn of a ROS map must have around it
 DEFAULT_RESOLUTION = 0.05
 DEFAULT_MARGIN = 0.5
+SDF_MAP_MARGIN = 2.0  # m around a Gazebo world's bodies (robots-and-worlds.md)
+#: The scan plane a Gazebo world is cut at when no robot says (LidarSpec's default height).
+DEFAULT_SCAN_HEIGHT = 0.17
 
 
 class WorldError(ValueError):
@@ -88,8 +95,15 @@ def builtin_names() -> list[str]:
     return sorted(BUILTIN_WORLDS)
 
 
-def load_world(spec: str, base_dir: Path | str = ".") -> World:
-    """The world named by ``spec``: a built-in name, a ROS map YAML or a world file."""
+def load_world(
+    spec: str,
+    base_dir: Path | str = ".",
+    scan_height: float = DEFAULT_SCAN_HEIGHT,
+    skip_unsupported: bool = False,
+) -> World:
+    """The world named by ``spec``: a built-in name, a ROS map YAML, a Gazebo world (cut
+    at ``scan_height``, what it cannot read skipped with ``skip_unsupported``) or a world
+    file."""
     spec = str(spec).strip()
     if spec in BUILTIN_WORLDS:
         return BUILTIN_WORLDS[spec]()
@@ -103,6 +117,8 @@ def load_world(spec: str, base_dir: Path | str = ".") -> World:
         raise WorldError(
             f"unknown world {spec!r}: not a built-in world ({names}) and no such file {path}"
         )
+    if is_sdf_path(path):
+        return world_from_sdf(path, scan_height, skip_unsupported)
     try:
         text = read_input_text(path)
         doc = yaml.safe_load(text)
@@ -117,6 +133,51 @@ def load_world(spec: str, base_dir: Path | str = ".") -> World:
     raise WorldError(
         f"{path}: neither a ROS map YAML (image, resolution, origin) nor a world file "
         f"(spawn, boxes, cylinders, ...); built-in worlds are: {names}"
+    )
+
+
+# --------------------------------------------------------------------------- Gazebo worlds
+
+
+def world_from_sdf(path: Path, scan_height: float, skip_unsupported: bool = False) -> World:
+    """A Gazebo world's static bodies cut at ``scan_height``; what was left out in
+    :attr:`World.imported`."""
+    try:
+        sdf = read_sdf_world(path, scan_height, skip_unsupported)
+    except SdfError as exc:
+        raise WorldError(str(exc), exc.problems) from None
+    imported: dict[str, Any] = {}
+    if sdf.skipped or skip_unsupported:
+        imported["skipped"] = sdf.skipped
+    if sdf.not_cut:
+        imported["not_cut"] = sdf.not_cut
+    return World(
+        name=sdf.name,
+        boxes=sdf.boxes,
+        cylinders=sdf.cylinders,
+        map=open_floor_map(sdf.boxes, sdf.cylinders),
+        spawn=Pose2D(0.0, 0.0, 0.0),
+        rooms={},
+        wall_height=max(scan_height + 0.3, 0.5),
+        imported=imported,
+    )
+
+
+def open_floor_map(
+    boxes: list[Box], cylinders: list[Cylinder], margin: float = SDF_MAP_MARGIN
+) -> OccupancyGrid:
+    """A Gazebo world's own map: its bodies rasterised at :data:`DEFAULT_RESOLUTION` over
+    their bounds plus ``margin`` (around the origin for an empty world). A Gazebo world is
+    open floor: every cell no body touches is free."""
+    if boxes or cylinders:
+        bounds = _geometry_bounds(boxes, cylinders, None, margin)
+    else:
+        bounds = (-margin, margin, -margin, margin)
+    shape = grid_shape(bounds, DEFAULT_RESOLUTION)
+    origin = Pose2D(float(bounds[0]), float(bounds[2]), 0.0)
+    occupied = occupancy_mask(boxes, cylinders, shape, DEFAULT_RESOLUTION, origin)
+    return OccupancyGrid(
+        np.where(occupied, OCCUPIED, FREE).astype(np.int8), DEFAULT_RESOLUTION, origin
     )
 
 
@@ -367,9 +428,9 @@ def _rooms_of(
 
 
 def _geometry_bounds(
-    boxes: list[Box], cylinders: list[Cylinder], spawn: Pose2D, margin: float
+    boxes: list[Box], cylinders: list[Cylinder], spawn: Pose2D | None, margin: float
 ) -> tuple[float, float, float, float]:
-    xs, ys = [spawn.x], [spawn.y]
+    xs, ys = ([spawn.x], [spawn.y]) if spawn is not None else ([], [])
     for b in boxes:
         c, s = abs(math.cos(b.yaw)), abs(math.sin(b.yaw))
         ex, ey = c * b.half_x + s * b.half_y, s * b.half_x + c * b.half_y

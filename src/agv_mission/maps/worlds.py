@@ -8,6 +8,7 @@ pose, named rooms and named docks (chargers).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.docks import Dock
@@ -47,6 +48,9 @@ class World:
     rooms: dict[str, Room] = field(default_factory=dict)
     wall_height: float = 0.5
     docks: dict[str, Dock] = field(default_factory=dict)
+    # what reading a Gazebo world left out (``skipped``, ``not_cut``): result.json's
+    # ``world_import``; empty for every other world
+    imported: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

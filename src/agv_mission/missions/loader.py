@@ -30,6 +30,13 @@ from agv_mission.maps.world_loader import WorldError, builtin_names, load_world
 from agv_mission.maps.worlds import World
 from agv_mission.maps.zones import FilterMask, ZoneFilters
 from agv_mission.missions.errors import MissionError, Problem
+from agv_mission.missions.no_map import (
+    check_localization,
+    default_to_odometry,
+    names_no_map,
+    no_map_grid,
+    scan_height,
+)
 from agv_mission.missions.overrides import Override, apply_overrides
 from agv_mission.missions.people import resolve_people
 from agv_mission.missions.problems import (
@@ -255,6 +262,7 @@ def load_mission(
             [log.at(p, f"keys must be strings, got {p[-1]!r} (quote it)") for p in bad_keys]
         )
 
+    default_to_odometry(data)  # map: none
     assigned = _fleet_layout(data, log)
     with_default_plugin_types(data)
     for robot in data.get("robots") or []:
@@ -452,7 +460,7 @@ def _resolve(
         named = {
             "world": None if mission.world.strip() in builtin_names() else mission.world,
             "robot": None if mission.robot in BUILTIN_ROBOTS else mission.robot,
-            "map": mission.map,
+            "map": None if names_no_map(mission.map) else mission.map,
             "rooms": mission.rooms,
             "recorder": mission.recorder,
         }
@@ -468,7 +476,12 @@ def _resolve(
         log.raise_if_any()
 
     try:
-        world = load_world(mission.world, base_dir)
+        world = load_world(
+            mission.world,
+            base_dir,
+            scan_height(mission.robot, base_dir),
+            mission.world_import.skip_unsupported,
+        )
     except WorldError as exc:  # each of a world file's problems at its own line
         for message in exc.problems or [one_line(str(exc))]:
             log.add(("world",), message)
@@ -498,7 +511,9 @@ def _resolve(
     except (OSError, ValueError, RuntimeError) as exc:
         log.add(("robot",), f"cannot read robot file {mission.robot!r}: {os_message(exc)}")
     given_map = None
-    if mission.map is not None:
+    if names_no_map(mission.map):
+        check_localization(mission, log.add)
+    elif mission.map is not None:
         try:
             given_map = load_ros_map(input_path(mission.map.strip(), base_dir))
         except MapLoadError as exc:  # names the file and what is wrong with it
@@ -522,11 +537,17 @@ def _resolve(
             log.add(("rooms",), f"cannot read rooms file {mission.rooms!r}: {os_message(exc)}")
     log.raise_if_any()
 
+    node_checks = [*_node_checks(tree, log), *more_checks]
+    if names_no_map(mission.map):
+        try:
+            given_map = no_map_grid(mission, world, rooms, node_checks)
+        except ValueError as exc:
+            log.add(("map",), f"map: none: {exc}")
+            raise MissionError(log.problems) from None
     known = given_map if given_map is not None else world.map
     if not costmap_fits(mission, known, log.add):
         raise MissionError(log.problems)
-    costmap = Costmap.from_grid(known, robot.footprint_radius, mission.stack.costmap)
-    node_checks = [*_node_checks(tree, log), *more_checks]
+    costmap = Costmap.from_grid(known, robot.inscribed_radius, mission.stack.costmap)
     if isinstance(mission.start, str) and mission.start not in rooms and mission.start in docks:
         dock = docks[mission.start].pose  # a robot may start on its dock
         mission = mission.model_copy(

@@ -48,7 +48,7 @@ class MapBuilder:
         loaded, setup = self.stack.loaded, self.stack.setup  # a fleet: this robot's own
         bounds = bounds or loaded.world.map.extent
         session = MappingSession(
-            self.stack.new_slam(bounds), bounds, setup.robot.footprint_radius, setup.stack.costmap
+            self.stack.new_slam(bounds), bounds, setup.robot.inscribed_radius, setup.stack.costmap
         )
         session.start(self._anchor(), self.stack.odom)
         self.session = session
@@ -83,7 +83,7 @@ class MapBuilder:
         self.maps.append(summary)
         self.built_map = grid
         costmap_config = setup.stack.costmap
-        static = Costmap.from_grid(grid, setup.robot.footprint_radius, costmap_config)
+        static = Costmap.from_grid(grid, setup.robot.inscribed_radius, costmap_config)
         self.navigator.layer = ObstacleLayer(static, costmap_config.obstacles)
         self.stack.localizer = self.stack.new_localizer(grid)
         self.stack.localizer.reset(session.slam.pose, self.stack.odom)

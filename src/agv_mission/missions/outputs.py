@@ -14,9 +14,11 @@ import numpy as np
 import yaml
 
 from agv_mission.atomic import atomic_write_bytes, atomic_write_text
+from agv_mission.maps.worlds import World
 from agv_mission.maps.zones import ZoneFilters
 from agv_mission.messages import json_default
 from agv_mission.missions.loader import LoadedMission
+from agv_mission.missions.no_map import names_no_map
 from agv_mission.missions.palette import ROBOT_COLOURS
 from agv_mission.missions.people_record import plot_people, write_people_csv
 from agv_mission.missions.run_report import COVARIANCE_COLUMNS
@@ -77,6 +79,7 @@ def result_document(loaded: LoadedMission, record: RunRecord, run_dir: Path) -> 
         "wall_time": record.wall_time,
         "seed": loaded.mission.seed,
         "world": loaded.world.name,
+        **({"world_import": loaded.world.imported} if loaded.world.imported else {}),
         "robot": loaded.robot.name,
         "tasks": record.tasks,
         "metrics": record.metrics,
@@ -204,6 +207,21 @@ def write_trajectory(
         atomic_write_text(path, buf.getvalue())
 
 
+def _plot_world(ax: Any, world: World) -> None:
+    """The world's bodies, for a robot given no map (its map is blank)."""
+    from matplotlib.collections import PatchCollection
+    from matplotlib.patches import Circle, Polygon
+
+    patches: list[Any] = [Circle((c.x, c.y), c.radius) for c in world.cylinders]
+    for b in world.boxes:
+        c, s = np.cos(b.yaw), np.sin(b.yaw)
+        corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * [b.half_x, b.half_y]
+        patches.append(Polygon(corners @ np.array([[c, s], [-s, c]]) + [b.x, b.y], closed=True))
+    if patches:
+        ax.add_collection(PatchCollection(patches, color="0.35", lw=0))
+        ax.fill([], [], color="0.35", label="the world (no map given)")
+
+
 def _plot_zones(ax: Any, zones: ZoneFilters) -> None:
     """Keepout zones in red, speed zones in blue (darker: slower), as their rasters."""
     xmin, xmax, ymin, ymax = zones.grid.extent
@@ -238,6 +256,20 @@ def _zone_labels(zones: ZoneFilters) -> list[tuple[float, tuple[int, int]]]:
     return out
 
 
+def _plot_bodies(ax: Any, loaded: LoadedMission, record: RunRecord, patch: Any) -> None:
+    """Each robot's footprint (its polygon, or its circle) where it started and ended."""
+    own = record.robots or ({loaded.robots[0].name: record} if loaded.robots else {})
+    outlines = {r.name: r.robot.outline for r in loaded.robots}
+    for k, (name, rec) in enumerate(own.items()):
+        t, outline = rec.trajectory, outlines.get(name)
+        if outline is None or not t.size:
+            continue
+        colour = ROBOT_COLOURS[k % len(ROBOT_COLOURS)]
+        for row in (t[0], t[-1]):
+            xy = outline.in_map(float(row[1]), float(row[2]), float(row[3]))
+            ax.add_patch(patch(xy, closed=True, fill=False, lw=0.8, ec=colour, alpha=0.8))
+
+
 def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
     """The map with rooms, planned paths, the driven and estimated trajectory, and goals."""
     import matplotlib
@@ -263,6 +295,8 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
     )
     if loaded.zones is not None:
         _plot_zones(ax, loaded.zones)
+    if names_no_map(loaded.mission.map):
+        _plot_world(ax, loaded.world)
     for room in loaded.rooms.values():
         poly = np.asarray(room.polygon + (room.polygon[0],))
         ax.plot(poly[:, 0], poly[:, 1], "--", lw=0.8, color="tab:purple", alpha=0.7)
@@ -330,6 +364,7 @@ def plot_run(path: Path, loaded: LoadedMission, record: RunRecord) -> None:
         ax.plot(t[:, 4], t[:, 5], ":", lw=0.8, color=colour, alpha=0.7)
         ax.plot(t[0, 1], t[0, 2], "o", color=colour)
         ax.plot(t[-1, 1], t[-1, 2], "s", color=colour)
+    _plot_bodies(ax, loaded, record, Polygon)
     for e in record.events:
         if e["event"] == "goal_reached":
             ax.plot(e["x"], e["y"], "*", color="gold", markeredgecolor="k", ms=11)

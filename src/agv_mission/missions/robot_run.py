@@ -46,8 +46,7 @@ from agv_mission.navigation.state import RobotState
 from agv_mission.planners.collision_monitor import CollisionMonitor
 from agv_mission.robots.battery import Battery, battery_for
 
-#: Below this planar clearance (m) the chassis may touch a wall: contacts are read. Above
-#: it a contact would need the robot tilted by more than ~15 degrees.
+#: Below this planar clearance (m) contacts are read (above, one needs a ~15 degree tilt).
 CONTACT_CLEARANCE = 0.05
 
 
@@ -136,7 +135,7 @@ class RobotRun:
         aimed = [f for f in self.mission.faults if f.robot in (None, self.name)]
         self.faults = FaultInjector(aimed, self.sim, stack.fault_rng)
         self.monitor = CollisionMonitor(
-            setup.stack.collision_monitor, robot.footprint_radius, CONTROL_PERIOD
+            setup.stack.collision_monitor, robot.footprint_radius, CONTROL_PERIOD, robot.polygon
         )
         self.task_status = ["not_run"] * len(self.tree.tasks)
         self.collisions: list[dict[str, float]] = []
@@ -326,6 +325,7 @@ class RobotRun:
             if self._perceived is not None:
                 odom, estimate = self._perceived
                 seen_from = estimate.compose(sensing.odom.relative_to(odom))
+            seen_from = self.setup.robot.lidar.scan_pose(seen_from)  # from the mount
             on_people = beams_on_people(scan, seen_from, np.asarray(people, dtype=float))
         if mapping is not None:
             estimate = mapping.update(sensing.odom, _without(scan, on_people), sensing.truth, t)
@@ -346,10 +346,11 @@ class RobotRun:
             )
         if scan is not None:
             handle.state.scan = scan
-            handle.state.obstacles = scan.points(estimate)
+            sensor = self.setup.robot.lidar.scan_pose(estimate)
+            handle.state.obstacles = scan.points(sensor)
             # returns on people are not obstacles of the costmap: people standing are
-            # marked as themselves, from the tracker
-            self.navigator.observe(estimate, scan, people, on_people)
+            # marked as themselves, from the tracker (the scan's pose: the lidar's mount)
+            self.navigator.observe(sensor, scan, people, on_people)
         self._perceived = (sensing.odom, estimate)
         return estimate
 
@@ -372,10 +373,9 @@ class RobotRun:
             self.sim.set_command(0.0, 0.0)
 
     def _watch_safety(self, now: float, truth: Pose2D) -> None:
-        # Clearance is 1-Lipschitz in the position: where it was c at p0 it is at least
-        # c - |p - p0| at p. A step that cannot lower the minimum skips the clearance
-        # query, and one that cannot touch a wall (the chassis is the footprint's
-        # cylinder) skips reading the contacts.
+        # The circle's clearance is 1-Lipschitz in the position (c at p0: >= c - |p - p0|
+        # at p), and the body lies within it: a step that cannot lower the minimum skips
+        # the query, one that cannot touch a wall skips reading the contacts.
         x0, y0, c0 = self._clearance_at
         bound = c0 - math.hypot(truth.x - x0, truth.y - y0)
         contacts = self.sim.contacts() if bound < CONTACT_CLEARANCE else 0
@@ -388,9 +388,9 @@ class RobotRun:
             }
             self.collisions.append(self.new_collision)
         self.in_contact = contacts > 0
-        if bound < self.min_clearance:
-            clearance = self.sim.min_clearance()
-            self._clearance_at = (truth.x, truth.y, clearance)
+        if bound < self.min_clearance:  # the footprint's clearance >= the circle's
+            circle, clearance = self.sim.clearances()
+            self._clearance_at = (truth.x, truth.y, circle)
             self.min_clearance = min(self.min_clearance, clearance)
 
     def _failure(self) -> str:

@@ -190,6 +190,7 @@ class Navigator:
         self._xy_tol = config.xy_goal_tolerance
         self._yaw_tol = config.yaw_goal_tolerance
         self._replans_for_goal = 0
+        self._advanced = False  # progress made since the last plan
         self._best_distance = math.inf
         self._last_progress_time = 0.0
         self._now = 0.0
@@ -416,6 +417,7 @@ class Navigator:
         self.error_code = None
         self._phase = _Phase.FOLLOW
         self._replans_for_goal = 0
+        self._advanced = False  # progress made since the last plan
         self._best_distance = state.estimate.distance_to(goal)
         self._last_progress_time = state.time
         self._progress_pose = state.estimate
@@ -480,6 +482,7 @@ class Navigator:
                 self._best_distance = distance
         if progressed:
             self._last_progress_time = state.time
+            self._advanced = True
         elif state.time - self._last_progress_time > self.config.progress_timeout and not (
             self._replan(state, f"no progress for {self.config.progress_timeout:g} s")
         ):
@@ -491,7 +494,9 @@ class Navigator:
                 return VelocityCommand(0.0, 0.0)
             here = self._projection(state.estimate)
         assert self.path is not None
-        if self._path_blocked(here) and not self._replan(state, "path blocked"):
+        # a robot that advanced since its last plan and sees it blocked by what it has
+        # just seen plans again freely (it replans as it sees more, as move_base does)
+        if self._path_blocked(here) and not self._replan(state, "path blocked", self._advanced):
             return VelocityCommand(0.0, 0.0)
         moving = self._moving_people(state)
         near = self._near(state, moving)
@@ -592,7 +597,8 @@ class Navigator:
         xy = np.stack([np.interp(s, cum, ahead[:, 0]), np.interp(s, cum, ahead[:, 1])], axis=1)
         return bool(np.any(self.costmap.clearance(xy) <= self.costmap.robot_radius))
 
-    def _replan(self, state: RobotState, why: str) -> bool:
+    def _replan(self, state: RobotState, why: str, free: bool = False) -> bool:
+        """Plan again; ``max_replans`` of them per goal unless ``free``."""
         if self.external:  # the tree plans: keep following, or fail for its recoveries
             if self.path is not None and not why.startswith("no progress"):
                 return True
@@ -601,13 +607,14 @@ class Navigator:
                 "FAILED_TO_MAKE_PROGRESS" if self.path is not None else "INVALID_PATH",
             )
             return False
-        if self._replans_for_goal >= self.config.max_replans:
+        if not free and self._replans_for_goal >= self.config.max_replans:
             self._fail(
                 f"goal ({self.goal.x:.2f}, {self.goal.y:.2f}) not reached: {why} "
                 f"after {self._replans_for_goal} replans"
             )
             return False
-        self._replans_for_goal += 1
+        self._replans_for_goal += 0 if free else 1
+        self._advanced = False
         self.stats.replans += 1
         if self.stats.legs:
             self.stats.legs[-1].replans += 1

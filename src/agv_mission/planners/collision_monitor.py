@@ -20,6 +20,8 @@ import numpy as np
 import shapely
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from agv_mission.geometry import Footprint
+
 Point = Annotated[list[float], Field(min_length=2, max_length=2, description="[x, y], m")]
 
 #: The order actions rank in (the most restrictive last).
@@ -75,8 +77,9 @@ class CollisionMonitorConfig(BaseModel):
     )
 
 
-def default_zones(radius: float) -> list[CollisionZone]:
-    """Zones sized from a circular footprint of ``radius``.
+def default_zones(radius: float, footprint: Footprint | None = None) -> list[CollisionZone]:
+    """Zones sized from a circular footprint of ``radius``, or from a polygon ``footprint``
+    (its half-width, and its front for the bumper).
 
     * stop: the footprint's width, from the centre to 5 cm ahead of the bumper. Lateral
       walls (a doorway, a corridor) stay outside it: the planners keep the footprint clear
@@ -88,17 +91,19 @@ def default_zones(radius: float) -> list[CollisionZone]:
     A stop leaves the turn: at a goal by a wall, a stop that zeroed the turn too held a
     waffle 9-13 s from turning to its goal's heading (24-28 % of a mission among people).
     """
-    half = radius
+    half, front = radius, radius
+    if footprint is not None:
+        half, front = footprint.half_width, footprint.front
     return [
         CollisionZone(
             name="stop",
             type="stop",
-            polygon=[[0.0, half], [radius + 0.05, half], [radius + 0.05, -half], [0.0, -half]],
+            polygon=[[0.0, half], [front + 0.05, half], [front + 0.05, -half], [0.0, -half]],
         ),
         CollisionZone(
             name="slow",
             type="slowdown",
-            polygon=[[0.0, half], [radius + 0.2, half], [radius + 0.2, -half], [0.0, -half]],
+            polygon=[[0.0, half], [front + 0.2, half], [front + 0.2, -half], [0.0, -half]],
             slowdown_ratio=0.5,
         ),
         CollisionZone(name="ttc", type="approach", time_before_collision=1.0),
@@ -121,18 +126,24 @@ class MonitorOutput:
 
 @dataclass
 class CollisionMonitor:
-    """The zones of a :class:`CollisionMonitorConfig` over a circular footprint."""
+    """The zones of a :class:`CollisionMonitorConfig` over a circular footprint of
+    ``robot_radius``, or a polygon ``footprint`` where one is given."""
 
     config: CollisionMonitorConfig
     robot_radius: float
     period: float
+    footprint: Footprint | None = None
     stats: dict[str, ZoneStats] = field(default_factory=dict)
     action: str = "none"
     zone: str | None = None
     changed: bool = False
 
     def __post_init__(self) -> None:
-        self.zones = self.config.zones or default_zones(self.robot_radius)
+        self.zones = self.config.zones or default_zones(self.robot_radius, self.footprint)
+        self._body = None
+        if self.footprint is not None:
+            self._body = shapely.Polygon(self.footprint.polygon)
+            shapely.prepare(self._body)
         self._shapes = [
             shapely.Polygon([tuple(p) for p in z.polygon]) if z.polygon is not None else None
             for z in self.zones
@@ -167,19 +178,44 @@ class CollisionMonitor:
             near = points[(points[:, 0] ** 2 + points[:, 1] ** 2) <= reach * reach]
         else:
             near = points.reshape(0, 2)
-        if len(near) and self.config.enabled and abs(v) >= 1e-6:  # turning in place is free
+        if len(near) and self.config.enabled and abs(v) < 1e-6 and self._body is not None:
+            best = self._turn(w, near, best)  # a polygon's corners sweep as it turns
+        elif len(near) and self.config.enabled and abs(v) >= 1e-6:  # a circle turns freely
             for z, shape, ahead in zip(self.zones, self._shapes, self._ahead, strict=True):
                 if ahead * v < 0.0:  # a zone on the side the robot moves away from
                     continue
                 out = self._zone(z, shape, v, w, near)
                 if out is not None and _more_restrictive(out, best):
                     best = out
+            if best.action == "stop" and self._body is not None:
+                best = self._turn(best.w, near, best)  # the turn it leaves, checked
         self.changed = (best.action, best.zone) != (self.action, self.zone)
         if self.changed and best.zone is not None:
             self.stats[best.zone].activations += 1
         if best.zone is not None:
             self.stats[best.zone].time += self.period
         self.action, self.zone = best.action, best.zone
+        return best
+
+    def _turn(self, w: float, pts: np.ndarray, best: MonitorOutput) -> MonitorOutput:
+        """Turning on the spot: the approach zones cap the turn rate so the polygon's
+        corners reach no point sooner than their time (a stop zone does not stop a
+        turn)."""
+        clear = ~shapely.contains_xy(self._body, pts[:, 0], pts[:, 1])
+        pts = pts[clear]  # what the body already holds: turning away is the way out
+        for z in self.zones:
+            if z.type == "approach" and abs(w) >= 1e-6 and len(pts):
+                t = self._polygon_time_to_collision(0.0, w, pts, z)
+                if t < z.time_before_collision:
+                    scale = max(t / z.time_before_collision, 0.0)
+                    if abs(w * scale) < abs(best.w):
+                        stopped = best.action == "stop"
+                        best = MonitorOutput(
+                            0.0,
+                            w * scale,
+                            best.action if stopped else "approach",
+                            best.zone if stopped else z.name,
+                        )
         return best
 
     def reach(self, v: float) -> float:
@@ -214,6 +250,8 @@ class CollisionMonitor:
         """When the footprint, driven on at (v, w), first touches a point (inf: never
         within the zone's time), to the simulation step, rounded down (the safe side)."""
         r = self.robot_radius
+        if self._body is not None:
+            return self._polygon_time_to_collision(v, w, pts, z)
         if np.any(np.hypot(pts[:, 0], pts[:, 1]) <= r):
             return 0.0
         steps = int(math.ceil(z.time_before_collision / z.simulation_time_step))
@@ -228,6 +266,29 @@ class CollisionMonitor:
         if not len(hit):
             return math.inf
         # contact falls within the step before the first hit: its start is the safe bound
+        return float(t[hit[0]] - z.simulation_time_step)
+
+    def _polygon_time_to_collision(
+        self, v: float, w: float, pts: np.ndarray, z: CollisionZone
+    ) -> float:
+        """As :meth:`_time_to_collision`, the polygon carried along the arc: each point
+        seen from each predicted pose, inside the body or not."""
+        body = self._body
+        steps = int(math.ceil(z.time_before_collision / z.simulation_time_step))
+        t = np.arange(0, steps + 1) * z.simulation_time_step
+        yaw = w * t
+        if abs(w) < 1e-6:
+            x, y = v * t, np.zeros_like(t)
+        else:
+            x, y = v / w * np.sin(yaw), v / w * (1.0 - np.cos(yaw))
+        c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        dx, dy = pts[None, :, 0] - x[:, None], pts[None, :, 1] - y[:, None]
+        inside = shapely.contains_xy(body, c * dx + s * dy, c * dy - s * dx)
+        hit = np.nonzero(inside.any(axis=1))[0]
+        if not len(hit):
+            return math.inf
+        if hit[0] == 0:
+            return 0.0
         return float(t[hit[0]] - z.simulation_time_step)
 
     def report(self) -> dict[str, dict[str, float | int]]:

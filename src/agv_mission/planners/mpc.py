@@ -16,11 +16,13 @@ import time
 
 import numpy as np
 
-from agv_mission.geometry import Pose2D, wrap_angle
+from agv_mission.geometry import Footprint, Pose2D, wrap_angle
 from agv_mission.planners.base import VelocityCommand, VelocityLimits
 from agv_mission.planners.configs import MpcConfig
+from agv_mission.planners.free_corridor import free_distance
 from agv_mission.planners.mpc_problem import NU, NX, MpcProblem, RtiStep, mpc_problem
 from agv_mission.planners.path_follower import PathFollower, PathStep
+from agv_mission.planners.path_tracking import ReferenceProfile
 
 _FAR = 50.0  # where unused obstacle slots are parked (robot frame, metres)
 
@@ -61,18 +63,29 @@ class MpcController(PathFollower):
         limits: VelocityLimits,
         robot_radius: float,
         control_period: float,
+        footprint: Footprint | None = None,
     ) -> None:
         super().__init__(limits, control_period)
         self.config = config
         self.robot_radius = robot_radius
-        self._problem = pb = mpc_problem(config.model_dump_json(), limits)
+        # the body as discs along its axis: one of robot_radius, or a polygon's cover
+        self.discs, self.disc_radius = (
+            footprint.discs() if footprint is not None else ((0.0,), robot_radius)
+        )
+        self._problem = pb = mpc_problem(config.model_dump_json(), limits, self.discs)
+        # a robot that cannot stop within its safety margin watches the way ahead
+        margin = config.safety_margin
+        self._fast = limits.max_v**2 > 2.0 * limits.max_acc_v * margin
+        self._half_width = footprint.half_width if footprint is not None else robot_radius
+        self._front = footprint.front if footprint is not None else robot_radius
         self._rti = RtiStep(pb.rti_fn) if pb.kind == "rti" else None
         # The parameter vector, filled in place (the RTI's own argument buffer) through
         # views of its reference (N+1, 4) and obstacle (N-1, m, 2) parts.
         self._p = self._rti.p if self._rti is not None else np.zeros(pb.n_params)
         self._ref = self._p[pb.p_ref].reshape(pb.n + 1, 4)
-        self._obs = self._p[pb.p_obs].reshape(max(pb.n - 1, 0), pb.m, 2)
-        self._rows = np.arange(max(pb.n - 1, 0))
+        # one row of m slots per stage and disc (stage-major)
+        self._obs = self._p[pb.p_obs].reshape(max(pb.n - 1, 0) * pb.nd, pb.m, 2)
+        self._rows = np.arange(max(pb.n - 1, 0) * pb.nd)
         self._stats: dict | None = {}
         self._solve_info: dict = {}
         self._t_solver_call = 0.0
@@ -87,6 +100,36 @@ class MpcController(PathFollower):
 
     # -- helpers -----------------------------------------------------------------------
 
+    def _seen_free(self, step: PathStep, profile: ReferenceProfile) -> float:
+        """The arclength the robot's origin must stop at: where the corridor its body
+        sweeps along the path is on an obstacle point or hidden behind one, less its
+        front and the safety margin (inf: free as far as it could need)."""
+        cfg, lim = self.config, self.limits
+        dec = cfg.decel_fraction * lim.max_acc_v
+        reach = lim.max_v**2 / (2.0 * dec) + self._front + cfg.safety_margin + 0.3
+        spacing = 0.1
+        n = int(min(reach, step.total - step.s) / spacing)
+        if n < 1 or step.obstacles is None or not len(step.obstacles):
+            return math.inf
+        samples = np.array([profile.point(step.s + spacing * (k + 1))[0:2] for k in range(n)])
+        pose = step.pose
+        free = free_distance(
+            samples, spacing, (pose.x, pose.y), step.obstacles, self._half_width + cfg.safety_margin
+        )
+        if free >= n * spacing:
+            return math.inf
+        return step.s + free - self._front - cfg.safety_margin
+
+    def _disc_centres(self, states: np.ndarray) -> np.ndarray:
+        """The discs' centres at the guessed ``states`` (rows x, y, theta, ...): one row
+        per state and disc, stage-major."""
+        if len(self.discs) == 1 and self.discs[0] == 0.0:
+            return states[:, 0:2]
+        off = np.asarray(self.discs)
+        cx = states[:, 0, None] + off[None, :] * np.cos(states[:, 2, None])
+        cy = states[:, 1, None] + off[None, :] * np.sin(states[:, 2, None])
+        return np.column_stack([cx.ravel(), cy.ravel()])
+
     def _stage_obstacles(
         self,
         obstacles: np.ndarray,
@@ -94,12 +137,13 @@ class MpcController(PathFollower):
         pose: Pose2D,
         moving: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Fill the obstacle parameters: for each stage 1..N-1 the ``m`` points nearest its
-        guessed position ``stage_xy`` (robot frame; the constraints that can bind there):
+        """Fill the obstacle parameters: for each stage 1..N-1 and each disc the ``m``
+        points nearest its guessed centre, a row of ``stage_xy`` (robot frame, stage-major;
+        the constraints that can bind there):
         lidar points, and each tracked person where it will be at that stage's time
         (constant velocity), as the point of its body (grown by ``people_margin``) nearest
         the stage. Slots with no point within ``obstacle_range`` are parked far away.
-        Returns each stage's smallest squared distance to its points (inf: none)."""
+        Returns each row's smallest squared distance to its points (inf: none)."""
         out, cfg = self._obs, self.config
         reach2 = cfg.obstacle_range**2
         pts = np.asarray(obstacles, dtype=float).reshape(-1, 2)
@@ -165,7 +209,8 @@ class MpcController(PathFollower):
         # points as complex numbers: half the array operations of x and y apart
         z = rows[:, 0] - pose.x + 1j * (rows[:, 1] - pose.y)
         vel = rows[:, 3] + 1j * rows[:, 4]
-        n = len(stage_xy)
+        nd = self._problem.nd
+        n = len(stage_xy) // nd
         grow = rows[:, 2] + cfg.people_margin
         # the time of closest approach within the stages' times, and the distance then
         when = -(z * vel.conjugate()).real / np.maximum((vel * vel.conjugate()).real, 1e-12)
@@ -174,7 +219,8 @@ class MpcController(PathFollower):
             return None
         turn = complex(c, -s)  # map frame to the robot's
         z, vel, grow = z[keep] * turn, vel[keep] * turn, grow[keep]
-        centre = z + vel * (np.arange(1.0, n + 1.0)[:, None] * cfg.dt)  # stages 1..N-1
+        stage = np.arange(len(stage_xy)) // nd + 1.0  # each row's stage, 1..N-1
+        centre = z + vel * (stage[:, None] * cfg.dt)
         gap = (stage_xy[:, 0] + 1j * stage_xy[:, 1])[:, None] - centre
         dist = np.maximum(np.abs(gap), 1e-6)
         # a stage guessed inside the grown body: a point between it and the centre, so the
@@ -269,7 +315,9 @@ class MpcController(PathFollower):
         # The point ahead whose heading decides turn-in-place: to the goal on the final
         # approach, else to a point ahead on the path (or its tangent there when that point
         # is close).
-        ax, ay, ahead_th = profile.point(min(s0 + cfg.lookahead, step.total))
+        # (at speed further ahead: half a second's travel)
+        lookahead = max(cfg.lookahead, 0.5 * v0)
+        ax, ay, ahead_th = profile.point(min(s0 + lookahead, step.total))
         ax, ay = ax - pose.x, ay - pose.y
         threshold = cfg.rotate_threshold
         final = dist_goal < cfg.final_approach
@@ -279,7 +327,7 @@ class MpcController(PathFollower):
             heading_err = wrap_angle(math.atan2(gy, gx) - pose.yaw)
             if self._final_turn_done:
                 threshold = max(threshold, cfg.final_rotate_threshold)
-        elif math.hypot(ax, ay) > 0.5 * cfg.lookahead:
+        elif math.hypot(ax, ay) > 0.5 * lookahead:
             heading_err = wrap_angle(math.atan2(ay, ax) - pose.yaw)
         else:
             heading_err = wrap_angle(ahead_th - pose.yaw)
@@ -298,8 +346,10 @@ class MpcController(PathFollower):
             ref[:, 3] = 0.0
             speed_weight, heading_weight, position_weight = cfg.rotate_speed_weight, 1.0, 1.0
         else:
-            # Arclengths at the speed profile, in the robot frame.
-            s_ref, v_ref = profile.sample(s0, v0, pb.n, cfg.dt)
+            # Arclengths at the speed profile, in the robot frame; a fast robot stops
+            # within the stretch of path its lidar has seen free.
+            stop_at = self._seen_free(step, profile) if self._fast else math.inf
+            s_ref, v_ref = profile.sample(s0, v0, pb.n, cfg.dt, stop_at)
             self._p[pb.p_ref] = profile.in_frame(s_ref, v_ref, pose)
             # Path heading and speed stop mattering at the goal (the navigator turns in
             # place there): fading them lets the position terms remove a last offset.
@@ -310,7 +360,7 @@ class MpcController(PathFollower):
             position_weight = min(1.0 / (fade * fade), cfg.final_position_gain)
         x0 = np.array((0.0, 0.0, 0.0, v0, w0))
         states, controls = self._warm_start(pose, x0, ref)
-        r = self.robot_radius + cfg.safety_margin
+        r = self.disc_radius + cfg.safety_margin
         p = self._p
         p[0:NX] = x0
         p[-4:] = (r * r, speed_weight, heading_weight, position_weight)
@@ -319,7 +369,9 @@ class MpcController(PathFollower):
         has_people = moving is not None and len(moving) > 0
         if pb.m > 0 and (has_people or (step.obstacles is not None and len(step.obstacles))):
             obstacles = step.obstacles if step.obstacles is not None else np.zeros((0, 2))
-            d2 = self._stage_obstacles(obstacles, states[1:-1, 0:2], pose, moving)
+            d2 = self._stage_obstacles(obstacles, self._disc_centres(states[1:-1]), pose, moving)
+            if pb.nd > 1:
+                d2 = d2.reshape(-1, pb.nd).min(axis=1)
             # Slacks that make the guess feasible (a cold start inside the margin converges).
             controls[1:, 2] += np.maximum(r * r - d2, 0.0) * 1.1
         elif pb.m > 0:
@@ -339,7 +391,9 @@ class MpcController(PathFollower):
         self._prev = (pose, states, controls)
 
         v = min(max(v0 + float(controls[0, 0]) * self.control_period, lim.min_v), lim.max_v)
-        if self._rotating:
+        if self._rotating and v0 * v0 <= 2.0 * lim.max_acc_v * cfg.safety_margin:
+            # stops within its margin: braked outside the solver; a faster robot is braked
+            # by the solver, which steers the body round what it would coast into
             v = brake_command((v0, w0), lim, self.control_period)[0]
         w = min(max(w0 + float(controls[0, 1]) * self.control_period, -lim.max_w), lim.max_w)
         return VelocityCommand(v, w, ok=True, predicted=_to_map(states[:, 0:2], pose))

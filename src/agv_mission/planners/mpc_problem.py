@@ -2,8 +2,10 @@
 
 Model: unicycle with state (x, y, theta, v, w) and controls (a, alpha, slack), so the
 velocity and acceleration limits are simple bounds; every solve works in a frame centred
-on the robot (x0 = (0, 0, 0, v, w)). Obstacle constraints: each model step gets the few
-lidar points nearest its predicted position (``m`` slots per stage).
+on the robot (x0 = (0, 0, 0, v, w)). Obstacle constraints: the body is a row of discs
+along its x axis (one, at the origin, for a round robot; a cover of a polygon footprint,
+:meth:`agv_mission.geometry.Footprint.discs`), and each disc of each model step gets the
+few lidar points nearest its predicted centre (``m`` slots per disc and stage).
 
 The default ``rti`` solver takes one Gauss-Newton SQP step per control step from the
 shifted previous solution (see :func:`rti_function`): about a third of the CPU time of
@@ -44,9 +46,13 @@ class MpcProblem:
     own, filled with the candidate points nearest that stage's predicted position.
     """
 
-    def __init__(self, cfg: MpcConfig, limits: VelocityLimits) -> None:
+    def __init__(
+        self, cfg: MpcConfig, limits: VelocityLimits, discs: tuple[float, ...] = (0.0,)
+    ) -> None:
         n, dt = cfg.horizon, cfg.dt
         m = cfg.obstacles_per_stage if cfg.max_obstacles > 0 else 0
+        nd = len(discs)
+        self.discs = discs
         wts = cfg.weights
         x = ca.SX.sym("x", NX)
         u = ca.SX.sym("u", NU)
@@ -62,7 +68,7 @@ class MpcProblem:
 
         p_x0 = ca.SX.sym("x0", NX)
         p_ref = ca.SX.sym("ref", 4, n + 1)  # x, y, theta, v per stage
-        p_obs = ca.SX.sym("obs", 2, m * (n - 1))  # m slots for each stage 1..N-1
+        p_obs = ca.SX.sym("obs", 2, m * nd * (n - 1))  # m slots per disc, stages 1..N-1
         p_r2 = ca.SX.sym("r2")
         p_wv = ca.SX.sym("speed_weight")  # scales the speed weight (turn-in-place: large)
         p_wh = ca.SX.sym("heading_weight")  # scales the heading weights (fades at the goal)
@@ -92,16 +98,16 @@ class MpcProblem:
                 g.append(xk - p_x0)
                 equality += [True] * NX
             elif m > 0:
-                o = p_obs[:, (k - 1) * m : k * m]
-                d2 = (xk[0] - o[0, :]) ** 2 + (xk[1] - o[1, :]) ** 2
-                g.append(d2.T + uk[2] - p_r2)
-                equality += [False] * m
+                for j, c in enumerate(discs):
+                    o = p_obs[:, ((k - 1) * nd + j) * m : ((k - 1) * nd + j + 1) * m]
+                    g.append(disc_clearance(xk, c, o).T + uk[2] - p_r2)
+                    equality += [False] * m
             cost += p_wp * wts.position * ca.sumsqr(e) + p_wh * wts.heading * (xk[2] - r[2]) ** 2
             cost += p_wv * wts.speed * (xk[3] - r[3]) ** 2 + wts.angular_velocity * xk[4] ** 2
             cost += wts.acceleration * uk[0] ** 2 + wts.angular_acceleration * uk[1] ** 2
             cost += wts.slack_linear * uk[2] + wts.slack_quadratic * uk[2] ** 2
 
-        self.n, self.m = n, m
+        self.n, self.m, self.nd = n, m, nd
         self.stride = NX + NU
         self.nw = n * self.stride + NX
         self.idx_x = np.arange(n + 1)[:, None] * self.stride + np.arange(NX)[None, :]
@@ -110,16 +116,16 @@ class MpcProblem:
         # Parameter vector layout, filled in place every solve.
         self.n_params = params.shape[0]
         self.p_ref = slice(NX, NX + 4 * (n + 1))
-        self.p_obs = slice(self.p_ref.stop, self.p_ref.stop + 2 * m * (n - 1))
+        self.p_obs = slice(self.p_ref.stop, self.p_ref.stop + 2 * m * nd * (n - 1))
         self.kind = cfg.solver
         self.cold_iterations = cfg.rti_cold_iterations
         if cfg.solver == "rti":
-            cached = _load_cached(cfg, limits)
+            cached = _load_cached(cfg, limits, discs)
             if cached is None:
                 cached = rti_function(
-                    cfg, limits, step, params, p_x0, p_ref, p_obs, p_r2, p_wv, p_wh, p_wp
+                    cfg, limits, step, params, p_x0, p_ref, p_obs, p_r2, p_wv, p_wh, p_wp, discs
                 )
-                _save_cached(cfg, limits, cached)
+                _save_cached(cfg, limits, discs, cached)
             self.rti_fn = cached
             return
 
@@ -213,6 +219,7 @@ def rti_function(
     p_wv: ca.SX,
     p_wh: ca.SX,
     p_wp: ca.SX,
+    discs: tuple[float, ...] = (0.0,),
 ) -> ca.Function:
     """The function of one real-time-iteration step: (controls, params) -> new controls.
 
@@ -226,7 +233,8 @@ def rti_function(
     is penalised as if every step had used it). DAQP (a dual active-set method for small
     dense QPs) solves the QP; the step is taken in full and the states rolled out again.
     """
-    n, m, wts = cfg.horizon, (p_obs.shape[1] // max(cfg.horizon - 1, 1)), cfg.weights
+    nd = len(discs)
+    n, m, wts = cfg.horizon, (p_obs.shape[1] // max((cfg.horizon - 1) * nd, 1)), cfg.weights
     u = ca.SX.sym("u", 2 * n + 1)
     slack = u[2 * n]
     xs = [p_x0]
@@ -256,8 +264,9 @@ def rti_function(
         res.append(math.sqrt(wts.acceleration) * u[2 * k])
         res.append(math.sqrt(wts.angular_acceleration) * u[2 * k + 1])
         if k >= 1 and m > 0:
-            o, xk = p_obs[:, (k - 1) * m : k * m], xs[k]
-            obstacles.append(((xk[0] - o[0, :]) ** 2 + (xk[1] - o[1, :]) ** 2).T + slack - p_r2)
+            for j, c in enumerate(discs):
+                o = p_obs[:, ((k - 1) * nd + j) * m : ((k - 1) * nd + j + 1) * m]
+                obstacles.append(disc_clearance(xs[k], c, o).T + slack - p_r2)
     res.append(math.sqrt(wts.slack_quadratic * (n - 1)) * slack)
     linear = wts.slack_linear * (n - 1) * slack
     residual = ca.vertcat(*res)
@@ -358,30 +367,44 @@ def _cache_dir() -> Path:
     return Path(base) / "agv-mission" / "mpc"
 
 
-def _cache_key(cfg: MpcConfig, limits: VelocityLimits) -> str:
-    """Changes with the configuration, the limits, casadi and this module's source."""
+def disc_clearance(xk: ca.SX, offset: float, o: ca.SX) -> ca.SX:
+    """Squared distances from the disc ``offset`` m ahead of the state's position along its
+    heading to the obstacle points ``o`` (2, m)."""
+    px, py = xk[0], xk[1]
+    if offset != 0.0:
+        px, py = px + offset * ca.cos(xk[2]), py + offset * ca.sin(xk[2])
+    return (px - o[0, :]) ** 2 + (py - o[1, :]) ** 2
+
+
+def _cache_key(cfg: MpcConfig, limits: VelocityLimits, discs: tuple[float, ...]) -> str:
+    """Changes with the configuration, the limits, the discs, casadi and this module's
+    source."""
     digest = hashlib.sha256()
-    for part in (cfg.model_dump_json(), repr(limits), ca.__version__):
+    for part in (cfg.model_dump_json(), repr(limits), repr(discs), ca.__version__):
         digest.update(part.encode())
     digest.update(Path(__file__).read_bytes())
     return digest.hexdigest()[:24]
 
 
-def _load_cached(cfg: MpcConfig, limits: VelocityLimits) -> ca.Function | None:
+def _load_cached(
+    cfg: MpcConfig, limits: VelocityLimits, discs: tuple[float, ...]
+) -> ca.Function | None:
     """The RTI functions serialised by an earlier process (loading takes ~0.07 s, building
     with common-subexpression elimination ~0.6 s), or None."""
     try:
-        stem = _cache_dir() / _cache_key(cfg, limits)
+        stem = _cache_dir() / _cache_key(cfg, limits, discs)
         return ca.Function.load(str(stem) + ".casadi")
     except (OSError, RuntimeError):
         return None
 
 
-def _save_cached(cfg: MpcConfig, limits: VelocityLimits, rti: ca.Function) -> None:
+def _save_cached(
+    cfg: MpcConfig, limits: VelocityLimits, discs: tuple[float, ...], rti: ca.Function
+) -> None:
     """Serialise the RTI functions for later processes; a cache that cannot be written
     only costs the next process the build time."""
     try:
-        stem = _cache_dir() / _cache_key(cfg, limits)
+        stem = _cache_dir() / _cache_key(cfg, limits, discs)
         stem.parent.mkdir(parents=True, exist_ok=True)
         tmp = stem.parent / f".{stem.name}.{os.getpid()}.tmp"
         rti.save(str(tmp))
@@ -391,7 +414,10 @@ def _save_cached(cfg: MpcConfig, limits: VelocityLimits, rti: ca.Function) -> No
 
 
 @functools.lru_cache(maxsize=16)
-def mpc_problem(cfg_json: str, limits: VelocityLimits) -> MpcProblem:
-    """One solver per configuration and limits, shared by every controller of the process
-    (regression suites and the service create many controllers for the same robot)."""
-    return MpcProblem(MpcConfig.model_validate_json(cfg_json), limits)
+def mpc_problem(
+    cfg_json: str, limits: VelocityLimits, discs: tuple[float, ...] = (0.0,)
+) -> MpcProblem:
+    """One solver per configuration, limits and body discs, shared by every controller of
+    the process (regression suites and the service create many controllers for the same
+    robot)."""
+    return MpcProblem(MpcConfig.model_validate_json(cfg_json), limits, discs)

@@ -203,11 +203,14 @@ class ReferenceProfile:
             v2[i] = min(v2[i], v2[i + 1] + 2.0 * dec * self.step)
         self.speed_sq = v2
 
-    def sample(self, s0: float, v0: float, steps: int, dt: float) -> tuple[list, list]:
+    def sample(
+        self, s0: float, v0: float, steps: int, dt: float, stop_at: float = math.inf
+    ) -> tuple[list, list]:
         """Arclengths and speeds (``steps + 1`` each) of a reference sampled every ``dt``
         from ``s0`` at speed ``v0`` (clipped to [min_v, max_v]): it accelerates at ``acc``
-        at most, keeps under the profile (the cap looked up where a step would end) and
-        waits at the end of the path."""
+        at most, keeps under the profile (the cap looked up where a step would end),
+        brakes at ``dec`` to stand at ``stop_at`` (an arclength) and waits at the end of
+        the path."""
         v_cur = min(max(float(v0), self.min_v), self.max_v)
         s_cur, total, vg, last = s0, self.total, self.speed_sq, len(self.speed_sq) - 2
         inv_step = 1.0 / self.step if self.step > 0 else 0.0
@@ -218,6 +221,9 @@ class ReferenceProfile:
             i = min(max(int(u), 0), last)
             t = min(max(u - i, 0.0), 1.0)
             cap = math.sqrt(max(vg[i] + t * (vg[i + 1] - vg[i]), 0.0))
+            if stop_at < total:
+                room = stop_at - (s_cur + v_cur * dt)
+                cap = min(cap, math.sqrt(2.0 * self.dec * room) if room > 0.0 else 0.0)
             v_new = min(v_cur + up, max(cap, v_cur - down))
             s_cur = min(s_cur + 0.5 * (v_cur + v_new) * dt, total)
             v_cur = 0.0 if s_cur >= total else v_new

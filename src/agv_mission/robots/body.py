@@ -2,7 +2,7 @@
 
 Names are the robot's prefix (``agv1/``) and: body ``base`` on free joint ``base_free``
 (origin at the wheel axle midpoint, ROS ``base_link``, at axle height); chassis cylinder
-``chassis`` of radius ``footprint_radius``; ``hull``, the outline other robots' lidars see
+``chassis`` of radius ``footprint_radius``, or a box of the footprint polygon's bounds; ``hull``, the outline other robots' lidars see
 (up to the scan height of the tallest lidar in the world: the mast or bumper a fleet's
 robots carry to be seen); wheel bodies ``wheel_left`` / ``wheel_right`` on hinge joints of
 the same name with velocity actuators ``motor_left`` / ``motor_right``; frictionless
@@ -10,6 +10,8 @@ casters ``caster_front`` / ``caster_back``; site ``lidar``.
 """
 
 from __future__ import annotations
+
+import math
 
 import mujoco
 
@@ -70,6 +72,7 @@ def add_diff_drive_body(
     Returns the base body's name."""
     r = robot.wheel_radius
     rf = robot.footprint_radius
+    outline = robot.outline
     half_sep = robot.wheel_separation / 2.0
     m = robot.mass
 
@@ -81,7 +84,8 @@ def add_diff_drive_body(
     chassis_half = (chassis_top - chassis_bottom) / 2.0
     chassis_z = (chassis_top + chassis_bottom) / 2.0
     caster_r = 0.5 * r
-    caster_x = max(rf - caster_r - 0.01, 0.5 * rf)
+    reach = min(outline.front, outline.back) if not outline.round else rf
+    caster_x = max(reach - caster_r - 0.01, 0.5 * reach)
     hull_half = max(seen_up_to, hull_top(robot)) / 2.0
 
     m_chassis, m_wheel, m_caster = 0.8 * m, WHEEL_MASS_SHARE * m, 0.02 * m
@@ -90,6 +94,14 @@ def add_diff_drive_body(
     tau = wheel_torque_limit(robot)
     part = {"group": PARTS_GROUP, "contype": FLOOR_BIT, "conaffinity": FLOOR_BIT}
     sphere, cylinder = mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_CYLINDER
+    # A polygon's body: the box of its bounds (exact for the rectangles robots are).
+    if outline.round:
+        shape, size, centre = cylinder, (rf, chassis_half, 0.0), (0.0, 0.0)
+    else:
+        (x0, y0), (x1, y1) = outline.polygon.min(axis=0), outline.polygon.max(axis=0)
+        box = mujoco.mjtGeom.mjGEOM_BOX
+        shape, size = box, ((x1 - x0) / 2.0, (y1 - y0) / 2.0, chassis_half)
+        centre = ((x0 + x1) / 2.0, (y0 + y1) / 2.0)
     wheel_friction = sig6(WHEEL_FRICTION, 0.005, 0.0001)
 
     base = spec.worldbody.add_body(name=f"{prefix}base", pos=sig6(0.0, 0.0, r))
@@ -97,9 +109,9 @@ def add_diff_drive_body(
     touches = FLOOR_BIT | WALL_BIT | BODY_BIT
     base.add_geom(
         name=f"{prefix}chassis",
-        type=cylinder,
-        size=sig6(rf, chassis_half, 0.0),
-        pos=sig6(0.0, 0.0, chassis_z),
+        type=shape,
+        size=sig6(*size),
+        pos=sig6(*centre, chassis_z),
         mass=sig6(m_chassis)[0],
         group=PARTS_GROUP,
         contype=touches,
@@ -121,17 +133,21 @@ def add_diff_drive_body(
         )
     base.add_geom(  # seen by lidars, touches nothing, weighs nothing
         name=f"{prefix}hull",
-        type=cylinder,
-        size=sig6(rf, hull_half, 0.0),
-        pos=sig6(0.0, 0.0, floor_z + hull_half),
+        type=shape,
+        size=sig6(*size[:2], hull_half) if not outline.round else sig6(rf, hull_half, 0.0),
+        pos=sig6(*centre, floor_z + hull_half),
         mass=0.0,
         group=SEEN_GROUP,
         contype=0,
         conaffinity=0,
         rgba=[0.2, 0.2, 0.25, 0.3],
     )
+    mount = robot.lidar.mount
     base.add_site(
-        name=f"{prefix}lidar", pos=sig6(0.0, 0.0, robot.lidar.height + floor_z), size=[0.01, 0, 0]
+        name=f"{prefix}lidar",
+        pos=sig6(mount.x, mount.y, robot.lidar.height + floor_z),
+        quat=[math.cos(mount.yaw / 2.0), 0.0, 0.0, math.sin(mount.yaw / 2.0)],
+        size=[0.01, 0, 0],
     )
     for side, y in (("left", half_sep), ("right", -half_sep)):
         wheel = base.add_body(name=f"{prefix}wheel_{side}", pos=sig6(0.0, y, 0.0))

@@ -2,28 +2,67 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from agv_mission.atomic import InputFileError, input_path, read_input_text
+from agv_mission.geometry import Footprint, Pose2D
 from agv_mission.robots.battery import BatterySpec
 from agv_mission.suggest import unknown_key
 
 MAX_BEAMS = 8192  # more than any planar lidar sold; each beam is a ray cast per scan
 
 
+@functools.lru_cache(maxsize=64)
+def _outline(points: tuple[tuple[float, float], ...] | None, radius: float) -> Footprint:
+    """A robot's footprint, built once per polygon or radius."""
+    return Footprint.from_points(points) if points is not None else Footprint.circle(radius)
+
+
+class LidarMount(BaseModel):
+    """Where the scan's frame sits on the robot (TF ``base_link -> laser``), planar."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    x: float = Field(0.0, ge=-5.0, le=5.0, description="metres ahead of the robot's origin")
+    y: float = Field(0.0, ge=-5.0, le=5.0, description="metres to the left")
+    yaw: float = Field(0.0, ge=-math.pi, le=math.pi, description="rad, counter-clockwise")
+
+
 class LidarSpec(BaseModel):
-    """A planar 360-degree laser scanner (``sensor_msgs/LaserScan`` conventions)."""
+    """A planar laser scanner (``sensor_msgs/LaserScan`` conventions): a full turn unless
+    ``angle_min`` / ``angle_max`` say otherwise."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     beams: int = Field(
-        360, ge=4, le=MAX_BEAMS, description="beams per scan, evenly spread over 360 degrees"
+        360,
+        ge=4,
+        le=MAX_BEAMS,
+        description="beams per scan, evenly spread over a full turn, or from angle_min to "
+        "angle_max (both included)",
+    )
+    angle_min: float | None = Field(
+        None, ge=-math.pi, le=math.pi, description="rad, the first beam; default: a full turn"
+    )
+    angle_max: float | None = Field(
+        None, ge=-math.pi, le=math.pi, description="rad, the last beam; default: a full turn"
+    )
+    mount: LidarMount = Field(
+        default_factory=LidarMount, description="the scan's frame on the robot"
     )
     range_min: float = Field(0.12, gt=0, description="metres; closer returns read as invalid")
     range_max: float = Field(3.5, gt=0, le=1000.0, description="metres; no return beyond this")
@@ -41,6 +80,31 @@ class LidarSpec(BaseModel):
         0.01, ge=0, le=1, description="probability that a beam returns nothing (reads inf)"
     )
     height: float = Field(0.17, gt=0, description="height of the scan plane above the floor")
+
+    @model_validator(mode="after")
+    def check_field_of_view(self) -> LidarSpec:
+        if (self.angle_min is None) != (self.angle_max is None):
+            raise ValueError("angle_min and angle_max go together (neither: a full turn)")
+        if self.angle_min is not None and not self.angle_min < self.angle_max:
+            raise ValueError(f"angle_min {self.angle_min} is not below angle_max {self.angle_max}")
+        return self
+
+    @property
+    def full_turn(self) -> bool:
+        return self.angle_min is None
+
+    def scan_pose(self, pose: Pose2D) -> Pose2D:
+        """The scan frame's pose for the robot at ``pose`` (the mount composed on)."""
+        m = self.mount
+        if m.x == 0.0 and m.y == 0.0 and m.yaw == 0.0:
+            return pose
+        return pose.compose(Pose2D(m.x, m.y, m.yaw))
+
+    def beam_angles(self) -> tuple[float, float]:
+        """(angle of beam 0, increment), as ``LaserScan`` gives them."""
+        if self.angle_min is None or self.angle_max is None:
+            return 0.0, 2.0 * math.pi / self.beams
+        return self.angle_min, (self.angle_max - self.angle_min) / (self.beams - 1)
 
 
 class EncoderSpec(BaseModel):
@@ -91,7 +155,19 @@ class RobotDescription(BaseModel):
     name: str
     wheel_radius: float = Field(..., gt=0, description="metres")
     wheel_separation: float = Field(..., gt=0, description="distance between wheel contacts, m")
-    footprint_radius: float = Field(..., gt=0, description="radius of the circular footprint, m")
+    footprint_radius: float = Field(
+        None,
+        gt=0,
+        description="radius of a circular footprint, m; with a footprint polygon: the "
+        "circle round the polygon (derived)",
+    )
+    footprint: list[tuple[float, float]] | None = Field(
+        None,
+        min_length=3,
+        max_length=64,
+        description="the outline, robot frame (Nav2's convention: [[x, y], ...], m); "
+        "replaces footprint_radius where given",
+    )
     max_linear_velocity: float = Field(..., gt=0, description="m/s")
     max_angular_velocity: float = Field(..., gt=0, description="rad/s")
     max_linear_acceleration: float = Field(1.0, gt=0, description="m/s^2")
@@ -105,6 +181,48 @@ class RobotDescription(BaseModel):
     imu: ImuSpec | None = Field(
         None, description="gyro and accelerometer; odometry fuses the gyro; none: no IMU"
     )
+
+    @field_validator("footprint")
+    @classmethod
+    def check_footprint(
+        cls, value: list[tuple[float, float]] | None
+    ) -> list[tuple[float, float]] | None:
+        if value is None:
+            return None
+        from shapely.geometry import Point, Polygon
+
+        poly = Polygon(value)
+        if not poly.is_valid or poly.area <= 0.0:
+            raise ValueError("the footprint is not a simple polygon (edges cross or it is flat)")
+        if not poly.contains(Point(0.0, 0.0)):
+            raise ValueError("the footprint does not hold the robot's origin (0, 0)")
+        if max(math.hypot(x, y) for x, y in value) > 10.0:
+            raise ValueError("the footprint reaches more than 10 m from the origin")
+        return value
+
+    @model_validator(mode="after")
+    def derive_radius(self) -> RobotDescription:
+        if self.footprint is not None:
+            self.footprint_radius = self.outline.circumscribed
+        elif self.footprint_radius is None:
+            raise ValueError("give footprint_radius (a round robot) or footprint (a polygon)")
+        return self
+
+    @property
+    def outline(self) -> Footprint:
+        """The footprint: the polygon where one is given, else the circle."""
+        points = tuple(map(tuple, self.footprint)) if self.footprint is not None else None
+        return _outline(points, self.footprint_radius)
+
+    @property
+    def polygon(self) -> Footprint | None:
+        """The footprint where a polygon is given (None: a round robot)."""
+        return self.outline if self.footprint is not None else None
+
+    @property
+    def inscribed_radius(self) -> float:
+        """The largest circle round the origin inside the footprint (costmap, planners)."""
+        return self.outline.inscribed
 
 
 # TurtleBot3 burger and waffle (pi): ROBOTIS' e-Manual specification table, "Battery:
@@ -173,6 +291,24 @@ MPU_6050: dict[str, Any] = {
     "accel_noise_density": 400e-6 * 9.80665,
 }
 
+#: Hokuyo UST-10LX (the Jackal's laser in BARN: ``JACKAL_LASER_MODEL=ust10``), from its
+#: datasheet: 270 degrees at 0.25 degree steps (1081 beams), 25 ms a scan (40 Hz), range
+#: 0.06-10 m, accuracy +-40 mm (read as two standard deviations). Dropouts: our estimate.
+UST_10LX: dict[str, Any] = {
+    "beams": 1081,
+    "angle_min": -math.radians(135.0),
+    "angle_max": math.radians(135.0),
+    "range_min": 0.06,
+    "range_max": 10.0,
+    "rate": 40.0,
+    "noise_std": 0.02,
+    "noise_fraction": 0.0,
+    "dropout": 0.01,
+}
+#: Clearpath Jackal's outline: 508 x 430 mm (its datasheet's external dimensions), centred
+#: on the robot's origin (the axle midpoint of its four wheels).
+JACKAL_FOOTPRINT = [(0.254, 0.215), (-0.254, 0.215), (-0.254, -0.215), (0.254, -0.215)]
+
 BUILTIN_ROBOTS: dict[str, RobotDescription] = {
     "burger": RobotDescription(
         name="burger",
@@ -238,6 +374,24 @@ BUILTIN_ROBOTS: dict[str, RobotDescription] = {
             capacity=7.4 * 2.2, voltage=7.4, initial_level=1.0, idle_power=5.0, charge_power=16.28
         ),
         imu=ImuSpec(**MPU_6050),
+    ),
+    # Clearpath Jackal as BARN runs it (docs/robots.md gives each figure's source).
+    "jackal": RobotDescription(
+        name="jackal",
+        wheel_radius=0.098,
+        wheel_separation=0.37559,
+        footprint=JACKAL_FOOTPRINT,
+        max_linear_velocity=2.0,
+        max_angular_velocity=4.0,
+        max_linear_acceleration=2.0,
+        max_angular_acceleration=8.0,
+        mass=17.0,
+        # 78,000 quadrature pulses per metre (datasheet); Clearpath publishes no error
+        # figures: the TurtleBot3's (BARN's Jackal fuses its wheels with its IMU's gyro).
+        encoder=EncoderSpec(ticks_per_meter=78000.0, **TB3_ENCODER),
+        # On the front mount (0.12 m ahead of the mid mount) moved by BARN's
+        # JACKAL_LASER_OFFSET "-0.065 0 0.01": 0.055 m ahead of the origin.
+        lidar=LidarSpec(height=0.29, mount=LidarMount(x=0.055), **UST_10LX),
     ),
 }
 

@@ -15,10 +15,12 @@ from agv_mission.world.simulation import Body, SimulatedWorld
 
 
 class Lidar:
-    """A planar 360-degree scanner: all beams in one ray cast of the world.
+    """A planar scanner: all beams in one ray cast of the world, from its site (the
+    description's mount).
 
-    Beam ``i`` points at ``i * 2 pi / beams`` counter-clockwise from the robot's +x (beam 0
-    straight ahead, like the TurtleBot3 LDS). It sees the world's walls and every other
+    Beam ``i`` points at ``angle_min + i * angle_increment`` counter-clockwise from the
+    scan frame's +x: a full turn from straight ahead by default (like the TurtleBot3 LDS),
+    or ``angle_min`` to ``angle_max`` (a Hokuyo's 270 degrees). It sees the world's walls and every other
     body's outline (robots' hulls, people), never its own robot. Returns closer than
     ``range_min`` or beyond ``range_max`` read ``inf``; dropped beams (``dropout``) read
     ``nan``.
@@ -46,8 +48,8 @@ class Lidar:
         if self.site_id < 0:
             raise ValueError(f"model has no site {site!r}")
         n = spec.beams
-        self.angle_increment = 2.0 * math.pi / n
-        angles = self.angle_increment * np.arange(n)
+        self.angle_min, self.angle_increment = spec.beam_angles()
+        angles = self.angle_min + self.angle_increment * np.arange(n)
         # Beam directions in the sensor frame, (n, 3); rotated to the world each scan.
         self._local = np.stack([np.cos(angles), np.sin(angles), np.zeros(n)], axis=1)
         self._vec = np.zeros(3 * n)
@@ -85,7 +87,7 @@ class Lidar:
             ranges[self.rng.random(len(ranges)) < self.dropout] = np.nan
         return LaserScan(
             ranges=ranges,
-            angle_min=0.0,
+            angle_min=self.angle_min,
             angle_increment=self.angle_increment,
             range_min=self.spec.range_min,
             range_max=self.spec.range_max,

@@ -182,3 +182,15 @@ class DiffDriveBody:
         """Planar distance from the robot's footprint circle to the nearest wall/pillar
         (negative when overlapping; ``inf`` in an empty world)."""
         return self.world.wall_clearance(self.body)
+
+    def clearances(self) -> tuple[float, float]:
+        """(circle, footprint): :meth:`min_clearance`, and the distance from the footprint
+        polygon (where the robot has one; else the same) to the nearest wall or pillar."""
+        circle = self.world.wall_clearance(self.body)
+        polygon = self.robot.polygon
+        if polygon is None or circle > 0.5:  # far: the circle's figure is close enough
+            return circle, circle
+        p = self.world.pose(self.body)
+        reach = polygon.circumscribed + 0.6
+        exact = self.world.walls.polygon_distance(polygon.in_map(p.x, p.y, p.yaw), reach)
+        return circle, max(circle, exact)

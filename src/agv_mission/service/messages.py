@@ -143,6 +143,7 @@ def robots_message(start: RunStart) -> dict[str, Any]:
                 "type": r.robot.name,
                 "colour": robot_colour(k),
                 "radius": r.robot.footprint_radius,
+                "footprint": r.robot.footprint,
                 "start": pose(r.start),
                 "tree": tree_nodes(r.tree_nodes),
             }

@@ -255,7 +255,10 @@ class StreamRobot(BaseModel):
     name: str = Field(description="its name: the ROS namespace in a fleet mission")
     type: str = Field(description="the robot model (burger, waffle, a robot file's name)")
     colour: str = Field(description="#rrggbb: its colour on the dashboard and in run.png")
-    radius: float = Field(gt=0, description="footprint radius, m")
+    radius: float = Field(gt=0, description="footprint radius, m (round it, for a polygon)")
+    footprint: list[tuple[float, float]] | None = Field(
+        None, description="the footprint polygon, robot frame (m); none: a round robot"
+    )
     start: Pose
     tree: list[StreamNode] = Field(description="its behaviour tree, pre-order")
 

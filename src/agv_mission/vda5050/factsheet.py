@@ -52,10 +52,12 @@ def factsheet_body(
 ) -> dict[str, Any]:
     """The factsheet's fields after the header."""
     r = robot.footprint_radius
-    octagon = [
+    outline = [
         {"x": round(r * math.cos(k * math.pi / 4), 4), "y": round(r * math.sin(k * math.pi / 4), 4)}
         for k in range(8)
     ]
+    if robot.footprint is not None:  # the robot's own outline
+        outline = [{"x": round(x, 4), "y": round(y, 4)} for x, y in robot.footprint]
     return {
         "typeSpecification": {
             "seriesName": robot.name,
@@ -120,6 +122,6 @@ def factsheet_body(
                 for name, spec in ACTIONS.items()
             ],
         },
-        "agvGeometry": {"envelopes2d": [{"set": "footprint", "polygonPoints": octagon}]},
+        "agvGeometry": {"envelopes2d": [{"set": "footprint", "polygonPoints": outline}]},
         "loadSpecification": {"loadPositions": ["deck"]},
     }

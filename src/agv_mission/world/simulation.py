@@ -21,11 +21,13 @@ from agv_mission.world.model import (
     PARKED_Z,
     PERSON_HEIGHT,
     PERSON_PREFIX,
+    PILLAR_SLOTS,
     SEEN_GROUP,
     WALL_GROUP,
     uses_wall_slots,
     world_spec,
 )
+from agv_mission.world.planar_cast import PlanarWalls
 from agv_mission.world.walls import Walls, WallWindow
 
 WINDOW_CHECK_PERIOD = 0.1  # s of simulated motion between wall-window checks
@@ -145,6 +147,22 @@ class SimulatedWorld:
         self._mirrored: np.ndarray | None = None  # a mirror's touching geom pairs
         self._rays = np.zeros(6, dtype=np.uint8)
         self._rays[[WALL_GROUP, SEEN_GROUP]] = 1
+        # A world of many pillars (BARN's) casts its walls in the plane, MuJoCo the bodies.
+        self.planar: PlanarWalls | None = None
+        if self.window is None and len(world.cylinders) > PILLAR_SLOTS:
+            self.planar = PlanarWalls(
+                self.walls,
+                self._geom_ids("wall_", world.boxes),
+                self._geom_ids("pillar_", world.cylinders),
+            )
+            self._rays[WALL_GROUP] = 0
+
+    def _geom_ids(self, prefix: str, items: list) -> np.ndarray:
+        ids = [
+            mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, f"{prefix}{i}")
+            for i in range(len(items))
+        ]
+        return np.array(ids, dtype=np.int32)
 
     def _people_tree(self) -> np.ndarray:
         """The people body's bounding-volume tree leaf of each person's geom. MuJoCo keeps
@@ -267,21 +285,28 @@ class SimulatedWorld:
         cutoff: float,
     ) -> None:
         """Cast ``len(dist)`` rays from ``origin`` along ``directions`` (flat, 3n) into
-        ``dist`` (-1: no hit) and ``geomid``, seeing walls and every body but ``exclude``."""
-        mujoco.mj_multiRay(
-            self.model,
-            self.data,
-            origin,
-            directions,
-            self._rays,
-            1,  # flg_static: walls live in the world body
-            exclude.body_id,
-            geomid,
-            dist,
-            None,  # normal (new in MuJoCo 4.0)
-            len(dist),
-            cutoff,
-        )
+        ``dist`` (-1: no hit) and ``geomid``, seeing walls and every body but ``exclude``
+        (in a world of many pillars, MuJoCo casts only when there are other bodies)."""
+        if self.planar is not None and len(self.bodies) == 1 and not len(self._person_geoms):
+            dist.fill(-1.0)
+            geomid.fill(-1)
+        else:
+            mujoco.mj_multiRay(
+                self.model,
+                self.data,
+                origin,
+                directions,
+                self._rays,
+                1,  # flg_static: walls live in the world body
+                exclude.body_id,
+                geomid,
+                dist,
+                None,  # normal (new in MuJoCo 4.0)
+                len(dist),
+                cutoff,
+            )
+        if self.planar is not None:
+            self.planar.cast(origin, directions, dist, geomid, cutoff)
 
     def kinematics(self) -> None:
         """Bring sites and geoms to the current state (once per simulated instant)."""

@@ -7,6 +7,7 @@ import math
 
 import mujoco
 import numpy as np
+import shapely
 
 from agv_mission.maps.worlds import World
 from agv_mission.world.model import PARKED_GROUP, WALL_BIT, WALL_GROUP
@@ -39,6 +40,28 @@ class Walls:
     def cyl_distance(self, x: float, y: float, idx: np.ndarray | slice = slice(None)) -> np.ndarray:
         cyl = self.cyl[idx]
         return np.hypot(cyl[:, 0] - x, cyl[:, 1] - y) - cyl[:, 2]
+
+    def polygon_distance(self, polygon: np.ndarray, reach: float) -> float:
+        """Planar distance from the polygon (k, 2) to the nearest wall or pillar within
+        ``reach`` of its vertices' mean (a pillar whose centre is inside: minus its radius;
+        a box overlapping it: 0); inf when none is."""
+        cx, cy = (float(v) for v in polygon.mean(axis=0))
+        shape = shapely.Polygon(polygon)
+        best = math.inf
+        if len(self.cyl):
+            near = np.flatnonzero(self.cyl_distance(cx, cy) <= reach)
+            if len(near):
+                cyl = self.cyl[near]
+                d = shapely.distance(shapely.points(cyl[:, 0:2]), shape) - cyl[:, 2]
+                best = min(best, float(d.min()))
+        if len(self.box_c):
+            near = np.flatnonzero(self.box_distance(cx, cy) <= reach)
+            for i in near.tolist():
+                (x, y), (hx, hy), (c, s) = self.box_c[i], self.box_h[i], self.box_cs[i]
+                corners = [(sx * hx, sy * hy) for sx, sy in ((1, 1), (-1, 1), (-1, -1), (1, -1))]
+                box = shapely.Polygon([(x + c * a - s * b, y + s * a + c * b) for a, b in corners])
+                best = min(best, float(shapely.distance(box, shape)))
+        return best
 
 
 class WallWindow:

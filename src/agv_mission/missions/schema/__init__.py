@@ -52,10 +52,12 @@ from agv_mission.missions.schema.disturbances import (
 from agv_mission.missions.schema.json_schema import JSON_SCHEMA_DIALECT, mission_json_schema
 from agv_mission.missions.schema.mission import (
     FIELD_ORDER,
+    NO_MAP,
     Limits,
     Mission,
     OutputConfig,
     Setup,
+    WorldImport,
 )
 from agv_mission.missions.schema.stack import (
     DEFAULT_PLUGINS,
@@ -78,6 +80,7 @@ __all__ = [
     "MAX_ROOMS",
     "MAX_SIM_SECONDS",
     "MAX_TASKS",
+    "NO_MAP",
     "MAX_WAYPOINTS",
     "QUATERNION_TOLERANCE",
     "ROS_POSE_SCHEMA",
@@ -118,6 +121,7 @@ __all__ = [
     "WanderTask",
     "WheelSlipFault",
     "Window",
+    "WorldImport",
     "mission_json_schema",
     "with_default_plugin_types",
 ]

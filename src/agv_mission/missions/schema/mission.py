@@ -33,6 +33,20 @@ class Limits(StrictModel):
     collisions: int = Field(0, ge=0, description="collisions allowed before the mission fails")
 
 
+class WorldImport(StrictModel):
+    """How a Gazebo world (``.world``/``.sdf``) is read (robots-and-worlds.md)."""
+
+    skip_unsupported: bool = Field(
+        False,
+        description="skip what cannot be read (a mesh, a tilted cylinder, a non-static model) "
+        "and list it in result.json's world_import, instead of refusing the world",
+    )
+
+
+#: ``map: none``: the robot is given no map (robots-and-worlds.md).
+NO_MAP = "none"
+
+
 class OutputConfig(StrictModel):
     """Where a run directory goes and what it holds beyond the contract's minimum.
 
@@ -72,11 +86,15 @@ class Setup(StrictModel):
         "turtlebot3_world",
         description="a built-in world, a world file, or a ROS map_server YAML",
     )
+    world_import: WorldImport = Field(
+        default_factory=WorldImport, description="how a Gazebo world is read"
+    )
     map: str | None = Field(
         None,
         description="a ROS map_server YAML the robot is given (localisation, planning, rooms), "
         "in the world's frame, e.g. from an earlier map_area run; the world stays what is "
-        "simulated; default: the world's own map",
+        "simulated; `none`: no map (odometry, plans on what the lidar shows); default: the "
+        "world's own map",
     )
     rooms: str | None = Field(None, description="rooms file; built-in worlds carry their own")
     robot: str = Field("burger", description="burger, waffle, rosbots, or a robot file")
@@ -217,6 +235,7 @@ class Mission(Setup):
 FIELD_ORDER = (
     "name",
     "world",
+    "world_import",
     "map",
     "rooms",
     "robot",

@@ -102,7 +102,7 @@ class MapView {
         truthTrail: [], estTrail: [], scan: null, particles: null, plan: null, horizon: null, goal: null };
       if (s.selected == null) s.selected = name;
     }
-    if (info) Object.assign(r, { colour: info.colour || r.colour, radius: info.radius || r.radius, type: info.type || r.type });
+    if (info) Object.assign(r, { colour: info.colour || r.colour, radius: info.radius || r.radius, type: info.type || r.type, footprint: info.footprint || r.footprint || null });
     return r;
   }
 
@@ -395,9 +395,9 @@ class MapView {
       const radius = r.radius || this.robotRadius;
       if (L.estimate && r.estimate) {
         if (r.covariance && r === picked) this.drawCovariance(ctx, P, r.estimate, r.covariance);
-        this.drawRobot(ctx, P, r.estimate, LAYER_STYLE.estimate, false, radius);
+        this.drawRobot(ctx, P, r.estimate, LAYER_STYLE.estimate, false, radius, r.footprint);
       }
-      if (L.truth && r.truth) this.drawRobot(ctx, P, r.truth, tint(r, "truth"), true, radius);
+      if (L.truth && r.truth) this.drawRobot(ctx, P, r.truth, tint(r, "truth"), true, radius, r.footprint);
     }
     if (s.fleet) {
       ctx.font = "600 11px system-ui, sans-serif";
@@ -558,11 +558,19 @@ class MapView {
     if (ring) { ctx.beginPath(); ctx.arc(x, y, 5, 0, Math.PI * 2); ctx.stroke(); }
   }
 
-  drawRobot(ctx, P, pose, color, filled, radius) {
+  drawRobot(ctx, P, pose, color, filled, radius, footprint) {
     const S = this.view.scale;
     const [x, y] = P(pose.x, pose.y);
     const r = Math.max(6, (radius || this.robotRadius) * S);
-    ctx.beginPath(); ctx.arc(x, y, r, 0, Math.PI * 2);
+    ctx.beginPath();
+    if (footprint && footprint.length >= 3 && r > 6) {  // the polygon, robot frame
+      const c = Math.cos(pose.yaw), s = Math.sin(pose.yaw);
+      footprint.forEach(([fx, fy], i) => {
+        const [px, py] = P(pose.x + c * fx - s * fy, pose.y + s * fx + c * fy);
+        if (i) ctx.lineTo(px, py); else ctx.moveTo(px, py);
+      });
+      ctx.closePath();
+    } else ctx.arc(x, y, r, 0, Math.PI * 2);
     if (filled) { ctx.fillStyle = color + "55"; ctx.fill(); }
     ctx.strokeStyle = color; ctx.lineWidth = 2; ctx.stroke();
     ctx.beginPath(); ctx.moveTo(x, y);

@@ -1,12 +1,13 @@
 """Lidar beams against a world of many pillars, cast in the plane.
 
 MuJoCo's ``mj_multiRay`` tests every beam against every geom's bounding volume: in a BARN
-world (181-365 pillars) a 1440-beam scan took 9.7 ms, and a Jackal's lidar scans 40 times
-a second. Our walls are vertical prisms (boxes and cylinders standing on the floor) and a
-scan is (all but) horizontal, so each wall shadows only the beams within its bounding
-circle's angular width: found by a binary search in the beams' sorted bearings, each
+world (181-365 pillars) a 1440-beam scan took 9.7 ms on this machine, and a Jackal's
+lidar scans 40 times a second. Our walls are vertical prisms (boxes and cylinders standing
+on the floor) and a scan is (all but) horizontal, so each wall shadows only the beams
+within its bounding circle's angular width: found by a binary search in the beams' sorted bearings, each
 candidate pair is then intersected exactly (ray-circle, ray-box slabs), the nearest hit
-per beam kept. 1.1 ms for the same scan, the same distances to rounding.
+per beam kept. Side by side in one process, 3.6 ms against mj_multiRay's 10.5 ms for the
+same scan (a loaded machine: the ratio is what counts), the same distances to 1e-5 m.
 
 A beam's 3-D length to a wall is its planar length over the cosine of its tilt (a pitching
 robot's lidar), as MuJoCo measures it; walls are taken as tall enough for every beam.

@@ -14,9 +14,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from agv_mission.vda5050.vehicle_set import VehicleSet, load_vehicles
 from agv_mission.vda5050.master import Master, load_plan, new_run_dir, write_outputs
 from agv_mission.vda5050.transport import BrokerUrl, EmbeddedBroker, free_port
+from agv_mission.vda5050.vehicle_set import VehicleSet, load_vehicles
 from vda5050_peers import MiniMaster, MiniVehicle, Mosquitto
 
 WAREHOUSE = {

@@ -383,8 +383,8 @@ def test_our_master_docks_charges_and_undocks_our_vehicle(tmp_path: Path) -> Non
     """The whole dock / charge / undock of a mission, with a goal written ``yaw: 3.1416``,
     through our master to our simulated vehicle: the charge rises to ``until``, and the
     vehicle leaves the dock uncharged."""
-    from agv_mission.vda5050.vehicle_set import VehicleSet, load_vehicles
     from agv_mission.vda5050.transport import EmbeddedBroker, free_port
+    from agv_mission.vda5050.vehicle_set import VehicleSet, load_vehicles
 
     mission = {
         "name": "dock-e2e",

@@ -17,9 +17,9 @@ import pytest
 import yaml
 
 from agv_mission.vda5050.body import VehicleWorld
-from agv_mission.vda5050.vehicle_set import load_vehicles
 from agv_mission.vda5050.transport import BrokerUrl, EmbeddedBroker, free_port
 from agv_mission.vda5050.vehicle import Vehicle
+from agv_mission.vda5050.vehicle_set import load_vehicles
 from vda5050_peers import MiniMaster, Mosquitto, action, edge, node
 
 MAP = "turtlebot3_world"

@@ -18,9 +18,9 @@ import pytest
 import yaml
 
 from agv_mission.vda5050.body import VehicleWorld
-from agv_mission.vda5050.vehicle_set import load_vehicles
 from agv_mission.vda5050.transport import BrokerUrl, free_port
 from agv_mission.vda5050.vehicle import Vehicle
+from agv_mission.vda5050.vehicle_set import load_vehicles
 from agv_mission.vda5050.watch import FleetWatch, WatchServer
 from service_server import launch_chromium
 from vda5050_peers import MiniMaster, MiniVehicle, Mosquitto, action, edge, node

@@ -3,7 +3,8 @@
 `make bench` writes results.json whole, then renders ``docs/benchmarks.md`` from it and
 refreshes every tagged figure in ``README.md`` and ``docs/*.md``. A figure is tagged as
 ``<!--bench:KEY-->VALUE<!--/bench-->`` (KEY a results.json key); the tests check that
-every tagged VALUE is what results.json holds, so a figure cannot drift from the code.
+every tagged VALUE is what results.json holds, or ``n/a`` where it holds no such key, so a
+figure cannot drift from the code.
 """
 
 from __future__ import annotations
@@ -12,8 +13,11 @@ import re
 from collections.abc import Mapping
 from pathlib import Path
 
+from agv_mission.atomic import atomic_write_text
+
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "benchmarks.md"
+NOT_MEASURED = "n/a"
 TAG = re.compile(r"<!--bench:(?P<key>[^>]+?)-->(?P<value>.*?)<!--/bench-->")
 
 Target = tuple[str, float]
@@ -32,11 +36,12 @@ def tagged(text: str) -> list[tuple[str, str]]:
 
 
 def refresh(text: str, results: Mapping[str, object]) -> str:
-    """The page with every tagged figure set to results.json's value (unknown keys kept)."""
+    """The page with every tagged figure set to results.json's value (``n/a`` where it has
+    none)."""
 
     def one(m: re.Match[str]) -> str:
         key = m["key"]
-        value = fmt(results[key]) if key in results else m["value"]
+        value = fmt(results[key]) if key in results else NOT_MEASURED
         return f"<!--bench:{key}-->{value}<!--/bench-->"
 
     return TAG.sub(one, text)
@@ -105,3 +110,19 @@ def render_page(
             lines.append(f"| `{key}` | {fmt(results[key])} | {mark} |")
         lines.append("")
     return "\n".join(lines)
+
+
+def publish(
+    doc: Mapping[str, object],
+    targets: Mapping[str, Target],
+    suffixes: Mapping[str, Target],
+) -> None:
+    """Write ``docs/benchmarks.md`` from one run's results and refresh every tagged figure
+    of ``README.md`` and ``docs/``."""
+    results: Mapping[str, object] = doc["results"]  # type: ignore[assignment]
+    atomic_write_text(PAGE, render_page(doc, targets, suffixes))
+    for page in [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]:
+        text = page.read_text()
+        fresh = refresh(text, results)
+        if fresh != text:
+            atomic_write_text(page, fresh)

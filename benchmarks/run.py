@@ -102,12 +102,7 @@ def main() -> int:
         console.print(f"wrote {out} (a partial run: results.json and the docs unchanged)")
         return 0
     atomic_write_text(HERE / "results.json", json.dumps(doc, indent=2) + "\n")
-    atomic_write_text(figures.PAGE, figures.render_page(doc, TARGETS, SUFFIX_TARGETS))
-    for page in [figures.ROOT / "README.md", *sorted((figures.ROOT / "docs").rglob("*.md"))]:
-        text = page.read_text()
-        fresh = figures.refresh(text, results)
-        if fresh != text:
-            atomic_write_text(page, fresh)
+    figures.publish(doc, TARGETS, SUFFIX_TARGETS)
     unmatched = [k for k in TARGETS if k not in results]
     if unmatched:
         console.print(f"[red]targets no benchmark wrote:[/] {', '.join(unmatched)}")

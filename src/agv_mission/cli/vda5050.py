@@ -174,7 +174,7 @@ def dispatch(
     out.print(f"[bold {colour}]{result['status']}[/]{reason}", highlight=False)
     for task in result["tasks"]:
         out.print(
-            f"  task {task['index']} {task['type']} on {task['robot']}: {task['status']}"
+            f"  task {task['task']} {task['type']} on {task['robot']}: {task['status']}"
             + (f" ({task['reason']})" if task["reason"] else ""),
             highlight=False,
             markup=False,

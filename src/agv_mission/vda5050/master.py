@@ -220,7 +220,7 @@ class Master:
     def _assign(self, task: TaskRoute, peer: Peer) -> None:
         task.assigned = peer.serial
         peer.queue.append(task)
-        self.dispatch.append({"task": task.index, "robot": peer.serial, "t": round(self.now(), 3)})
+        self.dispatch.append({"task": task.number, "robot": peer.serial, "t": round(self.now(), 3)})
 
     def _assign_free_tasks(self) -> None:
         for task in self.plan.tasks:
@@ -240,7 +240,7 @@ class Master:
                     FleetTask(str(task.index), goals), work, self._travel_time
                 )
             except DispatchError as exc:
-                self.event("dispatch_failed", task=task.index, reason=str(exc))
+                self.event("dispatch_failed", task=task.number, reason=str(exc))
                 continue
             self._assign(task, self.peers[got.robot])
 
@@ -279,7 +279,7 @@ class Master:
                 task.status, task.reason = "failed", f"{peer.serial} {why}; no other vehicle online"
                 continue
             task.robot = None
-            self.event("task_redispatched", task=task.index, robot=peer.serial, reason=why)
+            self.event("task_redispatched", task=task.number, robot=peer.serial, reason=why)
 
     # ---------------------------------------------------------------- following a vehicle
 
@@ -355,7 +355,7 @@ class Master:
             if status in ("FINISHED", "FAILED") and before != status:
                 self.event(
                     f"action_{status.lower()}",
-                    task=task.index,
+                    task=task.number,
                     robot=peer.serial,
                     action=act.type,
                     node=done["node"],
@@ -385,13 +385,13 @@ class Master:
         self.traffic.keep_only(peer.serial, {place(order.nodes[-1])})
         if status == "failed" and task.retries > 0:
             task.retries -= 1
-            self.event("task_retry", task=task.index, robot=peer.serial, reason=reason)
+            self.event("task_retry", task=task.number, robot=peer.serial, reason=reason)
             peer.queue.insert(0, task)
             return
         task.status, task.reason = status, reason
         if status == "failed" and task.on_failure == "skip":
             task.status = "skipped"
-        self.event(f"task_{task.status}", task=task.index, robot=peer.serial, reason=reason)
+        self.event(f"task_{task.status}", task=task.number, robot=peer.serial, reason=reason)
 
     def _send_new(self, peer: Peer, task: TaskRoute) -> None:
         peer.orders_made += 1
@@ -407,7 +407,7 @@ class Master:
         peer.order = order
         peer.orders += 1
         self._publish_order(peer, order, 0)
-        self.event("order_sent", task=task.index, robot=peer.serial, order=order.order_id)
+        self.event("order_sent", task=task.number, robot=peer.serial, order=order.order_id)
 
     def _grantable(self, peer: Peer, order: ActiveOrder, last: int) -> int:
         """The furthest node index that may be released, ``lookahead`` past ``last``."""
@@ -448,7 +448,7 @@ class Master:
         failed = [t for t in tasks if t.status == "failed" and t.on_failure != "skip"]
         if failed:
             t = failed[0]
-            return "failed", f"task {t.index} ({t.type}) failed on {t.assigned}: {t.reason}"
+            return "failed", f"task {t.number} ({t.type}) failed on {t.assigned}: {t.reason}"
         if all(t.status in ("succeeded", "skipped") for t in tasks):
             return "succeeded", None
         return None

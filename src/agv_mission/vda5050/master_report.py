@@ -49,7 +49,7 @@ def master_result(master: DispatchRecord, status: str, reason: str | None) -> di
             "reason": bad[0].reason if bad else None,
             "connection": peer.connection,
             "tasks": [
-                {"index": t.index, "type": t.type, "status": t.status, "reason": t.reason}
+                {"task": t.number, "type": t.type, "status": t.status, "reason": t.reason}
                 for t in mine
             ],
             "metrics": {
@@ -67,7 +67,7 @@ def master_result(master: DispatchRecord, status: str, reason: str | None) -> di
         "wall_time": round(master.now(), 3),
         "tasks": [
             {
-                "index": t.index,
+                "task": t.number,
                 "type": t.type,
                 "robot": t.assigned,
                 "status": t.status,

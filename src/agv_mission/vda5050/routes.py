@@ -72,6 +72,12 @@ class TaskRoute:
     #: where the task is written in the mission file (``tasks.2``, ``robots.0.tasks.1``)
     where: str = ""
 
+    @property
+    def number(self) -> int:
+        """The task's number in ``tasks:``, from 1, as every report and event counts it
+        (``index`` stays 0-based: it names the field ``tasks.N``)."""
+        return self.index + 1
+
     def charged(self, state: dict[str, Any]) -> bool:
         """A ``charge`` task is done when the vehicle's ``batteryCharge`` reached its level
         (always True for the other tasks)."""

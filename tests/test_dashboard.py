@@ -25,7 +25,7 @@ def base_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
 
 @pytest.mark.parametrize(
     ("path", "script"),
-    [("/", "runs.js"), ("/submit", "submit.js"), ("/runs/any-id", "run.js")],
+    [("/", "runs.js"), ("/submit", "submit.js")],
 )
 def test_pages_are_served_with_their_scripts(base_url: str, path: str, script: str) -> None:
     page = httpx.get(base_url + path, timeout=10)

@@ -71,7 +71,7 @@ def test_a_fleet_robot_maps_from_its_own_start_and_rooms_reach_the_result(tmp_pa
     """The mixed house fleet: the mapper's SLAM is anchored at its own start (it once took
     the first robot's, 7.5 m away, and the fleet layer then saw it there), its map and
     the visitor's recorded rooms are in result.json, fleet-wide and per robot."""
-    loaded = load_mission(Path(__file__).parent / "scenarios" / "fleet_mixed_house.yaml")
+    loaded = load_mission(Path(__file__).parent / "scenarios" / "slow" / "fleet_mixed_house.yaml")
     run_dir = open_run_dir(tmp_path / "runs", loaded)
     record = run_mission(loaded, run_dir)
     result = write_run(run_dir, loaded, record)

@@ -148,14 +148,14 @@ def test_safety_watch_skips_only_queries_that_cannot_change_its_outcome(tmp_path
             self.contacts = 0
 
         def on_step(self, sample: StepSample) -> None:
-            self.clearances.append(exact_clearance())
+            self.clearances.append(exact_clearances()[1])
             self.contacts += run.sim.contacts()
 
     watcher = EveryStep()
     run = MissionRun(load(tmp_path), None, [watcher])
-    exact_clearance = run.sim.min_clearance
+    exact_clearances = run.sim.clearances
     queries = []
-    run.sim.min_clearance = lambda: queries.append(1) or exact_clearance()  # type: ignore[method-assign]
+    run.sim.clearances = lambda: queries.append(1) or exact_clearances()  # type: ignore[method-assign]
     run.drive()
     assert run.status == "succeeded" and len(watcher.clearances) > 20
     assert run.lead.min_clearance == min(watcher.clearances)

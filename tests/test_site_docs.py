@@ -71,5 +71,6 @@ def test_a_refresh_sets_a_stale_figure_and_marks_an_unmeasured_one() -> None:
     text = "RPE <!--bench:slam.rpe-->0.9<!--/bench--> m, <!--bench:gone-->7<!--/bench-->"
     fresh = figures.refresh(text, {"slam.rpe": 0.0213456})
     assert (
-        fresh == "RPE <!--bench:slam.rpe-->0.02135<!--/bench--> m, <!--bench:gone-->n/a<!--/bench-->"
+        fresh
+        == "RPE <!--bench:slam.rpe-->0.02135<!--/bench--> m, <!--bench:gone-->n/a<!--/bench-->"
     )

@@ -14,13 +14,39 @@ import signal
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from multiprocessing.connection import Connection, Listener
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from agv_mission.missions.workers import forkserver_context
+from agv_mission.service.registry import Registry
 from agv_mission.service.worker import ray_entry, worker_main
 
-if TYPE_CHECKING:
-    from agv_mission.service.runs import ActiveRun, RunManager
+
+class ActiveRun(Protocol):
+    """What a backend knows of a run it started (the run manager owns the rest)."""
+
+    run_id: str
+    process: Any  # multiprocessing.Process, or a Ray ObjectRef
+    ended: bool
+
+
+class RunManager(Protocol):
+    """What a backend asks of the run manager that owns the runs it starts."""
+
+    loop: asyncio.AbstractEventLoop | None
+    registry: Registry
+    stopping: bool
+
+    def attach(self, run_id: str, conn: Connection) -> None: ...
+
+    def detach(self, run: Any) -> None: ...
+
+    def spawn(self, coro: Any) -> None: ...
+
+    async def drained(self, run: Any, timeout: float = 5.0) -> None: ...
+
+    def finish(
+        self, run: Any, status: str, reason: str | None, result: dict[str, Any] | None
+    ) -> None: ...
 
 
 class LocalBackend:

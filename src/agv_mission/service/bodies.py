@@ -3,7 +3,6 @@ submissions (JSON or YAML), and problems spelt as the contract spells them (422)
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import json
 from collections.abc import AsyncIterator
@@ -14,7 +13,6 @@ from fastapi import Request
 
 from agv_mission.missions.errors import MissionError
 from agv_mission.service.context import ApiError, Service
-from agv_mission.service.registry import Submission
 
 MAX_BODY = 1_000_000  # bytes of a request body
 YAML_TYPES = ("application/yaml", "application/x-yaml", "text/yaml")
@@ -59,18 +57,6 @@ async def mission_input(request: Request) -> tuple[str, list[str], int | None, f
     if ctype == "application/json":
         return parse_json_submission(body)
     raise ApiError(415, "send application/json ({mission, set, seed}) or application/yaml")
-
-
-async def submission(service: Service, request: Request) -> tuple[Submission, str | None]:
-    """A run to queue, validated off the event loop (422 with the problems), and the id
-    its files were stored under when it came with files (multipart)."""
-    if content_type(request) == "multipart/form-data":
-        from agv_mission.service.uploads import upload
-
-        return await upload(service, request)
-    text, sets, seed, pace = await mission_input(request)
-    loaded = await asyncio.to_thread(validate, service, text, sets, seed)
-    return Submission(loaded.name, text, sets, seed, pace=pace), None
 
 
 def validate(

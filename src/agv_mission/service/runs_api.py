@@ -17,7 +17,6 @@ from agv_mission.service.bodies import (
     mission_input,
     problem,
     read_body,
-    submission,
 )
 from agv_mission.service.bodies import validate as validate_mission
 from agv_mission.service.context import ApiError, Service
@@ -40,6 +39,7 @@ from agv_mission.service.models import (
 )
 from agv_mission.service.registry import FINAL
 from agv_mission.service.runs import NotActive, QueueFull, UnknownRobot
+from agv_mission.service.uploads import submission
 
 MAX_LABEL = 100
 

@@ -1,4 +1,5 @@
-"""A mission that travels with its files: ``POST /api/runs`` as ``multipart/form-data``.
+"""What ``POST /api/runs`` submits (:func:`submission`): a mission as JSON or YAML, or one
+that travels with its files as ``multipart/form-data``.
 
 Parts: ``mission`` (the YAML text, as a text field or a file part), ``mission_path``
 (where the mission file sits among the files; default the mission part's filename, else
@@ -23,7 +24,14 @@ from fastapi import Request
 from starlette.datastructures import FormData, UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
 
-from agv_mission.service.bodies import bounded_stream, pace_of, problem, validate
+from agv_mission.service.bodies import (
+    bounded_stream,
+    content_type,
+    mission_input,
+    pace_of,
+    problem,
+    validate,
+)
 from agv_mission.service.context import ApiError, Service
 from agv_mission.service.registry import Submission
 from agv_mission.service.sandbox import NamedFiles
@@ -178,3 +186,13 @@ async def _store(
         with target.open("wb") as out:
             while chunk := await item.read(1 << 20):
                 await asyncio.to_thread(out.write, chunk)
+
+
+async def submission(service: Service, request: Request) -> tuple[Submission, str | None]:
+    """A run to queue, validated off the event loop (422 with the problems), and the id
+    its files were stored under when it came with files (multipart)."""
+    if content_type(request) == "multipart/form-data":
+        return await upload(service, request)
+    text, sets, seed, pace = await mission_input(request)
+    loaded = await asyncio.to_thread(validate, service, text, sets, seed)
+    return Submission(loaded.name, text, sets, seed, pace=pace), None

@@ -44,7 +44,7 @@ def _drive(sim: DiffDriveBody, seconds: float, v: float, w: float, reads: list) 
         reads.append(sim.imu_samples())
 
 
-def test_every_builtin_robot_has_its_imu_from_the_datasheet():
+def test_every_builtin_robot_has_its_imu_from_its_source():
     for name in ("burger", "waffle"):
         imu = BUILTIN_ROBOTS[name].imu
         assert imu is not None and imu.rate == 200.0  # OpenCR firmware
@@ -53,6 +53,10 @@ def test_every_builtin_robot_has_its_imu_from_the_datasheet():
         assert imu.accel_noise_density == pytest.approx(300e-6 * 9.80665)
     rosbots = BUILTIN_ROBOTS["rosbots"].imu
     assert rosbots is not None and rosbots.gyro_noise_density == pytest.approx(math.radians(0.005))
+    # BARN's Gazebo Jackal: hector's IMU at 50 Hz, 0.005 rad/s per sample
+    jackal = BUILTIN_ROBOTS["jackal"].imu
+    assert jackal is not None and jackal.rate == 50.0
+    assert jackal.gyro_noise_density * math.sqrt(jackal.rate) == pytest.approx(0.005)
 
 
 def test_robot_file_imu_block_is_validated(tmp_path: Path):

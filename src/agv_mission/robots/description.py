@@ -290,6 +290,17 @@ MPU_6050: dict[str, Any] = {
     "gyro_bias_instability": math.radians(10.0 / 3600.0),
     "accel_noise_density": 400e-6 * 9.80665,
 }
+#: The Jackal's IMU as BARN simulates it: ``jackal_description``'s ``jackal.gazebo`` runs
+#: hector_gazebo_plugins' IMU at 50 Hz with rateGaussianNoise and accelGaussianNoise of
+#: 0.005 (rad/s, m/s^2 per sample: densities of 0.005/sqrt(50)) and a rateDrift of
+#: 0.005 rad/s, a Gauss-Markov bias with a 1 h time constant that starts at zero: its
+#: spread after a minute's run, 0.005 sqrt(2 * 60 / 3600) = 0.9 mrad/s, is the bias drawn.
+JACKAL_IMU: dict[str, Any] = {
+    "rate": 50.0,
+    "gyro_noise_density": 0.005 / math.sqrt(50.0),
+    "gyro_bias_instability": 0.005 * math.sqrt(2.0 * 60.0 / 3600.0),
+    "accel_noise_density": 0.005 / math.sqrt(50.0),
+}
 
 #: Hokuyo UST-10LX (the Jackal's laser in BARN: ``JACKAL_LASER_MODEL=ust10``), from its
 #: datasheet: 270 degrees at 0.25 degree steps (1081 beams), 25 ms a scan (40 Hz), range
@@ -392,6 +403,7 @@ BUILTIN_ROBOTS: dict[str, RobotDescription] = {
         # On the front mount (0.12 m ahead of the mid mount) moved by BARN's
         # JACKAL_LASER_OFFSET "-0.065 0 0.01": 0.055 m ahead of the origin.
         lidar=LidarSpec(height=0.29, mount=LidarMount(x=0.055), **UST_10LX),
+        imu=ImuSpec(**JACKAL_IMU),
     ),
 }
 

@@ -60,6 +60,7 @@ def main() -> int:
         )
         return 2
     results: dict[str, float] = {}
+    seconds: dict[str, float] = {}  # how long each module took: what a whole run costs
     for name in MODULES:
         if only and name not in only:
             continue
@@ -70,7 +71,8 @@ def main() -> int:
         results.update(values)
         for extra in getattr(module, "tables", lambda _: [])(values):
             console.print(extra)
-        console.print(f"  done in {time.perf_counter() - start:.1f} s")
+        seconds[name] = round(time.perf_counter() - start, 1)
+        console.print(f"  done in {seconds[name]:.1f} s")
     table = Table(title="agv-mission benchmarks", header_style="bold")
     table.add_column("metric")
     table.add_column("value", justify="right")
@@ -92,6 +94,7 @@ def main() -> int:
             "cores": __import__("os").cpu_count(),
         },
         "modules": sorted(only) if only else MODULES,
+        "seconds": seconds,
         "results": results,
     }
     if only:

@@ -164,7 +164,7 @@ def _measure(run: MissionRun) -> dict[str, float]:
     out["real_time_factor"] = sim / wall
     out["sim_time_s"] = sim
     out["succeeded"] = float(record.status == "succeeded")
-    out["geoms"] = float(run.sim.model.ngeom)
+    out["geoms"] = float(run.sim.world.model.ngeom)
     out["tracking_rmse_m"] = _tracking_rmse(record)
     return out
 

@@ -62,7 +62,7 @@ def run() -> dict[str, float]:
     rtf = sim_seconds / (time.perf_counter() - t0)
 
     return {
-        "sim_geoms": float(sim.model.ngeom),
+        "sim_geoms": float(sim.world.model.ngeom),
         "physics_hz": 1.0 / sim.dt,
         "physics_step_us": step_us,
         "physics_ms_per_sim_s": step_us / sim.dt * 1e-3,

@@ -61,13 +61,19 @@ def main() -> int:
         return 2
     results: dict[str, float] = {}
     seconds: dict[str, float] = {}  # how long each module took: what a whole run costs
+    failed: list[str] = []
     for name in MODULES:
         if only and name not in only:
             continue
         start = time.perf_counter()
         console.print(f"[bold]{name}[/] ...")
-        module = importlib.import_module(name)
-        values = module.run()
+        try:
+            module = importlib.import_module(name)
+            values = module.run()
+        except Exception:  # noqa: BLE001 (the other modules still measure; the run is partial)
+            console.print_exception()
+            failed.append(name)
+            continue
         results.update(values)
         for extra in getattr(module, "tables", lambda _: [])(values):
             console.print(extra)
@@ -97,13 +103,16 @@ def main() -> int:
         "seconds": seconds,
         "results": results,
     }
-    if only:
+    if failed:
+        doc["failed"] = failed
+        console.print(f"[red]failed:[/] {', '.join(failed)}")
+    if only or failed:
         # A partial run (``run.py bench_mpc``) never patches results.json: the docs quote
         # only figures of one whole run.
         out = HERE / "results.partial.json"
         atomic_write_text(out, json.dumps(doc, indent=2) + "\n")
         console.print(f"wrote {out} (a partial run: results.json and the docs unchanged)")
-        return 0
+        return 1 if failed else 0
     atomic_write_text(HERE / "results.json", json.dumps(doc, indent=2) + "\n")
     figures.publish(doc, TARGETS, SUFFIX_TARGETS)
     unmatched = [k for k in TARGETS if k not in results]

@@ -360,6 +360,7 @@ setInterval(() => {
 """
 
 
+@pytest.mark.slow  # 15 s; the battery itself is test_battery's
 def test_run_page_shows_the_battery_level_and_charging(
     page: Any, base_url: str, shots: Path
 ) -> None:

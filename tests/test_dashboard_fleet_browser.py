@@ -167,6 +167,7 @@ def test_fleet_run_draws_every_robot_and_shows_the_picked_ones_tree(
     ) or "#d62728" in rows.first.get_attribute("style")
 
 
+@pytest.mark.slow  # 14 s; test_service_fleet drives the same commands
 def test_fleet_teleop_goal_goes_to_the_picked_robot(page: Any, base_url: str, shots: Path) -> None:
     run_id = _submit(base_url, TELEOP_FLEET)
     try:

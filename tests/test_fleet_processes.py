@@ -126,8 +126,8 @@ lidar: {beams: 180, range_min: 0.12, range_max: 3.5, rate: 25.0, height: 0.17}
     [
         # the first process steps the physics, the robot process mirrors its world
         ("fleet_crossing", None),
-        # a lidar scans between control steps: every process steps the physics
-        ("fleet_head_on_aisle", "west"),
+        # a lidar scans between control steps: every process steps the physics (22 s)
+        pytest.param("fleet_head_on_aisle", "west", marks=pytest.mark.slow),
     ],
 )
 def test_a_fleet_in_two_processes_runs_as_in_one(

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from agv_mission.missions.expectations import Expectations, check
 from agv_mission.missions.loader import load_mission
@@ -67,6 +68,7 @@ def test_dispatched_tasks_go_to_the_quickest_robot_and_queue_behind_its_own(tmp_
     assert [f.metric for f in check(Expectations(makespan_max=1.0), result)] == ["makespan_max"]
 
 
+@pytest.mark.slow  # 16 s of a fleet mapping
 def test_a_fleet_robot_maps_from_its_own_start_and_rooms_reach_the_result(tmp_path):
     """The mixed house fleet: the mapper's SLAM is anchored at its own start (it once took
     the first robot's, 7.5 m away, and the fleet layer then saw it there), its map and

@@ -311,7 +311,7 @@ def test_rrtconnect_length_close_to_grid(room: Costmap) -> None:
     [
         OmplPlannerConfig(),
         OmplPlannerConfig(simplify=False),
-        OmplPlannerConfig(planner="BITstar"),
+        pytest.param(OmplPlannerConfig(planner="BITstar"), marks=pytest.mark.slow),  # 10 s
         OmplPlannerConfig(planner="RRTstar", time_limit=2.0),
     ],
     ids=["RRTConnect", "RRTConnect-raw", "BITstar", "RRTstar"],

@@ -404,6 +404,7 @@ def test_sweep_comparison(tmp_path: Path) -> None:
     assert "planner=BITstar" in text and "100%" in text
 
 
+@pytest.mark.slow  # Ray's start-up: 12 s
 def test_ray_backend_matches_local(tmp_path: Path) -> None:
     ray = pytest.importorskip("ray", reason="ray not installed (pip install 'agv-mission[ray]')")
     plan = planning.plan_jobs(SHORT, seeds=2, output_root=tmp_path)

@@ -314,6 +314,7 @@ def test_teleop_seed_003_records_four_rooms(server: Server, client: httpx.Client
     _teleop_rooms(server, client, ["livingroom", "kitchen", "recreationroom", "bedroom"])
 
 
+@pytest.mark.slow  # 22 s; the dashboard's teleop test drives the same endpoints
 def test_teleop_drive_and_record_two_rooms(server: Server, client: httpx.Client) -> None:
     """The fast part of seed 003: remote driving, a goal, two rooms recorded."""
     _teleop_rooms(server, client, ["livingroom", "kitchen"])

@@ -286,6 +286,7 @@ def test_dispatch_cli_bad_input_exits_2(tmp_path: Path) -> None:
     assert "goal" in r.stderr
 
 
+@pytest.mark.slow  # 12 s of broker down time
 def test_master_rides_out_a_broker_restart(mosquitto: Mosquitto, tmp_path: Path) -> None:
     mission = {
         **WAREHOUSE,

@@ -33,6 +33,7 @@ FLOORS = {
     "geometry": 0,
     "registry": 0,
     "atomic": 0,
+    "job_pool": 0,
     "messages": 0,
     "suggest": 0,
 }

@@ -48,6 +48,7 @@ def barn(
     """Run BARN's worlds (Jackal, no map, BARN's start, goal, clock and metric)."""
     from agv_mission.barn import suite
     from agv_mission.barn import workers as pool
+    from agv_mission.job_pool import Interrupted
     from agv_mission.missions.outputs import write_json
 
     if backend not in ("local", "ray"):
@@ -91,7 +92,7 @@ def barn(
             results = pool.run_worlds(jobs, backend, n_workers, address, progress)
         except suite.BarnInputError as exc:
             raise failure("invalid input", str(exc)) from None
-        except pool.Interrupted as exc:
+        except Interrupted as exc:
             results, interrupted = exc.results, True
     elapsed = time.perf_counter() - started
     summary = suite.summarise(results, elapsed, n_workers)

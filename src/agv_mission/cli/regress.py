@@ -46,6 +46,7 @@ def regress(
     ] = None,
 ) -> None:
     """Run scenarios (missions with an expect: block) in parallel and check them."""
+    from agv_mission.job_pool import Interrupted
     from agv_mission.regress import backends, report
     from agv_mission.regress import plan as planning
 
@@ -81,7 +82,7 @@ def regress(
             results = backends.run_jobs(plan.jobs, backend, n_workers, address, progress)
         except planning.RegressError as exc:
             raise failure("invalid input", str(exc)) from None
-        except backends.Interrupted as exc:  # Ctrl-C: report what ran
+        except Interrupted as exc:  # Ctrl-C: report what ran
             results, interrupted = exc.results, True
     elapsed = time.perf_counter() - started
     # Not a terminal (CI logs, pipes): do not squeeze the tables into 80 columns.

@@ -3,68 +3,31 @@ or on Ray, and one job in this process."""
 
 from __future__ import annotations
 
-import contextlib
 import io
 import json
 import os
 import shutil
-import signal
 import tarfile
 import tempfile
 import time
 import traceback
-from collections.abc import Callable, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from agv_mission import job_pool
+from agv_mission.job_pool import JobKind, StopControl
 from agv_mission.messages import json_default
 from agv_mission.missions.errors import MissionError
 from agv_mission.missions.workers import forkserver_context
 from agv_mission.regress.plan import RegressError, ResultCallback, sweep_overrides
 
-# Signals this process was asked to stop with (Ctrl-C, SIGTERM): a run in progress ends
-# ``aborted`` before its next step, a job not started yet is not started.
-_STOP: list[int] = []
 
-
-def _request_stop(signum: int, _frame: object) -> None:
-    _STOP.append(signum)
-
-
-def _stop_on_signals() -> None:
-    """Pool worker start: SIGINT/SIGTERM ask the running job to stop (see ``_STOP``)."""
-    signal.signal(signal.SIGINT, _request_stop)
-    signal.signal(signal.SIGTERM, _request_stop)
-
-
-class _StopControl:
-    """The run-control hook that ends a run ``aborted`` once a stop was requested."""
-
-    only_cancels = True  # robots may decide in other processes (missions.team)
-
-    def before_step(self, run: Any) -> None:
-        if _STOP:
-            run.cancel("regress stopped (Ctrl-C)")
-
-
-class Interrupted(Exception):
-    """``run_jobs`` was stopped: ``results`` holds the jobs that ran (the running ones
-    ended ``aborted``); queued jobs were cancelled."""
-
-    def __init__(self, results: list[dict[str, Any]]) -> None:
-        super().__init__(f"interrupted after {len(results)} run(s)")
-        self.results = results
-
-
-def run_job(job: dict[str, Any]) -> dict[str, Any] | None:
+def run_job(job: dict[str, Any]) -> dict[str, Any]:
     """Run one job (load, run, write the run directory, check); a plain dict back.
 
-    Never raises: an exception becomes a result with status ``error``. None: a stop was
-    requested before the job began, so it did not run.
+    Never raises: an exception becomes a result with status ``error``.
     """
-    if _STOP:
-        return None
     from agv_mission.missions.expectations import check
     from agv_mission.missions.loader import load_mission
     from agv_mission.missions.outputs import open_run_dir, write_run
@@ -76,7 +39,7 @@ def run_job(job: dict[str, Any]) -> dict[str, Any] | None:
     try:
         loaded = load_mission(job["scenario"], sweep_overrides(job["overrides"]), job["seed"])
         run_dir = open_run_dir(output_root or Path(job["output_root"]), loaded, job["run_name"])
-        record = run_mission(loaded, run_dir, control=_StopControl())
+        record = run_mission(loaded, run_dir, control=StopControl("regress stopped (Ctrl-C)"))
         doc = write_run(run_dir, loaded, record)
         doc = json.loads(json.dumps(doc, default=json_default))  # plain types only
         failures = [f.to_dict() for f in check(loaded.mission.expect, doc)]
@@ -178,14 +141,38 @@ def _job_keys(job: dict[str, Any]) -> dict[str, Any]:
 # ------------------------------------------------------------------------------ backends
 
 
+def _fork_context() -> Any:
+    return forkserver_context(__name__)
+
+
+def _order(result: dict[str, Any]) -> tuple[int, ...]:
+    return tuple(result["order"])
+
+
+def _ship_to_cluster(
+    jobs: Sequence[dict[str, Any]],
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    working_dir, shipped = _ship(jobs)
+    return shipped, {"working_dir": working_dir}
+
+
+#: A scenario run, as the job pool runs it.
+SCENARIO_RUN = JobKind(
+    run=run_job,
+    failed=error_result,
+    order=_order,
+    error=RegressError,
+    fork_context=_fork_context,
+    ship=_ship_to_cluster,
+    unpack=_unpack,
+    noun="run(s)",
+)
+
+
 def warm_up(backend: str = "local", workers: int | None = None) -> None:
     """Start the local pool's fork server now, so that it imports the stack while this
     process plans (call before :func:`plan_jobs`; harmless otherwise)."""
-    if backend == "local" and (workers or os.cpu_count() or 1) > 1:
-        from multiprocessing import forkserver
-
-        forkserver_context("agv_mission.regress.backends")
-        forkserver.ensure_running()
+    job_pool.warm_up(SCENARIO_RUN, backend, workers or os.cpu_count() or 1)
 
 
 def run_jobs(
@@ -196,123 +183,6 @@ def run_jobs(
     on_result: ResultCallback | None = None,
 ) -> list[dict[str, Any]]:
     """Run every job on ``backend``; results in the order of the plan (scenario, variant,
-    seed), whatever order they finished in."""
+    seed), whatever order they finished in (:class:`~agv_mission.job_pool.Interrupted` after Ctrl-C)."""
     workers = max(1, workers or os.cpu_count() or 1)
-    results: list[dict[str, Any]] = []
-
-    def collect(result: dict[str, Any] | None) -> None:
-        if result is None:  # cancelled before it began
-            return
-        results.append(result)
-        if on_result is not None:
-            on_result(result, len(results), len(jobs))
-
-    _STOP.clear()
-    previous = signal.signal(signal.SIGINT, _request_stop)
-    try:
-        if backend == "local":
-            _run_local(jobs, workers, collect)
-        elif backend == "ray":
-            _run_ray(jobs, workers, address, collect)
-        else:
-            raise RegressError(f"unknown backend {backend!r} (local or ray)")
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    ordered = sorted(results, key=lambda r: tuple(r["order"]))
-    if _STOP:
-        raise Interrupted(ordered)
-    return ordered
-
-
-def _run_local(jobs: Sequence[dict[str, Any]], workers: int, collect: Callable) -> None:
-    """In this process (one worker) or a process pool. A stop request (``_STOP``, set by
-    the SIGINT handler) cancels the queued jobs and asks the workers to end theirs."""
-    if workers == 1 or len(jobs) <= 1:
-        for job in jobs:
-            if _STOP:
-                break
-            collect(run_job(job))
-        return
-    with ProcessPoolExecutor(
-        max_workers=min(workers, len(jobs)),
-        mp_context=forkserver_context("agv_mission.regress.backends"),
-        initializer=_stop_on_signals,
-    ) as pool:
-        futures = {pool.submit(run_job, job): job for job in jobs}
-        pending = set(futures)
-        stopping = False
-        while pending:
-            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-            for future in done:
-                if future.cancelled():
-                    continue
-                try:
-                    result = future.result()
-                except Exception as exc:  # a worker died (killed, out of memory, ...)
-                    result = error_result(futures[future], f"worker process failed: {exc!r}")
-                collect(result)
-            if _STOP and not stopping:
-                stopping = True
-                for future in pending:
-                    future.cancel()
-                for process in list(getattr(pool, "_processes", {}).values()):
-                    with contextlib.suppress(OSError):
-                        os.kill(process.pid, signal.SIGINT)  # the worker ends its run
-
-
-def _run_ray(
-    jobs: Sequence[dict[str, Any]], workers: int, address: str | None, collect: Callable
-) -> None:
-    try:
-        import ray
-    except ImportError:
-        raise RegressError(
-            "the ray backend needs Ray, which is not installed: pip install 'agv-mission[ray]'"
-        ) from None
-    started = False
-    if address:  # a cluster: its workers see none of our files, so send them
-        working_dir, jobs = _ship(jobs)
-        output_root = Path(jobs[0]["output_root"]) if jobs else Path(".")
-        inner = collect
-
-        def collect(result: dict[str, Any] | None) -> None:
-            inner(_unpack(result, output_root) if result is not None else None)
-
-    if not ray.is_initialized():
-        options: dict[str, Any] = {"include_dashboard": False, "logging_level": "WARNING"}
-        if address:
-            options["address"] = address
-            options["runtime_env"] = {"working_dir": working_dir}
-        else:  # a new local instance, never a cluster that happens to run here
-            options["address"] = "local"
-            options["num_cpus"] = workers
-        try:
-            ray.init(**options)
-        except Exception as exc:
-            raise RegressError(f"cannot start or reach Ray ({address or 'local'}): {exc}") from None
-        started = True
-    try:
-        task = ray.remote(num_cpus=1, max_retries=0)(run_job)
-        pending = {task.remote(job): job for job in jobs}
-        cancelled = False
-        while pending:
-            if _STOP and not cancelled:
-                cancelled = True
-                for ref in pending:
-                    ray.cancel(ref)  # queued: never starts; running: interrupted (aborted)
-            done, _ = ray.wait(list(pending), num_returns=1, timeout=0.5)
-            for ref in done:
-                job = pending.pop(ref)
-                try:
-                    result = ray.get(ref)
-                except ray.exceptions.TaskCancelledError:
-                    result = None  # cancelled by a stop request: did not run
-                except Exception as exc:
-                    result = error_result(job, f"ray task failed: {exc!r}")
-                collect(result)
-    finally:
-        if started:
-            ray.shutdown()
-
-
-# ------------------------------------------------------------------------------- results
+    return job_pool.run_jobs(SCENARIO_RUN, jobs, backend, workers, address, on_result)

@@ -118,7 +118,7 @@ class Log(py_trees.behaviour.Behaviour):
         return Status.SUCCESS
 
 
-from agv_mission.behaviors.ports import (  # noqa: E402
+from agv_mission.behaviors.ports.actions import (  # noqa: E402
     DrivePorts,
     LogPorts,
     SetBlackboardPorts,

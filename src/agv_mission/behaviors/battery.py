@@ -277,13 +277,8 @@ class Charge(py_trees.behaviour.Behaviour):
             self.handle.stop()
 
 
-from agv_mission.behaviors.ports import (  # noqa: E402
-    ChargeTask,
-    DockTask,
-    IsBatteryChargingPorts,
-    IsBatteryLowPorts,
-    UndockTask,
-)
+from agv_mission.behaviors.ports.conditions import IsBatteryChargingPorts, IsBatteryLowPorts  # noqa: E402
+from agv_mission.behaviors.ports.tasks import ChargeTask, DockTask, UndockTask  # noqa: E402
 
 IsBatteryLow.Config = IsBatteryLowPorts  # type: ignore[attr-defined]
 IsBatteryCharging.Config = IsBatteryChargingPorts  # type: ignore[attr-defined]

@@ -137,7 +137,7 @@ class Sleep(Dwell):
         super().__init__(name, handle, seconds)
 
 
-from agv_mission.behaviors.ports_btcpp import (  # noqa: E402
+from agv_mission.behaviors.ports.btcpp import (  # noqa: E402
     AlwaysFailurePorts,
     AlwaysSuccessPorts,
     IfThenElsePorts,

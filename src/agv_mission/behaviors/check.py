@@ -21,7 +21,7 @@ import py_trees
 from py_trees.common import Status
 
 from agv_mission.behaviors.context import TreeContext
-from agv_mission.behaviors.ports import NodePorts
+from agv_mission.behaviors.ports.node import NodePorts
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap, CostmapConfig
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid

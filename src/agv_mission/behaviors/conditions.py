@@ -168,7 +168,7 @@ class IsPathClear(Condition):
         return f"no free way to ({self.goal.x:.2f}, {self.goal.y:.2f})"
 
 
-from agv_mission.behaviors.ports import (  # noqa: E402
+from agv_mission.behaviors.ports.conditions import (  # noqa: E402
     AtPosePorts,
     CheckBlackboardPorts,
     InRoomPorts,

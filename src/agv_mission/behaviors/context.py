@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from agv_mission.behaviors.ports import BLACKBOARD_REF, blackboard_key
+from agv_mission.behaviors.ports.values import BLACKBOARD_REF, blackboard_key
 from agv_mission.geometry import Pose2D
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.handle import RobotHandle

@@ -207,7 +207,7 @@ class Recovery(_Control):
                 return Status.RUNNING
 
 
-from agv_mission.behaviors.ports import (  # noqa: E402
+from agv_mission.behaviors.ports.controls import (  # noqa: E402
     FallbackPorts,
     ParallelPorts,
     PipelineSequencePorts,

@@ -234,7 +234,7 @@ class SubTree(py_trees.decorators.Decorator):
         return self.decorated.status
 
 
-from agv_mission.behaviors.ports import (  # noqa: E402
+from agv_mission.behaviors.ports.decorators import (  # noqa: E402
     DelayPorts,
     ForceFailurePorts,
     ForceSuccessPorts,

@@ -1,5 +1,6 @@
-"""Nav2's action and condition nodes, acting on our navigator: its costmap, the mission's
-global planner (ComputePathToPose) and controller (FollowPath), its recoveries.
+"""Nav2's action nodes, acting on our navigator: its costmap, the mission's global planner
+(ComputePathToPose) and controller (FollowPath), its recoveries, the selectors and the path
+handlers; Nav2's conditions are in :mod:`agv_mission.behaviors.nav2_conditions`.
 
 What Nav2's nodes pass on the blackboard: a goal is a :class:`~agv_mission.geometry.Pose2D`
 (a room label or a pose mapping is read as one), goals a list of them, a path a
@@ -18,6 +19,7 @@ import py_trees
 from py_trees.common import Status
 
 from agv_mission.behaviors.context import TreeContext, blackboard_key
+from agv_mission.behaviors.ports import nav2 as _p  # noqa: E402
 from agv_mission.behaviors.recoveries import BackUp
 from agv_mission.geometry import Pose2D
 from agv_mission.navigation.handle import RobotHandle
@@ -28,15 +30,11 @@ from agv_mission.planners.path_tracking import closest_point
 #: ComputePathToPose's error codes by name (nav2_msgs/action/ComputePathToPose.action);
 #: ComputePathThroughPoses's are these + 100.
 PLANNER_CODES = {"UNKNOWN": 200, "START_OCCUPIED": 205, "GOAL_OCCUPIED": 206, "NO_VALID_PATH": 208}
+
+
 #: FollowPath's (nav2_msgs/action/FollowPath.action).
 CONTROLLER_CODES = {"UNKNOWN": 100, "INVALID_PATH": 103, "FAILED_TO_MAKE_PROGRESS": 105,
                     "NO_VALID_CONTROL": 106}  # fmt: skip
-#: The codes each Would...RecoveryHelp condition answers yes to (Nav2's own sets).
-RECOVERABLE = {
-    "would_a_controller_recovery_help": {100, 104, 105, 106},
-    "would_a_planner_recovery_help": {200, 207, 208, 300, 307, 308},
-    "would_a_smoother_recovery_help": {500, 502, 503, 504},
-}
 
 
 @dataclass(frozen=True)
@@ -297,24 +295,25 @@ class RemovePassedGoals(Nav2Leaf):
         return Status.SUCCESS if goals else Status.FAILURE
 
 
-def _arc(points: np.ndarray) -> np.ndarray:
+def arc_lengths(points: np.ndarray) -> np.ndarray:
+    """The arc length at each point of a path, from its start."""
     seg = np.linalg.norm(np.diff(points, axis=0), axis=1) if len(points) > 1 else np.zeros(0)
     return np.concatenate([[0.0], np.cumsum(seg)])
 
 
-def _here(points: np.ndarray, pose: Pose2D) -> float:
+def arc_position(points: np.ndarray, pose: Pose2D) -> float:
     """The arc length of the path's closest point to ``pose``."""
     if len(points) < 2:
         return 0.0
     p = closest_point(points, (pose.x, pose.y))
-    cum = _arc(points)
+    cum = arc_lengths(points)
     start = points[p.segment]
     return float(cum[p.segment] + np.linalg.norm(np.asarray(p.point) - start))
 
 
 def _cut(path: NavPath, lo: float, hi: float) -> NavPath:
     points = path.points
-    cum = _arc(points)
+    cum = arc_lengths(points)
     keep = (cum >= lo - 1e-9) & (cum <= hi + 1e-9)
     kept = points[keep]
     if len(kept) == 0:
@@ -344,7 +343,7 @@ class TruncatePath(Nav2Leaf):
         if not isinstance(path, NavPath):
             self.feedback_message = "no path"
             return Status.FAILURE
-        total = float(_arc(path.points)[-1])
+        total = float(arc_lengths(path.points)[-1])
         self.write(self.ports[1], _cut(path, 0.0, max(total - self.distance, 0.0)))
         return Status.SUCCESS
 
@@ -367,232 +366,10 @@ class TruncatePathLocal(Nav2Leaf):
         if not isinstance(path, NavPath):
             self.feedback_message = "no path"
             return Status.FAILURE
-        s = _here(path.points, self.handle.state.estimate)
+        s = arc_position(path.points, self.handle.state.estimate)
         hi = math.inf if self.forward < 0 else s + self.forward
         self.write(self.ports[1], _cut(path, max(s - max(self.backward, 0.0), 0.0), hi))
         return Status.SUCCESS
-
-
-class PathValid(Nav2Leaf):
-    """The path ahead of the robot keeps the robot's radius clear of what the costmap
-    holds (the map and the obstacles the lidar marked)."""
-
-    def __init__(
-        self, name: str, handle: RobotHandle, context: TreeContext, path: str,
-        collision_poses: str | None = None, **_ros: Any,
-    ):  # fmt: skip
-        super().__init__(name, handle, context)
-        self.path_port, self.poses_port = path, collision_poses
-
-    def update(self) -> Status:
-        path = self.read(self.path_port)
-        if not isinstance(path, NavPath) or len(path.points) == 0:
-            self.feedback_message = "no path"
-            return Status.FAILURE
-        costmap = self.handle.navigator.costmap
-        points = path.points
-        s = _here(points, self.handle.state.estimate)
-        cum = _arc(points)
-        step = costmap.resolution
-        samples = np.arange(s, cum[-1] + 1e-9, step) if cum[-1] > s else np.array([cum[-1]])
-        xy = np.stack(
-            [np.interp(samples, cum, points[:, 0]), np.interp(samples, cum, points[:, 1])], axis=1
-        )
-        blocked = costmap.clearance(xy) <= costmap.robot_radius
-        self.write(self.poses_port, xy[blocked].tolist())
-        if blocked.any():
-            self.feedback_message = "the path is blocked"
-            return Status.FAILURE
-        return Status.SUCCESS
-
-
-class GoalUpdated(Nav2Leaf):
-    """Succeeds when the goal (or goals) differs from what it saw: when first ticked
-    (GoalUpdated) or when last ticked (GlobalUpdatedGoal)."""
-
-    def __init__(
-        self, name: str, handle: RobotHandle, context: TreeContext, goal: str = "goal",
-        goals: str = "goals",
-    ):  # fmt: skip
-        super().__init__(name, handle, context)
-        self.ports = (goal, goals)
-        self._seen: tuple[Any, Any] | None = None
-
-    def initialise(self) -> None:
-        if self._seen is None:
-            self._seen = self._now()
-
-    def _now(self) -> tuple[Any, Any]:
-        goals = self.read(self.ports[1])
-        return (self.read(self.ports[0]), tuple(goals) if goals is not None else None)
-
-    def update(self) -> Status:
-        now = self._now()
-        if now != self._seen:
-            self._seen = now
-            return Status.SUCCESS
-        return Status.FAILURE
-
-
-class GoalReached(Nav2Leaf):
-    """The estimate is within the navigation's xy tolerance of the goal."""
-
-    def __init__(
-        self, name: str, handle: RobotHandle, context: TreeContext, goal: str = "goal",
-        **_ros: Any,
-    ):  # fmt: skip
-        super().__init__(name, handle, context)
-        self.goal_port = goal
-
-    def update(self) -> Status:
-        goal = self.pose(self.read(self.goal_port))
-        if goal is None:
-            return Status.FAILURE
-        near = self.handle.state.estimate.distance_to(goal) <= self.context.nav.xy_goal_tolerance
-        return Status.SUCCESS if near else Status.FAILURE
-
-
-class IsStuck(Nav2Leaf):
-    """The navigator drives a goal but has made no progress for half its timeout."""
-
-    def update(self) -> Status:
-        nav = self.handle.navigator
-        if nav.status is not NavStatus.RUNNING:
-            return Status.FAILURE
-        idle = self.handle.state.time - nav.last_progress_time()
-        return Status.SUCCESS if idle > 0.5 * self.context.nav.progress_timeout else Status.FAILURE
-
-
-class IsGoalNearby(Nav2Leaf):
-    """What is left of the path is shorter than ``proximity_threshold``."""
-
-    def __init__(
-        self, name: str, handle: RobotHandle, context: TreeContext, path: str,
-        proximity_threshold: float = 1.0, **_ros: Any,
-    ):  # fmt: skip
-        super().__init__(name, handle, context)
-        self.path_port, self.threshold = path, proximity_threshold
-
-    def update(self) -> Status:
-        path = self.read(self.path_port)
-        if not isinstance(path, NavPath):
-            return Status.FAILURE
-        left = float(_arc(path.points)[-1]) - _here(path.points, self.handle.state.estimate)
-        return Status.SUCCESS if left <= self.threshold else Status.FAILURE
-
-
-class ErrorCodesPresent(Nav2Leaf):
-    """The error code in the entry is one of the codes this condition checks."""
-
-    def __init__(
-        self, name: str, handle: RobotHandle, context: TreeContext, error_code: str,
-        error_codes_to_check: Any = None, node_type: str = "are_error_codes_present",
-    ):  # fmt: skip
-        super().__init__(name, handle, context)
-        self.code_port = error_code
-        codes = error_codes_to_check
-        if isinstance(codes, str):
-            codes = [c for c in codes.replace(";", ",").split(",") if c.strip()]
-        self.codes = {int(c) for c in codes} if codes else set()
-
-    def update(self) -> Status:
-        code = self.read(self.code_port, 0) or 0
-        return Status.SUCCESS if int(code) in self.codes else Status.FAILURE
-
-
-class AreErrorCodesPresent(ErrorCodesPresent):
-    """The error code is one of ``error_codes_to_check``."""
-
-
-def _checker(node_type: str) -> type[ErrorCodesPresent]:
-    class Checker(ErrorCodesPresent):
-        def __init__(self, name: str, handle: RobotHandle, context: TreeContext, **ports: Any):
-            super().__init__(name, handle, context, **ports)
-            self.codes = self.codes or set(RECOVERABLE[node_type])
-
-    Checker.__name__ = "".join(p.capitalize() for p in node_type.split("_"))
-    return Checker
-
-
-WouldAControllerRecoveryHelp = _checker("would_a_controller_recovery_help")
-WouldAPlannerRecoveryHelp = _checker("would_a_planner_recovery_help")
-WouldASmootherRecoveryHelp = _checker("would_a_smoother_recovery_help")
-
-
-class TimeExpired(Nav2Leaf):
-    """Succeeds once every ``seconds`` (the first period starts at its first tick)."""
-
-    def __init__(
-        self, name: str, handle: RobotHandle, context: TreeContext, seconds: float = 1.0,
-        path: str | None = None,
-    ):  # fmt: skip
-        super().__init__(name, handle, context)
-        self.seconds, self.path_port = seconds, path
-        self._since: float | None = None
-        self._path: Any = None
-
-    def update(self) -> Status:
-        now = self.handle.state.time
-        path = self.read(self.path_port) if self.path_port else None
-        if self._since is None or path is not self._path:
-            self._since, self._path = now, path
-            return Status.FAILURE
-        if now - self._since >= self.seconds - 1e-9:
-            self._since = now
-            return Status.SUCCESS
-        return Status.FAILURE
-
-
-class DistanceTraveled(Nav2Leaf):
-    """Succeeds once every ``distance`` metres the robot drove."""
-
-    def __init__(
-        self, name: str, handle: RobotHandle, context: TreeContext, distance: float = 1.0,
-        **_ros: Any,
-    ):  # fmt: skip
-        super().__init__(name, handle, context)
-        self.distance = distance
-        self._from: Pose2D | None = None
-
-    def update(self) -> Status:
-        here = self.handle.state.estimate
-        if self._from is None:
-            self._from = here
-            return Status.FAILURE
-        if here.distance_to(self._from) >= self.distance:
-            self._from = here
-            return Status.SUCCESS
-        return Status.FAILURE
-
-
-class TransformAvailable(Nav2Leaf):
-    """Succeeds: the simulated robot's frames are always there."""
-
-    def __init__(self, name: str, handle: RobotHandle, context: TreeContext, **_ros: Any):
-        super().__init__(name, handle, context)
-
-    def update(self) -> Status:
-        return Status.SUCCESS
-
-
-class GoalUpdatedCondition(GoalUpdated):
-    """Nav2's GoalUpdated."""
-
-
-class GlobalUpdatedGoal(GoalUpdated):
-    """Nav2's GlobalUpdatedGoal."""
-
-
-class ValidatePath(PathValid):
-    """Nav2's ValidatePath."""
-
-
-class IsPathValid(PathValid):
-    """Nav2's IsPathValid."""
-
-
-class PathExpiringTimer(TimeExpired):
-    """Succeeds when ``seconds`` passed since the path last changed."""
 
 
 def _selector(xml: str) -> type[Selector]:
@@ -600,13 +377,22 @@ def _selector(xml: str) -> type[Selector]:
 
 
 PlannerSelector = _selector("PlannerSelector")
+
+
 ControllerSelector = _selector("ControllerSelector")
+
+
 SmootherSelector = _selector("SmootherSelector")
+
+
 GoalCheckerSelector = _selector("GoalCheckerSelector")
+
+
 ProgressCheckerSelector = _selector("ProgressCheckerSelector")
+
+
 PathHandlerSelector = _selector("PathHandlerSelector")
 
-from agv_mission.behaviors import ports_nav2 as _p  # noqa: E402
 
 # The ports of each node type this module's behaviours are (registry slot `behavior`).
 ComputePathToPose.Config = _p.ComputePathToPosePorts
@@ -618,21 +404,6 @@ CancelControl.Config = _p.CancelControlPorts
 RemovePassedGoals.Config = _p.RemovePassedGoalsPorts
 TruncatePath.Config = _p.TruncatePathPorts
 TruncatePathLocal.Config = _p.TruncatePathLocalPorts
-GoalReached.Config = _p.GoalReachedPorts
-IsStuck.Config = _p.IsStuckPorts
-IsGoalNearby.Config = _p.IsGoalNearbyPorts
-TimeExpired.Config = _p.TimeExpiredPorts
-DistanceTraveled.Config = _p.DistanceTraveledPorts
-TransformAvailable.Config = _p.TransformAvailablePorts
-AreErrorCodesPresent.Config = _p.AreErrorCodesPresentPorts
-WouldAControllerRecoveryHelp.Config = _p.WouldAControllerRecoveryHelpPorts
-WouldAPlannerRecoveryHelp.Config = _p.WouldAPlannerRecoveryHelpPorts
-WouldASmootherRecoveryHelp.Config = _p.WouldASmootherRecoveryHelpPorts
-GoalUpdatedCondition.Config = _p.GoalUpdatedPorts
-GlobalUpdatedGoal.Config = _p.GlobalUpdatedGoalPorts
-ValidatePath.Config = _p.ValidatePathPorts
-IsPathValid.Config = _p.IsPathValidPorts
-PathExpiringTimer.Config = _p.PathExpiringTimerPorts
 PlannerSelector.Config = _p.PlannerSelectorPorts
 ControllerSelector.Config = _p.ControllerSelectorPorts
 SmootherSelector.Config = _p.SmootherSelectorPorts

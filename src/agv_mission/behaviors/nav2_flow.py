@@ -14,7 +14,7 @@ from py_trees.common import Status
 
 from agv_mission.behaviors.context import TreeContext
 from agv_mission.behaviors.decorators import _Gate, _Throttle
-from agv_mission.behaviors.nav2 import NavPath, _arc, _here
+from agv_mission.behaviors.nav2 import NavPath, arc_lengths, arc_position
 from agv_mission.geometry import Pose2D
 from agv_mission.navigation.handle import RobotHandle
 
@@ -142,8 +142,8 @@ class PathLongerOnApproach(_Gate):
         old, self._old = self._old, path if isinstance(path, NavPath) else self._old
         if not isinstance(path, NavPath) or old is None or path is old:
             return Status.SUCCESS
-        left = float(_arc(old.points)[-1]) - _here(old.points, self.handle.state.estimate)
-        longer = float(_arc(path.points)[-1]) > self.factor * max(left, 1e-6)
+        left = float(arc_lengths(old.points)[-1]) - arc_position(old.points, self.handle.state.estimate)
+        longer = float(arc_lengths(path.points)[-1]) > self.factor * max(left, 1e-6)
         if left <= self.prox_len and longer and path.goal == old.goal:
             self.handle.log("path_longer_on_approach", node=self.name)
             return None
@@ -272,7 +272,7 @@ class NavigateThroughGoals(py_trees.decorators.Decorator):
         return self.decorated.status
 
 
-from agv_mission.behaviors import ports_nav2 as _p  # noqa: E402
+from agv_mission.behaviors.ports import nav2_flow as _p  # noqa: E402
 
 # The ports of each node type this module's behaviours are (registry slot `behavior`).
 DistanceController.Config = _p.DistanceControllerPorts

@@ -173,7 +173,7 @@ class BackUp(py_trees.behaviour.Behaviour):
         return Status.RUNNING
 
 
-from agv_mission.behaviors.ports import BackUpPorts, ClearCostmapPorts  # noqa: E402
+from agv_mission.behaviors.ports.actions import BackUpPorts, ClearCostmapPorts  # noqa: E402
 
 # The ports of each node type this module's behaviours are (registry slot `behavior`).
 BackUp.Config = BackUpPorts

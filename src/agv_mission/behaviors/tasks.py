@@ -241,10 +241,10 @@ class NavigateToGoal(py_trees.decorators.Decorator):
         return self.decorated.status
 
 
-from agv_mission.behaviors.ports import (  # noqa: E402
+from agv_mission.behaviors.ports.actions import NavigateToPosePorts  # noqa: E402
+from agv_mission.behaviors.ports.tasks import (  # noqa: E402
     GoToTask,
     MapAreaTask,
-    NavigateToPosePorts,
     PatrolTask,
     RecordRoomTask,
     TeleopTask,

@@ -9,11 +9,8 @@ from typing import Any, ClassVar, Literal
 
 from pydantic import Field
 
-from agv_mission.behaviors.ports import (
-    MAX_SIM_SECONDS,
-    ControlPorts,
-    NodePorts,
-)
+from agv_mission.behaviors.ports.node import ControlPorts, NodePorts
+from agv_mission.behaviors.ports.values import MAX_SIM_SECONDS
 
 
 class SequenceWithMemoryPorts(ControlPorts):

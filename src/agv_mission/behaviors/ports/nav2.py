@@ -1,5 +1,8 @@
 """The ports of Nav2's behaviour tree nodes (``nav2_behavior_tree/nav2_tree_nodes.xml``,
-Humble, Jazzy and Rolling: the union of their ports), as node types of ours.
+Humble, Jazzy and Rolling: the union of their ports), as node types of ours: the actions
+(planning, following, smoothing, the selectors, the path handlers) and what all of Nav2's
+ports share; the conditions in :mod:`~agv_mission.behaviors.ports.nav2_conditions`, the
+decorators and navigators in :mod:`~agv_mission.behaviors.ports.nav2_flow`.
 
 Ports that carry data between nodes (a goal, goals, a path, an error code) name the
 blackboard entry the node reads every tick (``path="{path}"``), as Nav2's trees write
@@ -7,8 +10,9 @@ them; ports that name ROS plumbing (servers, services, topics, frames) are accep
 ignored; ``planner_id`` / ``controller_id`` pick among the mission's configured planner
 and controller (one each: any other name means the configured one, as Nav2's default
 does). Spin, Wait, BackUp and ClearEntireCostmap are our ``spin``, ``wait``, ``back_up``
-and ``clear_costmap`` (:mod:`agv_mission.behaviors.ports`); RecoveryNode, PipelineSequence,
-RoundRobin, RateController, IsBatteryLow and IsBatteryCharging are ours too.
+and ``clear_costmap`` (:mod:`agv_mission.behaviors.ports.actions`); RecoveryNode,
+PipelineSequence, RoundRobin, RateController, IsBatteryLow and IsBatteryCharging are ours
+too.
 """
 
 from __future__ import annotations
@@ -17,21 +21,19 @@ from typing import Any, ClassVar, Literal
 
 from pydantic import Field
 
-from agv_mission.behaviors.ports import (
-    ConditionPorts,
-    DecoratorPorts,
+from agv_mission.behaviors.ports.node import (
     ErrorOutputs,
-    Goal,
     NodePorts,
     RosPlumbing,
-    StrictModel,
     entry_port,
     output_port,
 )
+from agv_mission.behaviors.ports.values import StrictModel
 
 _IGNORED = "ROS plumbing (Nav2): accepted and ignored"
+
+
 NAV2 = "agv_mission.behaviors.nav2"
-NAV2_FLOW = "agv_mission.behaviors.nav2_flow"
 
 
 def ignored() -> Any:
@@ -54,9 +56,6 @@ class Frames(StrictModel):
 
 class Nav2Action(NodePorts, RosPlumbing):
     """A Nav2 action node (its XML ID is given)."""
-
-
-# --------------------------------------------------------------------- planning
 
 
 class ComputePathToPosePorts(Nav2Action, ErrorOutputs):
@@ -255,271 +254,3 @@ class TruncatePathLocalPorts(NodePorts, Frames):
     pose: Any = Field(None, description="Nav2's: accepted (the robot's estimate is used)")
     angular_distance_weight: float = Field(0.0, description="accepted")
     max_robot_pose_search_dist: Any = Field(None, description="accepted")
-
-
-class _PathCheckPorts(NodePorts):
-    path: str = read("the path's entry")
-    max_cost: Any = Field(None, description="accepted: lethal or inscribed cells block")
-    consider_unknown_as_obstacle: bool = Field(False, description="accepted")
-    layer_name: Any = ignored()
-    footprint: Any = ignored()
-    check_full_path: Any = Field(None, description="accepted: the path ahead is checked")
-    stop_at_first_collision: Any = Field(None, description="accepted")
-    max_lookahead_distance: Any = Field(None, description="accepted")
-    service_name: Any = ignored()
-    server_timeout: Any = ignored()
-    collision_poses: str | None = output_port("entry written with the blocked points", None)
-
-
-class ValidatePathPorts(_PathCheckPorts):
-    """Succeeds when the path ahead of the robot is free on the costmap (Nav2's
-    ValidatePath)."""
-
-    plugin: ClassVar[str] = f"{NAV2}:ValidatePath"
-    type: Literal["validate_path"]
-    xml_id: ClassVar[str | None] = "ValidatePath"
-    example: ClassVar[dict[str, Any] | None] = None
-
-
-class IsPathValidPorts(_PathCheckPorts, ConditionPorts):
-    """The path ahead of the robot is free on the costmap (Nav2's IsPathValid)."""
-
-    plugin: ClassVar[str] = f"{NAV2}:IsPathValid"
-    type: Literal["is_path_valid"]
-    xml_id: ClassVar[str | None] = "IsPathValid"
-    example: ClassVar[dict[str, Any] | None] = None
-
-
-# --------------------------------------------------------------------- conditions
-
-
-class _GoalWatchPorts(ConditionPorts):
-    goal: str = read("the goal's entry", "goal")
-    goals: str = read("the goals' entry", "goals")
-
-
-class GoalUpdatedPorts(_GoalWatchPorts):
-    """The goal (or goals) changed since it was first ticked (Nav2's GoalUpdated)."""
-
-    plugin: ClassVar[str] = f"{NAV2}:GoalUpdatedCondition"
-    type: Literal["goal_updated"]
-    xml_id: ClassVar[str | None] = "GoalUpdated"
-
-
-class GlobalUpdatedGoalPorts(_GoalWatchPorts):
-    """The goal (or goals) changed since it was last ticked (Nav2's GlobalUpdatedGoal)."""
-
-    plugin: ClassVar[str] = f"{NAV2}:GlobalUpdatedGoal"
-    type: Literal["global_updated_goal"]
-    xml_id: ClassVar[str | None] = "GlobalUpdatedGoal"
-
-
-class GoalReachedPorts(ConditionPorts, Frames):
-    """The robot's estimate is within the goal tolerance of the goal (Nav2's GoalReached)."""
-
-    plugin: ClassVar[str] = f"{NAV2}:GoalReached"
-    type: Literal["goal_reached"]
-    xml_id: ClassVar[str | None] = "GoalReached"
-    goal: str = read("the goal's entry", "goal")
-
-
-class IsStuckPorts(ConditionPorts):
-    """The robot is driving a goal but has made no progress for half the progress timeout
-    (Nav2's IsStuck)."""
-
-    plugin: ClassVar[str] = f"{NAV2}:IsStuck"
-    type: Literal["is_stuck"]
-    xml_id: ClassVar[str | None] = "IsStuck"
-
-
-class IsGoalNearbyPorts(ConditionPorts, Frames):
-    """What is left of the path is shorter than ``proximity_threshold`` (Nav2's
-    IsGoalNearby)."""
-
-    plugin: ClassVar[str] = f"{NAV2}:IsGoalNearby"
-    type: Literal["is_goal_nearby"]
-    xml_id: ClassVar[str | None] = "IsGoalNearby"
-    example: ClassVar[dict[str, Any] | None] = None
-    path: str = read("the path's entry")
-    proximity_threshold: float = Field(1.0, description="m")
-    max_robot_pose_search_dist: Any = Field(None, description="accepted")
-
-
-class _ErrorCodePorts(ConditionPorts):
-    error_code: str = read("the entry with the error code (missing: 0, none)")
-    error_codes_to_check: Any = Field(None, description="codes that count (a list or '1,2')")
-
-
-class WouldAControllerRecoveryHelpPorts(_ErrorCodePorts):
-    """The controller's error code is one a recovery may help (100, 104, 105, 106)."""
-
-    plugin: ClassVar[str] = f"{NAV2}:WouldAControllerRecoveryHelp"
-    type: Literal["would_a_controller_recovery_help"]
-    xml_id: ClassVar[str | None] = "WouldAControllerRecoveryHelp"
-    example: ClassVar[dict[str, Any] | None] = None
-
-
-class WouldAPlannerRecoveryHelpPorts(_ErrorCodePorts):
-    """The planner's error code is one a recovery may help (200, 207, 208, 300, 307, 308)."""
-
-    plugin: ClassVar[str] = f"{NAV2}:WouldAPlannerRecoveryHelp"
-    type: Literal["would_a_planner_recovery_help"]
-    xml_id: ClassVar[str | None] = "WouldAPlannerRecoveryHelp"
-    example: ClassVar[dict[str, Any] | None] = None
-
-
-class WouldASmootherRecoveryHelpPorts(_ErrorCodePorts):
-    """The smoother's error code is one a recovery may help (500, 502, 503, 504)."""
-
-    plugin: ClassVar[str] = f"{NAV2}:WouldASmootherRecoveryHelp"
-    type: Literal["would_a_smoother_recovery_help"]
-    xml_id: ClassVar[str | None] = "WouldASmootherRecoveryHelp"
-    example: ClassVar[dict[str, Any] | None] = None
-
-
-class AreErrorCodesPresentPorts(_ErrorCodePorts):
-    """The error code is one of ``error_codes_to_check`` (Nav2's AreErrorCodesPresent)."""
-
-    plugin: ClassVar[str] = f"{NAV2}:AreErrorCodesPresent"
-    type: Literal["are_error_codes_present"]
-    xml_id: ClassVar[str | None] = "AreErrorCodesPresent"
-    example: ClassVar[dict[str, Any] | None] = None
-
-
-class TimeExpiredPorts(ConditionPorts):
-    """Succeeds once every ``seconds`` of simulated time (Nav2's TimeExpired)."""
-
-    plugin: ClassVar[str] = f"{NAV2}:TimeExpired"
-    type: Literal["time_expired"]
-    xml_id: ClassVar[str | None] = "TimeExpired"
-    seconds: float = Field(1.0, gt=0.0, description="simulated seconds")
-
-
-class PathExpiringTimerPorts(ConditionPorts):
-    """Succeeds when ``seconds`` passed since the path last changed (Nav2's
-    PathExpiringTimer)."""
-
-    plugin: ClassVar[str] = f"{NAV2}:PathExpiringTimer"
-    type: Literal["path_expiring_timer"]
-    xml_id: ClassVar[str | None] = "PathExpiringTimer"
-    example: ClassVar[dict[str, Any] | None] = None
-    seconds: float = Field(1.0, gt=0.0, description="simulated seconds")
-    path: str = read("the path's entry")
-
-
-class DistanceTraveledPorts(ConditionPorts, Frames):
-    """Succeeds once every ``distance`` metres driven (Nav2's DistanceTraveled)."""
-
-    plugin: ClassVar[str] = f"{NAV2}:DistanceTraveled"
-    type: Literal["distance_traveled"]
-    xml_id: ClassVar[str | None] = "DistanceTraveled"
-    distance: float = Field(1.0, gt=0.0, description="m")
-
-
-class TransformAvailablePorts(ConditionPorts):
-    """Succeeds: every frame of the simulated robot is always available."""
-
-    plugin: ClassVar[str] = f"{NAV2}:TransformAvailable"
-    type: Literal["transform_available"]
-    xml_id: ClassVar[str | None] = "TransformAvailable"
-    child: Any = ignored()
-    parent: Any = ignored()
-
-
-# --------------------------------------------------------------------- decorators
-
-
-class DistanceControllerPorts(DecoratorPorts, Frames):
-    """Ticks its child at the start and after every ``distance`` metres driven."""
-
-    plugin: ClassVar[str] = f"{NAV2_FLOW}:DistanceController"
-    type: Literal["distance_controller"]
-    xml_id: ClassVar[str | None] = "DistanceController"
-    distance: float = Field(1.0, gt=0.0, description="m")
-
-
-class SpeedControllerPorts(DecoratorPorts):
-    """Ticks its child at a rate between ``min_rate`` and ``max_rate`` that grows with the
-    robot's speed (Nav2's SpeedController)."""
-
-    plugin: ClassVar[str] = f"{NAV2_FLOW}:SpeedController"
-    type: Literal["speed_controller"]
-    xml_id: ClassVar[str | None] = "SpeedController"
-    min_rate: float = Field(0.1, gt=0.0, description="Hz")
-    max_rate: float = Field(1.0, gt=0.0, description="Hz")
-    min_speed: float = Field(0.0, ge=0.0, description="m/s")
-    max_speed: float = Field(0.5, gt=0.0, description="m/s")
-    goal: Any = Field(None, description="accepted")
-    goals: Any = Field(None, description="accepted")
-
-
-class GoalUpdaterPorts(DecoratorPorts):
-    """Copies the goal to ``output_goal`` (no goal topic here), then ticks its child
-    (Nav2's GoalUpdater)."""
-
-    plugin: ClassVar[str] = f"{NAV2_FLOW}:GoalUpdater"
-    type: Literal["goal_updater"]
-    xml_id: ClassVar[str | None] = "GoalUpdater"
-    example: ClassVar[dict[str, Any] | None] = None
-    input_goal: str | None = read("the goal's entry", None)
-    output_goal: str | None = output_port("entry written with the goal", None)
-    input_goals: str | None = read("the goals' entry", None)
-    output_goals: str | None = output_port("entry written with the goals", None)
-
-
-class GoalUpdatedControllerPorts(DecoratorPorts):
-    """Ticks its child at the start and whenever the goal changes (Nav2's
-    GoalUpdatedController)."""
-
-    plugin: ClassVar[str] = f"{NAV2_FLOW}:GoalUpdatedController"
-    type: Literal["goal_updated_controller"]
-    xml_id: ClassVar[str | None] = "GoalUpdatedController"
-    goal: str = read("the goal's entry", "goal")
-    goals: str = read("the goals' entry", "goals")
-
-
-class PathLongerOnApproachPorts(DecoratorPorts):
-    """Ticks its child when, within ``prox_len`` of the goal, a new path is more than
-    ``length_factor`` times the old one; succeeds otherwise (Nav2's PathLongerOnApproach)."""
-
-    plugin: ClassVar[str] = f"{NAV2_FLOW}:PathLongerOnApproach"
-    type: Literal["path_longer_on_approach"]
-    xml_id: ClassVar[str | None] = "PathLongerOnApproach"
-    example: ClassVar[dict[str, Any] | None] = None
-    path: str = read("the path's entry")
-    prox_len: float = Field(3.0, gt=0.0, description="m")
-    length_factor: float = Field(2.0, gt=0.0, description="new / old length")
-
-
-class SingleTriggerPorts(DecoratorPorts):
-    """Ticks its child until it ends once; fails afterwards (Nav2's SingleTrigger)."""
-
-    plugin: ClassVar[str] = f"{NAV2_FLOW}:SingleTrigger"
-    type: Literal["single_trigger"]
-    xml_id: ClassVar[str | None] = "SingleTrigger"
-
-
-# --------------------------------------------------------------------- navigators
-
-
-class NavigateThroughPosesPorts(NodePorts, RosPlumbing, ErrorOutputs):
-    """Drive through ``goals`` in order (Nav2's NavigateThroughPoses); with
-    ``behavior_tree``, the goals are ``{goals}`` of that tree, which is run instead."""
-
-    plugin: ClassVar[str] = f"{NAV2_FLOW}:NavigateThroughGoals"
-    type: Literal["navigate_through_poses"]
-    example: ClassVar[dict[str, Any] | None] = {"goals": [{"x": 2.0, "y": 2.0}]}
-    goals: list[Goal] = Field(min_length=1, description="poses or room labels, in order")
-    behavior_tree: str | None = Field(
-        None,
-        description="a BT.CPP XML file (e.g. one of Nav2's navigator trees), relative to "
-        "the mission file, run with the goals as {goals}",
-    )
-
-    def goal_poses(self) -> list[tuple[tuple[str | int, ...], Any]]:
-        from agv_mission.behaviors.ports import Pose
-
-        return [(("goals", i), g) for i, g in enumerate(self.goals) if isinstance(g, Pose)]
-
-    def rooms_visited(self) -> list[tuple[tuple[str | int, ...], str]]:
-        return [(("goals", i), g) for i, g in enumerate(self.goals) if isinstance(g, str)]

@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from agv_mission.fleet.base import TrafficDecision, TrafficRobot
-from agv_mission.fleet.traffic import ReservationTraffic, rest_of_path
+from agv_mission.fleet.reservations import rest_of_path
+from agv_mission.fleet.traffic import ReservationTraffic
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap, CostmapConfig
 from agv_mission.maps.world_loader import load_world

@@ -34,9 +34,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import shapely
 from shapely.geometry import LineString, Point
-from shapely.geometry.base import BaseGeometry
 
 from agv_mission.fleet.base import (
     FleetEvent,
@@ -46,13 +44,17 @@ from agv_mission.fleet.base import (
 )
 from agv_mission.fleet.configs import ReservationsConfig
 from agv_mission.fleet.detour import Detour, Keepout, find_detour
+from agv_mission.fleet.reservations import (
+    MIN_GO,
+    STEP,
+    Grant,
+    cover,
+    grant_reservations,
+    rest_of_path,
+)
 from agv_mission.geometry import Pose2D
 
-STEP = 0.05  # m between the samples of a reserved prefix
-MIN_GO = 0.05  # m: a robot allowed less than this waits
-TOL = 0.01  # m: distance changes smaller than this are sampling noise
 ARRIVED = 0.15  # m from its detour pose a yielding robot counts as there
-QUAD_SEGS = 4  # segments per quarter circle of a buffered body
 REPEAT_WINDOW = 30.0  # s within which a cycle seen again is another member's turn
 SLACK = 0.05  # m a robot without a goal keeps beyond the margin before it stops stepping aside
 
@@ -75,40 +77,6 @@ class _Wait:
     replanned: float | None = None  # when a timeout last made it replan
 
 
-@dataclass
-class _Space:
-    """Space a body sweeps: the polyline (or point) its centre covers, and its radius
-    (the footprint plus half the margin), with the bounding box of the whole."""
-
-    pts: np.ndarray  # (k, 2)
-    radius: float
-    box: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
-
-    def __post_init__(self) -> None:
-        (x0, y0), (x1, y1) = self.pts.min(axis=0), self.pts.max(axis=0)
-        r = self.radius
-        self.box = (float(x0) - r, float(y0) - r, float(x1) + r, float(y1) + r)
-
-    def distance(self, points: np.ndarray) -> np.ndarray:
-        """Metres from each of ``points`` (n, 2) to the space (negative inside)."""
-        return polyline_distance(points, self.pts) - self.radius
-
-    def polygon(self) -> BaseGeometry:
-        if len(self.pts) > 1:
-            return LineString(self.pts).buffer(self.radius, quad_segs=QUAD_SEGS)
-        return Point(*self.pts[0]).buffer(self.radius, quad_segs=QUAD_SEGS)
-
-
-@dataclass
-class _Grant:
-    robot: TrafficRobot
-    pts: np.ndarray  # (k, 2) samples of the reserved prefix, from the robot's position
-    s: np.ndarray  # (k,) arc length of each sample
-    limit: float | None = None  # None: the whole prefix
-    blocker: str | None = None
-    region: _Space | None = None  # the reservation granted
-
-
 class ReservationTraffic:
     """The default ``traffic`` plugin (see the module docstring)."""
 
@@ -121,7 +89,7 @@ class ReservationTraffic:
         self._stuck_since: dict[tuple[str, ...], float] = {}  # deadlock key -> first seen
         self._parked_replan: dict[tuple[str, str], float] = {}  # (waiter, parked) -> when
         self._last_t: float | None = None
-        self._grants: dict[str, _Grant] = {}
+        self._grants: dict[str, Grant] = {}
         self._last_breaker: dict[tuple[str, ...], tuple[str, float]] = {}  # cycle -> who, when
         self._wait_count = 0
         self._wait_time = 0.0
@@ -138,7 +106,7 @@ class ReservationTraffic:
         by_name = {r.name: r for r in robots}
         self._forget_gone(by_name)
         self._release_yields(t, by_name, events)
-        grants = self._grant(robots)
+        grants = grant_reservations(robots, self.config, self._yields)
         self._grants = grants
         waiting = {
             name: g.blocker
@@ -159,71 +127,6 @@ class ReservationTraffic:
     def yielding(self) -> dict[str, Pose2D]:
         """Robots stepping aside now, and their detour poses."""
         return {name: y.detour for name, y in self._yields.items()}
-
-    # ------------------------------------------------------------------ reserve and grant
-
-    def _order(self, robots: Sequence[TrafficRobot]) -> list[TrafficRobot]:
-        """Priority: robots stepping aside clear the way first; then the fleet's order."""
-        return sorted(robots, key=lambda r: r.name not in self._yields)
-
-    def _grant(self, robots: Sequence[TrafficRobot]) -> dict[str, _Grant]:
-        cfg = self.config
-        half = cfg.margin / 2.0
-        grants = {r.name: self._prefix(r) for r in robots}
-        bodies = {r.name: _Space(grants[r.name].pts[:1], r.radius + half) for r in robots}
-        granted: dict[str, _Space] = {}
-        for robot in self._order(robots):
-            g = grants[robot.name]
-            if len(g.pts) > 1:
-                others = [
-                    (name, granted.get(name, bodies[name])) for name in bodies if name != robot.name
-                ]
-                g.limit, g.blocker = self._limit(g, robot.radius + half, robot.radius, others)
-            upto = len(g.pts) if g.limit is None else int(np.searchsorted(g.s, g.limit, "right"))
-            g.region = (
-                _Space(g.pts[:upto], robot.radius + half)
-                if upto > 1 and (g.limit is None or g.limit >= MIN_GO)
-                else bodies[robot.name]
-            )
-            granted[robot.name] = g.region
-        return grants
-
-    def _prefix(self, robot: TrafficRobot) -> _Grant:
-        """The samples of the path a robot asks to reserve, from its own position."""
-        here = np.array([[robot.pose.x, robot.pose.y]])
-        path = robot.path
-        if path is None or len(path) == 0:
-            return _Grant(robot, here, np.zeros(1))
-        length = robot.max_speed * self.config.horizon + self.config.lookahead
-        pts = np.concatenate([here, rest_of_path(path, here[0])])
-        return _Grant(robot, *resample(pts, length, STEP))
-
-    @staticmethod
-    def _limit(
-        g: _Grant, keep: float, floor: float, others: list[tuple[str, _Space]]
-    ) -> tuple[float | None, str | None]:
-        """How far along its prefix a robot may go, and who stops it: its centre keeps
-        ``keep`` metres from every other's space, or, where it is closer already, gets no
-        closer (so it can back away or pass alongside) and never nearer than ``floor``
-        (unless it stands nearer already: then it may still move away)."""
-        (x0, y0), (x1, y1) = g.pts.min(axis=0), g.pts.max(axis=0)
-        limit, blocker = None, None
-        for name, space in others:
-            bx0, by0, bx1, by1 = space.box
-            if bx0 > x1 + keep or bx1 < x0 - keep or by0 > y1 + keep or by1 < y0 - keep:
-                continue
-            d = space.distance(g.pts)
-            no_closer = d >= d[0] - TOL
-            if d[0] >= floor:
-                no_closer &= d >= floor
-            ok = (d >= keep - TOL) | no_closer
-            if ok.all():
-                continue
-            k = int(np.argmin(ok))
-            reach = float(g.s[k - 1]) if k > 0 else 0.0
-            if limit is None or reach < limit:
-                limit, blocker = reach, name
-        return limit, blocker
 
     # ------------------------------------------------------------------ waits
 
@@ -255,7 +158,7 @@ class ReservationTraffic:
         self,
         t: float,
         robots: dict[str, TrafficRobot],
-        grants: dict[str, _Grant],
+        grants: dict[str, Grant],
         waiting: dict[str, str],
         events: list[FleetEvent],
     ) -> dict[str, TrafficDecision]:
@@ -342,7 +245,7 @@ class ReservationTraffic:
         waiter: str,
         parked: str,
         robots: dict[str, TrafficRobot],
-        grants: dict[str, _Grant],
+        grants: dict[str, Grant],
         overrides: dict[str, TrafficDecision],
         events: list[FleetEvent],
     ) -> None:
@@ -425,7 +328,7 @@ class ReservationTraffic:
         return None
 
     def _replan(
-        self, name: str, around: list[str], grants: dict[str, _Grant], reason: str
+        self, name: str, around: list[str], grants: dict[str, Grant], reason: str
     ) -> TrafficDecision:
         """Plan again with the others' granted reservations as lethal cells (the robot
         itself keeps ``margin / 2`` from them, so its own cell stays free)."""
@@ -509,7 +412,7 @@ class ReservationTraffic:
 
     # ------------------------------------------------------------------ out
 
-    def _decision(self, g: _Grant, overrides: dict[str, TrafficDecision]) -> TrafficDecision:
+    def _decision(self, g: Grant, overrides: dict[str, TrafficDecision]) -> TrafficDecision:
         name = g.robot.name
         if name in overrides:
             return overrides[name]
@@ -535,63 +438,6 @@ class ReservationTraffic:
 
 
 # ---------------------------------------------------------------------- geometry helpers
-
-
-def rest_of_path(path: np.ndarray, here: np.ndarray) -> np.ndarray:
-    """The part of ``path`` ahead of the point on it nearest ``here`` (that point first)."""
-    path = np.asarray(path, dtype=float).reshape(-1, 2)
-    if len(path) == 1:
-        return path
-    a, b = path[:-1], path[1:]
-    ab = b - a
-    denom = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12)
-    u = np.clip(np.einsum("ij,ij->i", here - a, ab) / denom, 0.0, 1.0)
-    foot = a + u[:, None] * ab
-    k = int(np.argmin(np.hypot(*(foot - here).T)))
-    return np.concatenate([foot[k : k + 1], path[k + 1 :]])
-
-
-def polyline_distance(points: np.ndarray, line: np.ndarray) -> np.ndarray:
-    """Metres from each of ``points`` (n, 2) to the polyline ``line`` (k, 2; one point
-    when k = 1)."""
-    points = np.asarray(points, dtype=float).reshape(-1, 2)
-    if len(line) == 1:
-        return np.hypot(points[:, 0] - line[0, 0], points[:, 1] - line[0, 1])
-    a, ab = line[:-1], np.diff(line, axis=0)
-    denom = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12)
-    ap = points[:, None, :] - a[None, :, :]
-    u = np.clip(np.einsum("nkj,kj->nk", ap, ab) / denom, 0.0, 1.0)
-    off = ap - u[..., None] * ab[None, :, :]
-    return np.sqrt(np.min(np.einsum("nkj,nkj->nk", off, off), axis=1))
-
-
-def resample(pts: np.ndarray, length: float, step: float) -> tuple[np.ndarray, np.ndarray]:
-    """Points every ``step`` metres along a polyline, up to ``length`` metres (and its end
-    if shorter), with their arc lengths."""
-    seg = np.hypot(*np.diff(pts, axis=0).T)
-    cum = np.concatenate([[0.0], np.cumsum(seg)])
-    total = min(float(cum[-1]), length)
-    s = np.arange(0.0, total, step)
-    s = np.append(s, total) if total - (s[-1] if len(s) else 0.0) > 1e-6 else s
-    if len(s) == 0:
-        s = np.zeros(1)
-    x = np.interp(s, cum, pts[:, 0])
-    y = np.interp(s, cum, pts[:, 1])
-    return np.stack([x, y], axis=1), s
-
-
-def cover(polygons: Sequence[BaseGeometry], step: float) -> np.ndarray:
-    """Points every ``step`` metres inside ``polygons`` and along their borders: what a
-    costmap marks as lethal cells."""
-    out = []
-    for poly in polygons:
-        x0, y0, x1, y1 = poly.bounds
-        xs, ys = np.meshgrid(np.arange(x0, x1 + step, step), np.arange(y0, y1 + step, step))
-        inside = shapely.contains_xy(poly, xs, ys)
-        out.append(np.stack([xs[inside], ys[inside]], axis=1))
-        ring = shapely.segmentize(poly.exterior, step)
-        out.append(np.asarray(ring.coords)[:, :2])
-    return np.concatenate(out) if out else np.zeros((0, 2))
 
 
 def _route_of(robot: TrafficRobot) -> np.ndarray:

@@ -227,7 +227,7 @@ def test_beams_on_people_are_every_beam_ending_on_someone() -> None:
     checking every beam's end against every person, on scans of every kind."""
     from agv_mission.geometry import Pose2D
     from agv_mission.messages import LaserScan
-    from agv_mission.navigation.navigator import PERSON_TOLERANCE, beams_on_people
+    from agv_mission.navigation.scan_filter import PERSON_TOLERANCE, beams_on_people
 
     rng = np.random.default_rng(3)
     hits = 0
@@ -807,7 +807,7 @@ def test_the_costmap_leaves_out_people_passing_by_but_not_people_standing() -> N
     they walk on."""
     from agv_mission.geometry import Pose2D
     from agv_mission.messages import LaserScan
-    from agv_mission.navigation.navigator import PERSON_TOLERANCE, STILL_TIME
+    from agv_mission.navigation.scan_filter import PERSON_TOLERANCE, STILL_TIME
 
     navigator = sample_context().handle.navigator  # a real navigator in a 4 m room
     # the MPC's people_margin; a controller without one: the tracker's tolerance
@@ -883,6 +883,7 @@ def test_a_start_on_a_cell_edge_by_a_wall_escapes_as_the_planner_sees_it() -> No
     when either is too near a wall, so the navigator must see it so too and step out
     (it saw only one cell: the robot spun, waited and failed 'start is not free')."""
     from agv_mission.geometry import Pose2D
+    from agv_mission.navigation.reachability import escape_point
     from agv_mission.planners.free_space import FreeSpace
 
     navigator = sample_context().handle.navigator  # a real navigator in a 4 m room
@@ -897,7 +898,7 @@ def test_a_start_on_a_cell_edge_by_a_wall_escapes_as_the_planner_sees_it() -> No
     pose = Pose2D(edge, float(centres[col, 1]), 0.0)
     space = FreeSpace(costmap, navigator.global_planner.clearance)
     assert not space.point_free(pose.x - grid.origin.x, pose.y - grid.origin.y)
-    out = navigator._escape_point(pose)
+    out = escape_point(costmap, pose, margin, navigator.config.escape_distance)
     assert out is not None and bool(costmap.is_free(np.array([out.x, out.y]), margin))
 
 

@@ -41,7 +41,8 @@ from agv_mission.missions.sampler import StepSampler
 from agv_mission.missions.stack import CONTROL_PERIOD, RobotStack, Sensing
 from agv_mission.missions.tree import build_tree
 from agv_mission.navigation.handle import RobotHandle
-from agv_mission.navigation.navigator import NavStatus, beams_on_people
+from agv_mission.navigation.navigator import NavStatus
+from agv_mission.navigation.scan_filter import beams_on_people
 from agv_mission.navigation.state import RobotState
 from agv_mission.planners.collision_monitor import CollisionMonitor
 from agv_mission.robots.battery import Battery, battery_for

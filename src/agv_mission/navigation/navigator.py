@@ -4,26 +4,21 @@ It plays move_base's part: a global plan on the costmap, a local planner that tr
 an in-place rotation to the goal's yaw at the end, and replanning when the robot strays
 from its path or stops making progress. Time is the simulation clock in ``RobotState``.
 
-In a fleet the run hands it the traffic layer's decision every control step
-(:meth:`Navigator.obey`, a narrow interface: any object with ``action``, ``limit``,
-``detour`` and ``avoid``): ``wait`` stops it (keeping the plan, no 'no progress'
-recovery), ``go`` with a ``limit`` slows it so it can stop within that many metres,
-``yield`` drives it to the detour pose and holds it there until released (then it
-replans to its goal), ``replan`` plans again with the ``avoid`` points as lethal cells.
-The other robots' bodies (``fleet_bodies``) are not obstacles to mark: the traffic layer
-keeps robots apart, and a robot marked as a wall would make a narrow aisle unreachable.
+In a fleet it obeys the traffic layer's decision every control step
+(:mod:`~agv_mission.navigation.traffic_orders`). The other robots' bodies
+(``fleet_bodies``) are not obstacles to mark: the traffic layer keeps robots apart, and a
+robot marked as a wall would make a narrow aisle unreachable
+(:mod:`~agv_mission.navigation.scan_filter`).
 """
 
 from __future__ import annotations
 
 import inspect
 import math
-from dataclasses import replace
 from enum import Enum
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
-from scipy.ndimage import label
 
 from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.maps.costmap import Costmap
@@ -32,7 +27,17 @@ from agv_mission.maps.zones import ZoneFilters
 from agv_mission.messages import LaserScan
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.legs import Leg, NavigationStats
+from agv_mission.navigation.reachability import FreeRegions, escape_point, keepout_exit
+from agv_mission.navigation.scan_filter import (
+    PEOPLE_REACH,
+    PERSON_TOLERANCE,
+    beams_on_people,
+    on_people,
+    standing_people,
+    without_bodies,
+)
 from agv_mission.navigation.state import RobotState
+from agv_mission.navigation.traffic_orders import ObeysTraffic, TrafficOrder
 from agv_mission.planners.base import (
     GlobalPlanner,
     LocalPlanner,
@@ -42,7 +47,6 @@ from agv_mission.planners.base import (
     VelocityLimits,
 )
 from agv_mission.planners.cost_grid import CostGridPlanner
-from agv_mission.planners.free_space import FreeSpace
 from agv_mission.planners.path_tracking import Projection, Segments, closest_point
 from agv_mission.planners.shortest_free import ShortestFreePath
 
@@ -67,93 +71,7 @@ class _Phase(Enum):
     ROTATE = "rotate"
 
 
-class TrafficOrder(Protocol):
-    """What the navigator reads of a traffic decision (``fleet.base.TrafficDecision``)."""
-
-    action: str  # go | wait | yield | replan
-    limit: float | None  # metres the robot may still advance along its path
-    detour: Pose2D | None  # where to step aside (yield)
-    avoid: np.ndarray | None  # (k, 2) points to plan round (replan)
-
-
-#: Metres a robot stops short of the limit it was given (its estimate's jitter).
-LIMIT_SLACK = 0.02
-#: A lidar return this close beyond another robot's footprint is that robot's.
-BODY_SLACK = 0.1
-
-
-PERSON_TOLERANCE = 0.15  # m beyond a tracked person's radius: a lidar return is theirs
-# s a person must have stood before the costmap marks them: someone pausing a moment (to
-# let the robot by, held up in a crowd) is left to the controller, which predicts them, so
-# the plan is not thrown around by it (the obstacle layer marked 40-85 stops a 120 s
-# warehouse patrol among 50 people when they counted at once)
-STILL_TIME = 1.0
-PEOPLE_REACH = 5.0  # m beyond the obstacle range: people farther cannot matter this horizon
-
-
-def on_people(points: np.ndarray, people: np.ndarray) -> np.ndarray:
-    """Which of ``points`` (n, 2) lie on a tracked person (rows x, y, radius, ...)."""
-    pts = np.asarray(points, dtype=float).reshape(-1, 2)
-    rows = np.asarray(people, dtype=float)
-    d2 = (pts[:, None, 0] - rows[None, :, 0]) ** 2 + (pts[:, None, 1] - rows[None, :, 1]) ** 2
-    reach = rows[:, 2] + PERSON_TOLERANCE
-    return (d2 <= (reach * reach)[None, :]).any(axis=1)
-
-
-def beams_on_people(scan: LaserScan, pose: Pose2D, people: np.ndarray) -> np.ndarray | None:
-    """Which beams of ``scan`` seen from ``pose`` end on a tracked person (rows x, y,
-    radius, ...): the localiser and the obstacle layer leave them out. None when no person
-    is within the lidar's reach. Only the beams pointing at someone (each person's angular
-    window) are looked at: a few of the scan's hundreds."""
-    if not len(people):
-        return None
-    people = np.asarray(people, dtype=float)
-    reach = scan.range_max + people[:, 2] + PERSON_TOLERANCE
-    dx, dy = people[:, 0] - pose.x, people[:, 1] - pose.y
-    near = dx * dx + dy * dy <= reach * reach
-    if not near.any():
-        return None
-    people = people[near]
-    n, inc = len(scan.ranges), scan.angle_increment
-    beams = _beams_towards(people, pose, scan.angle_min, inc, n) if inc > 0.0 else None
-    if beams is None:
-        beams = np.arange(n)
-    r = scan.ranges[beams]
-    returned = np.isfinite(r)  # no-return beams (inf or nan) end on nobody
-    beams, r = beams[returned], r[returned].astype(float)
-    a = (scan.angle_min + inc * beams) + pose.yaw  # as ``scan.angles`` has them
-    ex, ey = pose.x + r * np.cos(a), pose.y + r * np.sin(a)
-    hit = np.zeros(len(beams), dtype=bool)
-    for x, y, radius in people[:, 0:3].tolist():  # as :func:`on_people`, a person at a time
-        reach = radius + PERSON_TOLERANCE
-        hit |= (ex - x) ** 2 + (ey - y) ** 2 <= reach * reach
-    mask = np.zeros(n, dtype=bool)
-    mask[beams] = hit
-    return mask
-
-
-def _beams_towards(
-    people: np.ndarray, pose: Pose2D, angle_min: float, inc: float, n: int
-) -> np.ndarray | None:
-    """Indices of the beams whose direction passes within a person's reach (a beam more
-    either side); None when the lidar is inside someone's reach (every beam may)."""
-    towards = np.zeros(n, dtype=bool)
-    for x, y, radius in people[:, 0:3].tolist():
-        dx, dy, reach = x - pose.x, y - pose.y, radius + PERSON_TOLERANCE
-        dist = math.hypot(dx, dy)
-        if dist <= reach:
-            return None
-        half = math.asin(reach / dist)
-        centre = (math.atan2(dy, dx) - pose.yaw - angle_min) % math.tau
-        for shift in (-math.tau, 0.0, math.tau):  # a window across the scan's start
-            lo = max(0, math.floor((centre + shift - half) / inc) - 1)
-            hi = min(n - 1, math.ceil((centre + shift + half) / inc) + 1)
-            if lo <= hi:
-                towards[lo : hi + 1] = True
-    return np.flatnonzero(towards)
-
-
-class Navigator:
+class Navigator(ObeysTraffic):
     """Drives the robot to one goal at a time."""
 
     def __init__(
@@ -168,7 +86,7 @@ class Navigator:
         zones: ZoneFilters | None = None,
     ) -> None:
         self.layer = layer
-        self._regions: tuple[Any, ...] | None = None  # costmap, revision, margin, labels
+        self._regions = FreeRegions()
         self.zones = zones if zones is not None and not zones.empty else None
         self.global_planner = global_planner
         self.local_planner = local_planner
@@ -204,97 +122,14 @@ class Navigator:
         self.fleet_bodies: np.ndarray = np.zeros((0, 3))  # (x, y, radius) of the others
         self._updated_at = -math.inf
 
-    # ----------------------------------------------------------------- fleet traffic
-
-    def obey(self, order: TrafficOrder | None, state: RobotState) -> None:
-        """Take this step's traffic decision (before the behaviour tree ticks)."""
-        self.order = order
-        action = order.action if order is not None else "go"
-        if action == "yield" and order is not None and order.detour is not None:
-            if self.detour != order.detour:
-                self.detour = order.detour
-                self.detour_path = self._plan_to(state.estimate, order.detour, None)
-            return
-        if self.detour is not None:  # released: back to the goal, if there is one
-            self.detour = self.detour_path = None
-            if self.status is NavStatus.RUNNING and self.goal is not None:
-                self._last_progress_time = state.time
-                self.path = None
-                self._plan(state)
-        if action == "replan" and order is not None and self.status is NavStatus.RUNNING:
-            self._plan_around(state, order.avoid)
-
-    @property
-    def yielding(self) -> bool:
-        return self.detour is not None
-
-    def traffic_path(self) -> np.ndarray | None:
-        """The path the robot is driving now (to its goal, or to a detour), None when it
-        drives none: what the traffic layer reserves."""
-        if self.detour is not None:
-            return None if self.detour_path is None else self.detour_path.points
-        if self.status is NavStatus.RUNNING and self.path is not None:
-            return self.path.points
-        return None
-
     def updated_at(self, now: float) -> bool:
         """Whether something (a behaviour) called :meth:`update` at time ``now``."""
         return self._updated_at == now
 
-    def _plan_to(self, start: Pose2D, goal: Pose2D, avoid: np.ndarray | None) -> PlannedPath | None:
-        """A plan on the costmap (with ``avoid`` points lethal), None when there is none."""
-        costmap = self.costmap
-        if avoid is not None and len(avoid):
-            marks = np.zeros(costmap.grid.data.shape, dtype=bool)
-            rows, cols = costmap.grid.world_to_cell(np.asarray(avoid, dtype=float))
-            inside = costmap.grid.in_bounds(rows, cols)
-            marks[rows[inside], cols[inside]] = True
-            costmap = costmap.with_obstacles(marks)
-        seed = self.seed + self.stats.plans
-        self.stats.plans += 1
-        try:
-            path = self.global_planner.plan(costmap, start, goal, seed=seed)
-        except PlanningError:
-            return None
-        self.paths.append(path.points.copy())
-        self.stats.planning_times.append(path.planning_time)
-        return path
-
-    def _plan_around(self, state: RobotState, avoid: np.ndarray | None) -> None:
-        """Replan to the goal round the others' reserved space; keep the plan if there is
-        no way round (the traffic layer then asks the other robot to make way)."""
-        assert self.goal is not None
-        path = self._plan_to(state.estimate, self.goal, avoid)
-        if path is not None:
-            self.path = path
-            self.stats.replans += 1
-            self._last_progress_time = state.time
-
-    def _limited(self, cmd: VelocityCommand) -> VelocityCommand:
-        """The command slowed so the robot can stop within the traffic limit."""
-        order = self.order
-        if order is None or order.limit is None or order.action not in ("go", "yield"):
-            return cmd
-        # one control period at v, then braking at the acceleration limit: v dt + v^2 / 2a
-        room = max(order.limit - LIMIT_SLACK, 0.0)
-        a, dt = self.limits.max_acc_v, self.control_period
-        cap = a * (math.sqrt(dt * dt + 2.0 * room / a) - dt)
-        if abs(cmd.v) > cap:
-            cmd = replace(cmd, v=math.copysign(cap, cmd.v))
-        return cmd
-
-    def _drive_detour(self, state: RobotState) -> VelocityCommand:
-        """Towards the detour pose, then stand there until released."""
-        assert self.detour is not None
-        self._last_progress_time = state.time
-        pose = state.estimate
-        if self.detour_path is None or pose.distance_to(self.detour) <= self._xy_tol:
-            return VelocityCommand(0.0, 0.0)
-        cmd = self.local_planner.compute(
-            pose, state.velocity, self.detour_path.points, self.detour, self._near(state)
-        )
-        self.horizon = cmd.predicted
-        return self._limited(cmd)
+    @property
+    def running(self) -> bool:
+        """Driving to a goal."""
+        return self.status is NavStatus.RUNNING
 
     @property
     def costmap(self) -> Costmap:
@@ -325,46 +160,14 @@ class Navigator:
         else:
             self.layer.update(pose, scan, ignore)
         if tracked:
-            self.layer.set_people(self._standing(pose, scan.range_max, people))
-
-    def _standing(self, pose: Pose2D, seen: float, people: np.ndarray) -> np.ndarray:
-        """Discs (x, y, radius) of the tracked people within ``seen`` who have stood
-        :data:`STILL_TIME`, grown by the room the controller keeps from people (its
-        ``people_margin``; else :data:`PERSON_TOLERANCE`): a plan round them that the
-        controller can follow. Marked from their lidar returns alone, a person standing by
-        a wall left a 0.65 m gap a plan went through and a waffle keeping 0.2 m more from
-        them could not: it stood 75 s there."""
-        rows = np.asarray(people, dtype=float)
-        if not len(rows):
-            return np.zeros((0, 3))
-        margin = getattr(getattr(self.local_planner, "config", None), "people_margin", None)
-        grow = PERSON_TOLERANCE if margin is None else float(margin)
-        near = np.hypot(rows[:, 0] - pose.x, rows[:, 1] - pose.y) <= seen + rows[:, 2]
-        rows = rows[near & (rows[:, 5] >= STILL_TIME)]
-        return np.column_stack([rows[:, 0], rows[:, 1], rows[:, 2] + grow])
+            margin = getattr(getattr(self.local_planner, "config", None), "people_margin", None)
+            grow = PERSON_TOLERANCE if margin is None else float(margin)
+            self.layer.set_people(standing_people(pose, scan.range_max, people, grow))
 
     def without_fleet(self, pose: Pose2D, scan: LaserScan) -> LaserScan:
         """``scan`` with the returns off the other robots' bodies (``fleet_bodies``, as
-        the fleet layer reports them) made 'no return': neither the obstacle layer nor a
-        localiser should take a robot for a wall."""
-        bodies = self.fleet_bodies
-        if not len(bodies):
-            return scan
-        reach = scan.range_max + bodies[:, 2] + BODY_SLACK
-        bodies = bodies[np.hypot(bodies[:, 0] - pose.x, bodies[:, 1] - pose.y) <= reach]
-        if not len(bodies):  # nobody within the scan's reach
-            return scan
-        r = scan.ranges.astype(float)
-        beams = np.flatnonzero(np.isfinite(r))
-        a = scan.angle_min + scan.angle_increment * beams + pose.yaw
-        x, y = pose.x + r[beams] * np.cos(a), pose.y + r[beams] * np.sin(a)
-        d = np.hypot(x[:, None] - bodies[None, :, 0], y[:, None] - bodies[None, :, 1])
-        theirs = beams[np.any(d <= bodies[None, :, 2] + BODY_SLACK, axis=1)]
-        if not len(theirs):
-            return scan
-        ranges = scan.ranges.copy()
-        ranges[theirs] = np.inf
-        return replace(scan, ranges=ranges)
+        the fleet layer reports them) made 'no return'."""
+        return without_bodies(pose, scan, self.fleet_bodies)
 
     def last_progress_time(self) -> float:
         """When the robot last came closer to its goal (simulated seconds)."""
@@ -645,9 +448,13 @@ class Navigator:
             raise NoPlan(
                 f"goal ({goal.x:.2f}, {goal.y:.2f}) lies in a keepout zone", "GOAL_OCCUPIED"
             )
-        exit_point = self._keepout_exit(start)
-        escape = exit_point or self._escape_point(start)
-        if not self._connected(escape or start, goal):
+        exit_point = keepout_exit(self.zones, start, self.global_planner.clearance, self.goal)
+        escape = exit_point or escape_point(
+            self.costmap, start, self.global_planner.clearance + 0.01, self.config.escape_distance
+        )
+        if not self._regions.joins(
+            self.costmap, self.layer.revision, self.global_planner.clearance, escape or start, goal
+        ):
             raise NoPlan(
                 f"goal ({goal.x:.2f}, {goal.y:.2f}) is unreachable: no free corridor "
                 f"leads there from ({start.x:.2f}, {start.y:.2f}) on the map and the obstacles seen"
@@ -668,39 +475,6 @@ class Navigator:
         self.stats.planning_times.append(path.planning_time)
         return path
 
-    def _connected(self, start: Pose2D, goal: Pose2D) -> bool:
-        """Whether free space (with the planners' margin) joins start and goal: a cheap
-        check that spares a sampling planner its whole time budget on a hopeless query.
-        The free space's connected regions are labelled once per costmap (a patrol asks
-        at every waypoint; a 30 x 50 m map takes ~10 ms to label)."""
-        margin = self.global_planner.clearance
-        costmap = self.costmap  # patched in place as obstacles come and go: its revision
-        key = (costmap, self.layer.revision, margin)
-        cached = self._regions
-        if cached is None or cached[0] is not costmap or cached[1:3] != key[1:]:
-            free = costmap.distance > costmap.robot_radius + margin
-            cached = (*key, label(free, structure=np.ones((3, 3), dtype=bool))[0])
-            self._regions = cached
-        regions = cached[3]
-        grid = costmap.grid
-        rows, cols = grid.world_to_cell(np.array([[start.x, start.y], [goal.x, goal.y]]))
-        inside = grid.in_bounds(rows, cols)
-        region = regions[int(rows[0]), int(cols[0])] if inside[0] else 0
-        if not inside[1] or not region:
-            return True  # let the planner report what is wrong with start or goal
-        return bool(regions[int(rows[1]), int(cols[1])] == region) or not bool(
-            costmap.is_free(np.array([goal.x, goal.y]), margin)
-        )
-
-    def _keepout_exit(self, pose: Pose2D) -> Pose2D | None:
-        """Where a robot inside (or at the margin of) a keepout zone leaves it: the nearest
-        point clear of it, reached straight, so it drives out instead of freezing."""
-        if self.zones is None:
-            return None
-        goal = None if self.goal is None else (self.goal.x, self.goal.y)
-        out = self.zones.exit_point(pose.x, pose.y, self.global_planner.clearance + 0.02, goal)
-        return None if out is None else Pose2D(out[0], out[1], pose.yaw)
-
     def _lead_out(self, start: Pose2D, exit_point: Pose2D, seed: int) -> np.ndarray:
         """The way from inside a keepout zone to its exit point, planned on the map without
         the zones (around walls); straight when even that finds none."""
@@ -710,32 +484,6 @@ class Navigator:
         except PlanningError:
             return np.array([[start.x, start.y]])
         return lead.points[:-1]
-
-    def _escape_point(self, pose: Pose2D) -> Pose2D | None:
-        """The nearest comfortably free point when the robot stands inside the margin the
-        planners require (it drifted close to a wall); ``None`` when it is free already."""
-        margin = self.global_planner.clearance + 0.01
-        here = np.array([pose.x, pose.y])
-        grid = self.costmap.grid
-        # the planners' own test of a start (on a cell's edge, a round-number pose on a
-        # 5 cm grid, both cells must be free)
-        space = FreeSpace(self.costmap, margin)
-        if space.point_free(*space.to_local(pose.x, pose.y)):
-            return None
-        rows, cols = grid.world_to_cell(here)
-        reach = int(np.ceil(self.config.escape_distance / grid.resolution))
-        r0, r1 = max(int(rows) - reach, 0), min(int(rows) + reach + 1, grid.height)
-        c0, c1 = max(int(cols) - reach, 0), min(int(cols) + reach + 1, grid.width)
-        rr, cc = np.mgrid[r0:r1, c0:c1]
-        centres = grid.cell_to_world(rr.ravel(), cc.ravel())
-        ok = self.costmap.is_free(centres, margin)
-        if not ok.any():
-            return None
-        candidates = centres[ok]
-        nearest = candidates[np.argmin(np.linalg.norm(candidates - here, axis=1))]
-        if np.linalg.norm(nearest - here) > self.config.escape_distance:
-            return None
-        return Pose2D(float(nearest[0]), float(nearest[1]), pose.yaw)
 
     def _fail(self, reason: str, code: str = "UNKNOWN") -> None:
         self.status = NavStatus.FAILED

@@ -33,7 +33,8 @@ from agv_mission.maps.builtin_worlds import warehouse
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.outputs import write_run
 from agv_mission.missions.runner import MissionRun
-from agv_mission.world.crowd import Crowd, PeopleGroup
+from agv_mission.world.crowd import Crowd
+from agv_mission.world.people_groups import PeopleGroup
 
 SEEDS = (5, 6, 7, 8)  # a pair of runs each
 CLI_SEEDS = (5, 6, 7)

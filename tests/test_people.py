@@ -24,7 +24,9 @@ from agv_mission.missions.people import resolve_people
 from agv_mission.missions.people_metrics import people_metrics
 from agv_mission.missions.runner import run_mission
 from agv_mission.missions.schema.people import MAX_PEOPLE, People, PeopleSpec
-from agv_mission.world.crowd import DECISION_PERIOD, Crowd, PeopleGroup, clearance
+from agv_mission.world.crowd import DECISION_PERIOD, Crowd
+from agv_mission.world.people_groups import PeopleGroup
+from agv_mission.world.walkable import clearance
 
 WAREHOUSE = warehouse()
 HOUSE = small_house()
@@ -112,7 +114,8 @@ def test_same_seed_same_walks_in_another_process() -> None:
     code = (
         "import hashlib, numpy as np\n"
         "from agv_mission.maps.builtin_worlds import small_house\n"
-        "from agv_mission.world.crowd import Crowd, PeopleGroup\n"
+        "from agv_mission.world.crowd import Crowd\n"
+        "from agv_mission.world.people_groups import PeopleGroup\n"
         "area = ((-2.3, -5.3), (4.6, -5.3), (4.6, 5.3), (-2.3, 5.3))\n"
         "c = Crowd([PeopleGroup(count=8, behaviour='wander', area=area)], small_house().map,"
         " np.random.default_rng(9))\n"
@@ -207,7 +210,7 @@ def test_a_notched_obstacle_goes_to_orca_as_its_hull_an_l_shape_does_not() -> No
     corners, not one per notch); an L-shaped piece of furniture keeps its shape."""
     import shapely
 
-    from agv_mission.world.crowd import _obstacle
+    from agv_mission.world.walkable import _obstacle
 
     rack = shapely.Polygon(
         [(0, 0), (0.1, 0), (0.1, 0.1), (1.0, 0.1), (1.0, 0.0), (1.1, 0), (1.1, 3), (0, 3)]

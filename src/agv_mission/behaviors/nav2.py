@@ -30,8 +30,6 @@ from agv_mission.planners.path_tracking import closest_point
 #: ComputePathToPose's error codes by name (nav2_msgs/action/ComputePathToPose.action);
 #: ComputePathThroughPoses's are these + 100.
 PLANNER_CODES = {"UNKNOWN": 200, "START_OCCUPIED": 205, "GOAL_OCCUPIED": 206, "NO_VALID_PATH": 208}
-
-
 #: FollowPath's (nav2_msgs/action/FollowPath.action).
 CONTROLLER_CODES = {"UNKNOWN": 100, "INVALID_PATH": 103, "FAILED_TO_MAKE_PROGRESS": 105,
                     "NO_VALID_CONTROL": 106}  # fmt: skip
@@ -377,20 +375,10 @@ def _selector(xml: str) -> type[Selector]:
 
 
 PlannerSelector = _selector("PlannerSelector")
-
-
 ControllerSelector = _selector("ControllerSelector")
-
-
 SmootherSelector = _selector("SmootherSelector")
-
-
 GoalCheckerSelector = _selector("GoalCheckerSelector")
-
-
 ProgressCheckerSelector = _selector("ProgressCheckerSelector")
-
-
 PathHandlerSelector = _selector("PathHandlerSelector")
 
 

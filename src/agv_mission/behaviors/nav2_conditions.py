@@ -168,11 +168,7 @@ def _checker(node_type: str) -> type[ErrorCodesPresent]:
 
 
 WouldAControllerRecoveryHelp = _checker("would_a_controller_recovery_help")
-
-
 WouldAPlannerRecoveryHelp = _checker("would_a_planner_recovery_help")
-
-
 WouldASmootherRecoveryHelp = _checker("would_a_smoother_recovery_help")
 
 

@@ -142,7 +142,9 @@ class PathLongerOnApproach(_Gate):
         old, self._old = self._old, path if isinstance(path, NavPath) else self._old
         if not isinstance(path, NavPath) or old is None or path is old:
             return Status.SUCCESS
-        left = float(arc_lengths(old.points)[-1]) - arc_position(old.points, self.handle.state.estimate)
+        left = float(arc_lengths(old.points)[-1]) - arc_position(
+            old.points, self.handle.state.estimate
+        )
         longer = float(arc_lengths(path.points)[-1]) > self.factor * max(left, 1e-6)
         if left <= self.prox_len and longer and path.goal == old.goal:
             self.handle.log("path_longer_on_approach", node=self.name)

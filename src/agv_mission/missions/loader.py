@@ -78,7 +78,7 @@ from agv_mission.robots.description import (
     RobotFileError,
     load_robot,
 )
-from agv_mission.world.crowd import PeopleGroup
+from agv_mission.world.people_groups import PeopleGroup
 
 # A front door's rule on which files a mission may name: (field, resolved path) -> a
 # problem message, or None when the file may be read.

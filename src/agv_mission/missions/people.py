@@ -16,7 +16,9 @@ from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.rooms import Room
 from agv_mission.missions.schema.people import PeopleSpec
 from agv_mission.missions.yaml_lines import FieldPath
-from agv_mission.world.crowd import PeopleGroup, RouteGrid, clearance, route_grid
+from agv_mission.world.people_groups import PeopleGroup
+from agv_mission.world.walkable import clearance
+from agv_mission.world.walking_routes import RouteGrid, route_grid
 
 Report = Callable[[FieldPath, str], None]
 

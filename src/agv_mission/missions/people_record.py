@@ -13,7 +13,8 @@ import numpy as np
 from agv_mission.atomic import atomic_write_text
 from agv_mission.missions.people_metrics import people_metrics
 from agv_mission.navigation.state import STANDING, TRACKED_PERSON
-from agv_mission.world.crowd import Crowd, PeopleGroup
+from agv_mission.world.crowd import Crowd
+from agv_mission.world.people_groups import PeopleGroup
 from agv_mission.world.simulation import SimulatedWorld
 
 PEOPLE_COLUMNS = ("t", "id", "x", "y")

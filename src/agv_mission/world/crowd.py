@@ -7,27 +7,23 @@ person takes the velocity closest to its preferred one that stays collision-free
 neighbours and the walls for ``TIME_HORIZON`` seconds. Robots enter as agents whose pose
 and velocity the world sets every step. The strategic level (where to go) is ours: wander
 goals drawn from the seed inside an area, or a looping route; the way to a goal is the
-shortest path on a coarse grid of the free space, pulled taut where the walls allow.
+shortest path on a coarse grid of the free space (:mod:`~agv_mission.world.walking_routes`),
+pulled taut where the walls allow; the walls are the map's walkable space's outline
+(:mod:`~agv_mission.world.walkable`).
 """
 
 from __future__ import annotations
 
 import math
-from array import array
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Literal
 
-import contourpy
 import numpy as np
 import pyrvo
-import shapely
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import breadth_first_order, connected_components
 
-from agv_mission.maps.distance import obstacle_distance
-from agv_mission.maps.grid import FREE, OccupancyGrid
-from agv_mission.maps.map_cache import map_table
+from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.world.people_groups import ROBOT_MARGIN, PeopleGroup, clear_of_robots, place_people
+from agv_mission.world.walkable import clearance, wall_obstacles
+from agv_mission.world.walking_routes import route_grid
 
 # ORCA's parameters for walking people: RVO2's examples use 1.5-2 s horizons and about 10
 # neighbours; a person notices others a few metres away. Measured (50 people, warehouse):
@@ -38,18 +34,11 @@ MAX_NEIGHBORS = 8
 TIME_HORIZON = 2.0  # s, people
 TIME_HORIZON_OBST = 0.5  # s, walls
 SPEED_HEADROOM = 1.2  # a person may briefly walk this much faster than preferred to avoid
-ROBOT_MARGIN = 0.3  # m people keep from a machine on top of its footprint (they give AGVs room)
-# m more between a person's start and a robot's footprint than ROBOT_MARGIN: nobody starts
-# in (or at) a robot's reach; someone due to enter where a robot stands waits until it left
-START_GAP = 0.3
 WALL_SLACK = 0.05  # m a person's body may lean into a wall (a map cell: the outline's own error)
-ROUTE_CELL = 0.25  # m, the routing grid (a person is 0.5 m wide: doors still pass)
-WALL_SIMPLIFY = 0.02  # m, how far the walls' outline may move when simplified
-HULL_SLACK = 0.1  # m an obstacle's convex hull may stand out of it to stand for it (a notch)
+
+
 REACHED = 0.5  # m: a waypoint on the way counts as passed
 ARRIVED = 0.3  # m: a goal counts as reached
-# Wander goals: a pool per group drawn from the seed (each costs one routing tree, kept).
-WANDER_GOALS_MIN, WANDER_GOALS_MAX = 8, 24
 REPLAN_PERIOD = 2.0
 # s between a person's decisions (an ORCA step): they walk the decided velocity in between.
 # RVO2's own examples step 0.25 s; 0.2 s halves the crowd's cost against 0.1 s (the control
@@ -63,213 +52,6 @@ STALL_SPEED = 0.2  # of the preferred speed: below it a person is held up...
 STALL_TIME = 1.0  # s ... and after this long bears right
 SIDESTEP = np.pi / 4  # rad a held-up person turns their way to the right
 _BEAR_RIGHT = complex(np.cos(-SIDESTEP), np.sin(-SIDESTEP))
-
-
-@dataclass(frozen=True)
-class PeopleGroup:
-    """One ``people:`` entry, resolved to the map frame: ``count`` people who wander inside
-    ``area`` or walk ``route`` round and round."""
-
-    count: int
-    behaviour: Literal["wander", "route"]
-    area: tuple[tuple[float, float], ...] = ()  # wander: the polygon they walk in
-    route: tuple[tuple[float, float], ...] = ()  # route: the points, in order, looping
-    speed: float = 1.2  # m/s preferred
-    radius: float = 0.25  # m
-    start_time: float = 0.0  # s: absent from the world before
-    attentive: bool = True  # False: walks its way as if nobody were there
-
-
-def free_space(grid: OccupancyGrid, simplify: float = WALL_SIMPLIFY) -> shapely.Geometry:
-    """The grid's free cells as polygons in the map frame (unknown cells are not walkable):
-    the filled contour of the free mask half way between free and not-free cell centres
-    (contourpy, matplotlib's contouring; 4x faster than a union of the cells' boxes)."""
-    free = (grid.data == FREE).astype(np.float64)
-    if not free.any():
-        return shapely.Polygon()
-    height, width = free.shape
-    res = grid.resolution
-    x = grid.origin.x + (np.arange(width) + 0.5) * res
-    y = grid.origin.y + (np.arange(height) + 0.5) * res
-    padded = np.zeros((height + 2, width + 2))  # closed outlines at the grid's edge too
-    padded[1:-1, 1:-1] = free
-    x = np.concatenate([[x[0] - res], x, [x[-1] + res]])
-    y = np.concatenate([[y[0] - res], y, [y[-1] + res]])
-    gen = contourpy.contour_generator(
-        x, y, padded, fill_type=contourpy.FillType.OuterOffset, corner_mask=False
-    )
-    points, offsets = gen.filled(0.5, 1.5)
-    polygons = []
-    for p, o in zip(points, offsets, strict=True):
-        rings = [p[o[i] : o[i + 1]] for i in range(len(o) - 1)]
-        polygons.append(shapely.Polygon(rings[0], rings[1:]))
-    shape = shapely.make_valid(shapely.MultiPolygon(polygons))
-    return shapely.simplify(shape, simplify) if simplify > 0 else shape
-
-
-def _polygons(geometry: shapely.Geometry) -> list[shapely.Polygon]:
-    if isinstance(geometry, shapely.Polygon):
-        return [] if geometry.is_empty else [geometry]
-    return [g for g in getattr(geometry, "geoms", []) if isinstance(g, shapely.Polygon)]
-
-
-def clearance(grid: OccupancyGrid) -> np.ndarray:
-    """Each cell's distance to the nearest cell that is not free (walls, unknown), m, from
-    the costmap's own distance transform (one per map, shared: tens of ms on a warehouse).
-    Read-only."""
-    res = grid.resolution
-
-    def build() -> np.ndarray:
-        room = obstacle_distance(grid.data != FREE, res) - np.float32(res / 2)
-        room.setflags(write=False)
-        return room
-
-    return map_table("person_clearance", grid, (), build)
-
-
-def route_grid(grid: OccupancyGrid, radius: float) -> RouteGrid:
-    """The :class:`RouteGrid` of ``grid`` for people of ``radius``, one per map and size,
-    shared by the mission's checks and its runs (its ways to goals are kept)."""
-    return map_table("route_grid", grid, float(radius), lambda: RouteGrid(grid, radius))
-
-
-def wall_obstacles(grid: OccupancyGrid) -> list[list[list[float]]]:
-    """The map's walls as RVO2 obstacles (vertex lists, one per outline), one per map:
-    the free space's outline walked clockwise keeps people in, its holes (as their hulls
-    where close enough) keep them out."""
-
-    def build() -> list[list[list[float]]]:
-        out = []
-        for polygon in _polygons(shapely.orient_polygons(free_space(grid))):
-            # RVO2 keeps agents outside counter-clockwise polygons: the free space's outline
-            # (counter-clockwise) is walked clockwise to keep them in, its holes the other way.
-            out.append([list(p) for p in polygon.exterior.coords[:-1][::-1]])
-            out.extend(_obstacle(hole) for hole in polygon.interiors)
-        return out
-
-    return map_table("wall_obstacles", grid, (WALL_SIMPLIFY, HULL_SLACK), build)
-
-
-class RouteGrid:
-    """Ways on a coarse grid of the space a person of ``radius`` fits in; one tree per goal
-    cell, computed when first asked for and kept (:func:`route_grid`: one per map).
-
-    A coarse cell is walkable when the person fits anywhere in it, and stands for the map
-    cell in it with the most room (its ``point``); two neighbouring cells are joined when
-    the person fits all along the straight line between their points. Cell centres alone
-    lost every gap narrower than about 0.85 m that the 0.25 m grid happened to straddle:
-    real 0.8 m doors, and routes through them refused as walled off."""
-
-    def __init__(self, grid: OccupancyGrid, radius: float):
-        k = max(1, round(ROUTE_CELL / grid.resolution))  # map cells a side
-        self.cell = k * grid.resolution
-        x0, _, y0, _ = grid.extent
-        self.origin = np.array([x0, y0])
-        self.shape = (max(1, grid.height // k), max(1, grid.width // k))
-        height, width = self.shape
-        clear = clearance(grid)
-        room = np.full((height * k, width * k), -np.inf, dtype=np.float32)
-        rows, cols = min(grid.height, height * k), min(grid.width, width * k)
-        room[:rows, :cols] = clear[:rows, :cols]
-        blocks = room.reshape(height, k, width, k).transpose(0, 2, 1, 3).reshape(height, width, -1)
-        best = blocks.argmax(axis=2)
-        most = np.take_along_axis(blocks, best[..., None], axis=2)[..., 0]
-        self.walkable = most >= radius + grid.resolution
-        self._room = most.ravel()  # each cell's point's distance to a wall
-        r = np.arange(height)[:, None] * k + best // k
-        c = np.arange(width)[None, :] * k + best % k
-        self.points = grid.cell_to_world(r.ravel(), c.ravel())  # each cell's roomiest point
-        self.graph = self._graph(grid, clear, radius)
-        self._trees: dict[int, array[int]] = {}  # goal: predecessors
-        self._labels: np.ndarray | None = None
-
-    @property
-    def cell_area(self) -> float:
-        return self.cell * self.cell
-
-    def component(self, node: int) -> int:
-        """The connected piece of walkable space ``node`` lies in (-1: none)."""
-        if self._labels is None:
-            _, labels = connected_components(self.graph, directed=False)
-            self._labels = np.where(self.walkable.ravel(), labels, -1)
-        return int(self._labels[node])
-
-    def cells_within(self, area: Sequence[tuple[float, float]]) -> np.ndarray:
-        """The walkable cells whose points lie inside the polygon ``area`` (flat)."""
-        cells = np.flatnonzero(self.walkable.ravel())
-        points = self.points[cells]
-        return cells[shapely.contains_xy(shapely.Polygon(area), points[:, 0], points[:, 1])]
-
-    def node(self, xy: Sequence[float]) -> int | None:
-        """The walkable routing cell nearest ``xy`` (None when there is none)."""
-        col = int(np.floor((xy[0] - self.origin[0]) / self.cell))
-        row = int(np.floor((xy[1] - self.origin[1]) / self.cell))
-        height, width = self.shape
-        if 0 <= row < height and 0 <= col < width and self.walkable[row, col]:
-            return row * width + col
-        near = np.flatnonzero(self.walkable.ravel())
-        if near.size == 0:
-            return None
-        gap = self.points[near] - np.asarray(xy, dtype=float)
-        return int(near[np.argmin(np.hypot(gap[:, 0], gap[:, 1]))])
-
-    def _graph(self, grid: OccupancyGrid, clear: np.ndarray, radius: float) -> csr_matrix:
-        """Neighbours (8-connected) joined where the person fits all along the line
-        between their points (sampled every half map cell)."""
-        height, width = self.shape
-        index = np.arange(height * width).reshape(height, width)
-        ok = self.walkable
-        a_all, b_all = [], []
-        for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
-            a = (slice(0, height - dr), slice(max(0, -dc), width - max(0, dc)))
-            b = (slice(dr, height), slice(max(0, dc), width - max(0, -dc) or None))
-            both = ok[a] & ok[b]
-            a_all.append(index[a][both])
-            b_all.append(index[b][both])
-        a, b = np.concatenate(a_all), np.concatenate(b_all)
-        length = np.hypot(*(self.points[b] - self.points[a]).T)
-        # the room shrinks at most as fast as one walks: a line no longer than twice the
-        # room its ends have, less the person, is clear; the others are looked along
-        doubt = np.flatnonzero(np.minimum(self._room[a], self._room[b]) - length / 2 < radius)
-        pa, pb = self.points[a[doubt]], self.points[b[doubt]]
-        samples = max(2, int(np.ceil(3 * self.cell * 2 / grid.resolution)))
-        t = np.linspace(0.0, 1.0, samples)[None, :, None]
-        along = pa[:, None, :] + (pb - pa)[:, None, :] * t  # (edges, samples, 2)
-        rows, cols = grid.world_to_cell(along.reshape(-1, 2))
-        inside = grid.in_bounds(rows, cols)
-        room = np.full(len(rows), -np.inf)
-        room[inside] = clear[rows[inside], cols[inside]]
-        keep = np.ones(len(a), dtype=bool)
-        keep[doubt] = (room.reshape(len(doubt), samples) >= radius).all(axis=1)
-        a, b, length = a[keep], b[keep], length[keep]
-        n = height * width
-        # every edge both ways: a directed search needs no transposed copy per goal
-        return csr_matrix(
-            (np.concatenate([length, length]), (np.concatenate([a, b]), np.concatenate([b, a]))),
-            shape=(n, n),
-        )
-
-    def path(self, start: int, goal: int) -> np.ndarray | None:
-        """The cells' points from ``start`` to ``goal`` (None when not connected)."""
-        tree = self._trees.get(goal)
-        if tree is None:
-            # fewest cells (8-connected, a breadth-first tree on the two-way graph: 0.17
-            # against 11 ms for Dijkstra's a goal on the warehouse); pulling the way taut
-            # straightens it
-            _, order = breadth_first_order(
-                self.graph, goal, directed=True, return_predecessors=True
-            )
-            # walked a node at a time: an array of Python ints (a list's items cost every
-            # garbage collection a visit)
-            tree = self._trees[goal] = array("i", order.astype(np.int32).tobytes())
-        if start != goal and tree[start] < 0:
-            return None
-        nodes = [start]
-        node = start
-        while node != goal:
-            node = tree[node]
-            nodes.append(node)
-        return self.points[nodes]
 
 
 class Crowd:
@@ -342,7 +124,11 @@ class Crowd:
         self._inattentive = np.array([not s.attentive for s in specs], dtype=bool)
         self._blind = bool(self._inattentive.any())
         self._agents: list[int] = []  # RVO2 indices of the people in, in order (cached)
-        self._place(groups)
+        plan = place_people(groups, self._routers, rng, self._robot_discs, self._room_at)
+        self.positions[:] = plan.positions
+        self._goals = plan.goals
+        self._goal_index[:] = plan.goal_index
+        self._exact.update(plan.exact)
         for i in np.flatnonzero(self.start_times <= 0.0):  # in the world from the start
             self._enter(int(i))
 
@@ -357,88 +143,6 @@ class Crowd:
         return len(self._agents) == len(self.active)
 
     # -- set up ------------------------------------------------------------------------
-
-    def _place(self, groups: Sequence[PeopleGroup]) -> None:
-        """Start positions and goals, all drawn from the run's generator."""
-        k = 0
-        for group in groups:
-            if group.count == 0:
-                continue
-            router = self._routers[k]
-            if group.behaviour == "route":
-                points = np.array(group.route, dtype=float)
-                cells = [router.node(p) for p in points]
-                goals = [c for c in cells if c is not None]
-                exact = {c: p for c, p in zip(cells, points, strict=True) if c is not None}
-                self._exact.update(exact)  # walk to the route's points, not their cells
-                for j in range(group.count):
-                    start, leg = self._route_start(points, j / group.count, group.radius)
-                    if self._room_at(start[None, :])[0] < group.radius:
-                        cell = router.node(start)  # a corner cut by the loop: the nearest cell
-                        if cell is not None:
-                            start = router.points[cell].copy()
-                    self.positions[k] = start
-                    self._goals.append(goals)
-                    self._goal_index[k] = leg % max(1, len(goals))
-                    k += 1
-                continue
-            pool = router.cells_within(group.area)
-            if pool.size == 0:
-                raise ValueError(f"no walkable space for a {group.radius:g} m person in the area")
-            taken = self.positions[:k]
-            size = min(len(pool), max(WANDER_GOALS_MIN, 2 * group.count), WANDER_GOALS_MAX)
-            goals = [int(c) for c in self.rng.choice(pool, size=size, replace=False)]
-            centres = router.points[pool]
-            clear = self._clear_of_robots(centres, group.radius, START_GAP)
-            if clear.any():  # else a robot fills the area: start where it least is
-                centres = centres[clear]
-            for _ in range(group.count):
-                self.positions[k] = self._free_start(centres, taken, group.radius)
-                taken = self.positions[: k + 1]
-                self._goals.append(goals)
-                k += 1
-
-    def _clear_of_robots(self, points: np.ndarray, radius: float, gap: float) -> np.ndarray:
-        """Which of ``points`` a person of ``radius`` may stand on: more than ROBOT_MARGIN
-        and ``gap`` from every robot's footprint."""
-        discs = self._robot_discs
-        points = np.asarray(points, dtype=float)
-        if not len(discs):
-            return np.ones(points.shape[:-1], dtype=bool)
-        d = (
-            np.hypot(points[..., None, 0] - discs[:, 0], points[..., None, 1] - discs[:, 1])
-            - discs[:, 2]
-        )
-        return (d > radius + ROBOT_MARGIN + gap).all(axis=-1)
-
-    def _route_start(
-        self, points: np.ndarray, fraction: float, radius: float
-    ) -> tuple[np.ndarray, int]:
-        """Where on the loop a route's person starts: ``fraction`` of the way round, or on
-        from there to the first place clear of the robots (steps of a tenth of a metre)."""
-        ends = np.roll(points, -1, axis=0)
-        total = float(np.hypot(*(ends - points).T).sum()) if len(points) > 1 else 0.0
-        step = 0.1 / total if total > 0.0 else 1.0
-        at = fraction
-        for _ in range(max(1, int(1.0 / step))):
-            start, leg = _along_loop(points, at % 1.0)
-            if self._clear_of_robots(start, radius, START_GAP):
-                return start, leg
-            at += step
-        return _along_loop(points, fraction)  # the whole loop near a robot: as placed
-
-    def _free_start(self, centres: np.ndarray, taken: np.ndarray, radius: float) -> np.ndarray:
-        """A random one of the pool's cell ``centres`` not overlapping anyone placed so far
-        (the best of a few draws when the area is crowded)."""
-        best, best_gap = centres[0], -np.inf
-        for _ in range(20):
-            point = centres[self.rng.integers(len(centres))]
-            gap = np.min(np.hypot(*(taken - point).T), initial=np.inf) - 2 * radius
-            if gap > 0.1:
-                return point
-            if gap > best_gap:
-                best, best_gap = point, gap
-        return best
 
     # -- walking -----------------------------------------------------------------------
 
@@ -510,7 +214,7 @@ class Crowd:
         velocity over it, a step at a time."""
         if len(self._agents) < len(self.active):
             for i in np.flatnonzero(~self.active & (self.start_times <= self.time + 1e-9)):
-                if self._clear_of_robots(self.positions[i], float(self.radii[i]), 0.0):
+                if clear_of_robots(self.positions[i], float(self.radii[i]), 0.0, self._robot_discs):
                     self._enter(int(i))  # stands where they enter until the next decision
         if self._steps_left <= 0:
             self._decide(dt, robots)
@@ -747,34 +451,3 @@ class Crowd:
 def _plane(xy: np.ndarray) -> np.ndarray:
     """(n, 2) float64 points (C-ordered) as n complex numbers sharing their memory."""
     return xy.view(np.complex128)[:, 0]
-
-
-def _obstacle(hole: shapely.LinearRing) -> list[list[float]]:
-    """A hole of the free space (clockwise) as an RVO2 obstacle (counter-clockwise): its
-    convex hull where that lies within ``HULL_SLACK`` of it. A rack's uprights stand out of
-    its face: 54 corners instead of 4, and ORCA's obstacle tree costs per corner (the
-    warehouse's 972 built in 37 ms against 1 ms; a step of 50 people 30 % dearer)."""
-    hull = shapely.Polygon(hole).convex_hull
-    if isinstance(hull, shapely.Polygon) and (
-        shapely.hausdorff_distance(hull.exterior, hole) <= HULL_SLACK + 1e-9
-    ):
-        return [list(p) for p in shapely.orient_polygons(hull).exterior.coords[:-1]]
-    return [list(p) for p in hole.coords[:-1][::-1]]
-
-
-def _along_loop(points: np.ndarray, fraction: float) -> tuple[np.ndarray, int]:
-    """The point ``fraction`` of the way round the closed polyline ``points`` and the index
-    of the point it walks to next."""
-    if len(points) == 1:
-        return points[0].copy(), 0
-    ends = np.roll(points, -1, axis=0)
-    lengths = np.hypot(*(ends - points).T)
-    total = float(lengths.sum())
-    if total <= 0.0:
-        return points[0].copy(), 1 % len(points)
-    at = fraction * total
-    cumulative = np.concatenate([[0.0], np.cumsum(lengths)])
-    leg = int(np.searchsorted(cumulative, at, side="right") - 1)
-    leg = min(leg, len(points) - 1)
-    t = (at - cumulative[leg]) / max(lengths[leg], 1e-12)
-    return points[leg] + t * (ends[leg] - points[leg]), (leg + 1) % len(points)

@@ -31,8 +31,6 @@ from agv_mission.behaviors.ports.node import (
 from agv_mission.behaviors.ports.values import StrictModel
 
 _IGNORED = "ROS plumbing (Nav2): accepted and ignored"
-
-
 NAV2 = "agv_mission.behaviors.nav2"
 
 

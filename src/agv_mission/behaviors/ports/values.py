@@ -20,17 +20,9 @@ from pydantic_core import CoreSchema, InitErrorDetails, PydanticCustomError, Val
 from agv_mission.geometry import Bounds, Pose2D, yaw_from_quaternion
 
 QUATERNION_TOLERANCE = 1e-3
-
-
 MAX_WAYPOINTS = 10_000
-
-
 MAX_LOOPS = 1_000_000
-
-
 MAX_ROOMS = 1000
-
-
 MAX_SIM_SECONDS = 86_400.0  # one simulated day
 
 

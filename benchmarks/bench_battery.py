@@ -17,7 +17,7 @@ from pathlib import Path
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.runner import CONTROL_PERIOD, run_mission
 from agv_mission.robots.battery import battery_for
-from agv_mission.robots.description import BUILTIN_ROBOTS
+from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "missions" / "patrol.yaml"

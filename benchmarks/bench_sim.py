@@ -10,7 +10,7 @@ import numpy as np
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.worlds import Box, Cylinder, World
-from agv_mission.robots.description import BUILTIN_ROBOTS
+from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
 from agv_mission.robots.simulation import DiffDriveBody, SimConfig
 
 

@@ -12,7 +12,7 @@ import numpy as np
 from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.mapping.slam import GridSlam, GridSlamConfig
 from agv_mission.maps.worlds import World
-from agv_mission.robots.description import BUILTIN_ROBOTS
+from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
 from agv_mission.robots.odometry import DiffDriveOdometry
 from agv_mission.robots.simulation import DiffDriveBody, SimConfig
 

@@ -27,7 +27,8 @@ from agv_mission.missions.outputs import make_run_dir, write_run
 from agv_mission.missions.runner import MissionRun, run_mission
 from agv_mission.navigation.navigator import NavStatus
 from agv_mission.robots.battery import WH, Battery, BatterySpec, battery_for
-from agv_mission.robots.description import BUILTIN_ROBOTS, RobotFileError, load_robot
+from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
+from agv_mission.robots.robot_files import RobotFileError, load_robot
 
 REPO = Path(__file__).resolve().parents[1]
 BURGER = BUILTIN_ROBOTS["burger"]

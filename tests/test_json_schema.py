@@ -12,7 +12,8 @@ import pytest
 import yaml
 
 from agv_mission.missions.schema import FIELD_ORDER, mission_json_schema
-from agv_mission.robots.description import BUILTIN_ROBOTS, robot_json_schema
+from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
+from agv_mission.robots.robot_files import robot_json_schema
 
 REPO = Path(__file__).resolve().parents[1]
 MISSIONS = sorted(

@@ -23,7 +23,7 @@ from openapi_spec_validator import validate as validate_openapi
 from PIL import Image
 from rosbags.highlevel import AnyReader
 
-from agv_mission.robots.description import BUILTIN_ROBOTS
+from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
 from service_server import AGV, FINAL, SHORT_MISSION, Server, submit, wait_status
 
 

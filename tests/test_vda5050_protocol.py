@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 from pydantic import BaseModel, ValidationError
 
-from agv_mission.robots.description import BUILTIN_ROBOTS
+from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
 from agv_mission.vda5050 import protocol as m
 from agv_mission.vda5050.factsheet import factsheet_body
 from agv_mission.vda5050.master import TaskRoute

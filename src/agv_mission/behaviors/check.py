@@ -34,7 +34,7 @@ from agv_mission.navigation.navigator import Navigator, NavStatus
 from agv_mission.navigation.state import RobotState
 from agv_mission.planners.base import VelocityLimits
 from agv_mission.registry import registry
-from agv_mission.robots.description import BUILTIN_ROBOTS
+from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
 
 ROOM = 4.0  # m, the side of the test room
 RESOLUTION = 0.05

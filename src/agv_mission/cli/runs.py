@@ -158,7 +158,7 @@ def schema(
 ) -> None:
     """Print the JSON Schema of the mission file (or, with --robot, of a robot file)."""
     if robot:
-        from agv_mission.robots.description import robot_json_schema
+        from agv_mission.robots.robot_files import robot_json_schema
 
         doc = robot_json_schema()
     else:

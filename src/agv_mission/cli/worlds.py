@@ -26,7 +26,7 @@ def world(
     from agv_mission.maps.ros_map import save_ros_map
     from agv_mission.maps.world_loader import DEFAULT_SCAN_HEIGHT, WorldError, load_world
     from agv_mission.maps.worlds import describe
-    from agv_mission.robots.description import RobotFileError, load_robot
+    from agv_mission.robots.robot_files import RobotFileError, load_robot
 
     height = DEFAULT_SCAN_HEIGHT
     if robot is not None:

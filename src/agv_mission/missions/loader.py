@@ -72,12 +72,9 @@ from agv_mission.missions.tree import (
 from agv_mission.missions.tree_xml import parse_xml
 from agv_mission.missions.world_checks import check_docks, costmap_fits, place_mission
 from agv_mission.missions.yaml_lines import FieldPath, load_with_lines
-from agv_mission.robots.description import (
-    BUILTIN_ROBOTS,
-    RobotDescription,
-    RobotFileError,
-    load_robot,
-)
+from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
+from agv_mission.robots.description import RobotDescription
+from agv_mission.robots.robot_files import RobotFileError, load_robot
 from agv_mission.world.people_groups import PeopleGroup
 
 # A front door's rule on which files a mission may name: (field, resolved path) -> a

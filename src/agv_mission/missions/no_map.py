@@ -24,7 +24,7 @@ from agv_mission.maps.world_loader import DEFAULT_SCAN_HEIGHT
 from agv_mission.maps.worlds import World
 from agv_mission.missions.schema import NO_MAP, Setup
 from agv_mission.missions.world_checks import MAX_GRID_CELLS, NodeCheck, Report
-from agv_mission.robots.description import load_robot
+from agv_mission.robots.robot_files import load_robot
 
 NO_MAP_MARGIN = 2.0  # m around the world, the start and the goals
 

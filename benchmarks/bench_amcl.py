@@ -19,7 +19,7 @@ from agv_mission.localization.beam_model import SensorParams
 from agv_mission.localization.particle_filter import MotionNoise, ParticleFilter
 from agv_mission.maps.builtin_worlds import turtlebot3_world
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 PARTICLES = (500, 1000, 2000)
 BEAMS = (60, 180)

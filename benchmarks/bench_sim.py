@@ -11,7 +11,7 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
-from agv_mission.robots.simulation import DiffDriveBody, SimConfig
+from agv_mission.robots.diff_drive import DiffDriveBody, SimConfig
 
 
 def bench_world(n_boxes: int = 50) -> World:

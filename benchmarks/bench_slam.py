@@ -45,7 +45,7 @@ from agv_mission.mapping.slam import trajectory_rmse
 from agv_mission.maps.builtin_worlds import small_house
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.ros_map import load_ros_map
-from agv_mission.robots.simulation import SimConfig
+from agv_mission.robots.diff_drive import SimConfig
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from slam_drive import drive  # noqa: E402

@@ -13,8 +13,8 @@ from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.mapping.slam import GridSlam, GridSlamConfig
 from agv_mission.maps.worlds import World
 from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
+from agv_mission.robots.diff_drive import DiffDriveBody, SimConfig
 from agv_mission.robots.odometry import DiffDriveOdometry
-from agv_mission.robots.simulation import DiffDriveBody, SimConfig
 
 BURGER = BUILTIN_ROBOTS["burger"]
 TB3_BOUNDS = (-3.0, 3.0, -3.0, 3.0)

@@ -18,7 +18,7 @@ from agv_mission.mapping.crop import crop_to_known
 from agv_mission.mapping.log_odds_map import LogOddsMap
 from agv_mission.mapping.quality import relative_pose_error
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 from bagtools import ray_march, simulated_drive, wall_precision
 
 #: ``../shared`` beside the clone (or beside the folder of worktrees it is one of).

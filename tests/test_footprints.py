@@ -23,8 +23,8 @@ from agv_mission.planners.collision_monitor import (
 from agv_mission.planners.mpc import MpcConfig, MpcController
 from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
 from agv_mission.robots.description import RobotDescription
+from agv_mission.robots.diff_drive import DiffDriveBody, SimConfig
 from agv_mission.robots.robot_files import RobotFileError, load_robot
-from agv_mission.robots.simulation import DiffDriveBody, SimConfig
 
 JACKAL = BUILTIN_ROBOTS["jackal"]
 

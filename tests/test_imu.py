@@ -21,9 +21,9 @@ from agv_mission.missions.outputs import make_run_dir, write_run
 from agv_mission.missions.runner import MissionRun, run_mission
 from agv_mission.missions.stack import new_odometry
 from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
+from agv_mission.robots.diff_drive import DiffDriveBody, SimConfig
 from agv_mission.robots.odometry import DiffDriveOdometry, GyroFusedOdometry
 from agv_mission.robots.robot_files import RobotFileError, load_robot
-from agv_mission.robots.simulation import DiffDriveBody, SimConfig
 
 BURGER = BUILTIN_ROBOTS["burger"]
 

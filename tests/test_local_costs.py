@@ -14,7 +14,7 @@ from agv_mission.maps.costmap import Costmap, ObstacleLayerConfig
 from agv_mission.maps.distance import obstacle_distance
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
 from agv_mission.maps.obstacle_layer import ObstacleLayer
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 BEAMS = 360
 

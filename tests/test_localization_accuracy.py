@@ -19,13 +19,13 @@ import pytest
 from agv_mission.geometry import Pose2D
 from agv_mission.localization.amcl import AmclConfig, AmclLocalizer
 from agv_mission.localization.distance_field import SignedDistanceField
-from agv_mission.localization.scan_refine import PoseTracker, RefineParams, floor_covariance
+from agv_mission.localization.pose_tracker import PoseTracker, RefineParams, floor_covariance
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.messages import LaserScan
 from agv_mission.missions.loader import load_mission
 from agv_mission.missions.outputs import write_run
 from agv_mission.missions.run_report import COVARIANCE_COLUMNS
 from agv_mission.missions.runner import TRAJECTORY_COLUMNS, run_mission
+from agv_mission.sensor_msgs import LaserScan
 
 RES = 0.05
 PAD = 10

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from agv_mission.geometry import Pose2D
-from agv_mission.localization import scan_refine
+from agv_mission.localization import pose_tracker
 from agv_mission.localization.beam_model import SensorParams, beam_model
 from agv_mission.localization.distance_field import SignedDistanceField, signed_distance_field
 from agv_mission.localization.histogram import (
@@ -20,7 +20,7 @@ from agv_mission.localization.histogram import (
     kld_count,
     weighted_pose,
 )
-from agv_mission.localization.scan_refine import PoseTracker, RefineParams
+from agv_mission.localization.pose_tracker import PoseTracker, RefineParams
 from agv_mission.maps import map_cache
 from agv_mission.maps.grid import OccupancyGrid
 from test_amcl import ROOM, cast, drive, make
@@ -44,8 +44,8 @@ def test_saturated_step_is_the_capped_gauss_newton_step():
         prior_info = random_spd(rng, 1.0 / np.array([0.05, 0.05, 0.03]))
         dx = rng.normal(size=3) * 1e-3
         capped_post = prior_info + np.diag(1.0 / FLOOR**2)
-        step = scan_refine._saturated_step(h_full, g_full, dx, prior_info, FLOOR, capped_post)
-        h, gvec = scan_refine._capped_step(h_full, g_full, FLOOR, scaled)
+        step = pose_tracker._saturated_step(h_full, g_full, dx, prior_info, FLOOR, capped_post)
+        h, gvec = pose_tracker._capped_step(h_full, g_full, FLOOR, scaled)
         if np.linalg.eigvalsh(h_full * scaled)[0] > 1.0:
             saturated += 1
             expected = -np.linalg.solve(prior_info + h, prior_info @ dx + gvec)
@@ -67,9 +67,9 @@ def test_floor_covariance_and_inverse_closed_forms():
         d = np.diag(FLOOR)
         expected = d @ ((vecs * np.maximum(vals, 1.0)) @ vecs.T) @ d
         np.testing.assert_allclose(
-            scan_refine.floor_covariance(cov, FLOOR), expected, rtol=1e-9, atol=1e-15
+            pose_tracker.floor_covariance(cov, FLOOR), expected, rtol=1e-9, atol=1e-15
         )
-        inv = scan_refine._inverse3(cov)
+        inv = pose_tracker._inverse3(cov)
         np.testing.assert_allclose(inv, np.linalg.inv(cov), rtol=1e-8)
         assert np.array_equal(inv, inv.T)
 

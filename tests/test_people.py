@@ -229,8 +229,8 @@ def test_beams_on_people_are_every_beam_ending_on_someone() -> None:
     """The lidar filter looks only at the beams pointing at someone: the same beams as
     checking every beam's end against every person, on scans of every kind."""
     from agv_mission.geometry import Pose2D
-    from agv_mission.messages import LaserScan
     from agv_mission.navigation.scan_filter import PERSON_TOLERANCE, beams_on_people
+    from agv_mission.sensor_msgs import LaserScan
 
     rng = np.random.default_rng(3)
     hits = 0
@@ -809,8 +809,8 @@ def test_the_costmap_leaves_out_people_passing_by_but_not_people_standing() -> N
     their body grown by the controller's margin (a plan it can follow), and unmarked once
     they walk on."""
     from agv_mission.geometry import Pose2D
-    from agv_mission.messages import LaserScan
     from agv_mission.navigation.scan_filter import PERSON_TOLERANCE, STILL_TIME
+    from agv_mission.sensor_msgs import LaserScan
 
     navigator = sample_context().handle.navigator  # a real navigator in a 4 m room
     # the MPC's people_margin; a controller without one: the tracker's tolerance

@@ -11,8 +11,8 @@ from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
+from agv_mission.robots.diff_drive import DiffDriveBody, SimConfig
 from agv_mission.robots.odometry import DiffDriveOdometry
-from agv_mission.robots.simulation import DiffDriveBody, SimConfig
 
 BURGER = BUILTIN_ROBOTS["burger"]
 ORIGIN = Pose2D(0.0, 0.0, 0.0)

@@ -20,7 +20,7 @@ from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.maps.worlds import World
 from agv_mission.registry import registry
-from agv_mission.robots.simulation import DiffDriveBody, SimConfig
+from agv_mission.robots.diff_drive import DiffDriveBody, SimConfig
 from slam_drive import BURGER, GARBAGE, TB3_BOUNDS, Drive, drive
 
 # A loop through the pillar field of turtlebot3_world, and back to the first corner.

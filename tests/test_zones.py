@@ -195,7 +195,7 @@ def test_dashboard_zones_message(tmp_path: Path) -> None:
     import base64
     import io
 
-    from agv_mission.service.messages import zones_message
+    from agv_mission.service.stream_messages import zones_message
 
     loaded = load_mission(
         write(

@@ -38,7 +38,6 @@ from agv_mission.localization.base import Localizer, LocalizerDiagnostics
 from agv_mission.mapping.base import Slam
 from agv_mission.maps.costmap import Costmap, CostmapConfig
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
-from agv_mission.messages import LaserScan
 from agv_mission.planners.base import (
     GlobalPlanner,
     LocalPlanner,
@@ -48,6 +47,7 @@ from agv_mission.planners.base import (
     VelocityLimits,
 )
 from agv_mission.registry import SLOTS, PluginConfig
+from agv_mission.sensor_msgs import LaserScan
 
 PROTOCOLS: dict[str, type] = {
     "global_planner": GlobalPlanner,

@@ -49,7 +49,7 @@ import numpy as np
 
 from agv_mission.bags.recording import BagData, BagError
 from agv_mission.geometry import Pose2D
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 #: Longest line read (characters): a 100 000-beam scan fits; a binary file does not hang.
 MAX_LINE = 1 << 20

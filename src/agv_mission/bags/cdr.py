@@ -17,7 +17,7 @@ import numpy as np
 
 from agv_mission.bags.ros_messages import nanoseconds
 from agv_mission.geometry import Pose2D
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 
 def pose_array_cdr(t: float, frame: str, poses: np.ndarray) -> bytes:

@@ -25,11 +25,11 @@ import numpy as np
 
 from agv_mission.bags.reader import BagData, interpolate_poses, read_bag, upright
 from agv_mission.geometry import Pose2D
+from agv_mission.json_values import finite
 from agv_mission.mapping.crop import crop_to_known
 from agv_mission.mapping.quality import relative_pose_error
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.ros_map import save_ros_map
-from agv_mission.messages import finite
 from agv_mission.registry import UnknownPluginError, registry
 
 _ORIGIN = Pose2D(0.0, 0.0, 0.0)

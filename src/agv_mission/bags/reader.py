@@ -33,7 +33,7 @@ import numpy as np
 from agv_mission.bags.carmen import is_carmen_log, read_carmen
 from agv_mission.bags.recording import BagData, BagError
 from agv_mission.geometry import Pose2D
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOM_TYPE = "nav_msgs/msg/Odometry"

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from agv_mission.geometry import Pose2D
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 
 class BagError(Exception):

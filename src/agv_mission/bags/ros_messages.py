@@ -16,7 +16,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
 ODOMETRY = "nav_msgs/msg/Odometry"

@@ -31,8 +31,8 @@ from rosbags.rosbag2.metadata import Qos
 from agv_mission.bags import cdr
 from agv_mission.bags import ros_messages as rm
 from agv_mission.geometry import Pose2D
+from agv_mission.json_values import json_default
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.messages import json_default
 
 if TYPE_CHECKING:
     from agv_mission.missions.observe import RobotStart, RunStart, StepSample

@@ -27,7 +27,6 @@ from agv_mission.maps.costmap import Costmap, CostmapConfig
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
 from agv_mission.maps.obstacle_layer import ObstacleLayer
 from agv_mission.maps.rooms import Room
-from agv_mission.messages import LaserScan
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import Navigator, NavStatus
@@ -35,6 +34,7 @@ from agv_mission.navigation.state import RobotState
 from agv_mission.planners.base import VelocityLimits
 from agv_mission.registry import registry
 from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
+from agv_mission.sensor_msgs import LaserScan
 
 ROOM = 4.0  # m, the side of the test room
 RESOLUTION = 0.05

@@ -7,7 +7,7 @@ composed with the odometry motion since then, i.e. amcl's ``map -> odom`` transf
 applied to the current odometry, so it moves smoothly at the control rate.
 
 The default ``profile: accurate`` adds scan-to-map refinement
-(:mod:`agv_mission.localization.scan_refine`): every scan corrects a Kalman pose estimate
+(:mod:`agv_mission.localization.pose_tracker`): every scan corrects a Kalman pose estimate
 against the map's signed distance field, the estimate and its covariance come from that,
 and the particle cloud is moved onto it at each filter update; the filter stays the
 fallback (and the start) when scans stop fitting. While the refinement tracks, the filter
@@ -62,9 +62,9 @@ from agv_mission.localization.base import LocalizerDiagnostics
 from agv_mission.localization.beam_model import SensorParams
 from agv_mission.localization.configs import AmclConfig
 from agv_mission.localization.particle_filter import MotionNoise, ParticleFilter
-from agv_mission.localization.scan_refine import Correction, PoseTracker, RefineParams
+from agv_mission.localization.pose_tracker import Correction, PoseTracker, RefineParams
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 
 class AmclLocalizer:

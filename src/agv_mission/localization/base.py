@@ -8,7 +8,7 @@ from typing import Protocol
 import numpy as np
 
 from agv_mission.geometry import Pose2D
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 
 @dataclass

@@ -104,7 +104,7 @@ class AmclConfig(PluginConfig):
     odom_alpha3: float = Field(0.1, ge=0, description="translation noise from translation")
     odom_alpha4: float = Field(0.1, ge=0, description="translation noise from rotation")
 
-    # Scan-to-map refinement (not in ROS; see scan_refine.PoseTracker)
+    # Scan-to-map refinement (not in ROS; see pose_tracker.PoseTracker)
     refine: bool = Field(
         False,
         description="refine the filter's estimate against the map's distance field with "

@@ -1,6 +1,6 @@
 """The map's signed distance field, bilinear: what scan-to-map refinement matches against.
 
-Apart from :mod:`agv_mission.localization.scan_refine` because it is a per-map table
+Apart from :mod:`agv_mission.localization.pose_tracker` because it is a per-map table
 (built once per map, :func:`signed_distance_field` caches it), not the tracker's logic.
 """
 

@@ -8,7 +8,7 @@ from agv_mission.geometry import Pose2D
 from agv_mission.localization.base import LocalizerDiagnostics
 from agv_mission.localization.configs import GroundTruthConfig
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 
 class GroundTruthLocalizer:

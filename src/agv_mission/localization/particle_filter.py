@@ -41,7 +41,7 @@ from agv_mission.geometry import wrap_angle, wrap_angles
 from agv_mission.localization.beam_model import BeamModel, SensorParams, beam_model
 from agv_mission.localization.histogram import KldBound, heaviest_cluster, kld_count, weighted_pose
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 #: Scan-guided injection (ParticleFilter.injection_poses): the proposal's per-beam
 #: log-likelihood scale, the broad field's sigma_hit (m), and the refinement jitter

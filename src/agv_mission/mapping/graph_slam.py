@@ -40,7 +40,7 @@ from agv_mission.mapping.likelihood_field import LikelihoodField
 from agv_mission.mapping.scan_matching import CorrelativeMatcher
 from agv_mission.mapping.slam import GridSlam
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 
 @dataclass

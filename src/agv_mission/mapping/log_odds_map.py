@@ -31,7 +31,7 @@ from agv_mission.geometry import Bounds, Pose2D
 from agv_mission.mapping.configs import GridSlamConfig
 from agv_mission.mapping.likelihood_field import LikelihoodField, field_values
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 #: Side (cells) of the tiles the field is refreshed in after a scan.
 REFRESH_TILE = 64

@@ -12,7 +12,7 @@ followed by the ``CeresScanMatcher2D``):
    cell / angular-step resolution, so an odometry error of centimetres and degrees per
    scan (a turn in place with slipping wheels) never traps it in a local minimum, the
    weakness of pure gradient matching (hector mapping).
-2. A sub-cell refinement from that optimum (:mod:`scan_refinement`), a maximum a
+2. A sub-cell refinement from that optimum (:mod:`scan_alignment`), a maximum a
    posteriori estimate when the odometry prior's covariance is given:
 
    * ``"icp"`` (default): point-to-line Gauss-Newton. Each scan point's partner is the
@@ -51,7 +51,7 @@ from agv_mission.mapping.likelihood_field import (
     crop_window,
     sliding_max,
 )
-from agv_mission.mapping.scan_refinement import (
+from agv_mission.mapping.scan_alignment import (
     PosePrior,
     field_cost,
     gauss_newton,

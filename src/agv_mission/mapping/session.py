@@ -8,7 +8,7 @@ from agv_mission.geometry import Bounds, Pose2D
 from agv_mission.mapping.base import Slam
 from agv_mission.maps.costmap import Costmap, CostmapConfig
 from agv_mission.maps.grid import UNKNOWN, OccupancyGrid
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 
 class MappingSession:

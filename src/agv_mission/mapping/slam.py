@@ -49,7 +49,7 @@ from agv_mission.mapping.likelihood_field import LikelihoodField
 from agv_mission.mapping.log_odds_map import LogOddsMap
 from agv_mission.mapping.scan_matching import CorrelativeMatcher, MatchResult
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 _TINY_COV = np.diag([1e-6, 1e-6, 1e-6])
 

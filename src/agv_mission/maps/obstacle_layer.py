@@ -20,7 +20,7 @@ from scipy.ndimage import distance_transform_edt
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap, ObstacleLayerConfig, inflation_cost
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 
 class ObstacleLayer:

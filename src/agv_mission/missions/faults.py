@@ -7,9 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from agv_mission.messages import LaserScan
 from agv_mission.navigation.handle import RobotHandle
-from agv_mission.robots.simulation import DiffDriveBody
+from agv_mission.robots.diff_drive import DiffDriveBody
+from agv_mission.sensor_msgs import LaserScan
 
 
 def _active(fault: Any, now: float) -> bool:

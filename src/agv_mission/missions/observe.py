@@ -21,9 +21,9 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.docks import Dock
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.rooms import Room
-from agv_mission.messages import LaserScan
 from agv_mission.missions.schema import Mission
 from agv_mission.robots.description import RobotDescription
+from agv_mission.sensor_msgs import LaserScan
 
 if TYPE_CHECKING:
     from agv_mission.missions.runner import MissionRun, RunRecord

@@ -14,9 +14,9 @@ import numpy as np
 import yaml
 
 from agv_mission.atomic import atomic_write_bytes, atomic_write_text
+from agv_mission.json_values import json_default
 from agv_mission.maps.worlds import World
 from agv_mission.maps.zones import ZoneFilters
-from agv_mission.messages import json_default
 from agv_mission.missions.loader import LoadedMission
 from agv_mission.missions.no_map import names_no_map
 from agv_mission.missions.palette import ROBOT_COLOURS

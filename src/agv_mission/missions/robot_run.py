@@ -22,7 +22,6 @@ from agv_mission.localization.base import Localizer, LocalizerDiagnostics
 from agv_mission.maps.obstacle_layer import ObstacleLayer
 from agv_mission.maps.recorder import LocationRecorder
 from agv_mission.maps.zones import zone_metrics
-from agv_mission.messages import LaserScan
 from agv_mission.missions.btlog import TreeLog
 from agv_mission.missions.faults import FaultInjector
 from agv_mission.missions.loader import LoadedMission
@@ -46,6 +45,7 @@ from agv_mission.navigation.scan_filter import beams_on_people
 from agv_mission.navigation.state import RobotState
 from agv_mission.planners.collision_monitor import CollisionMonitor
 from agv_mission.robots.battery import Battery, battery_for
+from agv_mission.sensor_msgs import LaserScan
 
 #: Below this planar clearance (m) contacts are read (above, one needs a ~15 degree tilt).
 CONTACT_CLEARANCE = 0.05

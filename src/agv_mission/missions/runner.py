@@ -44,7 +44,7 @@ from agv_mission.missions.team import RobotTeam, team_size
 from agv_mission.missions.tree import MissionTree
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import Navigator
-from agv_mission.robots.simulation import DiffDriveBody
+from agv_mission.robots.diff_drive import DiffDriveBody
 
 __all__ = [
     "CONTROL_PERIOD",

@@ -23,7 +23,6 @@ from agv_mission.maps.costmap import ObstacleLayerConfig
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.obstacle_layer import ObstacleLayer
 from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder, RecorderFileError
-from agv_mission.messages import LaserScan
 from agv_mission.missions.loader import LoadedMission, RobotSetup
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.navigator import Navigator
@@ -31,9 +30,10 @@ from agv_mission.planners.base import VelocityLimits
 from agv_mission.registry import registry
 from agv_mission.robots.body import hull_top
 from agv_mission.robots.description import RobotDescription
+from agv_mission.robots.diff_drive import DiffDriveBody, world_builder
 from agv_mission.robots.odometry import DiffDriveOdometry, GyroFusedOdometry
 from agv_mission.robots.sensors import ImuSamples
-from agv_mission.robots.simulation import DiffDriveBody, world_builder
+from agv_mission.sensor_msgs import LaserScan
 from agv_mission.world.model import add_people
 from agv_mission.world.simulation import SimulatedWorld
 

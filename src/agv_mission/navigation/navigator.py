@@ -24,7 +24,6 @@ from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.obstacle_layer import ObstacleLayer
 from agv_mission.maps.zones import ZoneFilters
-from agv_mission.messages import LaserScan
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.legs import Leg, NavigationStats
 from agv_mission.navigation.reachability import FreeRegions, escape_point, keepout_exit
@@ -49,6 +48,7 @@ from agv_mission.planners.base import (
 from agv_mission.planners.cost_grid import CostGridPlanner
 from agv_mission.planners.path_tracking import Projection, Segments, closest_point
 from agv_mission.planners.shortest_free import ShortestFreePath
+from agv_mission.sensor_msgs import LaserScan
 
 
 class NavStatus(Enum):

@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 
 from agv_mission.geometry import Pose2D
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 #: A lidar return this close beyond another robot's footprint is that robot's.
 BODY_SLACK = 0.1

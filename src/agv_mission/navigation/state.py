@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from agv_mission.geometry import Pose2D, wrap_angles
-from agv_mission.messages import LaserScan
+from agv_mission.sensor_msgs import LaserScan
 
 #: The columns of a tracked person's row (:attr:`RobotState.people`).
 TRACKED_PERSON = ("x", "y", "radius", "vx", "vy", "still")

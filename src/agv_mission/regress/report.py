@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from agv_mission.messages import json_default
+from agv_mission.json_values import json_default
 from agv_mission.regress.plan import WALL_CLOCK_METRICS, Plan
 
 

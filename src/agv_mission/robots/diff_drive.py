@@ -8,11 +8,11 @@ import numpy as np
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.worlds import World
-from agv_mission.messages import LaserScan
 from agv_mission.robots.body import LIFTED_WHEEL_TAU, add_diff_drive_body, hull_top
 from agv_mission.robots.description import RobotDescription
 from agv_mission.robots.sensors import Imu, ImuSamples, Lidar, WheelEncoders
 from agv_mission.robots.sim_config import SimConfig
+from agv_mission.sensor_msgs import LaserScan
 from agv_mission.world.simulation import Body, SimulatedWorld, WorldBuilder
 
 

@@ -9,8 +9,8 @@ import mujoco
 import numpy as np
 
 from agv_mission.geometry import wrap_angle
-from agv_mission.messages import LaserScan
 from agv_mission.robots.description import ImuSpec, LidarSpec
+from agv_mission.sensor_msgs import LaserScan
 from agv_mission.world.simulation import Body, SimulatedWorld
 
 

@@ -11,7 +11,7 @@ from collections.abc import Container
 from pathlib import Path
 from typing import Any
 
-from agv_mission.service import messages as msg
+from agv_mission.service import stream_messages as msg
 from agv_mission.service.hub import SNAPSHOT_ORDER, Hub
 from agv_mission.service.registry import FINAL, Registry
 from agv_mission.service.stream import STREAM_FILE

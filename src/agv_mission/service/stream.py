@@ -12,7 +12,7 @@ from typing import Any, TextIO
 
 from agv_mission.geometry import Pose2D
 from agv_mission.missions.observe import RunStart, StepSample, TreeNode
-from agv_mission.service import messages as msg
+from agv_mission.service import stream_messages as msg
 from agv_mission.service.links import Outbox
 
 STREAM_FILE = "stream.jsonl"

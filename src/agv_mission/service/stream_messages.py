@@ -15,11 +15,11 @@ import numpy as np
 from PIL import Image
 
 from agv_mission.geometry import Pose2D
+from agv_mission.json_values import json_default
 from agv_mission.maps.docks import Dock
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.ros_map import saver_pixels
-from agv_mission.messages import json_default
 from agv_mission.missions.observe import RunStart, TreeNode
 from agv_mission.missions.palette import robot_colour
 

@@ -20,9 +20,9 @@ from typing import Any
 import numpy as np
 
 from agv_mission.geometry import Pose2D
-from agv_mission.messages import finite
+from agv_mission.json_values import finite
 from agv_mission.missions.pacing import Pacer
-from agv_mission.service import messages as msg
+from agv_mission.service import stream_messages as msg
 from agv_mission.service.stream import StreamObserver
 
 REMOTE_TIMEOUT = 0.5  # wall seconds without cmd_vel before a teleop robot stops

@@ -6,20 +6,17 @@ rounded so that a scan stays a few kilobytes.
 
 from __future__ import annotations
 
-import base64
-import io
 import json
 from typing import Any
 
 import numpy as np
-from PIL import Image
 
 from agv_mission.geometry import Pose2D
 from agv_mission.json_values import json_default
 from agv_mission.maps.docks import Dock
 from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.maps.grid_image import grid_png
 from agv_mission.maps.rooms import Room
-from agv_mission.maps.ros_map import saver_pixels
 from agv_mission.missions.observe import RunStart, TreeNode
 from agv_mission.missions.palette import robot_colour
 
@@ -53,16 +50,7 @@ def xy_list(points: np.ndarray | None, columns: int = 2) -> list[list[float]]:
 def map_message(grid: OccupancyGrid) -> dict[str, Any]:
     """The map as map_saver would write it (254 free, 0 occupied, 205 unknown), PNG, row 0
     at the top."""
-    buf = io.BytesIO()
-    Image.fromarray(saver_pixels(grid), mode="L").save(buf, format="PNG")
-    return {
-        "type": "map",
-        "resolution": grid.resolution,
-        "origin": [round(grid.origin.x, 4), round(grid.origin.y, 4)],
-        "width": grid.width,
-        "height": grid.height,
-        "png": base64.b64encode(buf.getvalue()).decode("ascii"),
-    }
+    return {"type": "map", **grid_png(grid)}
 
 
 def people_message(t: float, ids: Any, xy: Any, radii: Any) -> dict[str, Any]:
@@ -88,16 +76,7 @@ def zones_message(keepout: OccupancyGrid | None, speed: OccupancyGrid | None) ->
         )
     if keepout is not None:
         rgba[keepout.data >= 65] = (217, 70, 60, 120)
-    buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(rgba[::-1]), mode="RGBA").save(buf, format="PNG")
-    return {
-        "type": "zones",
-        "resolution": grid.resolution,
-        "origin": [round(grid.origin.x, 4), round(grid.origin.y, 4)],
-        "width": grid.width,
-        "height": grid.height,
-        "png": base64.b64encode(buf.getvalue()).decode("ascii"),
-    }
+    return {"type": "zones", **grid_png(grid, np.ascontiguousarray(rgba[::-1]), "RGBA")}
 
 
 def rooms_message(rooms: dict[str, Room], docks: dict[str, Dock] | None = None) -> dict[str, Any]:

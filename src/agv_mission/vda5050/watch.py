@@ -12,9 +12,7 @@ polls one JSON document a few times a second) that reuses the dashboard's map dr
 
 from __future__ import annotations
 
-import base64
 import contextlib
-import io
 import json
 import re
 import threading
@@ -26,10 +24,8 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlparse
 
-from PIL import Image
-
 from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
-from agv_mission.maps.ros_map import saver_pixels
+from agv_mission.maps.grid_image import grid_png
 from agv_mission.maps.worlds import World
 from agv_mission.missions.palette import robot_colour
 from agv_mission.vda5050.protocol import split_topic
@@ -189,16 +185,9 @@ def _serial_order(item: tuple[tuple[str, str], Watched]) -> tuple[Any, ...]:
 def _map_doc(world: World) -> dict[str, Any]:
     """The world's static map as map_saver writes it (254 free, 0 occupied, 205 unknown),
     PNG with row 0 at the top: the format of the dashboard's ``map`` message."""
-    grid = world.map
-    buf = io.BytesIO()
-    Image.fromarray(saver_pixels(grid), mode="L").save(buf, format="PNG")
     return {
         "type": "map",
-        "resolution": grid.resolution,
-        "origin": [round(grid.origin.x, 4), round(grid.origin.y, 4)],
-        "width": grid.width,
-        "height": grid.height,
-        "png": base64.b64encode(buf.getvalue()).decode("ascii"),
+        **grid_png(world.map),
         "docks": [
             {"name": d.name, "x": d.pose.x, "y": d.pose.y, "yaw": d.pose.yaw}
             for d in world.docks.values()

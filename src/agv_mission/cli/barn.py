@@ -47,8 +47,6 @@ def barn(
 ) -> None:
     """Run BARN's worlds (Jackal, no map, BARN's start, goal, clock and metric)."""
     from agv_mission.barn import suite
-    from agv_mission.barn import workers as pool
-    from agv_mission.job_pool import Interrupted
     from agv_mission.missions.outputs import write_json
 
     if backend not in ("local", "ray"):
@@ -56,23 +54,7 @@ def barn(
     n_workers = workers or os.cpu_count() or 1
     stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     root = output if output is not None else Path("runs") / f"barn-{stamp}"
-    try:
-        plan = suite.plan_worlds(directory, worlds)
-        jobs = suite.world_jobs(plan, list(set_), seed, root, run_observers)
-        pool.warm_up(backend, min(n_workers, len(jobs)))  # imports while we check
-        suite.load_world_mission(jobs[0])  # --set and the first world checked here
-        root.mkdir(parents=True, exist_ok=True)
-        taken = [j["world"] for j in jobs if (root / f"world_{j['world']}").exists()]
-        if taken:
-            raise suite.BarnInputError(
-                f"--output {root}: already holds world_{taken[0]}/ (choose a new folder)"
-            )
-    except suite.BarnInputError as exc:
-        raise failure("invalid input", str(exc)) from None
-    except MissionError as exc:
-        raise invalid(exc) from None
-    except OSError as exc:
-        raise failure("invalid input", f"--output {root}: {exc.strerror or exc}") from None
+    jobs = _world_jobs(directory, worlds, list(set_), seed, root, backend, n_workers)
     out.print(
         f"BARN: {len(jobs)} world(s) from {directory} on {n_workers} worker(s) "
         f"({backend}); run directories under {root}",
@@ -80,20 +62,7 @@ def barn(
         markup=False,
     )
     started = time.perf_counter()
-    interrupted = False
-    with progress_bar("{task.completed:.0f}/{task.total:.0f} worlds") as bar:
-        task = bar.add_task("barn", total=len(jobs))
-
-        def progress(result: dict, done: int, _total: int) -> None:
-            bar.console.print(_line(result), highlight=False, markup=False)
-            bar.update(task, completed=done)
-
-        try:
-            results = pool.run_worlds(jobs, backend, n_workers, address, progress)
-        except suite.BarnInputError as exc:
-            raise failure("invalid input", str(exc)) from None
-        except Interrupted as exc:
-            results, interrupted = exc.results, True
+    results, interrupted = _run_worlds(jobs, backend, n_workers, address)
     elapsed = time.perf_counter() - started
     summary = suite.summarise(results, elapsed, n_workers)
     tables = out if out.is_terminal else Console(soft_wrap=True, width=200)
@@ -114,6 +83,65 @@ def barn(
     if any(r.get("invalid") for r in broken):
         raise typer.Exit(2)
     raise typer.Exit(3 if broken else 0)
+
+
+def _world_jobs(
+    directory: Path,
+    worlds: str | None,
+    set_: list[str],
+    seed: int,
+    root: Path,
+    backend: str,
+    n_workers: int,
+) -> list[dict]:
+    """The jobs of the chosen worlds, the first world's mission checked and ``root``
+    ready for their run directories; bad input exits 2."""
+    from agv_mission.barn import suite
+    from agv_mission.barn import workers as pool
+
+    try:
+        plan = suite.plan_worlds(directory, worlds)
+        jobs = suite.world_jobs(plan, set_, seed, root, run_observers)
+        pool.warm_up(backend, min(n_workers, len(jobs)))  # imports while we check
+        suite.load_world_mission(jobs[0])  # --set and the first world checked here
+        root.mkdir(parents=True, exist_ok=True)
+        taken = [j["world"] for j in jobs if (root / f"world_{j['world']}").exists()]
+        if taken:
+            raise suite.BarnInputError(
+                f"--output {root}: already holds world_{taken[0]}/ (choose a new folder)"
+            )
+    except suite.BarnInputError as exc:
+        raise failure("invalid input", str(exc)) from None
+    except MissionError as exc:
+        raise invalid(exc) from None
+    except OSError as exc:
+        raise failure("invalid input", f"--output {root}: {exc.strerror or exc}") from None
+    return jobs
+
+
+def _run_worlds(
+    jobs: list[dict], backend: str, n_workers: int, address: str | None
+) -> tuple[list[dict], bool]:
+    """Every world's result, a line each as it comes; and whether Ctrl-C stopped them."""
+    from agv_mission.barn import suite
+    from agv_mission.barn import workers as pool
+    from agv_mission.job_pool import Interrupted
+
+    interrupted = False
+    with progress_bar("{task.completed:.0f}/{task.total:.0f} worlds") as bar:
+        task = bar.add_task("barn", total=len(jobs))
+
+        def progress(result: dict, done: int, _total: int) -> None:
+            bar.console.print(_line(result), highlight=False, markup=False)
+            bar.update(task, completed=done)
+
+        try:
+            results = pool.run_worlds(jobs, backend, n_workers, address, progress)
+        except suite.BarnInputError as exc:
+            raise failure("invalid input", str(exc)) from None
+        except Interrupted as exc:
+            results, interrupted = exc.results, True
+    return results, interrupted
 
 
 def _line(result: dict) -> str:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
@@ -13,6 +13,9 @@ from rich.markup import escape
 
 from agv_mission.cli.console import err, failure, invalid, out, progress_bar
 from agv_mission.missions.errors import MissionError
+
+if TYPE_CHECKING:
+    from agv_mission.regress.plan import Plan
 
 
 def regress(
@@ -46,7 +49,6 @@ def regress(
     ] = None,
 ) -> None:
     """Run scenarios (missions with an expect: block) in parallel and check them."""
-    from agv_mission.job_pool import Interrupted
     from agv_mission.regress import backends, report
     from agv_mission.regress import plan as planning
 
@@ -66,24 +68,7 @@ def regress(
     n_workers = workers or os.cpu_count() or 1
     out.print(report.plan_line(plan, seeds, backend, n_workers, address), highlight=False)
     started = time.perf_counter()
-    with progress_bar("{task.completed:.0f}/{task.total:.0f} runs") as bar:
-        job = bar.add_task("regress", total=len(plan.jobs))
-
-        def progress(result: dict, done: int, total: int) -> None:
-            mark = "[green]ok[/]" if result["passed"] else "[red]FAIL[/]"
-            bar.console.print(
-                f"{mark} {escape(report.run_label(result, len(plan.variants), seeds))}",
-                highlight=False,
-            )
-            bar.update(job, completed=done)
-
-        interrupted = False
-        try:
-            results = backends.run_jobs(plan.jobs, backend, n_workers, address, progress)
-        except planning.RegressError as exc:
-            raise failure("invalid input", str(exc)) from None
-        except Interrupted as exc:  # Ctrl-C: report what ran
-            results, interrupted = exc.results, True
+    results, interrupted = _run_scenarios(plan, seeds, backend, n_workers, address)
     elapsed = time.perf_counter() - started
     # Not a terminal (CI logs, pipes): do not squeeze the tables into 80 columns.
     tables = out if out.is_terminal else Console(soft_wrap=True, width=240)
@@ -105,3 +90,32 @@ def regress(
         err.print(report.interrupted_line(results, plan), highlight=False)
         raise typer.Exit(130)
     raise typer.Exit(1 if failed else 0)
+
+
+def _run_scenarios(
+    plan: Plan, seeds: int, backend: str, n_workers: int, address: str | None
+) -> tuple[list[dict], bool]:
+    """Every run's result, marked ok or FAIL as it comes; and whether Ctrl-C stopped them."""
+    from agv_mission.job_pool import Interrupted
+    from agv_mission.regress import backends, report
+    from agv_mission.regress import plan as planning
+
+    with progress_bar("{task.completed:.0f}/{task.total:.0f} runs") as bar:
+        job = bar.add_task("regress", total=len(plan.jobs))
+
+        def progress(result: dict, done: int, total: int) -> None:
+            mark = "[green]ok[/]" if result["passed"] else "[red]FAIL[/]"
+            bar.console.print(
+                f"{mark} {escape(report.run_label(result, len(plan.variants), seeds))}",
+                highlight=False,
+            )
+            bar.update(job, completed=done)
+
+        interrupted = False
+        try:
+            results = backends.run_jobs(plan.jobs, backend, n_workers, address, progress)
+        except planning.RegressError as exc:
+            raise failure("invalid input", str(exc)) from None
+        except Interrupted as exc:  # Ctrl-C: report what ran
+            results, interrupted = exc.results, True
+    return results, interrupted

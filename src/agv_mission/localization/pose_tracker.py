@@ -127,6 +127,21 @@ def cap_information(h: np.ndarray, floor: np.ndarray) -> np.ndarray:
     return dinv @ capped @ dinv
 
 
+@dataclass
+class _Fit:
+    """What :meth:`PoseTracker._fit` found: the pose, its information, the last
+    iteration's Jacobian rows and residuals (``system``), their weights, each beam's noise
+    scale, the iterations taken and the weight of a beam."""
+
+    pose: np.ndarray
+    info: np.ndarray
+    system: np.ndarray
+    weights: np.ndarray
+    scale: np.ndarray
+    iterations: int
+    w_beam: float
+
+
 class PoseTracker:
     """A Gaussian pose estimate kept by odometry and refined by scans against the map."""
 
@@ -210,7 +225,56 @@ class PoseTracker:
             return out
         prior = self.mean
         prior_info = _inverse3(self.cov)
-        px, py, pyaw = prior.tolist()
+        fit = self._fit(pts, prior_info)
+        x, post_info, system, w, scale = fit.pose, fit.info, fit.system, fit.weights, fit.scale
+        iterations, w_beam, r = fit.iterations, fit.w_beam, fit.system[3]
+        a = np.abs(r)
+        fits = a < p.inlier * scale
+        fitting = np.count_nonzero(fits)
+        inlier = fitting / len(r)
+        rv = r[a < p.outlier]
+        rms = math.sqrt(float(rv @ rv) / len(rv)) if len(rv) else math.nan
+        cov = _inverse3(post_info)
+        # Furniture the map lacks hides walls from some beams: a scan whose fitting beams
+        # are many enough (and at least half the gate's share) still corrects.
+        accepted = inlier >= p.min_inlier_fraction or (
+            fitting >= p.min_inlier_beams and inlier >= 0.5 * p.min_inlier_fraction
+        )
+        if (
+            accepted
+            and p.max_innovation > 0.0
+            and _nis(x - prior, prior_info) > (p.max_innovation**2)
+        ):
+            accepted = False
+            if commit and p.adaptive_noise:  # odometry may slip more than its noise says
+                self._adapt_noise(x - prior, prior_info)
+        if accepted and commit and p.adaptive_noise:
+            self._adapt_noise(x - prior, prior_info)
+        if accepted and commit and math.isfinite(rms):
+            self.fit_rms = (
+                rms if not math.isfinite(self.fit_rms) else 0.8 * self.fit_rms + 0.2 * rms
+            )
+            if p.wall_offset_rate > 0.0 and fits.any():
+                step = _median(r[fits])  # where the fitting end points see the walls
+                limit = 0.5 * self.sdf.resolution
+                moved = self.wall_offset + p.wall_offset_rate * step
+                self.wall_offset = max(-limit, min(limit, moved))
+            if p.split_scale > 0.0:
+                cov = floor_covariance(cov, self._split_floor(system, w, w_beam))
+            else:
+                err = p.map_error_scale * self.fit_rms
+                cov = floor_covariance(cov, np.array([err, err, err / p.map_error_lever]))
+        out = Correction(accepted, x, cov, len(pts), inlier, rms, iterations)
+        if accepted and commit:
+            self.mean, self.cov = x, cov
+        self.last = out
+        return out
+
+    def _fit(self, pts: np.ndarray, prior_info: np.ndarray) -> _Fit:
+        """Gauss-Newton on the prior's Mahalanobis term plus the robust (Huber) sum of the
+        end points' squared distances to the walls, from the prior (``self.mean``)."""
+        p = self.params
+        px, py, pyaw = self.mean.tolist()
         x = (px, py, pyaw)
         post_info = prior_info
         pts_rows = np.ascontiguousarray(pts.T)
@@ -264,48 +328,7 @@ class PoseTracker:
             if small and not wide:
                 break
             converged = converged or abs(step[0]) + abs(step[1]) < 1e-3 and abs(step[2]) < 1e-3
-        x = np.array(x)
-        a = np.abs(r)
-        fits = a < p.inlier * scale
-        fitting = np.count_nonzero(fits)
-        inlier = fitting / len(r)
-        rv = r[a < p.outlier]
-        rms = math.sqrt(float(rv @ rv) / len(rv)) if len(rv) else math.nan
-        cov = _inverse3(post_info)
-        # Furniture the map lacks hides walls from some beams: a scan whose fitting beams
-        # are many enough (and at least half the gate's share) still corrects.
-        accepted = inlier >= p.min_inlier_fraction or (
-            fitting >= p.min_inlier_beams and inlier >= 0.5 * p.min_inlier_fraction
-        )
-        if (
-            accepted
-            and p.max_innovation > 0.0
-            and _nis(x - prior, prior_info) > (p.max_innovation**2)
-        ):
-            accepted = False
-            if commit and p.adaptive_noise:  # odometry may slip more than its noise says
-                self._adapt_noise(x - prior, prior_info)
-        if accepted and commit and p.adaptive_noise:
-            self._adapt_noise(x - prior, prior_info)
-        if accepted and commit and math.isfinite(rms):
-            self.fit_rms = (
-                rms if not math.isfinite(self.fit_rms) else 0.8 * self.fit_rms + 0.2 * rms
-            )
-            if p.wall_offset_rate > 0.0 and fits.any():
-                step = _median(r[fits])  # where the fitting end points see the walls
-                limit = 0.5 * self.sdf.resolution
-                moved = self.wall_offset + p.wall_offset_rate * step
-                self.wall_offset = max(-limit, min(limit, moved))
-            if p.split_scale > 0.0:
-                cov = floor_covariance(cov, self._split_floor(system, w, w_beam))
-            else:
-                err = p.map_error_scale * self.fit_rms
-                cov = floor_covariance(cov, np.array([err, err, err / p.map_error_lever]))
-        out = Correction(accepted, x, cov, len(pts), inlier, rms, iterations)
-        if accepted and commit:
-            self.mean, self.cov = x, cov
-        self.last = out
-        return out
+        return _Fit(np.array(x), post_info, system, w, scale, iterations, w_beam)
 
     def _split_floor(self, system: np.ndarray, w: np.ndarray, w_beam: float) -> np.ndarray:
         """The covariance floor (x, y, yaw standard deviations) from the disagreement of

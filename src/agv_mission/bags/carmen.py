@@ -175,42 +175,8 @@ def read_carmen(
     truth_topic: str | None = None,
 ) -> BagData:
     """Scans, odometry, mount and (when asked) ground truth of the CARMEN log at ``path``."""
-    for name, value, allowed in (
-        ("--scan-topic", scan_topic, LASERS),
-        ("--odom-topic", odom_topic, (*LASERS, "ODOM")),
-        ("--truth-topic", truth_topic, (*LASERS, "ODOM")),
-    ):
-        if value is not None and value not in allowed:
-            raise BagError(
-                f"{path}: {name} {value!r}: a CARMEN log has {', '.join(allowed)} for it"
-            )
-    lasers: dict[str, list[tuple[LaserScan, Pose2D, Pose2D, float]]] = {k: [] for k in LASERS}
-    odom_lines: list[tuple[float, float, float, float]] = []
-    params: dict[str, str] = {}
-    try:
-        with _open(path) as f:
-            number = 0
-            while True:
-                text = f.readline(MAX_LINE)
-                if not text:
-                    break
-                number += 1
-                if len(text) >= MAX_LINE and not text.endswith("\n"):
-                    raise BagError(f"{path}: line {number}: longer than {MAX_LINE} characters")
-                fields = text.split()
-                if not fields:
-                    continue
-                kind = fields[0]
-                if kind == "FLASER":
-                    lasers[kind].append(_flaser(_Line(path, number, fields)))
-                elif kind == "ROBOTLASER1":
-                    lasers[kind].append(_robotlaser(_Line(path, number, fields)))
-                elif kind == "ODOM":
-                    odom_lines.append(_odom(_Line(path, number, fields)))
-                elif kind == "PARAM" and len(fields) >= 3:
-                    params[fields[1]] = fields[2]
-    except (OSError, EOFError, gzip.BadGzipFile) as exc:
-        raise BagError(f"{path}: cannot read the log ({exc})") from None
+    _check_topics(path, scan_topic, odom_topic, truth_topic)
+    lasers, odom_lines, params = _read_lines(path)
     kind = scan_topic or max(LASERS, key=lambda k: len(lasers[k]))
     rows = lasers[kind]
     if not rows:
@@ -218,16 +184,7 @@ def read_carmen(
     times = np.array([row[3] for row in rows])
     repaired = _increasing(times)
     scans = [replace(row[0], time=float(t)) for row, t in zip(rows, times, strict=True)]
-    if kind == "ROBOTLASER1":
-        mount = rows[0][1].relative_to(rows[0][2])
-    else:
-        try:
-            mount = Pose2D(float(params.get("robot_frontlaser_offset", 0.0)), 0.0, 0.0)
-        except ValueError:
-            raise BagError(
-                f"{path}: PARAM robot_frontlaser_offset is not a number: "
-                f"{params['robot_frontlaser_offset']!r}"
-            ) from None
+    mount = _laser_mount(path, kind, rows, params)
     inv_mount = Pose2D(0.0, 0.0, 0.0).relative_to(mount)
 
     def laser_rows(which: str) -> np.ndarray:
@@ -286,6 +243,79 @@ def read_carmen(
         duration=float(times[-1] - times[0]),
         notes={"format": "carmen", "stamps_spread": repaired, "beams": n_beams},
     )
+
+
+def _check_topics(
+    path: Path, scan_topic: str | None, odom_topic: str | None, truth_topic: str | None
+) -> None:
+    """Each topic asked for is one a CARMEN log can have."""
+    for name, value, allowed in (
+        ("--scan-topic", scan_topic, LASERS),
+        ("--odom-topic", odom_topic, (*LASERS, "ODOM")),
+        ("--truth-topic", truth_topic, (*LASERS, "ODOM")),
+    ):
+        if value is not None and value not in allowed:
+            raise BagError(
+                f"{path}: {name} {value!r}: a CARMEN log has {', '.join(allowed)} for it"
+            )
+
+
+def _read_lines(
+    path: Path,
+) -> tuple[
+    dict[str, list[tuple[LaserScan, Pose2D, Pose2D, float]]],
+    list[tuple[float, float, float, float]],
+    dict[str, str],
+]:
+    """The log's laser lines (scan, laser pose, robot pose, time) by kind, its ODOM lines
+    (t, x, y, yaw) and its PARAMs."""
+    lasers: dict[str, list[tuple[LaserScan, Pose2D, Pose2D, float]]] = {k: [] for k in LASERS}
+    odom_lines: list[tuple[float, float, float, float]] = []
+    params: dict[str, str] = {}
+    try:
+        with _open(path) as f:
+            number = 0
+            while True:
+                text = f.readline(MAX_LINE)
+                if not text:
+                    break
+                number += 1
+                if len(text) >= MAX_LINE and not text.endswith("\n"):
+                    raise BagError(f"{path}: line {number}: longer than {MAX_LINE} characters")
+                fields = text.split()
+                if not fields:
+                    continue
+                kind = fields[0]
+                if kind == "FLASER":
+                    lasers[kind].append(_flaser(_Line(path, number, fields)))
+                elif kind == "ROBOTLASER1":
+                    lasers[kind].append(_robotlaser(_Line(path, number, fields)))
+                elif kind == "ODOM":
+                    odom_lines.append(_odom(_Line(path, number, fields)))
+                elif kind == "PARAM" and len(fields) >= 3:
+                    params[fields[1]] = fields[2]
+    except (OSError, EOFError, gzip.BadGzipFile) as exc:
+        raise BagError(f"{path}: cannot read the log ({exc})") from None
+    return lasers, odom_lines, params
+
+
+def _laser_mount(
+    path: Path,
+    kind: str,
+    rows: list[tuple[LaserScan, Pose2D, Pose2D, float]],
+    params: dict[str, str],
+) -> Pose2D:
+    """Where the laser sits on the robot: ROBOTLASER1 lines give both poses; FLASER's is
+    the ``robot_frontlaser_offset`` PARAM ahead of the robot's origin."""
+    if kind == "ROBOTLASER1":
+        return rows[0][1].relative_to(rows[0][2])
+    try:
+        return Pose2D(float(params.get("robot_frontlaser_offset", 0.0)), 0.0, 0.0)
+    except ValueError:
+        raise BagError(
+            f"{path}: PARAM robot_frontlaser_offset is not a number: "
+            f"{params['robot_frontlaser_offset']!r}"
+        ) from None
 
 
 def _increasing(times: np.ndarray) -> int:

@@ -66,18 +66,7 @@ def map_bag(
     t_read = time.perf_counter()
     data = read_bag(path, scan_topic, odom_topic, truth_topic, robot)
     read_s = time.perf_counter() - t_read
-    times = np.array([s.time for s in data.scans])
-    odom_at, ok = interpolate_poses(data.odom, times, max_odom_gap)
-    before = int(np.count_nonzero(times < data.odom[0, 0] - 1e-6))
-    after = int(np.count_nonzero(times > data.odom[-1, 0] + 1e-6))
-    in_gap = int(np.count_nonzero(~ok)) - before - after
-    used = np.flatnonzero(ok)
-    if not len(used):
-        raise MappingFailed(
-            f"{path}: no scan falls inside the odometry ({data.odom_source}: "
-            f"{data.odom[0, 0]:.3f}..{data.odom[-1, 0]:.3f} s; scans "
-            f"{times.min():.3f}..{times.max():.3f} s)"
-        )
+    times, odom_at, used, outside = _covered_scans(path, data, max_odom_gap)
     mount, inv_mount = data.mount, _ORIGIN.relative_to(data.mount)
     first = int(used[0])
     start = _start_pose(data, times[first], _pose(odom_at[first]))
@@ -85,14 +74,7 @@ def map_bag(
         slam_config = slam_config(max(s.range_max for s in data.scans))
     slam = registry.create("slam", slam_config, bounds=None, rng=None)
     slam.reset(start.compose(mount), _pose(odom_at[first]).compose(mount))
-    t0 = time.perf_counter()
-    for i in used:
-        scan = upright(data.scans[i], data.flipped)
-        slam.update(_pose(odom_at[i]).compose(mount), scan, _ORIGIN, float(times[i]))
-    finish = getattr(slam, "finish", None)
-    if callable(finish):  # the whole recording seen: a final pass, when the plugin has one
-        finish()
-    slam_s = time.perf_counter() - t0
+    slam_s = _replay(slam, data, odom_at, times, used)
     sensor = np.asarray(slam.trajectory, dtype=float).reshape(-1, 4)
     base = np.array(
         [(t, *Pose2D(x, y, a).compose(inv_mount).as_array()) for t, x, y, a in sensor]
@@ -120,9 +102,7 @@ def map_bag(
         "scans": {
             "total": len(data.scans),
             "used": len(used),
-            "before_odometry": before,
-            "after_odometry": after,
-            "in_odometry_gaps": in_gap,
+            **outside,
             "beams": sorted({len(s.ranges) for s in data.scans}),
             "scan_gaps": _gaps(times),
         },
@@ -146,19 +126,63 @@ def map_bag(
     if callable(diag):
         report["slam_diagnostics"] = diag()
     if data.truth is not None and len(base):
-        report["ground_truth_topic"] = data.truth_topic
-        report["rmse"] = _rmse(base, data.truth)
-        rpe = relative_pose_error(base, data.truth, RPE_DELTA)
-        if rpe:
-            report["relative_pose_error"] = {
-                "translation_m": round(rpe["translation_mean"], 4),
-                "rotation_deg": round(float(np.degrees(rpe["rotation_mean"])), 3),
-                "translation_max_m": round(rpe["translation_max"], 4),
-                "rotation_max_deg": round(float(np.degrees(rpe["rotation_max"])), 3),
-                "pairs": int(rpe["pairs"]),
-                "delta_m": RPE_DELTA,
-            }
+        report.update(_accuracy(base, data.truth, data.truth_topic))
     return OfflineMap(grid=grid, trajectory=base, report=report)
+
+
+def _covered_scans(
+    path: Path, data: Any, max_odom_gap: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, int]]:
+    """The scans' stamps, the odometry at each, the scans it covers (none further than
+    ``max_odom_gap`` from an odometry message) and how many it does not (before, after,
+    in a gap)."""
+    times = np.array([s.time for s in data.scans])
+    odom_at, ok = interpolate_poses(data.odom, times, max_odom_gap)
+    before = int(np.count_nonzero(times < data.odom[0, 0] - 1e-6))
+    after = int(np.count_nonzero(times > data.odom[-1, 0] + 1e-6))
+    in_gap = int(np.count_nonzero(~ok)) - before - after
+    used = np.flatnonzero(ok)
+    if not len(used):
+        raise MappingFailed(
+            f"{path}: no scan falls inside the odometry ({data.odom_source}: "
+            f"{data.odom[0, 0]:.3f}..{data.odom[-1, 0]:.3f} s; scans "
+            f"{times.min():.3f}..{times.max():.3f} s)"
+        )
+    outside = {"before_odometry": before, "after_odometry": after, "in_odometry_gaps": in_gap}
+    return times, odom_at, used, outside
+
+
+def _replay(
+    slam: Any, data: Any, odom_at: np.ndarray, times: np.ndarray, used: np.ndarray
+) -> float:
+    """Feed SLAM the used scans (upright, with the odometry at each, at the lidar's
+    mount) and its final pass; the seconds it took."""
+    mount = data.mount
+    t0 = time.perf_counter()
+    for i in used:
+        scan = upright(data.scans[i], data.flipped)
+        slam.update(_pose(odom_at[i]).compose(mount), scan, _ORIGIN, float(times[i]))
+    finish = getattr(slam, "finish", None)
+    if callable(finish):  # the whole recording seen: a final pass, when the plugin has one
+        finish()
+    return time.perf_counter() - t0
+
+
+def _accuracy(base: np.ndarray, truth: np.ndarray, truth_topic: str | None) -> dict[str, Any]:
+    """How far the mapped trajectory (rows t, x, y, yaw) lies from the bag's ground truth:
+    its RMSE and its relative pose error over ``RPE_DELTA`` metres."""
+    report: dict[str, Any] = {"ground_truth_topic": truth_topic, "rmse": _rmse(base, truth)}
+    rpe = relative_pose_error(base, truth, RPE_DELTA)
+    if rpe:
+        report["relative_pose_error"] = {
+            "translation_m": round(rpe["translation_mean"], 4),
+            "rotation_deg": round(float(np.degrees(rpe["rotation_mean"])), 3),
+            "translation_max_m": round(rpe["translation_max"], 4),
+            "rotation_max_deg": round(float(np.degrees(rpe["rotation_max"])), 3),
+            "pairs": int(rpe["pairs"]),
+            "delta_m": RPE_DELTA,
+        }
+    return report
 
 
 #: Metres of true travel between the poses of each relative-pose-error pair (consecutive

@@ -195,6 +195,97 @@ def _read(
         topics[conn.topic] = conn.msgtype
         counts[conn.topic] = counts.get(conn.topic, 0) + conn.msgcount
 
+    robot, scan_topic, odom_topic, truth_topic = _choose_topics(
+        path, topics, counts, scan_topic, odom_topic, truth_topic, robot
+    )
+    got = _collect(reader, scan_topic, odom_topic, truth_topic)
+    scans, scan_frame, odom_child = got.scans, got.scan_frame, got.odom_child
+    odom_rows, truth_rows, static = got.odom_rows, got.truth_rows, got.static
+    if not scans:
+        raise BagError(f"{path}: {scan_topic} holds no messages")
+
+    links, moving = _tf_links(got.dynamic, static)
+
+    # The base frame: the odometry's child, or the first moving frame above the scan frame.
+    chain = _static_chain(scan_frame, static)
+    odom_source = odom_topic or ""
+    notes: dict[str, Any] = {}
+    if odom_rows:
+        base_frame = odom_child or chain[-1][0]
+        # Sorted by stamp only: messages of one stamp keep the order they were written in.
+        odom_rows.sort(key=lambda r: r[0])
+        truth_rows.sort(key=lambda r: r[0])
+        spread = _spread_shared_stamps(scans, odom_rows, truth_rows)
+        if spread:
+            notes["stamps_spread"] = spread
+        odom = np.array(odom_rows)
+    else:
+        moving_children = {c: (p, c) for (p, c) in moving if p != "map"}
+        base_frame = next((f for f, _ in chain if f in moving_children), "")
+        if not base_frame:
+            raise BagError(
+                f"{path}: no odometry: no nav_msgs/Odometry topic and no /tf transform "
+                f"moving a frame above the scan frame {scan_frame!r}"
+            )
+        link = moving_children[base_frame]
+        odom = moving[link]
+        odom_source = f"/tf {link[0]}->{link[1]}"
+    mount_pose, flipped, found = _scan_mount(chain, base_frame, scan_frame)
+
+    odom_parent = next((p for (p, c) in moving if c == base_frame), "odom")
+    map_to_odom = links.get(("map", odom_parent))
+    truth = np.array(sorted(truth_rows, key=lambda r: r[0])) if truth_rows else None
+    times = [s.time for s in scans]
+    return BagData(
+        scans=scans,
+        scan_topic=scan_topic,
+        scan_frame=scan_frame,
+        odom=odom,
+        odom_source=odom_source,
+        base_frame=base_frame,
+        mount=mount_pose,
+        flipped=flipped,
+        mount_found=found,
+        map_to_odom=map_to_odom,
+        truth=truth,
+        truth_topic=truth_topic if truth is not None else None,
+        topics=topics,
+        robot=robot,
+        duration=float(max(times) - min(times)) if times else 0.0,
+        notes=notes,
+    )
+
+
+def _scan_mount(
+    chain: list[tuple[str, np.ndarray]], base_frame: str, scan_frame: str
+) -> tuple[Pose2D, bool, bool]:
+    """The scan frame's planar pose on the base frame (up the static ``chain`` of (frame,
+    transform to its parent)), whether it is mounted upside down, and whether the chain
+    reaches the base frame at all (else the identity)."""
+    mount = np.eye(4)
+    found = False
+    for frame, parent_tf in chain:
+        if frame == base_frame:
+            found = True
+            break
+        mount = parent_tf @ mount
+    if not found and scan_frame == base_frame:
+        found = True
+    mount_pose, flipped = Transform(mount if found else np.eye(4)).planar()
+    return mount_pose, flipped, found
+
+
+def _choose_topics(
+    path: Path,
+    topics: dict[str, str],
+    counts: dict[str, int],
+    scan_topic: str | None,
+    odom_topic: str | None,
+    truth_topic: str | None,
+    robot: str | None,
+) -> tuple[str | None, str, str | None, str | None]:
+    """The robot (a namespace), and its scan, odometry and ground-truth topics: the ones
+    asked for, checked, else the likeliest of the bag's."""
     robot = _pick_robot(path, topics, scan_topic, robot)
     prefix = f"/{robot}" if robot else ""
     scans_found = _under(robot, [t for t, ty in topics.items() if ty == SCAN_TYPE])
@@ -230,7 +321,27 @@ def _read(
             odom_topic = _pick(
                 plain, (f"{prefix}/odom", "odom", f"{prefix}/odometry/filtered"), counts
             )
+    return robot, scan_topic, odom_topic, truth_topic
 
+
+@dataclass
+class _Messages:
+    """What a bag's chosen topics hold: scans, odometry and truth rows (t, x, y, yaw), the
+    frames they name, and /tf's static and moving links."""
+
+    scans: list[LaserScan]
+    scan_frame: str
+    odom_rows: list[tuple[float, float, float, float]]
+    odom_child: str
+    truth_rows: list[tuple[float, float, float, float]]
+    static: dict[str, tuple[str, Transform]]
+    dynamic: dict[tuple[str, str], list[tuple[float, np.ndarray]]]
+
+
+def _collect(
+    reader: Any, scan_topic: str, odom_topic: str | None, truth_topic: str | None
+) -> _Messages:
+    """Read the chosen topics' messages (and /tf's) in one pass."""
     wanted = {scan_topic, "/tf", "/tf_static", "tf", "tf_static"}
     if odom_topic:
         wanted.add(odom_topic)
@@ -273,10 +384,15 @@ def _read(
                     dynamic.setdefault((parent, child), []).append(
                         (_time(tr.header.stamp), np.array([t.x, t.y, t.z, q.x, q.y, q.z, q.w]))
                     )
-    if not scans:
-        raise BagError(f"{path}: {scan_topic} holds no messages")
+    return _Messages(scans, scan_frame, odom_rows, odom_child, truth_rows, static, dynamic)
 
-    # Links of /tf that never change are static ones (ROS 1 static_transform_publisher).
+
+def _tf_links(
+    dynamic: dict[tuple[str, str], list[tuple[float, np.ndarray]]],
+    static: dict[str, tuple[str, Transform]],
+) -> tuple[dict[tuple[str, str], np.ndarray], dict[tuple[str, str], np.ndarray]]:
+    """/tf's links as rows (t, x, y, yaw), and those that move; a link that never changes
+    joins ``static`` (ROS 1's static_transform_publisher)."""
     links: dict[tuple[str, str], np.ndarray] = {}
     moving: dict[tuple[str, str], np.ndarray] = {}
     for (parent, child), rows in dynamic.items():
@@ -287,64 +403,7 @@ def _read(
             static.setdefault(child, (parent, Transform(_matrix(*values[0]))))
         else:
             moving[(parent, child)] = links[(parent, child)]
-
-    # The base frame: the odometry's child, or the first moving frame above the scan frame.
-    chain = _static_chain(scan_frame, static)
-    odom_source = odom_topic or ""
-    notes: dict[str, Any] = {}
-    if odom_rows:
-        base_frame = odom_child or chain[-1][0]
-        # Sorted by stamp only: messages of one stamp keep the order they were written in.
-        odom_rows.sort(key=lambda r: r[0])
-        truth_rows.sort(key=lambda r: r[0])
-        spread = _spread_shared_stamps(scans, odom_rows, truth_rows)
-        if spread:
-            notes["stamps_spread"] = spread
-        odom = np.array(odom_rows)
-    else:
-        moving_children = {c: (p, c) for (p, c) in moving if p != "map"}
-        base_frame = next((f for f, _ in chain if f in moving_children), "")
-        if not base_frame:
-            raise BagError(
-                f"{path}: no odometry: no nav_msgs/Odometry topic and no /tf transform "
-                f"moving a frame above the scan frame {scan_frame!r}"
-            )
-        link = moving_children[base_frame]
-        odom = moving[link]
-        odom_source = f"/tf {link[0]}->{link[1]}"
-    mount = np.eye(4)
-    found = False
-    for frame, parent_tf in chain:
-        if frame == base_frame:
-            found = True
-            break
-        mount = parent_tf @ mount
-    if not found and scan_frame == base_frame:
-        found = True
-    mount_pose, flipped = Transform(mount if found else np.eye(4)).planar()
-
-    odom_parent = next((p for (p, c) in moving if c == base_frame), "odom")
-    map_to_odom = links.get(("map", odom_parent))
-    truth = np.array(sorted(truth_rows, key=lambda r: r[0])) if truth_rows else None
-    times = [s.time for s in scans]
-    return BagData(
-        scans=scans,
-        scan_topic=scan_topic,
-        scan_frame=scan_frame,
-        odom=odom,
-        odom_source=odom_source,
-        base_frame=base_frame,
-        mount=mount_pose,
-        flipped=flipped,
-        mount_found=found,
-        map_to_odom=map_to_odom,
-        truth=truth,
-        truth_topic=truth_topic if truth is not None else None,
-        topics=topics,
-        robot=robot,
-        duration=float(max(times) - min(times)) if times else 0.0,
-        notes=notes,
-    )
+    return links, moving
 
 
 def _spread_shared_stamps(

@@ -330,13 +330,21 @@ class BagWriter:
                 event = {**event, "robot": bag.name}
             self._write("/events", t, rm.string(json.dumps(event, default=_jsonable)))
         if sample.people is not None and t >= self._next_people - 1e-9:  # the world's people
-            self._next_people = t + self.people_period
-            name, msgtype = PEOPLE_TOPIC
-            if name not in self._conns:
-                self._conns[name] = self._writer.add_connection(
-                    name, msgtype, typestore=rm.typestore()
-                )
-            raw(name, t, self._people.pack(t, *sample.people))
+            self._write_people(t, sample.people)
+        self._write_battery(bag, sample, t)
+
+    def _write_people(self, t: float, people: Any) -> None:
+        """The world's people at ``t`` (every ``people_period``)."""
+        assert self._writer is not None
+        self._next_people = t + self.people_period
+        name, msgtype = PEOPLE_TOPIC
+        if name not in self._conns:
+            self._conns[name] = self._writer.add_connection(name, msgtype, typestore=rm.typestore())
+        self._write_raw(name, t, self._people.pack(t, *people))
+
+    def _write_battery(self, bag: _RobotBag, sample: StepSample, t: float) -> None:
+        """The robot's battery state, every ``battery_period`` and when charging starts or
+        stops."""
         spec = bag.battery
         due = t >= bag.next_battery - 1e-9 or sample.charging != bag.charging
         if spec is not None and sample.battery is not None and due:
@@ -345,7 +353,7 @@ class BagWriter:
             state = rm.battery_state(
                 t, sample.battery, sample.charging, spec.capacity, spec.voltage
             )
-            self._write("/battery_state", t, state, topic["/battery_state"])
+            self._write("/battery_state", t, state, bag.topics["/battery_state"])
 
     def on_end(self, record: Any) -> None:
         self.close()

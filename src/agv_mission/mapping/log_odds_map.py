@@ -194,34 +194,55 @@ class LogOddsMap:
         changed = [touched[was != (flat[touched] > threshold)]]
 
         if len(hit_idx):
-            # Anchors: running means of where the end points fell in their cells.
-            cells, inverse = np.unique(hit_idx, return_inverse=True)
-            offx = ex[hit] - (ox + (cols_e[hit] + 0.5) * res)
-            offy = ey[hit] - (oy + (rows_e[hit] + 0.5) * res)
-            k = len(cells)
-            hx, hy, hn = (a.reshape(-1) for a in (self.hx, self.hy, self.hn))
-            vx, vy = self.vx.reshape(-1), self.vy.reshape(-1)
-            ax, ay = self.ax.reshape(-1), self.ay.reshape(-1)
-            sx = hx[cells] + np.bincount(inverse, offx, k).astype(np.float32)
-            sy = hy[cells] + np.bincount(inverse, offy, k).astype(np.float32)
-            sn = hn[cells] + np.bincount(inverse, None, k).astype(np.float32)
-            # Which side the cell was seen from (a thin wall has two faces).
-            svx = vx[cells] - np.bincount(inverse, ca[hit], k).astype(np.float32)
-            svy = vy[cells] - np.bincount(inverse, sa[hit], k).astype(np.float32)
-            scale = np.where(sn > c.hit_memory, c.hit_memory / sn, 1.0).astype(np.float32)
-            hx[cells], hy[cells], hn[cells] = sx * scale, sy * scale, sn * scale
-            vx[cells], vy[cells] = svx * scale, svy * scale
-            nax, nay = sx / sn, sy / sn
-            fax, fay = self.fax.reshape(-1), self.fay.reshape(-1)
-            moved = cells[np.hypot(nax - fax[cells], nay - fay[cells]) > ANCHOR_REFRESH * res]
-            ax[cells], ay[cells] = nax, nay
-            if refresh:
-                fax[moved], fay[moved] = ax[moved], ay[moved]
-            changed.append(moved)
+            changed.append(
+                self._update_anchors(
+                    hit_idx, cols_e[hit], rows_e[hit], ex[hit], ey[hit], ca[hit], sa[hit], refresh
+                )
+            )
 
         if refresh:
             self._refresh_cells(np.concatenate(changed))
         return True
+
+    def _update_anchors(
+        self,
+        hit_idx: np.ndarray,
+        cols: np.ndarray,
+        rows: np.ndarray,
+        ex: np.ndarray,
+        ey: np.ndarray,
+        ca: np.ndarray,
+        sa: np.ndarray,
+        refresh: bool,
+    ) -> np.ndarray:
+        """Anchors: running means of where the end points (``ex``, ``ey``, in the cells
+        ``hit_idx`` at ``cols``, ``rows``, along beams of direction (``ca``, ``sa``)) fell in their cells, and
+        which side each cell was seen from; the cells whose anchor moved enough to refresh
+        their likelihood field."""
+        c, res, ox, oy = self.config, self.resolution, self.ox, self.oy
+        cells, inverse = np.unique(hit_idx, return_inverse=True)
+        offx = ex - (ox + (cols + 0.5) * res)
+        offy = ey - (oy + (rows + 0.5) * res)
+        k = len(cells)
+        hx, hy, hn = (a.reshape(-1) for a in (self.hx, self.hy, self.hn))
+        vx, vy = self.vx.reshape(-1), self.vy.reshape(-1)
+        ax, ay = self.ax.reshape(-1), self.ay.reshape(-1)
+        sx = hx[cells] + np.bincount(inverse, offx, k).astype(np.float32)
+        sy = hy[cells] + np.bincount(inverse, offy, k).astype(np.float32)
+        sn = hn[cells] + np.bincount(inverse, None, k).astype(np.float32)
+        # Which side the cell was seen from (a thin wall has two faces).
+        svx = vx[cells] - np.bincount(inverse, ca, k).astype(np.float32)
+        svy = vy[cells] - np.bincount(inverse, sa, k).astype(np.float32)
+        scale = np.where(sn > c.hit_memory, c.hit_memory / sn, 1.0).astype(np.float32)
+        hx[cells], hy[cells], hn[cells] = sx * scale, sy * scale, sn * scale
+        vx[cells], vy[cells] = svx * scale, svy * scale
+        nax, nay = sx / sn, sy / sn
+        fax, fay = self.fax.reshape(-1), self.fay.reshape(-1)
+        moved = cells[np.hypot(nax - fax[cells], nay - fay[cells]) > ANCHOR_REFRESH * res]
+        ax[cells], ay[cells] = nax, nay
+        if refresh:
+            fax[moved], fay[moved] = ax[moved], ay[moved]
+        return moved
 
     def refresh_all(self) -> None:
         """Recompute the whole likelihood field and nearest-obstacle tables."""

@@ -261,10 +261,33 @@ class CorrelativeMatcher:
         ny, nx = np.meshgrid(nearest, nearest, indexing="ij")
         t_min = np.hypot(ny.ravel(), nx.ravel()) * res  # (K,)
         bound = bound * self._penalty(t_min[None, :], dyaw[:, None])
+        best, evaluated = self._expand_blocks(
+            flat, base, bound, (sy, sx, block, n_lin, size), res, dyaw, n_pts
+        )
+
+        _, ai, dy, dx = best
+        coarse_pose = np.array([guess[0] + dx * res, guess[1] + dy * res, yaws[ai]])
+        # Within a cell and a step of the prediction: refine from the prediction instead.
+        near_guess = abs(dx) <= 1 and abs(dy) <= 1 and abs(dyaw[ai]) <= step * 1.0001
+        return coarse_pose, near_guess, evaluated
+
+    def _expand_blocks(
+        self,
+        flat: np.ndarray,
+        base: np.ndarray,
+        bound: np.ndarray,
+        layout: tuple[np.ndarray, np.ndarray, int, int, int],
+        res: float,
+        dyaw: np.ndarray,
+        n_pts: float,
+    ) -> tuple[tuple[float, int, int, int], int]:
+        """Level 0 of the search: expand the translation blocks (``layout``: their start
+        rows and columns, their size, the window's half width and the crop's side) in
+        order of their ``bound`` until none can beat the best cell; the best (score,
+        angle index, dy, dx) and how many cells were scored."""
+        sy, sx, block, n_lin, size = layout
         order = np.argsort(bound, axis=None)[::-1]
         bound_sorted = bound.ravel()[order]
-
-        # Level 0: expand blocks in order of their bound until none can beat the best.
         inner = np.arange(block)
         iy, ix = np.meshgrid(inner, inner, indexing="ij")
         iy, ix = iy.ravel(), ix.ravel()
@@ -290,12 +313,7 @@ class CorrelativeMatcher:
             ci, bi = divmod(i, scores.shape[1])
             if scores[ci, bi] > best[0]:
                 best = (float(scores[ci, bi]), int(a_idx[ci]), int(dy[ci, bi]), int(dx[ci, bi]))
-
-        _, ai, dy, dx = best
-        coarse_pose = np.array([guess[0] + dx * res, guess[1] + dy * res, yaws[ai]])
-        # Within a cell and a step of the prediction: refine from the prediction instead.
-        near_guess = abs(dx) <= 1 and abs(dy) <= 1 and abs(dyaw[ai]) <= step * 1.0001
-        return coarse_pose, near_guess, evaluated
+        return best, evaluated
 
     def _refine(
         self,

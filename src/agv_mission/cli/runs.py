@@ -47,7 +47,7 @@ def run(
     from agv_mission.missions.loader import load_demo_mission, load_mission
     from agv_mission.missions.outputs import RunDirError, open_run_dir, write_run
     from agv_mission.missions.pacing import PacedControl
-    from agv_mission.missions.runner import RunStopped, run_mission
+    from agv_mission.missions.runner import RunStopped
     from agv_mission.missions.signals import SignalStop
 
     stopper = SignalStop().install()
@@ -83,21 +83,8 @@ def run(
             f"[bold]{loaded.name}[/]: {mission_outline(loaded)} in "
             f"{loaded.world.name} with {loaded.robot.name}, seed {loaded.mission.seed}"
         )
-    with progress_bar("{task.completed:.1f}/{task.total:.0f} sim s", auto_refresh=False) as bar:
-        job = bar.add_task("running", total=loaded.mission.limits.time)
-        shown = [-math.inf]
-
-        def progress(t: float, _total: float) -> None:
-            bar.update(job, completed=t)
-            now = time.monotonic()
-            if now - shown[0] >= REFRESH_PERIOD:  # refreshed here: the bar runs no thread
-                bar.refresh()
-                shown[0] = now
-
-        control = stopper if pace is None else PacedControl(stopper, pace)
-        record = run_mission(
-            loaded, run_dir, progress=progress, control=control, observers=observers
-        )
+    control = stopper if pace is None else PacedControl(stopper, pace)
+    record = _run_with_progress(loaded, run_dir, control, observers)
     stopper.phase = "writing"  # a signal now is too late to stop anything: outputs first
     try:
         result = write_run(run_dir, loaded, record)
@@ -113,6 +100,24 @@ def run(
         code = stopper.exit_code
     stopper.ignore()  # everything is written: a signal now must not turn the code into a kill
     raise typer.Exit(code)
+
+
+def _run_with_progress(loaded: Any, run_dir: Path, control: Any, observers: list[Any]) -> Any:
+    """Run the mission with a progress bar of simulated seconds; its record."""
+    from agv_mission.missions.runner import run_mission
+
+    with progress_bar("{task.completed:.1f}/{task.total:.0f} sim s", auto_refresh=False) as bar:
+        job = bar.add_task("running", total=loaded.mission.limits.time)
+        shown = [-math.inf]
+
+        def progress(t: float, _total: float) -> None:
+            bar.update(job, completed=t)
+            now = time.monotonic()
+            if now - shown[0] >= REFRESH_PERIOD:  # refreshed here: the bar runs no thread
+                bar.refresh()
+                shown[0] = now
+
+        return run_mission(loaded, run_dir, progress=progress, control=control, observers=observers)
 
 
 def mission_outline(loaded: Any) -> str:

@@ -32,7 +32,7 @@ import numpy as np
 
 from agv_mission.bags.carmen import is_carmen_log, read_carmen
 from agv_mission.bags.recording import BagData, BagError
-from agv_mission.geometry import Pose2D
+from agv_mission.bags.tf_frames import Transform, scan_mount, static_chain, tf_links
 from agv_mission.sensor_msgs import LaserScan
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
@@ -42,38 +42,6 @@ POSE_TYPES = (
     "geometry_msgs/msg/PoseStamped",
     "geometry_msgs/msg/PoseWithCovarianceStamped",
 )
-
-
-@dataclass
-class Transform:
-    """A 3D rigid transform as a 4x4 matrix (child frame in the parent frame)."""
-
-    matrix: np.ndarray
-
-    @classmethod
-    def from_msg(cls, tr: Any) -> Transform:
-        t, q = tr.translation, tr.rotation
-        return cls(_matrix(t.x, t.y, t.z, q.x, q.y, q.z, q.w))
-
-    def planar(self) -> tuple[Pose2D, bool]:
-        """The planar pose of the child frame and whether its z axis points down."""
-        m = self.matrix
-        return Pose2D(float(m[0, 3]), float(m[1, 3]), math.atan2(m[1, 0], m[0, 0])), bool(
-            m[2, 2] < 0.0
-        )
-
-
-def _matrix(x: float, y: float, z: float, qx: float, qy: float, qz: float, qw: float) -> np.ndarray:
-    n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw) or 1.0
-    qx, qy, qz, qw = qx / n, qy / n, qz / n, qw / n
-    m = np.eye(4)
-    m[:3, :3] = [
-        [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
-        [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
-        [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)],
-    ]
-    m[:3, 3] = [x, y, z]
-    return m
 
 
 def _yaw(q: Any) -> float:
@@ -204,10 +172,10 @@ def _read(
     if not scans:
         raise BagError(f"{path}: {scan_topic} holds no messages")
 
-    links, moving = _tf_links(got.dynamic, static)
+    links, moving = tf_links(got.dynamic, static)
 
     # The base frame: the odometry's child, or the first moving frame above the scan frame.
-    chain = _static_chain(scan_frame, static)
+    chain = static_chain(scan_frame, static)
     odom_source = odom_topic or ""
     notes: dict[str, Any] = {}
     if odom_rows:
@@ -230,7 +198,7 @@ def _read(
         link = moving_children[base_frame]
         odom = moving[link]
         odom_source = f"/tf {link[0]}->{link[1]}"
-    mount_pose, flipped, found = _scan_mount(chain, base_frame, scan_frame)
+    mount_pose, flipped, found = scan_mount(chain, base_frame, scan_frame)
 
     odom_parent = next((p for (p, c) in moving if c == base_frame), "odom")
     map_to_odom = links.get(("map", odom_parent))
@@ -254,25 +222,6 @@ def _read(
         duration=float(max(times) - min(times)) if times else 0.0,
         notes=notes,
     )
-
-
-def _scan_mount(
-    chain: list[tuple[str, np.ndarray]], base_frame: str, scan_frame: str
-) -> tuple[Pose2D, bool, bool]:
-    """The scan frame's planar pose on the base frame (up the static ``chain`` of (frame,
-    transform to its parent)), whether it is mounted upside down, and whether the chain
-    reaches the base frame at all (else the identity)."""
-    mount = np.eye(4)
-    found = False
-    for frame, parent_tf in chain:
-        if frame == base_frame:
-            found = True
-            break
-        mount = parent_tf @ mount
-    if not found and scan_frame == base_frame:
-        found = True
-    mount_pose, flipped = Transform(mount if found else np.eye(4)).planar()
-    return mount_pose, flipped, found
 
 
 def _choose_topics(
@@ -387,25 +336,6 @@ def _collect(
     return _Messages(scans, scan_frame, odom_rows, odom_child, truth_rows, static, dynamic)
 
 
-def _tf_links(
-    dynamic: dict[tuple[str, str], list[tuple[float, np.ndarray]]],
-    static: dict[str, tuple[str, Transform]],
-) -> tuple[dict[tuple[str, str], np.ndarray], dict[tuple[str, str], np.ndarray]]:
-    """/tf's links as rows (t, x, y, yaw), and those that move; a link that never changes
-    joins ``static`` (ROS 1's static_transform_publisher)."""
-    links: dict[tuple[str, str], np.ndarray] = {}
-    moving: dict[tuple[str, str], np.ndarray] = {}
-    for (parent, child), rows in dynamic.items():
-        rows.sort(key=lambda r: r[0])
-        values = np.array([r[1] for r in rows])
-        links[(parent, child)] = np.array([(t, v[0], v[1], _yaw_q(v[3:])) for t, v in rows])
-        if np.ptp(values, axis=0).max() < 1e-9:
-            static.setdefault(child, (parent, Transform(_matrix(*values[0]))))
-        else:
-            moving[(parent, child)] = links[(parent, child)]
-    return links, moving
-
-
 def _spread_shared_stamps(
     scans: list[LaserScan],
     odom: list[tuple[float, float, float, float]],
@@ -443,27 +373,6 @@ def _looks_like_truth(topic: str) -> bool:
     """``/ground_truth``, ``/base_pose_ground_truth``, ``/gt/odom``, ``/mocap/pose``, ..."""
     words = set(re.split(r"[^a-z0-9]+", topic.lower()))
     return bool(words & {"truth", "groundtruth", "gt", "mocap", "vicon"})
-
-
-def _yaw_q(q: np.ndarray) -> float:
-    x, y, z, w = (float(v) for v in q)
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
-def _static_chain(
-    frame: str, static: dict[str, tuple[str, Transform]]
-) -> list[tuple[str, np.ndarray]]:
-    """[(frame, its transform in its parent)] from ``frame`` upwards; the last entry is
-    the topmost frame reached (with an identity)."""
-    chain: list[tuple[str, np.ndarray]] = []
-    seen = set()
-    while frame in static and frame not in seen:
-        seen.add(frame)
-        parent, tf = static[frame]
-        chain.append((frame, tf.matrix))
-        frame = parent
-    chain.append((frame, np.eye(4)))
-    return chain
 
 
 def _scan(msg: Any) -> LaserScan:

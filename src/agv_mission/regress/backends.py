@@ -16,11 +16,11 @@ from pathlib import Path
 from typing import Any
 
 from agv_mission import job_pool
-from agv_mission.job_pool import JobKind, StopControl
+from agv_mission.job_pool import JobKind, ResultCallback, StopControl
 from agv_mission.json_values import json_default
 from agv_mission.missions.errors import MissionError
 from agv_mission.missions.workers import forkserver_context
-from agv_mission.regress.plan import RegressError, ResultCallback, sweep_overrides
+from agv_mission.regress.plan import RegressError, sweep_overrides
 
 
 def run_job(job: dict[str, Any]) -> dict[str, Any]:

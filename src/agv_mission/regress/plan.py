@@ -34,7 +34,7 @@ over the succeeded runs only).
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -52,8 +52,6 @@ WALL_CLOCK_METRICS = (
     "navigation.controller_solve_ms_p50",
     "navigation.controller_solve_ms_p99",
 )
-
-ResultCallback = Callable[[dict[str, Any], int, int], None]
 
 
 class RegressError(Exception):

@@ -16,8 +16,8 @@ import yaml
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.loader import LoadedMission, load_mission
+from agv_mission.missions.spec.errors import MissionError, Problem
+from agv_mission.missions.spec.loader import LoadedMission, load_mission
 
 HERE = Path(__file__).resolve().parent
 MISSION = HERE / "invalid" / "fuzz.yaml"  # never written: its folder resolves data/ paths

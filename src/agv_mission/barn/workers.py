@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from agv_mission.barn.suite import BarnInputError, failed_result, run_world, unpack
-from agv_mission.missions.workers import forkserver_context
+from agv_mission.missions.run.workers import forkserver_context
 
 ResultCallback = Callable[[dict[str, Any], int, int], None]
 

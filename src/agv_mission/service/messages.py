@@ -20,8 +20,9 @@ from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.ros_map import saver_pixels
 from agv_mission.messages import json_default
-from agv_mission.missions.observe import RunStart, TreeNode
-from agv_mission.missions.palette import robot_colour
+from agv_mission.missions.report.palette import robot_colour
+from agv_mission.missions.run.observe import RunStart
+from agv_mission.missions.run.samples import TreeNode
 
 MAX_PARTICLES = 300
 TREE_STATUS = {

@@ -16,9 +16,9 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.loader import LoadedMission, load_mission
-from agv_mission.missions.yaml_lines import line_of, load_with_lines
+from agv_mission.missions.spec.errors import MissionError, Problem
+from agv_mission.missions.spec.loader import LoadedMission, load_mission
+from agv_mission.missions.spec.yaml_lines import line_of, load_with_lines
 
 
 class NodeAction(BaseModel):

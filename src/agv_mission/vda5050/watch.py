@@ -31,7 +31,7 @@ from PIL import Image
 from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
 from agv_mission.maps.ros_map import saver_pixels
 from agv_mission.maps.worlds import World
-from agv_mission.missions.palette import robot_colour
+from agv_mission.missions.report.palette import robot_colour
 from agv_mission.vda5050.protocol import split_topic
 from agv_mission.vda5050.transport import BrokerUrl, MqttLink
 

@@ -14,7 +14,7 @@ from xml.sax.saxutils import quoteattr
 
 from py_trees.common import Status
 
-from agv_mission.missions.tree import MissionTree, Node, TreeSpec
+from agv_mission.missions.spec.tree import MissionTree, Node, TreeSpec
 
 if TYPE_CHECKING:
     from agv_mission.navigation.handle import RobotHandle
@@ -66,7 +66,7 @@ class TreeLog:
 
 def _entries(node_type: str) -> list[str]:
     """The ports of ``node_type`` whose value names a blackboard entry."""
-    from agv_mission.missions.tree import SLOT
+    from agv_mission.missions.spec.tree import SLOT
     from agv_mission.registry import UnknownPluginError, registry
 
     try:
@@ -85,7 +85,7 @@ def tree_xml(spec: TreeSpec) -> str:
     """The expanded tree as BT.CPP's ``WriteTreeToXML`` has it: each subtree (and each
     navigator's tree) its own ``<BehaviorTree>`` with its ``_fullpath``, a ``_uid`` on
     every node (pre-order from 1, as the run's node records)."""
-    from agv_mission.missions.tree_xml import _flow, _ports_to_xml, nodes_model, xml_id
+    from agv_mission.missions.spec.tree_xml import _flow, _ports_to_xml, nodes_model, xml_id
 
     trees: list[tuple[str, str, list[str]]] = []  # (ID, fullpath, lines)
     counter = [0]

@@ -23,9 +23,9 @@ import numpy as np
 from agv_mission.fleet.base import FleetTask, RobotWork, TrafficDecision, TrafficRobot
 from agv_mission.fleet.travel import GridTravelTime
 from agv_mission.geometry import Pose2D
-from agv_mission.missions.loader import LoadedMission, RobotSetup
-from agv_mission.missions.robot_run import RobotRun
-from agv_mission.missions.tree import NodeSpec, TreeSource, TreeSpec, Where, assemble
+from agv_mission.missions.run.robot_run import RobotRun
+from agv_mission.missions.spec.loader import LoadedMission, RobotSetup
+from agv_mission.missions.spec.tree import NodeSpec, TreeSource, TreeSpec, Where, assemble
 from agv_mission.registry import registry
 
 

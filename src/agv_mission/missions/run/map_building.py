@@ -20,7 +20,7 @@ from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.obstacle_layer import ObstacleLayer
 from agv_mission.maps.ros_map import load_ros_map, save_ros_map
-from agv_mission.missions.stack import RobotStack
+from agv_mission.missions.run.stack import RobotStack
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import Navigator
 

@@ -8,59 +8,22 @@ nothing for them.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
-
-import numpy as np
-import py_trees
-from py_trees.common import Status
+from typing import Protocol
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.docks import Dock
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.rooms import Room
-from agv_mission.messages import LaserScan
-from agv_mission.missions.schema import Mission
+from agv_mission.missions.run.record import RunRecord
+from agv_mission.missions.run.robot_run import RobotRun
+from agv_mission.missions.run.samples import StepSample, TreeNode
+from agv_mission.missions.spec.schema import Mission
+from agv_mission.navigation.handle import RobotHandle
 from agv_mission.robots.description import RobotDescription
-
-if TYPE_CHECKING:
-    from agv_mission.missions.runner import MissionRun, RunRecord
-
-STATUS_NAMES = {
-    Status.SUCCESS: "succeeded",
-    Status.FAILURE: "failed",
-    Status.RUNNING: "running",
-    Status.INVALID: "not_run",
-}
-
-
-def status_name(status: Status) -> str:
-    """A py_trees status as result.json spells task statuses."""
-    return STATUS_NAMES.get(status, "not_run")
-
-
-@dataclass(frozen=True)
-class TreeNode:
-    """One behaviour of the mission tree, as a viewer shows it."""
-
-    name: str
-    depth: int
-    status: str  # SUCCESS | FAILURE | RUNNING | INVALID (py_trees' names, as the stream)
-
-
-def tree_nodes(root: py_trees.behaviour.Behaviour) -> list[TreeNode]:
-    """Every node under ``root`` (itself included), pre-order."""
-    return [TreeNode(node.name, depth, node.status.value) for node, depth in _walk(root)]
-
-
-def _walk(
-    node: py_trees.behaviour.Behaviour, depth: int = 0
-) -> Iterator[tuple[py_trees.behaviour.Behaviour, int]]:
-    yield node, depth
-    for child in node.children:
-        yield from _walk(child, depth + 1)
+from agv_mission.world.simulation import SimulatedWorld
 
 
 @dataclass(frozen=True)
@@ -109,39 +72,6 @@ class RunStart:
         return self.robots[0].speed_mask
 
 
-@dataclass
-class StepSample:
-    """One control step (10 Hz of simulated time)."""
-
-    t: float
-    truth: Pose2D  # simulator's true pose (map frame)
-    estimate: Pose2D  # localiser's estimate (map frame)
-    covariance: np.ndarray | None  # 3x3 (x, y, yaw) of the estimate, when there is one
-    odom: Pose2D  # dead-reckoned pose in the odom frame
-    v: float  # command sent this step (after smoothing)
-    w: float
-    scan: LaserScan | None  # the newest lidar scan when one arrived this step
-    scans: tuple[LaserScan, ...]  # every scan since the last step, oldest first (own stamps)
-    particles: np.ndarray | None  # (n, 3) x, y, yaw when a particle filter updated this step
-    plan: np.ndarray | None  # (k, 2+) a new global path made this step, else None
-    horizon: np.ndarray | None  # (k, 2+) the local controller's predicted path, if any
-    goal: Pose2D | None  # the current navigation goal
-    grid: OccupancyGrid | None  # the map when it changed this step (growing SLAM map)
-    events: list[dict[str, Any]]  # events appended this step (same dicts as result.json)
-    tree_nodes: list[TreeNode] | None  # all nodes when any status changed this step
-    task_index: int | None  # 0-based index of the running task
-    task_type: str | None
-    battery: float | None = None  # the level 0..1; None: not modelled
-    charging: bool = False
-    docked: str | None = None  # the dock the robot stands on
-    robot: str = "robot"  # whose step this is (a fleet robot's name)
-    # the people in the world, (ids, xy (n, 2), radii) of those present, in the samples of
-    # the run's first robot (the world's, not any robot's view); None: a run without people
-    people: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-    # the IMU's samples since the last step (ImuSamples batches, oldest first); () without one
-    imu: tuple[Any, ...] = ()
-
-
 class RunObserver(Protocol):
     """Sees a run: its start, every control step, its record at the end (once)."""
 
@@ -152,13 +82,34 @@ class RunObserver(Protocol):
     def on_end(self, record: RunRecord) -> None: ...
 
 
+class LiveRun(Protocol):
+    """What a :class:`RunControl` may read and steer of a run between two steps (the
+    runner's ``MissionRun`` is one)."""
+
+    world: SimulatedWorld
+    status: str | None  # None while it runs
+
+    @property
+    def by_name(self) -> Mapping[str, RobotRun]: ...
+
+    @property
+    def lead(self) -> RobotRun: ...  # the first robot (a one-robot mission's only one)
+
+    @property
+    def handle(self) -> RobotHandle: ...  # the first robot's
+
+    def cancel(self, reason: str) -> None: ...
+
+    def end(self, status: str, reason: str | None) -> bool: ...
+
+
 class RunControl(Protocol):
     """Steers a run between control steps."""
 
-    def before_step(self, run: MissionRun) -> None:
+    def before_step(self, run: LiveRun) -> None:
         """Called before every control step; may block (pause), may call
         ``run.cancel(reason)`` (the run ends ``aborted``), may set a robot's
         ``handle.remote_command = (v, w)`` for a teleop task (``run.handle``: the first
         robot's). A control class with ``only_cancels = True`` promises it never commands
-        a robot, so a fleet's robots may decide in other processes (missions.team)."""
+        a robot, so a fleet's robots may decide in other processes (missions.run.team)."""
         ...

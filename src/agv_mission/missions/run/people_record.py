@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from agv_mission.atomic import atomic_write_text
-from agv_mission.missions.people_metrics import people_metrics
+from agv_mission.missions.run.people_metrics import people_metrics
 from agv_mission.navigation.state import STANDING, TRACKED_PERSON
 from agv_mission.world.crowd import Crowd, PeopleGroup
 from agv_mission.world.simulation import SimulatedWorld

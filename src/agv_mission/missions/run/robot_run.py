@@ -1,7 +1,7 @@
 """One robot's part of a run: its stack, navigator, tree, safety watch and record.
 
 A :class:`RobotRun` senses, estimates and decides for one robot once per control step;
-the run (:mod:`agv_mission.missions.runner`) steps the world they share and asks every
+the run (:mod:`agv_mission.missions.run.runner`) steps the world they share and asks every
 robot in turn. Robots never call each other.
 """
 
@@ -23,13 +23,10 @@ from agv_mission.maps.obstacle_layer import ObstacleLayer
 from agv_mission.maps.recorder import LocationRecorder
 from agv_mission.maps.zones import zone_metrics
 from agv_mission.messages import LaserScan
-from agv_mission.missions.btlog import TreeLog
-from agv_mission.missions.faults import FaultInjector
-from agv_mission.missions.loader import LoadedMission
-from agv_mission.missions.map_building import MapBuilder
-from agv_mission.missions.observe import StepSample, status_name
-from agv_mission.missions.record import TRAJECTORY_COLUMNS, RunRecord
-from agv_mission.missions.run_report import (
+from agv_mission.missions.run.btlog import TreeLog
+from agv_mission.missions.run.faults import FaultInjector
+from agv_mission.missions.run.map_building import MapBuilder
+from agv_mission.missions.run.metrics import (
     COVARIANCE_COLUMNS,
     add_true_errors,
     covariance_metrics,
@@ -37,9 +34,12 @@ from agv_mission.missions.run_report import (
     run_metrics,
     task_reports,
 )
-from agv_mission.missions.sampler import StepSampler
-from agv_mission.missions.stack import CONTROL_PERIOD, RobotStack, Sensing
-from agv_mission.missions.tree import build_tree
+from agv_mission.missions.run.record import TRAJECTORY_COLUMNS, RunRecord
+from agv_mission.missions.run.sampler import StepSampler
+from agv_mission.missions.run.samples import RobotReport, StepSample, status_name
+from agv_mission.missions.run.stack import CONTROL_PERIOD, RobotStack, Sensing
+from agv_mission.missions.spec.loader import LoadedMission
+from agv_mission.missions.spec.tree import build_tree
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import NavStatus, beams_on_people
 from agv_mission.navigation.state import RobotState
@@ -48,21 +48,6 @@ from agv_mission.robots.battery import Battery, battery_for
 
 #: Below this planar clearance (m) contacts are read (above, one needs a ~15 degree tilt).
 CONTACT_CLEARANCE = 0.05
-
-
-@dataclasses.dataclass(frozen=True)
-class RobotReport:
-    """A robot's step as the rest of the run reads it: its command, estimate, outcome,
-    the wall it touched, and what the fleet layer reserves for it."""
-
-    command: tuple[float, float]
-    estimate: Pose2D
-    status: str | None
-    reason: str | None
-    new_collision: dict[str, float] | None
-    yielding: bool
-    navigating: bool
-    traffic_path: np.ndarray | None
 
 
 def _without(scan: LaserScan | None, on_people: np.ndarray | None) -> LaserScan | None:

@@ -20,52 +20,34 @@ from pathlib import Path
 from typing import Any
 
 from agv_mission.localization.base import Localizer
-from agv_mission.missions.fleet import FleetCoordinator, queue_fleet_tasks
-from agv_mission.missions.loader import LoadedMission
-from agv_mission.missions.observe import (
+from agv_mission.missions.run.errors import RunStopped
+from agv_mission.missions.run.fleet_orders import FleetCoordinator, queue_fleet_tasks
+from agv_mission.missions.run.observe import (
     RobotStart,
     RunControl,
     RunObserver,
     RunStart,
-    StepSample,
-    tree_nodes,
 )
-from agv_mission.missions.people_record import PeopleRun, fleet_people_metrics
-from agv_mission.missions.record import TRAJECTORY_COLUMNS, RunRecord, bare_record
-from agv_mission.missions.robot_run import RobotRun
-from agv_mission.missions.stack import (
+from agv_mission.missions.run.people_record import PeopleRun, fleet_people_metrics
+from agv_mission.missions.run.record import RunRecord, bare_record
+from agv_mission.missions.run.robot_run import RobotRun
+from agv_mission.missions.run.samples import StepSample, tree_nodes
+from agv_mission.missions.run.stack import (
     CONTROL_PERIOD,
     RobotStack,
-    VelocitySmoother,
     build_world,
     open_recorders,
 )
-from agv_mission.missions.team import RobotTeam, team_size
-from agv_mission.missions.tree import MissionTree
+from agv_mission.missions.run.team import RobotTeam, team_size
+from agv_mission.missions.spec.loader import LoadedMission
+from agv_mission.missions.spec.tree import MissionTree
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.robots.simulation import DiffDriveBody
 
-__all__ = [
-    "CONTROL_PERIOD",
-    "TRAJECTORY_COLUMNS",
-    "VelocitySmoother",
-    "MissionRun",
-    "RunRecord",
-    "run_mission",
-]
+__all__ = ["MissionRun", "run_mission"]
 
 ProgressCallback = Callable[[float, float], None]
-
-
-class RunStopped(BaseException):
-    """Raised (by a signal handler of the front door) to stop a run from outside, e.g. on
-    SIGTERM. Not an ``Exception``: no ``except Exception`` on the way swallows it."""
-
-    def __init__(self, reason: str, signum: int | None = None) -> None:
-        super().__init__(reason)
-        self.reason = reason
-        self.signum = signum
 
 
 def run_mission(
@@ -331,7 +313,7 @@ class MissionRun:
             self.people.move(CONTROL_PERIOD, self.robots)
         dt = world.dt
         steps = int(round(CONTROL_PERIOD / dt))
-        if not self.team.physics:  # another process steps it (missions.team)
+        if not self.team.physics:  # another process steps it (missions.run.team)
             self.team.advanced(steps)
             return
         t0 = world.time
@@ -474,7 +456,7 @@ def fleet_record(run: MissionRun, records: list[RunRecord], wall_time: float) ->
         "wall_time": round(wall_time, 3),
         "real_time_factor": round(sim_time / wall_time, 2) if wall_time > 0 else None,
         "robots": len(records),
-        "processes": len(run.team.links) + 1,  # the robots decided in (missions.team)
+        "processes": len(run.team.links) + 1,  # the robots decided in (missions.run.team)
         "distance_driven": round(sum(r.metrics["distance_driven"] for r in records), 4),
         "collisions": collisions + fleet["robot_robot_collisions"],
         "min_clearance": min(clearances) if clearances else None,

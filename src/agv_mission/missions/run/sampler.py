@@ -1,28 +1,43 @@
-"""The :class:`~agv_mission.missions.observe.StepSample` of each control step, built only
+"""The :class:`~agv_mission.missions.run.observe.StepSample` of each control step, built only
 when a run has observers (a plain run pays nothing for them)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
 from agv_mission.geometry import Pose2D
 from agv_mission.localization.base import LocalizerDiagnostics
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.missions.observe import StepSample, TreeNode, tree_nodes
-from agv_mission.missions.stack import Sensing
+from agv_mission.missions.run.map_building import MapBuilder
+from agv_mission.missions.run.samples import StepSample, TreeNode, tree_nodes
+from agv_mission.missions.run.stack import Sensing
+from agv_mission.missions.spec.tree import MissionTree
+from agv_mission.navigation.handle import RobotHandle
+from agv_mission.navigation.navigator import Navigator
+from agv_mission.robots.battery import Battery
 
-if TYPE_CHECKING:
-    from agv_mission.missions.robot_run import RobotRun
+
+class SampledRobot(Protocol):
+    """What a sample is read from: a robot's parts as its run holds them
+    (:class:`~agv_mission.missions.run.robot_run.RobotRun` is one)."""
+
+    name: str
+    navigator: Navigator
+    handle: RobotHandle
+    mapper: MapBuilder
+    tree: MissionTree
+    task_status: list[str]
+    battery: Battery | None
 
 
 class StepSampler:
-    """Turns one control step of a :class:`~agv_mission.missions.robot_run.RobotRun` into a
+    """Turns one control step of a :class:`~agv_mission.missions.run.robot_run.RobotRun` into a
     :class:`StepSample`: what changed since the previous step (a new plan, a filter update,
     a grown map, tree statuses) and what holds now."""
 
-    def __init__(self, run: RobotRun) -> None:
+    def __init__(self, run: SampledRobot) -> None:
         self.run = run
         self.plans = 0
         self.filter_updates = -1

@@ -1,12 +1,12 @@
 """SIGINT and SIGTERM for a run started from a terminal: stop while loading, cancel once
-running (a :class:`~agv_mission.missions.observe.RunControl`), and the exit code they mean."""
+running (a :class:`~agv_mission.missions.run.observe.RunControl`), and the exit code they mean."""
 
 from __future__ import annotations
 
 import signal
 from typing import Any
 
-from agv_mission.missions.runner import RunStopped
+from agv_mission.missions.run.errors import RunStopped
 
 SIGNAL_EXIT_CODES = {signal.SIGINT: 130, signal.SIGTERM: 143}
 
@@ -17,7 +17,7 @@ class SignalStop:
     the loop is not enough: casadi, for one, catches the KeyboardInterrupt a solve is
     interrupted with, prints it and goes on.)"""
 
-    only_cancels = True  # robots may decide in other processes (missions.team)
+    only_cancels = True  # robots may decide in other processes (missions.run.team)
 
     def __init__(self) -> None:
         self.phase = "loading"  # then "running", then "writing" (too late to stop anything)

@@ -5,7 +5,7 @@ every robot, one after the other on one core. A :class:`RobotTeam` spreads them 
 processes forked from the set-up run: every process holds the whole run (the world, every
 robot, the fleet layer, the people) and steps it the same way, but each robot senses,
 estimates and decides in one process only, its owner; the other processes stand for it
-with its :class:`~agv_mission.missions.robot_run.RobotReport`. Physics, people and the
+with its :class:`~agv_mission.missions.run.samples.RobotReport`. Physics, people and the
 fleet layer's decisions are deterministic given the same inputs, so the replicas stay
 identical and the outcome is the one of a single process, bit for bit (a test runs both).
 
@@ -37,10 +37,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 if TYPE_CHECKING:
-    from agv_mission.missions.fleet import FleetOrder
-    from agv_mission.missions.observe import StepSample
-    from agv_mission.missions.record import RunRecord
-    from agv_mission.missions.robot_run import RobotReport, RobotRun
+    from agv_mission.missions.run.fleet_orders import FleetOrder
+    from agv_mission.missions.run.record import RunRecord
+    from agv_mission.missions.run.robot_run import RobotRun
+    from agv_mission.missions.run.samples import RobotReport, StepSample
     from agv_mission.world.simulation import SimulatedWorld
 
 _UNSENT = object()

@@ -29,17 +29,17 @@ from agv_mission.maps.ros_map import MapLoadError, load_ros_map
 from agv_mission.maps.world_loader import WorldError, builtin_names, load_world
 from agv_mission.maps.worlds import World
 from agv_mission.maps.zones import FilterMask, ZoneFilters
-from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.no_map import (
+from agv_mission.missions.spec.errors import MissionError, Problem
+from agv_mission.missions.spec.no_map import (
     check_localization,
     default_to_odometry,
     names_no_map,
     no_map_grid,
     scan_height,
 )
-from agv_mission.missions.overrides import Override, apply_overrides
-from agv_mission.missions.people import resolve_people
-from agv_mission.missions.problems import (
+from agv_mission.missions.spec.overrides import Override, apply_overrides
+from agv_mission.missions.spec.people_resolution import resolve_people
+from agv_mission.missions.spec.problems import (
     ProblemLog,
     kind_of,
     non_finite_numbers,
@@ -49,7 +49,7 @@ from agv_mission.missions.problems import (
     validation_problems,
     yaml_problem,
 )
-from agv_mission.missions.schema import (
+from agv_mission.missions.spec.schema import (
     FIELD_ORDER,
     MAX_NAME_LENGTH,
     MAX_SIM_SECONDS,
@@ -58,9 +58,9 @@ from agv_mission.missions.schema import (
     Stack,
     with_default_plugin_types,
 )
-from agv_mission.missions.schema.base import Pose
-from agv_mission.missions.schema.zones import KeepoutMask, KeepoutZone, SpeedMask
-from agv_mission.missions.tree import (
+from agv_mission.missions.spec.schema.base import Pose
+from agv_mission.missions.spec.schema.zones import KeepoutMask, KeepoutZone, SpeedMask
+from agv_mission.missions.spec.tree import (
     TreeSource,
     TreeSpec,
     Where,
@@ -69,9 +69,9 @@ from agv_mission.missions.tree import (
     tasks_tree,
     yaml_spec,
 )
-from agv_mission.missions.tree_xml import parse_xml
-from agv_mission.missions.world_checks import check_docks, costmap_fits, place_mission
-from agv_mission.missions.yaml_lines import FieldPath, load_with_lines
+from agv_mission.missions.spec.tree_xml import parse_xml
+from agv_mission.missions.spec.world_checks import check_docks, costmap_fits, place_mission
+from agv_mission.missions.spec.yaml_lines import FieldPath, load_with_lines
 from agv_mission.robots.description import (
     BUILTIN_ROBOTS,
     RobotDescription,
@@ -640,7 +640,7 @@ def _robot_tree(
 ) -> TreeSpec | None:
     """A fleet robot's own behaviour (its tasks or tree) as a tree; None when it has none.
     The fleet's tasks join it when the run releases them
-    (:func:`agv_mission.missions.fleet.queue_fleet_tasks`)."""
+    (:func:`agv_mission.missions.run.fleet_orders.queue_fleet_tasks`)."""
     file, lines = log.file, log.lines
     robot, entry = mission.robots[index], data["robots"][index]
     base: FieldPath = ("robots", index)

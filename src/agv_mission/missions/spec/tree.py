@@ -30,9 +30,9 @@ from py_trees.common import Status
 from pydantic import ValidationError
 
 from agv_mission.behaviors.ports import NodePorts, blackboard_key
-from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.schema.base import MAX_TREE_NODES
-from agv_mission.missions.yaml_lines import FieldPath
+from agv_mission.missions.spec.errors import MissionError, Problem
+from agv_mission.missions.spec.schema.base import MAX_TREE_NODES
+from agv_mission.missions.spec.yaml_lines import FieldPath
 from agv_mission.registry import UnknownPluginError, registry
 
 if TYPE_CHECKING:  # the behaviours' modules load only when a tree is built

@@ -136,7 +136,8 @@ def _nav2(base: Path) -> dict[str, float]:
 def run(tmp: Path | None = None) -> dict[str, float]:
     import tempfile
 
-    from agv_mission.missions.spec.tree import TreeSource, assemble, yaml_spec
+    from agv_mission.missions.spec.tree_assembly import assemble
+    from agv_mission.missions.spec.tree_spec import TreeSource, yaml_spec
 
     results: dict[str, float] = {}
     with tempfile.TemporaryDirectory() as folder:

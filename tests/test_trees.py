@@ -22,9 +22,11 @@ from agv_mission.behaviors.check import sample_context
 from agv_mission.behaviors.context import TreeContext
 from agv_mission.behaviors.ports import NodePorts
 from agv_mission.cli import app
+from agv_mission.missions.run.behaviour_tree import MissionTree, build_tree
 from agv_mission.missions.run.runner import run_mission
 from agv_mission.missions.spec.loader import load_mission
-from agv_mission.missions.spec.tree import MissionTree, TreeSource, assemble, build_tree, yaml_spec
+from agv_mission.missions.spec.tree_assembly import assemble
+from agv_mission.missions.spec.tree_spec import TreeSource, yaml_spec
 from agv_mission.missions.spec.tree_xml import export_xml, parse_xml
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.plugin_check import PluginCheckError, check_plugin

@@ -46,7 +46,7 @@ def nodes(
     as_json: Annotated[bool, typer.Option("--json", help="as JSON")] = False,
 ) -> None:
     """List every node type with its ports (name, direction, type, default, description)."""
-    from agv_mission.missions.spec.tree import node_types
+    from agv_mission.missions.spec.node_types import node_types
     from agv_mission.missions.spec.tree_xml import nodes_model
 
     if xml:

@@ -14,7 +14,8 @@ from xml.sax.saxutils import quoteattr
 
 from py_trees.common import Status
 
-from agv_mission.missions.spec.tree import MissionTree, Node, TreeSpec
+from agv_mission.missions.run.behaviour_tree import MissionTree
+from agv_mission.missions.spec.tree_spec import Node, TreeSpec
 
 if TYPE_CHECKING:
     from agv_mission.navigation.handle import RobotHandle
@@ -66,7 +67,7 @@ class TreeLog:
 
 def _entries(node_type: str) -> list[str]:
     """The ports of ``node_type`` whose value names a blackboard entry."""
-    from agv_mission.missions.spec.tree import SLOT
+    from agv_mission.missions.spec.tree_spec import SLOT
     from agv_mission.registry import UnknownPluginError, registry
 
     try:

@@ -25,7 +25,8 @@ from agv_mission.fleet.travel import GridTravelTime
 from agv_mission.geometry import Pose2D
 from agv_mission.missions.run.robot_run import RobotRun
 from agv_mission.missions.spec.loader import LoadedMission, RobotSetup
-from agv_mission.missions.spec.tree import NodeSpec, TreeSource, TreeSpec, Where, assemble
+from agv_mission.missions.spec.tree_assembly import assemble
+from agv_mission.missions.spec.tree_spec import NodeSpec, TreeSource, TreeSpec, Where
 from agv_mission.registry import registry
 
 

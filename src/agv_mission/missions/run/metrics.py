@@ -9,7 +9,7 @@ import numpy as np
 
 from agv_mission.behaviors.outcome import failure_reason
 from agv_mission.geometry import wrap_angle
-from agv_mission.missions.spec.tree import MissionTree
+from agv_mission.missions.run.behaviour_tree import MissionTree
 from agv_mission.navigation.legs import leg_report
 from agv_mission.navigation.navigator import Navigator
 

@@ -10,10 +10,10 @@ import numpy as np
 from agv_mission.geometry import Pose2D
 from agv_mission.localization.base import LocalizerDiagnostics
 from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.missions.run.behaviour_tree import MissionTree
 from agv_mission.missions.run.map_building import MapBuilder
 from agv_mission.missions.run.samples import StepSample, TreeNode, tree_nodes
 from agv_mission.missions.run.stack import Sensing
-from agv_mission.missions.spec.tree import MissionTree
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.robots.battery import Battery

@@ -60,15 +60,8 @@ from agv_mission.missions.spec.schema import (
 )
 from agv_mission.missions.spec.schema.base import Pose
 from agv_mission.missions.spec.schema.zones import KeepoutMask, KeepoutZone, SpeedMask
-from agv_mission.missions.spec.tree import (
-    TreeSource,
-    TreeSpec,
-    Where,
-    assemble,
-    tasks_spec,
-    tasks_tree,
-    yaml_spec,
-)
+from agv_mission.missions.spec.tree_assembly import assemble, tasks_tree
+from agv_mission.missions.spec.tree_spec import TreeSource, TreeSpec, Where, tasks_spec, yaml_spec
 from agv_mission.missions.spec.tree_xml import parse_xml
 from agv_mission.missions.spec.world_checks import check_docks, costmap_fits, place_mission
 from agv_mission.missions.spec.yaml_lines import FieldPath, load_with_lines

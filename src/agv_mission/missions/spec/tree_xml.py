@@ -28,7 +28,8 @@ import yaml
 
 from agv_mission.behaviors.ports import blackboard_key
 from agv_mission.missions.spec.errors import MissionError, Problem
-from agv_mission.missions.spec.tree import SLOT, NodeSpec, TreeSource, Where, node_types
+from agv_mission.missions.spec.node_types import node_types
+from agv_mission.missions.spec.tree_spec import SLOT, NodeSpec, TreeSource, Where
 from agv_mission.registry import UnknownPluginError, registry
 
 #: Old names still read: BT.CPP's (quietly) and our earlier spelling (with a warning).

@@ -17,7 +17,8 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from agv_mission.missions.spec.errors import MissionError, Problem
-from agv_mission.missions.spec.loader import LoadedMission, load_mission
+from agv_mission.missions.spec.loader import load_mission
+from agv_mission.missions.spec.resolved import LoadedMission
 
 HERE = Path(__file__).resolve().parent
 MISSION = HERE / "invalid" / "fuzz.yaml"  # never written: its folder resolves data/ paths

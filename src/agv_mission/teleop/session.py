@@ -51,8 +51,9 @@ from agv_mission.maps.rooms import room_at
 from agv_mission.missions.report.outputs import make_run_dir, write_trajectory
 from agv_mission.missions.run.runner import MissionRun, run_mission
 from agv_mission.missions.run.stack import CONTROL_PERIOD, open_recorders
-from agv_mission.missions.spec.loader import LoadedMission, load_mission, remote_controlled
+from agv_mission.missions.spec.loader import load_mission, remote_controlled
 from agv_mission.missions.spec.overrides import Override
+from agv_mission.missions.spec.resolved import LoadedMission
 from agv_mission.missions.spec.schema import MAX_SIM_SECONDS
 from agv_mission.teleop.terminal import (
     HELP,

@@ -28,7 +28,8 @@ from agv_mission.missions.run.record import RunRecord
 from agv_mission.missions.run.robot_run import RobotRun
 from agv_mission.missions.run.runner import MissionRun, run_mission
 from agv_mission.missions.run.stack import CONTROL_PERIOD
-from agv_mission.missions.spec.loader import LoadedMission, RobotSetup, remote_controlled
+from agv_mission.missions.spec.loader import remote_controlled
+from agv_mission.missions.spec.resolved import LoadedMission, RobotSetup
 
 NavState = Literal["idle", "running", "succeeded", "failed"]
 

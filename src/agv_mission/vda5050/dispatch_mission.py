@@ -17,7 +17,8 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from agv_mission.missions.spec.errors import MissionError, Problem
-from agv_mission.missions.spec.loader import LoadedMission, load_mission
+from agv_mission.missions.spec.loader import load_mission
+from agv_mission.missions.spec.resolved import LoadedMission
 from agv_mission.missions.spec.yaml_lines import line_of, load_with_lines
 
 

@@ -21,8 +21,8 @@ from agv_mission.missions.report.palette import ROBOT_COLOURS
 from agv_mission.missions.run.metrics import COVARIANCE_COLUMNS
 from agv_mission.missions.run.people_record import plot_people, write_people_csv
 from agv_mission.missions.run.record import TRAJECTORY_COLUMNS, RunRecord
-from agv_mission.missions.spec.loader import LoadedMission
 from agv_mission.missions.spec.no_map import names_no_map
+from agv_mission.missions.spec.resolved import LoadedMission
 
 #: The last column of trajectory.csv: the battery's level (0..1) at each step.
 BATTERY_COLUMNS = ("battery",)

@@ -10,7 +10,7 @@ import numpy as np
 
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.missions.run.metrics import run_metrics
-from agv_mission.missions.spec.loader import LoadedMission
+from agv_mission.missions.spec.resolved import LoadedMission
 
 TRAJECTORY_COLUMNS = ("t", "x", "y", "yaw", "est_x", "est_y", "est_yaw", "v", "w")
 

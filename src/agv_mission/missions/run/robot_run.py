@@ -39,7 +39,7 @@ from agv_mission.missions.run.record import TRAJECTORY_COLUMNS, RunRecord
 from agv_mission.missions.run.sampler import StepSampler
 from agv_mission.missions.run.samples import RobotReport, StepSample, status_name
 from agv_mission.missions.run.stack import CONTROL_PERIOD, RobotStack, Sensing
-from agv_mission.missions.spec.loader import LoadedMission
+from agv_mission.missions.spec.resolved import LoadedMission
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import NavStatus, beams_on_people
 from agv_mission.navigation.state import RobotState

@@ -40,7 +40,7 @@ from agv_mission.missions.run.stack import (
     open_recorders,
 )
 from agv_mission.missions.run.team import RobotTeam, team_size
-from agv_mission.missions.spec.loader import LoadedMission
+from agv_mission.missions.spec.resolved import LoadedMission
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.robots.simulation import DiffDriveBody

@@ -23,6 +23,7 @@ from agv_mission.localization.base import Localizer
 from agv_mission.missions.run.behaviour_tree import MissionTree
 from agv_mission.missions.run.errors import RunStopped
 from agv_mission.missions.run.fleet_orders import FleetCoordinator, queue_fleet_tasks
+from agv_mission.missions.run.fleet_record import fleet_record
 from agv_mission.missions.run.observe import (
     RobotStart,
     RunControl,
@@ -424,70 +425,15 @@ class MissionRun:
             record.status, record.reason = self.status or "error", self.reason
             record.people = self.people.track if self.people is not None else None
             return record
-        record = fleet_record(self, records, wall_time)
+        record = fleet_record(
+            dict(zip((r.name for r in self.robots), records, strict=True)),
+            self.fleet_log,
+            self.world.time,
+            wall_time,
+            (self.status or "error", self.reason),
+            processes=len(team.links) + 1,  # the robots decided in (missions.run.team)
+        )
         if self.people is not None:
             record.people = self.people.track
             record.metrics["people"] = fleet_people_metrics(records)
         return record
-
-
-def fleet_record(run: MissionRun, records: list[RunRecord], wall_time: float) -> RunRecord:
-    """A fleet run's record: every robot's own record under ``robots`` and the fleet's
-    summary (fleet.md); the trajectory is every robot's, in robot order."""
-    log = run.fleet_log
-    sim_time = run.world.time
-    by_name = dict(zip((r.name for r in run.robots), records, strict=True))
-    tasks = [{**task, "robot": name} for name, record in by_name.items() for task in record.tasks]
-    gap = log["robot_robot_min_distance"]
-    collisions = sum(r.metrics["collisions"] for r in records)
-    clearances = [
-        r.metrics["min_clearance"] for r in records if r.metrics["min_clearance"] is not None
-    ]
-    fleet = {
-        "dispatch": log["dispatch"],
-        "makespan": log["makespan"],
-        "robot_robot_collisions": len(log["robot_robot_collisions"]),
-        "robot_robot_min_distance": round(gap, 4) if math.isfinite(gap) else None,
-        "waits": {"count": log["waits"]["count"], "time": round(log["waits"]["time"], 3)},
-        "deadlocks": log["deadlocks"],
-    }
-    metrics = {
-        "sim_time": round(sim_time, 3),
-        "wall_time": round(wall_time, 3),
-        "real_time_factor": round(sim_time / wall_time, 2) if wall_time > 0 else None,
-        "robots": len(records),
-        "processes": len(run.team.links) + 1,  # the robots decided in (missions.run.team)
-        "distance_driven": round(sum(r.metrics["distance_driven"] for r in records), 4),
-        "collisions": collisions + fleet["robot_robot_collisions"],
-        "min_clearance": min(clearances) if clearances else None,
-    }
-    events = sorted(
-        ({**e, "robot": name} for name, record in by_name.items() for e in record.events),
-        key=lambda e: e.get("t", 0.0),
-    )
-    return RunRecord(
-        status=run.status or "error",
-        reason=run.reason,
-        sim_time=round(sim_time, 6),
-        wall_time=round(wall_time, 3),
-        tasks=tasks,
-        metrics=metrics,
-        trajectory=records[0].trajectory[:0],
-        paths=[p for record in records for p in record.paths],
-        events=events,
-        tree_text="\n".join(f"[{name}]\n{record.tree_text}" for name, record in by_name.items()),
-        extras={"fleet": fleet, "collisions": log["robot_robot_collisions"], **_gathered(by_name)},
-        robots=by_name,
-    )
-
-
-def _gathered(by_name: dict[str, RunRecord]) -> dict[str, Any]:
-    """The robots' recorded rooms (one table, in robot order: a label recorded twice keeps
-    the later robot's) and built maps (each naming its robot), as a one-robot result has
-    them."""
-    rooms: dict[str, Any] = {}
-    maps: list[dict[str, Any]] = []
-    for name, record in by_name.items():
-        rooms.update(record.extras.get("rooms_recorded", {}))
-        maps += [{"robot": name, **m} for m in record.extras.get("maps", [])]
-    return {**({"rooms_recorded": rooms} if rooms else {}), **({"maps": maps} if maps else {})}

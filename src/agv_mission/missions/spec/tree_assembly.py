@@ -271,14 +271,20 @@ class _Assembly:
                     ok = False
                     continue
             literal[port] = raw
-        for port, info in fields.items():  # entries read by default go through the scope too
-            extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
-            if extra.get("entry") and port not in spec.ports and isinstance(info.default, str):
-                kind, target = scope.resolve(info.default)
-                if kind == "key":
-                    literal[port] = target
-        if not ok:
+        _default_entries(spec, fields, scope, literal)
+        if not ok or not self.valid(spec, config, literal, bound):
             return None, bound
+        return literal, bound
+
+    def valid(
+        self,
+        spec: NodeSpec,
+        config: type[NodePorts],
+        literal: dict[str, Any],
+        bound: dict[str, str],
+    ) -> bool:
+        """Whether the literal ports make a valid port model (a port bound to the
+        blackboard may be missing); each problem at its port's line."""
         try:
             config.model_validate({"type": spec.type, **literal}, strict=not spec.from_xml)
         except ValidationError as exc:
@@ -298,8 +304,8 @@ class _Assembly:
                         spec.port_lines.get(port or ""),
                     )  # fmt: skip
                 )
-            return None, bound
-        return literal, bound
+            return False
+        return True
 
     def subtree(self, spec: NodeSpec, scope: _Scope) -> Node | None:
         tree_id = spec.ports.get("id", spec.ports.get("ID"))
@@ -333,6 +339,19 @@ class _Assembly:
         name = spec.name or tree_id
         return Node("subtree", name, "decorator", None, {"id": tree_id}, {}, [child], spec.where,
                     tree_id=tree_id)  # fmt: skip
+
+
+def _default_entries(
+    spec: NodeSpec, fields: dict[str, Any], scope: _Scope, literal: dict[str, Any]
+) -> None:
+    """Blackboard entries a node reads by default (not written in ``spec``) go through
+    the subtree's scope too."""
+    for port, info in fields.items():
+        extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+        if extra.get("entry") and port not in spec.ports and isinstance(info.default, str):
+            kind, target = scope.resolve(info.default)
+            if kind == "key":
+                literal[port] = target
 
 
 def _default_name(node_type: str) -> str:

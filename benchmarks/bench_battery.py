@@ -14,9 +14,9 @@ import statistics
 import time
 from pathlib import Path
 
+from agv_mission.missions.load.loader import load_mission
 from agv_mission.missions.run.runner import run_mission
 from agv_mission.missions.run.stack import CONTROL_PERIOD
-from agv_mission.missions.spec.loader import load_mission
 from agv_mission.robots.battery import battery_for
 from agv_mission.robots.description import BUILTIN_ROBOTS
 

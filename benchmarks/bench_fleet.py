@@ -24,9 +24,9 @@ from pathlib import Path
 
 from bench_breakdown import _Clock
 
+from agv_mission.missions.load.loader import load_mission
 from agv_mission.missions.run.runner import MissionRun
 from agv_mission.missions.run.team import AUTO_FROM, usable_cores
-from agv_mission.missions.spec.loader import load_mission
 
 AISLES = (-13.2, -8.95, -5.35, -1.75, 1.85, 5.45, 9.05, 12.55)  # x of the rack aisles
 STRETCHES = ((-20.0, -15.0), (-12.0, -7.0), (7.0, 12.0), (15.0, 20.0))  # y of a patrol

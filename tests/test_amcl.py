@@ -17,8 +17,8 @@ from agv_mission.localization.configs import PROFILES
 from agv_mission.localization.particle_filter import ParticleFilter
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
+from agv_mission.missions.load.loader import load_mission
 from agv_mission.missions.run.runner import run_mission
-from agv_mission.missions.spec.loader import load_mission
 from agv_mission.registry import registry
 
 RES = 0.05

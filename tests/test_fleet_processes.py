@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 from rosbags.highlevel import AnyReader
 
+from agv_mission.missions.load.loader import load_mission
 from agv_mission.missions.run.team import team_size
-from agv_mission.missions.spec.loader import load_mission
 
 EXE = [sys.executable, "-m", "agv_mission.cli"]
 SCENARIOS = Path(__file__).parent / "scenarios"

@@ -10,12 +10,12 @@ import math
 import numpy as np
 import pytest
 
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.loader import load_mission
 from agv_mission.missions.report.outputs import open_run_dir, write_run
 from agv_mission.missions.run.fleet_orders import queue_fleet_tasks
 from agv_mission.missions.run.runner import MissionRun, run_mission
 from agv_mission.missions.run.stack import build_world
-from agv_mission.missions.spec.errors import MissionError
-from agv_mission.missions.spec.loader import load_mission
 
 FLEET = """\
 name: pair

@@ -11,7 +11,7 @@ import jsonschema
 import pytest
 import yaml
 
-from agv_mission.missions.spec.schema import FIELD_ORDER, mission_json_schema
+from agv_mission.missions.load.schema import FIELD_ORDER, mission_json_schema
 from agv_mission.robots.description import BUILTIN_ROBOTS, robot_json_schema
 
 REPO = Path(__file__).resolve().parents[1]

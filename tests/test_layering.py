@@ -20,10 +20,10 @@ FLOORS = {
     "bags": 7,
     "vda5050": 7,
     "missions": 6,
-    # missions/ by concern, data flowing one way: the spec, the run of it, its report
+    # missions/ by concern, data flowing one way: the mission loaded, its run, its report
     "missions.report": 6.3,
     "missions.run": 6.2,
-    "missions.spec": 6.1,
+    "missions.load": 6.1,
     "plugin_check": 6,  # drives a plugin of any slot: floor-3 ones, and behaviour nodes (5)
     "behaviors": 5,
     "navigation": 4,
@@ -105,11 +105,11 @@ def test_every_module_imports_only_from_floors_below() -> None:
     assert not problems, "layering broken:\n" + "\n".join(problems)
 
 
-def test_the_mission_spec_does_not_reach_into_its_run_or_report() -> None:
-    """Inside ``missions/`` the data flows spec -> run -> report: a spec module importing
+def test_the_loaded_mission_does_not_reach_into_its_run_or_report() -> None:
+    """Inside ``missions/`` the data flows load -> run -> report: a load module importing
     the run, or the run importing the report, is caught; the other way is fine."""
     up = "from agv_mission.missions.run.record import RunRecord\n"
-    [problem] = module_problems("agv_mission.missions.spec.probe", up)
+    [problem] = module_problems("agv_mission.missions.load.probe", up)
     assert "(floor 6.2)" in problem
     [problem] = module_problems(
         "agv_mission.missions.run.probe", "from agv_mission.missions.report import outputs\n"

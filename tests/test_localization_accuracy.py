@@ -22,11 +22,11 @@ from agv_mission.localization.distance_field import SignedDistanceField
 from agv_mission.localization.scan_refine import PoseTracker, RefineParams, floor_covariance
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.messages import LaserScan
+from agv_mission.missions.load.loader import load_mission
 from agv_mission.missions.report.outputs import write_run
 from agv_mission.missions.run.metrics import COVARIANCE_COLUMNS
 from agv_mission.missions.run.record import TRAJECTORY_COLUMNS
 from agv_mission.missions.run.runner import run_mission
-from agv_mission.missions.spec.loader import load_mission
 
 RES = 0.05
 PAD = 10

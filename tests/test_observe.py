@@ -6,11 +6,11 @@ from pathlib import Path
 
 import numpy as np
 
+from agv_mission.missions.load.loader import load_mission
 from agv_mission.missions.run.observe import RunStart
 from agv_mission.missions.run.record import RunRecord
 from agv_mission.missions.run.runner import MissionRun, run_mission
 from agv_mission.missions.run.samples import StepSample
-from agv_mission.missions.spec.loader import load_mission
 
 MISSION = """\
 name: observed

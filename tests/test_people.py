@@ -18,13 +18,13 @@ from agv_mission.bags.writer import PEOPLE_PERIOD
 from agv_mission.behaviors.check import sample_context
 from agv_mission.behaviors.conditions import PersonNear
 from agv_mission.maps.builtin_worlds import small_house, warehouse
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.load.people_resolution import resolve_people
+from agv_mission.missions.load.schema.expect import Expectations
+from agv_mission.missions.load.schema.people import MAX_PEOPLE, People, PeopleSpec
 from agv_mission.missions.report.expectations import check
 from agv_mission.missions.run.people_metrics import people_metrics
 from agv_mission.missions.run.runner import run_mission
-from agv_mission.missions.spec.loader import load_mission
-from agv_mission.missions.spec.people_resolution import resolve_people
-from agv_mission.missions.spec.schema.expect import Expectations
-from agv_mission.missions.spec.schema.people import MAX_PEOPLE, People, PeopleSpec
 from agv_mission.world.crowd import DECISION_PERIOD, Crowd, PeopleGroup, clearance
 
 WAREHOUSE = warehouse()

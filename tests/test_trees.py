@@ -22,12 +22,12 @@ from agv_mission.behaviors.check import sample_context
 from agv_mission.behaviors.context import TreeContext
 from agv_mission.behaviors.ports import NodePorts
 from agv_mission.cli import app
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.load.tree_assembly import assemble
+from agv_mission.missions.load.tree_spec import TreeSource, yaml_spec
+from agv_mission.missions.load.tree_xml import export_xml, parse_xml
 from agv_mission.missions.run.behaviour_tree import MissionTree, build_tree
 from agv_mission.missions.run.runner import run_mission
-from agv_mission.missions.spec.loader import load_mission
-from agv_mission.missions.spec.tree_assembly import assemble
-from agv_mission.missions.spec.tree_spec import TreeSource, yaml_spec
-from agv_mission.missions.spec.tree_xml import export_xml, parse_xml
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.plugin_check import PluginCheckError, check_plugin
 from agv_mission.registry import registry

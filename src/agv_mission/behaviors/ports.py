@@ -208,7 +208,7 @@ class NodePorts(PluginConfig):
     #: Ports the conformance check builds the node with (None: it needs a run's mapper,
     #: checked statically only).
     example: ClassVar[dict[str, Any] | None] = {}
-    # ---- its BT.CPP XML spelling (missions/spec/tree_xml.py): the element's ID (default: the
+    # ---- its BT.CPP XML spelling (missions/load/tree_xml.py): the element's ID (default: the
     # type in CamelCase), attribute names of ports named otherwise in YAML, the factor from
     # a YAML value to its XML one (seconds -> msec), and whether BT.CPP itself has the node
     # (an exported <TreeNodesModel> never declares those)

@@ -14,7 +14,7 @@ from rich.table import Table
 
 from agv_mission.cli.console import Overrides, err, failure, invalid, out, progress_bar
 from agv_mission.cli.service import run_observers
-from agv_mission.missions.spec.errors import MissionError
+from agv_mission.missions.load.errors import MissionError
 
 
 def barn(

@@ -13,7 +13,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from agv_mission.missions.spec.errors import MissionError
+from agv_mission.missions.load.errors import MissionError
 
 EXIT_CODES = {"succeeded": 0, "failed": 1, "error": 3, "aborted": 130, "interrupted": 1}
 

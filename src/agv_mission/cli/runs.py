@@ -25,7 +25,7 @@ from agv_mission.cli.console import (
     progress_bar,
 )
 from agv_mission.cli.startup import quiet_until_started, started_as_program
-from agv_mission.missions.spec.errors import MissionError
+from agv_mission.missions.load.errors import MissionError
 
 REFRESH_PERIOD = 0.1  # s of wall time between redraws of the progress bar
 
@@ -44,12 +44,12 @@ def run(
     if started_as_program():  # Ctrl-C during the imports below: exit 130, no traceback
         quiet_until_started()
     from agv_mission.bags.writer import BagWriter
+    from agv_mission.missions.load.loader import load_demo_mission, load_mission
     from agv_mission.missions.report.outputs import RunDirError, open_run_dir, write_run
     from agv_mission.missions.run.errors import RunStopped
     from agv_mission.missions.run.pacing import PacedControl
     from agv_mission.missions.run.runner import run_mission
     from agv_mission.missions.run.signals import SignalStop
-    from agv_mission.missions.spec.loader import load_demo_mission, load_mission
 
     stopper = SignalStop().install()
     try:
@@ -135,7 +135,7 @@ def validate(
     seed: Seed = None,
 ) -> None:
     """Validate mission files without running them (with the overrides ``run`` would take)."""
-    from agv_mission.missions.spec.loader import load_mission
+    from agv_mission.missions.load.loader import load_mission
 
     bad = 0
     for path in files_:
@@ -163,7 +163,7 @@ def schema(
 
         doc = robot_json_schema()
     else:
-        from agv_mission.missions.spec.schema import mission_json_schema
+        from agv_mission.missions.load.schema import mission_json_schema
 
         doc = mission_json_schema()
     PipeSafeStdout().write(json.dumps(doc, indent=2) + "\n")

@@ -19,7 +19,7 @@ from agv_mission.cli.console import (
     print_summary,
     progress_bar,
 )
-from agv_mission.missions.spec.errors import MissionError
+from agv_mission.missions.load.errors import MissionError
 
 EXIT_UNAVAILABLE = 69  # sysexits' EX_UNAVAILABLE: the service could not be reached or refused
 

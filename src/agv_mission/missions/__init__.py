@@ -2,7 +2,7 @@
 
 Three sub-packages, data flowing one way:
 
-- :mod:`~agv_mission.missions.spec`: the mission as written, checked and resolved
+- :mod:`~agv_mission.missions.load`: the mission as written, checked and resolved
   (schema, YAML with lines, ``--set``, world checks, the tree assembly) -> a
   ``LoadedMission``;
 - :mod:`~agv_mission.missions.run`: the simulation-clock loop over the world's robots,

@@ -19,8 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from agv_mission.messages import json_default
+from agv_mission.missions.load.errors import MissionError
 from agv_mission.missions.run.workers import forkserver_context
-from agv_mission.missions.spec.errors import MissionError
 from agv_mission.regress.plan import RegressError, ResultCallback, sweep_overrides
 
 # Signals this process was asked to stop with (Ctrl-C, SIGTERM): a run in progress ends
@@ -65,10 +65,10 @@ def run_job(job: dict[str, Any]) -> dict[str, Any] | None:
     """
     if _STOP:
         return None
+    from agv_mission.missions.load.loader import load_mission
     from agv_mission.missions.report.expectations import check
     from agv_mission.missions.report.outputs import open_run_dir, write_run
     from agv_mission.missions.run.runner import run_mission
-    from agv_mission.missions.spec.loader import load_mission
 
     t0 = time.perf_counter()
     shipped = bool(job.get("ship_back"))  # on a remote worker: the run directory comes back

@@ -200,10 +200,10 @@ def worker_main(job: dict[str, Any], conn: Connection) -> None:
 
 
 def _run(job: dict[str, Any], conn: Connection) -> None:
+    from agv_mission.missions.load.errors import MissionError
+    from agv_mission.missions.load.loader import load_mission
     from agv_mission.missions.report.outputs import write_mission, write_run
     from agv_mission.missions.run.runner import run_mission
-    from agv_mission.missions.spec.errors import MissionError
-    from agv_mission.missions.spec.loader import load_mission
     from agv_mission.service.sandbox import DataDirGuard
 
     data_dir, run_dir = Path(job["data_dir"]), Path(job["run_dir"])

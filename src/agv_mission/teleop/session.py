@@ -48,13 +48,13 @@ from agv_mission.maps.recorder import (
     load_entries,
 )
 from agv_mission.maps.rooms import room_at
+from agv_mission.missions.load.loader import load_mission, remote_controlled
+from agv_mission.missions.load.overrides import Override
+from agv_mission.missions.load.resolved import LoadedMission
+from agv_mission.missions.load.schema import MAX_SIM_SECONDS
 from agv_mission.missions.report.outputs import make_run_dir, write_trajectory
 from agv_mission.missions.run.runner import MissionRun, run_mission
 from agv_mission.missions.run.stack import CONTROL_PERIOD, open_recorders
-from agv_mission.missions.spec.loader import load_mission, remote_controlled
-from agv_mission.missions.spec.overrides import Override
-from agv_mission.missions.spec.resolved import LoadedMission
-from agv_mission.missions.spec.schema import MAX_SIM_SECONDS
 from agv_mission.teleop.terminal import (
     HELP,
     KeyInput,
@@ -81,7 +81,7 @@ def load_teleop_mission(
 ) -> LoadedMission:
     """The mission to drive in: a mission file's world, robot, start and stack, or by
     default the built-in ``small_house`` (``world``/``robot`` override either). Raises
-    :class:`~agv_mission.missions.spec.errors.MissionError` on invalid input."""
+    :class:`~agv_mission.missions.load.errors.MissionError` on invalid input."""
     sets: list[str | Override] = []
     for option, value in (("--world", world), ("--robot", robot)):
         if value is not None:  # errors in them name the option, not a file line

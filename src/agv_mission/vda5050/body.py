@@ -24,12 +24,12 @@ from dataclasses import dataclass, replace
 from typing import Literal, Protocol
 
 from agv_mission.geometry import Pose2D
+from agv_mission.missions.load.loader import remote_controlled
+from agv_mission.missions.load.resolved import LoadedMission, RobotSetup
 from agv_mission.missions.run.record import RunRecord
 from agv_mission.missions.run.robot_run import RobotRun
 from agv_mission.missions.run.runner import MissionRun, run_mission
 from agv_mission.missions.run.stack import CONTROL_PERIOD
-from agv_mission.missions.spec.loader import remote_controlled
-from agv_mission.missions.spec.resolved import LoadedMission, RobotSetup
 
 NavState = Literal["idle", "running", "succeeded", "failed"]
 

@@ -16,10 +16,10 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from agv_mission.missions.spec.errors import MissionError, Problem
-from agv_mission.missions.spec.loader import load_mission
-from agv_mission.missions.spec.resolved import LoadedMission
-from agv_mission.missions.spec.yaml_lines import line_of, load_with_lines
+from agv_mission.missions.load.errors import MissionError, Problem
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.load.resolved import LoadedMission
+from agv_mission.missions.load.yaml_lines import line_of, load_with_lines
 
 
 class NodeAction(BaseModel):

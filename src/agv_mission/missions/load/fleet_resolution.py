@@ -9,21 +9,21 @@ import copy
 from pathlib import Path
 from typing import Any
 
-from agv_mission.missions.spec.errors import MissionError, Problem
-from agv_mission.missions.spec.problems import (
+from agv_mission.missions.load.errors import MissionError, Problem
+from agv_mission.missions.load.problems import (
     ProblemLog,
     kind_of,
 )
-from agv_mission.missions.spec.resolve import resolve_setup
-from agv_mission.missions.spec.resolved import FleetTask, LoadedMission, PathGuard, RobotSetup
-from agv_mission.missions.spec.schema import (
+from agv_mission.missions.load.resolve import resolve_setup
+from agv_mission.missions.load.resolved import FleetTask, LoadedMission, PathGuard, RobotSetup
+from agv_mission.missions.load.schema import (
     MAX_NAME_LENGTH,
     Mission,
 )
-from agv_mission.missions.spec.tree_assembly import assemble
-from agv_mission.missions.spec.tree_sources import node_checks, tree_loader, xml_source
-from agv_mission.missions.spec.tree_spec import TreeSource, TreeSpec, tasks_spec, yaml_spec
-from agv_mission.missions.spec.yaml_lines import FieldPath
+from agv_mission.missions.load.tree_assembly import assemble
+from agv_mission.missions.load.tree_sources import node_checks, tree_loader, xml_source
+from agv_mission.missions.load.tree_spec import TreeSource, TreeSpec, tasks_spec, yaml_spec
+from agv_mission.missions.load.yaml_lines import FieldPath
 from agv_mission.robots.description import (
     load_robot,
 )

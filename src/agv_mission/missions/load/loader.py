@@ -17,13 +17,13 @@ import yaml
 from pydantic import ValidationError
 
 from agv_mission.atomic import InputFileError, read_input_bytes
-from agv_mission.missions.spec.errors import MissionError, Problem
-from agv_mission.missions.spec.fleet_resolution import fleet_layout, resolve_fleet
-from agv_mission.missions.spec.no_map import (
+from agv_mission.missions.load.errors import MissionError, Problem
+from agv_mission.missions.load.fleet_resolution import fleet_layout, resolve_fleet
+from agv_mission.missions.load.no_map import (
     default_to_odometry,
 )
-from agv_mission.missions.spec.overrides import Override, apply_overrides
-from agv_mission.missions.spec.problems import (
+from agv_mission.missions.load.overrides import Override, apply_overrides
+from agv_mission.missions.load.problems import (
     ProblemLog,
     kind_of,
     non_finite_numbers,
@@ -31,17 +31,17 @@ from agv_mission.missions.spec.problems import (
     validation_problems,
     yaml_problem,
 )
-from agv_mission.missions.spec.resolve import resolve_setup
-from agv_mission.missions.spec.resolved import LoadedMission, PathGuard
-from agv_mission.missions.spec.schema import (
+from agv_mission.missions.load.resolve import resolve_setup
+from agv_mission.missions.load.resolved import LoadedMission, PathGuard
+from agv_mission.missions.load.schema import (
     MAX_SIM_SECONDS,
     Mission,
     Setup,
     with_default_plugin_types,
 )
-from agv_mission.missions.spec.tree_assembly import assemble, tasks_tree
-from agv_mission.missions.spec.tree_sources import tree_source
-from agv_mission.missions.spec.yaml_lines import FieldPath, load_with_lines
+from agv_mission.missions.load.tree_assembly import assemble, tasks_tree
+from agv_mission.missions.load.tree_sources import tree_source
+from agv_mission.missions.load.yaml_lines import FieldPath, load_with_lines
 
 DEMO_MISSION = "visit_rooms.yaml"  # what ``agv-mission run`` runs without a file
 

@@ -22,8 +22,8 @@ from agv_mission.maps.grid import FREE, OccupancyGrid
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.world_loader import DEFAULT_SCAN_HEIGHT
 from agv_mission.maps.worlds import World
-from agv_mission.missions.spec.schema import NO_MAP, Setup
-from agv_mission.missions.spec.world_checks import MAX_GRID_CELLS, NodeCheck, Report
+from agv_mission.missions.load.schema import NO_MAP, Setup
+from agv_mission.missions.load.world_checks import MAX_GRID_CELLS, NodeCheck, Report
 from agv_mission.robots.description import load_robot
 
 NO_MAP_MARGIN = 2.0  # m around the world, the start and the goals

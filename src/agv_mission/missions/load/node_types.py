@@ -8,7 +8,7 @@ import types
 import typing
 from typing import Any
 
-from agv_mission.missions.spec.tree_spec import SLOT
+from agv_mission.missions.load.tree_spec import SLOT
 from agv_mission.registry import UnknownPluginError, registry
 
 

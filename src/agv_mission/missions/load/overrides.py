@@ -19,10 +19,10 @@ from typing import Any
 
 import yaml
 
-from agv_mission.missions.spec.errors import MissionError, Problem
-from agv_mission.missions.spec.problems import kind_of
-from agv_mission.missions.spec.schema import with_default_plugin_types
-from agv_mission.missions.spec.yaml_lines import FieldPath
+from agv_mission.missions.load.errors import MissionError, Problem
+from agv_mission.missions.load.problems import kind_of
+from agv_mission.missions.load.schema import with_default_plugin_types
+from agv_mission.missions.load.yaml_lines import FieldPath
 
 
 @dataclass(frozen=True)

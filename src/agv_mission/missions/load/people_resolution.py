@@ -14,8 +14,8 @@ import shapely
 
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.rooms import Room
-from agv_mission.missions.spec.schema.people import PeopleSpec
-from agv_mission.missions.spec.yaml_lines import FieldPath
+from agv_mission.missions.load.schema.people import PeopleSpec
+from agv_mission.missions.load.yaml_lines import FieldPath
 from agv_mission.world.crowd import PeopleGroup, RouteGrid, clearance, route_grid
 
 Report = Callable[[FieldPath, str], None]

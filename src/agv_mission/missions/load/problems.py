@@ -11,9 +11,9 @@ from typing import Any
 import yaml
 from pydantic import ValidationError
 
-from agv_mission.missions.spec.errors import MissionError, Problem
-from agv_mission.missions.spec.schema import Mission, Setup
-from agv_mission.missions.spec.yaml_lines import DocumentError, FieldPath, document_nodes, line_of
+from agv_mission.missions.load.errors import MissionError, Problem
+from agv_mission.missions.load.schema import Mission, Setup
+from agv_mission.missions.load.yaml_lines import DocumentError, FieldPath, document_nodes, line_of
 from agv_mission.registry import registry
 from agv_mission.suggest import unknown_key
 

@@ -17,30 +17,30 @@ from agv_mission.maps.rooms_file import RoomsFileError, load_rooms_file
 from agv_mission.maps.ros_map import MapLoadError, load_ros_map
 from agv_mission.maps.world_loader import WorldError, builtin_names, load_world
 from agv_mission.maps.worlds import World
-from agv_mission.missions.spec.errors import MissionError
-from agv_mission.missions.spec.no_map import (
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.no_map import (
     check_localization,
     names_no_map,
     no_map_grid,
     scan_height,
 )
-from agv_mission.missions.spec.people_resolution import resolve_people
-from agv_mission.missions.spec.problems import (
+from agv_mission.missions.load.people_resolution import resolve_people
+from agv_mission.missions.load.problems import (
     ProblemLog,
     one_line,
     os_message,
 )
-from agv_mission.missions.spec.resolved import LoadedMission, PathGuard
-from agv_mission.missions.spec.schema import (
+from agv_mission.missions.load.resolved import LoadedMission, PathGuard
+from agv_mission.missions.load.schema import (
     MAX_NAME_LENGTH,
     Setup,
 )
-from agv_mission.missions.spec.schema.base import Pose
-from agv_mission.missions.spec.schema.zones import KeepoutMask, SpeedMask
-from agv_mission.missions.spec.tree_sources import node_checks
-from agv_mission.missions.spec.tree_spec import TreeSpec
-from agv_mission.missions.spec.world_checks import check_docks, costmap_fits, place_mission
-from agv_mission.missions.spec.zone_filters import zone_filters
+from agv_mission.missions.load.schema.base import Pose
+from agv_mission.missions.load.schema.zones import KeepoutMask, SpeedMask
+from agv_mission.missions.load.tree_sources import node_checks
+from agv_mission.missions.load.tree_spec import TreeSpec
+from agv_mission.missions.load.world_checks import check_docks, costmap_fits, place_mission
+from agv_mission.missions.load.zone_filters import zone_filters
 from agv_mission.robots.description import (
     BUILTIN_ROBOTS,
     RobotDescription,

@@ -16,13 +16,13 @@ from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.worlds import World
 from agv_mission.maps.zones import ZoneFilters
-from agv_mission.missions.spec.errors import Problem
-from agv_mission.missions.spec.schema import (
+from agv_mission.missions.load.errors import Problem
+from agv_mission.missions.load.schema import (
     FIELD_ORDER,
     Mission,
     Stack,
 )
-from agv_mission.missions.spec.tree_spec import TreeSpec
+from agv_mission.missions.load.tree_spec import TreeSpec
 from agv_mission.robots.description import (
     RobotDescription,
 )

@@ -1,8 +1,8 @@
 """One assembly from whatever the user wrote to one validated tree.
 
-The :class:`~agv_mission.missions.spec.tree_spec.TreeSource` (a ``tasks:`` list, a YAML
+The :class:`~agv_mission.missions.load.tree_spec.TreeSource` (a ``tasks:`` list, a YAML
 ``tree:`` with named ``trees:``, or a BT.CPP v4 XML file) becomes one validated,
-expanded :class:`~agv_mission.missions.spec.tree_spec.TreeSpec`: ports checked against
+expanded :class:`~agv_mission.missions.load.tree_spec.TreeSpec`: ports checked against
 each node type's port model from the registry's ``behavior`` slot, subtrees inlined with
 their ports remapped, blackboard reads checked against writes. Node types are found the
 way a third-party node is: by name in the registry. The run builds the py_trees tree of
@@ -24,9 +24,9 @@ import yaml
 from pydantic import ValidationError
 
 from agv_mission.behaviors.ports import NodePorts, blackboard_key
-from agv_mission.missions.spec.errors import MissionError, Problem
-from agv_mission.missions.spec.schema.base import MAX_TREE_NODES
-from agv_mission.missions.spec.tree_spec import (
+from agv_mission.missions.load.errors import MissionError, Problem
+from agv_mission.missions.load.schema.base import MAX_TREE_NODES
+from agv_mission.missions.load.tree_spec import (
     NAVIGATORS,
     SLOT,
     Node,

@@ -8,18 +8,18 @@ from pathlib import Path
 from typing import Any
 
 from agv_mission.atomic import InputFileError, input_path, read_input_bytes
-from agv_mission.missions.spec.errors import MissionError
-from agv_mission.missions.spec.problems import (
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.problems import (
     ProblemLog,
     os_message,
 )
-from agv_mission.missions.spec.resolved import PathGuard
-from agv_mission.missions.spec.schema import (
+from agv_mission.missions.load.resolved import PathGuard
+from agv_mission.missions.load.schema import (
     Mission,
 )
-from agv_mission.missions.spec.tree_spec import TreeSource, TreeSpec, Where, tasks_spec, yaml_spec
-from agv_mission.missions.spec.tree_xml import parse_xml
-from agv_mission.missions.spec.yaml_lines import FieldPath
+from agv_mission.missions.load.tree_spec import TreeSource, TreeSpec, Where, tasks_spec, yaml_spec
+from agv_mission.missions.load.tree_xml import parse_xml
+from agv_mission.missions.load.yaml_lines import FieldPath
 
 
 def tree_source(

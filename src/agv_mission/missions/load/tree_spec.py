@@ -1,9 +1,9 @@
 """A behaviour tree as the user wrote it, and as the assembly validated it.
 
 A ``tasks:`` list (shorthand for a sequence of task nodes), a YAML ``tree:`` with named
-``trees:``, or a BT.CPP v4 XML file (:mod:`~agv_mission.missions.spec.tree_xml`) all
+``trees:``, or a BT.CPP v4 XML file (:mod:`~agv_mission.missions.load.tree_xml`) all
 become :class:`NodeSpec` s (what was written, where: file, line, field path) in a
-:class:`TreeSource`; the assembly (:mod:`~agv_mission.missions.spec.tree_assembly`)
+:class:`TreeSource`; the assembly (:mod:`~agv_mission.missions.load.tree_assembly`)
 makes one validated, expanded :class:`TreeSpec` of :class:`Node` s from it.
 """
 
@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from agv_mission.behaviors.ports import NodePorts
-from agv_mission.missions.spec.errors import MissionError, Problem
-from agv_mission.missions.spec.yaml_lines import FieldPath
+from agv_mission.missions.load.errors import MissionError, Problem
+from agv_mission.missions.load.yaml_lines import FieldPath
 from agv_mission.registry import registry
 
 SLOT = "behavior"

@@ -1,5 +1,5 @@
 """BehaviorTree.CPP v4 XML, both ways: a file the user wrote becomes the same
-:class:`~agv_mission.missions.spec.tree.NodeSpec` s a YAML tree does (each element keeps its
+:class:`~agv_mission.missions.load.tree.NodeSpec` s a YAML tree does (each element keeps its
 line), and any mission's tree is written back as XML with a ``<TreeNodesModel>`` that
 Groot2 reads as its palette.
 
@@ -27,9 +27,9 @@ from xml.sax.saxutils import escape, quoteattr
 import yaml
 
 from agv_mission.behaviors.ports import blackboard_key
-from agv_mission.missions.spec.errors import MissionError, Problem
-from agv_mission.missions.spec.node_types import node_types
-from agv_mission.missions.spec.tree_spec import SLOT, NodeSpec, TreeSource, Where
+from agv_mission.missions.load.errors import MissionError, Problem
+from agv_mission.missions.load.node_types import node_types
+from agv_mission.missions.load.tree_spec import SLOT, NodeSpec, TreeSource, Where
 from agv_mission.registry import UnknownPluginError, registry
 
 #: Old names still read: BT.CPP's (quietly) and our earlier spelling (with a warning).

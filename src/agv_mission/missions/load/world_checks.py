@@ -23,8 +23,8 @@ from agv_mission.maps.docks import Dock, dock_problem
 from agv_mission.maps.grid import UNKNOWN, OccupancyGrid
 from agv_mission.maps.rooms import Room, reachable_cells, room_point
 from agv_mission.maps.worlds import Box, Cylinder, World
-from agv_mission.missions.spec.schema import Setup
-from agv_mission.missions.spec.yaml_lines import FieldPath
+from agv_mission.missions.load.schema import Setup
+from agv_mission.missions.load.yaml_lines import FieldPath
 from agv_mission.planners.configs import goal_margin
 from agv_mission.robots.description import RobotDescription
 

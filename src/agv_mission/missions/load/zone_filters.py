@@ -10,15 +10,15 @@ from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.ros_map import MapLoadError, load_ros_map
 from agv_mission.maps.zones import FilterMask, ZoneFilters
-from agv_mission.missions.spec.problems import (
+from agv_mission.missions.load.problems import (
     ProblemLog,
     one_line,
     os_message,
 )
-from agv_mission.missions.spec.schema import (
+from agv_mission.missions.load.schema import (
     Setup,
 )
-from agv_mission.missions.spec.schema.zones import KeepoutMask, KeepoutZone, SpeedMask
+from agv_mission.missions.load.schema.zones import KeepoutMask, KeepoutZone, SpeedMask
 from agv_mission.robots.description import (
     RobotDescription,
 )

@@ -1,6 +1,6 @@
 """A scenario's ``expect:`` block checked against its run's result document (the content
 of ``result.json``): :func:`check` lists every bound the run did not meet. The block's
-model is :class:`~agv_mission.missions.spec.schema.expect.Expectations`."""
+model is :class:`~agv_mission.missions.load.schema.expect.Expectations`."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from agv_mission.missions.spec.schema.expect import (
+from agv_mission.missions.load.schema.expect import (
     DEFAULT_EXPECTATIONS,
     Expectations,
     TaskStatus,

@@ -17,12 +17,12 @@ from agv_mission.atomic import atomic_write_bytes, atomic_write_text
 from agv_mission.maps.worlds import World
 from agv_mission.maps.zones import ZoneFilters
 from agv_mission.messages import json_default
+from agv_mission.missions.load.no_map import names_no_map
+from agv_mission.missions.load.resolved import LoadedMission
 from agv_mission.missions.report.palette import ROBOT_COLOURS
 from agv_mission.missions.run.metrics import COVARIANCE_COLUMNS
 from agv_mission.missions.run.people_record import plot_people, write_people_csv
 from agv_mission.missions.run.record import TRAJECTORY_COLUMNS, RunRecord
-from agv_mission.missions.spec.no_map import names_no_map
-from agv_mission.missions.spec.resolved import LoadedMission
 
 #: The last column of trajectory.csv: the battery's level (0..1) at each step.
 BATTERY_COLUMNS = ("battery",)

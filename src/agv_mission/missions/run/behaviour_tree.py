@@ -1,5 +1,5 @@
 """The py_trees tree a robot ticks, built from a validated
-:class:`~agv_mission.missions.spec.tree_spec.TreeSpec`: each node's behaviour from the
+:class:`~agv_mission.missions.load.tree_spec.TreeSpec`: each node's behaviour from the
 registry's ``behavior`` slot, instrumented so the run can report every node's starts and
 running time (:class:`MissionTree`)."""
 
@@ -16,7 +16,7 @@ from pydantic import ValidationError
 
 from agv_mission.behaviors.context import TreeContext
 from agv_mission.behaviors.ports import NodePorts
-from agv_mission.missions.spec.tree_spec import SLOT, Node, TreeSpec
+from agv_mission.missions.load.tree_spec import SLOT, Node, TreeSpec
 from agv_mission.registry import registry
 
 Behaviour = py_trees.behaviour.Behaviour

@@ -14,8 +14,8 @@ from xml.sax.saxutils import quoteattr
 
 from py_trees.common import Status
 
+from agv_mission.missions.load.tree_spec import Node, TreeSpec
 from agv_mission.missions.run.behaviour_tree import MissionTree
-from agv_mission.missions.spec.tree_spec import Node, TreeSpec
 
 if TYPE_CHECKING:
     from agv_mission.navigation.handle import RobotHandle
@@ -67,7 +67,7 @@ class TreeLog:
 
 def _entries(node_type: str) -> list[str]:
     """The ports of ``node_type`` whose value names a blackboard entry."""
-    from agv_mission.missions.spec.tree_spec import SLOT
+    from agv_mission.missions.load.tree_spec import SLOT
     from agv_mission.registry import UnknownPluginError, registry
 
     try:
@@ -86,7 +86,7 @@ def tree_xml(spec: TreeSpec) -> str:
     """The expanded tree as BT.CPP's ``WriteTreeToXML`` has it: each subtree (and each
     navigator's tree) its own ``<BehaviorTree>`` with its ``_fullpath``, a ``_uid`` on
     every node (pre-order from 1, as the run's node records)."""
-    from agv_mission.missions.spec.tree_xml import _flow, _ports_to_xml, nodes_model, xml_id
+    from agv_mission.missions.load.tree_xml import _flow, _ports_to_xml, nodes_model, xml_id
 
     trees: list[tuple[str, str, list[str]]] = []  # (ID, fullpath, lines)
     counter = [0]

@@ -23,10 +23,10 @@ import numpy as np
 from agv_mission.fleet.base import FleetTask, RobotWork, TrafficDecision, TrafficRobot
 from agv_mission.fleet.travel import GridTravelTime
 from agv_mission.geometry import Pose2D
+from agv_mission.missions.load.resolved import LoadedMission, RobotSetup
+from agv_mission.missions.load.tree_assembly import assemble
+from agv_mission.missions.load.tree_spec import NodeSpec, TreeSource, TreeSpec, Where
 from agv_mission.missions.run.robot_run import RobotRun
-from agv_mission.missions.spec.resolved import LoadedMission, RobotSetup
-from agv_mission.missions.spec.tree_assembly import assemble
-from agv_mission.missions.spec.tree_spec import NodeSpec, TreeSource, TreeSpec, Where
 from agv_mission.registry import registry
 
 

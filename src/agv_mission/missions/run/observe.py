@@ -17,10 +17,10 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.docks import Dock
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.rooms import Room
+from agv_mission.missions.load.schema import Mission
 from agv_mission.missions.run.record import RunRecord
 from agv_mission.missions.run.robot_run import RobotRun
 from agv_mission.missions.run.samples import StepSample, TreeNode
-from agv_mission.missions.spec.schema import Mission
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.robots.description import RobotDescription
 from agv_mission.world.simulation import SimulatedWorld

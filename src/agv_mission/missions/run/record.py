@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 
 from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.missions.load.resolved import LoadedMission
 from agv_mission.missions.run.metrics import run_metrics
-from agv_mission.missions.spec.resolved import LoadedMission
 
 TRAJECTORY_COLUMNS = ("t", "x", "y", "yaw", "est_x", "est_y", "est_yaw", "v", "w")
 

@@ -23,6 +23,7 @@ from agv_mission.maps.obstacle_layer import ObstacleLayer
 from agv_mission.maps.recorder import LocationRecorder
 from agv_mission.maps.zones import zone_metrics
 from agv_mission.messages import LaserScan
+from agv_mission.missions.load.resolved import LoadedMission
 from agv_mission.missions.run.behaviour_tree import build_tree
 from agv_mission.missions.run.btlog import TreeLog
 from agv_mission.missions.run.faults import FaultInjector
@@ -39,7 +40,6 @@ from agv_mission.missions.run.record import TRAJECTORY_COLUMNS, RunRecord
 from agv_mission.missions.run.sampler import StepSampler
 from agv_mission.missions.run.samples import RobotReport, StepSample, status_name
 from agv_mission.missions.run.stack import CONTROL_PERIOD, RobotStack, Sensing
-from agv_mission.missions.spec.resolved import LoadedMission
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import NavStatus, beams_on_people
 from agv_mission.navigation.state import RobotState

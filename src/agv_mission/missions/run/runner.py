@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from agv_mission.localization.base import Localizer
+from agv_mission.missions.load.resolved import LoadedMission
 from agv_mission.missions.run.behaviour_tree import MissionTree
 from agv_mission.missions.run.errors import RunStopped
 from agv_mission.missions.run.fleet_orders import FleetCoordinator, queue_fleet_tasks
@@ -41,7 +42,6 @@ from agv_mission.missions.run.stack import (
     open_recorders,
 )
 from agv_mission.missions.run.team import RobotTeam, team_size
-from agv_mission.missions.spec.resolved import LoadedMission
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.robots.simulation import DiffDriveBody

@@ -24,7 +24,7 @@ from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.obstacle_layer import ObstacleLayer
 from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder, RecorderFileError
 from agv_mission.messages import LaserScan
-from agv_mission.missions.spec.resolved import LoadedMission, RobotSetup
+from agv_mission.missions.load.resolved import LoadedMission, RobotSetup
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.planners.base import VelocityLimits

@@ -11,7 +11,7 @@ from typing import Any
 
 #: What every worker imports before it forks: loading, running and writing a mission.
 STACK_MODULES = (
-    "agv_mission.missions.spec.loader",
+    "agv_mission.missions.load.loader",
     "agv_mission.missions.run.runner",
     "agv_mission.missions.report.outputs",
     "matplotlib.pyplot",

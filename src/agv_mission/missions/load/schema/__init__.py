@@ -21,7 +21,7 @@ from agv_mission.behaviors.ports import (  # the task types: action nodes of the
     VisitRoomsTask,
     WanderTask,
 )
-from agv_mission.missions.spec.schema.base import (
+from agv_mission.missions.load.schema.base import (
     MAX_FAULTS,
     MAX_LOOPS,
     MAX_NAME_LENGTH,
@@ -38,7 +38,7 @@ from agv_mission.missions.spec.schema.base import (
     StartSpec,
     StrictModel,
 )
-from agv_mission.missions.spec.schema.disturbances import (
+from agv_mission.missions.load.schema.disturbances import (
     BoxObstacle,
     CylinderObstacle,
     Fault,
@@ -49,8 +49,8 @@ from agv_mission.missions.spec.schema.disturbances import (
     WheelSlipFault,
     Window,
 )
-from agv_mission.missions.spec.schema.json_schema import JSON_SCHEMA_DIALECT, mission_json_schema
-from agv_mission.missions.spec.schema.mission import (
+from agv_mission.missions.load.schema.json_schema import JSON_SCHEMA_DIALECT, mission_json_schema
+from agv_mission.missions.load.schema.mission import (
     FIELD_ORDER,
     NO_MAP,
     Limits,
@@ -59,7 +59,7 @@ from agv_mission.missions.spec.schema.mission import (
     Setup,
     WorldImport,
 )
-from agv_mission.missions.spec.schema.stack import (
+from agv_mission.missions.load.schema.stack import (
     DEFAULT_PLUGINS,
     GlobalPlannerConfig,
     LocalizationConfig,

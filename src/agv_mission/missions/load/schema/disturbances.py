@@ -7,7 +7,7 @@ from typing import Annotated, Literal, Union
 
 from pydantic import Field, model_validator
 
-from agv_mission.missions.spec.schema.base import Pose, StrictModel
+from agv_mission.missions.load.schema.base import Pose, StrictModel
 
 
 class BoxObstacle(StrictModel):

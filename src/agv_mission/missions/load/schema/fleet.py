@@ -11,8 +11,8 @@ from typing import Any
 
 from pydantic import Field, model_validator
 
-from agv_mission.missions.spec.schema.base import StrictModel
-from agv_mission.missions.spec.schema.stack import _plugin_union
+from agv_mission.missions.load.schema.base import StrictModel
+from agv_mission.missions.load.schema.stack import _plugin_union
 from agv_mission.registry import registry
 
 DispatcherConfig = _plugin_union("dispatcher")

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from agv_mission.missions.spec.schema.fleet import DEFAULT_FLEET_PLUGINS
-from agv_mission.missions.spec.schema.mission import ROBOT_NAME_PATTERN, Mission
-from agv_mission.missions.spec.schema.stack import DEFAULT_PLUGINS
+from agv_mission.missions.load.schema.fleet import DEFAULT_FLEET_PLUGINS
+from agv_mission.missions.load.schema.mission import ROBOT_NAME_PATTERN, Mission
+from agv_mission.missions.load.schema.stack import DEFAULT_PLUGINS
 from agv_mission.registry import registry
 
 JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"

@@ -8,7 +8,7 @@ from typing import Any
 from pydantic import Field, field_validator, model_validator
 
 from agv_mission.behaviors.ports import Task
-from agv_mission.missions.spec.schema.base import (
+from agv_mission.missions.load.schema.base import (
     MAX_FAULTS,
     MAX_NAME_LENGTH,
     MAX_OBSTACLES,
@@ -17,12 +17,12 @@ from agv_mission.missions.spec.schema.base import (
     StartSpec,
     StrictModel,
 )
-from agv_mission.missions.spec.schema.disturbances import Fault, Obstacle
-from agv_mission.missions.spec.schema.expect import Expectations
-from agv_mission.missions.spec.schema.fleet import Fleet
-from agv_mission.missions.spec.schema.people import People
-from agv_mission.missions.spec.schema.stack import Stack
-from agv_mission.missions.spec.schema.zones import MAX_ZONES, Zone
+from agv_mission.missions.load.schema.disturbances import Fault, Obstacle
+from agv_mission.missions.load.schema.expect import Expectations
+from agv_mission.missions.load.schema.fleet import Fleet
+from agv_mission.missions.load.schema.people import People
+from agv_mission.missions.load.schema.stack import Stack
+from agv_mission.missions.load.schema.zones import MAX_ZONES, Zone
 from agv_mission.robots.sim_config import SimConfig
 
 

@@ -8,7 +8,7 @@ from typing import Annotated, Literal
 from pydantic import AfterValidator, Field, model_validator
 from shapely import Polygon
 
-from agv_mission.missions.spec.schema.base import MAX_SIM_SECONDS, StrictModel
+from agv_mission.missions.load.schema.base import MAX_SIM_SECONDS, StrictModel
 
 # Bounds (each person is an ORCA agent and a body of the world: memory and time scale
 # with them). 200 people cost about 4x the 50 the benchmarks measure.

@@ -8,7 +8,7 @@ from typing import Annotated, Literal, Union
 from pydantic import Field, model_validator
 from shapely import Polygon
 
-from agv_mission.missions.spec.schema.base import StrictModel
+from agv_mission.missions.load.schema.base import StrictModel
 
 MAX_ZONES = 100
 MAX_POLYGON_POINTS = 1000

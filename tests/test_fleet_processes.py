@@ -54,7 +54,7 @@ limits: {{time: 600.0}}
 FAIL_IN_A_ROBOT_PROCESS = """
 import os, sys
 from agv_mission import cli
-from agv_mission.missions import robot_run
+from agv_mission.missions.run import robot_run
 
 FIRST = os.getpid()
 decide = robot_run.RobotRun.decide

@@ -174,7 +174,7 @@ def test_a_plot_that_cannot_be_written_keeps_the_result(tmp_path: Path) -> None:
 INTERNAL_ERROR = """
 import sys
 from agv_mission import cli
-from agv_mission.missions import runner
+from agv_mission.missions.run import runner
 
 def broken_step(self):
     raise ZeroDivisionError("a bug in the loop")

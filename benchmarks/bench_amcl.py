@@ -88,8 +88,8 @@ def run() -> dict[str, float]:
 
 def patrol_real_time_factor() -> float:
     """The demo patrol with amcl (TurtleBot3 defaults), start estimate 0.3 m / 0.2 rad off."""
-    from agv_mission.missions.loader import load_mission
-    from agv_mission.missions.runner import run_mission
+    from agv_mission.missions.load.loader import load_mission
+    from agv_mission.missions.run.runner import run_mission
 
     demo = Path(__file__).resolve().parents[1] / "missions" / "patrol.yaml"
     x, y = -2.0 + 0.3 * math.cos(2.0), -0.5 + 0.3 * math.sin(2.0)

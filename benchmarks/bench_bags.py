@@ -30,8 +30,8 @@ from typing import Any
 from agv_mission.bags.offline import default_slam, map_bag, slam_config
 from agv_mission.bags.writer import BagWriter
 from agv_mission.mapping.quality import map_quality
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.runner import run_mission
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent

@@ -14,8 +14,9 @@ import statistics
 import time
 from pathlib import Path
 
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.runner import CONTROL_PERIOD, run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.runner import run_mission
+from agv_mission.missions.run.stack import CONTROL_PERIOD
 from agv_mission.robots.battery import battery_for
 from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
 

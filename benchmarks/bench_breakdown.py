@@ -28,8 +28,8 @@ from agv_mission.bags.writer import BagWriter
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
 from agv_mission.maps.ros_map import save_ros_map
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.runner import MissionRun
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.runner import MissionRun
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "missions" / "patrol.yaml"

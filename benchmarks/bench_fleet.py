@@ -7,7 +7,7 @@ each), so the figures measure the cost of many robots in one world rather than o
 traffic. The loop alone is timed (set-up aside), over the same simulated time for every
 fleet size. Each size runs twice, each time in a fresh interpreter as ``agv-mission run``
 would: with what the default ``simulation.processes: auto`` picks on an idle machine (the
-robots decide in one process per core, :mod:`agv_mission.missions.team`; CPU counts every
+robots decide in one process per core, :mod:`agv_mission.missions.run.team`; CPU counts every
 process), the headline figures; and in one process (``_serial``), with the breakdown of
 where the time goes.
 """
@@ -24,9 +24,9 @@ from pathlib import Path
 
 from bench_breakdown import _Clock
 
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.runner import MissionRun
-from agv_mission.missions.team import AUTO_FROM, usable_cores
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.runner import MissionRun
+from agv_mission.missions.run.team import AUTO_FROM, usable_cores
 
 AISLES = (-13.2, -8.95, -5.35, -1.75, 1.85, 5.45, 9.05, 12.55)  # x of the rack aisles
 STRETCHES = ((-20.0, -15.0), (-12.0, -7.0), (7.0, 12.0), (15.0, 20.0))  # y of a patrol

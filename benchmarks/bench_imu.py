@@ -33,9 +33,9 @@ from rich.table import Table
 
 from agv_mission.bags.writer import BagWriter
 from agv_mission.geometry import Pose2D
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.run_report import SETTLE_TIME
-from agv_mission.missions.runner import MissionRun, run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.metrics import SETTLE_TIME
+from agv_mission.missions.run.runner import MissionRun, run_mission
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -28,9 +28,9 @@ from rich.table import Table
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.ros_map import save_ros_map
 from agv_mission.maps.world_loader import load_world
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.run_report import SETTLE_TIME
-from agv_mission.missions.runner import MissionRun
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.metrics import SETTLE_TIME
+from agv_mission.missions.run.runner import MissionRun
 
 REPO = Path(__file__).resolve().parents[1]
 ROS_MAPS = REPO / "tests" / "data" / "ros_maps"

@@ -30,9 +30,9 @@ import numpy as np
 
 from agv_mission.bags.writer import BagWriter
 from agv_mission.maps.builtin_worlds import warehouse
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.outputs import write_run
-from agv_mission.missions.runner import MissionRun
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.report.outputs import write_run
+from agv_mission.missions.run.runner import MissionRun
 from agv_mission.world.crowd import Crowd
 from agv_mission.world.people_groups import PeopleGroup
 

@@ -160,8 +160,8 @@ def _plans(
 
 def _drive(world: str, robot: str, tour: list, planner: dict) -> dict[str, float]:
     """Patrol the tour in simulation; the worst leg's ratios and the stops."""
-    from agv_mission.missions.loader import load_mission
-    from agv_mission.missions.runner import run_mission
+    from agv_mission.missions.load.loader import load_mission
+    from agv_mission.missions.run.runner import run_mission
 
     mission = {
         "name": "bench-drive",

@@ -92,8 +92,8 @@ MISSIONS: dict[str, tuple[Callable[[], dict], Callable[[], OccupancyGrid]]] = {
 
 
 def _run(mission: dict) -> dict[str, float]:
-    from agv_mission.missions.loader import load_mission
-    from agv_mission.missions.runner import run_mission
+    from agv_mission.missions.load.loader import load_mission
+    from agv_mission.missions.run.runner import run_mission
 
     with tempfile.TemporaryDirectory() as tmp:
         mission = {**mission, "output": tmp}
@@ -214,8 +214,8 @@ def explore_mission(world: str, slam: str) -> dict:
 
 
 def _explore_run(world: str, slam: str) -> dict[str, float]:
-    from agv_mission.missions.loader import load_mission
-    from agv_mission.missions.runner import run_mission
+    from agv_mission.missions.load.loader import load_mission
+    from agv_mission.missions.run.runner import run_mission
 
     with tempfile.TemporaryDirectory() as tmp:
         mission = {**explore_mission(world, slam), "output": tmp}

@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.runner import MissionRun
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.runner import MissionRun
 
 REPO = Path(__file__).resolve().parents[1]
 HEAD = """\
@@ -136,7 +136,8 @@ def _nav2(base: Path) -> dict[str, float]:
 def run(tmp: Path | None = None) -> dict[str, float]:
     import tempfile
 
-    from agv_mission.missions.tree import TreeSource, assemble, yaml_spec
+    from agv_mission.missions.load.tree_assembly import assemble
+    from agv_mission.missions.load.tree_spec import TreeSource, yaml_spec
 
     results: dict[str, float] = {}
     with tempfile.TemporaryDirectory() as folder:

@@ -37,8 +37,8 @@ class Drive:
 def simulated_drive(seconds: float = 30.0) -> Drive:
     """The true trajectory of a real simulated patrol; odometry with 2 % scale error and
     0.02 rad/m of yaw drift integrated from it."""
-    from agv_mission.missions.loader import load_mission
-    from agv_mission.missions.runner import run_mission
+    from agv_mission.missions.load.loader import load_mission
+    from agv_mission.missions.run.runner import run_mission
 
     loaded = load_mission(
         REPO / "missions" / "patrol.yaml",

@@ -16,8 +16,8 @@ from agv_mission.localization.beam_model import SensorParams
 from agv_mission.localization.configs import PROFILES
 from agv_mission.localization.particle_filter import ParticleFilter
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.runner import run_mission
 from agv_mission.registry import registry
 from agv_mission.sensor_msgs import LaserScan
 

@@ -13,9 +13,9 @@ from agv_mission.bags.writer import BagWriter
 from agv_mission.cli import app
 from agv_mission.mapping.quality import map_quality, reference_agreement
 from agv_mission.maps.ros_map import load_ros_map
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.outputs import make_run_dir, write_run
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.report.outputs import make_run_dir, write_run
+from agv_mission.missions.run.runner import run_mission
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -15,9 +15,9 @@ from agv_mission.bags import cdr
 from agv_mission.bags import ros_messages as rm
 from agv_mission.bags.writer import TOPICS, BagWriter
 from agv_mission.geometry import Pose2D, yaw_from_quaternion
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.outputs import make_run_dir, write_run
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.report.outputs import make_run_dir, write_run
+from agv_mission.missions.run.runner import run_mission
 from agv_mission.sensor_msgs import LaserScan
 
 REPO = Path(__file__).resolve().parents[1]

@@ -13,7 +13,7 @@ import pytest
 
 from agv_mission.barn import suite
 from agv_mission.barn.protocol import BarnReferee, metric, path_length
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.run.runner import run_mission
 
 BARN = Path(__file__).parent / "data" / "barn"
 START, GOAL = (-2.25, 3.0), (-2.25, 13.0)

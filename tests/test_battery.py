@@ -20,11 +20,12 @@ from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.rooms_file import RoomsFileError, load_rooms_file
 from agv_mission.maps.world_loader import WorldError, load_world
-from agv_mission.missions.errors import MissionError
-from agv_mission.missions.expectations import Expectations, check
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.outputs import make_run_dir, write_run
-from agv_mission.missions.runner import MissionRun, run_mission
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.load.schema.expect import Expectations
+from agv_mission.missions.report.expectations import check
+from agv_mission.missions.report.outputs import make_run_dir, write_run
+from agv_mission.missions.run.runner import MissionRun, run_mission
 from agv_mission.navigation.navigator import NavStatus
 from agv_mission.robots.battery import WH, Battery, BatterySpec, battery_for
 from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS

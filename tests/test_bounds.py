@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from agv_mission.missions.errors import MissionError
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.runner import run_mission
 from mission_texts import ENDLESS_PATROL, mission_file, tb3_mission
 
 EXE = [sys.executable, "-m", "agv_mission.cli"]

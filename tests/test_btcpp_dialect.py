@@ -13,10 +13,10 @@ import pytest
 from typer.testing import CliRunner
 
 from agv_mission.cli import app
-from agv_mission.missions.errors import MissionError
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.runner import run_mission
-from agv_mission.missions.tree_xml import TreeSpellingWarning, export_xml, parse_xml
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.load.tree_xml import TreeSpellingWarning, export_xml, parse_xml
+from agv_mission.missions.run.runner import run_mission
 
 REPO = Path(__file__).resolve().parents[1]
 #: BT.CPP v4's built-ins (its src/bt_factory.cpp): never declared in a TreeNodesModel.

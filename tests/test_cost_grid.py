@@ -14,8 +14,9 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.builtin_worlds import depot, warehouse
 from agv_mission.maps.costmap import Costmap, CostmapConfig
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
-from agv_mission.missions.expectations import Expectations, check
-from agv_mission.missions.schema import Stack
+from agv_mission.missions.load.schema import Stack
+from agv_mission.missions.load.schema.expect import Expectations
+from agv_mission.missions.report.expectations import check
 from agv_mission.navigation.legs import Leg, leg_report
 from agv_mission.planners.base import PlannedPath as Path
 from agv_mission.planners.configs import CostGridConfig

@@ -13,9 +13,9 @@ from typing import Literal
 import numpy as np
 import pytest
 
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.outputs import write_run
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.report.outputs import write_run
+from agv_mission.missions.run.runner import run_mission
 from agv_mission.planners.base import VelocityCommand
 from agv_mission.registry import PluginConfig, register
 

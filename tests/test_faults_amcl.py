@@ -14,8 +14,8 @@ import math
 import numpy as np
 import pytest
 
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.runner import run_mission
 
 KIDNAP_AT = 20.0
 FOUND_WITHIN = 10.0  # seconds after the kidnap

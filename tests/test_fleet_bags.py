@@ -17,9 +17,9 @@ from typer.testing import CliRunner
 from agv_mission.bags.writer import SHARED_TOPICS, TOPICS, BagWriter
 from agv_mission.cli import app
 from agv_mission.geometry import Pose2D, yaw_from_quaternion
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.outputs import make_run_dir, write_run
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.report.outputs import make_run_dir, write_run
+from agv_mission.missions.run.runner import run_mission
 from test_fleet_world import FLEET
 
 NAMES = ("agv1", "agv2")

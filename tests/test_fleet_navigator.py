@@ -12,8 +12,8 @@ import numpy as np
 
 from agv_mission.fleet.base import TrafficDecision
 from agv_mission.geometry import Pose2D
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.stack import build_world
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.stack import build_world
 from agv_mission.navigation.navigator import NavStatus
 from agv_mission.navigation.state import RobotState
 

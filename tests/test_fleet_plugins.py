@@ -10,7 +10,7 @@ from pydantic import ValidationError
 
 from agv_mission.fleet.base import Assignment, TrafficDecision, TrafficUpdate
 from agv_mission.fleet.traffic import ReservationTraffic
-from agv_mission.missions.schema.fleet import Fleet
+from agv_mission.missions.load.schema.fleet import Fleet
 from agv_mission.plugin_check import PluginCheckError, check_plugin
 from agv_mission.registry import PluginConfig, registry
 

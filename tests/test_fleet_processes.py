@@ -1,4 +1,4 @@
-"""A fleet's robots deciding in several processes (:mod:`agv_mission.missions.team`): the
+"""A fleet's robots deciding in several processes (:mod:`agv_mission.missions.run.team`): the
 run is the one of a single process, and a stopped or failing run still ends with every
 robot's result. Real processes through the command line (``auto`` never forks inside the
 test runner, which runs threads)."""
@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 from rosbags.highlevel import AnyReader
 
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.team import team_size
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.team import team_size
 
 EXE = [sys.executable, "-m", "agv_mission.cli"]
 SCENARIOS = Path(__file__).parent / "scenarios"
@@ -54,7 +54,7 @@ limits: {{time: 600.0}}
 FAIL_IN_A_ROBOT_PROCESS = """
 import os, sys
 from agv_mission import cli
-from agv_mission.missions import robot_run
+from agv_mission.missions.run import robot_run
 
 FIRST = os.getpid()
 decide = robot_run.RobotRun.decide

@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agv_mission.missions.expectations import Expectations, check
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.outputs import open_run_dir, write_run
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.load.schema.expect import Expectations
+from agv_mission.missions.report.expectations import check
+from agv_mission.missions.report.outputs import open_run_dir, write_run
+from agv_mission.missions.run.runner import run_mission
 
 WORLDS = Path(__file__).parent / "worlds"
 

@@ -10,12 +10,12 @@ import math
 import numpy as np
 import pytest
 
-from agv_mission.missions.errors import MissionError
-from agv_mission.missions.fleet import queue_fleet_tasks
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.outputs import open_run_dir, write_run
-from agv_mission.missions.runner import MissionRun, run_mission
-from agv_mission.missions.stack import build_world
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.report.outputs import open_run_dir, write_run
+from agv_mission.missions.run.fleet_orders import queue_fleet_tasks
+from agv_mission.missions.run.runner import MissionRun, run_mission
+from agv_mission.missions.run.stack import build_world
 
 FLEET = """\
 name: pair
@@ -186,7 +186,7 @@ def test_every_robots_problems_are_reported_together(tmp_path):
 def test_fleet_tasks_queue_in_the_order_given(tmp_path):
     """Assigned and dispatched tasks join a robot's tree in the order of `tasks:`, after its
     own (fleet.md), whichever way each came to it."""
-    from agv_mission.missions.fleet import tree_goals
+    from agv_mission.missions.run.fleet_orders import tree_goals
 
     path = tmp_path / "order.yaml"
     path.write_text(

@@ -215,7 +215,7 @@ def test_the_reference_stands_where_it_must_stop() -> None:
 
 def test_a_fast_robot_looks_further_ahead_a_turtlebot_as_before() -> None:
     from agv_mission.maps.costmap import ObstacleLayerConfig
-    from agv_mission.missions.stack import tuned_for_speed
+    from agv_mission.missions.run.stack import tuned_for_speed
     from agv_mission.navigation.config import NavigationConfig
 
     nav, layer = NavigationConfig(), ObstacleLayerConfig()
@@ -233,8 +233,8 @@ def test_a_fast_robot_looks_further_ahead_a_turtlebot_as_before() -> None:
 def test_a_jackal_crosses_pillars_it_cannot_see_past_at_speed(tmp_path: Path) -> None:
     """map: none, a pillar hidden behind another on the straight line to the goal (as in
     BARN's world 260, which a Jackal at full speed hit): it gets there untouched."""
-    from agv_mission.missions.loader import load_mission
-    from agv_mission.missions.runner import run_mission
+    from agv_mission.missions.load.loader import load_mission
+    from agv_mission.missions.run.runner import run_mission
 
     pillars = [(0.45, 2.0), (-0.45, 2.0), (0.0, 3.2), (0.3, 4.4), (-0.55, 4.4), (0.0, 5.6)]
     world = tmp_path / "pillars.yaml"

@@ -16,8 +16,8 @@ import yaml
 from agv_mission.maps.grid import OCCUPIED
 from agv_mission.maps.ros_map import load_ros_map
 from agv_mission.maps.world_loader import WorldError, load_world
-from agv_mission.missions.errors import MissionError
-from agv_mission.missions.loader import load_mission
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.loader import load_mission
 
 BARN = Path(__file__).parent / "data" / "barn"
 

@@ -10,7 +10,7 @@ import pytest
 
 from agv_mission.geometry import Pose2D
 from agv_mission.mapping.graph_slam import GraphSlamConfig, optimize_pose_graph
-from agv_mission.missions.schema import Stack
+from agv_mission.missions.load.schema import Stack
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -73,8 +73,8 @@ def test_graph_is_a_slam_plugin_with_the_grid_keys():
 def test_graph_slam_closes_a_100m_loop_with_slipping_wheels(tmp_path):
     from agv_mission.bags.offline import map_bag, slam_config
     from agv_mission.bags.writer import BagWriter
-    from agv_mission.missions.loader import load_mission
-    from agv_mission.missions.runner import run_mission
+    from agv_mission.missions.load.loader import load_mission
+    from agv_mission.missions.run.runner import run_mission
 
     loaded = load_mission(REPO / "benchmarks" / "data" / "loop_patrol.yaml")
     record = run_mission(loaded, tmp_path, observers=[BagWriter()])

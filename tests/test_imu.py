@@ -16,10 +16,10 @@ from agv_mission.bags.writer import BagWriter
 from agv_mission.geometry import Pose2D, wrap_angle
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.worlds import World
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.outputs import make_run_dir, write_run
-from agv_mission.missions.runner import MissionRun, run_mission
-from agv_mission.missions.stack import new_odometry
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.report.outputs import make_run_dir, write_run
+from agv_mission.missions.run.runner import MissionRun, run_mission
+from agv_mission.missions.run.stack import new_odometry
 from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
 from agv_mission.robots.diff_drive import DiffDriveBody, SimConfig
 from agv_mission.robots.odometry import DiffDriveOdometry, GyroFusedOdometry

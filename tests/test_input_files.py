@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agv_mission.missions.loader import load_mission
+from agv_mission.missions.load.loader import load_mission
 
 EXE = [sys.executable, "-m", "agv_mission.cli"]
 

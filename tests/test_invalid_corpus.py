@@ -21,8 +21,8 @@ from pathlib import Path
 
 import pytest
 
-from agv_mission.missions.errors import MissionError
-from agv_mission.missions.loader import load_mission
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.loader import load_mission
 
 CORPUS = Path(__file__).resolve().parent / "invalid"
 FILES = sorted(CORPUS.glob("*.yaml"))

@@ -11,7 +11,7 @@ import jsonschema
 import pytest
 import yaml
 
-from agv_mission.missions.schema import FIELD_ORDER, mission_json_schema
+from agv_mission.missions.load.schema import FIELD_ORDER, mission_json_schema
 from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
 from agv_mission.robots.robot_files import robot_json_schema
 

@@ -20,6 +20,10 @@ FLOORS = {
     "bags": 7,
     "vda5050": 7,
     "missions": 6,
+    # missions/ by concern, data flowing one way: the mission loaded, its run, its report
+    "missions.report": 6.3,
+    "missions.run": 6.2,
+    "missions.load": 6.1,
     "plugin_check": 6,  # drives a plugin of any slot: floor-3 ones, and behaviour nodes (5)
     "behaviors": 5,
     "navigation": 4,
@@ -42,8 +46,11 @@ GROUND = 0  # the floor-0 modules are the ground everything stands on: they may 
 
 
 def unit_of(module: str) -> str:
-    """``agv_mission.maps.grid`` -> ``maps``; ``agv_mission.cli`` -> ``cli``."""
+    """``agv_mission.maps.grid`` -> ``maps``; ``agv_mission.cli`` -> ``cli``;
+    ``agv_mission.missions.run.runner`` -> ``missions.run`` (a floor of its own)."""
     parts = module.split(".")
+    if len(parts) > 2 and f"{parts[1]}.{parts[2]}" in FLOORS:
+        return f"{parts[1]}.{parts[2]}"
     return parts[1] if len(parts) > 1 else ""
 
 
@@ -100,10 +107,23 @@ def test_every_module_imports_only_from_floors_below() -> None:
     assert not problems, "layering broken:\n" + "\n".join(problems)
 
 
+def test_the_loaded_mission_does_not_reach_into_its_run_or_report() -> None:
+    """Inside ``missions/`` the data flows load -> run -> report: a load module importing
+    the run, or the run importing the report, is caught; the other way is fine."""
+    up = "from agv_mission.missions.run.record import RunRecord\n"
+    [problem] = module_problems("agv_mission.missions.load.probe", up)
+    assert "(floor 6.2)" in problem
+    [problem] = module_problems(
+        "agv_mission.missions.run.probe", "from agv_mission.missions.report import outputs\n"
+    )
+    assert "(floor 6.3)" in problem
+    assert module_problems("agv_mission.missions.report.probe", up) == []
+
+
 @pytest.mark.parametrize(
     ("source", "expected"),
     [
-        ("from agv_mission.missions.runner import run_mission\n", "(floor 6)"),
+        ("from agv_mission.missions.run.runner import run_mission\n", "(floor 6.2)"),
         ("def f():\n    from agv_mission.mapping.slam import GridSlam\n", "(floor 3)"),
         ("from ..teleop import session\n", "(floor 7)"),
     ],

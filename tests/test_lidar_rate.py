@@ -11,10 +11,10 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from agv_mission.bags.writer import BagWriter
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.outputs import make_run_dir, write_run
-from agv_mission.missions.runner import MissionRun, run_mission
-from agv_mission.missions.stack import CONTROL_PERIOD
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.report.outputs import make_run_dir, write_run
+from agv_mission.missions.run.runner import MissionRun, run_mission
+from agv_mission.missions.run.stack import CONTROL_PERIOD
 
 ROBOT = """\
 wheel_radius: 0.033

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from agv_mission.missions.errors import MissionError
-from agv_mission.missions.loader import load_mission
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.loader import load_mission
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "missions" / "patrol.yaml"

@@ -16,8 +16,9 @@ import yaml
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.loader import LoadedMission, load_mission
+from agv_mission.missions.load.errors import MissionError, Problem
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.load.resolved import LoadedMission
 
 HERE = Path(__file__).resolve().parent
 MISSION = HERE / "invalid" / "fuzz.yaml"  # never written: its folder resolves data/ paths

@@ -21,10 +21,11 @@ from agv_mission.localization.amcl import AmclConfig, AmclLocalizer
 from agv_mission.localization.distance_field import SignedDistanceField
 from agv_mission.localization.pose_tracker import PoseTracker, RefineParams, floor_covariance
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.outputs import write_run
-from agv_mission.missions.run_report import COVARIANCE_COLUMNS
-from agv_mission.missions.runner import TRAJECTORY_COLUMNS, run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.report.outputs import write_run
+from agv_mission.missions.run.metrics import COVARIANCE_COLUMNS
+from agv_mission.missions.run.record import TRAJECTORY_COLUMNS
+from agv_mission.missions.run.runner import run_mission
 from agv_mission.sensor_msgs import LaserScan
 
 RES = 0.05

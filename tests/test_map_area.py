@@ -15,8 +15,10 @@ from agv_mission.behaviors.explore import MapArea
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.maps.ros_map import load_ros_map
-from agv_mission.missions.loader import LoadedMission, load_mission
-from agv_mission.missions.runner import MissionRun, RunRecord, run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.load.resolved import LoadedMission
+from agv_mission.missions.run.record import RunRecord
+from agv_mission.missions.run.runner import MissionRun, run_mission
 
 # Issue 4's done-when.
 MIN_COVERAGE = 0.95

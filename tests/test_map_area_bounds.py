@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.runner import run_mission
 
 ARENA = Path(__file__).resolve().parent / "invalid" / "data" / "arena.world.yaml"
 

@@ -19,10 +19,10 @@ import pytest
 
 from agv_mission.maps.ros_map import save_ros_map
 from agv_mission.maps.world_loader import load_world
-from agv_mission.missions.errors import MissionError
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.run_report import SETTLE_TIME
-from agv_mission.missions.runner import MissionRun
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.metrics import SETTLE_TIME
+from agv_mission.missions.run.runner import MissionRun
 
 HERE = Path(__file__).resolve().parent
 SLAM_MAP = HERE / "fixtures" / "maps" / "small_house_slam.yaml"

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from agv_mission.geometry import wrap_angle
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.runner import RunRecord, run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.record import RunRecord
+from agv_mission.missions.run.runner import run_mission
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "missions" / "patrol.yaml"

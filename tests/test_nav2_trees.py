@@ -12,10 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from agv_mission.missions.errors import MissionError
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.outputs import open_run_dir, write_run
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.report.outputs import open_run_dir, write_run
+from agv_mission.missions.run.runner import run_mission
 
 TREES = Path(__file__).parent / "nav2_trees"
 WORLDS = Path(__file__).parent / "worlds"

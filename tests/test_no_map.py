@@ -13,9 +13,9 @@ import pytest
 import yaml
 
 from agv_mission.maps.grid import FREE
-from agv_mission.missions.errors import MissionError
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.runner import MissionRun
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.runner import MissionRun
 
 BARN = Path(__file__).parent / "data" / "barn"
 START = {"x": -2.25, "y": 3.0, "yaw": 1.5707963}

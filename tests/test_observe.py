@@ -6,9 +6,11 @@ from pathlib import Path
 
 import numpy as np
 
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.observe import RunStart, StepSample
-from agv_mission.missions.runner import MissionRun, RunRecord, run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.observe import RunStart
+from agv_mission.missions.run.record import RunRecord
+from agv_mission.missions.run.runner import MissionRun, run_mission
+from agv_mission.missions.run.samples import StepSample
 
 MISSION = """\
 name: observed

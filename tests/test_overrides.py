@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from agv_mission.missions.errors import MissionError
-from agv_mission.missions.loader import load_mission
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.loader import load_mission
 
 EXE = [sys.executable, "-m", "agv_mission.cli"]
 

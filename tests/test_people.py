@@ -18,12 +18,13 @@ from agv_mission.bags.writer import PEOPLE_PERIOD
 from agv_mission.behaviors.check import sample_context
 from agv_mission.behaviors.conditions import PersonNear
 from agv_mission.maps.builtin_worlds import small_house, warehouse
-from agv_mission.missions.expectations import Expectations, check
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.people import resolve_people
-from agv_mission.missions.people_metrics import people_metrics
-from agv_mission.missions.runner import run_mission
-from agv_mission.missions.schema.people import MAX_PEOPLE, People, PeopleSpec
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.load.people_resolution import resolve_people
+from agv_mission.missions.load.schema.expect import Expectations
+from agv_mission.missions.load.schema.people import MAX_PEOPLE, People, PeopleSpec
+from agv_mission.missions.report.expectations import check
+from agv_mission.missions.run.people_metrics import people_metrics
+from agv_mission.missions.run.runner import run_mission
 from agv_mission.world.crowd import DECISION_PERIOD, Crowd
 from agv_mission.world.people_groups import PeopleGroup
 from agv_mission.world.walkable import clearance
@@ -678,7 +679,7 @@ def test_a_run_with_people_writes_people_csv_the_bag_topic_and_metrics(tmp_path:
 def test_people_csv_rows_are_what_percent_formatting_writes(tmp_path: Path) -> None:
     """people.csv's digits are made by array arithmetic: the same bytes as formatting each
     row with "%.6f,%d,%.4f,%.4f", for people absent (NaN), negative, tiny and far."""
-    from agv_mission.missions.people_record import write_people_csv
+    from agv_mission.missions.run.people_record import write_people_csv
 
     rng = np.random.default_rng(4)
     for scale in (0.0001, 1.0, 40.0, 9000.0):
@@ -703,7 +704,7 @@ def test_people_csv_rows_are_what_percent_formatting_writes(tmp_path: Path) -> N
 def test_the_tracker_counts_how_long_each_person_has_stood(tmp_path: Path) -> None:
     """``RobotState.people``'s last column: seconds a person has been slower than
     STANDING, 0 while they walk (someone whose route is one place stands; a wanderer walks)."""
-    from agv_mission.missions.runner import MissionRun
+    from agv_mission.missions.run.runner import MissionRun
     from agv_mission.navigation.state import STANDING, TRACKED_PERSON
 
     mission = tmp_path / "still.yaml"
@@ -736,7 +737,7 @@ def test_the_dashboards_stream_carries_the_people(tmp_path: Path) -> None:
     import json
     from multiprocessing import Pipe
 
-    from agv_mission.missions.runner import MissionRun
+    from agv_mission.missions.run.runner import MissionRun
     from agv_mission.service.stream import STREAM_FILE, StreamObserver
 
     mission = tmp_path / "walk.yaml"

@@ -15,7 +15,8 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from agv_mission.missions.expectations import Expectations, Failure, check
+from agv_mission.missions.load.schema.expect import Expectations
+from agv_mission.missions.report.expectations import Failure, check
 from agv_mission.regress import backends, report
 from agv_mission.regress import plan as planning
 
@@ -261,7 +262,7 @@ def test_cli_runs_a_task_list_a_tree_and_a_fleet(tmp_path: Path) -> None:
 
 
 def test_scenario_suite_is_valid_and_covers_the_stack() -> None:
-    from agv_mission.missions.loader import load_mission
+    from agv_mission.missions.load.loader import load_mission
 
     suite = planning.discover([SCENARIOS])
     loaded = [load_mission(p) for p in suite]

@@ -12,9 +12,9 @@ import yaml
 from agv_mission.maps.builtin_worlds import small_house
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.rooms import reachable_cells, visit_point
-from agv_mission.missions.errors import MissionError
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.runner import run_mission
 
 REPO = Path(__file__).resolve().parents[1]
 VISIT = REPO / "missions" / "visit_rooms.yaml"

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.outputs import make_run_dir, write_run
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.report.outputs import make_run_dir, write_run
+from agv_mission.missions.run.runner import run_mission
 from mission_texts import ENDLESS_PATROL, mission_file, tb3_mission
 
 EXE = [sys.executable, "-m", "agv_mission.cli"]
@@ -174,7 +174,7 @@ def test_a_plot_that_cannot_be_written_keeps_the_result(tmp_path: Path) -> None:
 INTERNAL_ERROR = """
 import sys
 from agv_mission import cli
-from agv_mission.missions import runner
+from agv_mission.missions.run import runner
 
 def broken_step(self):
     raise ZeroDivisionError("a bug in the loop")

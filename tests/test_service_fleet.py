@@ -15,7 +15,7 @@ import pytest
 import websockets
 import yaml
 
-from agv_mission.missions.palette import ROBOT_COLOURS
+from agv_mission.missions.report.palette import ROBOT_COLOURS
 from agv_mission.service.models import StreamRobots
 from service_server import (
     AGV,

@@ -14,7 +14,8 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.builtin_worlds import turtlebot3_world
 from agv_mission.maps.costmap import Costmap, CostmapConfig
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
-from agv_mission.missions.expectations import Expectations, check
+from agv_mission.missions.load.schema.expect import Expectations
+from agv_mission.missions.report.expectations import check
 from agv_mission.planners.base import PlanningError
 from agv_mission.planners.free_space import FreeSpace
 from agv_mission.planners.grid_astar import GridAstarConfig, GridAstarPlanner
@@ -100,8 +101,8 @@ def test_rrtconnect_takes_the_way_between_the_pillars() -> None:
 def test_demo_patrol_drives_the_shortest_way(tmp_path: Path) -> None:
     """The demo patrol: every leg planned and driven within 1.25x the shortest free
     path (``metrics.navigation.legs``)."""
-    from agv_mission.missions.loader import load_mission
-    from agv_mission.missions.runner import run_mission
+    from agv_mission.missions.load.loader import load_mission
+    from agv_mission.missions.run.runner import run_mission
 
     mission = yaml.safe_load((MISSIONS / "patrol.yaml").read_text())
     mission["tasks"][0]["loops"] = 1

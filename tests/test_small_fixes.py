@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.runner import run_mission
 from mission_texts import mission_file, tb3_mission
 
 WANDER = tb3_mission(

@@ -20,9 +20,9 @@ from agv_mission.geometry import wrap_angle
 from agv_mission.maps.builtin_worlds import HOUSE_SPAWN
 from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder
 from agv_mission.maps.rooms import room_at
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.runner import MissionRun, run_mission
-from agv_mission.missions.stack import open_recorders
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.runner import MissionRun, run_mission
+from agv_mission.missions.run.stack import open_recorders
 from agv_mission.planners.base import VelocityLimits
 from agv_mission.teleop.session import load_teleop_mission, teleop_mission
 from agv_mission.teleop.terminal import TeleopKeys, split_keys

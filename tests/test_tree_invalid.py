@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from agv_mission.missions.errors import MissionError
-from agv_mission.missions.loader import load_mission
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.loader import load_mission
 
 HEAD = (
     "world: turtlebot3_world\n"  # 1

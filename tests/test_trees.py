@@ -22,10 +22,12 @@ from agv_mission.behaviors.check import sample_context
 from agv_mission.behaviors.context import TreeContext
 from agv_mission.behaviors.ports import NodePorts
 from agv_mission.cli import app
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.runner import run_mission
-from agv_mission.missions.tree import MissionTree, TreeSource, assemble, build_tree, yaml_spec
-from agv_mission.missions.tree_xml import export_xml, parse_xml
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.load.tree_assembly import assemble
+from agv_mission.missions.load.tree_spec import TreeSource, yaml_spec
+from agv_mission.missions.load.tree_xml import export_xml, parse_xml
+from agv_mission.missions.run.behaviour_tree import MissionTree, build_tree
+from agv_mission.missions.run.runner import run_mission
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.plugin_check import PluginCheckError, check_plugin
 from agv_mission.registry import registry
@@ -373,7 +375,7 @@ def test_registry_lists_every_contract_node_type() -> None:
 
 
 def test_the_dashboard_stream_shows_the_users_node_names_and_statuses() -> None:
-    from agv_mission.missions.observe import tree_nodes
+    from agv_mission.missions.run.samples import tree_nodes
 
     ctx = sample_context()
     tree = _tree(

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from agv_mission.missions.errors import MissionError
+from agv_mission.missions.load.errors import MissionError
 from agv_mission.vda5050.dispatch_mission import load_dispatch_mission
 from agv_mission.vda5050.routes import load_plan
 from agv_mission.vda5050.vehicle_set import load_vehicles

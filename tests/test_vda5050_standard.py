@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from agv_mission.missions.errors import MissionError
+from agv_mission.missions.load.errors import MissionError
 from agv_mission.vda5050.master import Master, load_plan
 from agv_mission.vda5050.protocol import ANGLE_BOUND
 from agv_mission.vda5050.transport import BrokerUrl

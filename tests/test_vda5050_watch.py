@@ -209,7 +209,7 @@ def test_the_watch_page_at_phone_width(rig: dict[str, Any]) -> None:
     and a vehicle has its fleet's colour: the first of a manufacturer run.png's first."""
     from playwright.sync_api import sync_playwright
 
-    from agv_mission.missions.palette import ROBOT_COLOURS
+    from agv_mission.missions.report.palette import ROBOT_COLOURS
 
     base = rig["base"]
     fleet(base, lambda vs: {"agv1", "forklift1"} <= set(vs))

@@ -14,9 +14,9 @@ import httpx
 import numpy as np
 import pytest
 
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.pacing import PacedControl, Pacer, check_pace
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.pacing import PacedControl, Pacer, check_pace
+from agv_mission.missions.run.runner import run_mission
 from mission_texts import ENDLESS_PATROL, mission_file, tb3_mission
 from service_server import AGV, SHORT_MISSION, Server, collect_live, submit, wait_status
 

@@ -12,7 +12,7 @@ import numpy as np
 from agv_mission.maps.builtin_worlds import small_house
 from agv_mission.maps.grid import FREE, OCCUPIED
 from agv_mission.maps.ros_map import load_ros_map
-from agv_mission.missions.summary import task_rows
+from agv_mission.missions.report.summary import task_rows
 
 EXE = [sys.executable, "-m", "agv_mission.cli"]
 

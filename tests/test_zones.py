@@ -20,10 +20,10 @@ from agv_mission.bags.writer import BagWriter
 from agv_mission.cli import app
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import LETHAL
-from agv_mission.missions.errors import MissionError
-from agv_mission.missions.loader import load_mission
-from agv_mission.missions.outputs import make_run_dir, write_run
-from agv_mission.missions.runner import run_mission
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.report.outputs import make_run_dir, write_run
+from agv_mission.missions.run.runner import run_mission
 from agv_mission.registry import registry
 
 HOUSE = """\

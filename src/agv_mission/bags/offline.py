@@ -346,9 +346,9 @@ def slam_config(overrides: list[str], base: dict[str, Any] | None = None) -> Any
     items (``stack.slam.KEY=VALUE`` or ``KEY=VALUE``); :class:`MissionError` when invalid."""
     from pydantic import ValidationError
 
-    from agv_mission.missions.errors import MissionError, Problem
-    from agv_mission.missions.overrides import override_error, override_value
-    from agv_mission.missions.schema import Stack
+    from agv_mission.missions.load.errors import MissionError, Problem
+    from agv_mission.missions.load.overrides import override_error, override_value
+    from agv_mission.missions.load.schema import Stack
 
     doc = dict(DEFAULT_SLAM if base is None else base)
     for item in overrides:

@@ -35,7 +35,8 @@ from agv_mission.json_values import json_default
 from agv_mission.maps.grid import OccupancyGrid
 
 if TYPE_CHECKING:
-    from agv_mission.missions.observe import RobotStart, RunStart, StepSample
+    from agv_mission.missions.run.observe import RobotStart, RunStart
+    from agv_mission.missions.run.samples import StepSample
 
 BAG_DIRNAME = "bag"
 MAP_FRAME, ODOM_FRAME, BASE_FRAME, SCAN_FRAME = "map", "odom", "base_footprint", "base_scan"
@@ -152,7 +153,7 @@ def robot_frame(frame: str, namespace: str) -> str:
 
 
 class BagWriter:
-    """A :class:`~agv_mission.missions.observe.RunObserver` writing the run's ROS 2 bag.
+    """A :class:`~agv_mission.missions.run.observe.RunObserver` writing the run's ROS 2 bag.
 
     ``path``: the bag directory; default ``<run_dir>/bag`` (no bag for a run without a
     directory). ``/particlecloud`` is thinned to one cloud per ``particle_period``

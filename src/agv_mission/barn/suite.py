@@ -124,7 +124,7 @@ def world_jobs(
 
 def load_world_mission(job: dict[str, Any], world_file: Path | None = None) -> Any:
     """A job's world as a loaded mission (raises MissionError for bad input)."""
-    from agv_mission.missions.loader import load_mission
+    from agv_mission.missions.load.loader import load_mission
 
     world_file = world_file or Path(job["world_file"])
     text = mission_text(world_file, job["seed"], Path(job["output_root"]))
@@ -135,9 +135,9 @@ def load_world_mission(job: dict[str, Any], world_file: Path | None = None) -> A
 def run_world(job: dict[str, Any], stop: Any = None) -> dict[str, Any]:
     """Run one world into ``OUTPUT/world_K/``; barn.md's entry for it, never raising (an
     error is a ``failed`` world with ``error`` set)."""
-    from agv_mission.missions.errors import MissionError
-    from agv_mission.missions.outputs import write_mission, write_run
-    from agv_mission.missions.runner import run_mission
+    from agv_mission.missions.load.errors import MissionError
+    from agv_mission.missions.report.outputs import write_mission, write_run
+    from agv_mission.missions.run.runner import run_mission
 
     t0 = time.perf_counter()
     k = job["world"]
@@ -194,7 +194,7 @@ def run_world(job: dict[str, Any], stop: Any = None) -> dict[str, Any]:
 
 
 def _write_json(path: Path, doc: dict[str, Any]) -> None:
-    from agv_mission.missions.outputs import write_json
+    from agv_mission.missions.report.outputs import write_json
 
     write_json(path, doc)
 

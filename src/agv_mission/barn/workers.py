@@ -13,7 +13,7 @@ from typing import Any
 from agv_mission import job_pool
 from agv_mission.barn.suite import BarnInputError, failed_result, run_world, unpack
 from agv_mission.job_pool import JobKind, ResultCallback, StopControl
-from agv_mission.missions.workers import forkserver_context
+from agv_mission.missions.run.workers import forkserver_context
 
 
 def _run_world(job: dict[str, Any]) -> dict[str, Any]:

@@ -175,7 +175,7 @@ class BtNavigator(py_trees.decorators.Decorator):
     ``goal`` (or ``goals``) written to it; then the tree runs. Its status is the tree's."""
 
     def __init__(self, name: str, child: Behaviour, context: TreeContext, node: Any, prefix: str):
-        """``node``: the validated navigator node (``missions.tree.Node``)."""
+        """``node``: the validated navigator node (``missions.load.tree_spec.Node``)."""
         super().__init__(name=name, child=child)
         self.context, self.node, self.prefix = context, node, prefix
         self.handle = context.handle

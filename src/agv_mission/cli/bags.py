@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 import typer
 
 from agv_mission.cli.console import failure, invalid, out
-from agv_mission.missions.errors import MissionError
+from agv_mission.missions.load.errors import MissionError
 
 
 def map_(

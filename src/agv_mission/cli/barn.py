@@ -14,7 +14,7 @@ from rich.table import Table
 
 from agv_mission.cli.console import Overrides, err, failure, invalid, out, progress_bar
 from agv_mission.cli.service import run_observers
-from agv_mission.missions.errors import MissionError
+from agv_mission.missions.load.errors import MissionError
 
 
 def barn(
@@ -47,7 +47,7 @@ def barn(
 ) -> None:
     """Run BARN's worlds (Jackal, no map, BARN's start, goal, clock and metric)."""
     from agv_mission.barn import suite
-    from agv_mission.missions.outputs import write_json
+    from agv_mission.missions.report.outputs import write_json
 
     if backend not in ("local", "ray"):
         raise failure("invalid input", f"--backend {backend}: local or ray")

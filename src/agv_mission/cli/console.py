@@ -13,7 +13,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from agv_mission.missions.errors import MissionError
+from agv_mission.missions.load.errors import MissionError
 
 EXIT_CODES = {"succeeded": 0, "failed": 1, "error": 3, "aborted": 130, "interrupted": 1}
 
@@ -109,7 +109,7 @@ def progress_bar(counter: str, auto_refresh: bool = True) -> Progress:
 
 def print_summary(result: dict) -> None:
     """A run's result document as a status line, a task table and the metrics."""
-    from agv_mission.missions.summary import (
+    from agv_mission.missions.report.summary import (
         LEG_COLUMNS,
         leg_rows,
         metrics_line,

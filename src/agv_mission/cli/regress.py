@@ -12,7 +12,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from agv_mission.cli.console import err, failure, invalid, out, progress_bar
-from agv_mission.missions.errors import MissionError
+from agv_mission.missions.load.errors import MissionError
 
 if TYPE_CHECKING:
     from agv_mission.regress.plan import Plan

@@ -25,7 +25,7 @@ from agv_mission.cli.console import (
     progress_bar,
 )
 from agv_mission.cli.startup import quiet_until_started, started_as_program
-from agv_mission.missions.errors import MissionError
+from agv_mission.missions.load.errors import MissionError
 
 REFRESH_PERIOD = 0.1  # s of wall time between redraws of the progress bar
 
@@ -44,11 +44,11 @@ def run(
     if started_as_program():  # Ctrl-C during the imports below: exit 130, no traceback
         quiet_until_started()
     from agv_mission.bags.writer import BagWriter
-    from agv_mission.missions.loader import load_demo_mission, load_mission
-    from agv_mission.missions.outputs import RunDirError, open_run_dir, write_run
-    from agv_mission.missions.pacing import PacedControl
-    from agv_mission.missions.runner import RunStopped
-    from agv_mission.missions.signals import SignalStop
+    from agv_mission.missions.load.loader import load_demo_mission, load_mission
+    from agv_mission.missions.report.outputs import RunDirError, open_run_dir, write_run
+    from agv_mission.missions.run.errors import RunStopped
+    from agv_mission.missions.run.pacing import PacedControl
+    from agv_mission.missions.run.signals import SignalStop
 
     stopper = SignalStop().install()
     try:
@@ -104,7 +104,7 @@ def run(
 
 def _run_with_progress(loaded: Any, run_dir: Path, control: Any, observers: list[Any]) -> Any:
     """Run the mission with a progress bar of simulated seconds; its record."""
-    from agv_mission.missions.runner import run_mission
+    from agv_mission.missions.run.runner import run_mission
 
     with progress_bar("{task.completed:.1f}/{task.total:.0f} sim s", auto_refresh=False) as bar:
         job = bar.add_task("running", total=loaded.mission.limits.time)
@@ -139,7 +139,7 @@ def validate(
     seed: Seed = None,
 ) -> None:
     """Validate mission files without running them (with the overrides ``run`` would take)."""
-    from agv_mission.missions.loader import load_mission
+    from agv_mission.missions.load.loader import load_mission
 
     bad = 0
     for path in files_:
@@ -167,7 +167,7 @@ def schema(
 
         doc = robot_json_schema()
     else:
-        from agv_mission.missions.schema import mission_json_schema
+        from agv_mission.missions.load.schema import mission_json_schema
 
         doc = mission_json_schema()
     PipeSafeStdout().write(json.dumps(doc, indent=2) + "\n")

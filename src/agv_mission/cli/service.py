@@ -19,7 +19,7 @@ from agv_mission.cli.console import (
     print_summary,
     progress_bar,
 )
-from agv_mission.missions.errors import MissionError
+from agv_mission.missions.load.errors import MissionError
 
 EXIT_UNAVAILABLE = 69  # sysexits' EX_UNAVAILABLE: the service could not be reached or refused
 
@@ -90,7 +90,7 @@ def submit(
 
     Exit codes: as ``run`` (0 succeeded, 1 failed, 2 invalid input, 3 error, 130
     aborted) once followed; 69 when the service cannot be reached or refuses."""
-    from agv_mission.missions.summary import headline
+    from agv_mission.missions.report.summary import headline
     from agv_mission.service import client
 
     try:

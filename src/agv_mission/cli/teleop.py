@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from agv_mission.cli.console import Overrides, Seed, failure, invalid, out
-from agv_mission.missions.errors import MissionError
+from agv_mission.missions.load.errors import MissionError
 
 
 def teleop(

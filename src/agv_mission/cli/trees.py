@@ -10,7 +10,7 @@ from typing import Annotated
 import typer
 
 from agv_mission.cli.console import Overrides, PipeSafeStdout, invalid, out
-from agv_mission.missions.errors import MissionError
+from agv_mission.missions.load.errors import MissionError
 
 app = typer.Typer(
     no_args_is_help=True,
@@ -25,8 +25,8 @@ def export(
 ) -> None:
     """Print the mission's tree (a tasks: list expanded) as BT.CPP v4 XML with a
     <TreeNodesModel>, so Groot2 opens it."""
-    from agv_mission.missions.loader import load_mission
-    from agv_mission.missions.tree_xml import export_xml
+    from agv_mission.missions.load.loader import load_mission
+    from agv_mission.missions.load.tree_xml import export_xml
 
     try:
         loaded = load_mission(mission, set_)
@@ -46,8 +46,8 @@ def nodes(
     as_json: Annotated[bool, typer.Option("--json", help="as JSON")] = False,
 ) -> None:
     """List every node type with its ports (name, direction, type, default, description)."""
-    from agv_mission.missions.tree import node_types
-    from agv_mission.missions.tree_xml import nodes_model
+    from agv_mission.missions.load.node_types import node_types
+    from agv_mission.missions.load.tree_xml import nodes_model
 
     if xml:
         PipeSafeStdout().write('<root BTCPP_format="4">\n' + nodes_model(indent=1) + "\n</root>\n")

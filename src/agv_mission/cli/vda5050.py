@@ -12,7 +12,7 @@ import typer
 from rich.markup import escape
 
 from agv_mission.cli.console import EXIT_CODES, Overrides, Seed, failure, invalid, out
-from agv_mission.missions.errors import MissionError
+from agv_mission.missions.load.errors import MissionError
 
 app = typer.Typer(
     no_args_is_help=True,

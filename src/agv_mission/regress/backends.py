@@ -18,8 +18,8 @@ from typing import Any
 from agv_mission import job_pool
 from agv_mission.job_pool import JobKind, ResultCallback, StopControl
 from agv_mission.json_values import json_default
-from agv_mission.missions.errors import MissionError
-from agv_mission.missions.workers import forkserver_context
+from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.run.workers import forkserver_context
 from agv_mission.regress.plan import RegressError, sweep_overrides
 
 
@@ -28,10 +28,10 @@ def run_job(job: dict[str, Any]) -> dict[str, Any]:
 
     Never raises: an exception becomes a result with status ``error``.
     """
-    from agv_mission.missions.expectations import check
-    from agv_mission.missions.loader import load_mission
-    from agv_mission.missions.outputs import open_run_dir, write_run
-    from agv_mission.missions.runner import run_mission
+    from agv_mission.missions.load.loader import load_mission
+    from agv_mission.missions.report.expectations import check
+    from agv_mission.missions.report.outputs import open_run_dir, write_run
+    from agv_mission.missions.run.runner import run_mission
 
     t0 = time.perf_counter()
     shipped = bool(job.get("ship_back"))  # on a remote worker: the run directory comes back

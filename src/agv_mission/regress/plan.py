@@ -42,8 +42,8 @@ from typing import Any
 
 import yaml
 
-from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.overrides import Override
+from agv_mission.missions.load.errors import MissionError, Problem
+from agv_mission.missions.load.overrides import Override
 
 # Result keys that come from the wall clock: they differ between any two runs.
 WALL_CLOCK_METRICS = (
@@ -296,7 +296,7 @@ def plan_jobs(
 
     Invalid scenarios are collected in ``Plan.problems`` and get no jobs.
     """
-    from agv_mission.missions.loader import load_mission
+    from agv_mission.missions.load.loader import load_mission
 
     if seeds < 1:
         raise RegressError("--seeds must be at least 1")

@@ -16,7 +16,7 @@ from concurrent.futures import ThreadPoolExecutor
 from multiprocessing.connection import Connection, Listener
 from typing import Any, Protocol
 
-from agv_mission.missions.workers import forkserver_context
+from agv_mission.missions.run.workers import forkserver_context
 from agv_mission.service.registry import Registry
 from agv_mission.service.worker import ray_entry, worker_main
 

@@ -11,7 +11,7 @@ from typing import Any
 
 from fastapi import Request
 
-from agv_mission.missions.errors import MissionError
+from agv_mission.missions.load.errors import MissionError
 from agv_mission.service.context import ApiError, Service
 
 MAX_BODY = 1_000_000  # bytes of a request body
@@ -71,7 +71,7 @@ def validate(
     mission file in the data directory) but confined to the data directory; its problems
     as a 422. A mission's ``output.dir`` other than ``runs`` is refused: a service run's
     directory is ``DATA/runs/<id>`` (``output.bag`` is honoured)."""
-    from agv_mission.missions.loader import load_mission
+    from agv_mission.missions.load.loader import load_mission
 
     try:
         loaded = load_mission(
@@ -106,7 +106,7 @@ def validate(
 
 def _line_of(text: str, path: tuple[str, ...]) -> int | None:
     """The line of a key in the mission text (None when an override set it)."""
-    from agv_mission.missions.yaml_lines import load_with_lines
+    from agv_mission.missions.load.yaml_lines import load_with_lines
 
     with contextlib.suppress(Exception):
         return load_with_lines(text)[1].get(path)
@@ -137,7 +137,7 @@ def parse_json_submission(body: bytes) -> tuple[str, list[str], int | None, floa
 
 def pace_of(given: object) -> float | None:
     """A submission's pace (None: as fast as it goes); 422 unless a positive number."""
-    from agv_mission.missions.pacing import check_pace
+    from agv_mission.missions.run.pacing import check_pace
 
     try:
         return check_pace(given)  # type: ignore[arg-type]

@@ -13,7 +13,7 @@ from urllib.parse import quote, urlsplit, urlunsplit
 
 import httpx
 
-from agv_mission.missions.errors import MissionError, Problem
+from agv_mission.missions.load.errors import MissionError, Problem
 from agv_mission.service.sandbox import NamedFiles
 
 
@@ -75,7 +75,7 @@ def mission_files(mission: Path, text: str, sets: list[str], seed: int | None) -
     robot and recorder files), which travel with it. Invalid input raises MissionError
     here, as ``run`` would report it; a mission on built-in worlds and robots only is
     validated whole."""
-    from agv_mission.missions.loader import load_mission
+    from agv_mission.missions.load.loader import load_mission
 
     named = NamedFiles()
 

@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from agv_mission.geometry import Pose2D
-from agv_mission.missions.observe import RunStart, StepSample, TreeNode
+from agv_mission.missions.run.observe import RunStart
+from agv_mission.missions.run.samples import StepSample, TreeNode
 from agv_mission.service import stream_messages as msg
 from agv_mission.service.links import Outbox
 

@@ -17,8 +17,9 @@ from agv_mission.maps.docks import Dock
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.grid_image import grid_png
 from agv_mission.maps.rooms import Room
-from agv_mission.missions.observe import RunStart, TreeNode
-from agv_mission.missions.palette import robot_colour
+from agv_mission.missions.report.palette import robot_colour
+from agv_mission.missions.run.observe import RunStart
+from agv_mission.missions.run.samples import TreeNode
 
 MAX_PARTICLES = 300
 TREE_STATUS = {

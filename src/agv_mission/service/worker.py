@@ -21,7 +21,7 @@ import numpy as np
 
 from agv_mission.geometry import Pose2D
 from agv_mission.json_values import finite
-from agv_mission.missions.pacing import Pacer
+from agv_mission.missions.run.pacing import Pacer
 from agv_mission.service import stream_messages as msg
 from agv_mission.service.stream import StreamObserver
 
@@ -200,10 +200,10 @@ def worker_main(job: dict[str, Any], conn: Connection) -> None:
 
 
 def _run(job: dict[str, Any], conn: Connection) -> None:
-    from agv_mission.missions.errors import MissionError
-    from agv_mission.missions.loader import load_mission
-    from agv_mission.missions.outputs import write_mission, write_run
-    from agv_mission.missions.runner import run_mission
+    from agv_mission.missions.load.errors import MissionError
+    from agv_mission.missions.load.loader import load_mission
+    from agv_mission.missions.report.outputs import write_mission, write_run
+    from agv_mission.missions.run.runner import run_mission
     from agv_mission.service.sandbox import DataDirGuard
 
     data_dir, run_dir = Path(job["data_dir"]), Path(job["run_dir"])

@@ -48,12 +48,13 @@ from agv_mission.maps.recorder import (
     load_entries,
 )
 from agv_mission.maps.rooms import room_at
-from agv_mission.missions.loader import LoadedMission, load_mission, remote_controlled
-from agv_mission.missions.outputs import make_run_dir, write_trajectory
-from agv_mission.missions.overrides import Override
-from agv_mission.missions.runner import MissionRun, run_mission
-from agv_mission.missions.schema import MAX_SIM_SECONDS
-from agv_mission.missions.stack import CONTROL_PERIOD, open_recorders
+from agv_mission.missions.load.loader import load_mission, remote_controlled
+from agv_mission.missions.load.overrides import Override
+from agv_mission.missions.load.resolved import LoadedMission
+from agv_mission.missions.load.schema import MAX_SIM_SECONDS
+from agv_mission.missions.report.outputs import make_run_dir, write_trajectory
+from agv_mission.missions.run.runner import MissionRun, run_mission
+from agv_mission.missions.run.stack import CONTROL_PERIOD, open_recorders
 from agv_mission.teleop.terminal import (
     HELP,
     KeyInput,
@@ -80,7 +81,7 @@ def load_teleop_mission(
 ) -> LoadedMission:
     """The mission to drive in: a mission file's world, robot, start and stack, or by
     default the built-in ``small_house`` (``world``/``robot`` override either). Raises
-    :class:`~agv_mission.missions.errors.MissionError` on invalid input."""
+    :class:`~agv_mission.missions.load.errors.MissionError` on invalid input."""
     sets: list[str | Override] = []
     for option, value in (("--world", world), ("--robot", robot)):
         if value is not None:  # errors in them name the option, not a file line
@@ -155,7 +156,7 @@ def run_teleop(
     (every pose into each; the first is the one shown, see :func:`open_recorders`).
 
     The run is a mission with one ``teleop`` task (:func:`teleop_mission`) run by the
-    mission runner; this session is its :class:`~agv_mission.missions.observe.RunControl`:
+    mission runner; this session is its :class:`~agv_mission.missions.run.observe.RunControl`:
     keys set the remote command, and each control step waits for its wall-clock tick.
     ``time_scale``: simulated seconds per wall second. ``wall_limit``: end the session
     after that many wall seconds (for scripts). Never leaves the terminal in raw mode.

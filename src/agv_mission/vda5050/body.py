@@ -3,11 +3,11 @@
 :class:`VehicleBody` is all the protocol side uses (pose, velocity, a navigation goal with
 tolerances and a speed cap, cancel, pause, set the pose, charge). :class:`VehicleWorld` is
 a mission's one world with every robot under remote command: one
-:class:`~agv_mission.missions.runner.MissionRun` holding every robot (its lidar sees the
+:class:`~agv_mission.missions.run.runner.MissionRun` holding every robot (its lidar sees the
 others, their contacts count), each robot running its whole stack (localiser, global
 planner, controller on MuJoCo) with one open-ended ``teleop`` task, the same task the
 service uses for ``POST .../goal``. The world is the run's
-:class:`~agv_mission.missions.observe.RunControl`: it paces simulated time to the wall clock
+:class:`~agv_mission.missions.run.observe.RunControl`: it paces simulated time to the wall clock
 times ``time_scale`` and, between two control steps, lets each robot's
 :class:`SimulatedBody` hand its robot the goals its vehicle asked for and read back its
 state.
@@ -24,10 +24,12 @@ from dataclasses import dataclass, replace
 from typing import Literal, Protocol
 
 from agv_mission.geometry import Pose2D
-from agv_mission.missions.loader import LoadedMission, RobotSetup, remote_controlled
-from agv_mission.missions.robot_run import RobotRun
-from agv_mission.missions.runner import MissionRun, RunRecord, run_mission
-from agv_mission.missions.stack import CONTROL_PERIOD
+from agv_mission.missions.load.loader import remote_controlled
+from agv_mission.missions.load.resolved import LoadedMission, RobotSetup
+from agv_mission.missions.run.record import RunRecord
+from agv_mission.missions.run.robot_run import RobotRun
+from agv_mission.missions.run.runner import MissionRun, run_mission
+from agv_mission.missions.run.stack import CONTROL_PERIOD
 
 NavState = Literal["idle", "running", "succeeded", "failed"]
 

@@ -16,9 +16,10 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.loader import LoadedMission, load_mission
-from agv_mission.missions.yaml_lines import line_of, load_with_lines
+from agv_mission.missions.load.errors import MissionError, Problem
+from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.load.resolved import LoadedMission
+from agv_mission.missions.load.yaml_lines import line_of, load_with_lines
 
 
 class NodeAction(BaseModel):

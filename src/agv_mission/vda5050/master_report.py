@@ -10,7 +10,7 @@ from typing import Any, Protocol
 import yaml
 
 from agv_mission.atomic import atomic_write_text
-from agv_mission.missions.outputs import make_run_dir, write_json
+from agv_mission.missions.report.outputs import make_run_dir, write_json
 from agv_mission.vda5050.routes import MasterPlan
 
 

@@ -17,9 +17,9 @@ from typing import Any, Literal
 
 from agv_mission.fleet.travel import GridTravelTime
 from agv_mission.geometry import Pose2D
-from agv_mission.missions.errors import MissionError, Problem
-from agv_mission.missions.loader import LoadedMission
-from agv_mission.missions.yaml_lines import line_of
+from agv_mission.missions.load.errors import MissionError, Problem
+from agv_mission.missions.load.resolved import LoadedMission
+from agv_mission.missions.load.yaml_lines import line_of
 from agv_mission.registry import registry
 from agv_mission.vda5050.dispatch_mission import NodeAction, field_steps, load_dispatch_mission
 from agv_mission.vda5050.protocol import schema_angle

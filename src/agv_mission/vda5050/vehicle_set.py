@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from agv_mission.missions.loader import LoadedMission
+from agv_mission.missions.load.resolved import LoadedMission
 from agv_mission.robots.description import RobotDescription
 from agv_mission.vda5050.body import VehicleWorld
 from agv_mission.vda5050.dispatch_mission import load_dispatch_mission

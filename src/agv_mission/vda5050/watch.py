@@ -27,7 +27,7 @@ from urllib.parse import parse_qs, urlparse
 from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
 from agv_mission.maps.grid_image import grid_png
 from agv_mission.maps.worlds import World
-from agv_mission.missions.palette import robot_colour
+from agv_mission.missions.report.palette import robot_colour
 from agv_mission.vda5050.protocol import split_topic
 from agv_mission.vda5050.transport import BrokerUrl, MqttLink
 

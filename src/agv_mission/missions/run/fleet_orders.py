@@ -1,0 +1,204 @@
+"""The run's side of the fleet layer: dispatch when tasks are released, traffic every step.
+
+* :func:`queue_fleet_tasks` releases the fleet's tasks when the run starts, in the order
+  given: one with ``robot:`` queues on that robot, one without goes to the robot the
+  mission's ``dispatcher`` picks. A robot's bid counts the work it holds: its own tasks'
+  goals (from where it starts), then the tasks already queued on it, travelled at its top
+  speed over its free space (:class:`~agv_mission.fleet.travel.GridTravelTime`). Every
+  robot's queue runs behind its own tree, through the one tree assembly.
+* :class:`FleetCoordinator` runs once per control step before the robots' trees tick: it
+  gathers each robot's estimate, speed and the path its navigator drives, asks the
+  ``traffic`` plugin, hands every navigator its decision (and the others' bodies, which its
+  obstacle layer must not mark), and logs the fleet's events to the robots' handles.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from agv_mission.fleet.base import FleetTask, RobotWork, TrafficDecision, TrafficRobot
+from agv_mission.fleet.travel import GridTravelTime
+from agv_mission.geometry import Pose2D
+from agv_mission.missions.load.resolved import LoadedMission, RobotSetup
+from agv_mission.missions.load.tree_assembly import assemble
+from agv_mission.missions.load.tree_spec import NodeSpec, TreeSource, TreeSpec, Where
+from agv_mission.missions.run.robot_run import RobotRun
+from agv_mission.registry import registry
+
+
+def tree_goals(
+    spec: TreeSpec, room_goals: dict[str, Pose2D], docks: dict[str, Any]
+) -> list[Pose2D]:
+    """The poses a tree's tasks drive to, in tree order (a patrol's waypoints once per
+    loop, a visit's room entries, a dock's pose): what a dispatcher's estimate travels."""
+    goals: list[Pose2D] = []
+    for _, node in spec.nodes():
+        ports = node.ports
+        if ports is None:
+            continue
+        poses = [p.to_pose2d() for _, p in getattr(ports, "goal_poses", lambda: [])()]
+        goals += poses * int(getattr(ports, "loops", 1) or 1)
+        for _, room in getattr(ports, "rooms_visited", lambda: [])():
+            if room in room_goals:
+                goals.append(room_goals[room])
+        dock = getattr(ports, "dock", None)
+        if node.type == "dock" and isinstance(dock, str) and dock in docks:
+            goals.append(docks[dock].pose)
+    return goals
+
+
+def queue_fleet_tasks(loaded: LoadedMission) -> tuple[LoadedMission, list[dict[str, Any]]]:
+    """``loaded`` with every fleet task queued behind its robot's own tree, in the order of
+    ``tasks:`` (assigned by ``robot:`` or dispatched), and the dispatch log ``[{task, type,
+    robot, t, finish}]`` (``task``: its number in ``tasks:``, from 1 as every report counts
+    tasks)."""
+    queued: dict[str, list[NodeSpec]] = {s.name: [] for s in loaded.fleet}
+    log: list[dict[str, Any]] = []
+    if any(t.robot is None for t in loaded.fleet_tasks):
+        log = _dispatch(loaded, queued)
+    else:
+        for task in loaded.fleet_tasks:
+            queued[task.robot or ""].append(task.tree.source.main.children[0])
+    fleet = [_with_queue(s, queued[s.name], loaded) for s in loaded.fleet]
+    return dataclasses.replace(loaded, fleet=fleet, tree=fleet[0].tree), log
+
+
+def _dispatch(loaded: LoadedMission, queued: dict[str, list[NodeSpec]]) -> list[dict[str, Any]]:
+    """Fill ``queued`` in the order of the fleet's tasks: assigned ones on their robot
+    (work it then holds), the others on the dispatcher's pick; the dispatch log."""
+    dispatcher = registry.create("dispatcher", loaded.mission.fleet.dispatcher)
+    setups = {s.name: s for s in loaded.fleet}
+    travel = {s.name: GridTravelTime(s.costmap, s.robot.max_linear_velocity) for s in loaded.fleet}
+
+    def travel_time(name: str, a: Pose2D, b: Pose2D) -> float:
+        return travel[name](a, b)
+
+    def held(name: str, start: Pose2D, goals: Sequence[Pose2D], already: float) -> RobotWork:
+        here, total = start, already
+        for goal in goals:
+            total += travel_time(name, here, goal)
+            here = goal
+        return RobotWork(name, here, total if np.isfinite(total) else already)
+
+    work = {
+        s.name: held(s.name, s.start, _goals(s.tree, s, loaded), 0.0) if s.tree else
+        RobotWork(s.name, s.start, 0.0)
+        for s in loaded.fleet
+    }  # fmt: skip
+    log = []
+    for task in loaded.fleet_tasks:
+        spec = task.tree.source.main.children[0]
+        if task.robot is not None:  # assigned: work its robot holds from now on
+            w = work[task.robot]
+            goals = _goals(task.tree, setups[task.robot], loaded)
+            work[task.robot] = held(task.robot, w.end, goals, w.held_time)
+            queued[task.robot].append(spec)
+            continue
+        goals = tuple(_goals(task.tree, loaded.fleet[0], loaded))
+        got = dispatcher.assign(FleetTask(str(task.index), goals), list(work.values()), travel_time)
+        queued[got.robot].append(spec)
+        end = goals[-1] if goals else work[got.robot].end
+        work[got.robot] = RobotWork(got.robot, end, got.finish)
+        log.append(
+            {
+                "task": task.index + 1,
+                "type": task.type,
+                "robot": got.robot,
+                "t": 0.0,
+                "finish": round(got.finish, 1),
+            }
+        )
+    return log
+
+
+def _goals(tree: TreeSpec | None, setup: RobotSetup, loaded: LoadedMission) -> list[Pose2D]:
+    return tree_goals(tree, setup.room_goals, loaded.docks) if tree is not None else []
+
+
+def _with_queue(setup: RobotSetup, specs: list[NodeSpec], loaded: LoadedMission) -> RobotSetup:
+    """``setup`` whose tree runs ``specs`` after its own; a robot with neither logs that it
+    has nothing to do (and stands by for the traffic layer)."""
+    own = setup.tree
+    if not specs and own is not None:
+        return setup
+    if own is None:
+        where = Where(str(loaded.source or loaded.name), ("robots",), None)
+        idle = NodeSpec("log", where, None, {"message": f"{setup.name} has no tasks"})
+        main = idle if not specs else NodeSpec("sequence", where, setup.name, {}, {}, specs)
+        source = TreeSource(main, blackboard=dict(loaded.mission.blackboard))
+    else:
+        main = NodeSpec("sequence", own.source.main.where, setup.name, {}, {},
+                        [own.source.main, *specs])  # fmt: skip
+        source = dataclasses.replace(own.source, main=main)
+    return dataclasses.replace(setup, tree=assemble(source))
+
+
+@dataclasses.dataclass
+class FleetOrder:
+    """One robot's part of a step's traffic decisions: what its navigator is told, the
+    other robots' bodies (x, y, radius), and its fleet events (wait, yield, deadlock)."""
+
+    decision: TrafficDecision
+    bodies: np.ndarray
+    events: list[dict[str, Any]]
+
+
+class FleetCoordinator:
+    """Asks the traffic plugin once per control step and hands out its decisions."""
+
+    def __init__(self, loaded: LoadedMission, robots: Sequence[RobotRun], log: dict) -> None:
+        self.robots = list(robots)
+        self.by_name = {r.name: r for r in self.robots}
+        self.traffic = registry.create("traffic", loaded.mission.fleet.traffic)
+        self.log = log
+
+    def decide(self, now: float) -> dict[str, FleetOrder]:
+        """Every robot's order for this step, decided on the robots' latest reports (those
+        of the step before: the fleet layer, as a fleet manager, acts on the robots' last
+        reports)."""
+        states = [self._state(r) for r in self.robots]
+        update = self.traffic.decide(now, states)
+        bodies = np.array([[s.pose.x, s.pose.y, s.radius] for s in states])
+        orders = {
+            r.name: FleetOrder(update.decisions[r.name], np.delete(bodies, i, axis=0), [])
+            for i, r in enumerate(self.robots)
+        }
+        for event in update.events:
+            name = event.get("robot")
+            if isinstance(name, str) and name in orders:
+                orders[name].events.append(
+                    {"t": event["t"], **{k: v for k, v in event.items() if k != "t"}}
+                )
+        stats = self.traffic.stats()
+        self.log["waits"] = dict(stats["waits"])
+        self.log["deadlocks"] = stats["deadlocks"]
+        return orders
+
+    def hand_out(self, orders: dict[str, FleetOrder]) -> None:
+        """Give the robots named in ``orders`` their decision, the others' bodies (which
+        their obstacle layers must not mark) and their fleet events."""
+        for name, order in orders.items():
+            r = self.by_name[name]
+            nav = r.navigator
+            nav.fleet_bodies = order.bodies
+            nav.obey(order.decision, r.handle.state)
+            r.handle.events.extend(order.events)
+
+    @staticmethod
+    def _state(r: RobotRun) -> TrafficRobot:
+        """A robot as it reported itself after deciding (:class:`RobotReport`'s fields)."""
+        idle = r.status is not None or (not r.navigating and not r.yielding)
+        return TrafficRobot(
+            r.name,
+            r.estimate,
+            r.robot.footprint_radius,
+            r.limits.max_v,
+            speed=float(r.command[0]),
+            path=r.traffic_path,
+            idle=idle,
+            costmap=r.setup.costmap,
+        )

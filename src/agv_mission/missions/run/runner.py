@@ -1,0 +1,439 @@
+"""The simulation-clock loop over a world of robots: sensors -> estimator -> behaviour
+tree -> wheels, for every robot, then physics once for all.
+
+One control step every ``CONTROL_PERIOD`` simulated seconds: every robot reads its
+encoders and (when due) its lidar, updates odometry and its localiser, ticks its tree once
+and chooses a command within its acceleration limits; then the world advances one control
+period. A lidar faster than the loop scans at its own times while the world advances; each
+of those scans reaches the robot's localiser (with the odometry at its time), obstacle
+layer and observers at the next step. A one-robot mission is a world with one robot. The
+wall clock is read only to report speed.
+"""
+
+from __future__ import annotations
+
+import gc
+import math
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from agv_mission.localization.base import Localizer
+from agv_mission.missions.load.resolved import LoadedMission
+from agv_mission.missions.run.behaviour_tree import MissionTree
+from agv_mission.missions.run.errors import RunStopped
+from agv_mission.missions.run.fleet_orders import FleetCoordinator, queue_fleet_tasks
+from agv_mission.missions.run.fleet_record import fleet_record
+from agv_mission.missions.run.observe import (
+    RobotStart,
+    RunControl,
+    RunObserver,
+    RunStart,
+)
+from agv_mission.missions.run.people_record import PeopleRun, fleet_people_metrics
+from agv_mission.missions.run.record import RunRecord, bare_record
+from agv_mission.missions.run.robot_run import RobotRun
+from agv_mission.missions.run.samples import StepSample, tree_nodes
+from agv_mission.missions.run.stack import (
+    CONTROL_PERIOD,
+    RobotStack,
+    build_world,
+    open_recorders,
+)
+from agv_mission.missions.run.team import RobotTeam, team_size
+from agv_mission.navigation.handle import RobotHandle
+from agv_mission.navigation.navigator import Navigator
+from agv_mission.robots.diff_drive import DiffDriveBody
+
+__all__ = ["MissionRun", "run_mission"]
+
+ProgressCallback = Callable[[float, float], None]
+
+
+def run_mission(
+    loaded: LoadedMission,
+    run_dir: Path | None = None,
+    progress: ProgressCallback | None = None,
+    *,
+    observers: Sequence[RunObserver] = (),
+    control: RunControl | None = None,
+) -> RunRecord:
+    """Run ``loaded`` in simulation until its tree finishes or its time limit passes.
+
+    With ``run_dir``, recorded room poses go to ``run_dir/location_recorder.yaml`` as they
+    are recorded (and to the mission's ``recorder`` file, when it names one). Ctrl-C or
+    ``control`` cancelling ends the run with status ``aborted``; an exception inside it
+    with status ``error``: either way a record of what happened so far comes back.
+    ``observers`` see the start, every control step and the record (once).
+    """
+    wall_start = time.perf_counter()
+    run: MissionRun | None = None
+    ended: tuple[str, str] | None = None
+    try:
+        run = MissionRun(loaded, run_dir, observers)
+        run.notify_start()
+        run.drive(control, progress)
+    except KeyboardInterrupt:
+        ended = ("aborted", "interrupted by the user (Ctrl-C)")
+    except RunStopped as exc:
+        ended = ("aborted", exc.reason)
+    except Exception as exc:  # the run directory must still say what happened
+        ended = ("error", f"{type(exc).__name__}: {exc}")
+    if run is None:  # the set-up itself failed or was stopped
+        status, reason = ended or ("error", "the run could not be set up")
+        record = bare_record(loaded, status, reason, time.perf_counter() - wall_start)
+    else:
+        if ended is not None:
+            run.end(*ended)
+        try:
+            record = run.record()
+        except Exception as exc:  # still a result, without the metrics
+            record = bare_record(
+                loaded,
+                "error",
+                f"{type(exc).__name__} while summarising the run: {exc}",
+                time.perf_counter() - wall_start,
+                sim_time=run.world.time,
+            )
+    for observer in observers:
+        observer.on_end(record)
+    return record
+
+
+class MissionRun:
+    """One mission in simulation: the world, its robots, the control loop's state, the
+    outcome."""
+
+    def __init__(
+        self,
+        loaded: LoadedMission,
+        run_dir: Path | None,
+        observers: Sequence[RunObserver] = (),
+    ) -> None:
+        # The fleet's tasks are released now: each joins its robot's tree, in their order.
+        loaded, dispatched = queue_fleet_tasks(loaded) if loaded.is_fleet else (loaded, [])
+        self.loaded = loaded
+        self.mission = loaded.mission
+        self.run_dir = run_dir
+        self.observers = list(observers)
+        self.world, stacks = build_world(loaded)
+        recorders = open_recorders(loaded, run_dir)
+        self.robots = [
+            RobotRun(loaded, stack, run_dir, recorders, bool(self.observers)) for stack in stacks
+        ]
+        self.by_name = {r.name: r for r in self.robots}
+        self.team = RobotTeam.alone(self.robots)  # who decides here (see :meth:`drive`)
+        self._samples: list[StepSample] = []  # the latest step's, not yet observed
+        self.people = (
+            PeopleRun(loaded.people, self.world, self.mission.seed) if loaded.people else None
+        )
+        # The fleet's own log (fleet.md): what the fleet layer dispatched, waits, deadlocks,
+        # and the robots' contacts with each other.
+        self.fleet_log: dict[str, Any] = {
+            "dispatch": [{k: d[k] for k in ("task", "robot", "t")} for d in dispatched],
+            "waits": {"count": 0, "time": 0.0},
+            "deadlocks": 0,
+            "robot_robot_collisions": [],
+            "robot_robot_min_distance": math.inf,
+            "makespan": None,
+        }
+        for d in dispatched:
+            self.by_name[d["robot"]].handle.log(
+                "dispatch", task=d["task"], type=d["type"], estimated_finish=d["finish"]
+            )
+        self.coordinator = (
+            FleetCoordinator(loaded, self.robots, self.fleet_log) if loaded.is_fleet else None
+        )
+        self._touching: set[tuple[int, int]] = set()
+        self.wall_start = time.perf_counter()
+        self.status: str | None = None
+        self.reason: str | None = None
+
+    # The first robot's parts: a one-robot mission's only robot (teleop, VDA 5050 vehicles
+    # and the service's teleop drive one robot).
+    @property
+    def lead(self) -> RobotRun:
+        return self.robots[0]
+
+    @property
+    def sim(self) -> DiffDriveBody:
+        return self.lead.sim
+
+    @property
+    def handle(self) -> RobotHandle:
+        return self.lead.handle
+
+    @property
+    def navigator(self) -> Navigator:
+        return self.lead.navigator
+
+    @property
+    def tree(self) -> MissionTree:
+        return self.lead.tree
+
+    @property
+    def stack(self) -> RobotStack:
+        return self.lead.stack
+
+    @property
+    def localizer(self) -> Localizer:
+        return self.lead.localizer
+
+    def notify_start(self) -> None:
+        """Tell the observers what the run is about."""
+        if not self.observers:
+            return
+        loaded = self.loaded
+        robots = []
+        for r in self.robots:
+            zones = r.setup.zones
+            robots.append(
+                RobotStart(
+                    name=r.name,
+                    robot=r.robot,
+                    start=r.setup.start,
+                    tree_nodes=tree_nodes(r.tree.root),
+                    keepout_mask=zones.keepout_grid() if zones and zones.keepout.any() else None,
+                    speed_mask=zones.speed_grid() if zones and zones.levels else None,
+                )
+            )
+        start = RunStart(
+            run_dir=self.run_dir,
+            mission=self.mission,
+            world_map=loaded.map,
+            rooms=loaded.rooms,
+            docks=loaded.docks,
+            robots=robots,
+            fleet=loaded.is_fleet,
+        )
+        for observer in self.observers:
+            observer.on_start(start)
+
+    def drive(
+        self, control: RunControl | None = None, progress: ProgressCallback | None = None
+    ) -> None:
+        """Step until the mission ends: ``control`` before each step, ``progress`` after.
+
+        The set-up left ~100k long-lived objects (casadi functions, OMPL, typestores, the
+        trees); the loop freezes them out of the garbage collector, so its one full
+        collection of a 100 s run (~50 ms, 0.5 ms per simulated second) scans only what
+        the run made since.
+        """
+        gc.freeze()
+        size = team_size(self.mission.simulation.processes, len(self.robots), control)
+        if size > 1 and not self.team.parallel and self.status is None:
+            # a lidar scanning between control steps needs the physics there: stepped
+            # in every process then, else only in this one and mirrored
+            mirror = all(r.stack.scan_period >= CONTROL_PERIOD - 1e-9 for r in self.robots)
+            world = self.world if mirror else None
+            self.team.fork(size, bool(self.observers), self._serve, world)
+        try:
+            while True:
+                if control is not None:
+                    control.before_step(self)
+                if not self.step():
+                    break
+                if progress is not None:
+                    progress(self.world.time, self.mission.limits.time)
+            self._observe()
+        finally:
+            gc.unfreeze()
+
+    def _observe(self) -> None:
+        """Hand the observers the samples of the latest step not yet observed."""
+        batch, self._samples = self._samples, []
+        for sample in batch:
+            for observer in self.observers:
+                observer.on_step(sample)
+
+    def _serve(self, team: RobotTeam) -> None:
+        """A robot process: step as the first process orders (it alone has observers)."""
+        self.observers = []
+        team.serve(self.step, self.end, self._robot_record)
+
+    def cancel(self, reason: str) -> None:
+        """End the run with status ``aborted`` before the next control step."""
+        self.end("aborted", reason)
+
+    def step(self) -> bool:
+        """One control step of every robot, then the world's physics; False once the
+        mission has ended."""
+        if self.status is not None:
+            return False
+        team = self.team
+        now = team.clock(self.world)
+        robots = self.robots
+        coordinator = self.coordinator
+        # the fleet layer decides in the first process; each robot's order reaches it
+        # where it decides
+        orders = coordinator.decide(now) if coordinator and team.parent is None else {}
+        orders = team.begin_step(orders)
+        self._observe()  # the step before's samples, while the robot processes decide
+        if coordinator is not None:
+            coordinator.hand_out(orders)
+        if self.people is not None:
+            self.people.sense(now, robots)
+        for r in robots:
+            r.prepare(now)
+        for r in team.own:
+            r.decide(now)
+        team.share_reports()
+        self._watch_collisions(now)
+        if len(robots) > 1:
+            self._watch_robots(now)
+        limit = self.mission.limits.time
+        for r in team.own:
+            r.conclude(now, limit)
+        samples = team.share_outcomes()
+        if self.status is None and all(r.status is not None for r in robots):
+            self._conclude()
+        if self.observers:
+            batch = []
+            for k, r in enumerate(robots):
+                sample = samples[k] if team.parallel else r.sample()
+                if sample is not None and k == 0 and self.people is not None:
+                    sample.people = self.people.present()
+                if sample is not None:
+                    batch.append(sample)
+            self._samples = batch
+            if not team.parallel:  # with robot processes: once the next step is under way
+                self._observe()
+        if self.status is not None:
+            return False
+        for r in robots:
+            r.act()
+        self._advance()
+        return True
+
+    def _advance(self) -> None:
+        """Let physics run one control period; lidars faster than the loop scan at their
+        own times within it (to the physics step)."""
+        world = self.world
+        if self.people is not None:
+            self.people.move(CONTROL_PERIOD, self.robots)
+        dt = world.dt
+        steps = int(round(CONTROL_PERIOD / dt))
+        if not self.team.physics:  # another process steps it (missions.run.team)
+            self.team.advanced(steps)
+            return
+        t0 = world.time
+        due: dict[int, list[RobotRun]] = {}
+        for r in self.team.own:
+            for k in r.stack.scan_steps(t0, steps, dt):
+                due.setdefault(k, []).append(r)
+        done = 0
+        for k in sorted(due):
+            world.step(k - done)
+            done = k
+            for r in due[k]:
+                r.stack.take_scan(r._scan_filter)
+        world.step(steps - done)
+        self.team.advanced(steps)
+
+    def _watch_collisions(self, now: float) -> None:
+        """End the run once the robots together touched walls more often than allowed."""
+        touched = [r for r in self.robots if r.new_collision is not None]
+        if not touched:
+            return
+        total = sum(len(r.collisions) for r in self.robots)
+        total += len(self.fleet_log["robot_robot_collisions"])
+        if total > self.mission.limits.collisions:
+            r = touched[0]
+            c = r.new_collision
+            assert c is not None
+            who = f"{r.name}: " if self.loaded.is_fleet else ""
+            self.end("failed", f"{who}collision at t={now:.1f} s near ({c['x']:.2f}, {c['y']:.2f})")
+
+    def _watch_robots(self, now: float) -> None:
+        """Robot-robot contacts (each new touch counts once) and the closest approach."""
+        log = self.fleet_log
+        gap = float(self.world.body_gaps().min())
+        log["robot_robot_min_distance"] = min(log["robot_robot_min_distance"], gap)
+        touching = {pair for pair in self.world.contacts() if pair[1] >= 0}
+        for i, j in sorted(touching - self._touching):
+            a, b = self.robots[i], self.robots[j]
+            p = a.sim.true_pose()
+            log["robot_robot_collisions"].append(
+                {
+                    "t": round(now, 3),
+                    "robots": [a.name, b.name],
+                    "x": round(p.x, 3),
+                    "y": round(p.y, 3),
+                }
+            )
+            a.handle.log("robot_collision", robot=a.name, other=b.name)
+            if len(log["robot_robot_collisions"]) > self.mission.limits.collisions:
+                self.end(
+                    "failed",
+                    f"{a.name} and {b.name} collided at t={now:.1f} s near ({p.x:.2f}, {p.y:.2f})",
+                )
+        self._touching = touching
+
+    def _conclude(self) -> None:
+        """Every robot's part has ended: the mission's outcome."""
+        failed = [r for r in self.robots if r.status != "succeeded"]
+        self.fleet_log["makespan"] = round(self.world.time, 3)
+        if not failed:
+            self.status, self.reason = "succeeded", None
+        elif not self.loaded.is_fleet:
+            self.status, self.reason = failed[0].status, failed[0].reason
+        else:
+            r = failed[0]
+            self.status, self.reason = "failed", f"{r.name}: {r.reason}"
+
+    def end(self, status: str, reason: str | None) -> bool:
+        """End the run (the first outcome stands); robots still running end with it."""
+        if self.status is None:
+            for r in self.robots:
+                r.end(status, reason)
+            lead = self.robots[0]
+            if not self.loaded.is_fleet:  # the robot's own words (faults fired)
+                status, reason = lead.status or status, lead.reason
+            self.status, self.reason = status, reason
+        return False
+
+    def _robot_record(self, k: int, wall_time: float) -> RunRecord:
+        """Robot ``k``'s record, with its ``metrics.people`` (made where it decided)."""
+        r = self.robots[k]
+        record = r.record(wall_time)
+        if self.people is not None:
+            record.metrics["people"] = self.people.metrics(
+                k,
+                record.trajectory,
+                r.robot.footprint_radius,
+                r.navigator.stats.legs,
+                self.world.time,
+            )
+        return record
+
+    def record(self) -> RunRecord:
+        """The outcome so far, as the run directory will hold it."""
+        if self.status is None:
+            self.end("error", "the run ended without an outcome")
+        self._observe()
+        wall_time = time.perf_counter() - self.wall_start
+        team = self.team
+        assert self.status is not None
+        remote = team.gather((self.status, self.reason), wall_time) if team.links else {}
+        records = [
+            remote[k] if k in remote else self._robot_record(k, wall_time)
+            for k in range(len(self.robots))
+        ]
+        if not self.loaded.is_fleet:
+            record = records[0]
+            record.status, record.reason = self.status or "error", self.reason
+            record.people = self.people.track if self.people is not None else None
+            return record
+        record = fleet_record(
+            dict(zip((r.name for r in self.robots), records, strict=True)),
+            self.fleet_log,
+            self.world.time,
+            wall_time,
+            (self.status or "error", self.reason),
+            processes=len(team.links) + 1,  # the robots decided in (missions.run.team)
+        )
+        if self.people is not None:
+            record.people = self.people.track
+            record.metrics["people"] = fleet_people_metrics(records)
+        return record

@@ -1,5 +1,5 @@
 """BehaviorTree.CPP v4 XML, both ways: a file the user wrote becomes the same
-:class:`~agv_mission.missions.load.tree.NodeSpec` s a YAML tree does (each element keeps its
+:class:`~agv_mission.missions.load.tree_spec.NodeSpec` s a YAML tree does (each element keeps its
 line), and any mission's tree is written back as XML with a ``<TreeNodesModel>`` that
 Groot2 reads as its palette.
 

@@ -112,5 +112,4 @@ SUFFIX_TARGETS = {
     ".cost_grid.planned_vs_shortest.max": ("<=", 1.05),
     ".drive.driven_vs_planned.max": ("<=", 1.08),
     ".drive.driven_vs_shortest.max": ("<=", 1.10),
-    "length_ratio": ("<=", 1.15),
 }

@@ -15,6 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import figures  # noqa: E402
+import run as bench_run  # noqa: E402
 from targets import SUFFIX_TARGETS, TARGETS  # noqa: E402
 
 README = ROOT / "README.md"
@@ -46,6 +47,22 @@ def test_links_stay_inside_the_repository_and_resolve(page: Path) -> None:
         assert resolved.exists(), f"{page.name}: {target} does not exist"
 
 
+def test_results_json_was_written_whole_by_one_run_of_every_benchmark(results_doc: dict) -> None:
+    assert results_doc.get("modules") == bench_run.MODULES and "failed" not in results_doc, (
+        "benchmarks/results.json is not one whole `make bench` run of today's benchmarks"
+    )
+
+
+def test_every_target_names_a_figure_a_benchmark_writes(results_doc: dict) -> None:
+    missing = [key for key in TARGETS if key not in results_doc["results"]]
+    assert not missing, f"targets no benchmark writes: {missing}"
+
+
+def test_every_suffix_target_applies_to_some_figure(results_doc: dict) -> None:
+    unused = [s for s in SUFFIX_TARGETS if not any(k.endswith(s) for k in results_doc["results"])]
+    assert not unused, f"suffix targets that match no figure: {unused}"
+
+
 def test_the_benchmarks_page_is_rendered_from_results_json(results_doc: dict) -> None:
     page = ROOT / "docs" / "benchmarks.md"
     assert page.read_text() == figures.render_page(results_doc, TARGETS, SUFFIX_TARGETS), (
@@ -57,11 +74,7 @@ def test_every_tagged_figure_is_the_one_results_json_holds(results_doc: dict) ->
     results = results_doc["results"]
     for page in [README, *PAGES]:
         for key, value in figures.tagged(page.read_text()):
-            if key not in results:
-                assert value == figures.NOT_MEASURED, (
-                    f"{page.name} quotes {key} = {value}, unmeasured"
-                )
-                continue
+            assert key in results, f"{page.name} quotes {key}, which no benchmark writes"
             assert value == figures.fmt(results[key]), (
                 f"{page.name} quotes {key} = {value}, results.json holds {figures.fmt(results[key])}"
             )

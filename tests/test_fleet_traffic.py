@@ -109,6 +109,7 @@ def test_a_robot_waiting_on_a_stuck_robot_does_not_wait_forever() -> None:
     assert timeouts[0]["t"] - first_wait["t"] == pytest.approx(5.0, abs=0.15)
 
 
+@pytest.mark.slow  # 11 s; the scenario suite's fleet runs cover the traffic
 @pytest.mark.parametrize("seed", [3])
 def test_ten_robots_in_the_warehouse(seed: int) -> None:
     """Ten robots (a third of them waffles) from the dock to two aisle positions each and

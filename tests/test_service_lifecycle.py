@@ -75,6 +75,7 @@ def test_queue_full_429(tmp_path: Path) -> None:
         assert wait_status(c, first["id"], FINAL)["status"] == "aborted"
 
 
+@pytest.mark.slow  # 20 s of restarts
 def test_restart_after_kill_9_and_sigterm(tmp_path: Path) -> None:
     data = tmp_path / "data"
     long = WANDER_MISSION % {"duration": 600}

@@ -230,6 +230,7 @@ def test_our_master_drives_our_vehicle_end_to_end(tmp_path: Path) -> None:
     assert (run_dir / "trajectory.csv").stat().st_size > 100
 
 
+@pytest.mark.slow  # 12 s of CLI start-ups; the loader's bad-input tests cover the messages
 def test_dispatch_cli_bad_input_exits_2(tmp_path: Path) -> None:
     bad = write(
         tmp_path / "bad.yaml", {"name": "x", "world": "warehouse", "tasks": [{"type": "go_to"}]}

@@ -12,7 +12,10 @@
   const meta = new Map();
   const asked = new Set();
   async function fetchMeta(run) {
-    if (asked.has(run.id) || run.status === "queued") return;
+    // a run is "running" from its launch, but its mission.yaml is written once loaded: the
+    // first simulated step says it is there (asking earlier is a 404 in the console)
+    const loading = run.status === "running" && !(run.progress && run.progress.sim_time > 0);
+    if (asked.has(run.id) || run.status === "queued" || loading) return;
     asked.add(run.id);
     const text = await AGV.fileText(run.id, "mission.yaml");
     if (!text) { setTimeout(() => asked.delete(run.id), 3000); return; }

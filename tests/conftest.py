@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -15,3 +17,16 @@ ROS_MAPS = Path(__file__).resolve().parent / "data" / "ros_maps"
 def ros_maps() -> Path:
     """The folder holding the real ROS maps (``turtlebot3_world/``, ``aws_small_house/``)."""
     return ROS_MAPS
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    """A real headless chromium (Debian's, through Playwright), one per test module."""
+    from playwright.sync_api import sync_playwright
+
+    from service_server import launch_chromium
+
+    with sync_playwright() as p:
+        chromium = launch_chromium(p)
+        yield chromium
+        chromium.close()

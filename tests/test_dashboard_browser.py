@@ -15,7 +15,7 @@ from typing import Any
 import httpx
 import pytest
 
-from service_server import CHROMIUM, launch_chromium, serve
+from service_server import CHROMIUM, serve
 
 pytestmark = [
     pytest.mark.browser,
@@ -47,16 +47,6 @@ def data_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def base_url(data_dir: Path) -> Iterator[str]:
     with serve(data_dir, "--workers", "2") as url:
         yield url
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Any]:
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        chromium = launch_chromium(p)
-        yield chromium
-        chromium.close()
 
 
 @pytest.fixture(scope="module")

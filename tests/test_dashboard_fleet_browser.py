@@ -14,7 +14,7 @@ from typing import Any
 import httpx
 import pytest
 
-from service_server import CHROMIUM, SHORT_FLEET, TELEOP_FLEET, launch_chromium, serve, submit
+from service_server import CHROMIUM, SHORT_FLEET, TELEOP_FLEET, serve, submit
 
 pytestmark = [
     pytest.mark.browser,
@@ -58,16 +58,6 @@ COLOUR_PIXELS = """
 def base_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     with serve(tmp_path_factory.mktemp("fleet-browser-data"), "--workers", "2") as url:
         yield url
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Any]:
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        chromium = launch_chromium(p)
-        yield chromium
-        chromium.close()
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 
 from mission_texts import ENDLESS_PATROL, tb3_mission
-from service_server import CHROMIUM, Server, launch_chromium, submit, wait_status
+from service_server import CHROMIUM, Server, submit, wait_status
 
 pytestmark = [
     pytest.mark.browser,
@@ -38,16 +38,6 @@ PATROL = tb3_mission(
 def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     with Server(tmp_path_factory.mktemp("pages-serve"), "--workers", "2") as server:
         yield server
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Any]:
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        chromium = launch_chromium(p)
-        yield chromium
-        chromium.close()
 
 
 @pytest.fixture(scope="module")

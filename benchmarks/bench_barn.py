@@ -17,6 +17,11 @@ with their bags in a temporary folder):
 * ``barn.<stack>.wall_s``: wall time of the command (issue 33's target: <= 600 s for 300).
 
 ``barn.dwa.*``: BARN's published move_base + DWA baseline (its README), not measured here.
+
+``barn.drawn.*``: the default stack on 120 new worlds drawn by BARN's own recipe
+(:mod:`agv_mission.barn.draws`, seed 2026: ten of each of the recipe's twelve parameter
+sets), the class of the challenge's held-out worlds (issue 33: success >= 0.95, collisions
+<= 0.02, mean metric >= 0.35 on them). Needs no clone: the recipe draws them.
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ from rich.table import Table
 
 CLI = Path(sys.executable).parent / "agv-mission"
 WORKERS = 2
+DRAWN_WORLDS, DRAWN_SEED = 120, 2026
 STACKS = {
     "default": [],
     "pure_pursuit": ["--set", "stack.local_planner.type=pure_pursuit"],
@@ -88,25 +94,35 @@ def run_stack(directory: Path, extra: list[str], root: Path, name: str) -> dict[
     return out
 
 
+def drawn(root: Path) -> dict[str, float]:
+    """The default stack on new worlds drawn by BARN's recipe."""
+    from agv_mission.barn.draws import draw_worlds, write_worlds
+
+    folder = root / "drawn_worlds"
+    write_worlds(folder, draw_worlds(DRAWN_WORLDS, DRAWN_SEED))
+    return run_stack(folder, [], root, "drawn")
+
+
 def run(argument: str | None = None) -> dict[str, float]:
     directory = barn_dir(argument)
-    if directory is None:
-        print(
-            "  BARN not available: set AGV_MISSION_BARN to a clone of "
-            "Daffan/the-barn-challenge (or its jackal_helper/worlds/BARN)"
-        )
-        return {"barn.available": 0.0, **{f"barn.dwa.{k}": v for k, v in DWA_BASELINE.items()}}
-    results: dict[str, float] = {"barn.available": 1.0}
+    results: dict[str, float] = {f"barn.dwa.{k}": v for k, v in DWA_BASELINE.items()}
     with tempfile.TemporaryDirectory() as tmp:
+        results.update(drawn(Path(tmp)))
+        if directory is None:
+            print(
+                "  BARN not available: set AGV_MISSION_BARN to a clone of "
+                "Daffan/the-barn-challenge (or its jackal_helper/worlds/BARN)"
+            )
+            return {"barn.available": 0.0, **results}
+        results["barn.available"] = 1.0
         for name, extra in STACKS.items():
             results.update(run_stack(directory, extra, Path(tmp), name))
-    results.update({f"barn.dwa.{k}": v for k, v in DWA_BASELINE.items()})
     return results
 
 
 def tables(values: dict[str, float]) -> list[Table]:
     """The README's table: each stack beside BARN's DWA baseline."""
-    if not values.get("barn.available"):
+    if not values.get("barn.available") and "barn.drawn.worlds" not in values:
         return []
     table = Table(title="BARN's public worlds", header_style="bold")
     for column in ("stack", "worlds", "success", "collisions", "timeouts", "mean time s"):
@@ -118,9 +134,12 @@ def tables(values: dict[str, float]) -> list[Table]:
         value = values.get(key)
         return "-" if value is None else f"{value:.{digits}f}"
 
-    for name in [*STACKS, "dwa"]:
+    for name in [*STACKS, "drawn", "dwa"]:
+        if name != "dwa" and f"barn.{name}.worlds" not in values:
+            continue
+        label = {"dwa": "BARN's DWA (Gazebo)", "drawn": "default, new worlds (BARN's recipe)"}
         table.add_row(
-            name if name != "dwa" else "BARN's DWA (Gazebo)",
+            label.get(name, name),
             cell(f"barn.{name}.worlds", 0) if name != "dwa" else "300",
             cell(f"barn.{name}.success_rate"),
             cell(f"barn.{name}.collision_rate"),

@@ -28,6 +28,9 @@ class RobotState:
     # seconds the person has stood, slower than STANDING; 0 while walking), refreshed by the
     # run each step (a perfect tracker, as HuNavSim gives its robots); none: (0, 6).
     people: np.ndarray = field(default_factory=lambda: np.zeros((0, len(TRACKED_PERSON))))
+    # range_ahead's last answer (scan, half width, range): a tree asks every tick (10 Hz),
+    # the lidar answers at its rate (a TurtleBot3's 5 Hz)
+    _ahead: tuple[LaserScan, float, float] | None = field(default=None, repr=False)
 
     def path_ahead_blocked(self, length: float, half_width: float, margin: float) -> bool:
         """Whether a scan point lies in the corridor the robot would sweep driving
@@ -44,9 +47,14 @@ class RobotState:
 
     def range_ahead(self, half_width: float) -> float:
         """Smallest valid range within +-``half_width`` radians of straight ahead."""
-        if self.scan is None:
+        scan = self.scan
+        if scan is None:
             return float("inf")
-        angles = np.abs(wrap_angles(self.scan.angles))
-        sector = self.scan.ranges[angles <= half_width]
+        if self._ahead is not None and self._ahead[0] is scan and self._ahead[1] == half_width:
+            return self._ahead[2]
+        angles = np.abs(wrap_angles(scan.angles))
+        sector = scan.ranges[angles <= half_width]
         finite = sector[np.isfinite(sector)]
-        return float(finite.min()) if finite.size else float("inf")
+        nearest = float(finite.min()) if finite.size else float("inf")
+        self._ahead = (scan, half_width, nearest)
+        return nearest

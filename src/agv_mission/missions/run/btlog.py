@@ -33,8 +33,8 @@ class TreeLog:
 
     def __init__(self, spec: TreeSpec, tree: MissionTree, handle: RobotHandle) -> None:
         self.spec, self.handle = spec, handle
-        self.records = bytearray()
-        self._last = [IDLE] * len(tree.records)
+        self.changes: list[tuple[float, int, int]] = []  # (simulated s, uid, status)
+        self._last = [IDLE] * (len(tree.records) + 1)  # by uid
         for uid, record in enumerate(tree.records, start=1):
             self._hook(uid, record.behaviour)
 
@@ -53,16 +53,23 @@ class TreeLog:
         behaviour.stop = logged_stop
 
     def _log(self, uid: int, status: int) -> None:
-        if self._last[uid - 1] == status:
-            return
-        self._last[uid - 1] = status
-        usec = max(int(round(self.handle.state.time * 1e6)), 0) & 0xFFFFFFFFFFFF
-        self.records += usec.to_bytes(6, "little") + struct.pack("<HB", uid, status)
+        if self._last[uid] != status:  # a tree ticks at 10 Hz: encode once, at the end
+            self._last[uid] = status
+            self.changes.append((self.handle.state.time, uid, status))
+
+    @property
+    def records(self) -> bytes:
+        """The 9-byte transition records, in order."""
+        out = bytearray()
+        for t, uid, status in self.changes:
+            usec = max(int(round(t * 1e6)), 0) & 0xFFFFFFFFFFFF
+            out += usec.to_bytes(6, "little") + struct.pack("<HB", uid, status)
+        return bytes(out)
 
     def to_bytes(self) -> bytes:
         xml = tree_xml(self.spec).encode("utf-8")
         head = MAGIC + bytes([PROTOCOL]) + struct.pack("<i", len(xml)) + xml
-        return head + struct.pack("<q", 0) + bytes(self.records)
+        return head + struct.pack("<q", 0) + self.records
 
 
 def _entries(node_type: str) -> list[str]:

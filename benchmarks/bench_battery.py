@@ -3,9 +3,10 @@ hot loop.
 
 * ``battery.step_us``: one step of the model (mean over 200 000 calls), and what it costs
   per simulated second at the 10 Hz control rate;
-* the demo patrol (amcl, OMPL, MPC) with the burger's battery and with none, alternated
-  three times in one process: the CPU-time ratio per simulated second (the battery's whole
-  cost in a run: the model, the level column, the metrics).
+* the demo patrol (amcl, OMPL, MPC) with the burger's battery and with none: the CPU-time
+  ratio (the battery's whole cost in a run: the model, the level column, the metrics),
+  the two runs stepped side by side (``side_by_side.py``), the median of three pairings;
+  and each kind's CPU per simulated second and real-time factor as whole runs.
 """
 
 from __future__ import annotations
@@ -13,9 +14,12 @@ from __future__ import annotations
 import statistics
 import time
 from pathlib import Path
+from typing import Any
+
+from side_by_side import paired_ratio
 
 from agv_mission.missions.load.loader import load_mission
-from agv_mission.missions.run.runner import run_mission
+from agv_mission.missions.run.runner import MissionRun, run_mission
 from agv_mission.missions.run.stack import CONTROL_PERIOD
 from agv_mission.robots.battery import battery_for
 from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
@@ -37,10 +41,15 @@ def _step_us() -> float:
     return (time.perf_counter() - t0) / CALLS * 1e6
 
 
-def _patrol_cpu_per_sim_s(with_battery: bool) -> tuple[float, float]:
+def _demo(with_battery: bool) -> Any:
     loaded = load_mission(DEMO)
     if not with_battery:
         loaded.robot = loaded.robot.model_copy(update={"battery": None})
+    return loaded
+
+
+def _patrol_cpu_per_sim_s(with_battery: bool) -> tuple[float, float]:
+    loaded = _demo(with_battery)
     cpu0 = time.process_time()
     record = run_mission(loaded)
     cpu = time.process_time() - cpu0
@@ -62,14 +71,16 @@ def run() -> dict[str, float]:
         cost, rtf = _patrol_cpu_per_sim_s(False)
         without_cost.append(cost)
         without_rtf.append(rtf)
-    ratios = [a / b for a, b in zip(with_cost, without_cost, strict=True)]
+    ratio = paired_ratio(
+        lambda: MissionRun(_demo(False), None), lambda: MissionRun(_demo(True), None)
+    )
     results.update(
         {
             "battery.patrol.cpu_ms_per_sim_s.with": round(statistics.median(with_cost) * 1e3, 3),
             "battery.patrol.cpu_ms_per_sim_s.without": round(
                 statistics.median(without_cost) * 1e3, 3
             ),
-            "battery.patrol.cost_ratio_with_over_without": round(statistics.median(ratios), 4),
+            "battery.patrol.cost_ratio_with_over_without": round(ratio, 4),
             "battery.patrol.real_time_factor.with": round(statistics.median(with_rtf), 2),
             "battery.patrol.real_time_factor.without": round(statistics.median(without_rtf), 2),
         }

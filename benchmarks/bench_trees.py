@@ -3,13 +3,10 @@
 * ``trees.patrol.tree_over_tasks_cost``: CPU seconds of a patrol (turtlebot3_world,
   ground truth, cost_grid, pure pursuit, two rounds) written as a hand-built tree
   (repeat > sequence > subtree calls of navigate_to_pose + wait) over the same patrol as
-  a ``tasks:`` list. The two runs step side by side in this process, one control step
-  each in turn, each step's thread CPU counted to its run: this machine's speed moves
-  within seconds (whole runs one after the other gave 1.0-1.17 for the same code), and
-  both runs see the same moments. The run stepped first in a round pays about 2 % (its
-  caches are cold), so each pairing runs in both orders and the figure is the geometric
-  mean of the two ratios, the median of three such pairs. Both runs must drive the same
-  trajectory as they do alone (``same_trajectory``).
+  a ``tasks:`` list, the two runs stepped side by side (``side_by_side.py``; whole runs
+  one after the other read 1.0-1.17 for code whose instruction counts differ by 0.2 %),
+  the median of three pairings. Every run must drive the trajectory it drives alone
+  (``same_trajectory``).
 * ``trees.<mission>.tree_ms_per_sim_s``: the tree's own CPU per simulated second: the time
   inside the root's tick minus the navigator's (planning and the local planner are the
   stack's cost, whoever calls them), per simulated second.
@@ -25,12 +22,12 @@
 
 from __future__ import annotations
 
-import gc
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from side_by_side import paired_ratio
 
 from agv_mission.missions.load.loader import load_mission
 from agv_mission.missions.run.runner import MissionRun
@@ -106,35 +103,21 @@ def _run(path: Path) -> tuple[float, float, np.ndarray, str]:
     return cpu, tick[0] - nav[0], record.trajectory, record.status
 
 
-def _side_by_side(paths: list[Path]) -> tuple[list[float], list[Any]]:
-    """Thread CPU seconds of each mission's run and its record, the runs stepped in turn."""
-    runs = [MissionRun(load_mission(p), None) for p in paths]
-    cpu, live = [0.0] * len(runs), [True] * len(runs)
-    gc.freeze()  # as MissionRun.drive: the set-up's objects out of the collector's way
-    try:
-        while any(live):
-            for i, run in enumerate(runs):
-                if live[i]:
-                    start = time.thread_time()
-                    live[i] = run.step()
-                    cpu[i] += time.thread_time() - start
-    finally:
-        gc.unfreeze()
-    return cpu, [run.record() for run in runs]
-
-
 def _tree_over_tasks(tasks: Path, tree: Path) -> tuple[float, bool]:
-    """The tree's CPU over the tasks' (see the module's docstring), and whether both
-    drove their trajectories of a run alone."""
-    alone = {p: _run(p)[2] for p in (tasks, tree)}
-    ratios, same = [], True
-    for _ in range(3):
-        (a, b), (ra, rb) = _side_by_side([tasks, tree])
-        (c, d), (rc, rd) = _side_by_side([tree, tasks])
-        ratios.append(float(np.sqrt((b / a) * (c / d))))
-        for path, record in ((tasks, ra), (tree, rb), (tree, rc), (tasks, rd)):
-            same &= record.status == "succeeded" and np.array_equal(record.trajectory, alone[path])
-    return float(np.median(ratios)), same
+    """The tree's CPU over the tasks' (see the module's docstring), and whether every run
+    drove its trajectory of a run alone."""
+    alone = {"a": _run(tasks)[2], "b": _run(tree)[2]}
+    same = [True]
+
+    def check(kind: str, record: Any) -> None:
+        same[0] &= record.status == "succeeded" and np.array_equal(record.trajectory, alone[kind])
+
+    ratio = paired_ratio(
+        lambda: MissionRun(load_mission(tasks), None),
+        lambda: MissionRun(load_mission(tree), None),
+        check=check,
+    )
+    return ratio, same[0]
 
 
 NAV2_TREE = (

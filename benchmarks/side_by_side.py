@@ -1,0 +1,55 @@
+"""Two runs' CPU compared as this machine allows: stepped side by side in one process.
+
+This machine's speed moves within seconds (2x between states), so whole runs one after
+the other compare moments, not code. Here the runs step in turn, one control step each,
+and each step's thread CPU is counted to its run: both see the same moments. The run
+stepped first in a round pays a little for cold caches (about 2 %), so a pairing runs in
+both orders and its ratio is the geometric mean of the two.
+"""
+
+from __future__ import annotations
+
+import gc
+import statistics
+import time
+from collections.abc import Callable
+from typing import Any
+
+from agv_mission.missions.run.runner import MissionRun
+
+
+def step_in_turn(runs: list[MissionRun]) -> list[float]:
+    """Thread CPU seconds each run's steps took, the runs stepped in turn to their end."""
+    cpu, live = [0.0] * len(runs), [True] * len(runs)
+    gc.freeze()  # as MissionRun.drive: the set-up's objects out of the collector's way
+    try:
+        while any(live):
+            for i, run in enumerate(runs):
+                if live[i]:
+                    start = time.thread_time()
+                    live[i] = run.step()
+                    cpu[i] += time.thread_time() - start
+    finally:
+        gc.unfreeze()
+    return cpu
+
+
+def paired_ratio(
+    make_a: Callable[[], MissionRun],
+    make_b: Callable[[], MissionRun],
+    pairs: int = 3,
+    check: Callable[[str, Any], None] | None = None,
+) -> float:
+    """The median over ``pairs`` of B's CPU over A's, each pairing in both orders;
+    ``check(kind, record)`` sees every run's record (``kind`` "a" or "b")."""
+    ratios = []
+    for _ in range(pairs):
+        a1, b1 = make_a(), make_b()
+        ca1, cb1 = step_in_turn([a1, b1])
+        b2, a2 = make_b(), make_a()
+        cb2, ca2 = step_in_turn([b2, a2])
+        if check is not None:
+            for kind, run in (("a", a1), ("b", b1), ("b", b2), ("a", a2)):
+                check(kind, run.record())
+        ratios.append(((cb1 / ca1) * (cb2 / ca2)) ** 0.5)
+    return statistics.median(ratios)

@@ -40,16 +40,17 @@ def paired_ratio(
     pairs: int = 3,
     check: Callable[[str, Any], None] | None = None,
 ) -> float:
-    """The median over ``pairs`` of B's CPU over A's, each pairing in both orders;
-    ``check(kind, record)`` sees every run's record (``kind`` "a" or "b")."""
+    """The median over ``pairs`` of B's CPU per simulated second over A's, each pairing in
+    both orders; ``check(kind, record)`` sees every run's record (``kind`` "a" or "b")."""
     ratios = []
     for _ in range(pairs):
-        a1, b1 = make_a(), make_b()
-        ca1, cb1 = step_in_turn([a1, b1])
-        b2, a2 = make_b(), make_a()
-        cb2, ca2 = step_in_turn([b2, a2])
-        if check is not None:
-            for kind, run in (("a", a1), ("b", b1), ("b", b2), ("a", a2)):
-                check(kind, run.record())
-        ratios.append(((cb1 / ca1) * (cb2 / ca2)) ** 0.5)
+        costs: dict[str, list[float]] = {"a": [], "b": []}
+        for kinds in ("ab", "ba"):
+            runs = [make_a() if kind == "a" else make_b() for kind in kinds]
+            for kind, run, cpu in zip(kinds, runs, step_in_turn(runs), strict=True):
+                record = run.record()
+                if check is not None:
+                    check(kind, record)
+                costs[kind].append(cpu / record.sim_time)
+        ratios.append(((costs["b"][0] / costs["a"][0]) * (costs["b"][1] / costs["a"][1])) ** 0.5)
     return statistics.median(ratios)

@@ -156,6 +156,15 @@ def test_imu_cdr_equals_rosbags_serialiser():
     assert raw == rm.serialize(msg, rm.IMU)
 
 
+def test_imu_cdr_rows_are_imu_cdr_of_each_sample():
+    rng = np.random.default_rng(3)
+    times = 7.0 + np.arange(1, 41) * 0.005  # 200 Hz, nanosecond stamps that round
+    gz, accel = rng.normal(size=40), rng.normal(size=(40, 2))
+    rows = cdr.imu_cdr_rows(times, "imu_link", gz, accel, 1e-6, 2e-3)
+    for row, t, g, (ax, ay) in zip(rows, times.tolist(), gz, accel, strict=True):
+        assert row == cdr.imu_cdr(t, "imu_link", g, ax, ay, 1e-6, 2e-3)
+
+
 MISSION = """
 name: imu-bag
 world: turtlebot3_world

@@ -369,11 +369,11 @@ class BagWriter:
         accel_var = spec.accel_noise_density**2 * rate
         write = self._writer.write  # type: ignore[union-attr]
         conn = self._conns[name]
-        frame = bag.base_frame
-        for t, gz, (ax, ay) in zip(
-            batch.times.tolist(), batch.gyro.tolist(), batch.accel.tolist(), strict=True
-        ):
-            write(conn, rm.nanoseconds(t), cdr.imu_cdr(t, frame, gz, ax, ay, gyro_var, accel_var))
+        datas = cdr.imu_cdr_rows(
+            batch.times, bag.base_frame, batch.gyro, batch.accel, gyro_var, accel_var
+        )
+        for t, data in zip(batch.times.tolist(), datas, strict=True):
+            write(conn, rm.nanoseconds(t), data)
         self.messages += len(batch.times)
 
     def _flush_map(self, bag: _RobotBag) -> None:

@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Literal
 
@@ -148,6 +149,7 @@ def test_a_crash_still_writes_a_complete_result(tmp_path: Path) -> None:
     # registered after the schema was built, so swapped in directly rather than by --set
     stack = loaded.mission.stack.model_copy(update={"local_planner": ExplodingConfig()})
     loaded.mission = loaded.mission.model_copy(update={"stack": stack})
+    loaded.robots = [replace(loaded.lead, stack=stack)]
     record = run_mission(loaded)
     assert record.status == "error"
     assert record.reason == "_Boom: controller blew up"

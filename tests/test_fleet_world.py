@@ -12,6 +12,7 @@ import pytest
 
 from agv_mission.missions.load.errors import MissionError
 from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.load.resolved import Layout
 from agv_mission.missions.report.outputs import open_run_dir, write_run
 from agv_mission.missions.run.fleet_orders import queue_fleet_tasks
 from agv_mission.missions.run.runner import MissionRun, run_mission
@@ -51,7 +52,7 @@ def problems(path, overrides=()):
 
 def test_fleet_loads_each_robot_with_its_merged_stack(tmp_path):
     loaded = load_mission(fleet_file(tmp_path))
-    assert loaded.is_fleet and [r.name for r in loaded.robots] == ["agv1", "agv2"]
+    assert loaded.layout is Layout.FLEET and [r.name for r in loaded.robots] == ["agv1", "agv2"]
     agv1, agv2 = loaded.robots
     assert agv1.stack.local_planner.type == "pure_pursuit"  # the mission's stack
     assert agv2.stack.local_planner.type == "mpc"  # its own, merged over

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
+from agv_mission.missions.load.resolved import Layout
 from agv_mission.vda5050.body import VehicleWorld
 from agv_mission.vda5050.transport import BrokerUrl
 from agv_mission.vda5050.vehicle_set import VehicleSet, load_vehicles
@@ -167,7 +168,8 @@ def test_a_one_robot_mission_is_one_vehicle_agv1(tmp_path: Path) -> None:
     path.write_text(yaml.safe_dump(one))
     mission = load_vehicles(path)
     assert [(v.serial, v.description.name) for v in mission.vehicles] == [("agv1", "burger")]
-    assert not mission.loaded.is_fleet
+    assert mission.loaded.layout is Layout.ROBOT
+    assert [r.name for r in mission.loaded.robots] == ["robot"]
 
 
 def test_fleet_vehicles_keep_each_robots_stack_and_only_teleop(tmp_path: Path) -> None:

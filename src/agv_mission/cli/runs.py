@@ -45,6 +45,7 @@ def run(
         quiet_until_started()
     from agv_mission.bags.writer import BagWriter
     from agv_mission.missions.load.loader import load_demo_mission, load_mission
+    from agv_mission.missions.load.resolved import Layout
     from agv_mission.missions.report.outputs import RunDirError, open_run_dir, write_run
     from agv_mission.missions.run.errors import RunStopped
     from agv_mission.missions.run.pacing import PacedControl
@@ -72,10 +73,10 @@ def run(
     except RunDirError as exc:
         where = "--output" if output is not None else f"{loaded.source}: output"
         raise failure("invalid input", f"{where} {exc}") from None
-    if loaded.is_fleet:
-        robots = ", ".join(f"{r.name} ({r.robot.name})" for r in loaded.fleet)
+    if loaded.layout is Layout.FLEET:
+        robots = ", ".join(f"{r.name} ({r.robot.name})" for r in loaded.robots)
         out.print(
-            f"[bold]{loaded.name}[/]: {len(loaded.fleet)} robots in {loaded.world.name}: "
+            f"[bold]{loaded.name}[/]: {len(loaded.robots)} robots in {loaded.world.name}: "
             f"{robots}; {len(loaded.fleet_tasks)} fleet task(s), seed {loaded.mission.seed}"
         )
     else:

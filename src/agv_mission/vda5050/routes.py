@@ -270,7 +270,7 @@ def _planned_tasks(loaded: LoadedMission, robots: list[str]) -> list[_PlannedTas
             for i, task in enumerate(mission.tasks or [])
         ]
     planned = [
-        _PlannedTask(task, robot.name, f"robots.{k}.tasks.{j}", loaded.fleet[k].room_goals)
+        _PlannedTask(task, robot.name, f"robots.{k}.tasks.{j}", loaded.robots[k].room_goals)
         for k, robot in enumerate(mission.robots)
         for j, task in enumerate(robot.tasks or [])
     ]

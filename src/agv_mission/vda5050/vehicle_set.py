@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from agv_mission.missions.load.resolved import LoadedMission
+from agv_mission.missions.load.resolved import Layout, LoadedMission
 from agv_mission.robots.description import RobotDescription
 from agv_mission.vda5050.body import VehicleWorld
 from agv_mission.vda5050.dispatch_mission import load_dispatch_mission
@@ -47,11 +47,11 @@ def load_vehicles(
     loaded = load_dispatch_mission(
         path, overrides, seed, tasks_required=False, check_actions=False
     ).loaded
-    if not loaded.is_fleet:
-        return VehicleMission(
-            loaded, [VehicleSpec(DEFAULT_SERIAL, loaded.robots[0].name, loaded.robot)]
-        )
-    return VehicleMission(loaded, [VehicleSpec(r.name, r.name, r.robot) for r in loaded.robots])
+    sole = loaded.layout is Layout.ROBOT  # a one-robot mission's vehicle: the default serial
+    return VehicleMission(
+        loaded,
+        [VehicleSpec(DEFAULT_SERIAL if sole else r.name, r.name, r.robot) for r in loaded.robots],
+    )
 
 
 class VehicleSet:

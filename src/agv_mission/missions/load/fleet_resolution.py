@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +16,7 @@ from agv_mission.missions.load.problems import (
     kind_of,
 )
 from agv_mission.missions.load.resolve import resolve_setup
-from agv_mission.missions.load.resolved import FleetTask, LoadedMission, PathGuard, RobotSetup
+from agv_mission.missions.load.resolved import FleetTask, Layout, LoadedMission, PathGuard
 from agv_mission.missions.load.schema import (
     MAX_NAME_LENGTH,
     Mission,
@@ -195,20 +196,8 @@ def resolve_fleet(
     first = resolved[0]
     first.mission = mission
     first.name = mission.name or stem[:MAX_NAME_LENGTH]
-    first.fleet = [
-        RobotSetup(
-            names[i],
-            r.robot,
-            r.start,
-            mission.robots[i].stack,
-            r.costmap,
-            trees[i],
-            r.zones,
-            r.room_goals,
-        )
-        for i, r in enumerate(resolved)
-    ]
-    first.tree = trees[0]
+    first.robots = [replace(r.lead, name=names[i]) for i, r in enumerate(resolved)]
+    first.layout = Layout.FLEET
     first.fleet_tasks = fleet_tasks
     return first
 

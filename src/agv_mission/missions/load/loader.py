@@ -200,16 +200,14 @@ def remote_controlled(loaded: LoadedMission, time_limit: float = MAX_SIM_SECONDS
     teleop = [{"type": "teleop"}]
     doc = loaded.mission.model_dump(exclude={"tasks", "tree", "trees", "blackboard", "expect"})
     doc["limits"] = {**doc.get("limits", {}), "time": time_limit}
-    if not loaded.is_fleet:
+    entries = doc.get("robots") or []  # a fleet's robots: each its own, under robots:
+    for entry in entries:
+        entry["tasks"] = entry["tree"] = None
+    if not entries:  # a one-robot mission's: at the top level
         doc["tasks"] = teleop
-        return replace(loaded, mission=Mission.model_validate(doc), tree=tasks_tree(teleop))
-    for robot in doc["robots"]:
-        robot["tasks"] = robot["tree"] = None
-    fleet = [replace(r, tree=tasks_tree(teleop)) for r in loaded.fleet]
     return replace(
         loaded,
         mission=Mission.model_validate(doc),
-        tree=fleet[0].tree,
-        fleet=fleet,
+        robots=[replace(r, tree=tasks_tree(teleop)) for r in loaded.robots],
         fleet_tasks=[],
     )

@@ -30,7 +30,7 @@ from agv_mission.missions.load.problems import (
     one_line,
     os_message,
 )
-from agv_mission.missions.load.resolved import LoadedMission, PathGuard
+from agv_mission.missions.load.resolved import SOLE_ROBOT, LoadedMission, PathGuard, RobotSetup
 from agv_mission.missions.load.schema import (
     MAX_NAME_LENGTH,
     Setup,
@@ -98,16 +98,22 @@ def resolve_setup(
         source=None,
         name=mission.name or stem[:MAX_NAME_LENGTH],
         world=placed.world,
-        robot=robot,
         rooms=rooms,
-        start=placed.start,
-        costmap=costmap,
-        room_goals=placed.room_goals,
+        robots=[
+            RobotSetup(
+                SOLE_ROBOT,
+                robot,
+                placed.start,
+                mission.stack,
+                costmap,
+                tree,
+                zones,
+                placed.room_goals,
+            )
+        ],
         recorder=recorder,
-        tree=tree,
         docks=docks,
         given_map=given_map,
-        zones=zones,
         people=people,
     )
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from enum import Enum
 from pathlib import Path
 from typing import Any
 
@@ -62,54 +63,71 @@ class FleetTask:
 SOLE_ROBOT = "robot"
 
 
+class Layout(Enum):
+    """How a run of the mission is laid out, fixed by the file's shape when it loads.
+
+    Every loaded mission is a list of robots; the layout says what its run writes and who
+    decides beside the robots (the run directory, result.json, the bag)."""
+
+    #: a top-level ``robot:`` (mission-format.md): the robot's run is the mission's run
+    ROBOT = "robot"
+    #: a ``robots:`` list (fleet.md): the fleet layer dispatches and directs the traffic;
+    #: result.json names the robot that failed and holds each robot's result
+    FLEET = "fleet"
+
+
 @dataclass
 class LoadedMission:
-    """A validated mission with everything it names loaded and resolved."""
+    """A validated mission with everything it names loaded and resolved: one world and
+    its robots (a one-robot mission: one robot named :data:`SOLE_ROBOT`)."""
 
     mission: Mission  # a Setup (no tasks) when loaded with tasks_required=False
     source: Path | None
     name: str
     world: World  # what is simulated
-    robot: RobotDescription
     rooms: dict[str, Room]
-    start: Pose2D
-    costmap: Costmap
-    room_goals: dict[str, Pose2D] = field(default_factory=dict)  # where each visit goes
+    robots: list[RobotSetup]  # every robot of the mission, in the file's order
+    layout: Layout = Layout.ROBOT
     recorder: Path | None = None  # an existing recorder file to append to
-    tree: TreeSpec | None = None  # what the robot does (None for a setup)
     docks: dict[str, Dock] = field(default_factory=dict)  # the world's and rooms file's
     given_map: OccupancyGrid | None = None  # the mission's ``map:``, when it names one
-    zones: ZoneFilters | None = None  # keepout and speed filters (None: no zones)
     people: list[PeopleGroup] = field(default_factory=list)  # resolved ``people:``
-    fleet: list[RobotSetup] = field(default_factory=list)  # a fleet mission's robots
-    fleet_tasks: list[FleetTask] = field(default_factory=list)  # its tasks: dispatched, assigned
+    fleet_tasks: list[FleetTask] = field(default_factory=list)  # ``tasks:`` of a fleet
     #: inputs taken as near as they could be (a person's route point moved off a wall)
     warnings: list[Problem] = field(default_factory=list)
 
+    # The first robot's parts: a one-robot mission's robot (teleop, the terminal's
+    # messages and a VDA 5050 vehicle drive one robot).
     @property
-    def is_fleet(self) -> bool:
-        """A mission with a ``robots:`` list (fleet.md); else a one-robot mission."""
-        return bool(self.fleet)
+    def lead(self) -> RobotSetup:
+        return self.robots[0]
 
     @property
-    def robots(self) -> list[RobotSetup]:
-        """Every robot of the mission: the fleet's, or the one robot of a one-robot
-        mission (named :data:`SOLE_ROBOT`)."""
-        if self.fleet:
-            return self.fleet
-        stack = self.mission.stack
-        return [
-            RobotSetup(
-                SOLE_ROBOT,
-                self.robot,
-                self.start,
-                stack,
-                self.costmap,
-                self.tree,
-                self.zones,
-                self.room_goals,
-            )
-        ]
+    def robot(self) -> RobotDescription:
+        return self.lead.robot
+
+    @property
+    def start(self) -> Pose2D:
+        return self.lead.start
+
+    @property
+    def costmap(self) -> Costmap:
+        return self.lead.costmap
+
+    @property
+    def tree(self) -> TreeSpec | None:
+        """What the robot does (None for a setup)."""
+        return self.lead.tree
+
+    @property
+    def zones(self) -> ZoneFilters | None:
+        """Keepout and speed filters (None: no zones)."""
+        return self.lead.zones
+
+    @property
+    def room_goals(self) -> dict[str, Pose2D]:
+        """Where each visit goes."""
+        return self.lead.room_goals
 
     @property
     def map(self) -> OccupancyGrid:

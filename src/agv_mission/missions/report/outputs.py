@@ -57,7 +57,7 @@ def open_run_dir(root: Path, loaded: LoadedMission, name: str | None = None) -> 
 
 def result_document(loaded: LoadedMission, record: RunRecord, run_dir: Path) -> dict[str, Any]:
     robots = {}
-    for setup in loaded.fleet:  # a fleet's robots, each with the one-robot result keys
+    for setup in loaded.robots:  # a fleet's robots, each with the one-robot result keys
         own = record.robots.get(setup.name)
         if own is not None:
             robots[setup.name] = {

@@ -56,23 +56,23 @@ def queue_fleet_tasks(loaded: LoadedMission) -> tuple[LoadedMission, list[dict[s
     ``tasks:`` (assigned by ``robot:`` or dispatched), and the dispatch log ``[{task, type,
     robot, t, finish}]`` (``task``: its number in ``tasks:``, from 1 as every report counts
     tasks)."""
-    queued: dict[str, list[NodeSpec]] = {s.name: [] for s in loaded.fleet}
+    queued: dict[str, list[NodeSpec]] = {s.name: [] for s in loaded.robots}
     log: list[dict[str, Any]] = []
     if any(t.robot is None for t in loaded.fleet_tasks):
         log = _dispatch(loaded, queued)
     else:
         for task in loaded.fleet_tasks:
             queued[task.robot or ""].append(task.tree.source.main.children[0])
-    fleet = [_with_queue(s, queued[s.name], loaded) for s in loaded.fleet]
-    return dataclasses.replace(loaded, fleet=fleet, tree=fleet[0].tree), log
+    fleet = [_with_queue(s, queued[s.name], loaded) for s in loaded.robots]
+    return dataclasses.replace(loaded, robots=fleet), log
 
 
 def _dispatch(loaded: LoadedMission, queued: dict[str, list[NodeSpec]]) -> list[dict[str, Any]]:
     """Fill ``queued`` in the order of the fleet's tasks: assigned ones on their robot
     (work it then holds), the others on the dispatcher's pick; the dispatch log."""
     dispatcher = registry.create("dispatcher", loaded.mission.fleet.dispatcher)
-    setups = {s.name: s for s in loaded.fleet}
-    travel = {s.name: GridTravelTime(s.costmap, s.robot.max_linear_velocity) for s in loaded.fleet}
+    setups = {s.name: s for s in loaded.robots}
+    travel = {s.name: GridTravelTime(s.costmap, s.robot.max_linear_velocity) for s in loaded.robots}
 
     def travel_time(name: str, a: Pose2D, b: Pose2D) -> float:
         return travel[name](a, b)
@@ -87,7 +87,7 @@ def _dispatch(loaded: LoadedMission, queued: dict[str, list[NodeSpec]]) -> list[
     work = {
         s.name: held(s.name, s.start, _goals(s.tree, s, loaded), 0.0) if s.tree else
         RobotWork(s.name, s.start, 0.0)
-        for s in loaded.fleet
+        for s in loaded.robots
     }  # fmt: skip
     log = []
     for task in loaded.fleet_tasks:
@@ -98,7 +98,7 @@ def _dispatch(loaded: LoadedMission, queued: dict[str, list[NodeSpec]]) -> list[
             work[task.robot] = held(task.robot, w.end, goals, w.held_time)
             queued[task.robot].append(spec)
             continue
-        goals = tuple(_goals(task.tree, loaded.fleet[0], loaded))
+        goals = tuple(_goals(task.tree, loaded.robots[0], loaded))
         got = dispatcher.assign(FleetTask(str(task.index), goals), list(work.values()), travel_time)
         queued[got.robot].append(spec)
         end = goals[-1] if goals else work[got.robot].end

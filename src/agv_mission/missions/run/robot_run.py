@@ -76,6 +76,7 @@ class RobotRun:
         run_dir: Path | None,
         recorders: list[LocationRecorder],
         observed: bool,
+        traffic: bool = False,
     ) -> None:
         self.loaded = loaded
         self.stack = stack
@@ -143,7 +144,7 @@ class RobotRun:
         self.traffic_path: np.ndarray | None = None  # the path it drives (fleets only)
         self.navigating = False  # its navigator drives to a goal
         self.yielding = False  # it steps aside for another robot
-        self._fleet = loaded.is_fleet
+        self._traffic = traffic  # a fleet layer reads the path it drives
 
     @property
     def localizer(self) -> Localizer:
@@ -202,7 +203,7 @@ class RobotRun:
         self.sensing, self.estimate, self.command = sensing, estimate, (v, w)
         self._covariance, self._diagnostics = covariance, diagnostics
         self.yielding = navigator.yielding
-        if self._fleet:
+        if self._traffic:
             self.traffic_path = navigator.traffic_path()
             self.navigating = navigator.status is NavStatus.RUNNING
 

@@ -20,18 +20,18 @@ from pathlib import Path
 from typing import Any
 
 from agv_mission.localization.base import Localizer
-from agv_mission.missions.load.resolved import LoadedMission
+from agv_mission.missions.load.resolved import Layout, LoadedMission
 from agv_mission.missions.run.behaviour_tree import MissionTree
 from agv_mission.missions.run.errors import RunStopped
 from agv_mission.missions.run.fleet_orders import FleetCoordinator, queue_fleet_tasks
-from agv_mission.missions.run.fleet_record import fleet_record
 from agv_mission.missions.run.observe import (
     RobotStart,
     RunControl,
     RunObserver,
     RunStart,
 )
-from agv_mission.missions.run.people_record import PeopleRun, fleet_people_metrics
+from agv_mission.missions.run.outcome import OUTCOMES
+from agv_mission.missions.run.people_record import PeopleRun
 from agv_mission.missions.run.record import RunRecord, bare_record
 from agv_mission.missions.run.robot_run import RobotRun
 from agv_mission.missions.run.samples import StepSample, tree_nodes
@@ -112,7 +112,10 @@ class MissionRun:
         observers: Sequence[RunObserver] = (),
     ) -> None:
         # The fleet's tasks are released now: each joins its robot's tree, in their order.
-        loaded, dispatched = queue_fleet_tasks(loaded) if loaded.is_fleet else (loaded, [])
+        loaded, dispatched = queue_fleet_tasks(loaded)
+        # a fleet has the fleet layer beside its robots, reading the paths they drive
+        fleet = loaded.layout is Layout.FLEET
+        self.outcome = OUTCOMES[loaded.layout]
         self.loaded = loaded
         self.mission = loaded.mission
         self.run_dir = run_dir
@@ -120,7 +123,8 @@ class MissionRun:
         self.world, stacks = build_world(loaded)
         recorders = open_recorders(loaded, run_dir)
         self.robots = [
-            RobotRun(loaded, stack, run_dir, recorders, bool(self.observers)) for stack in stacks
+            RobotRun(loaded, stack, run_dir, recorders, bool(self.observers), traffic=fleet)
+            for stack in stacks
         ]
         self.by_name = {r.name: r for r in self.robots}
         self.team = RobotTeam.alone(self.robots)  # who decides here (see :meth:`drive`)
@@ -142,9 +146,7 @@ class MissionRun:
             self.by_name[d["robot"]].handle.log(
                 "dispatch", task=d["task"], type=d["type"], estimated_finish=d["finish"]
             )
-        self.coordinator = (
-            FleetCoordinator(loaded, self.robots, self.fleet_log) if loaded.is_fleet else None
-        )
+        self.coordinator = FleetCoordinator(loaded, self.robots, self.fleet_log) if fleet else None
         self._touching: set[tuple[int, int]] = set()
         self.wall_start = time.perf_counter()
         self.status: str | None = None
@@ -205,7 +207,7 @@ class MissionRun:
             rooms=loaded.rooms,
             docks=loaded.docks,
             robots=robots,
-            fleet=loaded.is_fleet,
+            fleet=loaded.layout is Layout.FLEET,
         )
         for observer in self.observers:
             observer.on_start(start)
@@ -342,8 +344,8 @@ class MissionRun:
             r = touched[0]
             c = r.new_collision
             assert c is not None
-            who = f"{r.name}: " if self.loaded.is_fleet else ""
-            self.end("failed", f"{who}collision at t={now:.1f} s near ({c['x']:.2f}, {c['y']:.2f})")
+            where = f"collision at t={now:.1f} s near ({c['x']:.2f}, {c['y']:.2f})"
+            self.end("failed", self.outcome.says(r, where))
 
     def _watch_robots(self, now: float) -> None:
         """Robot-robot contacts (each new touch counts once) and the closest approach."""
@@ -376,21 +378,15 @@ class MissionRun:
         self.fleet_log["makespan"] = round(self.world.time, 3)
         if not failed:
             self.status, self.reason = "succeeded", None
-        elif not self.loaded.is_fleet:
-            self.status, self.reason = failed[0].status, failed[0].reason
         else:
-            r = failed[0]
-            self.status, self.reason = "failed", f"{r.name}: {r.reason}"
+            self.status, self.reason = self.outcome.concluded(failed[0])
 
     def end(self, status: str, reason: str | None) -> bool:
         """End the run (the first outcome stands); robots still running end with it."""
         if self.status is None:
             for r in self.robots:
                 r.end(status, reason)
-            lead = self.robots[0]
-            if not self.loaded.is_fleet:  # the robot's own words (faults fired)
-                status, reason = lead.status or status, lead.reason
-            self.status, self.reason = status, reason
+            self.status, self.reason = self.outcome.ended(self.robots[0], status, reason)
         return False
 
     def _robot_record(self, k: int, wall_time: float) -> RunRecord:
@@ -420,20 +416,12 @@ class MissionRun:
             remote[k] if k in remote else self._robot_record(k, wall_time)
             for k in range(len(self.robots))
         ]
-        if not self.loaded.is_fleet:
-            record = records[0]
-            record.status, record.reason = self.status or "error", self.reason
-            record.people = self.people.track if self.people is not None else None
-            return record
-        record = fleet_record(
+        return self.outcome.record(
             dict(zip((r.name for r in self.robots), records, strict=True)),
+            (self.status or "error", self.reason),
+            self.people,
             self.fleet_log,
             self.world.time,
             wall_time,
-            (self.status or "error", self.reason),
             processes=len(team.links) + 1,  # the robots decided in (missions.run.team)
         )
-        if self.people is not None:
-            record.people = self.people.track
-            record.metrics["people"] = fleet_people_metrics(records)
-        return record

@@ -2,14 +2,15 @@
 through the loader, and its tasks' ``actions:`` (pick / drop at a task's nodes) beside it.
 
 ``actions:`` is a field only the master knows (``run`` rejects it), so it is taken out of
-each task (``tasks.N``, ``robots.K.tasks.N``) before the loader validates the rest; the
-master validates it as :class:`NodeAction`. A file without it goes to the loader as it is;
-either way every problem names the file's own lines and fields.
+each task (``tasks.N``, ``robots.K.tasks.N``) of the document as read, and the rest goes
+to the loader's models as it is (with the file's lines); the master validates it as
+:class:`NodeAction`. A file without it goes to the loader as it is; either way every
+problem names the file's own lines and fields.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -17,9 +18,9 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from agv_mission.missions.load.errors import MissionError, Problem
-from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.load.loader import load_mission, load_mission_document
 from agv_mission.missions.load.resolved import LoadedMission
-from agv_mission.missions.load.yaml_lines import line_of, load_with_lines
+from agv_mission.missions.load.yaml_lines import DocumentError, line_of, load_with_lines
 
 
 class NodeAction(BaseModel):
@@ -79,37 +80,23 @@ def load_dispatch_mission(
     """Mission file ``path`` loaded, its ``actions:`` validated (with ``check_actions``;
     the vehicles ignore them). Raises :class:`MissionError` (exit code 2)."""
     try:
-        text = path.read_text(encoding="utf-8")
-        doc = yaml.safe_load(text)
+        data, lines = load_with_lines(path.read_text(encoding="utf-8"))
+    except DocumentError:  # well-formed YAML the loader refuses: it says why, below
+        data, lines = None, {}
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise MissionError(
             [Problem(str(path), None, "", f"cannot read the mission: {exc}")]
         ) from None
-    lines = _lines(text)
-    raw = _take_actions(doc) if isinstance(doc, dict) else {}
+    raw = _take_actions(data) if isinstance(data, dict) else {}
     actions = {w: _node_actions(path, lines, w, r) for w, r in raw.items()} if check_actions else {}
-    if not raw:  # the file as written: the loader's own lines
+    if not raw:  # the file as written: the loader reads it itself
         loaded = load_mission(path, overrides, seed, tasks_required=tasks_required)
-        return DispatchMission(loaded, actions, lines)
-    try:
-        loaded = load_mission(
-            path,
-            overrides,
-            seed,
-            text=yaml.safe_dump(doc, sort_keys=False),
-            tasks_required=tasks_required,
+    else:  # the document without its actions, at the file's own lines
+        assert isinstance(data, dict)
+        loaded = load_mission_document(
+            path, data, dict(lines), overrides, seed, tasks_required=tasks_required
         )
-    except MissionError as exc:
-        raise MissionError(_as_written(exc.problems, path, lines)) from None
-    loaded.warnings = _as_written(loaded.warnings, path, lines)
     return DispatchMission(loaded, actions, lines)
-
-
-def _lines(text: str) -> dict[Any, int]:
-    try:
-        return load_with_lines(text)[1]
-    except yaml.YAMLError:
-        return {}
 
 
 def _take_actions(doc: dict[str, Any]) -> dict[str, Any]:
@@ -153,15 +140,4 @@ def _node_actions(path: Path, lines: dict[Any, int], where: str, raw: Any) -> li
             raise MissionError(
                 [Problem(str(path), line_of(at, lines), ".".join(map(str, at)), err["msg"])]
             ) from None
-    return out
-
-
-def _as_written(problems: list[Problem], path: Path, lines: dict[Any, int]) -> list[Problem]:
-    """Problems of the document without ``actions:`` at the lines of the file as written
-    (taking ``actions:`` out moves no other field)."""
-    out = []
-    for p in problems:
-        if p.file == str(path) and p.line is not None:
-            p = replace(p, line=line_of(field_steps(p.field), lines))
-        out.append(p)
     return out

@@ -76,6 +76,26 @@ def load_mission(
     if text is None:
         text = _read_text(path, file)
     data, lines = _document(text, file)
+    return load_mission_document(
+        path, data, lines, overrides, seed, tasks_required=tasks_required, path_guard=path_guard
+    )
+
+
+def load_mission_document(
+    path: Path,
+    data: dict[str, Any],
+    lines: dict[FieldPath, int],
+    overrides: Sequence[str | Override] | None = None,
+    seed: int | None = None,
+    *,
+    tasks_required: bool = True,
+    path_guard: PathGuard | None = None,
+) -> LoadedMission:
+    """:func:`load_mission` of a document already read from ``path``: ``data``, the
+    mapping (changed here), and ``lines``, each field's line in the file. A front door
+    that takes fields of its own out of the file (the VDA 5050 master's ``actions:``)
+    hands the rest over as it is: every problem still names the file's own lines."""
+    file = str(path)
     applied = apply_overrides(data, overrides or [])
     override_paths: dict[FieldPath, str] = dict(applied.paths)
     if seed is not None:

@@ -19,9 +19,9 @@ from agv_mission.maps.worlds import World
 from agv_mission.missions.load.loader import load_mission
 from agv_mission.missions.report.outputs import make_run_dir, write_run
 from agv_mission.missions.run.runner import MissionRun, run_mission
-from agv_mission.missions.run.stack import new_odometry
 from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
 from agv_mission.robots.diff_drive import DiffDriveBody, SimConfig
+from agv_mission.robots.drive_base import new_odometry
 from agv_mission.robots.odometry import DiffDriveOdometry, GyroFusedOdometry
 from agv_mission.robots.robot_files import RobotFileError, load_robot
 

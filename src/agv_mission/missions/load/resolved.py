@@ -142,22 +142,29 @@ class LoadedMission:
         for key in ("tasks", "tree", "trees", "blackboard"):  # what the user did not write
             if key in doc and doc[key] in (None, {}):
                 del doc[key]
-        if isinstance(doc.get("tree"), str) and self.source is not None:
-            # the copy in a run directory still finds the XML file
-            doc["tree"] = str(input_path(doc["tree"].strip(), self.source.parent).resolve())
-        if self.source is not None:  # and its navigators' behavior_tree files
-            _absolute_tree_files([doc.get("tree"), doc.get("trees")], self.source.parent)
+        if self.source is not None:  # the copy in a run directory still finds its files
+            _absolute_tree_files(doc, self.source.parent)
         return {k: doc[k] for k in FIELD_ORDER if k in doc}
 
 
-def _absolute_tree_files(value: Any, base: Path) -> None:
-    """Every ``behavior_tree`` file named in ``value`` (a YAML tree) made absolute."""
+def _absolute_tree_files(doc: dict[str, Any], base: Path) -> None:
+    """The XML tree file ``doc`` names and every navigator's ``behavior_tree`` file in its
+    trees, made absolute (in place)."""
+    places: list[tuple[dict[str, Any], str]] = []
+    if isinstance(doc.get("tree"), str):
+        places.append((doc, "tree"))
+    _behavior_tree_files([doc.get("tree"), doc.get("trees")], places)
+    for holder, key in places:
+        holder[key] = str(input_path(holder[key].strip(), base).resolve())
+
+
+def _behavior_tree_files(value: Any, places: list[tuple[dict[str, Any], str]]) -> None:
+    """Every mapping in ``value`` that names a ``behavior_tree`` file, added to ``places``."""
     if isinstance(value, list):
         for item in value:
-            _absolute_tree_files(item, base)
+            _behavior_tree_files(item, places)
     elif isinstance(value, dict):
-        tree_file = value.get("behavior_tree")
-        if isinstance(tree_file, str):
-            value["behavior_tree"] = str(input_path(tree_file.strip(), base).resolve())
+        if isinstance(value.get("behavior_tree"), str):
+            places.append((value, "behavior_tree"))
         for item in value.values():
-            _absolute_tree_files(item, base)
+            _behavior_tree_files(item, places)

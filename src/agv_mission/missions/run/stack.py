@@ -28,10 +28,9 @@ from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.planners.base import VelocityLimits
 from agv_mission.registry import registry
-from agv_mission.robots.body import hull_top
 from agv_mission.robots.description import RobotDescription
-from agv_mission.robots.diff_drive import DiffDriveBody, world_builder
-from agv_mission.robots.odometry import DiffDriveOdometry, GyroFusedOdometry
+from agv_mission.robots.drive_base import DriveBase, robots_world
+from agv_mission.robots.odometry import GyroFusedOdometry
 from agv_mission.robots.sensors import ImuSamples
 from agv_mission.sensor_msgs import LaserScan
 from agv_mission.world.model import add_people
@@ -128,25 +127,25 @@ class RobotStack:
         self.loaded, self.setup = loaded, setup
         self.name = setup.name
         robot = setup.robot
-        sim_rng, self.loc_rng, self.planner_rng, self.fault_rng = (
-            np.random.default_rng(s) for s in seeds
+        self.loc_rng, self.planner_rng, self.fault_rng = (
+            np.random.default_rng(s) for s in seeds[1:]
         )
-        self.sim = DiffDriveBody(
+        self.base = DriveBase.build(
             world,
             setup.name,
             robot,
             setup.start,
             loaded.mission.simulation,
-            sim_rng,
-            imu_rng=np.random.default_rng(seeds[0].spawn(1)[0]),
+            seeds[0],
+            use_imu=setup.stack.odometry.imu,
         )
-        self.odometry = new_odometry(robot, setup.stack.odometry.imu)
+        self.sim, self.odometry = self.base.body, self.base.odometry
         self.limits = velocity_limits(robot)
         self.smoother = VelocitySmoother(self.limits, CONTROL_PERIOD)
         self.scan_period = 1.0 / robot.lidar.rate
         self.next_scan = 0.0
         self._between: list[Sensing] = []  # scans taken within the last control period
-        self.odom, _ = self._read_odometry()
+        self.odom, _ = self.base.read()
         self.odom_start = self.odom
         self.localizer: Localizer = self.new_localizer(loaded.map)
         self.localizer.reset(setup.start, self.odom)
@@ -207,7 +206,7 @@ class RobotStack:
         scans taken within the last control period (:meth:`scan_steps`)."""
         sim = self.sim
         now = sim.time
-        self.odom, imu = self._read_odometry()
+        self.odom, imu = self.base.read()
         scan = None
         if now >= self.next_scan - 1e-9:
             self.next_scan += self.scan_period
@@ -249,47 +248,19 @@ class RobotStack:
         the next :meth:`sense`."""
         sim = self.sim
         self.next_scan += self.scan_period
-        odom, imu = self._read_odometry()
+        odom, imu = self.base.read()
         scan = sim.scan()
         if scan_filter is not None:
             scan = scan_filter(sim.time, scan)
         self._between.append(Sensing(sim.time, odom, scan, sim.true_pose(), (), imu))
 
-    def _read_odometry(self) -> tuple[Pose2D, ImuSamples | None]:
-        """The encoders (and the IMU, when the robot has one) read into the odometry."""
-        sim = self.sim
-        ticks = sim.encoder_ticks()
-        imu = sim.imu_samples()
-        odometry = self.odometry
-        if imu is not None and isinstance(odometry, GyroFusedOdometry):
-            return odometry.update_fused(*ticks, imu.turn, len(imu) * imu.period), imu
-        return odometry.update(*ticks), imu
-
-
-def new_odometry(robot: RobotDescription, use_imu: bool = True) -> DiffDriveOdometry:
-    """The robot's odometry: wheels and gyro fused when it has an IMU and ``use_imu``,
-    else the wheels alone."""
-    enc = robot.encoder
-    if robot.imu is None or not use_imu:
-        return DiffDriveOdometry(enc.ticks_per_meter, robot.wheel_separation)
-    # a wheel's relative travel error: per-read noise, slip (uniform), scale error
-    wheel_noise = math.sqrt(enc.noise**2 + enc.slip**2 / 3.0 + enc.scale_error**2)
-    return GyroFusedOdometry(
-        enc.ticks_per_meter,
-        robot.wheel_separation,
-        wheel_noise,
-        robot.imu.gyro_noise_density,
-        robot.imu.gyro_bias_instability,
-    )
-
 
 def build_world(loaded: LoadedMission) -> tuple[SimulatedWorld, list[RobotStack]]:
     """The mission's world with every robot's body in it, and each robot's stack."""
     setups = loaded.robots
-    builder = world_builder(loaded.world, [s.robot for s in setups], loaded.mission.simulation)
-    seen = max(hull_top(s.robot) for s in setups)
-    for setup in setups:
-        DiffDriveBody.add_to(builder, setup.name, setup.robot, seen)
+    builder = robots_world(
+        loaded.world, [(s.name, s.robot) for s in setups], loaded.mission.simulation
+    )
     if loaded.people:
         add_people(builder.spec, [g.radius for g in loaded.people for _ in range(g.count)])
     world = builder.build()

@@ -2,10 +2,9 @@
 
 * :func:`queue_fleet_tasks` releases the fleet's tasks when the run starts, in the order
   given: one with ``robot:`` queues on that robot, one without goes to the robot the
-  mission's ``dispatcher`` picks. A robot's bid counts the work it holds: its own tasks'
-  goals (from where it starts), then the tasks already queued on it, travelled at its top
-  speed over its free space (:class:`~agv_mission.fleet.travel.GridTravelTime`). Every
-  robot's queue runs behind its own tree, through the one tree assembly.
+  mission's ``dispatcher`` picks (:func:`~agv_mission.fleet.release.release_tasks`, on
+  the poses each task and each robot's own tasks drive to). Every robot's queue runs
+  behind its own tree, through the one tree assembly.
 * :class:`FleetCoordinator` runs once per control step before the robots' trees tick: it
   gathers each robot's estimate, speed and the path its navigator drives, asks the
   ``traffic`` plugin, hands every navigator its decision (and the others' bodies, which its
@@ -20,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from agv_mission.fleet.base import FleetTask, RobotWork, TrafficDecision, TrafficRobot
-from agv_mission.fleet.travel import GridTravelTime
+from agv_mission.fleet.base import TrafficDecision, TrafficRobot
+from agv_mission.fleet.release import Bidder, Release, release_tasks
 from agv_mission.geometry import Pose2D
 from agv_mission.missions.load.resolved import LoadedMission, RobotSetup
 from agv_mission.missions.load.tree_assembly import assemble
@@ -68,50 +67,37 @@ def queue_fleet_tasks(loaded: LoadedMission) -> tuple[LoadedMission, list[dict[s
 
 
 def _dispatch(loaded: LoadedMission, queued: dict[str, list[NodeSpec]]) -> list[dict[str, Any]]:
-    """Fill ``queued`` in the order of the fleet's tasks: assigned ones on their robot
-    (work it then holds), the others on the dispatcher's pick; the dispatch log."""
-    dispatcher = registry.create("dispatcher", loaded.mission.fleet.dispatcher)
+    """Fill ``queued`` in the order of the fleet's tasks (:func:`release_tasks`: assigned
+    ones on their robot, the others on the dispatcher's pick); the dispatch log. A
+    dispatched task's goals are those of the first robot's map (its rooms' entries)."""
     setups = {s.name: s for s in loaded.robots}
-    travel = {s.name: GridTravelTime(s.costmap, s.robot.max_linear_velocity) for s in loaded.robots}
-
-    def travel_time(name: str, a: Pose2D, b: Pose2D) -> float:
-        return travel[name](a, b)
-
-    def held(name: str, start: Pose2D, goals: Sequence[Pose2D], already: float) -> RobotWork:
-        here, total = start, already
-        for goal in goals:
-            total += travel_time(name, here, goal)
-            here = goal
-        return RobotWork(name, here, total if np.isfinite(total) else already)
-
-    work = {
-        s.name: held(s.name, s.start, _goals(s.tree, s, loaded), 0.0) if s.tree else
-        RobotWork(s.name, s.start, 0.0)
+    bidders = [
+        Bidder(s.name, s.start, _goals(s.tree, s, loaded), s.costmap, s.robot.max_linear_velocity)
         for s in loaded.robots
-    }  # fmt: skip
-    log = []
-    for task in loaded.fleet_tasks:
-        spec = task.tree.source.main.children[0]
-        if task.robot is not None:  # assigned: work its robot holds from now on
-            w = work[task.robot]
-            goals = _goals(task.tree, setups[task.robot], loaded)
-            work[task.robot] = held(task.robot, w.end, goals, w.held_time)
-            queued[task.robot].append(spec)
-            continue
-        goals = tuple(_goals(task.tree, loaded.robots[0], loaded))
-        got = dispatcher.assign(FleetTask(str(task.index), goals), list(work.values()), travel_time)
-        queued[got.robot].append(spec)
-        end = goals[-1] if goals else work[got.robot].end
-        work[got.robot] = RobotWork(got.robot, end, got.finish)
-        log.append(
-            {
-                "task": task.index + 1,
-                "type": task.type,
-                "robot": got.robot,
-                "t": 0.0,
-                "finish": round(got.finish, 1),
-            }
+    ]
+    releases = [
+        Release(
+            t.index, _goals(t.tree, setups[t.robot] if t.robot else loaded.lead, loaded), t.robot
         )
+        for t in loaded.fleet_tasks
+    ]
+    log = []
+    for task, went in zip(
+        loaded.fleet_tasks,
+        release_tasks(loaded.mission.fleet.dispatcher, bidders, releases),
+        strict=True,
+    ):
+        queued[went.robot].append(task.tree.source.main.children[0])
+        if went.finish is not None:
+            log.append(
+                {
+                    "task": task.index + 1,
+                    "type": task.type,
+                    "robot": went.robot,
+                    "t": 0.0,
+                    "finish": round(went.finish, 1),
+                }
+            )
     return log
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import statistics
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -44,7 +45,8 @@ def _step_us() -> float:
 def _demo(with_battery: bool) -> Any:
     loaded = load_mission(DEMO)
     if not with_battery:
-        loaded.robot = loaded.robot.model_copy(update={"battery": None})
+        robot = loaded.lead.robot.model_copy(update={"battery": None})
+        loaded.robots = [replace(loaded.lead, robot=robot)]
     return loaded
 
 

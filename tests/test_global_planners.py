@@ -486,3 +486,18 @@ def test_builtin_worlds_room_to_room(world_name: str, make) -> None:
     anchors = [a for i, a in enumerate(anchors) if a not in anchors[:i]]
     assert len(anchors) >= 3
     patrol(costmap, anchors, make())
+
+
+def test_the_watchdog_runs_on_the_planning_thread_s_cpu_time() -> None:
+    """Time the planning thread spends not running (a loaded machine, a thread holding
+    the interpreter) does not bring the watchdog closer: the same plan under load."""
+    import time
+
+    from agv_mission.planners.ompl_budget import IterationBudget, watchdog_clock
+
+    clock = watchdog_clock("RRTConnect")
+    budget = IterationBudget(10**9, clock() + 0.05, clock)
+    time.sleep(0.2)  # waiting, as a thread does while others run
+    assert not budget()
+    wall = watchdog_clock("PRM")  # PRM grows its roadmap in threads of its own: the wall clock
+    assert IterationBudget(10**9, wall() - 1e-9, wall)()

@@ -54,9 +54,10 @@ class OmplPlannerConfig(PluginConfig):
         5.0,
         gt=0,
         le=600.0,
-        description="wall-clock watchdog of one plan, seconds: a plan still running then "
-        "fails (and that run is not reproducible); PRM-family planners (which grow their "
-        "roadmap in a second thread) run on this clock",
+        description="watchdog of one plan, CPU seconds of the planning thread (other "
+        "processes and threads do not advance it): a plan still running then fails (and "
+        "that run is not reproducible); PRM-family planners (which grow their roadmap in "
+        "a second thread) run on the wall clock for this long",
     )
     simplify: bool = Field(
         True,

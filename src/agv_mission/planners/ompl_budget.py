@@ -1,7 +1,8 @@
 """How long an OMPL plan plans, and when it has planned enough.
 
 A plan stops on a count, never on the clock (:class:`IterationBudget`), so it is the same
-under any CPU load; it stops early once its path meets a :class:`Yardstick` (the cost and
+under any CPU load; its watchdog reads the planning thread's CPU time
+(:func:`watchdog_clock`), which other processes and threads do not advance; it stops early once its path meets a :class:`Yardstick` (the cost and
 length of the path ``cost_grid`` would plan, times a threshold). Anytime planners run in
 doubling rounds (:func:`run_rounds`); planners that stop at their first solution run
 again from scratch (:func:`run_restarts`). The OMPL objects are the caller's
@@ -62,17 +63,26 @@ def taut_length(space: FreeSpace, pts: np.ndarray) -> float:
     return path_length(any_angle(space, dense, floor, space.comfort))
 
 
+def watchdog_clock(planner: str) -> Callable[[], float]:
+    """The clock of a plan's watchdog: the planning thread's CPU seconds, so a loaded
+    machine (other processes, a thread holding the interpreter) does not cut a plan short
+    and change the run; wall seconds for the planners that plan from threads of their own
+    (PRM, PRMstar: they stop on the clock anyway)."""
+    return time.perf_counter if planner in THREADED_PLANNERS else time.thread_time
+
+
 class IterationBudget:
     """A termination condition that counts its own evaluations (one per planner
-    iteration) instead of reading the clock; the wall-clock ``deadline`` is a watchdog."""
+    iteration) instead of reading the clock; ``deadline`` on ``clock`` is a watchdog."""
 
-    def __init__(self, iterations: int, deadline: float) -> None:
+    def __init__(self, iterations: int, deadline: float, clock: Callable[[], float]) -> None:
         self.left = iterations
         self.deadline = deadline
+        self.clock = clock
 
     def __call__(self) -> bool:
         self.left -= 1
-        return self.left < 0 or time.perf_counter() >= self.deadline
+        return self.left < 0 or self.clock() >= self.deadline
 
 
 def run_restarts(
@@ -101,13 +111,14 @@ def run_restarts(
     in Python callbacks takes a tenth of a second) is not simplified; the others are, by
     OMPL's simplifier in full, and judged as simplified.
     """
+    clock = watchdog_clock(cfg.planner)
     spent, solutions = 0, 0
     best_pts, best = None, (True, math.inf)  # (misses the yardstick, cost)
     fallback, fallback_way = None, math.inf  # the shortest way round, not yet simplified
-    while time.perf_counter() < deadline and spent < cfg.iterations:
+    while clock() < deadline and spent < cfg.iterations:
         if solutions:
             ss.clear()  # the planner's trees and the solution; start and goal stay
-        budget = IterationBudget(cfg.iterations - spent, deadline)
+        budget = IterationBudget(cfg.iterations - spent, deadline, clock)
         ss.solve(ob.PlannerTerminationCondition(budget))
         spent += max(1, cfg.iterations - spent - max(budget.left, 0))
         if not pdef.hasExactSolution():
@@ -151,16 +162,17 @@ def run_rounds(
     """Run an anytime planner in doubling rounds until the simplified path meets the
     ``yardstick`` or the iteration budget is spent (PRMstar: rounds of wall time)."""
     threaded = cfg.planner in THREADED_PLANNERS
+    clock = watchdog_clock(cfg.planner)
     slice_s = cfg.time_limit / 32.0
     spent, limit = 0, cfg.round_iterations
     best_pts, best, last_raw = None, (True, math.inf), math.inf
-    while time.perf_counter() < deadline and (threaded or spent < cfg.iterations):
+    while clock() < deadline and (threaded or spent < cfg.iterations):
         if threaded:
-            remaining = deadline - time.perf_counter()
+            remaining = deadline - clock()
             ss.solve(ob.timedPlannerTerminationCondition(min(slice_s, remaining)))
             slice_s *= 2.0
         else:
-            budget = IterationBudget(min(limit, cfg.iterations - spent), deadline)
+            budget = IterationBudget(min(limit, cfg.iterations - spent), deadline, clock)
             ss.solve(ob.PlannerTerminationCondition(budget))
             spent += max(1, min(limit, cfg.iterations - spent) - max(budget.left, 0))
             limit *= 2

@@ -56,7 +56,7 @@ What OMPL 2.0.1 (PyPI wheel, nanobind) does, as probed for this module:
   run again from scratch, up to ``restarts`` times, until one is: a first solution goes
   whichever way round the obstacles the trees met first (on the demo's pillars, twice
   the shortest), and no simplifier changes the way round. ``time_limit`` is only a
-  watchdog.
+  watchdog, on the planning thread's CPU time: a loaded machine does not change a plan.
 * Range. Planners that stop at their first solution get 0.5 m edges unless ``range``
   says otherwise: with OMPL's default (a fifth of the map's extent) a tree's first
   branches leap over a row of pillars and connect round the outside.
@@ -81,6 +81,7 @@ from agv_mission.planners.ompl_budget import (
     run_restarts,
     run_rounds,
     taut_length,
+    watchdog_clock,
 )
 from agv_mission.planners.path_smoothing import path_length
 
@@ -239,20 +240,22 @@ class OmplPlanner(FreeSpacePlanner[OmplPlannerConfig]):
     def plan(self, costmap: Costmap, start: Pose2D, goal: Pose2D, seed: int = 0) -> PlannedPath:
         t0 = time.perf_counter()
         cfg = self.config
+        clock = watchdog_clock(cfg.planner)
+        watch0 = clock()
         space, s, g = self.free_space(costmap, start, goal)
         cost = self.cost_integral(space)
         self._last = {}
         if space.segment_free(*s, *g) and cost.motion(*s, *g) <= math.dist(s, g) * (1 + 1e-9):
             pts = np.array([s, g], dtype=float)  # free and outside the inflation zone: best
         else:
-            pts = self._solve(space, cost, s, g, seed, t0)
+            pts = self._solve(space, cost, s, g, seed, watch0 + cfg.time_limit)
             if pts is None:
                 raise PlanningError(
                     f"{cfg.planner} found no path from ({start.x:.2f}, {start.y:.2f}) "
                     f"to ({goal.x:.2f}, {goal.y:.2f}) within {cfg.iterations} iterations"
                     + (
                         ""
-                        if time.perf_counter() - t0 < cfg.time_limit
+                        if clock() - watch0 < cfg.time_limit
                         else f" (stopped by the {cfg.time_limit:g} s watchdog)"
                     )
                 )
@@ -266,9 +269,10 @@ class OmplPlanner(FreeSpacePlanner[OmplPlannerConfig]):
         start: tuple[float, float],
         goal: tuple[float, float],
         seed: int,
-        t0: float,
+        deadline: float,
     ) -> np.ndarray | None:
-        """Local-frame waypoints from ``start`` to ``goal``, or None if none was found."""
+        """Local-frame waypoints from ``start`` to ``goal``, or None if none was found
+        (``deadline``: the watchdog's, on :func:`watchdog_clock`)."""
         cfg = self.config
         yardstick = Yardstick()  # none: nothing is good enough
         looks = cfg.planner in OPTIMIZING_PLANNERS or cfg.planner not in THREADED_PLANNERS
@@ -281,9 +285,7 @@ class OmplPlanner(FreeSpacePlanner[OmplPlannerConfig]):
             yardstick = Yardstick(
                 cfg.cost_threshold * cost.path(ref), cfg.length_threshold * path_length(ref)
             )
-        return _solve(
-            space, cost, start, goal, cfg, seed, t0 + cfg.time_limit, yardstick, self._last
-        )
+        return _solve(space, cost, start, goal, cfg, seed, deadline, yardstick, self._last)
 
 
 _QUIETED = [False]
@@ -444,7 +446,8 @@ def _solve(
         if anytime:
             return run_rounds(ob, ss, pdef, current, cfg, yardstick, deadline, report)
         if threaded:  # the documented exception: the wall clock
-            ss.solve(ob.timedPlannerTerminationCondition(max(deadline - time.perf_counter(), 1e-3)))
+            remaining = max(deadline - watchdog_clock(cfg.planner)(), 1e-3)
+            ss.solve(ob.timedPlannerTerminationCondition(remaining))
             return current()[0] if pdef.hasExactSolution() else None
         return restarts()
     finally:  # nothing of OMPL's may outlive the plan (nanobind reports leaks at exit)

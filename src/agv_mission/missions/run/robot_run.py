@@ -432,7 +432,7 @@ class RobotRun:
         metrics["navigation"]["recoveries"] = recoveries
         metrics["battery"] = self._battery_metrics()
         metrics["collision_monitor"] = self.monitor.report()
-        zones = self.loaded.zones
+        zones = self.setup.zones  # its own: a speed zone is grown by its footprint
         metrics["zones"] = (
             zone_metrics(zones, trajectory[:, 0], trajectory[:, 1:3]) if zones is not None else None
         )

@@ -144,3 +144,23 @@ def test_relative_world_path_resolves_against_mission_dir(tmp_path: Path, ros_ma
     )
     loaded = load_mission(path)
     assert loaded.world.map.width == 384
+
+
+def test_a_fleet_robot_s_xml_tree_file_resolves_absolute_in_the_resolved_document(
+    tmp_path: Path,
+) -> None:
+    """The run directory's mission.yaml loads from anywhere: every robot's tree file too."""
+    sub = tmp_path / "deep"
+    sub.mkdir()
+    (sub / "patrol_tree.xml").write_text((REPO / "missions" / "patrol_tree.xml").read_text())
+    path = write(
+        sub,
+        "world: turtlebot3_world\n"
+        "blackboard: {first: {x: 0.5, y: -1.6}, second: {x: -1.6, y: 0.55}}\n"
+        "robots:\n"
+        "  - {name: agv1, robot: burger, start: {x: -2.0, y: -0.5}, tree: patrol_tree.xml}\n"
+        "  - {name: agv2, robot: burger, start: {x: 2.0, y: 0.5, yaw: 3.1416}}\n",
+    )
+    doc = load_mission(path).resolved()
+    named = doc["robots"][0]["tree"]
+    assert Path(named).is_absolute() and Path(named) == (sub / "patrol_tree.xml").resolve()

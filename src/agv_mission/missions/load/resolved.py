@@ -148,12 +148,14 @@ class LoadedMission:
 
 
 def _absolute_tree_files(doc: dict[str, Any], base: Path) -> None:
-    """The XML tree file ``doc`` names and every navigator's ``behavior_tree`` file in its
-    trees, made absolute (in place)."""
+    """The XML tree file ``doc`` (and each of a fleet's robots) names and every
+    navigator's ``behavior_tree`` file in their trees, made absolute (in place)."""
     places: list[tuple[dict[str, Any], str]] = []
-    if isinstance(doc.get("tree"), str):
-        places.append((doc, "tree"))
-    _behavior_tree_files([doc.get("tree"), doc.get("trees")], places)
+    robots = doc.get("robots") if isinstance(doc.get("robots"), list) else []
+    for holder in [doc, *(r for r in robots if isinstance(r, dict))]:
+        if isinstance(holder.get("tree"), str):
+            places.append((holder, "tree"))
+        _behavior_tree_files([holder.get("tree"), holder.get("trees")], places)
     for holder, key in places:
         holder[key] = str(input_path(holder[key].strip(), base).resolve())
 

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal, Protocol
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 import numpy as np
 
 from agv_mission.geometry import Pose2D
-from agv_mission.maps.costmap import Costmap
+
+if TYPE_CHECKING:  # a costmap's module brings scipy: the schema (fleet configs) needs none
+    from agv_mission.maps.costmap import Costmap
 
 FleetEvent = dict[str, Any]
 """One fleet event, as the run logs it: ``{"event": "wait" | "wait_end" | "deadlock" |

@@ -12,47 +12,23 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 from scipy.ndimage import distance_transform_edt
 
+from agv_mission.maps.costmap_config import CostmapConfig, ObstacleLayerConfig
 from agv_mission.maps.distance import obstacle_distance
 from agv_mission.maps.grid import FREE, OccupancyGrid
 
 LETHAL = 254
 INSCRIBED = 253
 
-
-class ObstacleLayerConfig(BaseModel):
-    """Marking and clearing (the mission's ``stack.costmap.obstacles`` block)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    enabled: bool = True
-    max_range: float = Field(2.5, gt=0, description="returns farther than this do not mark, m")
-    raytrace_range: float = Field(3.0, gt=0, description="beams clear up to this range, m")
-    map_tolerance: float = Field(
-        0.15, ge=0, description="returns this close to a mapped obstacle are the map's, m"
-    )
-
-
-class CostmapConfig(BaseModel):
-    """Costmap parameters (the mission's ``stack.costmap`` block)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    resolution: float | None = Field(
-        None,
-        gt=0,
-        description="metres per cell; default: the map's own. The map is resampled, each "
-        "cell taking the worst of the map cells it covers (occupied > unknown > free)",
-    )
-    inflation_radius: float = Field(0.3, ge=0, description="metres beyond the footprint")
-    cost_scaling_factor: float = Field(5.0, gt=0, description="exponential decay of cost")
-    unknown_is_obstacle: bool = True
-    obstacles: ObstacleLayerConfig = Field(
-        default_factory=ObstacleLayerConfig,
-        description="the lidar's obstacle layer over the static map",
-    )
+__all__ = [
+    "INSCRIBED",
+    "LETHAL",
+    "Costmap",
+    "CostmapConfig",
+    "ObstacleLayerConfig",
+    "inflation_cost",
+]
 
 
 @dataclass

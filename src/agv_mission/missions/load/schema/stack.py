@@ -10,7 +10,7 @@ from typing import Annotated, Any, Union
 
 from pydantic import Field
 
-from agv_mission.maps.costmap import CostmapConfig
+from agv_mission.maps.costmap_config import CostmapConfig
 from agv_mission.missions.load.schema.base import StrictModel
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.planners.collision_monitor import CollisionMonitorConfig

@@ -43,12 +43,8 @@ def run(
     """Validate and run a mission in simulation; write a run directory."""
     if started_as_program():  # Ctrl-C during the imports below: exit 130, no traceback
         quiet_until_started()
-    from agv_mission.bags.writer import BagWriter
     from agv_mission.missions.load.loader import load_demo_mission, load_mission
-    from agv_mission.missions.load.resolved import Layout
-    from agv_mission.missions.report.outputs import RunDirError, open_run_dir, write_run
     from agv_mission.missions.run.errors import RunStopped
-    from agv_mission.missions.run.pacing import PacedControl
     from agv_mission.missions.run.signals import SignalStop
 
     stopper = SignalStop().install()
@@ -57,6 +53,12 @@ def run(
             loaded = load_demo_mission(set_, seed)
         else:
             loaded = load_mission(mission, set_, seed)
+        # The run's own machinery, once the input is known good (bad input is told sooner).
+        from agv_mission.bags.writer import BagWriter
+        from agv_mission.missions.load.resolved import Layout
+        from agv_mission.missions.report.outputs import RunDirError, open_run_dir, write_run
+        from agv_mission.missions.run.pacing import PacedControl
+
         stopper.phase = "running"  # from here a signal ends the run, with a result
     except MissionError as exc:
         raise invalid(exc) from None

@@ -1,20 +1,16 @@
-"""A fleet mission (``robots:``) resolved: its layout made ready to validate, each robot
-resolved as a one-robot mission of its own against the one world, names unique, starts
+"""A fleet mission (``robots:``) resolved (its layout made ready to validate in
+:mod:`~agv_mission.missions.load.layout`): each robot resolved as a one-robot mission of its own against the one world, names unique, starts
 apart, the fleet's tasks assigned or left to the dispatcher."""
 
 from __future__ import annotations
 
 import contextlib
-import copy
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from agv_mission.missions.load.errors import MissionError, Problem
-from agv_mission.missions.load.problems import (
-    ProblemLog,
-    kind_of,
-)
+from agv_mission.missions.load.problems import ProblemLog
 from agv_mission.missions.load.resolve import resolve_setup
 from agv_mission.missions.load.resolved import FleetTask, Layout, LoadedMission, PathGuard
 from agv_mission.missions.load.schema import (
@@ -26,56 +22,6 @@ from agv_mission.missions.load.tree_sources import node_checks, tree_loader, xml
 from agv_mission.missions.load.tree_spec import TreeSource, TreeSpec, tasks_spec, yaml_spec
 from agv_mission.missions.load.yaml_lines import FieldPath
 from agv_mission.robots.robot_files import load_robot
-
-
-def fleet_layout(data: dict[str, Any], log: ProblemLog) -> dict[int, str]:
-    """A fleet mission's data made ready to validate (in place): each robot's ``stack``
-    merged over the mission's, and the fleet tasks' ``robot:`` taken out (returned by
-    task index). Top-level ``robot:``/``start:`` beside ``robots:`` are refused."""
-    robots = data.get("robots")
-    if not isinstance(robots, list) or not robots:
-        return {}
-    for key in ("robot", "start"):
-        if key in data:
-            log.add(
-                (key,),
-                f"a fleet mission (with `robots:`) names each robot's {key} in its entry "
-                f"under robots:, not a top-level `{key}:`",
-            )
-            del data[key]  # reported; the rest is still checked
-    shared = data.get("stack")
-    for robot in robots:
-        if isinstance(robot, dict) and isinstance(shared, dict):
-            own = robot.get("stack")
-            if own is None or isinstance(own, dict):
-                robot["stack"] = _merged(shared, own or {})
-    assigned: dict[int, str] = {}
-    for i, task in enumerate(data.get("tasks") or []):
-        if isinstance(task, dict) and "robot" in task:
-            name = task.pop("robot")
-            if not isinstance(name, str):
-                log.add(("tasks", i, "robot"), f"expected a robot's name, got {kind_of(name)}")
-            else:
-                assigned[i] = name
-    return assigned
-
-
-def _merged(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
-    """``over`` merged into a copy of ``base``, mapping by mapping; a plugin block whose
-    ``type`` differs replaces the base's block whole."""
-    out = copy.deepcopy(base)
-    for key, value in over.items():
-        old = out.get(key)
-        swap = (
-            isinstance(old, dict)
-            and isinstance(value, dict)
-            and ("type" in value and old.get("type", value["type"]) != value["type"])
-        )
-        if isinstance(old, dict) and isinstance(value, dict) and not swap:
-            out[key] = _merged(old, value)
-        else:
-            out[key] = copy.deepcopy(value)
-    return out
 
 
 class _RobotLog:

@@ -1,7 +1,9 @@
 """Mission loading: YAML with line numbers, ``--set`` overrides, validation, resolution.
 
 Everything that can be wrong with the input is found here, before anything runs, and
-reported as :class:`MissionError` naming file, line and field.
+reported as :class:`MissionError` naming file, line and field. Resolution (the world, its
+maps and costmaps: scipy, Pillow, lxml) is imported only once the file has passed its
+schema and its trees are assembled, so bad input is reported without it.
 """
 
 from __future__ import annotations
@@ -11,17 +13,14 @@ from collections.abc import Sequence
 from dataclasses import replace
 from importlib.resources import as_file, files
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
 from pydantic import ValidationError
 
 from agv_mission.atomic import InputFileError, read_input_bytes
 from agv_mission.missions.load.errors import MissionError, Problem
-from agv_mission.missions.load.fleet_resolution import fleet_layout, resolve_fleet
-from agv_mission.missions.load.no_map import (
-    default_to_odometry,
-)
+from agv_mission.missions.load.layout import default_to_odometry, fleet_layout
 from agv_mission.missions.load.overrides import Override, apply_overrides
 from agv_mission.missions.load.problems import (
     ProblemLog,
@@ -31,8 +30,6 @@ from agv_mission.missions.load.problems import (
     validation_problems,
     yaml_problem,
 )
-from agv_mission.missions.load.resolve import resolve_setup
-from agv_mission.missions.load.resolved import LoadedMission, PathGuard
 from agv_mission.missions.load.schema import (
     MAX_SIM_SECONDS,
     Mission,
@@ -42,6 +39,9 @@ from agv_mission.missions.load.schema import (
 from agv_mission.missions.load.tree_assembly import assemble, tasks_tree
 from agv_mission.missions.load.tree_sources import tree_source
 from agv_mission.missions.load.yaml_lines import FieldPath, load_with_lines
+
+if TYPE_CHECKING:
+    from agv_mission.missions.load.resolved import LoadedMission, PathGuard
 
 DEMO_MISSION = "visit_rooms.yaml"  # what ``agv-mission run`` runs without a file
 
@@ -129,6 +129,8 @@ def load_mission_document(
 
     base_dir = path.parent if path.name else Path.cwd()
     if isinstance(mission, Mission) and mission.robots:
+        from agv_mission.missions.load.fleet_resolution import resolve_fleet
+
         loaded = resolve_fleet(
             mission, data, assigned, base_dir, path.stem or "mission", log, path_guard
         )
@@ -141,6 +143,8 @@ def load_mission_document(
                 log.add(("faults", i, "robot"), "robot: names a fleet robot; this mission has one")
         log.raise_if_any()
         tree = assemble(tree_source(mission, data, log, base_dir, path_guard))
+    from agv_mission.missions.load.resolve import resolve_setup
+
     loaded = resolve_setup(mission, base_dir, path.stem or "mission", log, path_guard, tree)
     loaded.source, loaded.warnings = path, list(log.warnings)
     return loaded

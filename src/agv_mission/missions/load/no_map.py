@@ -1,6 +1,7 @@
 """``map: none``: a robot that knows nothing of the world (robots-and-worlds.md).
 
-It localises by odometry (a mission that says nothing of localisation gets it; ``amcl``,
+It localises by odometry (a mission that says nothing of localisation gets it, see
+:func:`~agv_mission.missions.load.layout.default_to_odometry`; ``amcl``,
 which needs a map to match scans against, is refused with that reason) and plans on a grid
 where unknown space is free, as BARN's move_base does without a static map: the obstacle
 layer marks and clears what the lidar shows. The grid covers the world's extent (a Gazebo
@@ -13,7 +14,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -22,26 +22,11 @@ from agv_mission.maps.grid import FREE, OccupancyGrid
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.world_loader import DEFAULT_SCAN_HEIGHT
 from agv_mission.maps.worlds import World
-from agv_mission.missions.load.schema import NO_MAP, Setup
+from agv_mission.missions.load.schema import Setup
 from agv_mission.missions.load.world_checks import MAX_GRID_CELLS, NodeCheck, Report
 from agv_mission.robots.robot_files import load_robot
 
 NO_MAP_MARGIN = 2.0  # m around the world, the start and the goals
-
-
-def names_no_map(value: Any) -> bool:
-    """Whether a mission's ``map:`` value is ``none``."""
-    return isinstance(value, str) and value.strip() == NO_MAP
-
-
-def default_to_odometry(data: Any) -> None:
-    """A ``map: none`` mission (its data, in place, before the plugin types are filled in)
-    that names no localisation localises by odometry."""
-    if not isinstance(data, dict) or not names_no_map(data.get("map")):
-        return
-    stack = data.setdefault("stack", {})
-    if isinstance(stack, dict) and "localization" not in stack:
-        stack["localization"] = {"type": "odometry"}
 
 
 def scan_height(robot: str, base_dir: Path) -> float:

@@ -18,12 +18,8 @@ from agv_mission.maps.ros_map import MapLoadError, load_ros_map
 from agv_mission.maps.world_loader import WorldError, builtin_names, load_world
 from agv_mission.maps.worlds import World
 from agv_mission.missions.load.errors import MissionError
-from agv_mission.missions.load.no_map import (
-    check_localization,
-    names_no_map,
-    no_map_grid,
-    scan_height,
-)
+from agv_mission.missions.load.layout import names_no_map
+from agv_mission.missions.load.no_map import check_localization, no_map_grid, scan_height
 from agv_mission.missions.load.people_resolution import resolve_people
 from agv_mission.missions.load.problems import (
     ProblemLog,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from agv_mission.atomic import InputFileError, input_path, read_input_bytes
 from agv_mission.missions.load.errors import MissionError
@@ -13,13 +13,15 @@ from agv_mission.missions.load.problems import (
     ProblemLog,
     os_message,
 )
-from agv_mission.missions.load.resolved import PathGuard
 from agv_mission.missions.load.schema import (
     Mission,
 )
 from agv_mission.missions.load.tree_spec import TreeSource, TreeSpec, Where, tasks_spec, yaml_spec
 from agv_mission.missions.load.tree_xml import parse_xml
 from agv_mission.missions.load.yaml_lines import FieldPath
+
+if TYPE_CHECKING:  # the resolved mission's module brings the maps: a tree needs none
+    from agv_mission.missions.load.resolved import PathGuard
 
 
 def tree_source(

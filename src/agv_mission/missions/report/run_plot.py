@@ -13,7 +13,7 @@ from agv_mission.atomic import atomic_write_bytes
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.worlds import World
 from agv_mission.maps.zones import ZoneFilters
-from agv_mission.missions.load.no_map import names_no_map
+from agv_mission.missions.load.layout import names_no_map
 from agv_mission.missions.load.resolved import LoadedMission
 from agv_mission.missions.report.palette import ROBOT_COLOURS
 from agv_mission.missions.run.people_record import plot_people

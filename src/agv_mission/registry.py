@@ -57,11 +57,19 @@ class PluginWarning(UserWarning):
 
 @dataclass
 class _Entry:
-    source: str  # where it was announced, for messages
+    value: str  # what it names ("module:Class"), for messages
     load: Callable[[], Any]  # returns the plugin class or its config class
+    dist: Any = None  # the distribution that announced it, if any
     target: Any = None
     error: str | None = None
     loaded: bool = False
+
+    @property
+    def source(self) -> str:
+        """Where it was announced, for messages. The distribution's name is read only
+        here: it parses the distribution's metadata, which a start-up does not need."""
+        dist = getattr(self.dist, "name", None)
+        return self.value + (f" (from {dist})" if dist else "")
 
 
 def load_object(spec: str) -> Any:
@@ -113,17 +121,16 @@ class Registry:
         self._discovered = True
         for ep in entry_points(group=self.group):
             slot, _, name = ep.name.partition(".")
-            dist = getattr(ep.dist, "name", None)
-            source = f"{ep.value}" + (f" (from {dist})" if dist else "")
+            entry = _Entry(ep.value, ep.load, ep.dist)
             if slot not in SLOTS or not name:
                 warnings.warn(
-                    f"entry point {ep.name!r} = {source} is not named <slot>.<type> with a "
-                    f"slot of {', '.join(SLOTS)}; ignored",
+                    f"entry point {ep.name!r} = {entry.source} is not named <slot>.<type> "
+                    f"with a slot of {', '.join(SLOTS)}; ignored",
                     PluginWarning,
                     stacklevel=3,
                 )
                 continue
-            self._add(slot, name, _Entry(source, ep.load))
+            self._add(slot, name, entry)
         if not any(self._entries.values()):
             raise RuntimeError(
                 f"no plugins are registered in the entry-point group {self.group!r}: the "

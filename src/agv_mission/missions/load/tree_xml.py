@@ -78,12 +78,13 @@ def xml_id(node_type: str) -> str:
 
 
 def to_snake(tag: str) -> str:
+    guess = re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", tag).lower()
+    if guess in registry.names(SLOT) and xml_id(guess) == tag:
+        return guess  # a type's own spelling: only its config is loaded, not every type's
     known = _dialect()
     if tag in known:
         return known[tag]
-    return (
-        ALIASES.get(tag) or OLD_TAGS.get(tag) or re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", tag).lower()
-    )
+    return ALIASES.get(tag) or OLD_TAGS.get(tag) or guess
 
 
 def _config(node_type: str) -> Any:

@@ -1,0 +1,91 @@
+"""What a command imports before it answers (issue 16: start-up): ``--help`` needs no
+numerical library, bad input is reported before the world's machinery (scipy, Pillow,
+lxml) is imported, and validating a good file never imports the simulator, the
+controller, the plotting or the behaviour-tree runtime. Each case runs the real commands
+in a fresh interpreter and lists the heavy packages it loaded; nothing is timed."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+MISSIONS = sorted(str(p) for p in (ROOT / "missions").glob("*.yaml"))
+
+# Runs each argument list (JSON) as ``agv-mission ...`` in this one process, then prints
+# the exit codes and which of the watched packages are loaded.
+PROGRAM = textwrap.dedent(
+    """
+    import json, sys
+    from typer.main import get_command
+    from agv_mission.cli import app
+    command = get_command(app)
+    codes = []
+    for args in json.loads(sys.argv[1]):
+        try:
+            codes.append(command.main(args, standalone_mode=False, prog_name="agv-mission"))
+        except SystemExit as exc:  # --help exits itself
+            codes.append(exc.code)
+    loaded = sorted({m.split(".")[0] for m in sys.modules} & set(json.loads(sys.argv[2])))
+    print("RESULT", json.dumps({"codes": codes, "loaded": loaded}))
+    """
+)
+
+SIMULATION = ["mujoco", "casadi", "matplotlib", "glfw", "py_trees", "mcap", "rosbags"]
+WORLD = ["scipy", "PIL", "lxml", "contourpy", "ompl", *SIMULATION]
+NUMERICAL = ["numpy", "pydantic", "shapely", *WORLD]
+
+
+def commands(runs: list[list[str]], watched: list[str]) -> dict:
+    proc = subprocess.run(
+        [sys.executable, "-c", PROGRAM, json.dumps(runs), json.dumps(watched)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=ROOT,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    [line] = [x for x in proc.stdout.splitlines() if x.startswith("RESULT ")]
+    return json.loads(line.removeprefix("RESULT "))
+
+
+def test_help_imports_no_numerical_library() -> None:
+    result = commands([["run", "--help"], ["validate", "--help"]], NUMERICAL)
+    assert result == {"codes": [0, 0], "loaded": []}
+
+
+@pytest.fixture
+def bad_files(tmp_path: Path) -> tuple[Path, Path]:
+    schema_error = tmp_path / "schema_error.yaml"
+    schema_error.write_text(
+        "world: turtlebot3_world\ntasks:\n  - type: go_to\n    pose: {x: 1.0, y: nope}\n"
+    )
+    not_yaml = tmp_path / "not_yaml.yaml"
+    not_yaml.write_text("tasks: [unclosed\n")
+    return schema_error, not_yaml
+
+
+def test_bad_input_is_reported_before_the_world_is_imported(
+    bad_files: tuple[Path, Path], tmp_path: Path
+) -> None:
+    schema_error, not_yaml = bad_files
+    runs = [
+        ["validate", str(schema_error)],
+        ["validate", str(not_yaml)],
+        ["run", str(tmp_path / "missing.yaml")],
+        ["run", str(schema_error), "--output", str(tmp_path / "runs")],
+    ]
+    result = commands(runs, WORLD)
+    assert result == {"codes": [2, 2, 2, 2], "loaded": []}
+    assert not (tmp_path / "runs").exists()
+
+
+def test_validate_imports_no_simulator_controller_or_plotting() -> None:
+    result = commands([["validate", *MISSIONS]], SIMULATION)
+    assert len(MISSIONS) >= 3
+    assert result == {"codes": [0], "loaded": []}

@@ -80,21 +80,20 @@ def field_values(
     if anchor is None and not return_nearest:
         d = distance_transform_edt(~occupied).astype(np.float32) * res
     else:
-        _, (ri, ci) = distance_transform_edt(~occupied, return_distances=True, return_indices=True)
-        rows, cols = np.indices(shape)
-        dx = (ci - cols).astype(np.float32) * res
-        dy = (ri - rows).astype(np.float32) * res
+        # The nearest cells alone (scipy's distances would be a second pass, unused).
+        ri, ci = distance_transform_edt(~occupied, return_distances=False, return_indices=True)
+        dx = (ci - np.arange(shape[1])[None, :]).astype(np.float32) * res
+        dy = (ri - np.arange(shape[0])[:, None]).astype(np.float32) * res
         if anchor is not None:
-            dx += anchor[0][ri, ci]
-            dy += anchor[1][ri, ci]
+            nearest = ri * np.int64(shape[1]) + ci
+            dx += np.ascontiguousarray(anchor[0]).reshape(-1).take(nearest)
+            dy += np.ascontiguousarray(anchor[1]).reshape(-1).take(nearest)
         d = np.sqrt(dx * dx + dy * dy)
     far = d > cutoff
     values = np.exp(-0.5 * (d / np.float32(sigma)) ** 2).astype(np.float32, copy=False)
     values[far] = 0.0
     if not return_nearest:
         return values
-    ri = ri.astype(np.int32)
-    ci = ci.astype(np.int32)
     ri[far] = -1
     ci[far] = -1
     return values, (ri, ci)

@@ -80,6 +80,7 @@ class LogOddsMap:
         self.ay = np.zeros(shape, np.float32)
         self.fax = np.zeros(shape, np.float32)  # the anchors the field was last built with
         self.fay = np.zeros(shape, np.float32)
+        self._mark = np.zeros(0, bool)  # integrate's scratch: cells hit by the scan
         self._occ_l = _logit(c.occupied_threshold)
         self._free_l = _logit(c.free_threshold)
 
@@ -178,10 +179,14 @@ class LogOddsMap:
         np.clip(fr, 0, h - 1, out=fr)
         free_idx = fr * w + fc
         hit_idx = rows_e[hit] * w + cols_e[hit]
-        # A cell hit by this scan is not also cleared by it.
-        mark = np.zeros(h * w, bool)
+        # A cell hit by this scan is not also cleared by it (a scratch mask of the map's
+        # size, cleared after use: allocating it per scan cost more than using it).
+        if self._mark.size != h * w:
+            self._mark = np.zeros(h * w, bool)
+        mark = self._mark
         mark[hit_idx] = True
         free_idx = free_idx[~mark[free_idx]]
+        mark[hit_idx] = False
 
         # Each touched cell once: fancy-index updates with repeated indices apply once.
         flat = self.logodds.reshape(-1)

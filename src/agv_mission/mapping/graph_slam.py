@@ -74,7 +74,9 @@ class GraphSlam(GridSlam):
         self.keyframes: list[Keyframe] = []
         self.nodes = np.zeros((0, 3))
         self.edges: list[tuple[int, int, np.ndarray, np.ndarray, bool]] = []  # i, j, z, sigma, loop
-        self._anchors: list[tuple[int, Pose2D]] = []  # per trajectory entry
+        # Per trajectory entry: its keyframe and its pose in that keyframe's frame.
+        self._anchor_keyframe: list[int] = []
+        self._anchor_offset: list[tuple[float, float, float]] = []
         # scan, keyframe, offset, trajectory index
         self._integrated: list[tuple[LaserScan, int, Pose2D, int]] = []
         self._odom_at: list[np.ndarray] = []  # the odometry at each trajectory entry
@@ -123,7 +125,8 @@ class GraphSlam(GridSlam):
             self._add_keyframe(scan, pose)
         k = len(self.keyframes) - 1
         offset = pose.relative_to(Pose2D(*self.nodes[k]))
-        self._anchors.append((k, offset))
+        self._anchor_keyframe.append(k)
+        self._anchor_offset.append((offset.x, offset.y, offset.yaw))
         if self.integrations != integrations:
             self._integrated.append((scan, k, offset, len(self.trajectory) - 1))
         if new_keyframe and k % c.loop_check_every == 0 and self._close_loop(k):
@@ -245,10 +248,19 @@ class GraphSlam(GridSlam):
         self.nodes = new
         self.optimizations += 1
         self.optimize_times.append(perf_counter() - t0)
-        # Every pose rides on its keyframe.
-        for idx, (k, rel) in enumerate(self._anchors):
-            p = Pose2D(*new[k]).compose(rel)
-            self.trajectory[idx] = (self.trajectory[idx][0], p.x, p.y, p.yaw)
+        # Every pose rides on its keyframe (Pose2D.compose, all at once).
+        base = new[np.asarray(self._anchor_keyframe, dtype=np.int64)].reshape(-1, 3)
+        rel = np.asarray(self._anchor_offset, dtype=float).reshape(-1, 3)
+        c, s = np.cos(base[:, 2]), np.sin(base[:, 2])
+        xs = base[:, 0] + c * rel[:, 0] - s * rel[:, 1]
+        ys = base[:, 1] + s * rel[:, 0] + c * rel[:, 1]
+        yaws = wrap_angles(base[:, 2] + rel[:, 2])
+        self.trajectory[:] = [
+            (row[0], x, y, a)
+            for row, x, y, a in zip(
+                self.trajectory, xs.tolist(), ys.tolist(), yaws.tolist(), strict=True
+            )
+        ]
         current = Pose2D(*new[-1])
         if shift > self.config.rebuild_now_threshold:
             self._rebuild()

@@ -418,3 +418,44 @@ def test_map_quality_counts_errors_and_resamples(tb3: World) -> None:
     fine = OccupancyGrid(np.kron(truth.data, np.ones((2, 2), np.int8)), 0.025, truth.origin)
     q = map_quality(fine, truth, TB3_BOUNDS, tb3.spawn.xy)
     assert q["free_iou"] == 1.0 and q["occupied_iou"] == 1.0
+
+
+def _face_offsets(grid: OccupancyGrid, world: World) -> np.ndarray:
+    """The world's signed distance (m, negative inside walls) at the centres of the map's
+    OCCUPIED cells that border FREE ones: -res / 2 where the map draws a wall's face
+    where the world has it, +res / 2 where it draws it a cell in front."""
+    from agv_mission.localization.distance_field import SignedDistanceField
+
+    data = np.asarray(grid.data)
+    border = (data == OCCUPIED) & ndimage.binary_dilation(data == FREE)
+    rows, cols = np.nonzero(border)
+    res = grid.resolution
+    xy = np.stack([grid.origin.x + (cols + 0.5) * res, grid.origin.y + (rows + 0.5) * res], 1)
+    values, _ = SignedDistanceField(world.map).lookup(xy)
+    return values[np.abs(values) < 0.2]  # not the far side of a door's unmapped room
+
+
+@pytest.mark.parametrize("noise", [0.01, 0.02])
+def test_walls_are_drawn_at_their_faces(noise: float) -> None:
+    """Noisy returns from a face on a cell boundary fall into the cells on both sides of
+    it; drawn as they fall, the walls stand up to a cell proud of their faces (a
+    localiser on that map is pushed off every wall). With the end points' means the map
+    puts the face back on the boundary."""
+    world = small_house()
+    pose = Pose2D(-3.0, -2.0, 0.4)
+    scans = scans_at(world, pose, 12, noise=noise)
+    offsets = {}
+    for faces in (True, False):
+        slam = GridSlam(GridSlamConfig(wall_faces=faces), bounds=(-9.5, 9.5, -5.5, 5.5))
+        slam.reset(pose, Pose2D(0.0, 0.0, 0.0))
+        for scan in scans:
+            slam._integrate(scan, pose)
+        offsets[faces] = _face_offsets(slam.occupancy_grid(), world)
+    res = 0.05
+    # Drawn as they fall: most border cells a cell in front of the faces (the world's
+    # distance at their centres +res / 2 instead of -res / 2).
+    assert np.mean(offsets[False] > 0.0) > 0.6
+    assert offsets[False].mean() > -res / 2 + 0.6 * res
+    # At their faces: most of them, and within a quarter of a cell on average.
+    assert np.mean(offsets[True] > 0.0) < 0.3
+    assert offsets[True].mean() < -res / 2 + 0.25 * res

@@ -96,7 +96,39 @@ class LogOddsMap:
         if self.config.occupied_min_hits > 1:
             occupied &= self.hn >= self.config.occupied_min_hits - 1e-3
         data[occupied] = OCCUPIED
+        if self.config.wall_faces:
+            # free_max_hits keeps a cell that held end points from being FREE: UNKNOWN then.
+            proud = self._proud(occupied)
+            data[proud] = FREE if self.config.free_max_hits is None else UNKNOWN
         return OccupancyGrid(data, self.resolution, Pose2D(self.ox, self.oy, 0.0))
+
+    def _proud(self, occupied: np.ndarray) -> np.ndarray:
+        """OCCUPIED cells in front of a wall's face: a face on the boundary of two cells
+        scatters the end points into both (the lidar's noise), and both become OCCUPIED,
+        which draws the wall up to a cell in front of its face (a localiser matching scans
+        to that map is pushed off every wall it sees by as much). Such a cell was seen from
+        one side, the mean of its end points (its anchor) lies beyond its centre as seen
+        from the scanner, and the cell behind it (along the view) is OCCUPIED: the face is
+        on their boundary, and the map draws it there."""
+        vx, vy, hn = self.vx, self.vy, self.hn
+        norm = np.hypot(vx, vy)
+        one_side = norm > 0.5 * hn  # a thin wall seen from both sides cancels out
+        # The anchor's offset away from the scanner (v points from the end points to it).
+        beyond = (self.ax * vx + self.ay * vy) < 0.0
+        candidate = occupied & one_side & beyond
+        rows, cols = np.nonzero(candidate)
+        if not len(rows):
+            return candidate
+        along_x = np.abs(vx[rows, cols]) >= np.abs(vy[rows, cols])
+        br = rows + np.where(along_x, 0, -np.sign(vy[rows, cols])).astype(np.int64)
+        bc = cols + np.where(along_x, -np.sign(vx[rows, cols]), 0).astype(np.int64)
+        h, w = occupied.shape
+        inside = (br >= 0) & (br < h) & (bc >= 0) & (bc < w)
+        behind = np.zeros(len(rows), bool)
+        behind[inside] = occupied[br[inside], bc[inside]]
+        proud = np.zeros_like(occupied)
+        proud[rows[behind], cols[behind]] = True
+        return proud
 
     def likelihood_field(self) -> LikelihoodField:
         """The field scans are matched against (shares memory with the map)."""

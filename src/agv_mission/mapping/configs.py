@@ -62,11 +62,12 @@ class GridSlamConfig(PluginConfig):
         20, ge=1, description="end points averaged per cell anchor (older ones fade out)"
     )
     wall_faces: bool = Field(
-        True,
+        False,
         description="draw a wall where its face is: an OCCUPIED cell whose end points lie "
         "beyond its centre, in front of another OCCUPIED cell, is not wall (the lidar's "
-        "noise scattered the face's returns into it); False: every cell the log-odds make "
-        "OCCUPIED",
+        "noise scattered the face's returns into it); agv-mission map's default. False (the "
+        "mission SLAM's): every cell the log-odds make OCCUPIED (exploring map_area, a wall "
+        "cell drawn FREE leaves frontiers at wall ends that are never cleared)",
     )
     update_min_d: float = Field(0.1, ge=0, description="metres of motion between integrations")
     update_min_a: float = Field(0.1, ge=0, description="radians of motion between integrations")

@@ -94,12 +94,11 @@ if __name__ == "__main__":
 #: The SLAM ``map`` ran on real logs before its speed-up of issue 32 (40x the log's
 #: duration), as ``--set`` items over today's defaults: the same code with its former
 #: settings, mapped side by side in one run (the walls drawn as the returns fell, every
-#: 5 cm matched, every eighth keyframe searched for a loop, every 0.2 m integrated).
+#: 5 cm matched, every 0.2 m integrated).
 BEFORE: list[str] = [
     "wall_faces=false",
     "match_min_d=0.05",
     "match_min_a=0.05",
-    "loop_check_every=8",
     "update_min_d=0.2",
     "update_min_a=0.2",
 ]

@@ -290,15 +290,16 @@ def report_lines(result: OfflineMap, paths: dict[str, Path]) -> list[str]:
 #: Borenstein and Feng's UMBmark measured on differential drives), not the mission
 #: SLAM's slipping-wheel one: over a metre a real robot's odometry beats a scan match,
 #: and trusting it less made the relative pose error on the Freiburg 079 log 0.028 m
-#: instead of 0.021 m; loops are searched every sixteenth keyframe (4.8 m of driving); a
-#: scan is integrated every 0.3 m / 0.3 rad. Those three, against 5 cm / every eighth
-#: keyframe / 0.2 m, side by side on Freiburg 079 (issue 32: mapping at 40x the log's
+#: instead of 0.021 m; loops are searched every eighth keyframe (every sixteenth cost the
+#: thinned ACES log half its loop closures and a tenth of its walls); a scan is integrated
+#: every 0.3 m / 0.3 rad. Those two, against 5 cm / 0.2 m, side by side on Freiburg 079
+#: (issue 32: mapping at 40x the log's
 #: duration; with this round's faster matcher and field refresh, against the code and
-#: settings before it): 1.83x less CPU time (25.4 s instead of 46.4 s), relative pose
-#: error 0.0094 m instead of 0.0095 m, walls within 0.1 m of the reference 0.983 instead
-#: of 0.953 (with ``wall_faces``), free cells 0.905 instead of 0.893:
-#: the scans of a 0.1 m-apart log overlap so much that the extra matches, integrations
-#: and loop searches added time, not accuracy. (Four refinement steps instead of six
+#: settings before it): 1.67x less CPU time (27.3 s instead of 45.5 s), relative pose
+#: error 0.0093 m instead of 0.0095 m, walls within 0.1 m of the reference 0.977 instead
+#: of 0.953 (with ``wall_faces``), free cells 0.902 instead of 0.893:
+#: the scans of a 0.1 m-apart log overlap so much that the extra matches and
+#: integrations added time, not accuracy. (Four refinement steps instead of six
 #: saved little more, and left the front end alone drifting three times as far on a
 #: simulated 100 m loop: not taken.) A cell is FREE below 0.196,
 #: map_saver's ``free_thresh``; a wall is a cell
@@ -337,7 +338,7 @@ DEFAULT_SLAM: dict[str, Any] = {
     "odom_translation_noise": 0.02,
     "odom_rotation_per_metre": 0.03,
     "odom_rotation_noise": 0.05,
-    "loop_check_every": 16,
+    "loop_check_every": 8,
     "update_min_d": 0.3,
     "update_min_a": 0.3,
     "free_threshold": 0.196,

@@ -76,7 +76,10 @@ def test_graph_slam_closes_a_100m_loop_with_slipping_wheels(tmp_path):
     from agv_mission.missions.load.loader import load_mission
     from agv_mission.missions.run.runner import run_mission
 
-    loaded = load_mission(REPO / "benchmarks" / "data" / "loop_patrol.yaml")
+    # wheels alone: their heading drifts as they slip (a gyro would hold it straight)
+    loaded = load_mission(
+        REPO / "benchmarks" / "data" / "loop_patrol.yaml", ["stack.odometry.imu=false"]
+    )
     record = run_mission(loaded, tmp_path, observers=[BagWriter()])
     assert record.status == "succeeded"
     assert record.metrics["distance_driven"] > 95.0

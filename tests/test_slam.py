@@ -243,6 +243,25 @@ def test_matcher_keeps_the_prediction_along_a_featureless_wall() -> None:
     assert abs(result.pose[0] - guess[0]) < 0.01  # along it: the prediction stands
 
 
+def test_a_match_the_odometry_rules_out_is_rejected(tb3: World) -> None:
+    """The scan says the robot stands 0.15 m from where the odometry, a centimetre of
+    driving on, puts it: far outside the prediction's covariance. Matched without the
+    odometry prior, the scan alone decides: without a gate the match is taken; with one
+    the prediction stands and the match counts as gated."""
+    pose = Pose2D(-1.5, -0.55, 0.4)
+    seen_from = Pose2D(pose.x + 0.15, pose.y, pose.yaw)
+    scan = scans_at(tb3, seen_from, 2)[-1]
+    moved = Pose2D(0.01, 0.0, 0.0)
+    results = {}
+    for gate in (None, 16.3):
+        slam = static_map(tb3, pose, match_gate=gate, odom_prior=False)
+        results[gate] = slam.update(moved, scan, GARBAGE, 1.0)
+        assert slam.gated_matches == (0 if gate is None else 1)
+        assert slam.diagnostics()["gated_matches"] == slam.gated_matches
+    assert results[None].distance_to(seen_from) < 0.02
+    assert results[16.3].distance_to(pose.compose(moved)) < 1e-9
+
+
 # --------------------------------------------------------------------------- SLAM runs
 
 

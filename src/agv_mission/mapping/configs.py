@@ -111,6 +111,12 @@ class GridSlamConfig(PluginConfig):
     odom_rotation_per_metre: float = Field(
         0.2, ge=0, description="odometry prior: std (rad) of the rotation per metre driven"
     )
+    odom_rotation_floor: float = Field(
+        1e-3,
+        ge=0,
+        description="odometry prior: least std (rad) of the rotation between two matched "
+        "scans (a gyro's is a tenth of the wheels': the runner sets it with the IMU on)",
+    )
     match_max_range: float | None = Field(
         None, gt=0, description="points farther than this (m) are not matched; None: all"
     )
@@ -128,6 +134,13 @@ class GridSlamConfig(PluginConfig):
         description="when the refinement alone, from the odometry prediction, lands within "
         "a quarter of the window with at least this mean field value, the correlative search "
         "is skipped; None: always search",
+    )
+    match_gate: float | None = Field(
+        None,
+        gt=0,
+        description="a match farther from the odometry prediction than this squared "
+        "Mahalanobis distance (under the prediction's covariance plus the match's) is "
+        "rejected: odometry only (16.3: 3 degrees of freedom at 0.1 %); None: no gate",
     )
     min_points: int = Field(20, ge=1, description="fewer valid points: odometry only")
     min_score: float = Field(

@@ -43,7 +43,7 @@ from time import perf_counter
 
 import numpy as np
 
-from agv_mission.geometry import Bounds, Pose2D
+from agv_mission.geometry import Bounds, Pose2D, wrap_angle
 from agv_mission.mapping.configs import GridSlamConfig
 from agv_mission.mapping.likelihood_field import LikelihoodField
 from agv_mission.mapping.log_odds_map import LogOddsMap
@@ -106,6 +106,7 @@ class GridSlam:
         self.integrations = 0
         self.matches = 0
         self.rejected_matches = 0
+        self.gated_matches = 0  # of the rejected: too far from the odometry prediction
         self._pose = Pose2D(0.0, 0.0, 0.0)
         self._odom = Pose2D(0.0, 0.0, 0.0)
         self._cov = _TINY_COV.copy()
@@ -149,7 +150,7 @@ class GridSlam:
         self.integrate_times.clear()
         self.match_times.clear()
         self.last_match = None
-        self.integrations = self.matches = self.rejected_matches = 0
+        self.integrations = self.matches = self.rejected_matches = self.gated_matches = 0
         self._allocate(pose)
 
     def update(self, odom: Pose2D, scan: LaserScan | None, truth: Pose2D, time: float) -> Pose2D:
@@ -181,6 +182,7 @@ class GridSlam:
             "integrations": self.integrations,
             "matches": self.matches,
             "rejected_matches": self.rejected_matches,
+            "gated_matches": self.gated_matches,
         }
 
     def occupancy_grid(self) -> OccupancyGrid:
@@ -214,7 +216,11 @@ class GridSlam:
         c = self.config
         d = math.hypot(delta.x, delta.y)
         st = c.odom_translation_noise * d + 1e-3
-        sa = c.odom_rotation_noise * abs(delta.yaw) + c.odom_rotation_per_metre * d + 1e-3
+        sa = (
+            c.odom_rotation_noise * abs(delta.yaw)
+            + c.odom_rotation_per_metre * d
+            + c.odom_rotation_floor
+        )
         cy, sy = math.cos(self._pose.yaw), math.sin(self._pose.yaw)
         jx = np.array(
             [
@@ -245,7 +251,7 @@ class GridSlam:
         self.match_times.append(perf_counter() - t0)
         self.last_match = result
         self.matches += 1
-        if result.score < c.min_score:
+        if result.score < c.min_score or self._disagrees(result, predicted, cov):
             self.rejected_matches += 1
             self._cov = cov
             return predicted
@@ -255,6 +261,25 @@ class GridSlam:
             self._cov = _TINY_COV.copy() if result.refined else cov
         x, y, yaw = (float(v) for v in result.pose)
         return Pose2D(x, y, yaw)
+
+    def _disagrees(self, result: MatchResult, predicted: Pose2D, cov: np.ndarray) -> bool:
+        """Whether the match lies outside ``match_gate`` of the odometry prediction (its
+        covariance ``cov`` plus the match's own): a wrong optimum of the search (a
+        doorway taken for another, a wall seen through a gap), not a correction."""
+        gate = self.config.match_gate
+        if gate is None:
+            return False
+        e = result.pose - predicted.as_array()
+        e[2] = wrap_angle(float(e[2]))
+        total = cov + (result.covariance if result.covariance is not None else 0.0)
+        try:
+            d2 = float(e @ np.linalg.solve(total, e))
+        except np.linalg.LinAlgError:
+            return False
+        if d2 <= gate:
+            return False
+        self.gated_matches += 1
+        return True
 
     # ------------------------------------------------------------------ mapping
 

@@ -13,6 +13,7 @@ from PIL import Image
 
 from agv_mission.behaviors.explore import MapArea
 from agv_mission.geometry import Pose2D
+from agv_mission.mapping.configs import GridSlamConfig
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.maps.ros_map import load_ros_map
 from agv_mission.missions.load.loader import load_mission
@@ -123,6 +124,39 @@ def test_blacklisted_goals_are_retried_once_the_map_grew() -> None:
     data[40:60, :] = FREE
     assert explore._blacklist(grid) == [(1.0, 1.0)]
     assert explore.blacklist == [(1.0, 1.0), (3.0, 1.0)]
+
+
+def test_slam_prior_follows_the_robots_sensors(tmp_path: Path) -> None:
+    """SLAM's odometry prior and scan weight come from the robot's sensors: the gyro's
+    heading noise when the odometry fuses one (the wheels' without), the encoders' travel
+    error, the LDS-01's range noise at 3.5 m; what the mission sets stays."""
+    plain = TB3_MAP.replace(f"{NOISE}\n", "")
+
+    def slam_config(text: str):
+        run = MissionRun(load(tmp_path, text), None)
+        return run.lead.stack.new_slam((-2.0, 2.0, -2.0, 2.0)).config
+
+    gyro = slam_config(plain)
+    wheels = slam_config(plain.replace("tasks:\n", "stack: {odometry: {imu: false}}\ntasks:\n"))
+    default = GridSlamConfig()
+    assert gyro.odom_rotation_floor == pytest.approx(1e-4)
+    assert gyro.odom_rotation_noise < 0.1 * default.odom_rotation_noise
+    assert gyro.odom_rotation_per_metre < 0.1 * default.odom_rotation_per_metre
+    assert wheels.odom_rotation_floor == default.odom_rotation_floor
+    assert wheels.odom_rotation_noise == default.odom_rotation_noise
+    for config in (gyro, wheels):
+        # the TB3's encoders: 0.5 % noise, 0.5 % slip, 0.2 % scale error a wheel
+        assert config.odom_translation_noise == pytest.approx(0.0122, abs=1e-4)
+        assert config.point_sigma == pytest.approx(0.0175 * 3.5)
+    noisy = slam_config(TB3_MAP)  # encoder_noise 0.02, wheel_slip 0.02
+    assert noisy.odom_translation_noise > 3.0 * gyro.odom_translation_noise
+    own = slam_config(
+        plain.replace(
+            "tasks:\n", "stack: {slam: {point_sigma: 0.02, odom_rotation_floor: 0.002}}\ntasks:\n"
+        )
+    )
+    assert own.point_sigma == 0.02 and own.odom_rotation_floor == 0.002
+    assert own.odom_rotation_noise == pytest.approx(gyro.odom_rotation_noise)
 
 
 @pytest.fixture(scope="module")

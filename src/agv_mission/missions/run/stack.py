@@ -27,7 +27,7 @@ from agv_mission.missions.load.resolved import LoadedMission, RobotSetup
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.planners.base import VelocityLimits
-from agv_mission.registry import registry
+from agv_mission.registry import PluginConfig, registry
 from agv_mission.robots.description import RobotDescription
 from agv_mission.robots.drive_base import DriveBase, robots_world
 from agv_mission.robots.odometry import GyroFusedOdometry
@@ -46,6 +46,18 @@ CONTROL_PERIOD = 0.1
 #: surveyed map's pose to millimetres).
 MADE_MAP_FLOOR = {"refine_split_scale": 0.0, "refine_floor_xy": 0.01}
 GYRO_HEADING_NOISE = {"refine_noise_turn": 0.002, "refine_noise_yaw_per_m": 0.002}
+#: SLAM's odometry prior when the odometry fuses a MEMS gyro (the wheels' are
+#: GridSlamConfig's defaults: 0.1 rad per radian turned, 0.2 rad per metre, 1 mrad a
+#: scan). The MPU-9250's angle random walk (1.75e-4 rad/sqrt(s)) and residual bias
+#: (4.8e-5 rad/s) give ~2.6e-4 rad per radian turned at the explorer's 0.8 rad/s, ~6e-4
+#: rad per metre at 0.2 m/s and ~1e-4 rad over a 5 Hz scan's 0.2 s; these are ten, five
+#: and one times that. With the wheels' prior the matcher, not the gyro, set the heading:
+#: map_area of the AWS house drifted 4.7 degrees where the odometry stayed within 1.4.
+GYRO_SLAM_NOISE = {
+    "odom_rotation_noise": 0.003,
+    "odom_rotation_per_metre": 0.003,
+    "odom_rotation_floor": 1e-4,
+}
 
 
 class VelocitySmoother:
@@ -172,8 +184,39 @@ class RobotStack:
         return registry.create("localization", config, grid=grid, rng=self.loc_rng)
 
     def new_slam(self, bounds: Bounds) -> Slam:
-        """The robot's SLAM plugin over ``bounds`` (not yet reset)."""
-        return registry.create("slam", self.setup.stack.slam, bounds=bounds, rng=self.loc_rng)
+        """The robot's SLAM plugin over ``bounds`` (not yet reset), its odometry prior
+        and scan weight from the robot's sensors (:meth:`_slam_sensors`) unless the
+        mission sets them."""
+        config = self.setup.stack.slam
+        fields, given = type(config).model_fields, config.model_fields_set
+        update = {
+            k: v for k, v in self._slam_sensors(config).items() if k in fields and k not in given
+        }
+        if update:
+            config = config.model_copy(update=update)
+        return registry.create("slam", config, bounds=bounds, rng=self.loc_rng)
+
+    def _slam_sensors(self, config: PluginConfig) -> dict[str, float]:
+        """SLAM's odometry prior and scan weight from this robot's own sensors: the
+        prior's translation noise twice a wheel's relative travel error (as
+        :func:`new_odometry` reckons it; 1 % a metre at least), the gyro's heading noise
+        (GYRO_SLAM_NOISE) when the odometry fuses one, and a scan point's std no less than
+        the lidar's range noise at its farthest return (an LDS-01's 1.75 % of 3.5 m:
+        6 cm). Points are weighed alike and the far ones fix the heading: weighed as the
+        near ones' 3 cm they made the matcher overrule the odometry."""
+        sim, robot = self.sim, self.setup.robot
+        enc = sim.encoders
+        scale = sim.config.pick("wheel_scale_error", robot.encoder.scale_error)
+        wheel = math.sqrt(enc.noise**2 + enc.slip**2 / 3.0 + scale**2)
+        lidar = sim.lidar
+        far = max(lidar.noise_std, lidar.noise_fraction * lidar.spec.range_max)
+        out = {
+            "odom_translation_noise": max(2.0 * wheel, 0.01),
+            "point_sigma": max(float(getattr(config, "point_sigma", 0.0)), far),
+        }
+        if isinstance(self.odometry, GyroFusedOdometry):
+            out.update(GYRO_SLAM_NOISE)
+        return out
 
     def build_navigator(self) -> Navigator:
         """The robot's global and local planners behind a navigator on the known map."""

@@ -147,7 +147,7 @@ def test_slam_prior_follows_the_robots_sensors(tmp_path: Path) -> None:
     for config in (gyro, wheels):
         # the TB3's encoders: 0.5 % noise, 0.5 % slip, 0.2 % scale error a wheel
         assert config.odom_translation_noise == pytest.approx(0.0122, abs=1e-4)
-        assert config.point_sigma == pytest.approx(0.0175 * 3.5)
+        assert config.point_sigma == pytest.approx(1.6 * 0.0175 * 3.5)
     noisy = slam_config(TB3_MAP)  # encoder_noise 0.02, wheel_slip 0.02
     assert noisy.odom_translation_noise > 3.0 * gyro.odom_translation_noise
     own = slam_config(

@@ -14,6 +14,7 @@ from PIL import Image
 from agv_mission.behaviors.explore import MapArea
 from agv_mission.geometry import Pose2D
 from agv_mission.mapping.configs import GridSlamConfig
+from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.maps.ros_map import load_ros_map
 from agv_mission.missions.load.loader import load_mission
@@ -124,6 +125,32 @@ def test_blacklisted_goals_are_retried_once_the_map_grew() -> None:
     data[40:60, :] = FREE
     assert explore._blacklist(grid) == [(1.0, 1.0)]
     assert explore.blacklist == [(1.0, 1.0), (3.0, 1.0)]
+
+
+def test_no_frontier_left_only_after_another_look_around() -> None:
+    """A map with no reachable frontier (a closed room) ends the exploration only once a
+    look all around, on a fresh costmap, found none either: a robot in a tight spot may
+    see no way out for a moment."""
+    data = np.full((60, 60), OCCUPIED, np.int8)
+    data[2:-2, 2:-2] = FREE
+    grid = OccupancyGrid(data, 0.05, Pose2D(0.0, 0.0, 0.0))
+    costmap = Costmap.from_grid(grid, 0.105)
+    refreshed = []
+    mapping = SimpleNamespace(
+        grid=grid,
+        costmap=costmap,
+        known_fraction=lambda: 1.0,
+        request_refresh=lambda: refreshed.append(True),
+    )
+    state = SimpleNamespace(time=10.0, estimate=Pose2D(1.5, 1.5, 0.3))
+    handle = SimpleNamespace(state=state, navigator=SimpleNamespace(cancel=lambda: None))
+    explore = MapArea("map", handle, SimpleNamespace(), None, "m", None, None, 8, 0.05)
+    explore.mapping = mapping
+    explore._turned, explore._looks, explore.goal = 2.0 * math.pi, 0, None
+    assert explore._next_goal() is None  # not done yet: look around first
+    assert explore._turned == 0.0 and refreshed
+    explore._turned = 2.0 * math.pi  # the look around done, still nothing
+    assert explore._next_goal() == "no reachable frontier left"
 
 
 def test_slam_prior_follows_the_robots_sensors(tmp_path: Path) -> None:

@@ -56,6 +56,7 @@ class MapArea(py_trees.behaviour.Behaviour):
     MAX_ATTEMPTS = 3  # tries of one goal (within BLACKLIST_RADIUS) before it is given up
     RETRY_GROWTH = 800  # known cells the map must gain before a blacklisted goal is retried
     UNSEEN = 0.05  # bounds known below this share have not been seen: drive towards them
+    LOOKS_BEFORE_DONE = 1  # looks all around, each on a fresh costmap, before "none left"
 
     def __init__(
         self,
@@ -98,6 +99,7 @@ class MapArea(py_trees.behaviour.Behaviour):
         self._reselect_at = now
         self._turned = 0.0
         self._last_yaw = self.handle.state.estimate.yaw
+        self._looks = 0  # looks around since a reachable frontier was last found
 
     def update(self) -> Status:
         handle, state = self.handle, self.handle.state
@@ -192,7 +194,20 @@ class MapArea(py_trees.behaviour.Behaviour):
                 return self._failure
             frontiers = [towards]
         if not frontiers:
+            if self._looks < self.LOOKS_BEFORE_DONE:
+                # Standing in a tight spot the map may show no way out for a moment (a
+                # cell of wall too many beside a piece of furniture): look all around and
+                # ask again on a costmap that holds what that showed.
+                self._looks += 1
+                self._turned = 0.0
+                self._last_yaw = est.yaw
+                self.mapping.request_refresh()
+                self._reselect_at = state.time
+                handle.navigator.cancel()
+                self.goal = None
+                return None
             return "no reachable frontier left"
+        self._looks = 0
         if self.goal is not None and any(
             math.hypot(f.goal[0] - self.goal.x, f.goal[1] - self.goal.y) < 0.5
             for f in frontiers

@@ -10,6 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from PIL import Image
+from py_trees.common import Status
 
 from agv_mission.behaviors.explore import MapArea
 from agv_mission.geometry import Pose2D
@@ -151,6 +152,42 @@ def test_no_frontier_left_only_after_another_look_around() -> None:
     assert explore._turned == 0.0 and refreshed
     explore._turned = 2.0 * math.pi  # the look around done, still nothing
     assert explore._next_goal() == "no reachable frontier left"
+
+
+def test_a_start_the_planner_refuses_is_backed_out_of_not_blamed_on_the_goal() -> None:
+    """A goal fails because the robot stands where the planner will not start (a tight
+    spot): the explorer backs out (Nav2's BackUp) instead of blacklisting the goal; a
+    goal that is itself not free is blacklisted as before."""
+    from agv_mission.navigation.navigator import NavStatus
+
+    grid = OccupancyGrid(np.full((40, 40), FREE, np.int8), 0.05, Pose2D(0.0, 0.0, 0.0))
+    drives: list[tuple[float, float]] = []
+    state = SimpleNamespace(time=50.0, estimate=Pose2D(1.0, 1.0, 0.0))
+    nav = SimpleNamespace(
+        status=NavStatus.FAILED, reason=None, update=lambda s: SimpleNamespace(v=0.0, w=0.0)
+    )
+    handle = SimpleNamespace(state=state, navigator=nav, drive=lambda v, w: drives.append((v, w)))
+    mapping = SimpleNamespace(
+        slam=SimpleNamespace(integrations=5),
+        grid=grid,
+        costmap=SimpleNamespace(grid=grid),
+        request_refresh=lambda: None,
+    )
+    explore = MapArea("map", handle, SimpleNamespace(), None, "m", None, None, 8, 0.05)
+    explore.mapping, explore._turned, explore._backups = mapping, 2.0 * math.pi, 0
+    explore._backup_until, explore._reselect_at = -math.inf, 0.0
+    explore.goal = Pose2D(2.0, 1.0, 0.0)
+    nav.reason = "start (1.00, 1.00) is not free: clearance 0.210 m, needs more than 0.270 m"
+    assert explore.update() is Status.RUNNING
+    assert drives[-1] == (-MapArea.BACKUP_SPEED, 0.0)
+    assert explore.goal is None and explore.attempts == []  # the goal is not blamed
+    state.time += 0.5 * MapArea.BACKUP_TIME
+    assert explore.update() is Status.RUNNING and drives[-1][0] < 0.0  # still backing
+    explore.goal = Pose2D(2.0, 1.0, 0.0)
+    nav.reason = "goal (2.00, 1.00) is not free: clearance 0.100 m, needs more than 0.270 m"
+    state.time += MapArea.BACKUP_TIME
+    assert explore.update() is Status.RUNNING
+    assert explore.goal is None and [a[:3] for a in explore.attempts] == [[2.0, 1.0, 1.0]]
 
 
 def test_slam_prior_follows_the_robots_sensors(tmp_path: Path) -> None:

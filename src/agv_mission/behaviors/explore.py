@@ -57,6 +57,9 @@ class MapArea(py_trees.behaviour.Behaviour):
     RETRY_GROWTH = 800  # known cells the map must gain before a blacklisted goal is retried
     UNSEEN = 0.05  # bounds known below this share have not been seen: drive towards them
     LOOKS_BEFORE_DONE = 1  # looks all around, each on a fresh costmap, before "none left"
+    BACKUP_SPEED = 0.1  # m/s backwards out of a spot the planner will not start from
+    BACKUP_TIME = 1.5  # s: 0.15 m, Nav2's BackUp recovery's default distance
+    MAX_BACKUPS = 3  # in a row before such failures count against the goals again
 
     def __init__(
         self,
@@ -100,6 +103,8 @@ class MapArea(py_trees.behaviour.Behaviour):
         self._turned = 0.0
         self._last_yaw = self.handle.state.estimate.yaw
         self._looks = 0  # looks around since a reachable frontier was last found
+        self._backup_until = -math.inf
+        self._backups = 0  # backups in a row
 
     def update(self) -> Status:
         handle, state = self.handle, self.handle.state
@@ -116,7 +121,29 @@ class MapArea(py_trees.behaviour.Behaviour):
             self._last_yaw = state.estimate.yaw
             handle.drive(0.0, self.SPIN_RATE)
             return Status.RUNNING
+        if state.time < self._backup_until:
+            handle.drive(-self.BACKUP_SPEED, 0.0)
+            return Status.RUNNING
         nav = handle.navigator
+        if (
+            self.goal is not None
+            and nav.status is NavStatus.FAILED
+            and self._start_blocked(nav.reason)
+        ):
+            # Not the goal's fault: the robot stands where the planner will not start (a
+            # tight spot between furniture). Back out of it and choose again, as Nav2's
+            # BackUp recovery does, instead of giving up on every frontier in turn.
+            self._backups += 1
+            self._backup_until = state.time + self.BACKUP_TIME
+            self.goal = None
+            mapping.request_refresh()
+            self._reselect_at = self._backup_until
+            handle.drive(-self.BACKUP_SPEED, 0.0)
+            return Status.RUNNING
+        if nav.status is NavStatus.SUCCEEDED or (
+            self.goal is not None and nav.status is NavStatus.RUNNING
+        ):
+            self._backups = 0
         if self.goal is not None and nav.status in (NavStatus.FAILED, NavStatus.SUCCEEDED):
             # Failed, or reached: seen from there already, so if its frontier is still
             # there it cannot be mapped from there.
@@ -166,6 +193,16 @@ class MapArea(py_trees.behaviour.Behaviour):
         self.mapping = None
         summary = self.mapper.end(self.save_map)
         self.handle.log("map_saved", reason="halted", frontiers=self.frontiers_visited, **summary)
+
+    def _start_blocked(self, reason: str | None) -> bool:
+        """Whether a failure is the planner's refusal to start where the robot stands
+        (and backing out has not been tried MAX_BACKUPS times in a row)."""
+        return (
+            reason is not None
+            and "start (" in reason
+            and "is not free" in reason
+            and self._backups < self.MAX_BACKUPS
+        )
 
     def _done(self, now: float) -> str | None:
         if now >= self._deadline:

@@ -195,14 +195,13 @@ class MapArea(py_trees.behaviour.Behaviour):
         self.handle.log("map_saved", reason="halted", frontiers=self.frontiers_visited, **summary)
 
     def _start_blocked(self, reason: str | None) -> bool:
-        """Whether a failure is the planner's refusal to start where the robot stands
-        (and backing out has not been tried MAX_BACKUPS times in a row)."""
-        return (
-            reason is not None
-            and "start (" in reason
-            and "is not free" in reason
-            and self._backups < self.MAX_BACKUPS
-        )
+        """Whether a failure is the planner's refusal to start where the robot stands: the
+        start not free, or in a pocket of free space no goal connects to (and backing out
+        has not been tried MAX_BACKUPS times in a row)."""
+        if reason is None or self._backups >= self.MAX_BACKUPS:
+            return False
+        start_not_free = "start (" in reason and "is not free" in reason
+        return start_not_free or "not connected by free space" in reason
 
     def _done(self, now: float) -> str | None:
         if now >= self._deadline:

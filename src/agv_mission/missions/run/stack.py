@@ -57,7 +57,7 @@ GYRO_HEADING_NOISE = {"refine_noise_turn": 0.002, "refine_noise_yaw_per_m": 0.00
 #: return. The matcher counts a scan's points as independent, but one wall's points share
 #: the error of the map's anchors they are paired with, so a scan knows less than they
 #: add up to. Measured on map_area of the AWS house (waffle, seeds 1 and 2, estimate RMSE
-#: after 10 s): 1.0 (6 cm) 0.108 / 0.061 m, 1.6 (10 cm) 0.046 / 0.054 m; 2.5 (15 cm, the
+#: after 10 s): 1.0 (6 cm) 0.108 / 0.061 m, 1.6 (10 cm) 0.045 / 0.054 m; 2.5 (15 cm, the
 #: runs' scans replayed) no better than 1.6. The runs are chaotic: 9.8 cm instead of 10
 #: took seed 1 elsewhere (0.07 m on seed 2), hence whole centimetres.
 SCAN_POINT_FACTOR = 1.6

@@ -337,6 +337,7 @@ def test_a_halted_dock_stops_the_robot_and_cancels_its_goal(tmp_path: Path) -> N
     assert run.navigator.status is NavStatus.IDLE
 
 
+@pytest.mark.slow  # 15-20 s: a whole charge cycle; the dock, charge and low-battery tests above are fast
 def test_a_reactive_tree_patrols_docks_when_low_charges_and_patrols_on(tmp_path: Path) -> None:
     """The battery-aware patrol as the contract's ``tree:``: a reactive fallback that
     re-checks is_battery_low every tick, over a patrol it halts."""

@@ -124,8 +124,9 @@ lidar: {beams: 180, range_min: 0.12, range_max: 3.5, rate: 25.0, height: 0.17}
 @pytest.mark.parametrize(
     ("scenario", "fast_lidar"),
     [
-        # the first process steps the physics, the robot process mirrors its world
-        ("fleet_crossing", None),
+        # the first process steps the physics, the robot process mirrors its world (34 s;
+        # the signal and failure tests below fork the same team in make test)
+        pytest.param("fleet_crossing", None, marks=pytest.mark.slow),
         # a lidar scans between control steps: every process steps the physics (22 s)
         pytest.param("fleet_head_on_aisle", "west", marks=pytest.mark.slow),
     ],

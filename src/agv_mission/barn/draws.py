@@ -93,12 +93,9 @@ def _largest(labels: np.ndarray, column: int) -> int:
 
 def wall_distance(blocked: np.ndarray) -> np.ndarray:
     """Each cell's distance in cells to the nearest blocked cell of the C-space."""
-    walls = np.argwhere(blocked)
-    rows, cols = np.indices(blocked.shape)
-    if not len(walls):
+    if not blocked.any():
         return np.full(blocked.shape, np.inf)
-    d = np.hypot(rows[..., None] - walls[:, 0], cols[..., None] - walls[:, 1])
-    return d.min(axis=-1)
+    return ndimage.distance_transform_edt(blocked == 0)
 
 
 def cheapest_path(blocked: np.ndarray, start: tuple[int, int], goal: tuple[int, int]) -> list:

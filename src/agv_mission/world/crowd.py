@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyrvo
@@ -24,6 +25,9 @@ from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.world.people_groups import ROBOT_MARGIN, PeopleGroup, clear_of_robots, place_people
 from agv_mission.world.walkable import clearance, wall_obstacles
 from agv_mission.world.walking_routes import route_grid
+
+if TYPE_CHECKING:
+    from agv_mission.world.simulation import SimulatedWorld
 
 # ORCA's parameters for walking people: RVO2's examples use 1.5-2 s horizons and about 10
 # neighbours; a person notices others a few metres away. Measured (50 people, warehouse):
@@ -131,6 +135,19 @@ class Crowd:
         self._exact.update(plan.exact)
         for i in np.flatnonzero(self.start_times <= 0.0):  # in the world from the start
             self._enter(int(i))
+
+    @classmethod
+    def in_world(
+        cls, groups: Sequence[PeopleGroup], world: SimulatedWorld, rng: np.random.Generator
+    ) -> Crowd:
+        """The crowd of ``world``'s map, everyone's start kept clear of the world's robots
+        where they stand, its people standing in the world from the start."""
+        robots = np.array(
+            [(*world.pose(b).xy, b.radius) for b in world.bodies.values()], dtype=float
+        ).reshape(-1, 3)
+        crowd = cls(groups, world.world.map, rng, robots=robots)
+        world.move_people(crowd.positions, crowd.active)
+        return crowd
 
     @property
     def deciding(self) -> bool:

@@ -161,10 +161,7 @@ class PeopleRun:
 
     def __init__(self, groups: list[PeopleGroup], world: SimulatedWorld, seed: int) -> None:
         rng = np.random.default_rng(np.random.SeedSequence([seed, PEOPLE_STREAM]))
-        robots = np.array(
-            [(*world.pose(b).xy, b.radius) for b in world.bodies.values()], dtype=float
-        ).reshape(-1, 3)
-        self.crowd = Crowd(groups, world.world.map, rng, robots=robots)
+        self.crowd = Crowd.in_world(groups, world, rng)
         self.world = world
         self.track = PeopleTrack(self.crowd.ids, self.crowd.radii)
         self.touching: set[tuple[int, int]] = set()
@@ -174,7 +171,6 @@ class PeopleRun:
         self._rows = np.zeros((len(self.crowd.ids), len(TRACKED_PERSON)))
         self._rows[:, 2] = self.crowd.radii
         self._decided = -1  # the crowd's decision the rows' velocities are from
-        world.move_people(self.crowd.positions, self.crowd.active)
 
     def sense(self, now: float, robots: list[Any]) -> None:
         """Before the robots decide: hand each the people present, rows (x, y, radius, vx,

@@ -105,7 +105,7 @@ def measure(
         "cpu_ms_per_robot_per_sim_s": cpu * 1e3 / sim / n,
         "sim_time_s": sim,
         "collisions": float(record.metrics["collisions"]),
-        "processes": float(len(run.team.links) + 1),
+        "processes": float(run.team.processes),
     }
     if parts:
         for c in COMPONENTS:

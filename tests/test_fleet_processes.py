@@ -1,4 +1,4 @@
-"""A fleet's robots deciding in several processes (:mod:`agv_mission.missions.run.team`): the
+"""A fleet's robots deciding in several processes (:mod:`agv_mission.missions.run.forked_team`): the
 run is the one of a single process, and a stopped or failing run still ends with every
 robot's result. Real processes through the command line (``auto`` never forks inside the
 test runner, which runs threads)."""

@@ -1,7 +1,8 @@
-"""Robots deciding in parallel processes, on one world replicated in each.
+"""Robots deciding in parallel processes, on one world replicated in each: the forked
+:class:`~agv_mission.missions.run.team.RobotTeam`.
 
 A fleet's cost is its robots' decisions: sensing, localisation, the tree and the MPC of
-every robot, one after the other on one core. A :class:`RobotTeam` spreads them over
+every robot, one after the other on one core. A :class:`ForkedTeam` spreads them over
 processes forked from the set-up run: every process holds the whole run (the world, every
 robot, the fleet layer, the people) and steps it the same way, but each robot senses,
 estimates and decides in one process only, its owner; the other processes stand for it
@@ -14,9 +15,8 @@ which also owns robots and alone talks to observers): the robots' reports after 
 decided, their outcomes (and the observers' samples) after they concluded. At the end
 the first process gathers the other processes' robots' records.
 
-Processes are forked (POSIX), only from a process that runs no other thread. ``auto``
-forks one per idle core for fleets of :data:`AUTO_FROM` robots or more, not from a
-worker process (regress and the service run missions side by side already).
+Processes are forked (POSIX), only from a process that runs no other thread
+(:func:`~agv_mission.missions.run.team.team_size` says how many).
 """
 
 from __future__ import annotations
@@ -27,73 +27,23 @@ import multiprocessing
 import os
 import signal
 import sys
-import threading
-import time
 import traceback
 import weakref
 from collections.abc import Callable
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any
+
+from agv_mission.missions.run.team import advance_world
 
 if TYPE_CHECKING:
-    from agv_mission.missions.run.fleet_orders import FleetOrder
+    from agv_mission.missions.run.fleet_orders import FleetCoordinator, FleetOrder
     from agv_mission.missions.run.record import RunRecord
     from agv_mission.missions.run.robot_run import RobotRun
     from agv_mission.missions.run.samples import RobotReport, StepSample
     from agv_mission.world.simulation import SimulatedWorld
 
 _UNSENT = object()
-
-#: ``simulation.processes``: a count, or ``auto``.
-Processes = int | Literal["auto"]
-
-
-#: ``auto`` spreads fleets of this many robots or more: below, the two exchanges a step
-#: cost about what a second core saves (bench_fleet).
-AUTO_FROM = 4
-
-
-def usable_cores() -> int:
-    """The cores this process may run on."""
-    if hasattr(os, "sched_getaffinity"):
-        return max(1, len(os.sched_getaffinity(0)))
-    return max(1, os.cpu_count() or 1)
-
-
-def idle_cores(samples: int = 3, gap: float = 0.01) -> int:
-    """The usable cores nothing else runs on now (this process's own included): the
-    fewest over a few readings of the kernel's runnable-task count (Linux; elsewhere all
-    usable cores). Robots in lockstep across processes wait for the slowest one: a
-    process sharing its core with another program would hold every step up."""
-    cores = usable_cores()
-    stat = Path("/proc/stat")
-    if not stat.is_file():
-        return cores
-    others = cores
-    for i in range(samples):
-        if i:
-            time.sleep(gap)
-        for line in stat.read_text().splitlines():
-            if line.startswith("procs_running"):  # this process included
-                others = min(others, int(line.split()[1]) - 1)
-    return max(1, cores - others)
-
-
-def team_size(setting: Processes, robots: int, control: object | None) -> int:
-    """How many processes a run of ``robots`` robots decides in (1: this one alone)."""
-    if robots < 2 or not hasattr(os, "fork"):
-        return 1
-    if control is not None and not getattr(control, "only_cancels", False):
-        return 1  # a control that commands robots (teleop, the service) needs them here
-    if threading.active_count() > 1 or threading.current_thread() is not threading.main_thread():
-        return 1  # forking a process with other threads may copy a lock one of them held
-    if setting == "auto":
-        if multiprocessing.parent_process() is not None or robots < AUTO_FROM:
-            return 1
-        return min(idle_cores(), robots)
-    return max(1, min(int(setting), robots))
-
 
 #: The observers' work (the bag's messages of every robot), which the first process does
 #: while the others decide, in robots' decisions per robot: bench_fleet's 10-robot
@@ -127,8 +77,11 @@ class _Finish(Exception):
         self.message = message
 
 
-class RobotTeam:
-    """Which robots decide in this process, and the exchanges with the others."""
+class ForkedTeam:
+    """Robots deciding in forked processes: which decide in this one, and the exchanges
+    with the others (made by :meth:`fork`)."""
+
+    observe_later = True  # the samples are observed while the robot processes decide
 
     def __init__(self, robots: list[RobotRun], own: list[int]) -> None:
         self.robots = robots
@@ -146,29 +99,28 @@ class RobotTeam:
         self._sent: dict[int, Any] = {}  # each own robot's traffic path as last sent
         self._finalizer: weakref.finalize | None = None
 
-    @classmethod
-    def alone(cls, robots: list[RobotRun]) -> RobotTeam:
-        """Every robot decides in this process."""
-        return cls(robots, list(range(len(robots))))
-
     @property
-    def parallel(self) -> bool:
-        return bool(self.links) or self.parent is not None
+    def processes(self) -> int:
+        """The processes the robots decide in."""
+        return len(self.links) + 1
 
     # ------------------------------------------------------------------ forking
+    @classmethod
     def fork(
-        self,
+        cls,
+        robots: list[RobotRun],
         size: int,
         observed: bool,
-        serve: Callable[[RobotTeam], None],
+        serve: Callable[[ForkedTeam], None],
         mirror: SimulatedWorld | None = None,
-    ) -> None:
+    ) -> ForkedTeam:
         """Fork ``size - 1`` robot processes and share the robots out (:func:`shares`). In
         each robot process ``serve(team)`` runs the run's steps as the first process orders
         them; it never returns there (the process exits). With ``mirror`` (the run's world,
         when no lidar scans between control steps) only the last process steps the
         physics, while the first runs the fleet layer: each step's state reaches the first
         process, then the others with the step's orders, and their worlds mirror it."""
+        self = cls(robots, list(range(len(robots))))
         self.world = mirror
         self.physics = mirror is None
         blocks = shares(len(self.robots), size, OBSERVED_EXTRA if observed else 0.0)
@@ -206,6 +158,7 @@ class RobotTeam:
         self.own_indices = owned(0)
         self.own = [self.robots[k] for k in self.own_indices]
         self._finalizer = weakref.finalize(self, _release, list(self.links), list(self.pids))
+        return self
 
     # ------------------------------------------------------------------ a step
     def clock(self, world: SimulatedWorld) -> float:
@@ -216,9 +169,11 @@ class RobotTeam:
             t += world.dt
         return t
 
-    def advanced(self, steps: int) -> None:
-        """The world advanced ``steps`` physics steps: the physics process sends its state
-        to the first process; the first process will wait for it."""
+    def advance(self, world: SimulatedWorld, steps: int) -> None:
+        """``steps`` physics steps of the world, in the processes that step it; the
+        physics process then sends its state to the first process, which will wait for it."""
+        if self.physics:
+            advance_world(world, self.own, steps)
         if self.world is None:
             return
         if self.physics and self.parent is not None:
@@ -226,14 +181,14 @@ class RobotTeam:
         elif self.parent is None:
             self._stepped = steps
 
-    def begin_step(self, orders: dict[str, FleetOrder]) -> dict[str, FleetOrder]:
+    def begin_step(self, now: float, coordinator: FleetCoordinator | None) -> dict[str, FleetOrder]:
         """One more step: the first process takes the world's state from the physics
-        process (when mirrored), then sends every robot process its robots' fleet orders
-        (and the state, when it mirrors it); the orders for this process's robots."""
+        process (when mirrored), the fleet layer decides there, and it sends every robot
+        process its robots' fleet orders (and the state, when it mirrors it); the orders
+        for this process's robots."""
         if self.parent is not None:
             return self.orders
-        if not self.links:
-            return orders
+        orders = coordinator.decide(now) if coordinator is not None else {}
         snapshot = None
         if self.world is not None and self._stepped:
             expected = self.clock(self.world)
@@ -253,8 +208,6 @@ class RobotTeam:
         """After the own robots decided: every robot's report reaches the first process
         (the fleet layer's there) and its command, outcome and wall contact every process.
         A traffic path travels only when it changed."""
-        if not self.parallel:
-            return
         robots = self.robots
         if self.parent is not None:
             mine: dict[int, RobotReport] = {}
@@ -288,8 +241,6 @@ class RobotTeam:
         """After the own robots concluded: every robot's status everywhere; with
         observers, every robot's sample in the first process (the robot processes make
         their robots' own)."""
-        if not self.parallel:
-            return {}
         mine: dict[int, tuple[str | None, str | None, StepSample | None]] = {}
         for k in self.own_indices:
             r = self.robots[k]

@@ -24,6 +24,7 @@ from agv_mission.missions.load.resolved import Layout, LoadedMission
 from agv_mission.missions.run.behaviour_tree import MissionTree
 from agv_mission.missions.run.errors import RunStopped
 from agv_mission.missions.run.fleet_orders import FleetCoordinator, queue_fleet_tasks
+from agv_mission.missions.run.forked_team import ForkedTeam
 from agv_mission.missions.run.observe import (
     RobotStart,
     RunControl,
@@ -41,7 +42,7 @@ from agv_mission.missions.run.stack import (
     build_world,
     open_recorders,
 )
-from agv_mission.missions.run.team import RobotTeam, team_size
+from agv_mission.missions.run.team import InlineTeam, RobotTeam, team_size
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import Navigator
 from agv_mission.robots.diff_drive import DiffDriveBody
@@ -127,7 +128,8 @@ class MissionRun:
             for stack in stacks
         ]
         self.by_name = {r.name: r for r in self.robots}
-        self.team = RobotTeam.alone(self.robots)  # who decides here (see :meth:`drive`)
+        # who decides where: here until :meth:`drive` forks robot processes
+        self.team: RobotTeam = InlineTeam(self.robots, bool(self.observers))
         self._samples: list[StepSample] = []  # the latest step's, not yet observed
         self.people = (
             PeopleRun(loaded.people, self.world, self.mission.seed) if loaded.people else None
@@ -224,12 +226,12 @@ class MissionRun:
         """
         gc.freeze()
         size = team_size(self.mission.simulation.processes, len(self.robots), control)
-        if size > 1 and not self.team.parallel and self.status is None:
+        if size > 1 and self.team.processes == 1 and self.status is None:
             # a lidar scanning between control steps needs the physics there: stepped
             # in every process then, else only in this one and mirrored
             mirror = all(r.stack.scan_period >= CONTROL_PERIOD - 1e-9 for r in self.robots)
             world = self.world if mirror else None
-            self.team.fork(size, bool(self.observers), self._serve, world)
+            self.team = ForkedTeam.fork(self.robots, size, bool(self.observers), self._serve, world)
         try:
             while True:
                 if control is not None:
@@ -249,8 +251,9 @@ class MissionRun:
             for observer in self.observers:
                 observer.on_step(sample)
 
-    def _serve(self, team: RobotTeam) -> None:
+    def _serve(self, team: ForkedTeam) -> None:
         """A robot process: step as the first process orders (it alone has observers)."""
+        self.team = team  # the fork returns to the first process only
         self.observers = []
         team.serve(self.step, self.end, self._robot_record)
 
@@ -269,8 +272,7 @@ class MissionRun:
         coordinator = self.coordinator
         # the fleet layer decides in the first process; each robot's order reaches it
         # where it decides
-        orders = coordinator.decide(now) if coordinator and team.parent is None else {}
-        orders = team.begin_step(orders)
+        orders = team.begin_step(now, coordinator)
         self._observe()  # the step before's samples, while the robot processes decide
         if coordinator is not None:
             coordinator.hand_out(orders)
@@ -292,14 +294,14 @@ class MissionRun:
             self._conclude()
         if self.observers:
             batch = []
-            for k, r in enumerate(robots):
-                sample = samples[k] if team.parallel else r.sample()
+            for k in range(len(robots)):
+                sample = samples.get(k)
                 if sample is not None and k == 0 and self.people is not None:
                     sample.people = self.people.present()
                 if sample is not None:
                     batch.append(sample)
             self._samples = batch
-            if not team.parallel:  # with robot processes: once the next step is under way
+            if not team.observe_later:  # else once the next step is under way
                 self._observe()
         if self.status is not None:
             return False
@@ -314,24 +316,7 @@ class MissionRun:
         world = self.world
         if self.people is not None:
             self.people.move(CONTROL_PERIOD, self.robots)
-        dt = world.dt
-        steps = int(round(CONTROL_PERIOD / dt))
-        if not self.team.physics:  # another process steps it (missions.run.team)
-            self.team.advanced(steps)
-            return
-        t0 = world.time
-        due: dict[int, list[RobotRun]] = {}
-        for r in self.team.own:
-            for k in r.stack.scan_steps(t0, steps, dt):
-                due.setdefault(k, []).append(r)
-        done = 0
-        for k in sorted(due):
-            world.step(k - done)
-            done = k
-            for r in due[k]:
-                r.stack.take_scan(r._scan_filter)
-        world.step(steps - done)
-        self.team.advanced(steps)
+        self.team.advance(world, int(round(CONTROL_PERIOD / world.dt)))
 
     def _watch_collisions(self, now: float) -> None:
         """End the run once the robots together touched walls more often than allowed."""
@@ -411,7 +396,7 @@ class MissionRun:
         wall_time = time.perf_counter() - self.wall_start
         team = self.team
         assert self.status is not None
-        remote = team.gather((self.status, self.reason), wall_time) if team.links else {}
+        remote = team.gather((self.status, self.reason), wall_time)
         records = [
             remote[k] if k in remote else self._robot_record(k, wall_time)
             for k in range(len(self.robots))
@@ -423,5 +408,5 @@ class MissionRun:
             self.fleet_log,
             self.world.time,
             wall_time,
-            processes=len(team.links) + 1,  # the robots decided in (missions.run.team)
+            processes=team.processes,  # the robots decided in (missions.run.team)
         )

@@ -5,15 +5,17 @@ from __future__ import annotations
 
 from array import array
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import shapely
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import breadth_first_order, connected_components
 
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.map_cache import map_table
 from agv_mission.world.walkable import clearance
+
+if TYPE_CHECKING:  # scipy.sparse (~0.1 s) only once a mission has people to route
+    from scipy.sparse import csr_matrix
 
 ROUTE_CELL = 0.25  # m, the routing grid (a person is 0.5 m wide: doors still pass)
 
@@ -64,6 +66,8 @@ class RouteGrid:
     def component(self, node: int) -> int:
         """The connected piece of walkable space ``node`` lies in (-1: none)."""
         if self._labels is None:
+            from scipy.sparse.csgraph import connected_components
+
             _, labels = connected_components(self.graph, directed=False)
             self._labels = np.where(self.walkable.ravel(), labels, -1)
         return int(self._labels[node])
@@ -117,6 +121,8 @@ class RouteGrid:
         keep[doubt] = (room.reshape(len(doubt), samples) >= radius).all(axis=1)
         a, b, length = a[keep], b[keep], length[keep]
         n = height * width
+        from scipy.sparse import csr_matrix
+
         # every edge both ways: a directed search needs no transposed copy per goal
         return csr_matrix(
             (np.concatenate([length, length]), (np.concatenate([a, b]), np.concatenate([b, a]))),
@@ -130,6 +136,8 @@ class RouteGrid:
             # fewest cells (8-connected, a breadth-first tree on the two-way graph: 0.17
             # against 11 ms for Dijkstra's a goal on the warehouse); pulling the way taut
             # straightens it
+            from scipy.sparse.csgraph import breadth_first_order
+
             _, order = breadth_first_order(
                 self.graph, goal, directed=True, return_predecessors=True
             )

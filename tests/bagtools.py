@@ -92,6 +92,10 @@ class Quirks:
     gap: tuple[float, float] | None = None  # no scans and no odometry in this window
     scan_until: float | None = None  # no scans after this time
     map_to_odom: bool = True
+    #: map -> odom of a localiser that starts this far off the truth (map frame) and
+    #: converges to it within ``SETTLE`` seconds (amcl's first cluster mean); None: the
+    #: start's map -> odom throughout, as an odometry-only run publishes.
+    localiser_start_error: Pose2D | None = None
     truth_topic: bool = True
     scan_frame: str = "laser"
     base_frame: str = "base_footprint"
@@ -194,8 +198,7 @@ def write_quirk_bag(path: Path, drive: Drive, q: Quirks) -> Path:
         p = _interp(t, drive.odom, s)
         links = [tfs(s, "odom", q.base_frame, p)]
         if q.map_to_odom:
-            truth0, odom0 = Pose2D(*drive.truth[0]), Pose2D(*drive.odom[0])
-            links.append(tfs(s, "map", "odom", truth0.compose(Pose2D(0, 0, 0).relative_to(odom0))))
+            links.append(tfs(s, "map", "odom", _map_to_odom(drive, q, s)))
         if q.static_on_tf:
             links += [_restamp(x, header(s, x.header.frame_id)) for x in statics]
         messages.append((s, "/tf", tf_type, types[tf_type](transforms=links)))
@@ -266,6 +269,23 @@ def write_quirk_bag(path: Path, drive: Drive, q: Quirks) -> Path:
     if q.fmt == "mcap":
         return next(path.glob("*.mcap"))
     return path
+
+
+#: Seconds a localiser's start error takes to vanish (``Quirks.localiser_start_error``).
+SETTLE = 3.0
+
+
+def _map_to_odom(drive: Drive, q: Quirks, s: float) -> Pose2D:
+    """The bag's map -> odom at ``s``: fixed at the start's, or a localiser's estimate
+    (truth, off by the start error fading out) composed with the odometry's inverse."""
+    origin = Pose2D(0.0, 0.0, 0.0)
+    e = q.localiser_start_error
+    if e is None:
+        truth0, odom0 = Pose2D(*drive.truth[0]), Pose2D(*drive.odom[0])
+        return truth0.compose(origin.relative_to(odom0))
+    k = max(0.0, 1.0 - (s - float(drive.t[0])) / SETTLE)
+    estimate = Pose2D(k * e.x, k * e.y, k * e.yaw).compose(_interp(drive.t, drive.truth, s))
+    return estimate.compose(origin.relative_to(_interp(drive.t, drive.odom, s)))
 
 
 def _restamp(tf, header):

@@ -155,3 +155,40 @@ def test_scans_sharing_coarse_stamps_meet_their_own_odometry(tmp_path, drive):
     assert result.report["input"]["stamps_spread"] == data.notes["stamps_spread"]
     assert result.report["relative_pose_error"]["translation_m"] < 0.03
     assert wall_precision(result.grid, drive.world) > 0.9
+
+
+def test_map_frame_fitted_to_the_robots_estimate_not_its_first_guess(tmp_path, drive):
+    """A localiser starts 12 cm and 2.3 degrees off (amcl's first cluster mean) and
+    converges within 3 s: a map anchored at the first scan's map -> odom would carry that
+    error into every wall; fitted to the estimate over the whole run (the finished
+    poses moved, the map rendered from them) it lines up with the world."""
+    error = Pose2D(0.1, -0.07, 0.04)
+    bag = write_quirk_bag(tmp_path / "settling", drive, Quirks(localiser_start_error=error))
+    fitted = map_bag(bag, slam_config([]))
+    frame = fitted.report["map_frame"]
+    assert frame["fitted"] is True
+    # the correction undoes most of the start error (the fit weighs the whole run)
+    undo = Pose2D(frame["x"], frame["y"], frame["yaw"]).compose(error)
+    assert math.hypot(undo.x, undo.y) < 0.03 and abs(undo.yaw) < 0.01, frame
+    assert fitted.report["rmse"]["position_rmse"] < 0.03, fitted.report["rmse"]
+    assert wall_precision(fitted.grid, drive.world) > 0.95
+    from agv_mission.bags import offline
+
+    original = offline._map_frame_fit
+    offline._map_frame_fit = lambda data, base: None  # anchored at the first scan
+    try:
+        anchored = map_bag(bag, slam_config([]))
+    finally:
+        offline._map_frame_fit = original
+    assert anchored.report["map_frame"] == {"fitted": False}
+    assert anchored.report["rmse"]["position_rmse"] > 0.08, anchored.report["rmse"]
+    assert wall_precision(anchored.grid, drive.world) < wall_precision(fitted.grid, drive.world)
+
+
+def test_map_frame_of_odometry_alone_is_not_fitted(tmp_path, drive):
+    """A bag whose map -> odom never moves (no localiser corrected the odometry): the map
+    frame stays the first scan's; fitting it to the odometry would bend it by the drift."""
+    bag = write_quirk_bag(tmp_path / "odom", drive, Quirks())
+    result = map_bag(bag, slam_config([]))
+    assert result.report["map_frame"] == {"fitted": False}
+    assert result.report["rmse"]["position_rmse"] < 0.05

@@ -81,8 +81,12 @@ def test_round_trip_aws_small_house_patrol(tmp_path):
     offline = load_ros_map(tmp_path / "m.yaml")
     quality = map_quality(offline, loaded.world.map, None, (loaded.start.x, loaded.start.y))
     # Realistic sensors, seeds 1-4: free IoU 0.913-0.946, the trajectory's shape (ATE)
-    # 0.03-0.06 m: the map's frame is the first scan's estimate and SLAM's early heading
-    # turns the whole map by up to a degree (its far walls centimetres off); its shape holds.
-    assert quality["free_iou"] >= 0.9, quality
+    # 0.03-0.06 m, when the map's frame was the first scan's estimate: SLAM's early heading
+    # turned the whole map by up to a degree (its far walls centimetres off). Fitted to the
+    # robot's estimate over the run (seed 4: IoU 0.919 -> 0.949, RMSE 0.120 -> 0.045 m)
+    # the map's frame adds nothing to its shape's error.
+    assert quality["free_iou"] >= 0.93, quality
     report = json.loads((tmp_path / "m_report.json").read_text())
+    assert report["map_frame"]["fitted"] is True
     assert report["rmse"]["ate_aligned"] < 0.07, report["rmse"]
+    assert report["rmse"]["position_rmse"] <= report["rmse"]["ate_aligned"] + 0.01

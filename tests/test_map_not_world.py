@@ -4,7 +4,8 @@ than odometry where scans see little.
 
 Whole missions on the real stack (MuJoCo lidar and encoders, amcl with the scan-to-map
 refinement, planner, MPC); the SLAM map in ``tests/fixtures/maps`` was saved by a
-``map_area`` run of the small house (seed 1, the default sensors).
+``map_area`` run of the small house (seed 1, the default sensors:
+``tests/fixtures/maps/make_small_house_slam.py`` makes it again).
 """
 
 from __future__ import annotations
@@ -185,8 +186,9 @@ def test_a_slam_map_from_an_earlier_map_area_run(tmp_path: Path) -> None:
     record = run.record()
     assert record.status == "succeeded", record.reason
     # The SLAM map itself is a few centimetres off the world (its run's own trajectory
-    # error was 0.09 m RMSE): the estimate is as good as the map.
-    assert stats["rmse"] <= 0.08 and stats["max"] <= 0.20, stats
+    # error was 0.030 m RMSE): the estimate is as good as the map. Measured: 0.027 m RMSE,
+    # 0.041 m max; on the map saved while map_area drifted (0.09 m), 0.070 / 0.116 m.
+    assert stats["rmse"] <= 0.045 and stats["max"] <= 0.10, stats
     assert stats["rmse"] < stats["odom_rmse"]
 
 

@@ -75,10 +75,12 @@ def map_bag(
     slam = registry.create("slam", slam_config, bounds=None, rng=None)
     slam.reset(start.compose(mount), _pose(odom_at[first]).compose(mount))
     slam_s = _replay(slam, data, odom_at, times, used)
-    sensor = np.asarray(slam.trajectory, dtype=float).reshape(-1, 4)
-    base = np.array(
-        [(t, *Pose2D(x, y, a).compose(inv_mount).as_array()) for t, x, y, a in sensor]
-    ).reshape(-1, 4)
+    base = _base_trajectory(slam, inv_mount)
+    fit = _map_frame_fit(data, base)
+    reframe = getattr(slam, "reframe", None)
+    if fit is not None and callable(reframe):
+        reframe(fit)  # the finished poses moved, the map rendered from them: no new SLAM run
+        base = _base_trajectory(slam, inv_mount)
     canvas = slam.occupancy_grid()
     grid = crop_to_known(canvas)
     wall = time.perf_counter() - t_read
@@ -99,6 +101,7 @@ def map_bag(
             "from_tf": data.mount_found,
         },
         "slam": slam_config.model_dump(mode="json"),
+        "map_frame": _fit_report(fit, callable(reframe)),
         "scans": {
             "total": len(data.scans),
             "used": len(used),
@@ -128,6 +131,64 @@ def map_bag(
     if data.truth is not None and len(base):
         report.update(_accuracy(base, data.truth, data.truth_topic))
     return OfflineMap(grid=grid, trajectory=base, report=report)
+
+
+def _base_trajectory(slam: Any, inv_mount: Pose2D) -> np.ndarray:
+    """SLAM's trajectory (of the lidar) as the base frame's, rows t, x, y, yaw."""
+    sensor = np.asarray(slam.trajectory, dtype=float).reshape(-1, 4)
+    rows = [(t, *Pose2D(x, y, a).compose(inv_mount).as_array()) for t, x, y, a in sensor]
+    return np.array(rows).reshape(-1, 4)
+
+
+#: Metres the mapped trajectory must span for its fit to the bag's map frame to fix a
+#: heading (a robot that turned on the spot gives a rotation nothing pins).
+FIT_MIN_SPAN = 1.0
+
+
+def _map_frame_fit(data: BagData, base: np.ndarray) -> Pose2D | None:
+    """The rigid motion that lines the mapped trajectory up, in the least-squares sense,
+    with the robot's own estimate while it ran (the bag's ``map -> odom`` composed with
+    the odometry at the same stamps), or ``None`` when the bag's map frame is only the
+    odometry's (``map -> odom`` never moved: no localiser corrected it, and fitting to
+    the odometry would bend the map by its drift).
+
+    SLAM starts from the estimate at the first scan, so a heading a few milliradians off
+    there turns the whole map about the start; the fit weighs every pose instead."""
+    rows = data.map_to_odom
+    if rows is None or len(rows) < 2 or len(base) < 3:
+        return None
+    corrections = np.ptp(rows[:, 1:3], axis=0).max(), np.ptp(np.unwrap(rows[:, 3]))
+    if max(corrections) < 1e-6:
+        return None
+    if np.ptp(base[:, 1:3], axis=0).max() < FIT_MIN_SPAN:
+        return None
+    t = base[:, 0]
+    m2o, _ = interpolate_poses(rows, t, np.inf)
+    odom, _ = interpolate_poses(data.odom, t, np.inf)
+    ref = np.array(
+        [_pose(m).compose(_pose(o)).as_array()[:2] for m, o in zip(m2o, odom, strict=True)]
+    )
+    return rigid_fit(base[:, 1:3], ref)
+
+
+def rigid_fit(p: np.ndarray, g: np.ndarray) -> Pose2D:
+    """The rotation and translation ``T`` minimising the sum of ``|T(p_i) - g_i|^2``
+    over points (n, 2) (Umeyama / Kabsch in 2-D, no scale), as a pose: ``T(p)`` is
+    ``pose.compose(Pose2D(*p))``."""
+    pm, gm = p.mean(axis=0), g.mean(axis=0)
+    u, _, vt = np.linalg.svd((p - pm).T @ (g - gm))
+    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+    r = vt.T @ np.diag([1.0, d]) @ u.T
+    t = gm - r @ pm
+    return Pose2D(float(t[0]), float(t[1]), float(np.arctan2(r[1, 0], r[0, 0])))
+
+
+def _fit_report(fit: Pose2D | None, applied: bool) -> dict[str, Any]:
+    """How the map frame was placed: the bag's at the first scan, or fitted to the
+    robot's estimate over the whole run (the correction applied)."""
+    if fit is None or not applied:
+        return {"fitted": False}
+    return {"fitted": True, "x": round(fit.x, 4), "y": round(fit.y, 4), "yaw": round(fit.yaw, 5)}
 
 
 def _covered_scans(
@@ -227,14 +288,9 @@ def _rmse(est: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     g = np.stack([gx, gy], axis=1)
     p = e[:, 1:3]
     raw = float(np.sqrt(np.mean(np.sum((p - g) ** 2, axis=1))))
-    # Umeyama / Kabsch in 2D, no scale.
-    pm, gm = p.mean(axis=0), g.mean(axis=0)
-    u, _, vt = np.linalg.svd((p - pm).T @ (g - gm))
-    r = (u @ vt).T
-    if np.linalg.det(r) < 0:
-        vt[-1] *= -1
-        r = (u @ vt).T
-    aligned = (p - pm) @ r.T + gm
+    fit = rigid_fit(p, g)
+    c, s = np.cos(fit.yaw), np.sin(fit.yaw)
+    aligned = p @ np.array([[c, s], [-s, c]]) + (fit.x, fit.y)
     ate = float(np.sqrt(np.mean(np.sum((aligned - g) ** 2, axis=1))))
     return {"position_rmse": round(raw, 4), "ate_aligned": round(ate, 4), "poses": int(len(e))}
 

@@ -320,6 +320,32 @@ class GraphSlam(GridSlam):
         self._pose = Pose2D(*new[-1])
         self.smoothing_s = perf_counter() - t0
 
+    def reframe(self, transform: Pose2D) -> None:
+        """Move the map frame: every pose ``p`` becomes ``transform ∘ p`` and the map is
+        rendered again from the scans at their moved poses (not resampled: a rotated grid
+        would smear the walls by a cell). ``agv-mission map`` lines a finished map up with
+        the frame the robot localised in."""
+
+        def moved(pose: Pose2D) -> Pose2D:
+            return transform.compose(pose)
+
+        self.trajectory[:] = [
+            (t, *(float(v) for v in moved(Pose2D(x, y, a)).as_array()))
+            for t, x, y, a in self.trajectory
+        ]
+        self.nodes = np.array([moved(Pose2D(*n)).as_array() for n in self.nodes]).reshape(-1, 3)
+        self._pose = moved(self._pose)
+        if self._last_integrated is not None:
+            self._last_integrated = moved(self._last_integrated)
+        if self._last_pose is not None:
+            self._last_pose = moved(self._last_pose)
+        c, s = math.cos(transform.yaw), math.sin(transform.yaw)
+        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        self._cov = rot @ self._cov @ rot.T
+        if self._integrated:
+            self._stale = False
+            self._render([Pose2D(*self.trajectory[i][1:]) for *_, i in self._integrated])
+
 
 def smooth_trajectory(
     poses: np.ndarray,

@@ -10,8 +10,11 @@ in the reported 2-sigma ellipse, and the localiser's cost per scan (filter + ref
 p50 / p99 ms of ``update`` calls that carry a scan). The ``turtlebot3`` rows are amcl alone.
 
 The ``map_*`` rows give the robot a ``map:`` that is not the world: the house mapped by an
-earlier ``map_area`` run (``tests/fixtures/maps``), and furniture moved (boxes in the world
-the map lacks, and a box on the map the world lacks) in the house, depot and warehouse.
+earlier ``map_area`` run (``tests/fixtures/maps``, made by ``make_small_house_slam.py``
+there), the real AWS house mapped by ``agv-mission map`` from the bag of an earlier patrol
+(``benchmarks/data/house_patrol.yaml``, bench_bags' round trip), and furniture moved
+(boxes in the world the map lacks, and a box on the map the world lacks) in the house,
+depot and warehouse.
 """
 
 from __future__ import annotations
@@ -25,12 +28,14 @@ from typing import Any
 import numpy as np
 from rich.table import Table
 
+from agv_mission.bags.offline import default_slam, map_bag
+from agv_mission.bags.writer import BagWriter
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.ros_map import save_ros_map
 from agv_mission.maps.world_loader import load_world
 from agv_mission.missions.load.loader import load_mission
 from agv_mission.missions.run.metrics import SETTLE_TIME
-from agv_mission.missions.run.runner import MissionRun
+from agv_mission.missions.run.runner import MissionRun, run_mission
 
 REPO = Path(__file__).resolve().parents[1]
 ROS_MAPS = REPO / "tests" / "data" / "ros_maps"
@@ -109,9 +114,11 @@ MOVED: dict[str, tuple[list[tuple[float, ...]], list[tuple[float, ...]]]] = {
     "warehouse": ([(4.0, 12.0, 0.8, 0.8), (12.0, 47.0, 1.0, 0.6)], [(8.0, 30.0, 1.0, 1.0)]),
 }
 
-# (key, world, map ("moved": the world's map with MOVED's map boxes), route, robot, moved)
+# (key, world, map ("moved": the world's map with MOVED's map boxes; "bag": bag_map's),
+# route, robot, moved)
 MAP_CASES: list[tuple[str, str, str, Any, str, str | None]] = [
     ("map_slam_house", "small_house", str(MAPS / "small_house_slam.yaml"), HOUSE, "burger", None),
+    ("map_bag_house", str(ROS_MAPS / "aws_small_house" / "map.yaml"), "bag", HOUSE, "burger", None),
     ("map_moved_house", "small_house", "moved", HOUSE, "burger", "small_house"),
     ("map_moved_depot", str(WORLDS / "loc_depot.yaml"), "moved", DEPOT, "burger", "depot"),
     (
@@ -146,6 +153,17 @@ def moved_map(world: str, boxes: list[tuple[float, ...]], out_dir: Path) -> Path
         data[(np.abs(cx - x) <= sx / 2) & (np.abs(cy - y) <= sy / 2)] = 100
     moved = type(grid)(data=data, resolution=grid.resolution, origin=grid.origin)
     return save_ros_map(moved, out_dir / "moved_map")[1]
+
+
+def bag_map(out_dir: Path) -> Path:
+    """The map ``agv-mission map`` makes of the house patrol's bag (a run of
+    ``benchmarks/data/house_patrol.yaml`` recorded in ``out_dir``), as map_server files."""
+    loaded = load_mission(REPO / "benchmarks" / "data" / "house_patrol.yaml")
+    run_dir = out_dir / "house_patrol"
+    run_dir.mkdir()
+    run_mission(loaded, run_dir, observers=[BagWriter()])
+    result = map_bag(run_dir / "bag", default_slam([]))
+    return save_ros_map(result.grid, out_dir / "bag_map")[1]
 
 
 def obstacles_yaml(boxes: list[tuple[float, ...]]) -> str:
@@ -223,6 +241,8 @@ def run() -> dict[str, float]:
             extra, gone = MOVED[moved] if moved else ([], [])
             if map_spec == "moved":
                 map_spec = str(moved_map(world, gone, Path(tmp)))
+            elif map_spec == "bag":
+                map_spec = str(bag_map(Path(tmp)))
             values = run_case(world, route, robot, "accurate", map_spec, obstacles_yaml(extra))
             for name, value in values.items():
                 out[f"localization.{key}.{robot}.accurate.{name}"] = value

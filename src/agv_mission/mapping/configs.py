@@ -65,7 +65,8 @@ class GridSlamConfig(PluginConfig):
         False,
         description="draw a wall where its face is: an OCCUPIED cell whose end points lie "
         "beyond its centre, in front of another OCCUPIED cell, is not wall (the lidar's "
-        "noise scattered the face's returns into it); agv-mission map's default. False (the "
+        "noise scattered the face's returns into it), nor UNKNOWN when free_max_hits is "
+        "None and the log-odds left it undecided; agv-mission map's default. False (the "
         "mission SLAM's): every cell the log-odds make OCCUPIED (exploring map_area, a wall "
         "cell drawn FREE leaves frontiers at wall ends that are never cleared)",
     )

@@ -98,24 +98,30 @@ class LogOddsMap:
         data[occupied] = OCCUPIED
         if self.config.wall_faces:
             # free_max_hits keeps a cell that held end points from being FREE: UNKNOWN then.
-            proud = self._proud(occupied)
+            proud = self._in_front_of_face(occupied, occupied)
             data[proud] = FREE if self.config.free_max_hits is None else UNKNOWN
+            if self.config.free_max_hits is None:
+                # The same scatter where the log-odds left the cell undecided (its hits and
+                # the beams through it to the face about even): in front of the face too.
+                undecided = (data == UNKNOWN) & (self.hn > 0)
+                data[self._in_front_of_face(undecided, occupied)] = FREE
         return OccupancyGrid(data, self.resolution, Pose2D(self.ox, self.oy, 0.0))
 
-    def _proud(self, occupied: np.ndarray) -> np.ndarray:
-        """OCCUPIED cells in front of a wall's face: a face on the boundary of two cells
-        scatters the end points into both (the lidar's noise), and both become OCCUPIED,
-        which draws the wall up to a cell in front of its face (a localiser matching scans
-        to that map is pushed off every wall it sees by as much). Such a cell was seen from
-        one side, the mean of its end points (its anchor) lies beyond its centre as seen
-        from the scanner, and the cell behind it (along the view) is OCCUPIED: the face is
-        on their boundary, and the map draws it there."""
+    def _in_front_of_face(self, cells: np.ndarray, occupied: np.ndarray) -> np.ndarray:
+        """Those of ``cells`` that stand in front of a wall's face: a face on the boundary
+        of two cells scatters the end points into both (the lidar's noise), and both
+        become OCCUPIED (or the nearer one undecided), which draws the wall up to a cell in
+        front of its face (a localiser matching scans to that map is pushed off every wall
+        it sees by as much). Such a cell was seen from one side, the mean of its end points
+        (its anchor) lies beyond its centre as seen from the scanner, and the cell behind
+        it (along the view) is OCCUPIED: the face is on their boundary, and the map draws
+        it there."""
         vx, vy, hn = self.vx, self.vy, self.hn
         norm = np.hypot(vx, vy)
         one_side = norm > 0.5 * hn  # a thin wall seen from both sides cancels out
         # The anchor's offset away from the scanner (v points from the end points to it).
         beyond = (self.ax * vx + self.ay * vy) < 0.0
-        candidate = occupied & one_side & beyond
+        candidate = cells & one_side & beyond
         rows, cols = np.nonzero(candidate)
         if not len(rows):
             return candidate

@@ -407,6 +407,11 @@ class SimulatedWorld:
                 best = min(best, float(self.walls.cyl_distance(p.x, p.y).min()))
         return best - body.radius
 
+    def position(self, index: int) -> tuple[float, float]:
+        """The planar position of the body at ``index`` (as :meth:`contacts` numbers them)."""
+        q, a = self.data.qpos, self._order[index].qadr
+        return float(q[a]), float(q[a + 1])
+
     def body_gaps(self) -> np.ndarray:
         """(n, n) planar gaps between the bodies' footprint circles (inf on the diagonal)."""
         q = self.data.qpos

@@ -340,20 +340,15 @@ class MissionRun:
         touching = {pair for pair in self.world.contacts() if pair[1] >= 0}
         for i, j in sorted(touching - self._touching):
             a, b = self.robots[i], self.robots[j]
-            p = a.sim.true_pose()
+            x, y = self.world.position(i)  # where the first of the two stands
             log["robot_robot_collisions"].append(
-                {
-                    "t": round(now, 3),
-                    "robots": [a.name, b.name],
-                    "x": round(p.x, 3),
-                    "y": round(p.y, 3),
-                }
+                {"t": round(now, 3), "robots": [a.name, b.name], "x": round(x, 3), "y": round(y, 3)}
             )
             a.handle.log("robot_collision", robot=a.name, other=b.name)
             if len(log["robot_robot_collisions"]) > self.mission.limits.collisions:
                 self.end(
                     "failed",
-                    f"{a.name} and {b.name} collided at t={now:.1f} s near ({p.x:.2f}, {p.y:.2f})",
+                    f"{a.name} and {b.name} collided at t={now:.1f} s near ({x:.2f}, {y:.2f})",
                 )
         self._touching = touching
 

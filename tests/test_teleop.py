@@ -18,7 +18,7 @@ import yaml
 
 from agv_mission.geometry import wrap_angle
 from agv_mission.maps.builtin_worlds import HOUSE_SPAWN
-from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder
+from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder, RecorderFile
 from agv_mission.maps.rooms import room_at
 from agv_mission.missions.load.loader import load_mission
 from agv_mission.missions.run.runner import MissionRun, run_mission
@@ -339,7 +339,7 @@ def test_tmux_drive_into_the_kitchen_record_it_and_quit(tmux: Tmux, tmp_path: Pa
     assert list(doc["kitchen"]) == ["position", "orientation"]
     assert list(doc["kitchen"]["position"]) == ["x", "y", "z"]
     assert list(doc["kitchen"]["orientation"]) == ["x", "y", "z", "w"]
-    pose = LocationRecorder(recorder, recorder).entries["kitchen"]
+    pose = LocationRecorder(recorder, RecorderFile.read(recorder)).entries["kitchen"]
     kitchen = load_teleop_mission().rooms["kitchen"]
     assert kitchen.contains(pose.x, pose.y)
     assert (pose.x, pose.y) == pytest.approx((here["x"], here["y"]), abs=2e-3)

@@ -13,6 +13,7 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.docks import Dock
 from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.maps.recorder import RecorderFile
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.worlds import World
 from agv_mission.maps.zones import ZoneFilters
@@ -87,7 +88,7 @@ class LoadedMission:
     rooms: dict[str, Room]
     robots: list[RobotSetup]  # every robot of the mission, in the file's order
     layout: Layout = Layout.ROBOT
-    recorder: Path | None = None  # an existing recorder file to append to
+    recorder: RecorderFile | None = None  # an existing recorder file to append to, as read
     docks: dict[str, Dock] = field(default_factory=dict)  # the world's and rooms file's
     given_map: OccupancyGrid | None = None  # the mission's ``map:``, when it names one
     people: list[PeopleGroup] = field(default_factory=list)  # resolved ``people:``

@@ -22,7 +22,12 @@ from agv_mission.mapping.base import Slam
 from agv_mission.maps.costmap import ObstacleLayerConfig
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.obstacle_layer import ObstacleLayer
-from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder, RecorderFileError
+from agv_mission.maps.recorder import (
+    RECORDER_FILENAME,
+    LocationRecorder,
+    RecorderFile,
+    RecorderFileError,
+)
 from agv_mission.missions.load.resolved import LoadedMission, RobotSetup
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.navigator import Navigator
@@ -336,8 +341,8 @@ def open_recorders(
     * ``recorder_file``: record straight into it, appending to its entries when it exists
       (as the seed's service does); ``append`` may only name that same file.
     * else ``run_dir/location_recorder.yaml`` (when there is a run directory), starting from
-      ``append``'s entries, or from those of the mission's ``recorder`` file, which is then
-      also updated in place.
+      ``append``'s entries, or from those the mission's ``recorder`` file held when the
+      mission loaded; that file is then also updated in place.
 
     Raises :class:`~agv_mission.maps.recorder.RecorderFileError` for a clash of
     ``recorder_file`` and ``append``.
@@ -351,17 +356,18 @@ def open_recorders(
                 "--recorder appends to an existing file by itself",
             )
         initial = append if append is not None else (recorder_file if exists else None)
-        return [LocationRecorder(recorder_file, initial)]
-    mission_file = loaded.recorder
+        start = RecorderFile.read(initial) if initial is not None else None
+        return [LocationRecorder(recorder_file, start)]
     if append is not None:
         if run_dir is None:
             raise ValueError("appending needs a run directory or a recorder file")
-        return [LocationRecorder(run_dir / RECORDER_FILENAME, append)]
+        return [LocationRecorder(run_dir / RECORDER_FILENAME, RecorderFile.read(append))]
+    mission_file = loaded.recorder
     recorders = []
     if run_dir is not None:
         recorders.append(LocationRecorder(run_dir / RECORDER_FILENAME, mission_file))
     if mission_file is not None:
-        recorders.append(LocationRecorder(mission_file, mission_file))
+        recorders.append(LocationRecorder(mission_file.path, mission_file))
     return recorders
 
 

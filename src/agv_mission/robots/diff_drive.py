@@ -31,11 +31,12 @@ class DiffDriveBody:
 
     @staticmethod
     def add_to(
-        builder: WorldBuilder, name: str, robot: RobotDescription, seen_up_to: float
+        builder: WorldBuilder, name: str, robot: RobotDescription, start: Pose2D, seen_up_to: float
     ) -> None:
-        """Add ``robot``'s body, named ``name``, to the world ``builder`` builds."""
+        """Add ``robot``'s body, named ``name``, to the world ``builder`` builds, standing
+        at ``start``."""
         base = add_diff_drive_body(builder.spec, robot, f"{name}/", seen_up_to)
-        builder.attach(name, base, robot.footprint_radius, robot.lidar.range_max)
+        builder.attach(name, base, robot.footprint_radius, robot.lidar.range_max, start)
 
     @classmethod
     def alone(
@@ -49,9 +50,9 @@ class DiffDriveBody:
         """``robot`` alone in ``world`` at ``start``: a world with one robot."""
         config = config or SimConfig()
         builder = world_builder(world, [robot], config)
-        cls.add_to(builder, "robot", robot, hull_top(robot))
+        cls.add_to(builder, "robot", robot, start, hull_top(robot))
         sim = builder.build()
-        body = cls(sim, "robot", robot, start, config, rng)
+        body = cls(sim, "robot", robot, config, rng)
         sim.start()
         return body
 
@@ -60,14 +61,14 @@ class DiffDriveBody:
         world: SimulatedWorld,
         name: str,
         robot: RobotDescription,
-        start: Pose2D,
         config: SimConfig | None = None,
         rng: np.random.Generator | None = None,
         imu_rng: np.random.Generator | None = None,
     ) -> None:
-        """Take hold of the body ``name`` of ``world`` and place it at ``start`` (call
-        ``world.start()`` once every body is placed). The IMU draws from ``imu_rng`` (its
-        own stream, so the lidar's and the encoders' draws do not depend on it)."""
+        """Take hold of the body ``name`` of ``world``, standing where the world was built
+        with it (call ``world.start()`` once every body has its sensors). The IMU draws
+        from ``imu_rng`` (its own stream, so the lidar's and the encoders' draws do not
+        depend on it)."""
         self.world = world
         self.name = name
         self.robot = robot
@@ -80,7 +81,6 @@ class DiffDriveBody:
             for side in ("left", "right")
         ]
         self._command = (0.0, 0.0)
-        world.place(self.body, start)
         cfg, lidar, enc = self.config, robot.lidar, robot.encoder
         self.lidar = Lidar(
             world,

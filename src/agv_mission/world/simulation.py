@@ -67,16 +67,24 @@ class WorldBuilder:
         self.spec = world_spec(world, timestep, bodies, fastest_mode)
         self.windows = bodies
         self._bodies: list[tuple[str, str, float, float]] = []
+        self._starts: list[Pose2D] = []
 
-    def attach(self, name: str, base: str, radius: float, sight: float) -> None:
+    def attach(self, name: str, base: str, radius: float, sight: float, start: Pose2D) -> None:
         """Register the body ``base`` (already added to :attr:`spec`) as ``name``, with
-        its planar footprint ``radius`` and the range ``sight`` its sensors see."""
+        its planar footprint ``radius``, the range ``sight`` its sensors see and the pose
+        it stands at when the world is built."""
         if any(n == name for n, *_ in self._bodies):
             raise ValueError(f"the world already has a body named {name!r}")
         self._bodies.append((name, base, radius, sight))
+        self._starts.append(start)
 
     def build(self) -> SimulatedWorld:
-        return SimulatedWorld(self.world, self.spec.compile(), self._bodies, self.windows)
+        """The world, every body standing at its start (call :meth:`SimulatedWorld.start`
+        once the bodies' sensors are made)."""
+        sim = SimulatedWorld(self.world, self.spec.compile(), self._bodies, self.windows)
+        for body, start in zip(sim.bodies.values(), self._starts, strict=True):
+            sim.place(body, start)
+        return sim
 
 
 class SimulatedWorld:

@@ -159,7 +159,6 @@ class RobotStack:
             world,
             setup.name,
             robot,
-            setup.start,
             loaded.mission.simulation,
             seeds[0],
             use_imu=setup.stack.odometry.imu,
@@ -317,7 +316,7 @@ def build_world(loaded: LoadedMission) -> tuple[SimulatedWorld, list[RobotStack]
     """The mission's world with every robot's body in it, and each robot's stack."""
     setups = loaded.robots
     builder = robots_world(
-        loaded.world, [(s.name, s.robot) for s in setups], loaded.mission.simulation
+        loaded.world, [(s.name, s.robot, s.start) for s in setups], loaded.mission.simulation
     )
     if loaded.people:
         add_people(builder.spec, [g.radius for g in loaded.people for _ in range(g.count)])

@@ -8,18 +8,13 @@ import numpy as np
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.worlds import World
-from agv_mission.robots.body import LIFTED_WHEEL_TAU, add_diff_drive_body, hull_top
+from agv_mission.robots.body import diff_drive_shape
 from agv_mission.robots.description import RobotDescription
 from agv_mission.robots.sensors import Imu, ImuSamples, Lidar, WheelEncoders
 from agv_mission.robots.sim_config import SimConfig
 from agv_mission.sensor_msgs import LaserScan
-from agv_mission.world.simulation import Body, SimulatedWorld, WorldBuilder
-
-
-def world_builder(world: World, robots: list[RobotDescription], config: SimConfig) -> WorldBuilder:
-    """A builder of ``world`` ready for ``robots``' bodies (add them with
-    :meth:`DiffDriveBody.add_to`)."""
-    return WorldBuilder(world, config.physics_dt, len(robots), fastest_mode=LIFTED_WHEEL_TAU)
+from agv_mission.world.body import diff_drive_world
+from agv_mission.world.simulation import Body, SimulatedWorld
 
 
 class DiffDriveBody:
@@ -28,15 +23,6 @@ class DiffDriveBody:
     Deterministic: the same robot, world, start, config and rng seed, with the same call
     sequence, give bit-identical trajectories and sensor readings.
     """
-
-    @staticmethod
-    def add_to(
-        builder: WorldBuilder, name: str, robot: RobotDescription, start: Pose2D, seen_up_to: float
-    ) -> None:
-        """Add ``robot``'s body, named ``name``, to the world ``builder`` builds, standing
-        at ``start``."""
-        base = add_diff_drive_body(builder.spec, robot, f"{name}/", seen_up_to)
-        builder.attach(name, base, robot.footprint_radius, robot.lidar.range_max, start)
 
     @classmethod
     def alone(
@@ -49,9 +35,9 @@ class DiffDriveBody:
     ) -> DiffDriveBody:
         """``robot`` alone in ``world`` at ``start``: a world with one robot."""
         config = config or SimConfig()
-        builder = world_builder(world, [robot], config)
-        cls.add_to(builder, "robot", robot, start, hull_top(robot))
-        sim = builder.build()
+        sim = diff_drive_world(
+            world, config.physics_dt, [("robot", diff_drive_shape(robot), start)]
+        ).build()
         body = cls(sim, "robot", robot, config, rng)
         sim.start()
         return body

@@ -11,12 +11,13 @@ import numpy as np
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.worlds import World
-from agv_mission.robots.body import hull_top
+from agv_mission.robots.body import diff_drive_shape
 from agv_mission.robots.description import RobotDescription
-from agv_mission.robots.diff_drive import DiffDriveBody, world_builder
+from agv_mission.robots.diff_drive import DiffDriveBody
 from agv_mission.robots.odometry import DiffDriveOdometry, GyroFusedOdometry
 from agv_mission.robots.sensors import ImuSamples
 from agv_mission.robots.sim_config import SimConfig
+from agv_mission.world.body import diff_drive_world
 from agv_mission.world.simulation import SimulatedWorld, WorldBuilder
 
 
@@ -25,11 +26,8 @@ def robots_world(
 ) -> WorldBuilder:
     """A builder of ``world`` with every robot's body in it (``robots``: name,
     description, start), each lidar seeing over the tallest hull."""
-    seen = max(hull_top(robot) for _, robot, _ in robots)
-    builder = world_builder(world, [robot for _, robot, _ in robots], config)
-    for name, robot, start in robots:
-        DiffDriveBody.add_to(builder, name, robot, start, seen)
-    return builder
+    bodies = [(name, diff_drive_shape(robot), start) for name, robot, start in robots]
+    return diff_drive_world(world, config.physics_dt, bodies)
 
 
 def new_odometry(robot: RobotDescription, use_imu: bool = True) -> DiffDriveOdometry:

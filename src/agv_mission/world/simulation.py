@@ -1,7 +1,7 @@
 """The simulated world: one MuJoCo model, every body in it, physics stepped once for all.
 
 The world owns the model and its data; robots are attached to it as bodies (see
-:mod:`agv_mission.robots.body`) and read and command them through a :class:`Body`. It
+:mod:`agv_mission.world.body`) and read and command them through a :class:`Body`. It
 answers what only the world can: ray casts (every lidar sees walls and every other
 body), contacts between bodies and with walls, and clearances.
 """

@@ -88,7 +88,7 @@ def test_fleet_input_errors_name_the_robot_field(tmp_path):
 def test_every_lidar_sees_the_other_robots(tmp_path):
     text = FLEET.format(x1=1.0).replace("x: 2.0, y: 0.5", "x: 2.0, y: -0.5")
     loaded = load_mission(fleet_file(tmp_path, text))  # agv1 faces agv2, 1 m ahead
-    world, stacks = build_world(loaded)
+    world, stacks, _ = build_world(loaded)
     agv1, agv2 = stacks
     ranges = agv1.sim.scan().ranges
     ahead = float(np.nanmin(ranges[np.r_[0:5, -5:0]]))

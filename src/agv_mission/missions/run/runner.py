@@ -121,7 +121,7 @@ class MissionRun:
         self.mission = loaded.mission
         self.run_dir = run_dir
         self.observers = list(observers)
-        self.world, stacks = build_world(loaded)
+        self.world, stacks, crowd = build_world(loaded)
         recorders = open_recorders(loaded, run_dir)
         self.robots = [
             RobotRun(loaded, stack, run_dir, recorders, bool(self.observers), traffic=fleet)
@@ -131,9 +131,7 @@ class MissionRun:
         # who decides where: here until :meth:`drive` forks robot processes
         self.team: RobotTeam = InlineTeam(self.robots, bool(self.observers))
         self._samples: list[StepSample] = []  # the latest step's, not yet observed
-        self.people = (
-            PeopleRun(loaded.people, self.world, self.mission.seed) if loaded.people else None
-        )
+        self.people = PeopleRun(crowd, self.world) if crowd is not None else None
         # The fleet's own log (fleet.md): what the fleet layer dispatched, waits, deadlocks,
         # and the robots' contacts with each other.
         self.fleet_log: dict[str, Any] = {

@@ -38,10 +38,12 @@ from agv_mission.robots.drive_base import DriveBase, robots_world
 from agv_mission.robots.odometry import GyroFusedOdometry
 from agv_mission.robots.sensors import ImuSamples
 from agv_mission.sensor_msgs import LaserScan
+from agv_mission.world.crowd import Crowd
 from agv_mission.world.model import add_people
 from agv_mission.world.simulation import SimulatedWorld
 
 CONTROL_PERIOD = 0.1
+PEOPLE_STREAM = 0x9E0_91E  # the people's random stream: the seed's, apart from the robots'
 #: amcl's refinement's heading noise when the odometry fuses a MEMS gyro: rad sd after a
 #: radian turned and after a metre driven. The MPU-9250's angle random walk and residual
 #: bias (see robots.description) give ~2e-4 rad per radian turned at 1 rad/s and ~5e-4
@@ -312,8 +314,9 @@ class RobotStack:
         self._between.append(Sensing(sim.time, odom, scan, sim.true_pose(), (), imu))
 
 
-def build_world(loaded: LoadedMission) -> tuple[SimulatedWorld, list[RobotStack]]:
-    """The mission's world with every robot's body in it, and each robot's stack."""
+def build_world(loaded: LoadedMission) -> tuple[SimulatedWorld, list[RobotStack], Crowd | None]:
+    """The mission's world with every robot's body and its people in it, each robot's
+    stack, and the crowd walking there (None: the mission has no people)."""
     setups = loaded.robots
     builder = robots_world(
         loaded.world, [(s.name, s.robot, s.start) for s in setups], loaded.mission.simulation
@@ -321,12 +324,16 @@ def build_world(loaded: LoadedMission) -> tuple[SimulatedWorld, list[RobotStack]
     if loaded.people:
         add_people(builder.spec, [g.radius for g in loaded.people for _ in range(g.count)])
     world = builder.build()
+    crowd = None
+    if loaded.people:  # clear of the robots, standing where the world was built with them
+        people_seed = np.random.SeedSequence([loaded.mission.seed, PEOPLE_STREAM])
+        crowd = Crowd.in_world(loaded.people, world, np.random.default_rng(people_seed))
     root = np.random.SeedSequence(loaded.mission.seed)
     stacks = []
     for setup in setups:
         stacks.append(RobotStack(loaded, setup, world, root.spawn(4)))
     world.start()
-    return world, stacks
+    return world, stacks, crowd
 
 
 def open_recorders(

@@ -335,6 +335,45 @@ class LocationRecorder:
         return lock
 
 
+def open_recorders(
+    run_dir: Path | None,
+    mission_file: RecorderFile | None,
+    recorder_file: Path | None = None,
+    append: Path | None = None,
+) -> list[LocationRecorder]:
+    """The recorders a session writes room poses into, the one to show first.
+
+    * ``recorder_file``: record straight into it, appending to its entries when it exists
+      (as the seed's service does); ``append`` may only name that same file.
+    * else ``run_dir/location_recorder.yaml`` (when there is a run directory), starting from
+      ``append``'s entries, or from those of ``mission_file`` (the mission's ``recorder``
+      file, as it was read when the mission loaded), which is then also updated in place.
+
+    Raises :class:`RecorderFileError` for a clash of ``recorder_file`` and ``append``.
+    """
+    if recorder_file is not None:
+        exists = recorder_file.exists()
+        if append is not None and exists and append.resolve() != recorder_file.resolve():
+            raise RecorderFileError(
+                recorder_file,
+                f"exists and would be replaced by the entries of {append}; "
+                "--recorder appends to an existing file by itself",
+            )
+        initial = append if append is not None else (recorder_file if exists else None)
+        start = RecorderFile.read(initial) if initial is not None else None
+        return [LocationRecorder(recorder_file, start)]
+    if append is not None:
+        if run_dir is None:
+            raise ValueError("appending needs a run directory or a recorder file")
+        return [LocationRecorder(run_dir / RECORDER_FILENAME, RecorderFile.read(append))]
+    recorders = []
+    if run_dir is not None:
+        recorders.append(LocationRecorder(run_dir / RECORDER_FILENAME, mission_file))
+    if mission_file is not None:
+        recorders.append(LocationRecorder(mission_file.path, mission_file))
+    return recorders
+
+
 def _signature(st: os.stat_result) -> tuple[int, int, int]:
     return (st.st_ino, st.st_size, st.st_mtime_ns)
 

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from agv_mission.localization.base import Localizer
+from agv_mission.maps.recorder import open_recorders
 from agv_mission.missions.load.resolved import Layout, LoadedMission
 from agv_mission.missions.run.behaviour_tree import MissionTree
 from agv_mission.missions.run.errors import RunStopped
@@ -36,12 +37,7 @@ from agv_mission.missions.run.people_record import PeopleRun
 from agv_mission.missions.run.record import RunRecord, bare_record
 from agv_mission.missions.run.robot_run import RobotRun
 from agv_mission.missions.run.samples import StepSample, tree_nodes
-from agv_mission.missions.run.stack import (
-    CONTROL_PERIOD,
-    RobotStack,
-    build_world,
-    open_recorders,
-)
+from agv_mission.missions.run.stack import CONTROL_PERIOD, RobotStack, build_world
 from agv_mission.missions.run.team import InlineTeam, RobotTeam, team_size
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import Navigator
@@ -122,7 +118,7 @@ class MissionRun:
         self.run_dir = run_dir
         self.observers = list(observers)
         self.world, stacks, crowd = build_world(loaded)
-        recorders = open_recorders(loaded, run_dir)
+        recorders = open_recorders(run_dir, loaded.recorder)
         self.robots = [
             RobotRun(loaded, stack, run_dir, recorders, bool(self.observers), traffic=fleet)
             for stack in stacks

@@ -1,6 +1,5 @@
-"""A run directory's whole life, as every front door lives it: the mission written into
-it, the run, every output (``run``, ``regress``, the service's worker and ``barn`` each
-ran these steps themselves, in this order)."""
+"""A run directory's whole life, as every front door (``run``, ``regress``, the service's
+worker, ``barn``) lives it: the mission written into it, the run, every output."""
 
 from __future__ import annotations
 

@@ -17,7 +17,8 @@ import pytest
 
 from agv_mission.behaviors.ports import NodePorts
 from agv_mission.missions.load.loader import load_mission
-from agv_mission.missions.report.outputs import make_run_dir, write_run
+from agv_mission.missions.report.directory import ResultNotWritten, run_in, run_under
+from agv_mission.missions.report.outputs import RunDirError, make_run_dir, write_run
 from agv_mission.missions.run.runner import run_mission
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.registry import registry
@@ -236,3 +237,17 @@ def test_tree_txt_has_no_terminal_colour_codes(tmp_path: Path) -> None:
     [run_dir] = list(out.iterdir())
     text = (run_dir / "tree.txt").read_text()
     assert "mission" in text and "\x1b[" not in text
+
+
+def test_a_run_directory_that_cannot_be_made_or_hold_its_result_is_said_so(
+    tmp_path: Path,
+) -> None:
+    loaded = load_mission(mission_file(tmp_path, SHORT), ["limits.time=1.0"])
+    (tmp_path / "a_file").write_text("")
+    with pytest.raises(RunDirError, match="cannot create a run directory"):
+        run_under(tmp_path / "a_file", loaded)
+    run_dir = tmp_path / "run"
+    (run_dir / "result.json").mkdir(parents=True)  # the rename over it fails
+    with pytest.raises(ResultNotWritten, match="result.json"):
+        run_in(run_dir, loaded)
+    assert (run_dir / "mission.yaml").is_file()  # written before the run

@@ -31,6 +31,7 @@ from agv_mission.bags.offline import default_slam, map_bag, slam_config
 from agv_mission.bags.writer import BagWriter
 from agv_mission.mapping.quality import map_quality
 from agv_mission.missions.load.loader import load_mission
+from agv_mission.missions.run.observe import RunObserver
 from agv_mission.missions.run.runner import run_mission
 
 HERE = Path(__file__).resolve().parent
@@ -64,25 +65,27 @@ def _write_cost(root: Path) -> dict[str, float]:
     }
 
 
-class _TimedWriter(BagWriter):
-    """The bag writer with its observer calls timed (wall clock: they run alone, between
-    the robots' steps)."""
+class _Timed:
+    """An observer with its calls timed (wall clock: they run alone, between the robots'
+    steps)."""
 
-    seconds = 0.0
+    def __init__(self, observer: RunObserver) -> None:
+        self.observer = observer
+        self.seconds = 0.0
 
     def on_start(self, start: Any) -> None:
         t0 = time.perf_counter()
-        super().on_start(start)
+        self.observer.on_start(start)
         self.seconds += time.perf_counter() - t0
 
     def on_step(self, sample: Any) -> None:
         t0 = time.perf_counter()
-        super().on_step(sample)
+        self.observer.on_step(sample)
         self.seconds += time.perf_counter() - t0
 
     def on_end(self, record: Any) -> None:
         t0 = time.perf_counter()
-        super().on_end(record)
+        self.observer.on_end(record)
         self.seconds += time.perf_counter() - t0
 
 
@@ -98,8 +101,8 @@ def _fleet_write(
         loaded = load_mission(path)
         run_dir = root / f"fleet{n}"
         run_dir.mkdir()
-        writer = _TimedWriter()
-        record = run_mission(loaded, run_dir, observers=[writer.prepare()])
+        writer = _Timed(BagWriter().prepare())
+        record = run_mission(loaded, run_dir, observers=[writer])
         per = n * record.sim_time
         key = f"bags.fleet_write.robots{n}"
         out[f"{key}.writer_ms_per_robot_sim_s"] = round(writer.seconds * 1e3 / per, 3)

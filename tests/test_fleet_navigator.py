@@ -29,7 +29,7 @@ def _navigator(tmp_path):
         "stack: {localization: {type: ground_truth}, local_planner: {type: pure_pursuit}}\n"
         "tasks: [{type: go_to, pose: {x: 4.5, y: 0.0}}]\n"
     )
-    _, stacks = build_world(load_mission(path))
+    _, stacks, _ = build_world(load_mission(path))
     nav = stacks[0].build_navigator()
     state = RobotState(time=0.0, estimate=START, velocity=(0.2, 0.0))
     nav.start(GOAL, state)

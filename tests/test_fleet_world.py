@@ -88,7 +88,7 @@ def test_fleet_input_errors_name_the_robot_field(tmp_path):
 def test_every_lidar_sees_the_other_robots(tmp_path):
     text = FLEET.format(x1=1.0).replace("x: 2.0, y: 0.5", "x: 2.0, y: -0.5")
     loaded = load_mission(fleet_file(tmp_path, text))  # agv1 faces agv2, 1 m ahead
-    world, stacks = build_world(loaded)
+    world, stacks, _ = build_world(loaded)
     agv1, agv2 = stacks
     ranges = agv1.sim.scan().ranges
     ahead = float(np.nanmin(ranges[np.r_[0:5, -5:0]]))
@@ -103,11 +103,15 @@ def test_robots_touching_count_as_robot_robot_collisions(tmp_path):
     loaded = load_mission(fleet_file(tmp_path, text), ["limits.collisions=5"])
     run = MissionRun(loaded, None)
     agv1, agv2 = run.robots
+    where = []  # the burger's pose whenever a new touch was logged
     for _ in range(40):  # drive the burger straight into the waffle, blind
         now = run.world.time
         for r in run.robots:
             r.decide(now)
+        logged = len(run.fleet_log["robot_robot_collisions"])
         run._watch_robots(now)
+        if len(run.fleet_log["robot_robot_collisions"]) > logged:
+            where.append(agv1.sim.true_pose())
         agv1.sim.set_command(0.2, 0.0)
         agv2.sim.set_command(0.0, 0.0)
         run.world.step(10)
@@ -115,6 +119,8 @@ def test_robots_touching_count_as_robot_robot_collisions(tmp_path):
     assert log["robot_robot_collisions"], "the robots touched"
     assert log["robot_robot_min_distance"] < 0.01
     assert log["robot_robot_collisions"][0]["robots"] == ["agv1", "agv2"]
+    first = log["robot_robot_collisions"][0]  # logged where the first of the two stood
+    assert (first["x"], first["y"]) == (round(where[0].x, 3), round(where[0].y, 3))
 
 
 def test_fleet_run_writes_results_per_robot(tmp_path):

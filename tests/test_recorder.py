@@ -18,6 +18,7 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.recorder import (
     RECORDER_FILENAME,
     LocationRecorder,
+    RecorderFile,
     RecorderFileError,
     entry_pose,
     pose_entry,
@@ -101,14 +102,14 @@ def test_append_to_an_existing_file(tmp_path: Path) -> None:
     old.write_text(CONTRACT_EXAMPLE)
     # into another file: the old file is left as it was
     new = tmp_path / "run" / RECORDER_FILENAME
-    rec = LocationRecorder(new, initial=old)
+    rec = LocationRecorder(new, RecorderFile.read(old))
     assert rec.entries == {"livingroom": Pose2D(3.8314, -1.2344, 0.0)}
     rec.record("kitchen", Pose2D(7.0, -2.0, 0.0))
     assert list(yaml.safe_load(new.read_text())) == ["livingroom", "kitchen"]
     assert old.read_text() == CONTRACT_EXAMPLE
     assert new.read_text().startswith(CONTRACT_EXAMPLE)
     # into the same file, as the seed's service does
-    rec = LocationRecorder(old, initial=old)
+    rec = LocationRecorder(old, RecorderFile.read(old))
     rec.record("bedroom", Pose2D(-5.5, -1.5, 0.0))
     assert old.read_text().startswith(CONTRACT_EXAMPLE)
     assert list(yaml.safe_load(old.read_text())) == ["livingroom", "bedroom"]
@@ -117,13 +118,13 @@ def test_append_to_an_existing_file(tmp_path: Path) -> None:
     hand.write_text(
         "kitchen:\n    position: {x: 7, y: -2, z: 0}\n    orientation: {x: 0, y: 0, z: 0, w: 1}\n"
     )
-    rec = LocationRecorder(tmp_path / "out.yaml", initial=hand)
+    rec = LocationRecorder(tmp_path / "out.yaml", RecorderFile.read(hand))
     rec.save()
     assert yaml.safe_load((tmp_path / "out.yaml").read_text())["kitchen"]["position"]["x"] == 7.0
     # empty files are files with no entries
     empty = tmp_path / "empty.yaml"
     empty.write_text("")
-    assert LocationRecorder(tmp_path / "x.yaml", initial=empty).entries == {}
+    assert LocationRecorder(tmp_path / "x.yaml", RecorderFile.read(empty)).entries == {}
 
 
 @pytest.mark.parametrize(
@@ -154,10 +155,10 @@ def test_a_malformed_file_is_a_clear_error(tmp_path: Path, text: str, expected: 
     bad = tmp_path / "bad.yaml"
     bad.write_text(text)
     with pytest.raises(RecorderFileError) as info:
-        LocationRecorder(tmp_path / "out.yaml", initial=bad)
+        LocationRecorder(tmp_path / "out.yaml", RecorderFile.read(bad))
     assert str(info.value).startswith(f"{bad}: ") and expected in str(info.value)
     with pytest.raises(RecorderFileError, match="not found"):
-        LocationRecorder(tmp_path / "out.yaml", initial=tmp_path / "missing.yaml")
+        LocationRecorder(tmp_path / "out.yaml", RecorderFile.read(tmp_path / "missing.yaml"))
 
 
 def test_bad_labels_and_poses_are_refused_without_touching_the_file(tmp_path: Path) -> None:
@@ -177,13 +178,13 @@ WRITER = """
 import sys
 from pathlib import Path
 from agv_mission.geometry import Pose2D
-from agv_mission.maps.recorder import LocationRecorder, dump_entries, pose_entry
+from agv_mission.maps.recorder import LocationRecorder, RecorderFile, dump_entries, pose_entry
 
 path = Path(sys.argv[1])
 if not path.exists():
     rooms = {f"room_{i}": pose_entry(Pose2D(float(i), -float(i), 0.0)) for i in range(300)}
     path.write_text(dump_entries(rooms))
-rec = LocationRecorder(path, initial=path)
+rec = LocationRecorder(path, RecorderFile.read(path))
 n = int(rec.entries["counter"].x) + 1 if "counter" in rec else 0
 print("ready", n, flush=True)
 while True:
@@ -221,7 +222,7 @@ def test_sigkill_while_writing_leaves_the_previous_or_the_new_file(tmp_path: Pat
         # the last completed record, or the one being written when the kill came
         counter = doc["counter"]["position"]["x"] if "counter" in doc else -1.0
         assert counter in (float(last), float(last + 1)), (counter, done[-3:])
-        assert LocationRecorder(path, initial=path).labels == list(doc)
+        assert LocationRecorder(path, RecorderFile.read(path)).labels == list(doc)
     assert rounds_with_records >= 2  # the kills did land among writes
 
 
@@ -232,7 +233,7 @@ def test_comments_and_other_entries_keep_their_bytes(tmp_path: Path) -> None:
         CONTRACT_EXAMPLE.split("\n", 1)[1], ""
     )
     path.write_text(header + CONTRACT_EXAMPLE + "\n# the kitchen\n" + kitchen + "# end\n")
-    rec = LocationRecorder(path, initial=path)
+    rec = LocationRecorder(path, RecorderFile.read(path))
     rec.record("livingroom", Pose2D(1.0, 2.0, 0.0))
     rec.record("bedroom", Pose2D(3.0, 4.0, 0.0))
     text = path.read_text()
@@ -247,10 +248,10 @@ def test_comments_and_other_entries_keep_their_bytes(tmp_path: Path) -> None:
 def test_a_flow_style_or_empty_file_is_appended_to(tmp_path: Path) -> None:
     path = tmp_path / RECORDER_FILENAME
     path.write_text("# nothing yet\n{}\n")
-    LocationRecorder(path, initial=path).record("kitchen", Pose2D(1.0, 0.0, 0.0))
+    LocationRecorder(path, RecorderFile.read(path)).record("kitchen", Pose2D(1.0, 0.0, 0.0))
     assert path.read_text().startswith("# nothing yet\nkitchen:\n")
     path.write_text("# only a comment")
-    LocationRecorder(path, initial=path).record("kitchen", Pose2D(1.0, 0.0, 0.0))
+    LocationRecorder(path, RecorderFile.read(path)).record("kitchen", Pose2D(1.0, 0.0, 0.0))
     assert path.read_text().startswith("# only a comment\nkitchen:\n")
     assert list(yaml.safe_load(path.read_text())) == ["kitchen"]
 
@@ -262,7 +263,7 @@ def test_a_symlinked_recorder_file_gets_the_entry_through_the_link(tmp_path: Pat
     target.chmod(0o644)
     link = tmp_path / "link.yaml"
     link.symlink_to(target)
-    LocationRecorder(link, initial=link).record("kitchen", Pose2D(1.0, 0.0, 0.0))
+    LocationRecorder(link, RecorderFile.read(link)).record("kitchen", Pose2D(1.0, 0.0, 0.0))
     assert link.is_symlink()
     assert list(yaml.safe_load(target.read_text())) == ["livingroom", "kitchen"]
     assert target.stat().st_mode & 0o777 == 0o644
@@ -273,10 +274,10 @@ CONCURRENT_WRITER = """
 import sys
 from pathlib import Path
 from agv_mission.geometry import Pose2D
-from agv_mission.maps.recorder import LocationRecorder
+from agv_mission.maps.recorder import LocationRecorder, RecorderFile
 
 path, who, n = Path(sys.argv[1]), sys.argv[2], int(sys.argv[3])
-rec = LocationRecorder(path, initial=path if path.exists() else None)
+rec = LocationRecorder(path, RecorderFile.read(path) if path.exists() else None)
 print("ready", flush=True)
 sys.stdin.readline()  # all start together
 for i in range(n):

@@ -10,12 +10,18 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Literal
 
+import py_trees
 import pytest
 
+from agv_mission.behaviors.ports import NodePorts
 from agv_mission.missions.load.loader import load_mission
-from agv_mission.missions.report.outputs import make_run_dir, write_run
+from agv_mission.missions.report.directory import ResultNotWritten, run_in, run_under
+from agv_mission.missions.report.outputs import RunDirError, make_run_dir, write_run
 from agv_mission.missions.run.runner import run_mission
+from agv_mission.navigation.handle import RobotHandle
+from agv_mission.registry import registry
 from mission_texts import ENDLESS_PATROL, mission_file, tb3_mission
 
 EXE = [sys.executable, "-m", "agv_mission.cli"]
@@ -32,7 +38,8 @@ CRASH = tb3_mission(
     "simulation: {ideal: true, lidar_noise: 0.01}\n"
 )
 
-SHORT = tb3_mission("{type: go_to, pose: {x: -1.7, y: -0.5, yaw: 0.0}}", limits="{time: 30.0}")
+GO_SHORT = "{type: go_to, pose: {x: -1.7, y: -0.5, yaw: 0.0}}"
+SHORT = tb3_mission(GO_SHORT, limits="{time: 30.0}")
 
 
 def start_run(mission: Path, out: Path) -> subprocess.Popen:
@@ -146,15 +153,31 @@ def test_an_exception_before_the_first_row_still_gives_a_result(tmp_path: Path) 
     assert result["metrics"]["localization"]["position_rmse"] is None
 
 
+class _RefusesToStart(py_trees.behaviour.Behaviour):
+    """A third-party node that cannot start (as one whose device is unreachable)."""
+
+    class Config(NodePorts):
+        type: Literal["refuses_to_start"] = "refuses_to_start"
+
+    def __init__(self, name: str, handle: RobotHandle) -> None:
+        raise RuntimeError("the node's device cannot be reached")
+
+    def update(self) -> py_trees.common.Status:
+        return py_trees.common.Status.SUCCESS
+
+
 def test_a_failing_set_up_still_gives_a_result(tmp_path: Path) -> None:
-    """The recorder file vanishes between validation and the run: the set-up fails."""
-    recorder = tmp_path / "rec.yaml"
-    recorder.write_text("{}\n")
-    loaded = load_mission(mission_file(tmp_path, SHORT + "recorder: rec.yaml\n"))
-    recorder.unlink()
+    """The mission is valid, but one of its nodes fails while the run is set up."""
+    if "refuses_to_start" not in registry.names("behavior"):
+        registry.register("behavior", "refuses_to_start")(_RefusesToStart)
+    text = SHORT.replace(
+        f"tasks:\n  - {GO_SHORT}\n",
+        "tree: {type: sequence, children: [{type: refuses_to_start}]}\n",
+    )
+    loaded = load_mission(mission_file(tmp_path, text))
     record = run_mission(loaded, make_run_dir(tmp_path / "out", loaded.name))
-    assert record.status == "error" and "recorder file not found" in (record.reason or "")
-    assert [t["status"] for t in record.tasks] == ["not_run"]
+    assert record.status == "error" and "device cannot be reached" in (record.reason or "")
+    assert record.trajectory.shape == (0, 9) and record.sim_time == 0.0
 
 
 def test_a_plot_that_cannot_be_written_keeps_the_result(tmp_path: Path) -> None:
@@ -214,3 +237,17 @@ def test_tree_txt_has_no_terminal_colour_codes(tmp_path: Path) -> None:
     [run_dir] = list(out.iterdir())
     text = (run_dir / "tree.txt").read_text()
     assert "mission" in text and "\x1b[" not in text
+
+
+def test_a_run_directory_that_cannot_be_made_or_hold_its_result_is_said_so(
+    tmp_path: Path,
+) -> None:
+    loaded = load_mission(mission_file(tmp_path, SHORT), ["limits.time=1.0"])
+    (tmp_path / "a_file").write_text("")
+    with pytest.raises(RunDirError, match="cannot create a run directory"):
+        run_under(tmp_path / "a_file", loaded)
+    run_dir = tmp_path / "run"
+    (run_dir / "result.json").mkdir(parents=True)  # the rename over it fails
+    with pytest.raises(ResultNotWritten, match="result.json"):
+        run_in(run_dir, loaded)
+    assert (run_dir / "mission.yaml").is_file()  # written before the run

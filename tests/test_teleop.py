@@ -18,11 +18,15 @@ import yaml
 
 from agv_mission.geometry import wrap_angle
 from agv_mission.maps.builtin_worlds import HOUSE_SPAWN
-from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder
+from agv_mission.maps.recorder import (
+    RECORDER_FILENAME,
+    LocationRecorder,
+    RecorderFile,
+    open_recorders,
+)
 from agv_mission.maps.rooms import room_at
 from agv_mission.missions.load.loader import load_mission
 from agv_mission.missions.run.runner import MissionRun, run_mission
-from agv_mission.missions.run.stack import open_recorders
 from agv_mission.planners.base import VelocityLimits
 from agv_mission.teleop.session import load_teleop_mission, teleop_mission
 from agv_mission.teleop.terminal import TeleopKeys, split_keys
@@ -122,20 +126,20 @@ def test_teleop_task_with_a_duration_ends_and_stands_still_without_commands(
 
 def test_open_recorders_targets(tmp_path: Path) -> None:
     loaded = load_teleop_mission()
-    [rec] = open_recorders(loaded, tmp_path, None, None)
+    [rec] = open_recorders(tmp_path, loaded.recorder, None, None)
     assert rec.path == tmp_path / RECORDER_FILENAME and len(rec) == 0
     direct = tmp_path / "direct.yaml"
     LocationRecorder(direct).record("kitchen", HOUSE_SPAWN)
-    [rec] = open_recorders(loaded, None, direct, None)
+    [rec] = open_recorders(None, loaded.recorder, direct, None)
     assert rec.path == direct and rec.labels == ["kitchen"]  # appends to itself
     with pytest.raises(ValueError, match="replaced by the entries"):
-        open_recorders(loaded, None, direct, tmp_path / "other.yaml")
-    [rec] = open_recorders(loaded, tmp_path / "run", None, direct)
+        open_recorders(None, loaded.recorder, direct, tmp_path / "other.yaml")
+    [rec] = open_recorders(tmp_path / "run", loaded.recorder, None, direct)
     assert rec.path.parent == tmp_path / "run" and rec.labels == ["kitchen"]
     # the mission's recorder key: the run directory's copy, and the file updated in place
     mission = tmp_path / "m.yaml"
     mission.write_text("world: small_house\nrecorder: direct.yaml\n")
-    run_copy, in_place = open_recorders(load_teleop_mission(mission), tmp_path / "run2")
+    run_copy, in_place = open_recorders(tmp_path / "run2", load_teleop_mission(mission).recorder)
     assert run_copy.path == tmp_path / "run2" / RECORDER_FILENAME and in_place.path == direct
     assert run_copy.labels == in_place.labels == ["kitchen"]
 
@@ -339,7 +343,7 @@ def test_tmux_drive_into_the_kitchen_record_it_and_quit(tmux: Tmux, tmp_path: Pa
     assert list(doc["kitchen"]) == ["position", "orientation"]
     assert list(doc["kitchen"]["position"]) == ["x", "y", "z"]
     assert list(doc["kitchen"]["orientation"]) == ["x", "y", "z", "w"]
-    pose = LocationRecorder(recorder, recorder).entries["kitchen"]
+    pose = LocationRecorder(recorder, RecorderFile.read(recorder)).entries["kitchen"]
     kitchen = load_teleop_mission().rooms["kitchen"]
     assert kitchen.contains(pose.x, pose.y)
     assert (pose.x, pose.y) == pytest.approx((here["x"], here["y"]), abs=2e-3)

@@ -136,8 +136,7 @@ def run_world(job: dict[str, Any], stop: Any = None) -> dict[str, Any]:
     """Run one world into ``OUTPUT/world_K/``; barn.md's entry for it, never raising (an
     error is a ``failed`` world with ``error`` set)."""
     from agv_mission.missions.load.errors import MissionError
-    from agv_mission.missions.report.outputs import write_mission, write_run
-    from agv_mission.missions.run.runner import run_mission
+    from agv_mission.missions.report.directory import run_in
 
     t0 = time.perf_counter()
     k = job["world"]
@@ -152,11 +151,10 @@ def run_world(job: dict[str, Any], stop: Any = None) -> dict[str, Any]:
         root = scratch if scratch is not None else Path(job["output_root"])
         run_dir = root / f"world_{k}"
         run_dir.mkdir(parents=True, exist_ok=False)
-        write_mission(run_dir, loaded)
         referee = BarnReferee(stop)
         observers = job["observers"](loaded) if job.get("observers") else []
-        record = run_mission(loaded, run_dir, control=referee, observers=observers)
-        result = write_run(run_dir, loaded, record)
+        done = run_in(run_dir, loaded, control=referee, observers=observers)
+        record, result = done.record, done.result
         outcome = referee.outcome(
             record.status,
             record.reason,

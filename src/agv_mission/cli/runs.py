@@ -56,7 +56,8 @@ def run(
         # The run's own machinery, once the input is known good (bad input is told sooner).
         from agv_mission.bags.writer import BagWriter
         from agv_mission.missions.load.resolved import Layout
-        from agv_mission.missions.report.outputs import RunDirError, open_run_dir, write_run
+        from agv_mission.missions.report.directory import ResultNotWritten
+        from agv_mission.missions.report.outputs import RunDirError
         from agv_mission.missions.run.pacing import PacedControl
 
         stopper.phase = "running"  # from here a signal ends the run, with a result
@@ -70,11 +71,6 @@ def run(
     bag = loaded.mission.output.bag and not no_bag
     observers = [BagWriter().prepare()] if bag else []
     root = output if output is not None else Path(loaded.mission.output)
-    try:
-        run_dir = open_run_dir(root, loaded)
-    except RunDirError as exc:
-        where = "--output" if output is not None else f"{loaded.source}: output"
-        raise failure("invalid input", f"{where} {exc}") from None
     if loaded.layout is Layout.FLEET:
         robots = ", ".join(f"{r.name} ({r.robot.name})" for r in loaded.robots)
         out.print(
@@ -87,14 +83,14 @@ def run(
             f"{loaded.world.name} with {loaded.robot.name}, seed {loaded.mission.seed}"
         )
     control = stopper if pace is None else PacedControl(stopper, pace)
-    record = _run_with_progress(loaded, run_dir, control, observers)
-    stopper.phase = "writing"  # a signal now is too late to stop anything: outputs first
     try:
-        result = write_run(run_dir, loaded, record)
-    except Exception as exc:  # noqa: BLE001 (result.json itself could not be written)
-        raise failure(
-            "internal error", f"cannot write {run_dir / 'result.json'}: {exc}", 3
-        ) from None
+        done = _run_with_progress(root, loaded, control, observers)
+    except RunDirError as exc:
+        where = "--output" if output is not None else f"{loaded.source}: output"
+        raise failure("invalid input", f"{where} {exc}") from None
+    except ResultNotWritten as exc:
+        raise failure("internal error", str(exc), 3) from None
+    result, record = done.result, done.record
     print_summary(result)
     for problem in result.get("output_errors", []):
         err.print(f"[yellow]warning[/]: not written: {problem}", highlight=False, markup=False)
@@ -105,9 +101,10 @@ def run(
     raise typer.Exit(code)
 
 
-def _run_with_progress(loaded: Any, run_dir: Path, control: Any, observers: list[Any]) -> Any:
-    """Run the mission with a progress bar of simulated seconds; its record."""
-    from agv_mission.missions.run.runner import run_mission
+def _run_with_progress(root: Path, loaded: Any, control: Any, observers: list[Any]) -> Any:
+    """Run the mission in a new run directory under ``root`` with a progress bar of
+    simulated seconds; the finished run."""
+    from agv_mission.missions.report.directory import run_under
 
     with progress_bar("{task.completed:.1f}/{task.total:.0f} sim s", auto_refresh=False) as bar:
         job = bar.add_task("running", total=loaded.mission.limits.time)
@@ -120,7 +117,7 @@ def _run_with_progress(loaded: Any, run_dir: Path, control: Any, observers: list
                 bar.refresh()
                 shown[0] = now
 
-        return run_mission(loaded, run_dir, progress=progress, control=control, observers=observers)
+        return run_under(root, loaded, progress=progress, control=control, observers=observers)
 
 
 def mission_outline(loaded: Any) -> str:

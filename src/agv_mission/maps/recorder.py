@@ -32,6 +32,7 @@ import contextlib
 import math
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -184,6 +185,26 @@ def load_entries(path: str | os.PathLike[str]) -> dict[str, Entry]:
     return parse_entries(read_text(path), path)
 
 
+@dataclass(frozen=True)
+class RecorderFile:
+    """An existing recorder file as it was read and checked: what a recorder appending to
+    it starts from (a mission's ``recorder:`` is read once, when the mission loads)."""
+
+    path: Path
+    text: str
+    #: the file's signature with the text, if it still held that text once read (a
+    #: recorder writing into this very file then need not parse it again)
+    unchanged: tuple[tuple[int, int, int], str] | None
+
+    @classmethod
+    def read(cls, path: str | os.PathLike[str]) -> RecorderFile:
+        """Read and check ``path``; :class:`RecorderFileError` names what is wrong."""
+        path = Path(path)
+        text = read_text(path)
+        parse_entries(text, path)
+        return cls(path, text, _unchanged_since_read(path, text))
+
+
 def upsert_text(text: str, label: str, entry: Entry) -> str:
     """``text`` with ``label``'s entry replaced where it stands, or appended at the end.
 
@@ -220,24 +241,21 @@ def _last_end(node: yaml.Node) -> int:
 class LocationRecorder:
     """Records poses under room labels into ``path``.
 
-    ``initial``: an existing recorder file whose entries are kept and appended to (it may
-    be ``path`` itself, as the seed's service appends to its own file). Loading checks the
-    layout and raises :class:`RecorderFileError` naming the file, the label and the field.
-    Nothing is written until the first :meth:`record` (or :meth:`save`). A ``path`` that
-    is a symlink is followed: its target is the file written.
+    ``initial``: an existing recorder file (:meth:`RecorderFile.read`) whose entries are
+    kept and appended to (it may be ``path`` itself, as the seed's service appends to its
+    own file). Nothing is written until the first :meth:`record` (or :meth:`save`). A
+    ``path`` that is a symlink is followed: its target is the file written.
     """
 
-    def __init__(
-        self, path: str | os.PathLike[str], initial: str | os.PathLike[str] | None = None
-    ) -> None:
+    def __init__(self, path: str | os.PathLike[str], initial: RecorderFile | None = None) -> None:
         self.path = Path(path)
-        self._initial_text = read_text(initial) if initial is not None else "{}\n"
+        self._initial_text = initial.text if initial is not None else "{}\n"
         self._entries: dict[str, Entry] = parse_entries(
-            self._initial_text, initial if initial is not None else "<empty>"
+            self._initial_text, initial.path if initial is not None else "<empty>"
         )
         self._written: tuple[tuple[int, int, int], str] | None = None  # (signature, text)
-        if initial is not None and _same_file(initial, self.path):
-            self._written = _unchanged_since_read(Path(initial), self._initial_text)
+        if initial is not None and _same_file(initial.path, self.path):
+            self._written = initial.unchanged
 
     @property
     def entries(self) -> dict[str, Pose2D]:
@@ -315,6 +333,45 @@ class LocationRecorder:
         lock = _Lock(str(target.parent / f".{target.name}.lock"), timeout=LOCK_TIMEOUT)
         lock.recorder_path = self.path
         return lock
+
+
+def open_recorders(
+    run_dir: Path | None,
+    mission_file: RecorderFile | None,
+    recorder_file: Path | None = None,
+    append: Path | None = None,
+) -> list[LocationRecorder]:
+    """The recorders a session writes room poses into, the one to show first.
+
+    * ``recorder_file``: record straight into it, appending to its entries when it exists
+      (as the seed's service does); ``append`` may only name that same file.
+    * else ``run_dir/location_recorder.yaml`` (when there is a run directory), starting from
+      ``append``'s entries, or from those of ``mission_file`` (the mission's ``recorder``
+      file, as it was read when the mission loaded), which is then also updated in place.
+
+    Raises :class:`RecorderFileError` for a clash of ``recorder_file`` and ``append``.
+    """
+    if recorder_file is not None:
+        exists = recorder_file.exists()
+        if append is not None and exists and append.resolve() != recorder_file.resolve():
+            raise RecorderFileError(
+                recorder_file,
+                f"exists and would be replaced by the entries of {append}; "
+                "--recorder appends to an existing file by itself",
+            )
+        initial = append if append is not None else (recorder_file if exists else None)
+        start = RecorderFile.read(initial) if initial is not None else None
+        return [LocationRecorder(recorder_file, start)]
+    if append is not None:
+        if run_dir is None:
+            raise ValueError("appending needs a run directory or a recorder file")
+        return [LocationRecorder(run_dir / RECORDER_FILENAME, RecorderFile.read(append))]
+    recorders = []
+    if run_dir is not None:
+        recorders.append(LocationRecorder(run_dir / RECORDER_FILENAME, mission_file))
+    if mission_file is not None:
+        recorders.append(LocationRecorder(mission_file.path, mission_file))
+    return recorders
 
 
 def _signature(st: os.stat_result) -> tuple[int, int, int]:

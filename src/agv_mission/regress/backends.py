@@ -29,19 +29,22 @@ def run_job(job: dict[str, Any]) -> dict[str, Any]:
     Never raises: an exception becomes a result with status ``error``.
     """
     from agv_mission.missions.load.loader import load_mission
+    from agv_mission.missions.report.directory import run_under
     from agv_mission.missions.report.expectations import check
-    from agv_mission.missions.report.outputs import open_run_dir, write_run
-    from agv_mission.missions.run.runner import run_mission
 
     t0 = time.perf_counter()
     shipped = bool(job.get("ship_back"))  # on a remote worker: the run directory comes back
     output_root = Path(tempfile.mkdtemp(prefix="agv-regress-")) if shipped else None
     try:
         loaded = load_mission(job["scenario"], sweep_overrides(job["overrides"]), job["seed"])
-        run_dir = open_run_dir(output_root or Path(job["output_root"]), loaded, job["run_name"])
-        record = run_mission(loaded, run_dir, control=StopControl("regress stopped (Ctrl-C)"))
-        doc = write_run(run_dir, loaded, record)
-        doc = json.loads(json.dumps(doc, default=json_default))  # plain types only
+        done = run_under(
+            output_root or Path(job["output_root"]),
+            loaded,
+            job["run_name"],
+            control=StopControl("regress stopped (Ctrl-C)"),
+        )
+        run_dir = done.run_dir
+        doc = json.loads(json.dumps(done.result, default=json_default))  # plain types only
         failures = [f.to_dict() for f in check(loaded.mission.expect, doc)]
     except MissionError as exc:
         return error_result(job, "invalid input:\n" + "\n".join(map(str, exc.problems)))

@@ -8,18 +8,13 @@ import numpy as np
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.worlds import World
-from agv_mission.robots.body import LIFTED_WHEEL_TAU, add_diff_drive_body, hull_top
+from agv_mission.robots.body import diff_drive_shape
 from agv_mission.robots.description import RobotDescription
 from agv_mission.robots.sensors import Imu, ImuSamples, Lidar, WheelEncoders
 from agv_mission.robots.sim_config import SimConfig
 from agv_mission.sensor_msgs import LaserScan
-from agv_mission.world.simulation import Body, SimulatedWorld, WorldBuilder
-
-
-def world_builder(world: World, robots: list[RobotDescription], config: SimConfig) -> WorldBuilder:
-    """A builder of ``world`` ready for ``robots``' bodies (add them with
-    :meth:`DiffDriveBody.add_to`)."""
-    return WorldBuilder(world, config.physics_dt, len(robots), fastest_mode=LIFTED_WHEEL_TAU)
+from agv_mission.world.body import diff_drive_world
+from agv_mission.world.simulation import Body, SimulatedWorld
 
 
 class DiffDriveBody:
@@ -28,14 +23,6 @@ class DiffDriveBody:
     Deterministic: the same robot, world, start, config and rng seed, with the same call
     sequence, give bit-identical trajectories and sensor readings.
     """
-
-    @staticmethod
-    def add_to(
-        builder: WorldBuilder, name: str, robot: RobotDescription, seen_up_to: float
-    ) -> None:
-        """Add ``robot``'s body, named ``name``, to the world ``builder`` builds."""
-        base = add_diff_drive_body(builder.spec, robot, f"{name}/", seen_up_to)
-        builder.attach(name, base, robot.footprint_radius, robot.lidar.range_max)
 
     @classmethod
     def alone(
@@ -48,10 +35,10 @@ class DiffDriveBody:
     ) -> DiffDriveBody:
         """``robot`` alone in ``world`` at ``start``: a world with one robot."""
         config = config or SimConfig()
-        builder = world_builder(world, [robot], config)
-        cls.add_to(builder, "robot", robot, hull_top(robot))
-        sim = builder.build()
-        body = cls(sim, "robot", robot, start, config, rng)
+        sim = diff_drive_world(
+            world, config.physics_dt, [("robot", diff_drive_shape(robot), start)]
+        ).build()
+        body = cls(sim, "robot", robot, config, rng)
         sim.start()
         return body
 
@@ -60,14 +47,14 @@ class DiffDriveBody:
         world: SimulatedWorld,
         name: str,
         robot: RobotDescription,
-        start: Pose2D,
         config: SimConfig | None = None,
         rng: np.random.Generator | None = None,
         imu_rng: np.random.Generator | None = None,
     ) -> None:
-        """Take hold of the body ``name`` of ``world`` and place it at ``start`` (call
-        ``world.start()`` once every body is placed). The IMU draws from ``imu_rng`` (its
-        own stream, so the lidar's and the encoders' draws do not depend on it)."""
+        """Take hold of the body ``name`` of ``world``, standing where the world was built
+        with it (call ``world.start()`` once every body has its sensors). The IMU draws
+        from ``imu_rng`` (its own stream, so the lidar's and the encoders' draws do not
+        depend on it)."""
         self.world = world
         self.name = name
         self.robot = robot
@@ -80,7 +67,6 @@ class DiffDriveBody:
             for side in ("left", "right")
         ]
         self._command = (0.0, 0.0)
-        world.place(self.body, start)
         cfg, lidar, enc = self.config, robot.lidar, robot.encoder
         self.lidar = Lidar(
             world,

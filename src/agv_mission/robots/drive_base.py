@@ -11,25 +11,23 @@ import numpy as np
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.worlds import World
-from agv_mission.robots.body import hull_top
+from agv_mission.robots.body import diff_drive_shape
 from agv_mission.robots.description import RobotDescription
-from agv_mission.robots.diff_drive import DiffDriveBody, world_builder
+from agv_mission.robots.diff_drive import DiffDriveBody
 from agv_mission.robots.odometry import DiffDriveOdometry, GyroFusedOdometry
 from agv_mission.robots.sensors import ImuSamples
 from agv_mission.robots.sim_config import SimConfig
+from agv_mission.world.body import diff_drive_world
 from agv_mission.world.simulation import SimulatedWorld, WorldBuilder
 
 
 def robots_world(
-    world: World, robots: list[tuple[str, RobotDescription]], config: SimConfig
+    world: World, robots: list[tuple[str, RobotDescription, Pose2D]], config: SimConfig
 ) -> WorldBuilder:
     """A builder of ``world`` with every robot's body in it (``robots``: name,
-    description), each lidar seeing over the tallest hull."""
-    seen = max(hull_top(robot) for _, robot in robots)
-    builder = world_builder(world, [robot for _, robot in robots], config)
-    for name, robot in robots:
-        DiffDriveBody.add_to(builder, name, robot, seen)
-    return builder
+    description, start), each lidar seeing over the tallest hull."""
+    bodies = [(name, diff_drive_shape(robot), start) for name, robot, start in robots]
+    return diff_drive_world(world, config.physics_dt, bodies)
 
 
 def new_odometry(robot: RobotDescription, use_imu: bool = True) -> DiffDriveOdometry:
@@ -62,23 +60,22 @@ class DriveBase:
         world: SimulatedWorld,
         name: str,
         robot: RobotDescription,
-        start: Pose2D,
         config: SimConfig,
         seed: np.random.SeedSequence,
         use_imu: bool = True,
     ) -> DriveBase:
-        """Take hold of body ``name`` of ``world`` at ``start``; its sensors draw from
-        ``seed``'s stream, its IMU from a stream spawned from it."""
+        """Take hold of body ``name`` of ``world``; its sensors draw from ``seed``'s
+        stream, its IMU from a stream spawned from it."""
+        odometry = new_odometry(robot, use_imu)
         body = DiffDriveBody(
             world,
             name,
             robot,
-            start,
             config,
             np.random.default_rng(seed),
             imu_rng=np.random.default_rng(seed.spawn(1)[0]),
         )
-        return cls(body, new_odometry(robot, use_imu))
+        return cls(body, odometry)
 
     def read(self) -> tuple[Pose2D, ImuSamples | None]:
         """The encoders (and the IMU, when the robot has one) read into the odometry."""

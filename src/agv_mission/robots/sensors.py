@@ -1,4 +1,4 @@
-"""Simulated sensors of a robot's body in the world (see :mod:`agv_mission.robots.body`)."""
+"""Simulated sensors of a robot's body in the world (see :mod:`agv_mission.world.body`)."""
 
 from __future__ import annotations
 

@@ -219,6 +219,7 @@ class StreamObserver:
 
     def on_end(self, record: Any) -> None:
         self.sim_time = record.sim_time
+        self.status = record.status
 
     def close(self) -> None:
         if self.file is not None:

@@ -202,8 +202,7 @@ def worker_main(job: dict[str, Any], conn: Connection) -> None:
 def _run(job: dict[str, Any], conn: Connection) -> None:
     from agv_mission.missions.load.errors import MissionError
     from agv_mission.missions.load.loader import load_mission
-    from agv_mission.missions.report.outputs import write_mission, write_run
-    from agv_mission.missions.run.runner import run_mission
+    from agv_mission.missions.report.directory import run_in
     from agv_mission.service.sandbox import DataDirGuard
 
     data_dir, run_dir = Path(job["data_dir"]), Path(job["run_dir"])
@@ -222,7 +221,6 @@ def _run(job: dict[str, Any], conn: Connection) -> None:
     except MissionError as exc:
         conn.send(("end", "error", f"invalid mission: {exc}", None))
         return
-    write_mission(run_dir, loaded)
     stream = StreamObserver(conn, run_dir)
     control = PipeControl(conn, stream, job.get("pace"))
     stream.send(("status", "running"))
@@ -232,9 +230,8 @@ def _run(job: dict[str, Any], conn: Connection) -> None:
     stream.send(("robots", limits))
     observers = [stream, *(job["observers"](loaded) if job.get("observers") else [])]
     try:
-        record = run_mission(loaded, run_dir, observers=observers, control=control)
-        stream.status = record.status
-        result = write_run(run_dir, loaded, record)
+        done = run_in(run_dir, loaded, observers=observers, control=control)
+        record, result = done.record, done.result
         end = {"type": "end", "status": record.status, "reason": record.reason}
         stream.emit(end, live=False)
     finally:

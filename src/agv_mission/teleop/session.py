@@ -46,6 +46,7 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.recorder import (
     LocationRecorder,
     load_entries,
+    open_recorders,
 )
 from agv_mission.maps.rooms import room_at
 from agv_mission.missions.load.loader import load_mission, remote_controlled
@@ -54,7 +55,7 @@ from agv_mission.missions.load.resolved import LoadedMission
 from agv_mission.missions.load.schema import MAX_SIM_SECONDS
 from agv_mission.missions.report.outputs import make_run_dir, write_trajectory
 from agv_mission.missions.run.runner import MissionRun, run_mission
-from agv_mission.missions.run.stack import CONTROL_PERIOD, open_recorders
+from agv_mission.missions.run.stack import CONTROL_PERIOD
 from agv_mission.teleop.terminal import (
     HELP,
     KeyInput,
@@ -342,13 +343,13 @@ def open_session(
     its recorders. Raises :class:`~agv_mission.maps.recorder.RecorderFileError` for a
     recorder file that cannot be read or would be replaced, before anything is created."""
     if recorder is not None:
-        return None, open_recorders(loaded, None, recorder, append)
+        return None, open_recorders(None, loaded.recorder, recorder, append)
     if append is not None:
         check_recorder_file(append)
     root = output if output is not None else Path(loaded.mission.output)
     name = loaded.name if loaded.name == "teleop" else f"{loaded.name}-teleop"
     run_dir = make_run_dir(root, name)
-    return run_dir, open_recorders(loaded, run_dir, None, append)
+    return run_dir, open_recorders(run_dir, loaded.recorder, None, append)
 
 
 def session_report(

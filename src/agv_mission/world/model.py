@@ -1,5 +1,5 @@
 """The world's MuJoCo model, built with :class:`mujoco.MjSpec`: floor, walls, and the bodies
-attached to it (robots, by :mod:`agv_mission.robots.body`; people).
+attached to it (robots, by :mod:`agv_mission.world.body`; people).
 
 Layout (the names and groups are the contract between the world and what it holds):
 
@@ -63,7 +63,7 @@ def integrator(timestep: float, fastest_mode: float) -> mujoco.mjtIntegrator:
     stable under it, else ``implicitfast``.
 
     Explicit Euler is stable for a wheel servo's damping while ``timestep < 2 tau`` (the
-    time constant of a lifted wheel, :data:`agv_mission.robots.body.LIFTED_WHEEL_TAU`). There it is the more
+    time constant of a lifted wheel, :data:`agv_mission.world.body.LIFTED_WHEEL_TAU`). There it is the more
     accurate of the two: ``implicitfast`` linearises the velocity servo as a damper while
     its force is clamped by ``forcerange`` and the contact forces were solved without that
     correction, so the wheels creep against the floor by an amount that grows with the time

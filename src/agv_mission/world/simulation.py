@@ -1,7 +1,7 @@
 """The simulated world: one MuJoCo model, every body in it, physics stepped once for all.
 
 The world owns the model and its data; robots are attached to it as bodies (see
-:mod:`agv_mission.robots.body`) and read and command them through a :class:`Body`. It
+:mod:`agv_mission.world.body`) and read and command them through a :class:`Body`. It
 answers what only the world can: ray casts (every lidar sees walls and every other
 body), contacts between bodies and with walls, and clearances.
 """
@@ -67,16 +67,24 @@ class WorldBuilder:
         self.spec = world_spec(world, timestep, bodies, fastest_mode)
         self.windows = bodies
         self._bodies: list[tuple[str, str, float, float]] = []
+        self._starts: list[Pose2D] = []
 
-    def attach(self, name: str, base: str, radius: float, sight: float) -> None:
+    def attach(self, name: str, base: str, radius: float, sight: float, start: Pose2D) -> None:
         """Register the body ``base`` (already added to :attr:`spec`) as ``name``, with
-        its planar footprint ``radius`` and the range ``sight`` its sensors see."""
+        its planar footprint ``radius``, the range ``sight`` its sensors see and the pose
+        it stands at when the world is built."""
         if any(n == name for n, *_ in self._bodies):
             raise ValueError(f"the world already has a body named {name!r}")
         self._bodies.append((name, base, radius, sight))
+        self._starts.append(start)
 
     def build(self) -> SimulatedWorld:
-        return SimulatedWorld(self.world, self.spec.compile(), self._bodies, self.windows)
+        """The world, every body standing at its start (call :meth:`SimulatedWorld.start`
+        once the bodies' sensors are made)."""
+        sim = SimulatedWorld(self.world, self.spec.compile(), self._bodies, self.windows)
+        for body, start in zip(sim.bodies.values(), self._starts, strict=True):
+            sim.place(body, start)
+        return sim
 
 
 class SimulatedWorld:
@@ -406,6 +414,11 @@ class SimulatedWorld:
             if len(self.walls.cyl):
                 best = min(best, float(self.walls.cyl_distance(p.x, p.y).min()))
         return best - body.radius
+
+    def position(self, index: int) -> tuple[float, float]:
+        """The planar position of the body at ``index`` (as :meth:`contacts` numbers them)."""
+        q, a = self.data.qpos, self._order[index].qadr
+        return float(q[a]), float(q[a + 1])
 
     def body_gaps(self) -> np.ndarray:
         """(n, n) planar gaps between the bodies' footprint circles (inf on the diagonal)."""

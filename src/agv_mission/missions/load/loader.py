@@ -37,7 +37,7 @@ from agv_mission.missions.load.schema import (
     with_default_plugin_types,
 )
 from agv_mission.missions.load.tree_assembly import assemble, tasks_tree
-from agv_mission.missions.load.tree_sources import tree_source
+from agv_mission.missions.load.tree_sources import tree_source, with_absolute_tree_files
 from agv_mission.missions.load.yaml_lines import FieldPath, load_with_lines
 
 if TYPE_CHECKING:
@@ -134,8 +134,7 @@ def load_mission_document(
         loaded = resolve_fleet(
             mission, data, assigned, base_dir, path.stem or "mission", log, path_guard
         )
-        loaded.source, loaded.warnings = path, list(log.warnings)
-        return loaded
+        return _found_from(loaded, path, base_dir, log)
     tree = None
     if isinstance(mission, Mission):
         for i, fault in enumerate(mission.faults):
@@ -146,7 +145,16 @@ def load_mission_document(
     from agv_mission.missions.load.resolve import resolve_setup
 
     loaded = resolve_setup(mission, base_dir, path.stem or "mission", log, path_guard, tree)
+    return _found_from(loaded, path, base_dir, log)
+
+
+def _found_from(
+    loaded: LoadedMission, path: Path, base_dir: Path, log: ProblemLog
+) -> LoadedMission:
+    """``loaded`` read from ``path``: its warnings, and the tree files it names absolute
+    (every file it names is read by now)."""
     loaded.source, loaded.warnings = path, list(log.warnings)
+    loaded.mission = with_absolute_tree_files(loaded.mission, base_dir)
     return loaded
 
 

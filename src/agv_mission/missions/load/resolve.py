@@ -11,7 +11,7 @@ from agv_mission.atomic import input_path
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.docks import Dock
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.maps.recorder import RecorderFileError, load_entries
+from agv_mission.maps.recorder import RecorderFile, RecorderFileError
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.rooms_file import RoomsFileError, load_rooms_file
 from agv_mission.maps.ros_map import MapLoadError, load_ros_map
@@ -219,14 +219,14 @@ def _load_rooms(
     return rooms_docks
 
 
-def _recorder(mission: Setup, base_dir: Path, log: ProblemLog) -> Path | None:
-    """The existing recorder file the run appends to, read once to check it."""
+def _recorder(mission: Setup, base_dir: Path, log: ProblemLog) -> RecorderFile | None:
+    """The existing recorder file the run appends to, read and checked (the run starts
+    from what it held now)."""
     if mission.recorder is None:
         return None
     recorder = None
     try:
-        recorder = input_path(mission.recorder, base_dir)
-        load_entries(recorder)
+        recorder = RecorderFile.read(input_path(mission.recorder, base_dir))
     except RecorderFileError as exc:
         log.add(("recorder",), str(exc))
     except (OSError, ValueError, RuntimeError) as exc:

@@ -9,11 +9,11 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
-from agv_mission.atomic import input_path
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.docks import Dock
 from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.maps.recorder import RecorderFile
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.worlds import World
 from agv_mission.maps.zones import ZoneFilters
@@ -88,7 +88,7 @@ class LoadedMission:
     rooms: dict[str, Room]
     robots: list[RobotSetup]  # every robot of the mission, in the file's order
     layout: Layout = Layout.ROBOT
-    recorder: Path | None = None  # an existing recorder file to append to
+    recorder: RecorderFile | None = None  # an existing recorder file to append to, as read
     docks: dict[str, Dock] = field(default_factory=dict)  # the world's and rooms file's
     given_map: OccupancyGrid | None = None  # the mission's ``map:``, when it names one
     people: list[PeopleGroup] = field(default_factory=list)  # resolved ``people:``
@@ -142,31 +142,4 @@ class LoadedMission:
         for key in ("tasks", "tree", "trees", "blackboard"):  # what the user did not write
             if key in doc and doc[key] in (None, {}):
                 del doc[key]
-        if self.source is not None:  # the copy in a run directory still finds its files
-            _absolute_tree_files(doc, self.source.parent)
         return {k: doc[k] for k in FIELD_ORDER if k in doc}
-
-
-def _absolute_tree_files(doc: dict[str, Any], base: Path) -> None:
-    """The XML tree file ``doc`` (and each of a fleet's robots) names and every
-    navigator's ``behavior_tree`` file in their trees, made absolute (in place)."""
-    places: list[tuple[dict[str, Any], str]] = []
-    robots = doc.get("robots") if isinstance(doc.get("robots"), list) else []
-    for holder in [doc, *(r for r in robots if isinstance(r, dict))]:
-        if isinstance(holder.get("tree"), str):
-            places.append((holder, "tree"))
-        _behavior_tree_files([holder.get("tree"), holder.get("trees")], places)
-    for holder, key in places:
-        holder[key] = str(input_path(holder[key].strip(), base).resolve())
-
-
-def _behavior_tree_files(value: Any, places: list[tuple[dict[str, Any], str]]) -> None:
-    """Every mapping in ``value`` that names a ``behavior_tree`` file, added to ``places``."""
-    if isinstance(value, list):
-        for item in value:
-            _behavior_tree_files(item, places)
-    elif isinstance(value, dict):
-        if isinstance(value.get("behavior_tree"), str):
-            places.append((value, "behavior_tree"))
-        for item in value.values():
-            _behavior_tree_files(item, places)

@@ -13,9 +13,7 @@ from agv_mission.missions.load.problems import (
     ProblemLog,
     os_message,
 )
-from agv_mission.missions.load.schema import (
-    Mission,
-)
+from agv_mission.missions.load.schema import Mission, Setup
 from agv_mission.missions.load.tree_spec import TreeSource, TreeSpec, Where, tasks_spec, yaml_spec
 from agv_mission.missions.load.tree_xml import parse_xml
 from agv_mission.missions.load.yaml_lines import FieldPath
@@ -125,3 +123,40 @@ def _xml_report(where: Any, log: ProblemLog) -> Any:
         log.problems.append(where.problem(message, port))
 
     return report
+
+
+def with_absolute_tree_files(mission: Setup, base_dir: Path) -> Setup:
+    """``mission`` (a copy) with the XML tree file it names (and each of a fleet's robots)
+    and every navigator's ``behavior_tree`` file in their trees absolute, read from
+    ``base_dir``: the mission, written into a run directory, still names its files."""
+
+    def absolute(spec: str) -> str:
+        return str(input_path(spec.strip(), base_dir).resolve())
+
+    def tree_files(holder: Any) -> dict[str, Any]:
+        update: dict[str, Any] = {}
+        tree = getattr(holder, "tree", None)
+        if isinstance(tree, str):
+            update["tree"] = absolute(tree)
+        elif tree is not None:
+            update["tree"] = _absolute_behavior_trees(tree, absolute)
+        if getattr(holder, "trees", None):
+            update["trees"] = _absolute_behavior_trees(holder.trees, absolute)
+        return update
+
+    update = tree_files(mission)
+    if getattr(mission, "robots", None):
+        update["robots"] = [r.model_copy(update=tree_files(r)) for r in mission.robots]
+    return mission.model_copy(update=update) if update else mission
+
+
+def _absolute_behavior_trees(value: Any, absolute: Callable[[str], str]) -> Any:
+    """A copy of ``value`` with every mapping's ``behavior_tree`` file made absolute."""
+    if isinstance(value, list):
+        return [_absolute_behavior_trees(item, absolute) for item in value]
+    if isinstance(value, dict):
+        out = {k: _absolute_behavior_trees(v, absolute) for k, v in value.items()}
+        if isinstance(value.get("behavior_tree"), str):
+            out["behavior_tree"] = absolute(value["behavior_tree"])
+        return out
+    return value

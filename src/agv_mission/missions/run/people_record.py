@@ -14,7 +14,6 @@ from agv_mission.atomic import atomic_write_text
 from agv_mission.missions.run.people_metrics import people_metrics
 from agv_mission.navigation.state import STANDING, TRACKED_PERSON
 from agv_mission.world.crowd import Crowd
-from agv_mission.world.people_groups import PeopleGroup
 from agv_mission.world.simulation import SimulatedWorld
 
 PEOPLE_COLUMNS = ("t", "id", "x", "y")
@@ -152,16 +151,12 @@ def _robot_rows(robots: list[Any]) -> np.ndarray:
     return rows
 
 
-PEOPLE_STREAM = 0x9E0_91E  # the people's random stream: the seed's, apart from the robots'
-
-
 class PeopleRun:
     """The people of a run: the crowd walking in the world, what each robot is told of
     them, the contacts they had with robots and their track for the run directory."""
 
-    def __init__(self, groups: list[PeopleGroup], world: SimulatedWorld, seed: int) -> None:
-        rng = np.random.default_rng(np.random.SeedSequence([seed, PEOPLE_STREAM]))
-        self.crowd = Crowd.in_world(groups, world, rng)
+    def __init__(self, crowd: Crowd, world: SimulatedWorld) -> None:
+        self.crowd = crowd
         self.world = world
         self.track = PeopleTrack(self.crowd.ids, self.crowd.radii)
         self.touching: set[tuple[int, int]] = set()

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from agv_mission.localization.base import Localizer
+from agv_mission.maps.recorder import open_recorders
 from agv_mission.missions.load.resolved import Layout, LoadedMission
 from agv_mission.missions.run.behaviour_tree import MissionTree
 from agv_mission.missions.run.errors import RunStopped
@@ -36,12 +37,7 @@ from agv_mission.missions.run.people_record import PeopleRun
 from agv_mission.missions.run.record import RunRecord, bare_record
 from agv_mission.missions.run.robot_run import RobotRun
 from agv_mission.missions.run.samples import StepSample, tree_nodes
-from agv_mission.missions.run.stack import (
-    CONTROL_PERIOD,
-    RobotStack,
-    build_world,
-    open_recorders,
-)
+from agv_mission.missions.run.stack import CONTROL_PERIOD, RobotStack, build_world
 from agv_mission.missions.run.team import InlineTeam, RobotTeam, team_size
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import Navigator
@@ -121,8 +117,8 @@ class MissionRun:
         self.mission = loaded.mission
         self.run_dir = run_dir
         self.observers = list(observers)
-        self.world, stacks = build_world(loaded)
-        recorders = open_recorders(loaded, run_dir)
+        self.world, stacks, crowd = build_world(loaded)
+        recorders = open_recorders(run_dir, loaded.recorder)
         self.robots = [
             RobotRun(loaded, stack, run_dir, recorders, bool(self.observers), traffic=fleet)
             for stack in stacks
@@ -131,9 +127,7 @@ class MissionRun:
         # who decides where: here until :meth:`drive` forks robot processes
         self.team: RobotTeam = InlineTeam(self.robots, bool(self.observers))
         self._samples: list[StepSample] = []  # the latest step's, not yet observed
-        self.people = (
-            PeopleRun(loaded.people, self.world, self.mission.seed) if loaded.people else None
-        )
+        self.people = PeopleRun(crowd, self.world) if crowd is not None else None
         # The fleet's own log (fleet.md): what the fleet layer dispatched, waits, deadlocks,
         # and the robots' contacts with each other.
         self.fleet_log: dict[str, Any] = {
@@ -340,20 +334,15 @@ class MissionRun:
         touching = {pair for pair in self.world.contacts() if pair[1] >= 0}
         for i, j in sorted(touching - self._touching):
             a, b = self.robots[i], self.robots[j]
-            p = a.sim.true_pose()
+            x, y = self.world.position(i)  # where the first of the two stands
             log["robot_robot_collisions"].append(
-                {
-                    "t": round(now, 3),
-                    "robots": [a.name, b.name],
-                    "x": round(p.x, 3),
-                    "y": round(p.y, 3),
-                }
+                {"t": round(now, 3), "robots": [a.name, b.name], "x": round(x, 3), "y": round(y, 3)}
             )
             a.handle.log("robot_collision", robot=a.name, other=b.name)
             if len(log["robot_robot_collisions"]) > self.mission.limits.collisions:
                 self.end(
                     "failed",
-                    f"{a.name} and {b.name} collided at t={now:.1f} s near ({p.x:.2f}, {p.y:.2f})",
+                    f"{a.name} and {b.name} collided at t={now:.1f} s near ({x:.2f}, {y:.2f})",
                 )
         self._touching = touching
 

@@ -20,7 +20,7 @@ class SignalStop:
     only_cancels = True  # robots may decide in other processes (missions.run.team)
 
     def __init__(self) -> None:
-        self.phase = "loading"  # then "running", then "writing" (too late to stop anything)
+        self.phase = "loading"  # then "running" (once the run has ended, nothing to stop)
         self.received: list[int] = []
 
     def install(self) -> SignalStop:

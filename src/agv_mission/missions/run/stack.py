@@ -12,7 +12,6 @@ import inspect
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -22,7 +21,6 @@ from agv_mission.mapping.base import Slam
 from agv_mission.maps.costmap import ObstacleLayerConfig
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.obstacle_layer import ObstacleLayer
-from agv_mission.maps.recorder import RECORDER_FILENAME, LocationRecorder, RecorderFileError
 from agv_mission.missions.load.resolved import LoadedMission, RobotSetup
 from agv_mission.navigation.config import NavigationConfig
 from agv_mission.navigation.navigator import Navigator
@@ -30,13 +28,14 @@ from agv_mission.planners.base import VelocityLimits
 from agv_mission.registry import PluginConfig, registry
 from agv_mission.robots.description import RobotDescription
 from agv_mission.robots.drive_base import DriveBase, robots_world
-from agv_mission.robots.odometry import GyroFusedOdometry
 from agv_mission.robots.sensors import ImuSamples
 from agv_mission.sensor_msgs import LaserScan
+from agv_mission.world.crowd import Crowd
 from agv_mission.world.model import add_people
 from agv_mission.world.simulation import SimulatedWorld
 
 CONTROL_PERIOD = 0.1
+PEOPLE_STREAM = 0x9E0_91E  # the people's random stream: the seed's, apart from the robots'
 #: amcl's refinement's heading noise when the odometry fuses a MEMS gyro: rad sd after a
 #: radian turned and after a metre driven. The MPU-9250's angle random walk and residual
 #: bias (see robots.description) give ~2e-4 rad per radian turned at 1 rad/s and ~5e-4
@@ -150,28 +149,33 @@ class RobotStack:
         self.loc_rng, self.planner_rng, self.fault_rng = (
             np.random.default_rng(s) for s in seeds[1:]
         )
-        self.base = DriveBase.build(
-            world,
-            setup.name,
-            robot,
-            setup.start,
-            loaded.mission.simulation,
-            seeds[0],
-            use_imu=setup.stack.odometry.imu,
-        )
-        self.sim, self.odometry = self.base.body, self.base.odometry
         self.limits = velocity_limits(robot)
         self.smoother = VelocitySmoother(self.limits, CONTROL_PERIOD)
         self.scan_period = 1.0 / robot.lidar.rate
         self.next_scan = 0.0
         self._between: list[Sensing] = []  # scans taken within the last control period
+        # the odometry fuses the gyro (robot_localization) when the robot has an IMU and
+        # the stack's odometry takes it: the localiser's and SLAM's heading noise follow
+        self.fuses_gyro = robot.imu is not None and setup.stack.odometry.imu
+        localization = self.localization_config(loaded.map)
+        self.base = DriveBase.build(
+            world,
+            setup.name,
+            robot,
+            loaded.mission.simulation,
+            seeds[0],
+            use_imu=self.fuses_gyro,
+        )
+        self.sim, self.odometry = self.base.body, self.base.odometry
         self.odom, _ = self.base.read()
         self.odom_start = self.odom
-        self.localizer: Localizer = self.new_localizer(loaded.map)
+        self.localizer: Localizer = registry.create(
+            "localization", localization, grid=loaded.map, rng=self.loc_rng
+        )
         self.localizer.reset(setup.start, self.odom)
 
-    def new_localizer(self, grid: OccupancyGrid) -> Localizer:
-        """The robot's localisation plugin on ``grid`` (not yet reset).
+    def localization_config(self, grid: OccupancyGrid) -> PluginConfig:
+        """The robot's localisation plugin's config on ``grid``.
 
         On a map that is not the world's own (a mission's ``map:``, a map a map_area task
         just made) amcl's refinement takes its covariance floor from the fit's residuals
@@ -183,13 +187,19 @@ class RobotStack:
         update: dict[str, float] = {}
         if grid is not self.loaded.world.map:
             update.update(MADE_MAP_FLOOR)
-        if isinstance(self.odometry, GyroFusedOdometry):
+        if self.fuses_gyro:
             update.update(GYRO_HEADING_NOISE)
         fields, given = type(config).model_fields, config.model_fields_set
         update = {k: v for k, v in update.items() if k in fields and k not in given}
         if update:
             config = config.model_copy(update=update)
-        return registry.create("localization", config, grid=grid, rng=self.loc_rng)
+        return config
+
+    def new_localizer(self, grid: OccupancyGrid) -> Localizer:
+        """The robot's localisation plugin on ``grid`` (not yet reset)."""
+        return registry.create(
+            "localization", self.localization_config(grid), grid=grid, rng=self.loc_rng
+        )
 
     def new_slam(self, bounds: Bounds) -> Slam:
         """The robot's SLAM plugin over ``bounds`` (not yet reset), its odometry prior
@@ -224,7 +234,7 @@ class RobotStack:
             "odom_translation_noise": max(2.0 * wheel, 0.01),
             "point_sigma": max(float(getattr(config, "point_sigma", 0.0)), far),
         }
-        if isinstance(self.odometry, GyroFusedOdometry):
+        if self.fuses_gyro:
             out.update(GYRO_SLAM_NOISE)
         return out
 
@@ -308,61 +318,26 @@ class RobotStack:
         self._between.append(Sensing(sim.time, odom, scan, sim.true_pose(), (), imu))
 
 
-def build_world(loaded: LoadedMission) -> tuple[SimulatedWorld, list[RobotStack]]:
-    """The mission's world with every robot's body in it, and each robot's stack."""
+def build_world(loaded: LoadedMission) -> tuple[SimulatedWorld, list[RobotStack], Crowd | None]:
+    """The mission's world with every robot's body and its people in it, each robot's
+    stack, and the crowd walking there (None: the mission has no people)."""
     setups = loaded.robots
     builder = robots_world(
-        loaded.world, [(s.name, s.robot) for s in setups], loaded.mission.simulation
+        loaded.world, [(s.name, s.robot, s.start) for s in setups], loaded.mission.simulation
     )
     if loaded.people:
         add_people(builder.spec, [g.radius for g in loaded.people for _ in range(g.count)])
     world = builder.build()
+    crowd = None
+    if loaded.people:  # clear of the robots, standing where the world was built with them
+        people_seed = np.random.SeedSequence([loaded.mission.seed, PEOPLE_STREAM])
+        crowd = Crowd.in_world(loaded.people, world, np.random.default_rng(people_seed))
     root = np.random.SeedSequence(loaded.mission.seed)
     stacks = []
     for setup in setups:
         stacks.append(RobotStack(loaded, setup, world, root.spawn(4)))
     world.start()
-    return world, stacks
-
-
-def open_recorders(
-    loaded: LoadedMission,
-    run_dir: Path | None,
-    recorder_file: Path | None = None,
-    append: Path | None = None,
-) -> list[LocationRecorder]:
-    """The recorders a session writes room poses into, the one to show first.
-
-    * ``recorder_file``: record straight into it, appending to its entries when it exists
-      (as the seed's service does); ``append`` may only name that same file.
-    * else ``run_dir/location_recorder.yaml`` (when there is a run directory), starting from
-      ``append``'s entries, or from those of the mission's ``recorder`` file, which is then
-      also updated in place.
-
-    Raises :class:`~agv_mission.maps.recorder.RecorderFileError` for a clash of
-    ``recorder_file`` and ``append``.
-    """
-    if recorder_file is not None:
-        exists = recorder_file.exists()
-        if append is not None and exists and append.resolve() != recorder_file.resolve():
-            raise RecorderFileError(
-                recorder_file,
-                f"exists and would be replaced by the entries of {append}; "
-                "--recorder appends to an existing file by itself",
-            )
-        initial = append if append is not None else (recorder_file if exists else None)
-        return [LocationRecorder(recorder_file, initial)]
-    mission_file = loaded.recorder
-    if append is not None:
-        if run_dir is None:
-            raise ValueError("appending needs a run directory or a recorder file")
-        return [LocationRecorder(run_dir / RECORDER_FILENAME, append)]
-    recorders = []
-    if run_dir is not None:
-        recorders.append(LocationRecorder(run_dir / RECORDER_FILENAME, mission_file))
-    if mission_file is not None:
-        recorders.append(LocationRecorder(mission_file, mission_file))
-    return recorders
+    return world, stacks, crowd
 
 
 def tuned_for_speed(

@@ -63,13 +63,13 @@ def serve(
 ) -> None:
     """Run the service in this process until it is told to stop. ``observers``: see
     :attr:`~agv_mission.service.context.Settings.observers`."""
+    check_exposure(host, token)  # before the app's imports: a refusal is said at once
+    if backend not in ("local", "ray"):
+        raise ServeError(f"--backend {backend!r}: local or ray")
     import uvicorn
 
     from agv_mission.service.app import Settings, create_app
 
-    check_exposure(host, token)
-    if backend not in ("local", "ray"):
-        raise ServeError(f"--backend {backend!r}: local or ray")
     try:
         data_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

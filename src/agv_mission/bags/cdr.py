@@ -221,7 +221,8 @@ def imu_cdr_rows(
     measured numbers written in."""
     row, t_off, g_off, a_off = _imu_row(frame, float(gyro_var), float(accel_var))
     n, size = len(times), len(row)
-    rows = np.tile(row, (n, 1))
+    rows = np.empty((n, size), dtype=np.uint8)
+    rows[:] = row
     ns = np.rint(np.asarray(times, dtype=float) * 1e9).astype(np.int64)
     sec, nsec = np.divmod(ns, 1_000_000_000)
     rows[:, t_off : t_off + 4] = sec.astype("<i4").view(np.uint8).reshape(n, 4)

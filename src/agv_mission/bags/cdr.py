@@ -86,7 +86,7 @@ class FixedCdr:
 
     def __init__(self, fields: list[tuple[Any, ...]]) -> None:
         w = CdrWriter()
-        self._slots: list[tuple[int, struct.Struct]] = []
+        self.slots: list[tuple[int, struct.Struct]] = []  # (offset, layout) of each number run
         for kind, *args in fields:
             if kind == "string":
                 w.string(args[0])
@@ -101,33 +101,16 @@ class FixedCdr:
                 w.align(8)
                 fmt, size = f"<{args[0]}d", 8 * args[0]
             if kind != "zeros":
-                self._slots.append((len(w.buf), struct.Struct(fmt)))
+                self.slots.append((len(w.buf), struct.Struct(fmt)))
             w.buf += bytes(size)
         self.template = bytes(w.buf)
 
     def pack(self, *slots: tuple[float, ...]) -> bytes:
         """The message with each numeric field's values, in layout order."""
         buf = bytearray(self.template)
-        for (offset, layout), values in zip(self._slots, slots, strict=True):
+        for (offset, layout), values in zip(self.slots, slots, strict=True):
             layout.pack_into(buf, offset, *values)
         return bytes(buf)
-
-    def pack_rows(self, times: np.ndarray, values: np.ndarray) -> list[bytes]:
-        """Many messages of a layout with one stamp and one run of numbers, at once: the
-        stamps ``times`` (n,) s and the numbers ``values`` (n, k); the bytes of ``pack``
-        for each row (a 200 Hz IMU writes 20 messages a control step)."""
-        (t_off, t_layout), (v_off, v_layout) = self._slots
-        assert t_layout.format == "<iI" and v_layout.size == 8 * values.shape[1]
-        n, size = len(times), len(self.template)
-        rows = np.tile(np.frombuffer(self.template, dtype=np.uint8), (n, 1))
-        ns = np.rint(np.asarray(times, dtype=float) * 1e9).astype(np.int64)
-        sec, nsec = np.divmod(ns, 1_000_000_000)
-        rows[:, t_off : t_off + 4] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
-        rows[:, t_off + 4 : t_off + 8] = nsec.astype("<u4").view(np.uint8).reshape(n, 4)
-        numbers = np.ascontiguousarray(values, dtype="<f8").view(np.uint8)
-        rows[:, v_off : v_off + v_layout.size] = numbers.reshape(n, v_layout.size)
-        data = rows.tobytes()
-        return [data[i * size : (i + 1) * size] for i in range(n)]
 
 
 def _pose7(p: Pose2D, z: float = 0.0) -> tuple[float, ...]:
@@ -233,17 +216,31 @@ def imu_cdr_rows(
     accel_var: float,
 ) -> list[bytes]:
     """:func:`imu_cdr` of every sample at once: stamps (n,), z rates (n,), accelerations
-    (n, 2); the same bytes."""
-    n = len(times)
-    values = np.zeros((n, 37))
-    values[:, 3] = 1.0  # orientation w
-    values[:, 4] = -1.0  # no orientation estimate
-    values[:, 15] = gz
-    values[:, [16, 20, 24]] = gyro_var
-    values[:, 25:27] = accel
-    values[:, 27] = STANDARD_GRAVITY
-    values[:, [28, 32, 36]] = accel_var
-    return _imu_layout(frame).pack_rows(times, values)
+    (n, 2); the same bytes. A 200 Hz IMU writes 20 a control step: each row is a copy of
+    the message with its constants (:func:`_imu_row`), only the stamp and the three
+    measured numbers written in."""
+    row, t_off, g_off, a_off = _imu_row(frame, float(gyro_var), float(accel_var))
+    n, size = len(times), len(row)
+    rows = np.empty((n, size), dtype=np.uint8)
+    rows[:] = row
+    ns = np.rint(np.asarray(times, dtype=float) * 1e9).astype(np.int64)
+    sec, nsec = np.divmod(ns, 1_000_000_000)
+    rows[:, t_off : t_off + 4] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
+    rows[:, t_off + 4 : t_off + 8] = nsec.astype("<u4").view(np.uint8).reshape(n, 4)
+    rows[:, g_off : g_off + 8] = np.ascontiguousarray(gz, dtype="<f8").view(np.uint8).reshape(n, 8)
+    rates = np.ascontiguousarray(accel, dtype="<f8").view(np.uint8)
+    rows[:, a_off : a_off + 16] = rates.reshape(n, 16)
+    data = rows.tobytes()
+    return [data[i * size : (i + 1) * size] for i in range(n)]
+
+
+@cache
+def _imu_row(frame: str, gyro_var: float, accel_var: float) -> tuple[np.ndarray, int, int, int]:
+    """An IMU message's bytes with its constants (orientation, covariances, gravity) and
+    zeros for the rest, and the offsets of its stamp, z rate and x, y acceleration."""
+    row = np.frombuffer(imu_cdr(0.0, frame, 0.0, 0.0, 0.0, gyro_var, accel_var), np.uint8)
+    (t_off, _), (v_off, _) = _imu_layout(frame).slots
+    return row, t_off, v_off + 8 * 15, v_off + 8 * 25
 
 
 @cache

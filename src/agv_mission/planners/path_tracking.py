@@ -84,6 +84,18 @@ def closest_point(
     seg = segments if segments is not None else Segments.of(path, cumlen)
     cumlen, a, d, seg_len = seg.cumlen, seg.start, seg.delta, seg.length
     t = np.einsum("ij,ij->i", p - a, d) / np.maximum(seg.length2, 1e-18)
+    if s_min is None and s_max is None:  # the whole path (the navigator's every step)
+        t = np.minimum(np.maximum(t, 0.0), 1.0)
+        proj = a + t[:, None] * d
+        off = proj - p
+        dist2 = np.einsum("ij,ij->i", off, off)
+        i = int(dist2.argmin())
+        return Projection(
+            s=float(cumlen[i] + t[i] * seg_len[i]),
+            point=proj[i],
+            segment=i,
+            distance=float(math.sqrt(dist2[i])),
+        )
     lo = np.zeros_like(t)
     hi = np.ones_like(t)
     if s_min is not None:

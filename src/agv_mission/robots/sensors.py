@@ -238,23 +238,32 @@ class Imu:
             empty = np.zeros(0)
             return ImuSamples(empty, empty, np.zeros((0, 2)), self.period)
         self._next = k1 + 1
-        times = np.arange(k0, k1 + 1) * self.period
-        s = (times - t0) / h
-        s2 = s * s
-        s3 = s2 * s
-        # cubic Hermite of the heading: theta(0) = theta0, theta(1) = theta0 + turned,
-        # slopes w0 h and w1 h
-        theta = theta0 + (s3 - 2.0 * s2 + s) * (w0 * h) + (3.0 * s2 - 2.0 * s3) * turned
-        theta += (s3 - s2) * (w1 * h)
-        speed = v0 + s * (v1 - v0)
-        rate = np.diff(theta, prepend=self._theta_sample) / self.period
-        accel = np.empty((len(times), 2))
-        accel[:, 0] = np.diff(speed, prepend=self._v_sample) / self.period
-        accel[:, 1] = speed * rate
-        self._theta_sample, self._v_sample = float(theta[-1]), float(speed[-1])
-        gyro = rate + self.bias
+        # A read brings ~20 samples: plain floats, in the same operations and order as
+        # array arithmetic would do them (the same bits), without ~40 numpy calls.
+        period, bias = self.period, self.bias
+        a, b, c = w0 * h, turned, w1 * h
+        dv = v1 - v0
+        prev_theta, prev_v = self._theta_sample, self._v_sample
+        times: list[float] = []
+        gyro: list[float] = []
+        accel: list[tuple[float, float]] = []
+        for k in range(k0, k1 + 1):
+            t = k * period
+            s = (t - t0) / h
+            s2 = s * s
+            s3 = s2 * s
+            theta = theta0 + (s3 - 2.0 * s2 + s) * a + (3.0 * s2 - 2.0 * s3) * b
+            theta += (s3 - s2) * c
+            speed = v0 + s * dv
+            rate = (theta - prev_theta) / period
+            times.append(t)
+            gyro.append(rate + bias)
+            accel.append(((speed - prev_v) / period, speed * rate))
+            prev_theta, prev_v = theta, speed
+        self._theta_sample, self._v_sample = prev_theta, prev_v
+        gyro_arr, accel_arr = np.array(gyro), np.array(accel)
         if self.gyro_sd > 0.0 or self.accel_sd > 0.0:
             noise = self.rng.standard_normal((len(times), 3))
-            gyro += self.gyro_sd * noise[:, 0]
-            accel += self.accel_sd * noise[:, 1:]
-        return ImuSamples(times, gyro, accel, self.period)
+            gyro_arr += self.gyro_sd * noise[:, 0]
+            accel_arr += self.accel_sd * noise[:, 1:]
+        return ImuSamples(np.array(times), gyro_arr, accel_arr, self.period)

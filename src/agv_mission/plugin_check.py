@@ -245,6 +245,10 @@ def _drive_slam(cls: type, config: PluginConfig) -> None:
     _expect(np.asarray(slam.covariance).shape == (3, 3), "covariance must be 3x3")
     _expect(isinstance(slam.pose, Pose2D), "pose must be a Pose2D")
     _expect(isinstance(slam.diagnostics(), dict), "diagnostics() must return a dict")
+    slam.finish()
+    moved = slam.reframe(Pose2D(0.0, 0.0, 0.0))
+    _expect(isinstance(moved, bool), "reframe() must say whether the map moved (a bool)")
+    _expect(isinstance(slam.occupancy_grid(), OccupancyGrid), "no map after finish/reframe")
 
 
 def _drive_dispatcher(cls: type, config: PluginConfig) -> None:

@@ -26,6 +26,7 @@ import numpy as np
 from agv_mission.bags.reader import BagData, interpolate_poses, read_bag, upright
 from agv_mission.geometry import Pose2D
 from agv_mission.json_values import finite
+from agv_mission.mapping.base import Slam
 from agv_mission.mapping.crop import crop_to_known
 from agv_mission.mapping.quality import relative_pose_error
 from agv_mission.maps.grid import OccupancyGrid
@@ -72,14 +73,14 @@ def map_bag(
     start = _start_pose(data, times[first], _pose(odom_at[first]))
     if callable(slam_config):
         slam_config = slam_config(max(s.range_max for s in data.scans))
-    slam = registry.create("slam", slam_config, bounds=None, rng=None)
+    slam: Slam = registry.create("slam", slam_config, bounds=None, rng=None)
     slam.reset(start.compose(mount), _pose(odom_at[first]).compose(mount))
     slam_s = _replay(slam, data, odom_at, times, used)
     base = _base_trajectory(slam, inv_mount)
     fit = _map_frame_fit(data, base)
-    reframe = getattr(slam, "reframe", None)
-    if fit is not None and callable(reframe):
-        reframe(fit)  # the finished poses moved, the map rendered from them: no new SLAM run
+    # the finished poses moved, the map rendered from them (no new SLAM run); or not
+    reframed = fit is not None and slam.reframe(fit)
+    if reframed:
         base = _base_trajectory(slam, inv_mount)
     canvas = slam.occupancy_grid()
     grid = crop_to_known(canvas)
@@ -101,7 +102,7 @@ def map_bag(
             "from_tf": data.mount_found,
         },
         "slam": slam_config.model_dump(mode="json"),
-        "map_frame": _fit_report(fit, callable(reframe)),
+        "map_frame": _fit_report(fit, reframed),
         "scans": {
             "total": len(data.scans),
             "used": len(used),
@@ -125,15 +126,13 @@ def map_bag(
             "canvas": [canvas.width, canvas.height],
         },
     }
-    diag = getattr(slam, "diagnostics", None)
-    if callable(diag):
-        report["slam_diagnostics"] = diag()
+    report["slam_diagnostics"] = slam.diagnostics()
     if data.truth is not None and len(base):
         report.update(_accuracy(base, data.truth, data.truth_topic))
     return OfflineMap(grid=grid, trajectory=base, report=report)
 
 
-def _base_trajectory(slam: Any, inv_mount: Pose2D) -> np.ndarray:
+def _base_trajectory(slam: Slam, inv_mount: Pose2D) -> np.ndarray:
     """SLAM's trajectory (of the lidar) as the base frame's, rows t, x, y, yaw."""
     sensor = np.asarray(slam.trajectory, dtype=float).reshape(-1, 4)
     rows = [(t, *Pose2D(x, y, a).compose(inv_mount).as_array()) for t, x, y, a in sensor]
@@ -214,7 +213,7 @@ def _covered_scans(
 
 
 def _replay(
-    slam: Any, data: Any, odom_at: np.ndarray, times: np.ndarray, used: np.ndarray
+    slam: Slam, data: Any, odom_at: np.ndarray, times: np.ndarray, used: np.ndarray
 ) -> float:
     """Feed SLAM the used scans (upright, with the odometry at each, at the lidar's
     mount) and its final pass; the seconds it took."""
@@ -223,9 +222,7 @@ def _replay(
     for i in used:
         scan = upright(data.scans[i], data.flipped)
         slam.update(_pose(odom_at[i]).compose(mount), scan, _ORIGIN, float(times[i]))
-    finish = getattr(slam, "finish", None)
-    if callable(finish):  # the whole recording seen: a final pass, when the plugin has one
-        finish()
+    slam.finish()  # the whole recording seen: a final pass (the protocol's: none)
     return time.perf_counter() - t0
 
 

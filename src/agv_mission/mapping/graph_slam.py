@@ -320,11 +320,11 @@ class GraphSlam(GridSlam):
         self._pose = Pose2D(*new[-1])
         self.smoothing_s = perf_counter() - t0
 
-    def reframe(self, transform: Pose2D) -> None:
+    def reframe(self, transform: Pose2D) -> bool:
         """Move the map frame: every pose ``p`` becomes ``transform ∘ p`` and the map is
         rendered again from the scans at their moved poses (not resampled: a rotated grid
         would smear the walls by a cell). ``agv-mission map`` lines a finished map up with
-        the frame the robot localised in."""
+        the frame the robot localised in. Always done (True): the scans are kept."""
 
         def moved(pose: Pose2D) -> Pose2D:
             return transform.compose(pose)
@@ -345,6 +345,7 @@ class GraphSlam(GridSlam):
         if self._integrated:
             self._stale = False
             self._render([Pose2D(*self.trajectory[i][1:]) for *_, i in self._integrated])
+        return True
 
 
 def smooth_trajectory(

@@ -44,6 +44,7 @@ from time import perf_counter
 import numpy as np
 
 from agv_mission.geometry import Bounds, Pose2D, wrap_angle
+from agv_mission.mapping.base import Slam
 from agv_mission.mapping.configs import GridSlamConfig
 from agv_mission.mapping.likelihood_field import LikelihoodField
 from agv_mission.mapping.log_odds_map import LogOddsMap
@@ -54,8 +55,11 @@ from agv_mission.sensor_msgs import LaserScan
 _TINY_COV = np.diag([1e-6, 1e-6, 1e-6])
 
 
-class GridSlam:
-    """Occupancy-grid SLAM with correlative + point-to-line scan-to-map matching."""
+class GridSlam(Slam):
+    """Occupancy-grid SLAM with correlative + point-to-line scan-to-map matching.
+
+    It keeps no scans, only its grid: :meth:`~agv_mission.mapping.base.Slam.reframe`
+    is the protocol's (the map stays in the frame it started in)."""
 
     Config = GridSlamConfig
 

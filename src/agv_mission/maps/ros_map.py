@@ -28,14 +28,17 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import yaml
-from PIL import Image, UnidentifiedImageError
 
 from agv_mission.atomic import atomic_write_bytes, input_path
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import OccupancyGrid
+
+if TYPE_CHECKING:
+    from PIL import Image
 
 MODES = ("trinary", "scale", "raw")
 DEFAULT_OCCUPIED_THRESH = 0.65
@@ -223,6 +226,8 @@ def _read_image(yaml_path: Path, image_path: Path, mode: str):
     """(channel average, alpha 0..255) of every pixel as float64, top row first."""
     if not image_path.is_file():
         raise MapLoadError(f"{yaml_path}: image file {image_path} not found")
+    from PIL import Image, UnidentifiedImageError  # a built-in world has no image to read
+
     try:
         with Image.open(image_path) as img:
             img.load()
@@ -245,6 +250,8 @@ def _read_image(yaml_path: Path, image_path: Path, mode: str):
 
 
 def _normalise_mode(img: Image.Image) -> Image.Image:
+    from PIL import Image
+
     if img.mode in ("L", "RGB", "RGBA"):
         return img
     if img.mode == "LA":  # SDL_image gives RGBA: three equal channels plus alpha

@@ -35,7 +35,6 @@ from typing import Any
 import numpy as np
 from defusedxml import DefusedXmlException
 from defusedxml import ElementTree as DefusedTree
-from lxml import etree
 
 from agv_mission.atomic import InputFileError, read_input_bytes
 from agv_mission.maps.sdf_pose import (
@@ -91,6 +90,8 @@ def read_sdf_world(path: Path, scan_height: float, skip_unsupported: bool = Fals
     except InputFileError as exc:
         raise SdfError(f"{path}: {exc}", [f"{path}: {exc}"]) from None
     _refuse_entities(path, data)
+    from lxml import etree  # a built-in world is no Gazebo world to parse
+
     parser = etree.XMLParser(
         resolve_entities=False,
         no_network=True,

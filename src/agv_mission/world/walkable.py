@@ -4,7 +4,6 @@ out), each computed once per map."""
 
 from __future__ import annotations
 
-import contourpy
 import numpy as np
 import shapely
 
@@ -20,6 +19,8 @@ def free_space(grid: OccupancyGrid, simplify: float = WALL_SIMPLIFY) -> shapely.
     """The grid's free cells as polygons in the map frame (unknown cells are not walkable):
     the filled contour of the free mask half way between free and not-free cell centres
     (contourpy, matplotlib's contouring; 4x faster than a union of the cells' boxes)."""
+    import contourpy  # once a mission has people
+
     free = (grid.data == FREE).astype(np.float64)
     if not free.any():
         return shapely.Polygon()

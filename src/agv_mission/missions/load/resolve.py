@@ -5,13 +5,12 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from agv_mission.atomic import input_path
 from agv_mission.maps.costmap import Costmap
 from agv_mission.maps.docks import Dock
 from agv_mission.maps.grid import OccupancyGrid
-from agv_mission.maps.recorder import RecorderFile, RecorderFileError
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.rooms_file import RoomsFileError, load_rooms_file
 from agv_mission.maps.ros_map import MapLoadError, load_ros_map
@@ -40,6 +39,9 @@ from agv_mission.missions.load.zone_filters import zone_filters
 from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
 from agv_mission.robots.description import RobotDescription
 from agv_mission.robots.robot_files import RobotFileError, load_robot
+
+if TYPE_CHECKING:
+    from agv_mission.maps.recorder import RecorderFile
 
 
 def resolve_setup(
@@ -224,6 +226,8 @@ def _recorder(mission: Setup, base_dir: Path, log: ProblemLog) -> RecorderFile |
     from what it held now)."""
     if mission.recorder is None:
         return None
+    from agv_mission.maps.recorder import RecorderFile, RecorderFileError  # filelock: ~0.05 s
+
     recorder = None
     try:
         recorder = RecorderFile.read(input_path(mission.recorder, base_dir))

@@ -26,12 +26,22 @@ def load_with_lines(text: str) -> tuple[Any, dict[FieldPath, int]]:
     :class:`DocumentError` on a key given twice in one mapping or a string that is
     not valid Unicode (a lone surrogate from a ``\\ud800`` escape).
     """
-    data = yaml.safe_load(text)
-    node = yaml.compose(text, Loader=yaml.SafeLoader)
-    lines: dict[FieldPath, int] = {}
-    if node is not None:
-        lines[()] = node.start_mark.line + 1  # where the document itself starts
-        _walk(node, (), lines, set())
+    loader = yaml.SafeLoader(text)  # parsed once: the lines from its nodes, then the data
+    try:
+        node = loader.get_single_node()
+        lines: dict[FieldPath, int] = {}
+        walked: Exception | None = None
+        if node is not None:
+            lines[()] = node.start_mark.line + 1  # where the document itself starts
+            try:  # before the data is built: a merge key (<<) rewrites its mapping's node
+                _walk(node, (), lines, set())
+            except (DocumentError, RecursionError) as exc:
+                walked = exc  # the data's own errors are told first
+        data = loader.construct_document(node) if node is not None else None
+    finally:
+        loader.dispose()
+    if walked is not None:
+        raise walked
     return data, lines
 
 

@@ -6,16 +6,19 @@
   the poses each task and each robot's own tasks drive to). Every robot's queue runs
   behind its own tree, through the one tree assembly.
 * :class:`FleetCoordinator` runs once per control step before the robots' trees tick: it
-  gathers each robot's estimate, speed and the path its navigator drives, asks the
-  ``traffic`` plugin, hands every navigator its decision (and the others' bodies, which its
-  obstacle layer must not mark), and logs the fleet's events to the robots' handles.
+  knows each robot as a :class:`FleetMember` (name, body, top speed, costmap) and reads
+  its :class:`~agv_mission.missions.run.samples.RobotReport` of the step before (estimate,
+  speed, the path its navigator drives, whether it is busy), asks the ``traffic`` plugin,
+  and answers with a :class:`FleetOrder` per robot: the decision for its navigator, the
+  others' bodies (which its obstacle layer must not mark) and its fleet events. It never
+  touches a robot: each robot takes its own order.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -25,8 +28,11 @@ from agv_mission.geometry import Pose2D
 from agv_mission.missions.load.resolved import LoadedMission, RobotSetup
 from agv_mission.missions.load.tree_assembly import assemble
 from agv_mission.missions.load.tree_spec import NodeSpec, TreeSource, TreeSpec, Where
-from agv_mission.missions.run.robot_run import RobotRun
-from agv_mission.registry import registry
+from agv_mission.registry import PluginConfig, registry
+
+if TYPE_CHECKING:
+    from agv_mission.maps.costmap import Costmap
+    from agv_mission.missions.run.samples import RobotReport
 
 
 def tree_goals(
@@ -123,6 +129,16 @@ def _with_queue(setup: RobotSetup, specs: list[NodeSpec], loaded: LoadedMission)
     return dataclasses.replace(setup, tree=assemble(source))
 
 
+@dataclasses.dataclass(frozen=True)
+class FleetMember:
+    """A robot as the fleet layer knows it for the whole run."""
+
+    name: str
+    radius: float  # m, its footprint's
+    max_speed: float  # m/s, its top linear speed
+    costmap: Costmap  # the one it plans on (the traffic plugin's reservations use it)
+
+
 @dataclasses.dataclass
 class FleetOrder:
     """One robot's part of a step's traffic decisions: what its navigator is told, the
@@ -134,24 +150,23 @@ class FleetOrder:
 
 
 class FleetCoordinator:
-    """Asks the traffic plugin once per control step and hands out its decisions."""
+    """Asks the traffic plugin once per control step, on the robots' reports."""
 
-    def __init__(self, loaded: LoadedMission, robots: Sequence[RobotRun], log: dict) -> None:
-        self.robots = list(robots)
-        self.by_name = {r.name: r for r in self.robots}
-        self.traffic = registry.create("traffic", loaded.mission.fleet.traffic)
+    def __init__(self, members: Sequence[FleetMember], traffic: PluginConfig, log: dict) -> None:
+        self.members = list(members)
+        self.traffic = registry.create("traffic", traffic)
         self.log = log
 
-    def decide(self, now: float) -> dict[str, FleetOrder]:
-        """Every robot's order for this step, decided on the robots' latest reports (those
-        of the step before: the fleet layer, as a fleet manager, acts on the robots' last
-        reports)."""
-        states = [self._state(r) for r in self.robots]
+    def decide(self, now: float, reports: Sequence[RobotReport]) -> dict[str, FleetOrder]:
+        """Every robot's order for this step, from each member's latest report (in the
+        members' order: those of the step before, as a fleet manager acts on the robots'
+        last reports)."""
+        states = [_state(m, r) for m, r in zip(self.members, reports, strict=True)]
         update = self.traffic.decide(now, states)
         bodies = np.array([[s.pose.x, s.pose.y, s.radius] for s in states])
         orders = {
-            r.name: FleetOrder(update.decisions[r.name], np.delete(bodies, i, axis=0), [])
-            for i, r in enumerate(self.robots)
+            m.name: FleetOrder(update.decisions[m.name], np.delete(bodies, i, axis=0), [])
+            for i, m in enumerate(self.members)
         }
         for event in update.events:
             name = event.get("robot")
@@ -164,27 +179,17 @@ class FleetCoordinator:
         self.log["deadlocks"] = stats["deadlocks"]
         return orders
 
-    def hand_out(self, orders: dict[str, FleetOrder]) -> None:
-        """Give the robots named in ``orders`` their decision, the others' bodies (which
-        their obstacle layers must not mark) and their fleet events."""
-        for name, order in orders.items():
-            r = self.by_name[name]
-            nav = r.navigator
-            nav.fleet_bodies = order.bodies
-            nav.obey(order.decision, r.handle.state)
-            r.handle.events.extend(order.events)
 
-    @staticmethod
-    def _state(r: RobotRun) -> TrafficRobot:
-        """A robot as it reported itself after deciding (:class:`RobotReport`'s fields)."""
-        idle = r.status is not None or (not r.navigating and not r.yielding)
-        return TrafficRobot(
-            r.name,
-            r.estimate,
-            r.robot.footprint_radius,
-            r.limits.max_v,
-            speed=float(r.command[0]),
-            path=r.traffic_path,
-            idle=idle,
-            costmap=r.setup.costmap,
-        )
+def _state(member: FleetMember, report: RobotReport) -> TrafficRobot:
+    """A robot for the traffic plugin: what it is, and what it reported after deciding."""
+    idle = report.status is not None or (not report.navigating and not report.yielding)
+    return TrafficRobot(
+        member.name,
+        report.estimate,
+        member.radius,
+        member.max_speed,
+        speed=float(report.command[0]),
+        path=report.traffic_path,
+        idle=idle,
+        costmap=member.costmap,
+    )

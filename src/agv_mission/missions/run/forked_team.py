@@ -188,7 +188,9 @@ class ForkedTeam:
         for this process's robots."""
         if self.parent is not None:
             return self.orders
-        orders = coordinator.decide(now) if coordinator is not None else {}
+        orders: dict[str, FleetOrder] = {}
+        if coordinator is not None:  # on every robot's report, the others' as they shared them
+            orders = coordinator.decide(now, [r.report() for r in self.robots])
         snapshot = None
         if self.world is not None and self._stepped:
             expected = self.clock(self.world)

@@ -26,6 +26,7 @@ from agv_mission.missions.load.resolved import LoadedMission
 from agv_mission.missions.run.behaviour_tree import build_tree
 from agv_mission.missions.run.btlog import TreeLog
 from agv_mission.missions.run.faults import FaultInjector
+from agv_mission.missions.run.fleet_orders import FleetMember, FleetOrder
 from agv_mission.missions.run.map_building import MapBuilder
 from agv_mission.missions.run.metrics import (
     COVARIANCE_COLUMNS,
@@ -251,6 +252,19 @@ class RobotRun:
             self.yielding,
             self.navigating,
             self.traffic_path,
+        )
+
+    def take_order(self, order: FleetOrder) -> None:
+        """The fleet layer's order for this step: the traffic decision the navigator obeys,
+        the other robots' bodies (its obstacle layer must not mark them), its fleet events."""
+        self.navigator.fleet_bodies = order.bodies
+        self.navigator.obey(order.decision, self.handle.state)
+        self.handle.events.extend(order.events)
+
+    def fleet_member(self) -> FleetMember:
+        """This robot as the fleet layer knows it for the whole run."""
+        return FleetMember(
+            self.name, self.robot.footprint_radius, self.limits.max_v, self.setup.costmap
         )
 
     def take_report(self, report: RobotReport) -> None:

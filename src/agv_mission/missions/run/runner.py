@@ -142,7 +142,15 @@ class MissionRun:
             self.by_name[d["robot"]].handle.log(
                 "dispatch", task=d["task"], type=d["type"], estimated_finish=d["finish"]
             )
-        self.coordinator = FleetCoordinator(loaded, self.robots, self.fleet_log) if fleet else None
+        self.coordinator = (
+            FleetCoordinator(
+                [r.fleet_member() for r in self.robots],
+                loaded.mission.fleet.traffic,
+                self.fleet_log,
+            )
+            if fleet
+            else None
+        )
         self._touching: set[tuple[int, int]] = set()
         self.wall_start = time.perf_counter()
         self.status: str | None = None
@@ -268,8 +276,8 @@ class MissionRun:
         # where it decides
         orders = team.begin_step(now, coordinator)
         self._observe()  # the step before's samples, while the robot processes decide
-        if coordinator is not None:
-            coordinator.hand_out(orders)
+        for name, order in orders.items():  # each robot takes its own
+            self.by_name[name].take_order(order)
         if self.people is not None:
             self.people.sense(now, robots)
         for r in robots:

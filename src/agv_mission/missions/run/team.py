@@ -97,7 +97,8 @@ class RobotTeam(Protocol):
         ...
 
     def begin_step(self, now: float, coordinator: FleetCoordinator | None) -> dict[str, FleetOrder]:
-        """A new step: the fleet layer's orders for this process's robots."""
+        """A new step: the fleet layer's orders for this process's robots (it decides on
+        every robot's report, in the first process)."""
         ...
 
     def share_reports(self) -> None:
@@ -132,7 +133,9 @@ class InlineTeam:
         return world.time
 
     def begin_step(self, now: float, coordinator: FleetCoordinator | None) -> dict[str, FleetOrder]:
-        return coordinator.decide(now) if coordinator is not None else {}
+        if coordinator is None:
+            return {}
+        return coordinator.decide(now, [r.report() for r in self.own])
 
     def share_reports(self) -> None:
         return None

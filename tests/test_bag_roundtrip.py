@@ -40,6 +40,7 @@ def _round_trip(tmp_path: Path, mission: Path | str, overrides: list[str], text:
     return live, quality, report, loaded, run_dir / "bag"
 
 
+@pytest.mark.slow  # 16 s; the fast suite maps a run's bag in test_mission_matrix and test_bag_mapping
 def test_round_trip_turtlebot3_world(tmp_path):
     live, quality, report, loaded, bag = _round_trip(
         tmp_path, REPO / "tests" / "scenarios" / "map_area_tb3.yaml", []

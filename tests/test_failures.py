@@ -193,30 +193,24 @@ def test_ctrl_c_writes_result_aborted_and_exits_130(tmp_path: Path) -> None:
 
 
 def test_same_seed_gives_an_identical_trajectory_file(tmp_path: Path) -> None:
+    """The demo twice at once (each loading the other's core): the same bytes."""
     repo = Path(__file__).resolve().parents[1]
     demo = repo / "missions" / "patrol.yaml"
-    outs = []
-    for k in range(2):
-        out = tmp_path / f"out{k}"
-        r = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "agv_mission.cli",
-                "run",
-                str(demo),
-                "--output",
-                str(out),
-                "--set",
-                "tasks.0.loops=1",
-                "--set",
-                "stack.localization.type=amcl",
-            ],
-            capture_output=True,
+    overrides = ["--set", "tasks.0.loops=1", "--set", "stack.localization.type=amcl"]
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-m", "agv_mission.cli", "run", str(demo)]
+            + ["--output", str(tmp_path / f"out{k}"), *overrides],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
             text=True,
-            timeout=600,
         )
-        assert r.returncode == 0, r.stderr
-        [run_dir] = out.iterdir()
+        for k in range(2)
+    ]
+    outs = []
+    for k, proc in enumerate(procs):
+        _, stderr = proc.communicate(timeout=600)
+        assert proc.returncode == 0, stderr
+        [run_dir] = (tmp_path / f"out{k}").iterdir()
         outs.append((run_dir / "trajectory.csv").read_bytes())
     assert outs[0] == outs[1]

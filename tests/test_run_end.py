@@ -94,7 +94,7 @@ def test_signals_at_random_moments_never_leave_a_run_directory_without_a_result(
 ) -> None:
     rng = random.Random(11)
     mission = mission_file(tmp_path, SHORT)
-    for i in range(6):
+    for i in range(4):
         out = tmp_path / f"out{i}"
         sig = rng.choice([signal.SIGTERM, signal.SIGINT])
         proc = start_run(mission, out)

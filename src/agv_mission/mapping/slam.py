@@ -259,7 +259,8 @@ class GridSlam(Slam):
             self.rejected_matches += 1
             self._cov = cov
             return predicted
-        if result.refined and result.covariance is not None and c.odom_prior:
+        if result.covariance is not None and c.odom_prior:
+            # the refinement's, or the correlative optimum fused with the prediction
             self._cov = 0.5 * (result.covariance + result.covariance.T)
         else:
             self._cov = _TINY_COV.copy() if result.refined else cov

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 from agv_mission.geometry import Pose2D
+from agv_mission.mapping.configs import GraphSlamConfig
+from agv_mission.mapping.graph_slam import GraphSlam
 from agv_mission.mapping.likelihood_field import LikelihoodField
 from agv_mission.mapping.scan_matching import CorrelativeMatcher, fuse
 from agv_mission.mapping.slam import GridSlam, GridSlamConfig
@@ -87,3 +89,15 @@ def test_a_flat_score_surface_is_wide_along_the_wall() -> None:
     pose, _ = fuse(guess, prior, moved + [0.0, -0.1, 0.0], result.covariance)
     assert abs(pose[0] - guess[0]) < 0.01
     assert abs(pose[1] - 1.0) < 0.04  # most of the 0.1 m across
+
+
+def test_a_loop_the_scan_cannot_pin_adds_no_edge() -> None:
+    """A loop match's covariance widens its edge; one wide past half the loop window
+    (a lone wall: anywhere along it) adds no edge at all."""
+    slam = GraphSlam(GraphSlamConfig())
+    assert slam._loop_sigma(np.diag([1e-4, 0.5, 1e-4]), 0.0) is None
+    # 10 cm along world y, 1 cm across: seen from a keyframe facing +y, along its x
+    sigma = slam._loop_sigma(np.diag([1e-4, 0.01, 1e-4]), math.pi / 2)
+    assert sigma is not None
+    assert sigma[0] == pytest.approx(0.1) and sigma[1] == pytest.approx(0.05)
+    assert np.allclose(slam._loop_sigma(np.diag([1e-6, 1e-6, 1e-6]), 0.3), [0.05, 0.05, 0.05])

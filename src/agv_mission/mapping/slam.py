@@ -30,7 +30,10 @@ to date incrementally around each integrated scan. The map grows when a scan rea
 past its edge.
 
 The pose estimate keeps a covariance (relative to the map): odometry motion adds
-``odom_*_noise``, each refined match replaces it by the match's. Between scans the
+``odom_*_noise``, each refined match replaces it by the match's, and one the refinement
+could not refine by the correlative optimum's fusion with the prediction (see
+:mod:`scan_matching`). A scan of fewer than ``min_points`` returns is not matched: the
+odometry alone moves the estimate. Between scans the
 estimate is the last corrected pose composed with the odometry motion since, so it moves
 smoothly at the control rate (SLAM's ``map -> odom``).
 """

@@ -64,8 +64,8 @@ SCAN_POINT_FACTOR = 1.6
 #: odometry alone). Measured on map_area of the depot (burger, LDS-01's 360 beams, seed
 #: 1): scans of fewer than 80 returns (a column or two, a wall's end 3 m off) turned the
 #: estimate's heading by 1.7 degrees in all over the run, where the gyro drifted 0.6;
-#: those of more, by -0.1. Of the house's scans 2 % have fewer than 90 (the waffle in a
-#: doorway), of the tb3 arena's none.
+#: those of more, by -0.1. Of the house's scans 2 % have fewer than 90, of the tb3
+#: arena's none.
 MIN_SCAN_SHARE = 0.25
 GYRO_SLAM_NOISE = {
     "odom_rotation_noise": 0.003,

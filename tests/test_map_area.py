@@ -198,7 +198,8 @@ def test_a_start_the_planner_refuses_is_backed_out_of_not_blamed_on_the_goal() -
 def test_slam_prior_follows_the_robots_sensors(tmp_path: Path) -> None:
     """SLAM's odometry prior and scan weight come from the robot's sensors: the gyro's
     heading noise when the odometry fuses one (the wheels' without), the encoders' travel
-    error, the LDS-01's range noise at 3.5 m; what the mission sets stays."""
+    error, the LDS-01's range noise at 3.5 m, the returns a scan needs from its beam
+    count; what the mission sets stays."""
     plain = TB3_MAP.replace(f"{NOISE}\n", "")
 
     def slam_config(text: str):
@@ -217,14 +218,18 @@ def test_slam_prior_follows_the_robots_sensors(tmp_path: Path) -> None:
         # the TB3's encoders: 0.5 % noise, 0.5 % slip, 0.2 % scale error a wheel
         assert config.odom_translation_noise == pytest.approx(0.0122, abs=1e-4)
         assert config.point_sigma == pytest.approx(0.1)  # 1.6 x 6.1 cm, up to whole cm
+        assert config.min_points == 90  # a quarter of the LDS-01's 360 beams
     noisy = slam_config(TB3_MAP)  # encoder_noise 0.02, wheel_slip 0.02
     assert noisy.odom_translation_noise > 3.0 * gyro.odom_translation_noise
     own = slam_config(
         plain.replace(
-            "tasks:\n", "stack: {slam: {point_sigma: 0.02, odom_rotation_floor: 0.002}}\ntasks:\n"
+            "tasks:\n",
+            "stack: {slam: {point_sigma: 0.02, odom_rotation_floor: 0.002, min_points: 20}}\n"
+            "tasks:\n",
         )
     )
     assert own.point_sigma == 0.02 and own.odom_rotation_floor == 0.002
+    assert own.min_points == 20
     assert own.odom_rotation_noise == pytest.approx(gyro.odom_rotation_noise)
 
 

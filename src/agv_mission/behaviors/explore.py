@@ -8,12 +8,13 @@ from typing import Any, Protocol
 import numpy as np
 import py_trees
 from py_trees.common import Status
+from scipy import ndimage
 
 from agv_mission.geometry import Bounds, Pose2D, wrap_angle
 from agv_mission.mapping.frontiers import Frontier, find_frontiers
 from agv_mission.mapping.session import MappingSession
 from agv_mission.maps.costmap import Costmap
-from agv_mission.maps.grid import UNKNOWN, OccupancyGrid
+from agv_mission.maps.grid import OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.navigation.navigator import NavStatus
 
@@ -46,6 +47,13 @@ class MapArea(py_trees.behaviour.Behaviour):
     by ``RETRY_GROWTH`` known cells since (the map it failed on may have been missing
     the way there), and for good after ``MAX_ATTEMPTS`` tries, so exploration never
     loops on an unreachable frontier and still ends.
+
+    The nearest frontier wins while SLAM is sure of its pose. As its position std
+    grows past ``UNCERTAIN_SIGMA`` (a long drive where the lidar saw too little to
+    match), a frontier costs more the farther its goal lies from mapped structure
+    (beyond ``FEATURE_RANGE``): the robot heads where its scans will meet walls and
+    columns already in the map and correct the estimate, not deeper into open floor
+    (:func:`choose_frontier`).
     """
 
     RESELECT_PERIOD = 5.0  # s: re-check that the frontier being approached still exists
@@ -60,6 +68,9 @@ class MapArea(py_trees.behaviour.Behaviour):
     BACKUP_SPEED = 0.1  # m/s backwards out of a spot the planner will not start from
     BACKUP_TIME = 1.5  # s: 0.15 m, Nav2's BackUp recovery's default distance
     MAX_BACKUPS = 3  # in a row before such failures count against the goals again
+    UNCERTAIN_SIGMA = 0.03  # m: SLAM's position std beyond which open floor costs more
+    FEATURE_RANGE = 2.0  # m: structure this near is matched well (an LDS-01's 3.5 m
+    # returns carry 6 cm of noise at the far end, too much for the refinement's normals)
 
     def __init__(
         self,
@@ -250,7 +261,13 @@ class MapArea(py_trees.behaviour.Behaviour):
             if f.goal is not None
         ):
             return None  # the frontier being approached is still there: keep driving
-        best = frontiers[0]
+        best = choose_frontier(
+            frontiers,
+            costmap.grid,
+            self._position_sigma(),
+            self.UNCERTAIN_SIGMA,
+            self.FEATURE_RANGE,
+        )
         assert best.goal is not None
         gx, gy = best.goal
         yaw = math.atan2(best.centroid[1] - gy, best.centroid[0] - gx)
@@ -259,6 +276,15 @@ class MapArea(py_trees.behaviour.Behaviour):
             self.goal, state, xy_tolerance=self.GOAL_TOLERANCE, yaw_tolerance=math.pi
         )
         return None
+
+    def _position_sigma(self) -> float:
+        """SLAM's position std now (m): the root of its xy covariance's largest
+        eigenvalue (0 when the plugin keeps none)."""
+        assert self.mapping is not None
+        cov = getattr(self.mapping.slam, "covariance", None)
+        if cov is None:
+            return 0.0
+        return float(math.sqrt(max(float(np.linalg.eigvalsh(np.asarray(cov)[:2, :2])[-1]), 0.0)))
 
     def _frontiers(self, costmap: Costmap, est: Pose2D, bounds: Bounds | None) -> list[Frontier]:
         """Reachable frontiers within ``bounds`` (None: anywhere), nearest first."""
@@ -313,3 +339,31 @@ class MapArea(py_trees.behaviour.Behaviour):
     def blacklist(self) -> list[tuple[float, float]]:
         """Every goal given up on so far (for now or for good)."""
         return [(x, y) for x, y, _, _ in self.attempts]
+
+
+def choose_frontier(
+    frontiers: list[Frontier],
+    grid: OccupancyGrid,
+    sigma: float,
+    uncertain_sigma: float,
+    feature_range: float,
+) -> Frontier:
+    """The frontier to explore next (``frontiers`` nearest first): the one of least
+    driving distance plus, per metre its goal lies beyond ``feature_range`` of the
+    nearest OCCUPIED cell of ``grid``, ``sigma / uncertain_sigma`` metres: the nearest
+    while the position std ``sigma`` is small, one near mapped structure (where a scan
+    corrects the estimate) as it grows."""
+    weight = sigma / uncertain_sigma if uncertain_sigma > 0.0 else 0.0
+    if weight < 1.0 or len(frontiers) < 2:
+        return frontiers[0]
+    to_structure = ndimage.distance_transform_edt(grid.data != OCCUPIED) * grid.resolution
+    best, best_cost = frontiers[0], math.inf
+    for f in frontiers:
+        if f.goal is None:
+            continue
+        r, c = grid.world_to_cell(np.asarray(f.goal, dtype=float))
+        blind = max(float(to_structure[int(r), int(c)]) - feature_range, 0.0)
+        cost = f.distance + weight * blind
+        if cost < best_cost:
+            best, best_cost = f, cost
+    return best

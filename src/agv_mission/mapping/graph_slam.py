@@ -189,9 +189,11 @@ class GraphSlam(GridSlam):
         self.loop_times.append(perf_counter() - t0)
         if result.score < c.loop_min_score:
             return False
+        sigma = self._loop_sigma(result.covariance, float(self.nodes[i, 2]))
+        if sigma is None:
+            return False
         z = Pose2D(*result.pose).relative_to(Pose2D(*self.nodes[i]))
-        sxy, sa = c.loop_edge_sigma
-        self.edges.append((i, j, z.as_array(), np.array([sxy, sxy, sa]), True))
+        self.edges.append((i, j, z.as_array(), sigma, True))
         self.loop_closures += 1
         # A loop edge the graph already agrees with changes nothing worth a solve.
         now = Pose2D(*self.nodes[j]).relative_to(Pose2D(*self.nodes[i]))
@@ -199,6 +201,24 @@ class GraphSlam(GridSlam):
         return (
             math.hypot(error.x, error.y) > c.loop_consistent or abs(error.yaw) > c.loop_consistent
         )
+
+    def _loop_sigma(self, cov: np.ndarray | None, yaw: float) -> np.ndarray | None:
+        """A loop edge's std (in the old keyframe's frame, at ``yaw``): ``loop_edge_sigma``
+        widened to the match's own covariance ``cov`` (its refinement's, or its score
+        surface's); None when the scan cannot pin the loop (a std past half the loop
+        window in some direction: one wall, a lone column), which would pull the graph
+        along a direction the scan never saw."""
+        sxy, sa = self.config.loop_edge_sigma
+        floor = np.array([sxy, sxy, sa])
+        if cov is None:
+            return floor
+        worst = float(np.linalg.eigvalsh(cov[:2, :2])[-1])
+        if not math.isfinite(worst) or worst > (0.5 * self.config.loop_linear_window) ** 2:
+            return None
+        cy, sy = math.cos(yaw), math.sin(yaw)
+        rot = np.array([[cy, sy, 0.0], [-sy, cy, 0.0], [0.0, 0.0, 1.0]])
+        local = rot @ cov @ rot.T
+        return np.maximum(floor, np.sqrt(np.maximum(np.diag(local), 0.0)))
 
     def _submap_field(self, members: list[int]) -> LikelihoodField:
         """A likelihood field of the keyframes ``members``' scans at their graph poses."""

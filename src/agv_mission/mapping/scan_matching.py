@@ -29,7 +29,12 @@ followed by the ``CeresScanMatcher2D``):
      (Catmull-Rom) interpolated likelihood field.
 
    The refinement is accepted when it converges inside the search window (and, for
-   ``"field"``, lowers its objective); otherwise the correlative pose stands.
+   ``"field"``, lowers its objective). Otherwise the correlative optimum gets the
+   covariance of its score surface (:meth:`CorrelativeMatcher._surface_covariance`,
+   Olson 2009 / Karto) and, given the odometry prior, is fused with the prediction as a
+   Kalman update: a scan that cannot tell where along a wall the robot stands (one wall
+   of an open hall, too noisy at 3 m for the refinement's normals) leaves the odometry
+   there instead of jumping a cell toward the part of the wall already mapped.
 
 The field is ``exp(-d^2 / (2 sigma^2))`` of the distance ``d`` to the nearest occupied
 cell's obstacle point, truncated at ``4 sigma`` (:func:`field_values`). Everything is
@@ -60,6 +65,9 @@ from agv_mission.mapping.scan_alignment import (
 )
 
 Refinement = Literal["icp", "field", "none"]
+#: Candidates scoring within this of the best count in the score surface's spread
+#: (Karto's ComputePositionalCovariance uses 0.1 of its response, also in 0..1).
+SURFACE_DROP = 0.1
 
 
 @dataclass
@@ -153,10 +161,14 @@ class CorrelativeMatcher:
         step = self.angular_step
         if step is None:
             step = math.acos(max(-1.0, 1.0 - res * res / (2.0 * max(reach, res) ** 2)))
-        coarse_pose, near_guess, evaluated = self._search(field, search, guess, reach, step)
+        coarse_pose, near_guess, evaluated, surface = self._search(
+            field, search, guess, reach, step
+        )
         pose, refined, cov = self._refine(
             field, points, guess, coarse_pose, near_guess, step, prior_cov
         )
+        if not refined:
+            pose, cov = fuse(guess, prior_cov, coarse_pose, surface)
         pose = pose.copy()
         pose[2] = wrap_angle(pose[2])
         score = self.score(field, points, pose)
@@ -217,10 +229,11 @@ class CorrelativeMatcher:
         guess: np.ndarray,
         reach: float,
         step: float,
-    ) -> tuple[np.ndarray, bool, int]:
+    ) -> tuple[np.ndarray, bool, int, np.ndarray]:
         """The correlative optimum of the window round ``guess`` (branch and bound over
         two levels, see the module), whether it lies within a cell and an angular
-        ``step`` of ``guess``, and how many cell-level candidates were scored."""
+        ``step`` of ``guess``, how many cell-level candidates were scored and the
+        optimum's covariance from its score surface."""
         res = field.resolution
         n_lin = max(int(round(self.linear_window / res)), 0)
         n_ang = max(int(math.ceil(self.angular_window / step - 1e-9)), 0)
@@ -269,7 +282,44 @@ class CorrelativeMatcher:
         coarse_pose = np.array([guess[0] + dx * res, guess[1] + dy * res, yaws[ai]])
         # Within a cell and a step of the prediction: refine from the prediction instead.
         near_guess = abs(dx) <= 1 and abs(dy) <= 1 and abs(dyaw[ai]) <= step * 1.0001
-        return coarse_pose, near_guess, evaluated
+        surface = self._surface_covariance(flat, base, (ai, dy, dx), (n_lin, size), res, dyaw)
+        return coarse_pose, near_guess, evaluated, surface
+
+    @staticmethod
+    def _surface_covariance(
+        flat: np.ndarray,
+        base: np.ndarray,
+        best: tuple[int, int, int],
+        layout: tuple[int, int],
+        res: float,
+        dyaw: np.ndarray,
+    ) -> np.ndarray:
+        """(3, 3) covariance of the correlative optimum ``best`` (angle index, dy, dx)
+        from its score surface, as Karto's ComputePositionalCovariance and
+        ComputeAngularCovariance: the score-weighted spread about the optimum of the
+        window's cells at its angle, and of the angles at its cell, that score within
+        SURFACE_DROP of the best, plus a cell's (a step's) own uniform variance. Flat
+        along a lone wall, so wide there; sharp across it."""
+        ai, by, bx = best
+        n_lin, size = layout
+        n_pts = float(base.shape[1])
+        cells = np.arange(-n_lin, n_lin + 1)
+        gy, gx = (g.ravel() for g in np.meshgrid(cells, cells, indexing="ij"))
+        s = flat[base[ai][None, :] + (gy * size + gx)[:, None]].sum(axis=1) / n_pts
+        w = np.where(s >= s.max() - SURFACE_DROP, s, 0.0)
+        w = w / max(float(w.sum()), 1e-12)
+        ex, ey = (gx - bx) * res, (gy - by) * res
+        cell = res * res / 12.0
+        cov = np.zeros((3, 3))
+        cov[0, 0] = float(w @ (ex * ex)) + cell
+        cov[1, 1] = float(w @ (ey * ey)) + cell
+        cov[0, 1] = cov[1, 0] = float(w @ (ex * ey))
+        sa = flat[base + (by * size + bx)].sum(axis=1) / n_pts
+        wa = np.where(sa >= sa.max() - SURFACE_DROP, sa, 0.0)
+        wa = wa / max(float(wa.sum()), 1e-12)
+        step = float(dyaw[1] - dyaw[0]) if len(dyaw) > 1 else 0.0
+        cov[2, 2] = float(wa @ (dyaw - dyaw[ai]) ** 2) + step * step / 12.0 + 1e-12
+        return cov
 
     def _expand_blocks(
         self,
@@ -390,3 +440,23 @@ class CorrelativeMatcher:
     def _penalty(self, translation: np.ndarray, rotation: np.ndarray) -> np.ndarray:
         cost = self.translation_weight * translation + self.rotation_weight * np.abs(rotation)
         return np.exp(-(cost**2))
+
+
+def fuse(
+    guess: np.ndarray,
+    prior_cov: np.ndarray | None,
+    measured: np.ndarray,
+    measured_cov: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The Kalman update of the prediction ``guess`` (covariance ``prior_cov``) by the
+    pose ``measured`` (covariance ``measured_cov``): the pose and its covariance.
+    Without a prior, ``measured`` and its covariance."""
+    if prior_cov is None:
+        return measured.copy(), measured_cov
+    innovation = measured - guess
+    innovation[2] = wrap_angle(float(innovation[2]))
+    gain = prior_cov @ np.linalg.inv(prior_cov + measured_cov)
+    pose = guess + gain @ innovation
+    pose[2] = wrap_angle(float(pose[2]))
+    cov = (np.eye(3) - gain) @ prior_cov
+    return pose, 0.5 * (cov + cov.T)

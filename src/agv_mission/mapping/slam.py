@@ -30,7 +30,10 @@ to date incrementally around each integrated scan. The map grows when a scan rea
 past its edge.
 
 The pose estimate keeps a covariance (relative to the map): odometry motion adds
-``odom_*_noise``, each refined match replaces it by the match's. Between scans the
+``odom_*_noise``, each refined match replaces it by the match's, and one the refinement
+could not refine by the correlative optimum's fusion with the prediction (see
+:mod:`scan_matching`). A scan of fewer than ``min_points`` returns is not matched: the
+odometry alone moves the estimate. Between scans the
 estimate is the last corrected pose composed with the odometry motion since, so it moves
 smoothly at the control rate (SLAM's ``map -> odom``).
 """
@@ -259,7 +262,8 @@ class GridSlam(Slam):
             self.rejected_matches += 1
             self._cov = cov
             return predicted
-        if result.refined and result.covariance is not None and c.odom_prior:
+        if result.covariance is not None and c.odom_prior:
+            # the refinement's, or the correlative optimum fused with the prediction
             self._cov = 0.5 * (result.covariance + result.covariance.T)
         else:
             self._cov = _TINY_COV.copy() if result.refined else cov

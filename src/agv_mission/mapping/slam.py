@@ -293,13 +293,18 @@ class GridSlam(Slam):
         u = np.array([c * delta.x - s * delta.y, s * delta.x + c * delta.y]) / d
         moved = float(u @ (matched[:2] - np.array([self._pose.x, self._pose.y])))
         try:
-            gain = 1.0 / float(u @ post[:2, :2] @ u) - 1.0 / float(u @ prior[:2, :2] @ u)
+            info = 1.0 / float(u @ post[:2, :2] @ u)
+            gain = info - 1.0 / float(u @ prior[:2, :2] @ u)
         except ZeroDivisionError:
             return
-        gain = min(max(gain, 0.0), 1.0 / 0.02**2)  # no match is better than 2 cm
+        if gain <= 1.0:
+            return
+        # The match fused the prediction: the scan's own distance, undoing that pull.
+        seen = d + (info / gain) * (moved - d)
+        gain = min(gain, 1.0 / 0.02**2)  # no match is better than 2 cm
         raw = d / self.odom_scale
         self._scale_info += gain * raw * raw
-        self._scale_sum += gain * raw * moved
+        self._scale_sum += gain * raw * seen
         k = (std**-2 + self._scale_sum) / (std**-2 + self._scale_info)
         self.odom_scale = float(np.clip(k, 1.0 - 5.0 * std, 1.0 + 5.0 * std))
 

@@ -3,16 +3,22 @@
 The ``grid`` plugin (scan-to-map matching) is the front end: it tracks the robot and
 builds the map. Every ``keyframe_distance`` / ``keyframe_angle`` of motion its pose and
 scan become a keyframe, linked to the previous one by the front end's relative motion.
-Every ``loop_check_every`` keyframes, the keyframe closest to the current estimate among
-those more than ``loop_min_travel`` metres of driving ago (and within
-``loop_search_radius``) is a loop candidate: the current scan is matched over a wide
-window (+-``loop_linear_window``, +-``loop_angular_window``; the same correlative branch
-and bound + point-to-line refinement as the front end) against a submap of the keyframes
-around the candidate, and a match scoring ``loop_min_score`` adds a loop edge.
+Every ``loop_check_every`` keyframes (and every ``loop_check_distance`` metres), the
+keyframe closest to the current estimate among those more than ``loop_min_travel``
+metres of driving ago is a loop candidate, searched within ``loop_search_radius`` plus
+``loop_search_growth`` per metre driven since the last closure (the drift since). While
+that drift is within ``loop_linear_window`` the current scan is matched over
++-``loop_linear_window``, +-``loop_angular_window`` (the same correlative branch and
+bound + point-to-line refinement as the front end) against a submap of the keyframes
+around the candidate; beyond, over the whole radius and ``loop_wide_angular_window``
+against the keyframes within it (on a field of twice the cell size, then refined). A
+match scoring ``loop_min_score`` is a loop closure; one that moves the graph by more
+than ``loop_verify`` waits for a second closure that agrees with it
+(:mod:`~agv_mission.mapping.pose_graph`).
 
-The graph is then optimised (:func:`optimize_pose_graph`: Gauss-Newton on scipy's sparse
-solver with an analytic Jacobian and Huber weights, so one wrong loop edge cannot tear
-the map) and,
+The graph is then solved (:func:`~agv_mission.mapping.pose_graph.solve_pose_graph`:
+Gauss-Newton on scipy's sparse solver with an analytic Jacobian, every verified loop
+edge at full weight, a loop edge the solution cannot satisfy dropped) and,
 when a keyframe moved by more than ``rebuild_threshold``, the map is rebuilt from the
 keyframes' scans at their optimised poses (Karto / slam_toolbox do the same). The front
 end continues from the optimised pose, and :attr:`trajectory` is corrected too (each

@@ -3,15 +3,15 @@ checks that let a loop closure into it.
 
 A loop closure found by matching a scan against a submap can be wrong (two doorways of
 one corridor look alike), and a right one can disagree with the drifted graph by metres.
-A robust kernel on the raw residual cannot tell the two apart: it weighs both down (with
-Huber at 3 sigma, an edge 8 m off pulls as one 0.2 m off), so a right closure never pulls
-the drift out. Instead (as Olson's single-cluster check, Latif et al.'s RRR, and the
-verify-then-trust practice of Cartographer's constraint builder): a closure that moves
-the graph by more than a little must agree with another closure found nearby
-(:func:`loop_pair_error`: the cycle the two form with the short stretches of graph
-between their ends is the identity); the graph is then solved with every loop edge at
-full weight, and a loop edge the solution still cannot satisfy is dropped and the graph
-solved again (:func:`solve_pose_graph`).
+A robust kernel on the raw residual cannot tell the two apart: Huber caps a wrong edge's
+pull but keeps it pulling (on the ACES log one false closure 7.7 m off ended with a
+residual of 4 mm: it bent the map to itself). Instead (as Olson's single-cluster check,
+Latif et al.'s RRR, and the verify-then-trust practice of Cartographer's constraint
+builder): a closure that moves the graph by more than a little must agree with another
+closure found nearby (:func:`loop_pair_error`: the cycle the two form with the short
+stretches of graph between their ends is the identity); the graph is then solved with
+every loop edge at full weight, and a loop edge the solution still cannot satisfy is
+dropped and the graph solved again (:func:`solve_pose_graph`).
 """
 
 from __future__ import annotations

@@ -136,6 +136,13 @@ class GridSlamConfig(PluginConfig):
         "a quarter of the window with at least this mean field value, the correlative search "
         "is skipped; None: always search",
     )
+    odom_scale_std: float | None = Field(
+        None,
+        gt=0,
+        description="std of the odometry's scale error (a wheel radius off by a percent or "
+        "two, Borenstein and Feng's UMBmark): learnt from the matches where the scan sees "
+        "the motion, and the odometry's distances corrected by it; None: taken as exact",
+    )
     match_gate: float | None = Field(
         None,
         gt=0,
@@ -159,6 +166,12 @@ class GraphSlamConfig(GridSlamConfig):
     keyframe_distance: float = Field(0.3, gt=0, description="metres between keyframes")
     keyframe_angle: float = Field(0.35, gt=0, description="radians between keyframes")
     loop_check_every: int = Field(2, ge=1, description="keyframes between loop searches")
+    loop_check_distance: float | None = Field(
+        None,
+        gt=0,
+        description="metres driven between loop searches, whatever the keyframes; None: "
+        "every loop_check_every keyframes only",
+    )
     loop_min_travel: float = Field(
         8.0, gt=0, description="metres driven before a keyframe can close a loop"
     )
@@ -184,7 +197,44 @@ class GraphSlamConfig(GridSlamConfig):
         ge=0,
         description="m / rad: a loop edge closer than this to the graph is kept without a solve",
     )
-    huber_scale: float = Field(3.0, gt=0, description="whitened residual where Huber starts")
+    loop_search_growth: float = Field(
+        0.0,
+        ge=0,
+        description="m of loop search radius (and window) added per metre driven since the "
+        "last loop closure: the drift a scan matcher's heading error of a few tenths of a "
+        "degree per metre builds up (the ACES log: 7 m after 250 m; agv-mission map's "
+        "long-range default 0.03); 0: a fixed search. A short-range lidar's scan (3.5 m) "
+        "is too small to be placed alone over metres: on the house patrol's bag a wide "
+        "search took a worse closure (free-cell IoU 0.952 -> 0.947)",
+    )
+    loop_max_radius: float = Field(
+        8.0, gt=0, description="m: the widest loop search, however long since the last closure"
+    )
+    loop_wide_angular_window: float = Field(
+        math.radians(30.0),
+        gt=0,
+        description="+- radians searched for a loop when the radius has grown beyond "
+        "loop_search_radius",
+    )
+    loop_verify: tuple[float, float] = Field(
+        (0.3, 0.05),
+        description="m, rad: a loop closure that moves the graph by more waits for a second "
+        "one nearby that agrees with it before either enters the graph",
+    )
+    loop_pair_travel: float = Field(
+        30.0, gt=0, description="m driven within which two loop closures can confirm each other"
+    )
+    loop_pair_tolerance: tuple[float, float] = Field(
+        (0.3, 0.05),
+        description="m, rad: how far two loop closures may disagree and still confirm each "
+        "other (plus 1 % / 0.002 rad per metre of graph between their ends)",
+    )
+    loop_gate: float = Field(
+        5.0,
+        gt=0,
+        description="whitened residual of a loop edge the solved graph cannot satisfy: "
+        "that edge is dropped and the graph solved again",
+    )
     final_smoothing: bool = Field(
         False,
         description="offline (agv-mission map), once the recording ends: the trajectory "

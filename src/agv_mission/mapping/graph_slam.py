@@ -3,16 +3,22 @@
 The ``grid`` plugin (scan-to-map matching) is the front end: it tracks the robot and
 builds the map. Every ``keyframe_distance`` / ``keyframe_angle`` of motion its pose and
 scan become a keyframe, linked to the previous one by the front end's relative motion.
-Every ``loop_check_every`` keyframes, the keyframe closest to the current estimate among
-those more than ``loop_min_travel`` metres of driving ago (and within
-``loop_search_radius``) is a loop candidate: the current scan is matched over a wide
-window (+-``loop_linear_window``, +-``loop_angular_window``; the same correlative branch
-and bound + point-to-line refinement as the front end) against a submap of the keyframes
-around the candidate, and a match scoring ``loop_min_score`` adds a loop edge.
+Every ``loop_check_every`` keyframes (and every ``loop_check_distance`` metres), the
+keyframe closest to the current estimate among those more than ``loop_min_travel``
+metres of driving ago is a loop candidate, searched within ``loop_search_radius`` plus
+``loop_search_growth`` per metre driven since the last closure (the drift since). While
+that drift is within ``loop_linear_window`` the current scan is matched over
++-``loop_linear_window``, +-``loop_angular_window`` (the same correlative branch and
+bound + point-to-line refinement as the front end) against a submap of the keyframes
+around the candidate; beyond, over the whole radius and ``loop_wide_angular_window``
+against the keyframes within it (on a field of twice the cell size, then refined). A
+match scoring ``loop_min_score`` is a loop closure; one that moves the graph by more
+than ``loop_verify`` waits for a second closure that agrees with it
+(:mod:`~agv_mission.mapping.pose_graph`).
 
-The graph is then optimised (:func:`optimize_pose_graph`: Gauss-Newton on scipy's sparse
-solver with an analytic Jacobian and Huber weights, so one wrong loop edge cannot tear
-the map) and,
+The graph is then solved (:func:`~agv_mission.mapping.pose_graph.solve_pose_graph`:
+Gauss-Newton on scipy's sparse solver with an analytic Jacobian, every verified loop
+edge at full weight, a loop edge the solution cannot satisfy dropped) and,
 when a keyframe moved by more than ``rebuild_threshold``, the map is rebuilt from the
 keyframes' scans at their optimised poses (Karto / slam_toolbox do the same). The front
 end continues from the optimised pose, and :attr:`trajectory` is corrected too (each
@@ -31,12 +37,11 @@ from time import perf_counter
 from typing import Any
 
 import numpy as np
-from scipy.sparse import csr_matrix, diags
-from scipy.sparse.linalg import spsolve
 
 from agv_mission.geometry import Pose2D, wrap_angles
 from agv_mission.mapping.configs import GraphSlamConfig
 from agv_mission.mapping.likelihood_field import LikelihoodField
+from agv_mission.mapping.pose_graph import loop_pair_error, optimize_pose_graph, solve_pose_graph
 from agv_mission.mapping.scan_matching import CorrelativeMatcher
 from agv_mission.mapping.slam import GridSlam
 from agv_mission.maps.grid import OccupancyGrid
@@ -68,6 +73,16 @@ class GraphSlam(GridSlam):
             scan_sigma=c.scan_sigma,
             search_max_range=c.search_max_range,
         )
+        # After a wide search's coarse optimum: a cell and a few steps left to settle.
+        self.loop_refiner = CorrelativeMatcher(
+            linear_window=0.3,
+            angular_window=math.radians(3.0),
+            refinement=c.refinement,
+            iterations=c.refine_iterations,
+            point_sigma=c.point_sigma,
+            scan_sigma=c.scan_sigma,
+            search_max_range=c.search_max_range,
+        )
         self._clear_graph()
 
     def _clear_graph(self) -> None:
@@ -85,6 +100,12 @@ class GraphSlam(GridSlam):
         self._last_pose: Pose2D | None = None
         self.loop_closures = 0
         self.loop_attempts = 0
+        self.loops_pending = 0  # closures that waited for a second one
+        self.loop_rejections = 0  # loop edges the solved graph could not satisfy
+        self._closed_travel = 0.0  # metres driven at the last loop closure
+        self._searched_travel = 0.0  # ... at the last loop search
+        # Closures waiting for confirmation: i, j, z, travel at j, travel at i, std.
+        self._pending: list[tuple[Any, ...]] = []
         self.optimizations = 0
         self.rebuilds = 0
         self.smoothing_s = 0.0
@@ -102,6 +123,8 @@ class GraphSlam(GridSlam):
             "keyframes": len(self.keyframes),
             "loop_attempts": self.loop_attempts,
             "loop_closures": self.loop_closures,
+            "loops_pending": self.loops_pending,
+            "loop_rejections": self.loop_rejections,
             "optimizations": self.optimizations,
             "map_rebuilds": self.rebuilds,
             "optimize_s": round(float(np.sum(self.optimize_times)), 3),
@@ -119,7 +142,6 @@ class GraphSlam(GridSlam):
         if self._last_pose is not None:
             self._travel += pose.distance_to(self._last_pose)
         self._last_pose = pose
-        c = self.config
         new_keyframe = self._keyframe_due(pose)
         if new_keyframe:
             self._add_keyframe(scan, pose)
@@ -129,7 +151,7 @@ class GraphSlam(GridSlam):
         self._anchor_offset.append((offset.x, offset.y, offset.yaw))
         if self.integrations != integrations:
             self._integrated.append((scan, k, offset, len(self.trajectory) - 1))
-        if new_keyframe and k % c.loop_check_every == 0 and self._close_loop(k):
+        if new_keyframe and self._loop_due(k) and self._close_loop(k):
             # the new edge disagrees with the graph: solve
             pose = self._optimize()
         return pose
@@ -166,7 +188,22 @@ class GraphSlam(GridSlam):
         self.keyframes.append(Keyframe(scan, points, self._travel))
         self.nodes = np.vstack([self.nodes, pose.as_array()])
 
+    def _loop_due(self, k: int) -> bool:
+        """Whether keyframe ``k`` searches a loop: every ``loop_check_every`` keyframes, or
+        once ``loop_check_distance`` metres were driven since the last search (a log of
+        a scan a metre has a keyframe a scan)."""
+        c = self.config
+        travel = self.keyframes[k].travel
+        far = c.loop_check_distance is not None and (
+            travel - self._searched_travel >= c.loop_check_distance
+        )
+        if k % c.loop_check_every == 0 or far:
+            self._searched_travel = travel
+            return True
+        return False
+
     def _close_loop(self, j: int) -> bool:
+        """Search a loop closure for keyframe ``j``; whether the graph needs a solve."""
         c = self.config
         kf = self.keyframes[j]
         if len(kf.points) < c.min_points:
@@ -175,17 +212,23 @@ class GraphSlam(GridSlam):
         old = np.flatnonzero(travel < kf.travel - c.loop_min_travel)
         if not len(old):
             return False
+        # The drift since the last closure widens the search (Cartographer searches 7 m).
+        drift = c.loop_search_growth * (kf.travel - self._closed_travel)
+        radius = max(min(c.loop_search_radius + drift, c.loop_max_radius), c.loop_search_radius)
         d = np.hypot(*(self.nodes[old, :2] - self.nodes[j, :2]).T)
-        if d.min() > c.loop_search_radius:
+        if d.min() > radius:
             return False
         i = int(old[np.argmin(d)])
         t0 = perf_counter()
         self.loop_attempts += 1
-        lo, hi = max(i - c.loop_submap_keyframes, 0), i + c.loop_submap_keyframes + 1
-        allowed = set(old.tolist())
-        members = [m for m in range(lo, min(hi, len(self.keyframes))) if m in allowed]
-        field = self._submap_field(members)
-        result = self.loop_matcher.match(field, kf.points, self.nodes[j], None)
+        if drift > c.loop_linear_window:
+            result = self._wide_match(j, old[d <= radius], radius)
+        else:
+            lo, hi = max(i - c.loop_submap_keyframes, 0), i + c.loop_submap_keyframes + 1
+            allowed = set(old.tolist())
+            members = [m for m in range(lo, min(hi, len(self.keyframes))) if m in allowed]
+            field = self._submap_field(members)
+            result = self.loop_matcher.match(field, kf.points, self.nodes[j], None)
         self.loop_times.append(perf_counter() - t0)
         if result.score < c.loop_min_score:
             return False
@@ -193,14 +236,22 @@ class GraphSlam(GridSlam):
         if sigma is None:
             return False
         z = Pose2D(*result.pose).relative_to(Pose2D(*self.nodes[i]))
-        self.edges.append((i, j, z.as_array(), sigma, True))
-        self.loop_closures += 1
-        # A loop edge the graph already agrees with changes nothing worth a solve.
         now = Pose2D(*self.nodes[j]).relative_to(Pose2D(*self.nodes[i]))
         error = z.relative_to(now)
-        return (
-            math.hypot(error.x, error.y) > c.loop_consistent or abs(error.yaw) > c.loop_consistent
-        )
+        shift, turn = math.hypot(error.x, error.y), abs(error.yaw)
+        found = (i, j, z.as_array(), kf.travel, self.keyframes[i].travel, sigma)
+        if shift <= c.loop_verify[0] and turn <= c.loop_verify[1]:
+            accepted = [found]
+        else:
+            accepted = self._confirmed(found)
+            if not accepted:
+                return False
+        for a, b, zz, _, _, sd in accepted:
+            self.edges.append((a, b, zz, sd, True))
+        self.loop_closures += len(accepted)
+        self._closed_travel = kf.travel
+        # A loop edge the graph already agrees with changes nothing worth a solve.
+        return len(accepted) > 1 or shift > c.loop_consistent or turn > c.loop_consistent
 
     def _loop_sigma(self, cov: np.ndarray | None, yaw: float) -> np.ndarray | None:
         """A loop edge's std (in the old keyframe's frame, at ``yaw``): ``loop_edge_sigma``
@@ -220,9 +271,53 @@ class GraphSlam(GridSlam):
         local = rot @ cov @ rot.T
         return np.maximum(floor, np.sqrt(np.maximum(np.diag(local), 0.0)))
 
-    def _submap_field(self, members: list[int]) -> LikelihoodField:
-        """A likelihood field of the keyframes ``members``' scans at their graph poses."""
-        res = self.resolution
+    def _confirmed(self, found: tuple[Any, ...]) -> list[tuple[Any, ...]]:
+        """``found`` and a pending closure that agrees with it (both to enter the graph),
+        or none, ``found`` then waiting for one (see :mod:`pose_graph`)."""
+        c = self.config
+        travel = found[3]
+        self._pending = [p for p in self._pending if travel - p[3] <= c.loop_pair_travel]
+        for k in range(len(self._pending) - 1, -1, -1):
+            p = self._pending[k]
+            shift, turn = loop_pair_error(self.nodes, p[:3], found[:3])
+            between = abs(found[3] - p[3]) + abs(found[4] - p[4])
+            tol_xy, tol_yaw = c.loop_pair_tolerance
+            if shift <= tol_xy + 0.01 * between and turn <= tol_yaw + 0.002 * between:
+                del self._pending[k]
+                return [p, found]
+        self._pending.append(found)
+        self.loops_pending += 1
+        return []
+
+    def _wide_match(self, j: int, members: np.ndarray, radius: float) -> Any:
+        """The match of keyframe ``j`` over +-``radius`` against the keyframes ``members`` (at
+        most ``2 loop_submap_keyframes + 1`` of them, evenly spread): a correlative search
+        on a field of twice the cell size, then a narrow one on the full resolution."""
+        c = self.config
+        cap = 2 * c.loop_submap_keyframes + 1
+        if len(members) > cap:
+            members = members[np.linspace(0, len(members) - 1, cap).round().astype(int)]
+        chosen = [int(m) for m in members]
+        margin = radius + 1.0
+        coarse_field = self._submap_field(chosen, 2.0 * self.resolution, margin)
+        coarse = CorrelativeMatcher(
+            linear_window=radius,
+            angular_window=c.loop_wide_angular_window,
+            coarse_block=8,
+            translation_weight=0.0,  # no pull toward the drifted guess
+            rotation_weight=0.0,
+            refinement="none",
+            search_max_range=c.search_max_range,
+        ).match(coarse_field, self.keyframes[j].points, self.nodes[j], None)
+        field = self._submap_field(chosen, self.resolution, margin)
+        return self.loop_refiner.match(field, self.keyframes[j].points, coarse.pose, None)
+
+    def _submap_field(
+        self, members: list[int], res: float | None = None, margin: float | None = None
+    ) -> LikelihoodField:
+        """A likelihood field of the keyframes ``members``' scans at their graph poses
+        (cells of ``res``, the map's by default)."""
+        res = self.resolution if res is None else res
         pts = []
         for m in members:
             p = self.nodes[m]
@@ -234,7 +329,8 @@ class GraphSlam(GridSlam):
                 )
             )
         xy = np.vstack(pts)
-        margin = self.config.loop_linear_window + 1.0
+        if margin is None:
+            margin = self.config.loop_linear_window + 1.0
         ox = math.floor((xy[:, 0].min() - margin) / res) * res
         oy = math.floor((xy[:, 1].min() - margin) / res) * res
         w = int(math.ceil((xy[:, 0].max() + margin - ox) / res))
@@ -249,21 +345,24 @@ class GraphSlam(GridSlam):
         ax = np.bincount(flat, xy[:, 0] - (ox + (cols + 0.5) * res), h * w) / safe
         ay = np.bincount(flat, xy[:, 1] - (oy + (rows + 0.5) * res), h * w) / safe
         anchor = (ax.reshape(h, w).astype(np.float32), ay.reshape(h, w).astype(np.float32))
-        return LikelihoodField.from_occupied(
-            occupied, res, (ox, oy), self.config.likelihood_sigma, anchor=anchor
-        )
+        sigma = self.config.likelihood_sigma * res / self.resolution
+        return LikelihoodField.from_occupied(occupied, res, (ox, oy), sigma, anchor=anchor)
 
     def _optimize(self) -> Pose2D:
         """Optimise the graph, correct trajectory and map; the new current pose."""
         t0 = perf_counter()
-        new = optimize_pose_graph(
+        new, keep = solve_pose_graph(
             self.nodes,
             np.array([e[0] for e in self.edges]),
             np.array([e[1] for e in self.edges]),
             np.array([e[2] for e in self.edges]),
             np.array([e[3] for e in self.edges]),
-            self.config.huber_scale,
+            np.array([e[4] for e in self.edges]),
+            self.config.loop_gate,
         )
+        if not keep.all():
+            self.loop_rejections += int((~keep).sum())
+            self.edges = [e for e, k in zip(self.edges, keep, strict=True) if k]
         shift = float(np.hypot(*(new[:, :2] - self.nodes[:, :2]).T).max())
         self.nodes = new
         self.optimizations += 1
@@ -328,7 +427,9 @@ class GraphSlam(GridSlam):
         t0 = perf_counter()
         poses = np.array([row[1:] for row in self.trajectory])
         noise = (c.odom_translation_noise, c.odom_rotation_noise, c.odom_rotation_per_metre)
-        new = smooth_trajectory(poses, np.array(self._odom_at), noise, c.smoothing_sigma)
+        new = smooth_trajectory(
+            poses, np.array(self._odom_at), noise, c.smoothing_sigma, odom_scale=self.odom_scale
+        )
         self.trajectory[:] = [
             (row[0], float(p[0]), float(p[1]), float(p[2]))
             for row, p in zip(self.trajectory, new, strict=True)
@@ -374,6 +475,7 @@ def smooth_trajectory(
     odom_noise: tuple[float, float, float],
     pose_sigma: tuple[float, float],
     huber: float = 3.0,
+    odom_scale: float = 1.0,
 ) -> np.ndarray:
     """The poses (n, 3) that best agree with both the SLAM's ``poses`` (each within
     ``pose_sigma``: m, rad) and the odometry's motion between consecutive ones (``odom``,
@@ -389,6 +491,7 @@ def smooth_trajectory(
         for a, b in zip(odom[:-1], odom[1:], strict=True)
     ]
     z = np.array(rel).reshape(-1, 3)
+    z[:, :2] *= odom_scale  # the odometry's distances, as the front end learnt them
     d = np.hypot(z[:, 0], z[:, 1])
     st = odom_noise[0] * d + 1e-3
     sa = odom_noise[1] * np.abs(z[:, 2]) + odom_noise[2] * d + 1e-3
@@ -398,81 +501,3 @@ def smooth_trajectory(
     return optimize_pose_graph(
         poses, k, k + 1, z, sigma, huber, iterations=10, prior=(poses, spread)
     )
-
-
-def optimize_pose_graph(
-    nodes: np.ndarray,
-    ii: np.ndarray,
-    jj: np.ndarray,
-    z: np.ndarray,
-    sigma: np.ndarray,
-    huber: float = 3.0,
-    iterations: int = 20,
-    prior: tuple[np.ndarray, np.ndarray] | None = None,
-) -> np.ndarray:
-    """Least-squares poses (n, 3) of a 2D pose graph; node 0 stays fixed unless a
-    ``prior`` (poses (n, 3) and their stds (n, 3)) holds every node near a pose of its own.
-
-    Edge ``k`` measures node ``jj[k]`` in the frame of node ``ii[k]`` as ``z[k]`` with
-    standard deviations ``sigma[k]`` (x, y, yaw). Gauss-Newton on the sparse normal
-    equations (analytic Jacobian, ``scipy.sparse.linalg.spsolve``), robustified by
-    iteratively reweighted Huber weights on each edge's whitened error, with a little
-    Levenberg damping: milliseconds for a few hundred keyframes, where
-    ``scipy.optimize.least_squares`` with finite-difference sparse Jacobians took
-    seconds.
-    """
-    x = np.array(nodes, dtype=float)
-    n, m = len(x), len(ii)
-    if m == 0:
-        return x
-    w = 1.0 / np.asarray(sigma, dtype=float)
-    rows = np.repeat(np.arange(3 * m), 6).reshape(m, 3, 6)
-    cols = np.empty((m, 3, 6), dtype=np.int64)
-    for a in range(3):
-        cols[:, a, :3] = 3 * ii[:, None] + np.arange(3)
-        cols[:, a, 3:] = 3 * jj[:, None] + np.arange(3)
-    # Node 0 is the gauge (or the prior is); a little damping elsewhere.
-    diag = np.full(3 * n, 1e-6)
-    if prior is None:
-        diag[:3] += 1e9
-    else:
-        target = np.asarray(prior[0], dtype=float)
-        info = (1.0 / np.asarray(prior[1], dtype=float) ** 2).ravel()
-        diag += info
-    damping = diags(diag, format="csc")
-    for _ in range(iterations):
-        pi, pj = x[ii], x[jj]
-        c, s = np.cos(pi[:, 2]), np.sin(pi[:, 2])
-        dx, dy = pj[:, 0] - pi[:, 0], pj[:, 1] - pi[:, 1]
-        r = np.stack(
-            [
-                c * dx + s * dy - z[:, 0],
-                -s * dx + c * dy - z[:, 1],
-                wrap_angles(pj[:, 2] - pi[:, 2] - z[:, 2]),
-            ],
-            axis=1,
-        )
-        rw = r * w
-        norm = np.sqrt((rw**2).sum(axis=1))
-        robust = np.where(norm <= huber, 1.0, huber / np.maximum(norm, 1e-12))
-        j = np.zeros((m, 3, 6))
-        j[:, 0, 0], j[:, 0, 1], j[:, 0, 2] = -c, -s, -s * dx + c * dy
-        j[:, 1, 0], j[:, 1, 1], j[:, 1, 2] = s, -c, -c * dx - s * dy
-        j[:, 0, 3], j[:, 0, 4] = c, s
-        j[:, 1, 3], j[:, 1, 4] = -s, c
-        j[:, 2, 2], j[:, 2, 5] = -1.0, 1.0
-        scale = (w * np.sqrt(robust)[:, None])[:, :, None]
-        jac = csr_matrix(((j * scale).ravel(), (rows.ravel(), cols.ravel())), shape=(3 * m, 3 * n))
-        res = (rw * np.sqrt(robust)[:, None]).ravel()
-        h = (jac.T @ jac).tocsc() + damping
-        g = jac.T @ res
-        if prior is not None:
-            e = x - target
-            e[:, 2] = wrap_angles(e[:, 2])
-            g = g + info * e.ravel()
-        step = spsolve(h, -g)
-        x += step.reshape(n, 3)
-        x[:, 2] = wrap_angles(x[:, 2])
-        if np.abs(step).max() < 1e-6:
-            break
-    return x

@@ -116,6 +116,9 @@ class GridSlam(Slam):
         self.gated_matches = 0  # of the rejected: too far from the odometry prediction
         self._pose = Pose2D(0.0, 0.0, 0.0)
         self._odom = Pose2D(0.0, 0.0, 0.0)
+        #: The odometry's distances times this are the robot's (``odom_scale_std``).
+        self.odom_scale = 1.0
+        self._scale_info = self._scale_sum = 0.0
         self._cov = _TINY_COV.copy()
         self._last_integrated: Pose2D | None = None
         self._grid_cache: tuple[int, OccupancyGrid] | None = None
@@ -158,12 +161,15 @@ class GridSlam(Slam):
         self.match_times.clear()
         self.last_match = None
         self.integrations = self.matches = self.rejected_matches = self.gated_matches = 0
+        self.odom_scale = 1.0
+        self._scale_info = self._scale_sum = 0.0
         self._allocate(pose)
 
     def update(self, odom: Pose2D, scan: LaserScan | None, truth: Pose2D, time: float) -> Pose2D:
         """Corrected pose; matches and integrates ``scan`` when due. ``truth`` is unused."""
         c = self.config
-        delta = odom.relative_to(self._odom)
+        raw = odom.relative_to(self._odom)
+        delta = Pose2D(raw.x * self.odom_scale, raw.y * self.odom_scale, raw.yaw)
         predicted = self._pose.compose(delta)
         if scan is None:
             return predicted
@@ -265,10 +271,42 @@ class GridSlam(Slam):
         if result.covariance is not None and c.odom_prior:
             # the refinement's, or the correlative optimum fused with the prediction
             self._cov = 0.5 * (result.covariance + result.covariance.T)
+            self._calibrate(delta, result.pose, cov, self._cov)
         else:
             self._cov = _TINY_COV.copy() if result.refined else cov
         x, y, yaw = (float(v) for v in result.pose)
         return Pose2D(x, y, yaw)
+
+    def _calibrate(
+        self, delta: Pose2D, matched: np.ndarray, prior: np.ndarray, post: np.ndarray
+    ) -> None:
+        """Learn the odometry's scale from a match (``odom_scale_std``): the distance the
+        match moved along the odometry's motion ``delta`` (scaled), weighed by what the
+        scan added to the prior's information in that direction (nothing in a corridor,
+        where the match only repeats the odometry; much in a room). A wheel's radius
+        off by 1 % makes a 50 m corridor 0.5 m long, and loop closures cannot see it."""
+        std = self.config.odom_scale_std
+        d = math.hypot(delta.x, delta.y)
+        if std is None or d < 0.05:
+            return
+        c, s = math.cos(self._pose.yaw), math.sin(self._pose.yaw)
+        u = np.array([c * delta.x - s * delta.y, s * delta.x + c * delta.y]) / d
+        moved = float(u @ (matched[:2] - np.array([self._pose.x, self._pose.y])))
+        try:
+            info = 1.0 / float(u @ post[:2, :2] @ u)
+            gain = info - 1.0 / float(u @ prior[:2, :2] @ u)
+        except ZeroDivisionError:
+            return
+        if gain <= 1.0:
+            return
+        # The match fused the prediction: the scan's own distance, undoing that pull.
+        seen = d + (info / gain) * (moved - d)
+        gain = min(gain, 1.0 / 0.02**2)  # no match is better than 2 cm
+        raw = d / self.odom_scale
+        self._scale_info += gain * raw * raw
+        self._scale_sum += gain * raw * seen
+        k = (std**-2 + self._scale_sum) / (std**-2 + self._scale_info)
+        self.odom_scale = float(np.clip(k, 1.0 - 5.0 * std, 1.0 + 5.0 * std))
 
     def _disagrees(self, result: MatchResult, predicted: Pose2D, cov: np.ndarray) -> bool:
         """Whether the match lies outside ``match_gate`` of the odometry prediction (its

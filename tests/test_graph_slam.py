@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from agv_mission.geometry import Pose2D
-from agv_mission.mapping.graph_slam import GraphSlamConfig, optimize_pose_graph
+from agv_mission.mapping.graph_slam import GraphSlamConfig
+from agv_mission.mapping.pose_graph import optimize_pose_graph
 from agv_mission.missions.load.schema import Stack
 from agv_mission.sensor_msgs import LaserScan
 
@@ -97,7 +98,7 @@ def test_final_smoothing_keeps_the_slam_poses_and_the_odometry_motion():
     """Poses jittering 2 cm about a 100 m loop (a scan matcher's) and odometry 1 % long
     with a heading drift (a wheel's): the smoothed trajectory moves as the odometry does
     over a metre and stays where the poses are over the loop, better than either."""
-    from agv_mission.mapping.graph_slam import smooth_trajectory
+    from agv_mission.mapping.pose_graph import smooth_trajectory
     from agv_mission.mapping.quality import relative_pose_error
 
     rng = np.random.default_rng(4)

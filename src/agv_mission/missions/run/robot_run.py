@@ -374,19 +374,15 @@ class RobotRun:
             self.sim.set_command(0.0, 0.0)
 
     def _watch_safety(self, now: float, truth: Pose2D) -> None:
-        # The circle's clearance is 1-Lipschitz in the position (c at p0: >= c - |p - p0|
-        # at p), and the body lies within it: a step that cannot lower the minimum skips
-        # the query, one that cannot touch a wall skips reading the contacts.
+        # The circle's clearance is 1-Lipschitz in the position and holds the body: a step
+        # that cannot lower the minimum skips the query, or touch a wall the contacts.
         x0, y0, c0 = self._clearance_at
         bound = c0 - math.hypot(truth.x - x0, truth.y - y0)
         contacts = self.sim.contacts() if bound < CONTACT_CLEARANCE else 0
         self.new_collision = None
         if contacts and not self.in_contact:
-            self.new_collision = {
-                "t": round(now, 3),
-                "x": round(truth.x, 3),
-                "y": round(truth.y, 3),
-            }
+            x, y = round(truth.x, 3), round(truth.y, 3)
+            self.new_collision = {"t": round(now, 3), "x": x, "y": y}
             self.collisions.append(self.new_collision)
         self.in_contact = contacts > 0
         if bound < self.min_clearance:  # the footprint's clearance >= the circle's

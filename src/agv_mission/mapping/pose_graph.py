@@ -41,11 +41,12 @@ def loop_pair_error(
     return math.hypot(cycle.x, cycle.y), abs(cycle.yaw)
 
 
-def edge_residuals(
-    nodes: np.ndarray, ii: np.ndarray, jj: np.ndarray, z: np.ndarray, sigma: np.ndarray
-) -> np.ndarray:
-    """Each edge's whitened residual norm at ``nodes``."""
-    pi, pj = nodes[ii], nodes[jj]
+def _edge_errors(
+    x: np.ndarray, ii: np.ndarray, jj: np.ndarray, z: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each edge's error (m, 3) at poses ``x``, and the terms its Jacobian reuses: the
+    cosine and sine of node ``ii``'s heading and the two nodes' offset."""
+    pi, pj = x[ii], x[jj]
     c, s = np.cos(pi[:, 2]), np.sin(pi[:, 2])
     dx, dy = pj[:, 0] - pi[:, 0], pj[:, 1] - pi[:, 1]
     r = np.stack(
@@ -56,6 +57,14 @@ def edge_residuals(
         ],
         axis=1,
     )
+    return r, c, s, dx, dy
+
+
+def edge_residuals(
+    nodes: np.ndarray, ii: np.ndarray, jj: np.ndarray, z: np.ndarray, sigma: np.ndarray
+) -> np.ndarray:
+    """Each edge's whitened residual norm at ``nodes``."""
+    r = _edge_errors(nodes, ii, jj, z)[0]
     return np.sqrt(((r / sigma) ** 2).sum(axis=1))
 
 
@@ -127,17 +136,7 @@ def optimize_pose_graph(
         diag += info
     damping = diags(diag, format="csc")
     for _ in range(iterations):
-        pi, pj = x[ii], x[jj]
-        c, s = np.cos(pi[:, 2]), np.sin(pi[:, 2])
-        dx, dy = pj[:, 0] - pi[:, 0], pj[:, 1] - pi[:, 1]
-        r = np.stack(
-            [
-                c * dx + s * dy - z[:, 0],
-                -s * dx + c * dy - z[:, 1],
-                wrap_angles(pj[:, 2] - pi[:, 2] - z[:, 2]),
-            ],
-            axis=1,
-        )
+        r, c, s, dx, dy = _edge_errors(x, ii, jj, z)
         rw = r * w
         norm = np.sqrt((rw**2).sum(axis=1))
         robust = np.where(norm <= huber, 1.0, huber / np.maximum(norm, 1e-12))

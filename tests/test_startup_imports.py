@@ -97,11 +97,3 @@ def test_validate_without_people_imports_no_sparse_graphs() -> None:
     assert not any("people:" in Path(m).read_text() for m in MISSIONS)
     result = commands([["validate", *MISSIONS]], ["scipy.sparse"])
     assert result == {"codes": [0], "loaded": []}
-
-
-def test_validate_on_built_in_worlds_imports_no_scipy() -> None:
-    """A built-in world is flood-filled with numpy and a costmap answers a few points from
-    the cells around them: the missions here (rooms with anchors, no zones or people) are
-    validated without scipy (~0.3 s to import)."""
-    result = commands([["validate", *MISSIONS]], ["scipy"])
-    assert result == {"codes": [0], "loaded": []}

@@ -10,6 +10,7 @@ read-only so that no caller can change another's map.
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 
 from agv_mission.maps.map_cache import array_table
 
@@ -22,8 +23,6 @@ def obstacle_distance(blocked: np.ndarray, resolution: float) -> np.ndarray:
     blocked = np.ascontiguousarray(blocked, dtype=bool)
 
     def build() -> np.ndarray:
-        from scipy.ndimage import distance_transform_edt  # ~0.3 s: when a field is built
-
         distance = (distance_transform_edt(~blocked) * resolution).astype(np.float32)
         distance.setflags(write=False)
         return distance

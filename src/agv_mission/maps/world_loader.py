@@ -52,6 +52,7 @@ from typing import Any
 import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from scipy import ndimage
 
 from agv_mission.atomic import InputFileError, input_path, read_input_text
 from agv_mission.geometry import Pose2D
@@ -259,8 +260,6 @@ def occupied_boxes(grid: OccupancyGrid) -> list[Box]:
 def find_spawn(grid: OccupancyGrid, clearance: float = SPAWN_CLEARANCE) -> Pose2D:
     """The free cell nearest (0, 0) whose centre is more than ``clearance`` from the
     nearest non-free cell's edge, within the largest such free region; else (0, 0)."""
-    from scipy import ndimage  # ~0.3 s: a map without a spawn only
-
     free = grid.data == FREE
     if not free.any():
         return Pose2D(0.0, 0.0, 0.0)

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
+from scipy.ndimage import binary_erosion, distance_transform_edt
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
@@ -65,8 +66,6 @@ class ZoneFilters:
     def __init__(
         self, base: Costmap, max_speed: float, keepout: np.ndarray, speed: np.ndarray
     ) -> None:
-        from scipy.ndimage import distance_transform_edt  # ~0.3 s: a mission with zones only
-
         self.base = base
         self.grid = base.grid
         self.robot_radius = base.robot_radius
@@ -171,8 +170,6 @@ class ZoneFilters:
     def boundary_points(self) -> np.ndarray:
         """(N, 2) map-frame centres of keepout cells on a zone's edge: what the local
         controller treats as obstacles."""
-        from scipy.ndimage import binary_erosion
-
         edge = self.keepout & ~binary_erosion(self.keepout, border_value=1)
         rows, cols = np.nonzero(edge)
         return self.grid.cell_to_world(rows, cols).reshape(-1, 2)

@@ -279,12 +279,10 @@ class MapArea(py_trees.behaviour.Behaviour):
 
     def _position_sigma(self) -> float:
         """SLAM's position std now (m): the root of its xy covariance's largest
-        eigenvalue (0 when the plugin keeps none)."""
+        eigenvalue (the covariance is the SLAM protocol's)."""
         assert self.mapping is not None
-        cov = getattr(self.mapping.slam, "covariance", None)
-        if cov is None:
-            return 0.0
-        return float(math.sqrt(max(float(np.linalg.eigvalsh(np.asarray(cov)[:2, :2])[-1]), 0.0)))
+        cov = np.asarray(self.mapping.slam.covariance)[:2, :2]
+        return float(math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0)))
 
     def _frontiers(self, costmap: Costmap, est: Pose2D, bounds: Bounds | None) -> list[Frontier]:
         """Reachable frontiers within ``bounds`` (None: anywhere), nearest first."""

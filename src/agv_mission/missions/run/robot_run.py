@@ -360,7 +360,7 @@ class RobotRun:
         (with the localiser's diagnostics, read once per step)."""
         mapping = self.mapper.session
         if mapping is not None:
-            return getattr(mapping.slam, "covariance", None), None
+            return mapping.slam.covariance, None
         diagnostics = self.localizer.diagnostics()
         return diagnostics.covariance, diagnostics
 

@@ -4,8 +4,7 @@ Everything that can be wrong with the input is found here, before anything runs,
 reported as :class:`MissionError` naming file, line and field. Resolution (the world, its
 maps and costmaps) is imported only once the file has passed its schema and its trees are
 assembled, so bad input is reported without it; and what it reads is imported as it reads
-it (Pillow for a map image, lxml for a Gazebo world, scipy for a whole distance field: a
-mission on a built-in world whose rooms have anchors needs none of them).
+it (Pillow for a map image, lxml for a Gazebo world).
 """
 
 from __future__ import annotations

@@ -309,9 +309,7 @@ def nodes_model(types: set[str] | None = None, indent: int = 0) -> str:
     """A ``<TreeNodesModel>`` (Groot2's palette) of ``types`` (default: every type)."""
     pad = "  " * indent
     out = [f"{pad}<TreeNodesModel>"]
-    for info in node_types():
-        if types is not None and info["type"] not in types:
-            continue
+    for info in node_types(types):
         config = _config(info["type"])
         if config is None or config.btcpp_builtin:
             continue

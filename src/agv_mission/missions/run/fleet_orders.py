@@ -164,8 +164,12 @@ class FleetCoordinator:
         states = [_state(m, r) for m, r in zip(self.members, reports, strict=True)]
         update = self.traffic.decide(now, states)
         bodies = np.array([[s.pose.x, s.pose.y, s.radius] for s in states])
+        # each the others' rows: the same array np.delete(bodies, i, axis=0) makes, at a
+        # third of its cost (its checks cost more than the copy of a few rows)
         orders = {
-            m.name: FleetOrder(update.decisions[m.name], np.delete(bodies, i, axis=0), [])
+            m.name: FleetOrder(
+                update.decisions[m.name], np.concatenate((bodies[:i], bodies[i + 1 :])), []
+            )
             for i, m in enumerate(self.members)
         }
         for event in update.events:

@@ -19,12 +19,16 @@ the reference's walls and free cells the map holds (what agreement alone does no
 seconds per log and speed as x the log's duration (wall clock and CPU time: this
 machine's two cores are shared). CSAIL's log stamps its scans to ten seconds (365 share
 one stamp): its bag pairs scans and odometry by their order, and its "duration" is
-those stamps' span, so its speed says nothing.
+those stamps' span, so its speed says nothing. A fourth, held-out log: Freiburg 079 thinned
+as the ACES and CSAIL logs are (:data:`SPARSE`), the sparse case in a building the sparse
+logs are not.
 Without ``../shared`` the logs are skipped, saying so.
 """
 
 from __future__ import annotations
 
+import gzip
+import math
 import subprocess
 import sys
 import tempfile
@@ -59,6 +63,11 @@ SHARED = next(
     Path(__file__).resolve().parents[2] / "shared",
 )
 LOGS = ("aces", "csail", "freiburg_079")
+#: The held-out sparse log: Freiburg 079 with a scan kept only once the corrected pose moved
+#: 0.5 m or turned 25 deg since the last one kept (about one scan a metre, as the ACES and
+#: CSAIL logs of the repository are thinned), written as a CARMEN log and converted by the
+#: same tool: its name, the log it thins, metres, radians.
+SPARSE = ("freiburg_079_sparse", "freiburg_079", 0.5, math.radians(25.0))
 
 
 def _percentile(samples: list[float], q: float) -> float:
@@ -113,8 +122,11 @@ def real_logs() -> dict[str, float]:
         return {}
     out: dict[str, float] = {}
     with tempfile.TemporaryDirectory(prefix="bench_slam_") as tmp:
-        for name in LOGS:
-            log = logs / f"{name.replace('_', '-')}-corrected.log.gz"
+        sparse, source, min_distance, min_turn = SPARSE
+        thinned = Path(tmp) / f"{sparse}.log.gz"
+        thin_carmen(_log_file(logs, source), thinned, min_distance, min_turn)
+        for name in (*LOGS, sparse):
+            log = thinned if name == sparse else _log_file(logs, name)
             work = Path(tmp) / name
             subprocess.run(
                 [sys.executable, str(tool), str(log), str(work)], check=True, capture_output=True
@@ -125,6 +137,33 @@ def real_logs() -> dict[str, float]:
                 figures = _map_log(work / "bag", overrides, truth, reference)
                 out |= {f"slam.real_logs.{name}.{label}{k}": v for k, v in figures.items()}
     return out
+
+
+def _log_file(logs: Path, name: str) -> Path:
+    return logs / f"{name.replace('_', '-')}-corrected.log.gz"
+
+
+def thin_carmen(src: Path, dst: Path, min_distance: float, min_turn: float) -> int:
+    """Write to ``dst`` the scans (``FLASER`` lines) of the CARMEN log ``src`` whose
+    corrected pose moved ``min_distance`` metres or turned ``min_turn`` radians since the
+    last one written (the first always); how many it wrote."""
+    last: tuple[float, float, float] | None = None
+    kept = 0
+    with gzip.open(src, "rt") as lines, gzip.open(dst, "wt") as out:
+        for line in lines:
+            f = line.split()
+            if not f or f[0] != "FLASER":
+                continue
+            n = int(f[1])
+            x, y, yaw = (float(v) for v in f[2 + n : 5 + n])
+            if last is not None:
+                turn = abs(math.remainder(yaw - last[2], math.tau))
+                if math.hypot(x - last[0], y - last[1]) < min_distance and turn < min_turn:
+                    continue
+            last = (x, y, yaw)
+            kept += 1
+            out.write(line)
+    return kept
 
 
 def _map_log(

@@ -181,6 +181,24 @@ def test_matcher_recovers_a_large_offset_on_a_real_scan(tb3: World, refinement: 
         assert np.abs(result.coarse_pose[:2] - pose.as_array()[:2]).max() <= 0.05 + 1e-9
 
 
+def test_the_search_is_skipped_only_for_a_small_turn(tb3: World) -> None:
+    """From a prediction 2 degrees off, the refinement alone lands on the truth and, with
+    the default bound (a quarter of the 10 deg window), the search is skipped; with
+    ``fast_turn`` below that correction the search runs, and lands there too."""
+    pose = Pose2D(-1.5, -0.55, 0.4)
+    slam = static_map(tb3, pose)
+    field = slam.likelihood_field()
+    points = slam._scan_points(scans_at(tb3, pose, 5)[-1])
+    guess = pose.as_array() + [0.01, -0.01, math.radians(2.0)]
+    prior = np.diag([0.05, 0.05, 0.05]) ** 2
+    for fast_turn, searched in ((None, False), (math.radians(1.0), True)):
+        matcher = CorrelativeMatcher(fast_score=0.5, fast_turn=fast_turn)
+        result = matcher.match(field, points, guess, prior)
+        assert (result.candidates > 0) == searched
+        assert np.hypot(*(result.pose[:2] - pose.as_array()[:2])) < 0.01
+        assert abs(wrap_angle(result.pose[2] - pose.yaw)) < 0.005
+
+
 def test_matcher_search_equals_exhaustive_search(tb3: World) -> None:
     """Branch and bound returns the same cell-level optimum as scoring every candidate."""
     pose = Pose2D(0.55, -0.55, -0.7)

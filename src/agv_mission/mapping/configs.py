@@ -133,8 +133,17 @@ class GridSlamConfig(PluginConfig):
         gt=0,
         le=1,
         description="when the refinement alone, from the odometry prediction, lands within "
-        "a quarter of the window with at least this mean field value, the correlative search "
-        "is skipped; None: always search",
+        "a quarter of the window (fast_match_turn of heading) with at least this mean field "
+        "value, the correlative search is skipped; None: always search",
+    )
+    fast_match_turn: float | None = Field(
+        None,
+        gt=0,
+        description="rad: the search is skipped only when the refinement from the odometry "
+        "prediction turned it by no more than this; None: a quarter of "
+        "angular_search_window. A correction larger than the wheels' own heading error "
+        "over the turn between two scans (3 % of a 45 deg turn: 0.025) is checked by the "
+        "search rather than trusted",
     )
     odom_scale_std: float | None = Field(
         None,

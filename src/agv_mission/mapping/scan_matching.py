@@ -94,7 +94,8 @@ class CorrelativeMatcher:
     along a single wall. ``refinement`` picks the second stage (see the module);
     ``point_sigma`` (m) is the std of an ``"icp"`` residual and ``scan_sigma`` that of a
     ``"field"`` residual (``1 - M``) times the square root of the point count: they weigh
-    the scan against the prior.
+    the scan against the prior. ``fast_score`` (mean field value) and ``fast_turn`` (rad,
+    None: a quarter of ``angular_window``) gate the search's skip (:meth:`_fast`).
     """
 
     def __init__(
@@ -113,6 +114,7 @@ class CorrelativeMatcher:
         scan_sigma: float = 0.1,
         search_max_range: float | None = None,
         fast_score: float | None = None,
+        fast_turn: float | None = None,
     ) -> None:
         if coarse_block & (coarse_block - 1) or coarse_block < 1:
             raise ValueError(f"coarse_block must be a power of two, got {coarse_block}")
@@ -130,6 +132,7 @@ class CorrelativeMatcher:
         self.scan_sigma = float(scan_sigma)
         self.search_max_range = search_max_range
         self.fast_score = fast_score
+        self.fast_turn = 0.25 * self.angular_window if fast_turn is None else float(fast_turn)
 
     # ------------------------------------------------------------------ public
 
@@ -178,8 +181,9 @@ class CorrelativeMatcher:
         self, field: LikelihoodField, points: np.ndarray, guess: np.ndarray, prior_cov: np.ndarray
     ) -> MatchResult | None:
         """The refinement alone from the prediction, when it lands well: converged, a
-        small correction (a quarter of the window) and a mean field value of at least
-        ``fast_score``. Most scans of a real log are such; the rest get the search."""
+        small correction (a quarter of the linear window, ``fast_turn`` of heading) and a
+        mean field value of at least ``fast_score``. Most scans of a real log are such;
+        the rest get the search."""
         if self.refinement != "icp" or field.nearest is None or field.anchor is None:
             return None
         cand, cov = icp(
@@ -196,7 +200,7 @@ class CorrelativeMatcher:
             return None
         small = (
             math.hypot(cand[0] - guess[0], cand[1] - guess[1]) <= 0.25 * self.linear_window
-            and abs(wrap_angle(cand[2] - guess[2])) <= 0.25 * self.angular_window
+            and abs(wrap_angle(cand[2] - guess[2])) <= self.fast_turn
         )
         if not small:
             return None

@@ -102,6 +102,7 @@ class GridSlam(Slam):
             scan_sigma=c.scan_sigma,
             search_max_range=c.search_max_range,
             fast_score=c.fast_match_score,
+            fast_turn=c.fast_match_turn,
         )
         #: (time, x, y, yaw) of every processed scan, in the map frame.
         self.trajectory: list[tuple[float, float, float, float]] = []

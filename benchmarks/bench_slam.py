@@ -102,16 +102,13 @@ if __name__ == "__main__":
 
 #: The SLAM ``map`` ran on real logs before this round's loop closure (issue 32: loops
 #: through metres of drift), as ``--set`` items over today's defaults: a loop search that
-#: never widens, searched every eighth keyframe only, the odometry's scale taken as exact;
-#: and the search skipped when the refinement turned the scan by up to a quarter of its
-#: window (``fast_match_turn``, a later change).
+#: never widens, searched every eighth keyframe only, the odometry's scale taken as exact.
 #: (The closures' verification and their full weight in the solve have no switch: the
 #: same code, mapped side by side in one run.)
 BEFORE: list[str] = [
     "loop_search_growth=0",
     "loop_check_distance=null",
     "odom_scale_std=null",
-    "fast_match_turn=null",
 ]
 
 

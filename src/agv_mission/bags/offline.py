@@ -373,13 +373,6 @@ def report_lines(result: OfflineMap, paths: dict[str, Path]) -> list[str]:
 #: every 6 m there), and the odometry's scale is learnt where the scan sees the motion
 #: (2 % prior: a wheel radius off by a percent or two; the converted logs' odometry runs
 #: 1 % long, which made ACES's map 0.5-0.8 % too large).
-#: The search is skipped only when the refinement from the odometry turned the scan by at
-#: most 0.025 rad (a quarter of the 10 deg window before): about the wheels' own heading
-#: error over a turn of 45 deg between scans (3 % of it, the converter's odometry), so a
-#: larger correction is checked by the search rather than trusted (walls within 0.1 m of
-#: the reference, seeds 1/2/3 of the converter: CSAIL 0.56/0.58/0.72 -> 0.76/0.79/0.87,
-#: ACES 0.79/0.62/0.69 -> 0.76/0.70/0.70, Freiburg 079 thinned to a scan a metre
-#: 0.92 -> 0.94 (seed 1); Freiburg 079 itself 0.983 -> 0.987 in the same CPU time).
 #: The mission SLAM's defaults: what maps a short-range lidar's bag (an LDS-01's 3.5 m) best.
 SHORT_RANGE_SLAM: dict[str, Any] = {
     "type": "graph",
@@ -400,7 +393,6 @@ DEFAULT_SLAM: dict[str, Any] = {
     "match_min_a": 0.1,
     "search_max_range": 10.0,
     "fast_match_score": 0.5,
-    "fast_match_turn": 0.025,
     "log_odds_free": -0.2,
     "odom_translation_noise": 0.02,
     "odom_rotation_per_metre": 0.03,

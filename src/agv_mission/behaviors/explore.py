@@ -10,6 +10,7 @@ import py_trees
 from py_trees.common import Status
 from scipy import ndimage
 
+from agv_mission.behaviors.revisit import KnownGround
 from agv_mission.geometry import Bounds, Pose2D, wrap_angle
 from agv_mission.mapping.frontiers import Frontier, find_frontiers
 from agv_mission.mapping.session import MappingSession
@@ -54,6 +55,19 @@ class MapArea(py_trees.behaviour.Behaviour):
     (beyond ``FEATURE_RANGE``): the robot heads where its scans will meet walls and
     columns already in the map and correct the estimate, not deeper into open floor
     (:func:`choose_frontier`).
+
+    Past ``revisit_sigma`` (:func:`~agv_mission.behaviors.revisit.revisit_sigma`: the
+    lidar's own range precision where it matches structure) the robot stops exploring
+    and drives back to known ground: the nearest place, by driving on the current map,
+    where it stood earlier while SLAM was sure of its pose
+    (:class:`~agv_mission.behaviors.revisit.KnownGround`). There its scans
+    meet the map as it was built while the estimate was sure, so the scan matcher (and a
+    ``graph`` SLAM's loop closure) pulls the estimate back before the map takes in more
+    of its error. The revisit ends as soon as the std is under ``UNCERTAIN_SIGMA`` again
+    (or the place is reached or cannot be); the next one waits until the std has been
+    that low again and the frontier goal set after the revisit has ended, so an estimate
+    that no revisit helps does not keep the robot driving back and forth, and a frontier
+    across open floor is reached at last.
     """
 
     RESELECT_PERIOD = 5.0  # s: re-check that the frontier being approached still exists
@@ -83,6 +97,7 @@ class MapArea(py_trees.behaviour.Behaviour):
         time_limit: float | None,
         min_frontier_size: int,
         clearance: float,
+        revisit_sigma: float = math.inf,
     ):
         super().__init__(name)
         self.handle = handle
@@ -94,19 +109,32 @@ class MapArea(py_trees.behaviour.Behaviour):
         self.time_limit = time_limit
         self.min_frontier_size = min_frontier_size
         self.clearance = clearance
+        self.revisit_sigma = revisit_sigma
         self.goal: Pose2D | None = None
+        #: The known place being driven back to (see the class), None while exploring.
+        self.revisit: Pose2D | None = None
+        #: Where the estimate was sure: the places a revisit drives back to.
+        self.known = KnownGround()
         #: Goals given up on (for now): [x, y, attempts, known cells at the last attempt].
         self.attempts: list[list[float]] = []
         self._deadline = math.inf
         self._failure: str | None = None
         self._reselect_at = 0.0
         self.frontiers_visited = 0
+        self.revisits = 0
 
     def initialise(self) -> None:
         self.mapping = self.mapper.begin(self.bounds)
         self.goal = None
+        self.revisit = None
+        self.known = KnownGround()
+        self._revisit_armed = True  # the std was under UNCERTAIN_SIGMA since the last one
+        self._goals_started = 0  # frontier goals set so far
+        self._revisited_at = -2  # ... when the last revisit began
+        self._revisit_from = (0.0, 0.0)  # time and std when the revisit began
         self.attempts = []
         self.frontiers_visited = 0
+        self.revisits = 0
         now = self.handle.state.time
         self._deadline = now + self.time_limit if self.time_limit else math.inf
         self._failure = None
@@ -169,6 +197,10 @@ class MapArea(py_trees.behaviour.Behaviour):
         if done is None and mapping.costmap is None:
             handle.drive(0.0, self.SPIN_RATE)  # no map to plan on yet: keep looking
             return Status.RUNNING
+        if done is None and self._revisiting():
+            cmd = nav.update(state)
+            handle.drive(cmd.v, cmd.w)
+            return Status.RUNNING
         if done is None and state.time >= self._reselect_at:
             self._reselect_at = state.time + self.RESELECT_PERIOD
             done = self._next_goal()
@@ -186,7 +218,11 @@ class MapArea(py_trees.behaviour.Behaviour):
                     f"coverage {covered:.3f} is below the {self.coverage:g} the task asks ({done})"
                 )
             handle.log(
-                "map_saved", reason=failure or done, frontiers=self.frontiers_visited, **summary
+                "map_saved",
+                reason=failure or done,
+                frontiers=self.frontiers_visited,
+                revisits=self.revisits,
+                **summary,
             )
             self.feedback_message = failure or done
             return Status.FAILURE if failure else Status.SUCCESS
@@ -203,7 +239,59 @@ class MapArea(py_trees.behaviour.Behaviour):
         self.handle.stop()
         self.mapping = None
         summary = self.mapper.end(self.save_map)
-        self.handle.log("map_saved", reason="halted", frontiers=self.frontiers_visited, **summary)
+        self.handle.log(
+            "map_saved",
+            reason="halted",
+            frontiers=self.frontiers_visited,
+            revisits=self.revisits,
+            **summary,
+        )
+
+    def _revisiting(self) -> bool:
+        """Whether the robot drives back to known ground now: remembers the sure places,
+        starts a revisit when the std passes ``revisit_sigma`` and ends it (see the
+        class)."""
+        state, nav = self.handle.state, self.handle.navigator
+        sigma = self._position_sigma()
+        est = state.estimate
+        if sigma < self.UNCERTAIN_SIGMA and self._goals_started > self._revisited_at + 1:
+            self._revisit_armed = True
+        self.known.note(est.x, est.y, sigma)
+        if self.revisit is not None:
+            ended = nav.status in (NavStatus.SUCCEEDED, NavStatus.FAILED)
+            if sigma >= self.UNCERTAIN_SIGMA and not ended:
+                return True
+            t0, s0 = self._revisit_from
+            self.handle.log(
+                "revisit_done",
+                x=round(self.revisit.x, 3),
+                y=round(self.revisit.y, 3),
+                outcome="sure again" if sigma < self.UNCERTAIN_SIGMA else nav.status.value,
+                duration=round(state.time - t0, 2),
+                std_before=round(s0, 4),
+                std_after=round(sigma, 4),
+            )
+            nav.cancel()
+            self.revisit = None
+            assert self.mapping is not None
+            self.mapping.request_refresh()
+            self._reselect_at = state.time + 1e-6
+            return False
+        if sigma < self.revisit_sigma or not self._revisit_armed:
+            return False
+        self._revisit_armed = False
+        self._revisited_at = self._goals_started
+        assert self.mapping is not None and self.mapping.costmap is not None
+        place = self.known.nearest(self.mapping.costmap, (est.x, est.y), self.clearance)
+        if place is None:
+            return False
+        self.goal = None  # the frontier waits, not blamed
+        self.revisit = Pose2D(place[0], place[1], math.atan2(place[1] - est.y, place[0] - est.x))
+        self.revisits += 1
+        self._revisit_from = (state.time, sigma)
+        self.handle.log("revisit", x=round(place[0], 3), y=round(place[1], 3), std=round(sigma, 4))
+        nav.start(self.revisit, state, xy_tolerance=self.GOAL_TOLERANCE, yaw_tolerance=math.pi)
+        return True
 
     def _start_blocked(self, reason: str | None) -> bool:
         """Whether a failure is the planner's refusal to start where the robot stands: the
@@ -272,6 +360,7 @@ class MapArea(py_trees.behaviour.Behaviour):
         gx, gy = best.goal
         yaw = math.atan2(best.centroid[1] - gy, best.centroid[0] - gx)
         self.goal = Pose2D(gx, gy, yaw)
+        self._goals_started += 1
         handle.navigator.start(
             self.goal, state, xy_tolerance=self.GOAL_TOLERANCE, yaw_tolerance=math.pi
         )

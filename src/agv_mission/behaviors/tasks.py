@@ -21,6 +21,7 @@ from agv_mission.behaviors.navigate import NavigateToPose
 from agv_mission.behaviors.outcome import LegOutcome
 from agv_mission.behaviors.patrol import PatrolLoops
 from agv_mission.behaviors.recoveries import BackUp, ClearCostmap, RecoveryNode, Spin, Wait
+from agv_mission.behaviors.revisit import revisit_sigma
 from agv_mission.behaviors.rooms import InRoom, RecordRoom, SettleLocalization
 from agv_mission.behaviors.teleop import RemoteControl
 from agv_mission.geometry import Pose2D
@@ -208,6 +209,7 @@ class MapAreaTaskNode(TaskNode):
             bounds.as_tuple() if bounds is not None else None,
             save_map, coverage, time_limit, min_frontier_size,
             clearance=handle.navigator.global_planner.clearance,
+            revisit_sigma=revisit_sigma(context.robot.lidar, MapArea.FEATURE_RANGE),
         )  # fmt: skip
         super().__init__(name, explore, i, {"save_map": save_map})
 

@@ -189,6 +189,24 @@ def find_frontiers(
     return out
 
 
+def path_lengths(
+    grid: OccupancyGrid,
+    robot: tuple[float, float] | Sequence[float],
+    robot_radius: float = 0.105,
+    clearance: float = 0.05,
+) -> np.ndarray:
+    """(H, W): the robot's shortest 8-connected path (m) to each cell of ``grid`` where its
+    footprint fits with ``clearance`` (the traversable cells of :func:`find_frontiers`),
+    ``inf`` where it cannot go."""
+    res = grid.resolution
+    traversable = ndimage.distance_transform_edt(grid.data == FREE) * res > robot_radius + clearance
+    start = _snap(grid, traversable, robot, max_snap=robot_radius + clearance + 2 * res)
+    if start is None:
+        return np.full(grid.data.shape, np.inf)
+    comp, _ = ndimage.label(traversable, structure=_EIGHT)
+    return _geodesic(comp == comp[start], start, res)
+
+
 def _snap(
     grid: OccupancyGrid, traversable: np.ndarray, xy: Sequence[float], max_snap: float
 ) -> tuple[int, int] | None:

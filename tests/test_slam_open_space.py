@@ -93,9 +93,17 @@ def test_a_flat_score_surface_is_wide_along_the_wall() -> None:
 
 def test_a_loop_the_scan_cannot_pin_adds_no_edge() -> None:
     """A loop match's covariance widens its edge; one wide past half the loop window
-    (a lone wall: anywhere along it) adds no edge at all."""
+    (a lone wall: anywhere along it) adds no edge at all, nor one wide past half
+    loop_verify's shift: a ridge (the depot's east shelf, 0.2 m along it) whose wrong
+    optimum would be taken unconfirmed."""
     slam = GraphSlam(GraphSlamConfig())
     assert slam._loop_sigma(np.diag([1e-4, 0.5, 1e-4]), 0.0) is None
+    shelf = np.diag([0.06**2, 0.2**2, 0.05**2])
+    assert 0.5 * slam.config.loop_linear_window > 0.2  # the window alone let it in
+    assert slam._loop_sigma(shelf, 0.0) is None
+    rotated = np.array([[0.02, 0.018, 0.0], [0.018, 0.02, 0.0], [0.0, 0.0, 1e-4]])
+    assert slam._loop_sigma(rotated, 0.0) is None  # 0.19 m std along the diagonal
+    assert slam._loop_sigma(np.diag([1e-4, 0.14**2, 1e-4]), 0.0) is not None
     # 10 cm along world y, 1 cm across: seen from a keyframe facing +y, along its x
     sigma = slam._loop_sigma(np.diag([1e-4, 0.01, 1e-4]), math.pi / 2)
     assert sigma is not None

@@ -44,10 +44,12 @@ def test_known_ground_is_the_sure_place_nearest_by_driving() -> None:
     known = KnownGround()
     known.note(2.5, 0.5, KnownGround.SURE_SIGMA * 2.0)  # not sure: not remembered
     assert known.places == []
-    known.note(3.5, 0.5, 0.005)  # beyond the wall: 1 m away as the crow flies
-    known.note(3.6, 0.5, 0.005)  # too near the last one to count
+    known.note(3.5, 0.5, 0.005)  # a match pulled the std in: beyond the wall, 1 m away
+    known.note(3.6, 0.5, 0.004)  # too near the last one to count
+    known.note(4.5, 0.5, 0.006)  # the std grew (open floor): no match pinned it here
     known.note(0.6, 0.5, 0.005)  # on the robot's side, 1.9 m away
-    known.note(2.0, 0.9, 0.005)  # within MIN_DISTANCE of the robot: already there
+    known.note(1.0, 0.5, 0.005)  # the std did not fall: not remembered
+    known.note(2.0, 0.9, 0.004)  # within MIN_DISTANCE of the robot: already there
     assert known.places == [(3.5, 0.5), (0.6, 0.5), (2.0, 0.9)]
     costmap = walled_room()
     # the robot at (2.5, 0.5): the place behind the wall is nearer, but only by a detour
@@ -55,6 +57,7 @@ def test_known_ground_is_the_sure_place_nearest_by_driving() -> None:
     # nothing reachable: no revisit
     shut = KnownGround()
     shut.note(3.5, 0.5, 0.005)
+    assert shut.places == [(3.5, 0.5)]
     data = costmap.grid.data.copy()
     data[60:, 59:61] = OCCUPIED
     closed = OccupancyGrid(data, 0.05, Pose2D(0.0, 0.0, 0.0))

@@ -30,8 +30,13 @@ def revisit_sigma(lidar: LidarSpec, feature_range: float) -> float:
 
 
 class KnownGround:
-    """The places an explorer stood at while SLAM was sure of its pose (std under
-    ``SURE_SIGMA``), ``SPACING`` apart, and the one to drive back to."""
+    """The places where a scan match pinned SLAM's pose, ``SPACING`` apart, and the one
+    to drive back to.
+
+    Such a place is one where the std fell (a match pulled it in: on open floor, where
+    the scans match too little, it only grows with the odometry) to under
+    ``SURE_SIGMA``. A std that is merely still small is no such place: a few metres
+    into open floor it has not grown much yet, but the scans there never met the map."""
 
     SURE_SIGMA = 0.015  # m: near walls a refined match pins the pose to about a centimetre
     SPACING = 0.5  # m between remembered places
@@ -39,10 +44,13 @@ class KnownGround:
 
     def __init__(self) -> None:
         self.places: list[tuple[float, float]] = []
+        self._sigma = float("inf")  # the std at the last note
 
     def note(self, x: float, y: float, sigma: float) -> None:
-        """Remember ``(x, y)`` if the std ``sigma`` there is sure and it is new ground."""
-        if sigma >= self.SURE_SIGMA:
+        """Remember ``(x, y)`` if the std ``sigma`` fell there to a sure one and it is
+        new ground."""
+        fell, self._sigma = sigma < self._sigma, sigma
+        if not fell or sigma >= self.SURE_SIGMA:
             return
         if self.places:
             px, py = self.places[-1]

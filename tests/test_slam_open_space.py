@@ -93,7 +93,7 @@ def test_a_flat_score_surface_is_wide_along_the_wall() -> None:
 
 def test_a_loop_the_scan_cannot_pin_adds_no_edge() -> None:
     """A loop match's covariance widens its edge; one wide past half the loop window
-    (a lone wall: anywhere along it) adds no edge at all, nor one wide past half
+    (a lone wall: anywhere along it) adds no edge at all, nor one wide past a third of
     loop_verify's shift: a ridge (the depot's east shelf, 0.2 m along it) whose wrong
     optimum would be taken unconfirmed."""
     slam = GraphSlam(GraphSlamConfig())
@@ -103,7 +103,8 @@ def test_a_loop_the_scan_cannot_pin_adds_no_edge() -> None:
     assert slam._loop_sigma(shelf, 0.0) is None
     rotated = np.array([[0.02, 0.018, 0.0], [0.018, 0.02, 0.0], [0.0, 0.0, 1e-4]])
     assert slam._loop_sigma(rotated, 0.0) is None  # 0.19 m std along the diagonal
-    assert slam._loop_sigma(np.diag([1e-4, 0.14**2, 1e-4]), 0.0) is not None
+    assert slam._loop_sigma(np.diag([1e-4, 0.12**2, 1e-4]), 0.0) is None
+    assert slam._loop_sigma(np.diag([1e-4, 0.09**2, 1e-4]), 0.0) is not None
     # 10 cm along world y, 1 cm across: seen from a keyframe facing +y, along its x
     sigma = slam._loop_sigma(np.diag([1e-4, 0.01, 1e-4]), math.pi / 2)
     assert sigma is not None

@@ -261,18 +261,18 @@ class GraphSlam(GridSlam):
         """A loop edge's std (in the old keyframe's frame, at ``yaw``): ``loop_edge_sigma``
         widened to the match's own covariance ``cov`` (its refinement's, or its score
         surface's); None when the scan cannot pin the loop, a std in some direction past
-        half the loop window or of ``loop_verify``'s shift: it saw a ridge (a wall, a
-        shelf face, a column or a row of them) along which its optimum lies anywhere
-        within a two-sigma reach that spans a correction the pair check would hold back,
-        yet it would be taken at once, and the graph, softer between distant keyframes,
-        follows it (the depot's east shelf: 0.2 m std, 0.15-0.4 m wrong)."""
+        half the loop window or a third of ``loop_verify``'s shift: it saw a ridge (a
+        wall, a shelf face, a column or a row of them) along which its optimum lies
+        anywhere within a three-sigma reach that spans a correction the pair check would
+        hold back, yet it would be taken at once, and the graph, softer between distant
+        keyframes, follows it (the depot's east shelf: 0.2 m std, 0.15-0.4 m wrong)."""
         c = self.config
         sxy, sa = c.loop_edge_sigma
         floor = np.array([sxy, sxy, sa])
         if cov is None:
             return floor
         worst = float(np.linalg.eigvalsh(cov[:2, :2])[-1])
-        limit = 0.5 * min(c.loop_linear_window, c.loop_verify[0])
+        limit = min(0.5 * c.loop_linear_window, c.loop_verify[0] / 3.0)
         if not math.isfinite(worst) or worst > limit**2:
             return None
         cy, sy = math.cos(yaw), math.sin(yaw)

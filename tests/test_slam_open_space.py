@@ -105,8 +105,8 @@ def test_a_loop_the_scan_cannot_pin_adds_no_edge() -> None:
     assert slam._loop_sigma(rotated, 0.0) is None  # 0.19 m std along the diagonal
     assert slam._loop_sigma(np.diag([1e-4, 0.12**2, 1e-4]), 0.0) is None
     assert slam._loop_sigma(np.diag([1e-4, 0.09**2, 1e-4]), 0.0) is not None
-    # 10 cm along world y, 1 cm across: seen from a keyframe facing +y, along its x
-    sigma = slam._loop_sigma(np.diag([1e-4, 0.01, 1e-4]), math.pi / 2)
+    # 8 cm along world y, 1 cm across: seen from a keyframe facing +y, along its x
+    sigma = slam._loop_sigma(np.diag([1e-4, 0.08**2, 1e-4]), math.pi / 2)
     assert sigma is not None
-    assert sigma[0] == pytest.approx(0.1) and sigma[1] == pytest.approx(0.05)
+    assert sigma[0] == pytest.approx(0.08) and sigma[1] == pytest.approx(0.05)
     assert np.allclose(slam._loop_sigma(np.diag([1e-6, 1e-6, 1e-6]), 0.3), [0.05, 0.05, 0.05])

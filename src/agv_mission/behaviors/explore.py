@@ -250,7 +250,9 @@ class MapArea(py_trees.behaviour.Behaviour):
     def _revisiting(self) -> bool:
         """Whether the robot drives back to known ground now: remembers the sure places,
         starts a revisit when the std passes ``revisit_sigma`` and ends it (see the
-        class)."""
+        class). Never without a ``revisit_sigma``."""
+        if not math.isfinite(self.revisit_sigma):
+            return False
         state, nav = self.handle.state, self.handle.navigator
         sigma = self._position_sigma()
         est = state.estimate

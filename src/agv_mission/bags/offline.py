@@ -410,6 +410,12 @@ DEFAULT_SLAM: dict[str, Any] = {
     "wall_faces": True,
     "final_smoothing": True,
     "smoothing_sigma": (0.04, 0.02),
+    "final_odometry_edges": True,
+    "smoothing_calibration": True,
+    # random odometry error once its systematic part is learnt: 2 % of the distance (wheel
+    # slip, a tyre's load), 5 % of a turn (tyre scrub moves the wheels' contact points),
+    # 0.3 deg per metre (floor seams and bumps)
+    "smoothing_odom_noise": (0.02, 0.05, 0.005),
 }
 
 

@@ -255,6 +255,26 @@ class GraphSlamConfig(GridSlamConfig):
         "0.6 deg relative pose error the scan-to-map front end alone makes over 1 m on the "
         "Freiburg 079 log)",
     )
+    smoothing_calibration: bool = Field(
+        False,
+        description="the final smoothing learns the odometry's systematic errors (scale, "
+        "heading drift per metre driven and per radian turned: unequal wheel diameters, a "
+        "wheelbase off) from the whole trajectory and takes them out of its motion first",
+    )
+    final_odometry_edges: bool = Field(
+        False,
+        description="offline, before the final smoothing: the pose graph solved again with "
+        "the odometry's motion between consecutive keyframes as edges of their own "
+        "(calibrated as for smoothing_calibration, noise smoothing_odom_noise) and the front "
+        "end's edges between them widened to their real spread",
+    )
+    smoothing_odom_noise: tuple[float, float, float] | None = Field(
+        None,
+        description="m per metre, rad per radian, rad per metre: std of the odometry's "
+        "random error in the final smoothing (Thrun's odometry motion model); None: the "
+        "front end's odometry prior (odom_translation_noise, odom_rotation_noise, "
+        "odom_rotation_per_metre)",
+    )
     rebuild_threshold: float = Field(
         0.05,
         ge=0,

@@ -42,6 +42,7 @@ from agv_mission.geometry import Pose2D, wrap_angles
 from agv_mission.mapping.configs import GraphSlamConfig
 from agv_mission.mapping.likelihood_field import LikelihoodField
 from agv_mission.mapping.pose_graph import (
+    fuse_odometry,
     loop_pair_error,
     smooth_trajectory,
     solve_pose_graph,
@@ -376,7 +377,20 @@ class GraphSlam(GridSlam):
         self.nodes = new
         self.optimizations += 1
         self.optimize_times.append(perf_counter() - t0)
-        # Every pose rides on its keyframe (Pose2D.compose, all at once).
+        self._ride_keyframes()
+        current = Pose2D(*new[-1])
+        if shift > self.config.rebuild_now_threshold:
+            self._rebuild()
+        elif shift > self.config.rebuild_threshold:
+            self._stale = True
+        self._pose = current
+        self._last_integrated = current
+        self._last_pose = current
+        return current
+
+    def _ride_keyframes(self) -> None:
+        """Every pose of the trajectory rides on its keyframe (Pose2D.compose, all at once)."""
+        new = self.nodes
         base = new[np.asarray(self._anchor_keyframe, dtype=np.int64)].reshape(-1, 3)
         rel = np.asarray(self._anchor_offset, dtype=float).reshape(-1, 3)
         c, s = np.cos(base[:, 2]), np.sin(base[:, 2])
@@ -389,15 +403,6 @@ class GraphSlam(GridSlam):
                 self.trajectory, xs.tolist(), ys.tolist(), yaws.tolist(), strict=True
             )
         ]
-        current = Pose2D(*new[-1])
-        if shift > self.config.rebuild_now_threshold:
-            self._rebuild()
-        elif shift > self.config.rebuild_threshold:
-            self._stale = True
-        self._pose = current
-        self._last_integrated = current
-        self._last_pose = current
-        return current
 
     def occupancy_grid(self) -> OccupancyGrid:
         if self._stale:
@@ -426,7 +431,9 @@ class GraphSlam(GridSlam):
 
     def finish(self) -> None:
         """The whole recording seen (``agv-mission map``): with ``final_smoothing`` the
-        trajectory is smoothed with the odometry (:func:`smooth_trajectory`); the map is
+        trajectory is smoothed with the odometry (:func:`smooth_trajectory`), with
+        ``final_odometry_edges`` after the graph is solved again with the calibrated
+        odometry's edges (:func:`fuse_odometry`); the map is
         rendered again from it when that moved the integrated scans by more than
         ``rebuild_threshold`` on average (about a centimetre on the real logs: less than
         a cell is not worth the time, as for a rebuild)."""
@@ -435,9 +442,24 @@ class GraphSlam(GridSlam):
             return
         t0 = perf_counter()
         poses = np.array([row[1:] for row in self.trajectory])
-        noise = (c.odom_translation_noise, c.odom_rotation_noise, c.odom_rotation_per_metre)
+        noise = c.smoothing_odom_noise or (
+            c.odom_translation_noise,
+            c.odom_rotation_noise,
+            c.odom_rotation_per_metre,
+        )
+        if c.final_odometry_edges and len(self.nodes) > 1:
+            first = np.searchsorted(self._anchor_keyframe, np.arange(len(self.nodes)))
+            edges = tuple(np.array([e[f] for e in self.edges]) for f in range(5))
+            odom = np.array(self._odom_at)[first]
+            self.nodes = fuse_odometry(self.nodes, edges, odom, noise)  # type: ignore[arg-type]
+            self._ride_keyframes()
         new = smooth_trajectory(
-            poses, np.array(self._odom_at), noise, c.smoothing_sigma, odom_scale=self.odom_scale
+            np.array([row[1:] for row in self.trajectory]),
+            np.array(self._odom_at),
+            noise,
+            c.smoothing_sigma,
+            odom_scale=self.odom_scale,
+            calibrate=c.smoothing_calibration,
         )
         self.trajectory[:] = [
             (row[0], float(p[0]), float(p[1]), float(p[2]))

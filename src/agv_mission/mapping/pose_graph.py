@@ -163,6 +163,126 @@ def optimize_pose_graph(
     return x
 
 
+def odometry_steps(odom: np.ndarray) -> np.ndarray:
+    """The odometry's motion (n - 1, 3) between consecutive poses of ``odom`` (n, 3),
+    each in the frame of the first."""
+    rel = [
+        Pose2D(*b).relative_to(Pose2D(*a)).as_array()
+        for a, b in zip(odom[:-1], odom[1:], strict=True)
+    ]
+    return np.array(rel).reshape(-1, 3)
+
+
+#: Bounds of a calibration (scale, rad per metre, rad per radian): a wheel radius off by
+#: ten percent, wheels unequal enough to curve a degree per metre, a wheelbase ten percent
+#: off: past these the odometry is broken, not miscalibrated.
+CALIBRATION_BOUNDS = (0.1, 0.02, 0.1)
+
+
+def calibrate_odometry(poses: np.ndarray, steps: np.ndarray) -> tuple[float, float, float]:
+    """The odometry's systematic errors, learnt from the SLAM's ``poses`` (n, 3) and the
+    odometry's ``steps`` (n - 1, 3) between them: its scale (the robot's distance per
+    odometry metre: a wheel radius off), its heading drift per metre driven (a curvature
+    bias: unequal wheel diameters, Borenstein's type A error) and per radian turned (a
+    wheelbase off, type B). Least squares of the SLAM's motion against the odometry's over
+    every step: each step's matching error is random, the odometry's is the same every
+    metre, so over hundreds of steps the bias stands out; steps the fit cannot explain (a
+    slipping wheel, a bad match) are dropped and the fit repeated."""
+    seen = np.array(
+        [
+            Pose2D(*b).relative_to(Pose2D(*a)).as_array()
+            for a, b in zip(poses[:-1], poses[1:], strict=True)
+        ]
+    ).reshape(-1, 3)
+    d = np.hypot(steps[:, 0], steps[:, 1])
+    if len(d) < 10 or d.sum() < 5.0:
+        return 1.0, 0.0, 0.0
+    forward = np.where(steps[:, 0] < 0.0, -d, d)  # a curvature bias flips driving back
+    along = (seen[:, 0] * steps[:, 0] + seen[:, 1] * steps[:, 1]) / np.maximum(d, 1e-9)
+    turn_error = wrap_angles(seen[:, 2] - steps[:, 2])
+    a = np.stack([forward, steps[:, 2]], axis=1)
+    keep_t = d > 1e-3
+    keep_a = np.ones(len(d), dtype=bool)
+    scale, drift = 1.0, np.zeros(2)
+    for _ in range(3):
+        if keep_t.sum() >= 5:
+            scale = float(along[keep_t] @ d[keep_t] / (d[keep_t] @ d[keep_t]))
+        if keep_a.sum() >= 5:
+            drift = np.linalg.lstsq(a[keep_a], turn_error[keep_a], rcond=None)[0]
+        rt = along - scale * d
+        ra = turn_error - a @ drift
+        keep_t = (d > 1e-3) & (np.abs(rt) <= 3.0 * 1.4826 * np.median(np.abs(rt)) + 1e-6)
+        keep_a = np.abs(ra) <= 3.0 * 1.4826 * np.median(np.abs(ra)) + 1e-6
+    ks, kd, kt = CALIBRATION_BOUNDS
+    return (
+        float(np.clip(scale, 1.0 - ks, 1.0 + ks)),
+        float(np.clip(drift[0], -kd, kd)),
+        float(np.clip(drift[1], -kt, kt)),
+    )
+
+
+def odometry_edges(
+    steps: np.ndarray,
+    noise: tuple[float, float, float],
+    calibration: tuple[float, float, float] = (1.0, 0.0, 0.0),
+) -> tuple[np.ndarray, np.ndarray]:
+    """The odometry's ``steps`` (m, 3) with its systematic errors (``calibration``: scale,
+    rad per metre, rad per radian) taken out, and their stds (m, 3) by Thrun's odometry
+    motion model (``noise``: m per metre, rad per radian turned, rad per metre)."""
+    z = np.array(steps, dtype=float)
+    d = np.hypot(z[:, 0], z[:, 1])
+    scale, per_metre, per_radian = calibration
+    z[:, 2] += per_metre * np.where(z[:, 0] < 0.0, -d, d) + per_radian * z[:, 2]
+    z[:, :2] *= scale
+    d *= scale
+    st = noise[0] * d + 1e-3
+    sa = noise[1] * np.abs(z[:, 2]) + noise[2] * d + 1e-3
+    return z, np.stack([st, st, sa], axis=1)
+
+
+def honest_spread(r: np.ndarray, claimed: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """Per component (3,), how many times its claimed stds ``claimed`` (m, 3) a
+    measurement's errors really are, from its residuals ``r`` (m, 3) against an
+    independent measurement of stds ``other``: a variance component estimate (Helmert's),
+    by the median so a few bad matches do not count; never below 1."""
+    ratio = np.median(r**2 / (claimed**2 + other**2), axis=0) / 0.455  # chi2(1)'s median
+    return np.clip(np.sqrt(ratio), 1.0, 10.0)
+
+
+def fuse_odometry(
+    nodes: np.ndarray,
+    edges: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    odom: np.ndarray,
+    noise: tuple[float, float, float],
+) -> np.ndarray:
+    """The pose graph's ``nodes`` solved again with the odometry's motion between
+    consecutive ones (``odom``: its pose at each node) as edges of their own: its
+    systematic errors learnt from the graph first (:func:`calibrate_odometry`) and taken
+    out, its random error by ``noise`` (:func:`odometry_edges`). ``edges``: ``ii, jj, z,
+    sigma, loop`` as :func:`solve_pose_graph`'s; the stds of the front end's edges between
+    consecutive nodes are widened to what their disagreement with the odometry shows
+    (:func:`honest_spread`): a match's covariance is only its local curvature, and
+    between sparse scans its errors are larger."""
+    ii, jj, z, sigma, loop = edges
+    steps = odometry_steps(odom)
+    zo, so = odometry_edges(steps, noise, calibrate_odometry(nodes, steps))
+    sigma = np.array(sigma, dtype=float)
+    chain = ~loop & (jj == ii + 1)
+    if chain.sum() >= 10:
+        r = z[chain] - zo[ii[chain]]
+        r[:, 2] = wrap_angles(r[:, 2])
+        sigma[chain] *= honest_spread(r, sigma[chain], so[ii[chain]])
+    k = np.arange(len(nodes) - 1)
+    return optimize_pose_graph(
+        nodes,
+        np.concatenate([ii, k]),
+        np.concatenate([jj, k + 1]),
+        np.vstack([z, zo]),
+        np.vstack([sigma, so]),
+        math.inf,
+    )
+
+
 def smooth_trajectory(
     poses: np.ndarray,
     odom: np.ndarray,
@@ -170,26 +290,23 @@ def smooth_trajectory(
     pose_sigma: tuple[float, float],
     huber: float = 3.0,
     odom_scale: float = 1.0,
+    calibrate: bool = False,
 ) -> np.ndarray:
     """The poses (n, 3) that best agree with both the SLAM's ``poses`` (each within
     ``pose_sigma``: m, rad) and the odometry's motion between consecutive ones (``odom``,
-    (n, 3); std ``odom_noise``: m per metre, rad per radian, rad per metre, as the front
-    end's prior): a fixed-interval smoother. Over a metre wheel odometry errs by a
-    centimetre or two, a scan match against a map by about as much per pose and without
-    drift: together they beat either. Solved as a pose graph (:func:`optimize_pose_graph`)
-    of the odometry's edges with the SLAM's poses as priors, Huber-robust against a
-    slipping wheel."""
+    (n, 3); std ``odom_noise``: m per metre, rad per radian, rad per metre, Thrun's
+    odometry motion model): a fixed-interval smoother. Over a metre wheel odometry errs by
+    a centimetre or two, a scan match against a map by about as much per pose and without
+    drift: together they beat either. With ``calibrate`` the odometry's systematic errors
+    are learnt from the whole trajectory first (:func:`calibrate_odometry`) and taken out
+    of its motion, so ``odom_noise`` need only cover its random part; otherwise its
+    distances are scaled by ``odom_scale`` (as the front end learnt it). Solved as a pose
+    graph (:func:`optimize_pose_graph`) of the odometry's edges with the SLAM's poses as
+    priors, Huber-robust against a slipping wheel."""
     n = len(poses)
-    rel = [
-        Pose2D(*b).relative_to(Pose2D(*a)).as_array()
-        for a, b in zip(odom[:-1], odom[1:], strict=True)
-    ]
-    z = np.array(rel).reshape(-1, 3)
-    z[:, :2] *= odom_scale  # the odometry's distances, as the front end learnt them
-    d = np.hypot(z[:, 0], z[:, 1])
-    st = odom_noise[0] * d + 1e-3
-    sa = odom_noise[1] * np.abs(z[:, 2]) + odom_noise[2] * d + 1e-3
-    sigma = np.stack([st, st, sa], axis=1)
+    steps = odometry_steps(odom)
+    calibration = calibrate_odometry(poses, steps) if calibrate else (odom_scale, 0.0, 0.0)
+    z, sigma = odometry_edges(steps, odom_noise, calibration)
     k = np.arange(n - 1)
     spread = np.tile([pose_sigma[0], pose_sigma[0], pose_sigma[1]], (n, 1))
     return optimize_pose_graph(

@@ -140,12 +140,7 @@ def find_frontiers(
     reach = traversable
     robot_cell = None
     if robot is not None:
-        robot_cell = _snap(grid, traversable, robot, max_snap=robot_radius + clearance + 2 * res)
-        if robot_cell is None:
-            reach = np.zeros_like(traversable)
-        else:
-            comp, _ = ndimage.label(traversable, structure=_EIGHT)
-            reach = comp == comp[robot_cell]
+        robot_cell, reach = _reach(grid, traversable, robot, robot_radius + clearance)
 
     # For every reachable cell: the nearest frontier cell (any cluster) and how far it is.
     d_front, (fr, fc) = ndimage.distance_transform_edt(labels == 0, return_indices=True)
@@ -200,11 +195,22 @@ def path_lengths(
     ``inf`` where it cannot go."""
     res = grid.resolution
     traversable = ndimage.distance_transform_edt(grid.data == FREE) * res > robot_radius + clearance
-    start = _snap(grid, traversable, robot, max_snap=robot_radius + clearance + 2 * res)
+    start, reach = _reach(grid, traversable, robot, robot_radius + clearance)
     if start is None:
         return np.full(grid.data.shape, np.inf)
+    return _geodesic(reach, start, res)
+
+
+def _reach(
+    grid: OccupancyGrid, traversable: np.ndarray, robot: Sequence[float], needed: float
+) -> tuple[tuple[int, int] | None, np.ndarray]:
+    """The robot's cell (:func:`_snap`, within ``needed`` clearance and two cells) and the
+    traversable cells connected to it (none when it has no cell)."""
+    cell = _snap(grid, traversable, robot, max_snap=needed + 2 * grid.resolution)
+    if cell is None:
+        return None, np.zeros_like(traversable)
     comp, _ = ndimage.label(traversable, structure=_EIGHT)
-    return _geodesic(comp == comp[start], start, res)
+    return cell, comp == comp[cell]
 
 
 def _snap(

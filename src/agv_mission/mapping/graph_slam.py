@@ -361,15 +361,7 @@ class GraphSlam(GridSlam):
     def _optimize(self) -> Pose2D:
         """Optimise the graph, correct trajectory and map; the new current pose."""
         t0 = perf_counter()
-        new, keep = solve_pose_graph(
-            self.nodes,
-            np.array([e[0] for e in self.edges]),
-            np.array([e[1] for e in self.edges]),
-            np.array([e[2] for e in self.edges]),
-            np.array([e[3] for e in self.edges]),
-            np.array([e[4] for e in self.edges]),
-            self.config.loop_gate,
-        )
+        new, keep = solve_pose_graph(self.nodes, *self._edge_arrays(), self.config.loop_gate)
         if not keep.all():
             self.loop_rejections += int((~keep).sum())
             self.edges = [e for e, k in zip(self.edges, keep, strict=True) if k]
@@ -387,6 +379,11 @@ class GraphSlam(GridSlam):
         self._last_integrated = current
         self._last_pose = current
         return current
+
+    def _edge_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The graph's edges as arrays: ``ii, jj, z, sigma, loop``."""
+        ii, jj, z, sigma, loop = zip(*self.edges, strict=True)
+        return np.array(ii), np.array(jj), np.array(z), np.array(sigma), np.array(loop)
 
     def _ride_keyframes(self) -> None:
         """Every pose of the trajectory rides on its keyframe (Pose2D.compose, all at once)."""
@@ -449,9 +446,8 @@ class GraphSlam(GridSlam):
         )
         if c.final_odometry_edges and len(self.nodes) > 1:
             first = np.searchsorted(self._anchor_keyframe, np.arange(len(self.nodes)))
-            edges = tuple(np.array([e[f] for e in self.edges]) for f in range(5))
             odom = np.array(self._odom_at)[first]
-            self.nodes = fuse_odometry(self.nodes, edges, odom, noise)  # type: ignore[arg-type]
+            self.nodes = fuse_odometry(self.nodes, self._edge_arrays(), odom, noise)
             self._ride_keyframes()
         new = smooth_trajectory(
             np.array([row[1:] for row in self.trajectory]),

@@ -188,12 +188,7 @@ def calibrate_odometry(poses: np.ndarray, steps: np.ndarray) -> tuple[float, flo
     every step: each step's matching error is random, the odometry's is the same every
     metre, so over hundreds of steps the bias stands out; steps the fit cannot explain (a
     slipping wheel, a bad match) are dropped and the fit repeated."""
-    seen = np.array(
-        [
-            Pose2D(*b).relative_to(Pose2D(*a)).as_array()
-            for a, b in zip(poses[:-1], poses[1:], strict=True)
-        ]
-    ).reshape(-1, 3)
+    seen = odometry_steps(poses)  # the SLAM's own motion, step by step
     d = np.hypot(steps[:, 0], steps[:, 1])
     if len(d) < 10 or d.sum() < 5.0:
         return 1.0, 0.0, 0.0

@@ -304,3 +304,35 @@ def test_fusing_calibrated_odometry_straightens_a_drifting_chain():
 
     assert error(fused) < 0.6 * error(chain)
     assert error(fused) < error(odom)
+
+
+def test_odometry_heading_spread_weakens_slipping_wheels_and_keeps_steady_ones():
+    """A solved graph tied to its map (each node's heading 0.3 deg off at random, no
+    drift) and two recordings' odometry along it: steady wheels keep the model's heading
+    noise; wheels whose every step slips (up to 6 deg a metre, as the simulator's
+    encoders slip a share of every read) are weakened several times."""
+    from agv_mission.mapping.pose_graph import (
+        calibrate_odometry,
+        odometry_edges,
+        odometry_heading_spread,
+        odometry_steps,
+    )
+
+    for seed in (5, 6, 7):
+        rng = np.random.default_rng(seed)
+        truth, _ = _sparse_square(rng)
+        nodes = truth + rng.normal(0.0, [0.01, 0.01, 0.005], truth.shape)
+        steady = _drifting_odometry(truth, rng)
+        slipping, o = [truth[0]], Pose2D(*truth[0])
+        for a, b in zip(truth[:-1], truth[1:], strict=True):
+            d = Pose2D(*b).relative_to(Pose2D(*a))
+            o = o.compose(Pose2D(d.x, d.y, d.yaw + rng.uniform(-0.1, 0.1)))
+            slipping.append(o.as_array())
+
+        spreads = []
+        for odom in (steady, np.array(slipping)):
+            steps = odometry_steps(odom)
+            z, sigma = odometry_edges(steps, (0.02, 0.05, 0.005), calibrate_odometry(nodes, steps))
+            spreads.append(odometry_heading_spread(nodes, z, sigma))
+        assert spreads[0] == pytest.approx(1.0)
+        assert spreads[1] > 3.0

@@ -410,11 +410,13 @@ DEFAULT_SLAM: dict[str, Any] = {
     "wall_faces": True,
     "final_smoothing": True,
     "smoothing_sigma": (0.04, 0.02),
-    # the odometry's systematic errors learnt and taken out before the final smoothing;
-    # its motion as edges of the keyframe graph too (final_odometry_edges) stays off: it
-    # lifts sparse logs recorded with steady wheels, but wheels that slip at random bent a
-    # simulated 100 m loop by most of a metre (tests/test_graph_slam.py)
+    # the odometry's systematic errors learnt and taken out before the final smoothing,
+    # and its motion as edges of the keyframe graph too, weighted by how steady this
+    # recording's wheels are (pose_graph.odometry_heading_spread): it lifts sparse logs
+    # recorded with steady wheels and leaves wheels that slip at random (the simulated
+    # 100 m loop of tests/test_graph_slam.py) to the scans
     "smoothing_calibration": True,
+    "final_odometry_edges": True,
     # random odometry error once its systematic part is learnt: 2 % of the distance (wheel
     # slip, a tyre's load), 5 % of a turn (tyre scrub moves the wheels' contact points),
     # 0.3 deg per metre (floor seams and bumps)

@@ -265,7 +265,8 @@ class GraphSlamConfig(GridSlamConfig):
         False,
         description="offline, before the final smoothing: the pose graph solved again with "
         "the odometry's motion between consecutive keyframes as edges of their own "
-        "(calibrated as for smoothing_calibration, noise smoothing_odom_noise) and the front "
+        "(calibrated as for smoothing_calibration, noise smoothing_odom_noise, its heading "
+        "noise widened when this recording's wheels slip more than that) and the front "
         "end's edges between them widened to their real spread",
     )
     smoothing_odom_noise: tuple[float, float, float] | None = Field(

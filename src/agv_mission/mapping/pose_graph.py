@@ -298,15 +298,21 @@ def fuse_odometry(
     consecutive ones (``odom``: its pose at each node) as edges of their own: its
     systematic errors learnt from the graph first (:func:`calibrate_odometry`) and taken
     out, its random error by ``noise`` (:func:`odometry_edges`) with the heading's widened
-    to what this recording shows (:func:`odometry_heading_spread`). ``edges``: ``ii, jj, z,
-    sigma, loop`` as :func:`solve_pose_graph`'s; the stds of the front end's edges between
-    consecutive nodes are widened to what their disagreement with the odometry shows
+    to what this recording shows (:func:`odometry_heading_spread`), and the sideways error
+    that much heading error brings with it. ``edges``: ``ii, jj, z, sigma, loop`` as
+    :func:`solve_pose_graph`'s; the stds of the front end's edges between consecutive
+    nodes are widened to what their disagreement with the odometry shows
     (:func:`honest_spread`): a match's covariance is only its local curvature, and
     between sparse scans its errors are larger."""
     ii, jj, z, sigma, loop = edges
     steps = odometry_steps(odom)
     zo, so = odometry_edges(steps, noise, calibrate_odometry(nodes, steps))
-    so[:, 2] *= odometry_heading_spread(nodes, zo, so)
+    spread = odometry_heading_spread(nodes, zo, so)
+    # heading error past the model's, picked up along a step, ends it sideways by about
+    # half the step's length times it (a turn spread over the step: Thrun's rot1 and rot2)
+    extra = so[:, 2] * math.sqrt(spread**2 - 1.0)
+    so[:, 1] = np.hypot(so[:, 1], 0.5 * np.hypot(zo[:, 0], zo[:, 1]) * extra)
+    so[:, 2] *= spread
     sigma = np.array(sigma, dtype=float)
     chain = ~loop & (jj == ii + 1)
     if chain.sum() >= 10:

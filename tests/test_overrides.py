@@ -4,15 +4,13 @@ they came from, "did you mean" for unknown keys, and ROS-style poses that name t
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from agv_mission.missions.load.errors import MissionError
 from agv_mission.missions.load.loader import load_mission
-
-EXE = [sys.executable, "-m", "agv_mission.cli"]
+from cli_in_process import agv
 
 COST_GRID_MISSION = """\
 world: turtlebot3_world
@@ -31,7 +29,8 @@ TO_COST_GRID = "stack.global_planner.type=cost_grid"
 
 
 def cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([*EXE, *args], capture_output=True, text=True, timeout=300)
+    """The command's answer, called in this process (test_cli.py starts the program)."""
+    return agv(*args)
 
 
 @pytest.fixture
@@ -169,13 +168,7 @@ def test_a_complete_ros_pose_is_the_planar_pose(tmp_path: Path) -> None:
 
 
 def test_teleop_options_are_named_in_their_errors() -> None:
-    r = subprocess.run(
-        [*EXE, "teleop", "--world", "nowhere", "--robot", "r2d2"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        stdin=subprocess.DEVNULL,
-    )
+    r = agv("teleop", "--world", "nowhere", "--robot", "r2d2", input="")
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "(from --world nowhere)" in r.stderr
 

@@ -8,6 +8,7 @@ what a command says and returns for a given input."""
 from __future__ import annotations
 
 import contextlib
+import signal
 import subprocess
 from pathlib import Path
 
@@ -20,11 +21,17 @@ def agv(
     *args: str, cwd: Path | None = None, input: str | None = None
 ) -> subprocess.CompletedProcess[str]:
     """Run ``agv-mission *args`` here; its exit code, stdout and stderr as a finished
-    process. An exception the program lets escape fails the test (as the traceback would)."""
+    process. An exception the program lets escape fails the test (as the traceback would).
+    The signal handlers a command installs (``run``'s SignalStop) are put back after it."""
     runner = CliRunner()
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
     where = contextlib.chdir(cwd) if cwd is not None else contextlib.nullcontext()
-    with where:
-        result = runner.invoke(app, list(args), input=input, catch_exceptions=False)
+    try:
+        with where:
+            result = runner.invoke(app, list(args), input=input, catch_exceptions=False)
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
     return subprocess.CompletedProcess(
         ["agv-mission", *args], result.exit_code, result.stdout, result.stderr
     )

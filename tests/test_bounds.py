@@ -13,6 +13,7 @@ import pytest
 from agv_mission.missions.load.errors import MissionError
 from agv_mission.missions.load.loader import load_mission
 from agv_mission.missions.run.runner import run_mission
+from cli_in_process import agv
 from mission_texts import ENDLESS_PATROL, mission_file, tb3_mission
 
 EXE = [sys.executable, "-m", "agv_mission.cli"]
@@ -22,6 +23,7 @@ LAZY_PATROL = tb3_mission(ENDLESS_PATROL, limits="{time: 25.0}")
 
 
 def cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    """The program in a process of its own: a read that blocked would hit the timeout."""
     return subprocess.run([*EXE, *args], capture_output=True, text=True, timeout=timeout)
 
 
@@ -80,7 +82,7 @@ def test_a_patrol_loops_lazily(tmp_path: Path) -> None:
 def test_costmap_resolution_is_bounded_in_validate_too(tmp_path: Path) -> None:
     path = tmp_path / "fine.yaml"
     path.write_text("stack: {costmap: {resolution: 0.000001}}\n" + MISSION)
-    r = cli("validate", str(path), timeout=60)
+    r = agv("validate", str(path))
     assert r.returncode == 2
     assert f"{path}:1: stack.costmap.resolution" in r.stderr and "cells" in r.stderr
 
@@ -96,7 +98,7 @@ def test_output_that_cannot_hold_a_run_directory_exits_2(tmp_path: Path, kind: s
         "under a file": blocker / "runs",
         "not permitted": Path("/sys/kernel/agv-mission-runs"),  # even root may not
     }[kind]
-    r = cli("run", str(mission), "--output", str(output), timeout=60)
+    r = agv("run", str(mission), "--output", str(output))
     assert r.returncode == 2, r.stdout + r.stderr
     assert f"--output '{output}': cannot create a run directory" in r.stderr
     assert "Traceback" not in r.stderr
@@ -108,7 +110,7 @@ def test_read_only_output_exits_2(tmp_path: Path) -> None:
     mission.write_text(MISSION)
     ro = tmp_path / "ro"
     ro.mkdir(mode=0o555)
-    r = cli("run", str(mission), "--output", str(ro), timeout=60)
+    r = agv("run", str(mission), "--output", str(ro))
     assert r.returncode == 2 and "cannot create a run directory" in r.stderr
 
 

@@ -2,7 +2,7 @@
 app: the same parsing, messages on stdout/stderr and exit codes, without the two seconds a
 fresh interpreter spends importing. The way in as a process (``python -m agv_mission.cli``,
 the ``agv-mission`` script, Ctrl-C, a closed pipe) stays covered by tests that start one
-(test_cli.py, test_failures.py, test_input_files.py); the tests that use this call check
+(test_cli.py, test_failures.py, test_bounds.py); the tests that use this call check
 what a command says and returns for a given input."""
 
 from __future__ import annotations

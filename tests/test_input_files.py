@@ -5,14 +5,12 @@ world and robot files."""
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from agv_mission.missions.load.loader import load_mission
-
-EXE = [sys.executable, "-m", "agv_mission.cli"]
+from cli_in_process import agv
 
 FOUR_PROBLEMS = """\
 rooms:
@@ -37,7 +35,8 @@ rooms:
 
 
 def validate(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([*EXE, "validate", *args], capture_output=True, text=True, timeout=300)
+    """``agv-mission validate`` called in this process (test_cli.py starts the program)."""
+    return agv("validate", *args)
 
 
 def test_rooms_file_problems_one_per_line_in_the_tools_words(tmp_path: Path) -> None:

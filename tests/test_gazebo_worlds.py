@@ -18,6 +18,7 @@ from agv_mission.maps.ros_map import load_ros_map
 from agv_mission.maps.world_loader import WorldError, load_world
 from agv_mission.missions.load.errors import MissionError
 from agv_mission.missions.load.loader import load_mission
+from cli_in_process import agv as agv_here
 
 BARN = Path(__file__).parent / "data" / "barn"
 
@@ -47,6 +48,7 @@ def write(tmp_path: Path, text: str, name: str = "w.world") -> Path:
 
 
 def agv(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """The program in a process of its own (the ``world`` cases call it in this one)."""
     return subprocess.run(
         [sys.executable, "-m", "agv_mission.cli", *args],
         cwd=cwd,
@@ -128,7 +130,7 @@ def test_a_mesh_is_refused_naming_the_file_the_line_and_the_mesh(tmp_path):
     (problem,) = err.value.problems
     assert problem.startswith(f"{path}:{line}: <mesh>: model 'shelf'")
     assert "shelf.dae" in problem
-    done = agv("world", str(path), cwd=tmp_path)
+    done = agv_here("world", str(path), cwd=tmp_path)
     assert done.returncode == 2
     assert f"{path}:{line}: <mesh>" in done.stderr and "Traceback" not in done.stderr
 
@@ -219,7 +221,7 @@ def test_entity_expansion_is_refused_without_expanding(tmp_path):
         load_world(str(path))
     (problem,) = err.value.problems
     assert problem.startswith(f"{path}:3: <!ENTITY>: the entity 'a' refused without expanding")
-    done = agv("world", str(path), cwd=tmp_path)
+    done = agv_here("world", str(path), cwd=tmp_path)
     assert done.returncode == 2 and "refused without expanding" in done.stderr
 
 
@@ -257,7 +259,7 @@ def test_save_map_is_the_cut_at_the_scan_height_with_2_m_around(tmp_path):
     body = model("post", cylinder(0.3), pose="1 1 0 0 0 0")
     body += model("high", "<box><size>1 1 0.2</size></box>", pose="-1 -1 1.0 0 0 0")  # above
     path = write(tmp_path, sdf(body))
-    done = agv("world", str(path), "--save-map", str(tmp_path / "w_map"), cwd=tmp_path)
+    done = agv_here("world", str(path), "--save-map", str(tmp_path / "w_map"), cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     grid = load_ros_map(tmp_path / "w_map.yaml")
     assert grid.resolution == pytest.approx(0.05)

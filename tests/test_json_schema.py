@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import functools
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import jsonschema
@@ -16,6 +14,7 @@ from agv_mission.missions.load import schema as mission_schema
 from agv_mission.missions.load.schema import FIELD_ORDER
 from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
 from agv_mission.robots.robot_files import robot_json_schema
+from cli_in_process import agv
 
 REPO = Path(__file__).resolve().parents[1]
 MISSIONS = sorted(
@@ -179,11 +178,6 @@ def test_builtin_robots_validate_against_the_robot_schema() -> None:
 
 def test_schema_command_prints_both_schemas() -> None:
     for args, title in ((["schema"], "Mission"), (["schema", "--robot"], "RobotDescription")):
-        r = subprocess.run(
-            [sys.executable, "-m", "agv_mission.cli", *args],
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
+        r = agv(*args)  # in this process: test_cli.py starts the program for ``schema``
         assert r.returncode == 0, r.stderr
         assert json.loads(r.stdout)["title"] == title

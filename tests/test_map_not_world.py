@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +23,7 @@ from agv_mission.missions.load.errors import MissionError
 from agv_mission.missions.load.loader import load_mission
 from agv_mission.missions.run.metrics import SETTLE_TIME
 from agv_mission.missions.run.runner import MissionRun
+from cli_in_process import agv
 
 HERE = Path(__file__).resolve().parent
 SLAM_MAP = HERE / "fixtures" / "maps" / "small_house_slam.yaml"
@@ -133,8 +133,8 @@ def test_map_key_names_file_line_and_field(tmp_path: Path) -> None:
 
 
 def validate(path: Path) -> subprocess.CompletedProcess:
-    cmd = [sys.executable, "-m", "agv_mission.cli", "validate", str(path)]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    """``agv-mission validate`` called in this process (test_cli.py starts the program)."""
+    return agv("validate", str(path))
 
 
 def test_the_robot_plans_and_localises_on_its_map_not_the_world(tmp_path: Path) -> None:

@@ -13,11 +13,13 @@ from agv_mission.maps.builtin_worlds import small_house
 from agv_mission.maps.grid import FREE, OCCUPIED
 from agv_mission.maps.ros_map import load_ros_map
 from agv_mission.missions.report.summary import task_rows
+from cli_in_process import agv
 
 EXE = [sys.executable, "-m", "agv_mission.cli"]
 
 
 def cli(*args: str) -> subprocess.CompletedProcess:
+    """The program in a process of its own (the other cases call it in this one)."""
     return subprocess.run([*EXE, *args], capture_output=True, text=True, timeout=300)
 
 
@@ -52,7 +54,7 @@ def test_world_without_anchors_lists_inside_points(tmp_path: Path) -> None:
         "spawn: {x: 0.5, y: 0.5}\nboxes: [{x: 3, y: 3, size: [0.5, 0.5]}]\n"
         "rooms:\n  ell:\n    polygon: [[0, 0], [4, 0], [4, 1], [1, 1], [1, 4], [0, 4]]\n"
     )
-    r = cli("world", str(tmp_path / "w.yaml"))
+    r = agv("world", str(tmp_path / "w.yaml"))
     assert r.returncode == 0, r.stderr
     row = next(line for line in r.stdout.splitlines() if line.split()[:1] == ["ell"])
     x, y = map(float, row.split()[1:3])
@@ -61,7 +63,7 @@ def test_world_without_anchors_lists_inside_points(tmp_path: Path) -> None:
 
 
 def test_an_unknown_world_exits_2_listing_the_known_ones() -> None:
-    r = cli("world", "smal_house")
+    r = agv("world", "smal_house")
     assert r.returncode == 2
     assert "depot, small_house, turtlebot3_world, warehouse" in r.stderr
     assert "Traceback" not in r.stderr

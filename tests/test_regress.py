@@ -19,6 +19,7 @@ from agv_mission.missions.load.schema.expect import Expectations
 from agv_mission.missions.report.expectations import Failure, check
 from agv_mission.regress import backends, report
 from agv_mission.regress import plan as planning
+from cli_in_process import agv
 
 REPO = Path(__file__).resolve().parents[1]
 SCENARIOS = REPO / "tests" / "scenarios"
@@ -491,15 +492,16 @@ def test_cli_broken_expectation_exits_1_naming_the_metric(tmp_path: Path) -> Non
 
 
 def test_cli_invalid_input_exits_2(tmp_path: Path) -> None:
+    """Each answer called in this process; the cases above start the program."""
     bad = tmp_path / "bad.yaml"
     bad.write_text("tasks:\n  - {type: wander, duration: 1}\nexpect:\n  sim_time: 3\n")
-    r = cli("regress", str(bad), "--output", str(tmp_path))
+    r = agv("regress", str(bad), "--output", str(tmp_path))
     assert r.returncode == 2 and "expect.sim_time" in r.stderr and "Traceback" not in r.stderr
-    r = cli("regress", str(tmp_path / "nope"))
+    r = agv("regress", str(tmp_path / "nope"))
     assert r.returncode == 2 and "no such file" in r.stderr
-    r = cli("regress", str(SCENARIOS / "go_to_tb3.yaml"), "--sweep", "seed")
+    r = agv("regress", str(SCENARIOS / "go_to_tb3.yaml"), "--sweep", "seed")
     assert r.returncode == 2 and "KEY=V1,V2" in r.stderr
-    r = cli("regress", str(SCENARIOS / "go_to_tb3.yaml"), "--backend", "slurm")
+    r = agv("regress", str(SCENARIOS / "go_to_tb3.yaml"), "--backend", "slurm")
     assert r.returncode == 2
 
 

@@ -28,6 +28,7 @@ from agv_mission.missions.run.runner import run_mission
 from agv_mission.world.crowd import DECISION_PERIOD, Crowd
 from agv_mission.world.people_groups import PeopleGroup
 from agv_mission.world.walkable import clearance
+from cli_in_process import agv as agv_here
 
 WAREHOUSE = warehouse()
 HOUSE = small_house()
@@ -470,7 +471,7 @@ def test_a_people_mission_with_a_point_near_a_wall_validates_and_runs(tmp_path: 
         f"limits: {{time: 6.0}}\noutput: {tmp_path / 'runs'}\n"
     )
     agv = str(Path(sys.executable).parent / "agv-mission")
-    valid = subprocess.run([agv, "validate", str(mission)], capture_output=True, text=True)
+    valid = agv_here("validate", str(mission))  # in this process; ``run`` below starts one
     assert valid.returncode == 0, valid.stdout + valid.stderr
     assert "warning" in valid.stderr and "people.0.route.1" in valid.stderr
     assert f"{mission}:8: people.0.route.1" in valid.stderr  # file, line and field
@@ -482,7 +483,7 @@ def test_a_people_mission_with_a_point_near_a_wall_validates_and_runs(tmp_path: 
     assert any("people.0.route.1" in w for w in result["warnings"])
     inside = mission.read_text().replace(f"x: {x}, y: {y}", "x: -2.4, y: -3.0")  # in a wall
     mission.write_text(inside)
-    bad = subprocess.run([agv, "validate", str(mission)], capture_output=True, text=True)
+    bad = agv_here("validate", str(mission))
     assert bad.returncode == 2 and "in a wall" in bad.stderr
 
 

@@ -31,6 +31,7 @@ from agv_mission.missions.run.runner import run_mission
 from agv_mission.navigation.handle import RobotHandle
 from agv_mission.plugin_check import PluginCheckError, check_plugin
 from agv_mission.registry import registry
+from cli_in_process import agv
 from mission_texts import mission_file, tb3_mission
 
 STEP = 0.05
@@ -328,10 +329,9 @@ def test_a_third_party_node_registered_at_run_time(tmp_path: Path) -> None:
     record = run_mission(load_mission(mission_file(tmp_path, text)))
     assert record.status == "succeeded"
     assert [e["n"] for e in record.events if e["event"] == "blink"] == [1, 2, 3, 4]
-    listed = subprocess.run(
-        [sys.executable, "-m", "agv_mission.cli", "tree", "nodes", "--xml"],
-        capture_output=True, text=True, check=True, timeout=120,
-    ).stdout  # fmt: skip
+    nodes = agv("tree", "nodes", "--xml")  # in this process; ``tree export`` above starts one
+    assert nodes.returncode == 0, nodes.stderr
+    listed = nodes.stdout
     ids = {e.get("ID") for e in ET.fromstring(listed).iter() if e.get("ID")}
     assert {"GoTo", "NavigateToPose", "RangeAheadBelow", "Patrol", "ComputePathToPose"} <= ids
     assert not {"Timeout", "Sequence", "RetryUntilSuccessful"} & ids  # BT.CPP's own: not declared

@@ -15,6 +15,7 @@ import pytest
 import websockets
 import yaml
 
+from cli_in_process import agv
 from service_server import (
     AGV,
     FINAL,
@@ -292,18 +293,14 @@ def test_submit_cli_follow_and_exit_codes(server: Server, tmp_path: Path) -> Non
     assert done.returncode == 0, done.stderr
     run_id = done.stdout.splitlines()[0].strip()
     assert len(run_id) == 12 and "succeeded" in done.stdout
-    failing = subprocess.run(
-        [AGV, "submit", str(mission), "--server", server.url, "--follow", "--set", "limits.time=1"],
-        capture_output=True,
-        text=True,
-        timeout=120,
+    # The same command called in this process (the first submit above started the program).
+    failing = agv(
+        "submit", str(mission), "--server", server.url, "--follow", "--set", "limits.time=1"
     )
     assert failing.returncode == 1 and "time limit" in failing.stdout
     bad = tmp_path / "bad.yaml"
     bad.write_text(SHORT_MISSION.replace("x: -1.5", "x: fast"))
-    invalid = subprocess.run(
-        [AGV, "submit", str(bad), "--server", server.url], capture_output=True, text=True
-    )
+    invalid = agv("submit", str(bad), "--server", server.url)
     assert invalid.returncode == 2
     assert f"{bad}:6" in invalid.stderr and "pose.x" in invalid.stderr
 

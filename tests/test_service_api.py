@@ -24,6 +24,7 @@ from PIL import Image
 from rosbags.highlevel import AnyReader
 
 from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
+from cli_in_process import agv
 from service_server import AGV, FINAL, SHORT_MISSION, Server, submit, wait_status
 
 
@@ -394,22 +395,12 @@ async def _teleop_session(server: Server, client: httpx.Client, rid: str) -> dic
 def test_submit_to_an_unreachable_server_exits_69(tmp_path: Path) -> None:
     mission = tmp_path / "short.yaml"
     mission.write_text(SHORT_MISSION)
-    gone = subprocess.run(
-        [AGV, "submit", str(mission), "--server", "http://127.0.0.1:9"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    gone = agv("submit", str(mission), "--server", "http://127.0.0.1:9")  # in this process
     assert gone.returncode == 69, gone.stderr
     assert "cannot reach" in gone.stderr and "Traceback" not in gone.stderr
     bad = tmp_path / "bad.yaml"
     bad.write_text(SHORT_MISSION.replace("x: -1.5", "x: fast"))
-    invalid = subprocess.run(
-        [AGV, "submit", str(bad), "--server", "http://127.0.0.1:9"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    invalid = agv("submit", str(bad), "--server", "http://127.0.0.1:9")
     assert invalid.returncode == 2  # invalid input is found before anything is sent
     assert f"{bad}:6" in invalid.stderr
 

@@ -17,6 +17,7 @@ import pytest
 from agv_mission.missions.load.loader import load_mission
 from agv_mission.missions.run.pacing import PacedControl, Pacer, check_pace
 from agv_mission.missions.run.runner import run_mission
+from cli_in_process import agv
 from mission_texts import ENDLESS_PATROL, mission_file, tb3_mission
 from service_server import AGV, SHORT_MISSION, Server, collect_live, submit, wait_status
 
@@ -69,9 +70,7 @@ def test_run_at_a_pace_prints_its_speed(tmp_path: Path) -> None:
     )
     assert proc.returncode == 0, proc.stderr
     assert "succeeded" in proc.stdout
-    bad = subprocess.run(
-        [AGV, "run", str(path), "--pace", "0"], capture_output=True, text=True, timeout=120
-    )
+    bad = agv("run", str(path), "--pace", "0")  # typer's own check, called in this process
     assert bad.returncode == 2 and "--pace" in bad.stderr
 
 

@@ -14,6 +14,7 @@ import pytest
 from agv_mission.barn import suite
 from agv_mission.barn.protocol import BarnReferee, metric, path_length
 from agv_mission.missions.run.runner import run_mission
+from cli_in_process import agv as agv_here
 
 BARN = Path(__file__).parent / "data" / "barn"
 START, GOAL = (-2.25, 3.0), (-2.25, 13.0)
@@ -79,13 +80,14 @@ def test_world_selection():
 
 
 def test_a_missing_path_file_is_invalid_input_naming_it(tmp_path):
+    """Each answer called in this process; the run below starts the program."""
     shutil.copy(BARN / "world_0.world", tmp_path / "world_0.world")
-    done = agv("barn", str(tmp_path), "--output", str(tmp_path / "runs"), cwd=tmp_path)
+    done = agv_here("barn", str(tmp_path), "--output", str(tmp_path / "runs"), cwd=tmp_path)
     assert done.returncode == 2
     assert str(tmp_path / "path_files" / "path_0.npy") in done.stderr
-    done = agv("barn", str(BARN), "--worlds", "0,7", cwd=tmp_path)
+    done = agv_here("barn", str(BARN), "--worlds", "0,7", cwd=tmp_path)
     assert done.returncode == 2 and "world_7.world" in done.stderr
-    done = agv(
+    done = agv_here(
         "barn", str(BARN), "--worlds", "0", "--set", "stack.local_planner.type=dwa", cwd=tmp_path
     )
     assert done.returncode == 2 and "--set stack.local_planner.type=dwa" in done.stderr

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import csv
 import json
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -17,6 +15,7 @@ import yaml
 from agv_mission.vda5050.master import Master, load_plan, new_run_dir, write_outputs
 from agv_mission.vda5050.transport import BrokerUrl, EmbeddedBroker, free_port
 from agv_mission.vda5050.vehicle_set import VehicleSet, load_vehicles
+from cli_in_process import agv
 from vda5050_peers import MiniMaster, MiniVehicle, Mosquitto
 
 WAREHOUSE = {
@@ -230,36 +229,21 @@ def test_our_master_drives_our_vehicle_end_to_end(tmp_path: Path) -> None:
     assert (run_dir / "trajectory.csv").stat().st_size > 100
 
 
-@pytest.mark.slow  # 12 s of CLI start-ups; the loader's bad-input tests cover the messages
 def test_dispatch_cli_bad_input_exits_2(tmp_path: Path) -> None:
+    """Each answer called in this process (in make test now: no start-ups to wait for);
+    test_mission_matrix.py starts ``vda5050 vehicles`` and ``dispatch`` as programs."""
     bad = write(
         tmp_path / "bad.yaml", {"name": "x", "world": "warehouse", "tasks": [{"type": "go_to"}]}
     )
-    cmd = [sys.executable, "-m", "agv_mission.cli", "vda5050"]
-    r = subprocess.run(
-        [*cmd, "dispatch", str(bad), "--broker", "mqtt://127.0.0.1:1"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    r = agv("vda5050", "dispatch", str(bad), "--broker", "mqtt://127.0.0.1:1")
     assert r.returncode == 2 and "bad.yaml" in r.stderr and "pose" in r.stderr
     good = write(
         tmp_path / "good.yaml",
         {"name": "x", "world": "warehouse", "tasks": [{"type": "go_to", "pose": {"x": 0, "y": 0}}]},
     )
-    r = subprocess.run(
-        [*cmd, "dispatch", str(good), "--broker", "http://nowhere"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    r = agv("vda5050", "dispatch", str(good), "--broker", "http://nowhere")
     assert r.returncode == 2 and "mqtt://HOST:PORT" in r.stderr
-    r = subprocess.run(
-        [*cmd, "vehicles", str(tmp_path / "missing.yaml")],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    r = agv("vda5050", "vehicles", str(tmp_path / "missing.yaml"))
     assert r.returncode == 2 and "missing.yaml" in r.stderr
     wrong = write(
         tmp_path / "wrong_at.yaml",
@@ -275,12 +259,7 @@ def test_dispatch_cli_bad_input_exits_2(tmp_path: Path) -> None:
             ],
         },
     )
-    r = subprocess.run(
-        [*cmd, "dispatch", str(wrong), "--broker", "mqtt://127.0.0.1:1"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    r = agv("vda5050", "dispatch", str(wrong), "--broker", "mqtt://127.0.0.1:1")
     assert (
         r.returncode == 2 and "wrong_at.yaml:10" in r.stderr and "tasks.0.actions.0.at" in r.stderr
     )

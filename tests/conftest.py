@@ -13,13 +13,6 @@ import pytest
 ROS_MAPS = Path(__file__).resolve().parent / "data" / "ros_maps"
 
 
-def pytest_configure(config: pytest.Config) -> None:
-    # xdist declares this marker only when it is loaded: said here for ``-p no:xdist`` too.
-    config.addinivalue_line(
-        "markers", "xdist_group(name): the module's tests share one worker (make test's loadgroup)"
-    )
-
-
 @pytest.fixture
 def ros_maps() -> Path:
     """The folder holding the real ROS maps (``turtlebot3_world/``, ``aws_small_house/``)."""

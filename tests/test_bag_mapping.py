@@ -13,10 +13,6 @@ from agv_mission.bags.reader import read_bag
 from agv_mission.geometry import Pose2D
 from bagtools import Quirks, simulated_drive, wall_precision, write_quirk_bag
 
-# One worker runs this module under make test's --dist loadgroup: its module fixtures
-# (runs, servers, browsers, brokers) are set up once, not once per worker.
-pytestmark = pytest.mark.xdist_group("bag_mapping")
-
 
 @pytest.fixture(scope="module")
 def drive():

@@ -20,10 +20,6 @@ from agv_mission.missions.report.outputs import make_run_dir, write_run
 from agv_mission.missions.run.runner import run_mission
 from agv_mission.sensor_msgs import LaserScan
 
-# One worker runs this module under make test's --dist loadgroup: its module fixtures
-# (runs, servers, browsers, brokers) are set up once, not once per worker.
-pytestmark = pytest.mark.xdist_group("bags")
-
 REPO = Path(__file__).resolve().parents[1]
 
 CONTRACT = {

@@ -16,10 +16,6 @@ import pytest
 
 from service_server import serve
 
-# One worker runs this module under make test's --dist loadgroup: its module fixtures
-# (runs, servers, browsers, brokers) are set up once, not once per worker.
-pytestmark = pytest.mark.xdist_group("dashboard")
-
 
 @pytest.fixture(scope="module")
 def base_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:

@@ -18,7 +18,6 @@ import pytest
 from service_server import CHROMIUM, serve
 
 pytestmark = [
-    pytest.mark.xdist_group("dashboard_browser"),  # one worker: fixtures set up once (make test)
     pytest.mark.browser,
     pytest.mark.skipif(
         not CHROMIUM.exists(),

@@ -17,9 +17,6 @@ import pytest
 from service_server import CHROMIUM, SHORT_FLEET, TELEOP_FLEET, serve, submit
 
 pytestmark = [
-    pytest.mark.xdist_group(
-        "dashboard_fleet_browser"
-    ),  # one worker: fixtures set up once (make test)
     pytest.mark.browser,
     pytest.mark.skipif(
         not CHROMIUM.exists(),

@@ -18,9 +18,6 @@ from mission_texts import ENDLESS_PATROL, tb3_mission
 from service_server import CHROMIUM, Server, submit, wait_status
 
 pytestmark = [
-    pytest.mark.xdist_group(
-        "dashboard_pages_browser"
-    ),  # one worker: fixtures set up once (make test)
     pytest.mark.browser,
     pytest.mark.skipif(
         not CHROMIUM.exists(), reason="needs /usr/bin/chromium (apt-get install chromium)"

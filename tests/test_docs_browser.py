@@ -15,7 +15,6 @@ import pytest
 from service_server import CHROMIUM, launch_chromium, serve
 
 pytestmark = [
-    pytest.mark.xdist_group("docs_browser"),  # one worker: fixtures set up once (make test)
     pytest.mark.browser,
     pytest.mark.skipif(
         not CHROMIUM.exists(),

@@ -22,10 +22,6 @@ from agv_mission.missions.report.outputs import make_run_dir, write_run
 from agv_mission.missions.run.runner import run_mission
 from test_fleet_world import FLEET
 
-# One worker runs this module under make test's --dist loadgroup: its module fixtures
-# (runs, servers, browsers, brokers) are set up once, not once per worker.
-pytestmark = pytest.mark.xdist_group("fleet_bags")
-
 NAMES = ("agv1", "agv2")
 PER_ROBOT = [t for t in TOPICS if t not in SHARED_TOPICS]
 

@@ -23,10 +23,6 @@ from agv_mission.missions.load.resolved import LoadedMission
 from agv_mission.missions.run.record import RunRecord
 from agv_mission.missions.run.runner import MissionRun, run_mission
 
-# One worker runs this module under make test's --dist loadgroup: its module fixtures
-# (runs, servers, browsers, brokers) are set up once, not once per worker.
-pytestmark = pytest.mark.xdist_group("map_area")
-
 # Issue 4's done-when.
 MIN_COVERAGE = 0.95
 MIN_FREE_IOU = 0.9

@@ -27,10 +27,6 @@ import pytest
 
 from service_server import AGV, Server
 
-# One worker runs this module under make test's --dist loadgroup: its module fixtures
-# (runs, servers, browsers, brokers) are set up once, not once per worker.
-pytestmark = pytest.mark.xdist_group("mission_matrix")
-
 MATRIX = Path(__file__).resolve().parent / "matrix"
 KINDS = ("task_list", "yaml_tree", "xml_tree", "fleet", "people", "map_area")
 TREES = ("yaml_tree", "xml_tree")

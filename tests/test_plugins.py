@@ -18,10 +18,6 @@ import pytest
 from agv_mission.plugin_check import PluginCheckError, check_plugin
 from agv_mission.registry import ENTRY_POINT_GROUP, PluginConfig, PluginWarning, Registry, registry
 
-# One worker runs this module under make test's --dist loadgroup: its module fixtures
-# (runs, servers, browsers, brokers) are set up once, not once per worker.
-pytestmark = pytest.mark.xdist_group("plugins")
-
 FIXTURE = Path(__file__).parent / "fixtures" / "straight_line_plugin"
 BIN = Path(sys.executable).parent
 

@@ -27,10 +27,6 @@ from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
 from cli_in_process import agv
 from service_server import AGV, FINAL, SHORT_MISSION, Server, submit, wait_status
 
-# One worker runs this module under make test's --dist loadgroup: its module fixtures
-# (runs, servers, browsers, brokers) are set up once, not once per worker.
-pytestmark = pytest.mark.xdist_group("service_api")
-
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory):

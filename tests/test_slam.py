@@ -23,10 +23,6 @@ from agv_mission.registry import registry
 from agv_mission.robots.diff_drive import DiffDriveBody, SimConfig
 from slam_drive import BURGER, GARBAGE, TB3_BOUNDS, Drive, drive
 
-# One worker runs this module under make test's --dist loadgroup: its module fixtures
-# (runs, servers, browsers, brokers) are set up once, not once per worker.
-pytestmark = pytest.mark.xdist_group("slam")
-
 # A loop through the pillar field of turtlebot3_world, and back to the first corner.
 TB3_LOOP = ((1.9, -0.55), (1.9, 0.55), (-1.9, 0.55), (-1.9, -0.55), (1.9, -0.55))
 # Odometry noise and slip that make dead reckoning drift by decimetres within a minute; the

@@ -26,10 +26,6 @@ from agv_mission.vda5050.transport import BrokerUrl
 from test_vda5050_vehicle import MAP, SERIAL, errors_of, here, mission_file, start_vehicle
 from vda5050_peers import MiniMaster, MiniVehicle, Mosquitto, action, edge, node
 
-# One worker runs this module under make test's --dist loadgroup: its module fixtures
-# (runs, servers, browsers, brokers) are set up once, not once per worker.
-pytestmark = pytest.mark.xdist_group("vda5050_standard")
-
 WAREHOUSE = {
     "name": "warehouse-standard",
     "world": "warehouse",

@@ -22,10 +22,6 @@ from agv_mission.vda5050.vehicle import Vehicle
 from agv_mission.vda5050.vehicle_set import load_vehicles
 from vda5050_peers import MiniMaster, Mosquitto, action, edge, node
 
-# One worker runs this module under make test's --dist loadgroup: its module fixtures
-# (runs, servers, browsers, brokers) are set up once, not once per worker.
-pytestmark = pytest.mark.xdist_group("vda5050_vehicle")
-
 MAP = "turtlebot3_world"
 SERIAL = "agv1"
 MISSION = {

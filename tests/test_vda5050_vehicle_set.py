@@ -21,10 +21,6 @@ from agv_mission.vda5050.transport import BrokerUrl
 from agv_mission.vda5050.vehicle_set import VehicleSet, load_vehicles
 from vda5050_peers import MiniMaster, Mosquitto, action, edge, node
 
-# One worker runs this module under make test's --dist loadgroup: its module fixtures
-# (runs, servers, browsers, brokers) are set up once, not once per worker.
-pytestmark = pytest.mark.xdist_group("vda5050_vehicle_set")
-
 MAP = "turtlebot3_world"
 STARTS = {"agv1": (0.55, -0.55, 0.0), "agv2": (1.55, -0.55, math.pi)}  # facing, 1 m apart
 FLEET = {

@@ -25,10 +25,6 @@ from agv_mission.vda5050.watch import FleetWatch, WatchServer
 from service_server import launch_chromium
 from vda5050_peers import MiniMaster, MiniVehicle, Mosquitto, action, edge, node
 
-# One worker runs this module under make test's --dist loadgroup: its module fixtures
-# (runs, servers, browsers, brokers) are set up once, not once per worker.
-pytestmark = pytest.mark.xdist_group("vda5050_watch")
-
 MAP = "turtlebot3_world"
 MISSION = {
     "name": "vda-watch",

@@ -21,10 +21,6 @@ from cli_in_process import agv
 from mission_texts import ENDLESS_PATROL, mission_file, tb3_mission
 from service_server import AGV, SHORT_MISSION, Server, collect_live, submit, wait_status
 
-# One worker runs this module under make test's --dist loadgroup: its module fixtures
-# (runs, servers, browsers, brokers) are set up once, not once per worker.
-pytestmark = pytest.mark.xdist_group("watchable_runs")
-
 LONG = tb3_mission(
     ENDLESS_PATROL,
     limits="{time: 600}",

@@ -86,6 +86,9 @@ def test_carmen_log_maps_like_a_bag(tmp_path, kind, name):
     result = map_bag(log, slam_config([]), truth_topic=truth_topic)
     report = result.report
     assert report["input"]["format"] == "carmen"
+    # the final pass reports what it learnt of the wheels (a UMBmark-like calibration)
+    assert 0.9 < report["slam_diagnostics"]["odometry_scale"] < 1.1
+    assert report["slam_diagnostics"]["odometry_heading_spread"] >= 1.0
     if truth_topic:
         assert len(data.truth) == len(data.scans)
         assert report["relative_pose_error"]["pairs"] >= 3

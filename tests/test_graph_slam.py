@@ -297,12 +297,16 @@ def test_fusing_calibrated_odometry_straightens_a_drifting_chain():
     )
     sigma = np.tile([0.02, 0.02, 0.009], (n - 1, 1))
     edges = (ii, jj, z, sigma, np.zeros(n - 1, dtype=bool))
-    fused = fuse_odometry(chain, edges, odom, (0.02, 0.05, 0.005))
+    fusion = fuse_odometry(chain, edges, odom, (0.02, 0.05, 0.005))
+    fused = fusion.nodes
 
     def error(poses: np.ndarray) -> float:
         return float(np.hypot(*(poses[:, :2] - truth[:, :2]).T).mean())
 
     assert error(fused) < 0.6 * error(chain)
+    learnt = fusion.report()  # what ``map`` reports of the wheels: 2 % short, 0.003 rad/m
+    assert learnt["odometry_scale"] == pytest.approx(1 / 0.98, abs=0.005)
+    assert learnt["odometry_drift_deg_per_m"] == pytest.approx(math.degrees(-0.003), abs=0.09)
     assert error(fused) < error(odom)
 
 

@@ -42,6 +42,7 @@ from agv_mission.geometry import Pose2D, wrap_angles
 from agv_mission.mapping.configs import GraphSlamConfig
 from agv_mission.mapping.likelihood_field import LikelihoodField
 from agv_mission.mapping.pose_graph import (
+    OdometryFusion,
     fuse_odometry,
     loop_pair_error,
     smooth_trajectory,
@@ -114,6 +115,7 @@ class GraphSlam(GridSlam):
         self.optimizations = 0
         self.rebuilds = 0
         self.smoothing_s = 0.0
+        self.fusion: OdometryFusion | None = None  # the final pass's, when it fused
         self.optimize_times: list[float] = []
         self.rebuild_times: list[float] = []
         self.loop_times: list[float] = []
@@ -124,19 +126,23 @@ class GraphSlam(GridSlam):
 
     def diagnostics(self) -> dict[str, Any]:
         """The front end's counters and the back end's counts and timings."""
-        return super().diagnostics() | {
-            "keyframes": len(self.keyframes),
-            "loop_attempts": self.loop_attempts,
-            "loop_closures": self.loop_closures,
-            "loops_pending": self.loops_pending,
-            "loop_rejections": self.loop_rejections,
-            "optimizations": self.optimizations,
-            "map_rebuilds": self.rebuilds,
-            "optimize_s": round(float(np.sum(self.optimize_times)), 3),
-            "rebuild_s": round(float(np.sum(self.rebuild_times)), 3),
-            "loop_search_s": round(float(np.sum(self.loop_times)), 3),
-            "smoothing_s": round(self.smoothing_s, 3),
-        }
+        return (
+            super().diagnostics()
+            | {
+                "keyframes": len(self.keyframes),
+                "loop_attempts": self.loop_attempts,
+                "loop_closures": self.loop_closures,
+                "loops_pending": self.loops_pending,
+                "loop_rejections": self.loop_rejections,
+                "optimizations": self.optimizations,
+                "map_rebuilds": self.rebuilds,
+                "optimize_s": round(float(np.sum(self.optimize_times)), 3),
+                "rebuild_s": round(float(np.sum(self.rebuild_times)), 3),
+                "loop_search_s": round(float(np.sum(self.loop_times)), 3),
+                "smoothing_s": round(self.smoothing_s, 3),
+            }
+            | (self.fusion.report() if self.fusion else {})
+        )
 
     def update(self, odom: Pose2D, scan: LaserScan | None, truth: Pose2D, time: float) -> Pose2D:
         processed, integrations = len(self.trajectory), self.integrations
@@ -447,7 +453,8 @@ class GraphSlam(GridSlam):
         if c.final_odometry_edges and len(self.nodes) > 1:
             first = np.searchsorted(self._anchor_keyframe, np.arange(len(self.nodes)))
             odom = np.array(self._odom_at)[first]
-            self.nodes = fuse_odometry(self.nodes, self._edge_arrays(), odom, noise)
+            self.fusion = fuse_odometry(self.nodes, self._edge_arrays(), odom, noise)
+            self.nodes = self.fusion.nodes
             self._ride_keyframes()
         new = smooth_trajectory(
             np.array([row[1:] for row in self.trajectory]),

@@ -17,6 +17,7 @@ dropped and the graph solved again (:func:`solve_pose_graph`).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from scipy.sparse import csr_matrix, diags
@@ -288,12 +289,33 @@ def honest_spread(r: np.ndarray, claimed: np.ndarray, other: np.ndarray) -> np.n
     return np.clip(np.sqrt(ratio), 1.0, 10.0)
 
 
+class OdometryFusion(NamedTuple):
+    """What :func:`fuse_odometry` solved and learnt of the recording's wheels: worth
+    reporting, as a calibration run (Borenstein's UMBmark) would."""
+
+    nodes: np.ndarray
+    #: scale, rad per metre, rad per radian (:func:`calibrate_odometry`)
+    calibration: tuple[float, float, float]
+    #: the heading noise's factor over the model (:func:`odometry_heading_spread`)
+    heading_spread: float
+
+    def report(self) -> dict[str, float]:
+        """The learnt wheels, for ``map``'s report."""
+        scale, per_metre, per_radian = self.calibration
+        return {
+            "odometry_scale": round(scale, 5),
+            "odometry_drift_deg_per_m": round(math.degrees(per_metre), 4),
+            "odometry_turn_error_per_turn": round(per_radian, 5),
+            "odometry_heading_spread": round(self.heading_spread, 3),
+        }
+
+
 def fuse_odometry(
     nodes: np.ndarray,
     edges: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     odom: np.ndarray,
     noise: tuple[float, float, float],
-) -> np.ndarray:
+) -> OdometryFusion:
     """The pose graph's ``nodes`` solved again with the odometry's motion between
     consecutive ones (``odom``: its pose at each node) as edges of their own: its
     systematic errors learnt from the graph first (:func:`calibrate_odometry`) and taken
@@ -306,7 +328,8 @@ def fuse_odometry(
     between sparse scans its errors are larger."""
     ii, jj, z, sigma, loop = edges
     steps = odometry_steps(odom)
-    zo, so = odometry_edges(steps, noise, calibrate_odometry(nodes, steps))
+    calibration = calibrate_odometry(nodes, steps)
+    zo, so = odometry_edges(steps, noise, calibration)
     spread = odometry_heading_spread(nodes, zo, so)
     # heading error past the model's, picked up along a step, ends it sideways by about
     # half the step's length times it (a turn spread over the step: Thrun's rot1 and rot2)
@@ -320,7 +343,7 @@ def fuse_odometry(
         r[:, 2] = wrap_angles(r[:, 2])
         sigma[chain] *= honest_spread(r, sigma[chain], so[ii[chain]])
     k = np.arange(len(nodes) - 1)
-    return optimize_pose_graph(
+    solved = optimize_pose_graph(
         nodes,
         np.concatenate([ii, k]),
         np.concatenate([jj, k + 1]),
@@ -328,6 +351,7 @@ def fuse_odometry(
         np.vstack([sigma, so]),
         math.inf,
     )
+    return OdometryFusion(solved, calibration, spread)
 
 
 def smooth_trajectory(

@@ -125,24 +125,21 @@ class GraphSlam(GridSlam):
         self._clear_graph()
 
     def diagnostics(self) -> dict[str, Any]:
-        """The front end's counters and the back end's counts and timings."""
-        return (
-            super().diagnostics()
-            | {
-                "keyframes": len(self.keyframes),
-                "loop_attempts": self.loop_attempts,
-                "loop_closures": self.loop_closures,
-                "loops_pending": self.loops_pending,
-                "loop_rejections": self.loop_rejections,
-                "optimizations": self.optimizations,
-                "map_rebuilds": self.rebuilds,
-                "optimize_s": round(float(np.sum(self.optimize_times)), 3),
-                "rebuild_s": round(float(np.sum(self.rebuild_times)), 3),
-                "loop_search_s": round(float(np.sum(self.loop_times)), 3),
-                "smoothing_s": round(self.smoothing_s, 3),
-            }
-            | (self.fusion.report() if self.fusion else {})
-        )
+        """Both ends' counters and timings, and what the final pass learnt of the wheels."""
+        counts = {
+            "keyframes": len(self.keyframes),
+            "loop_attempts": self.loop_attempts,
+            "loop_closures": self.loop_closures,
+            "loops_pending": self.loops_pending,
+            "loop_rejections": self.loop_rejections,
+            "optimizations": self.optimizations,
+            "map_rebuilds": self.rebuilds,
+            "optimize_s": round(float(np.sum(self.optimize_times)), 3),
+            "rebuild_s": round(float(np.sum(self.rebuild_times)), 3),
+            "loop_search_s": round(float(np.sum(self.loop_times)), 3),
+            "smoothing_s": round(self.smoothing_s, 3),
+        }
+        return super().diagnostics() | counts | (self.fusion.report() if self.fusion else {})
 
     def update(self, odom: Pose2D, scan: LaserScan | None, truth: Pose2D, time: float) -> Pose2D:
         processed, integrations = len(self.trajectory), self.integrations

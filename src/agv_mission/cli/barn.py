@@ -6,17 +6,15 @@ import os
 import time
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Optional
+from typing import Annotated, Optional
 
 import typer
 from rich.console import Console
+from rich.table import Table
 
 from agv_mission.cli.console import Overrides, err, failure, invalid, out, progress_bar
 from agv_mission.cli.service import run_observers
 from agv_mission.missions.load.errors import MissionError
-
-if TYPE_CHECKING:  # imported where drawn: every command's start-up would pay for it
-    from rich.table import Table
 
 
 def barn(
@@ -152,8 +150,6 @@ def _line(result: dict) -> str:
 
 
 def _table(results: list[dict]) -> Table:
-    from rich.table import Table
-
     table = Table(show_header=True, header_style="bold", box=None)
     for column in ("world", "status", "time s", "metric"):
         table.add_column(column, justify="left" if column == "status" else "right")
@@ -163,8 +159,6 @@ def _table(results: list[dict]) -> Table:
 
 
 def _summary_table(summary: dict) -> Table:
-    from rich.table import Table
-
     table = Table(show_header=True, header_style="bold", box=None, title="BARN summary")
     for column in ("worlds", "success", "collisions", "timeouts", "mean time s", "mean metric"):
         table.add_column(column, justify="right")

@@ -5,16 +5,15 @@ from __future__ import annotations
 
 import os
 import sys
-from typing import TYPE_CHECKING, Annotated, Optional
+from typing import Annotated, Optional
 
 import typer
 from rich.console import Console
 from rich.markup import escape
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
 
 from agv_mission.missions.load.errors import MissionError
-
-if TYPE_CHECKING:
-    from rich.progress import Progress
 
 EXIT_CODES = {"succeeded": 0, "failed": 1, "error": 3, "aborted": 130, "interrupted": 1}
 
@@ -95,11 +94,7 @@ def failure(title: str, message: str, code: int = 2) -> typer.Exit:
 def progress_bar(counter: str, auto_refresh: bool = True) -> Progress:
     """A progress bar on stderr, shown only on a terminal and gone when it ends. Without
     ``auto_refresh`` it runs no thread of its own (the caller refreshes it): a run whose
-    robots decide in forked processes forks only from a process with no other thread.
-    (Rich's progress and table modules are imported by the commands that draw them: every
-    command's start-up would pay for them.)"""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
+    robots decide in forked processes forks only from a process with no other thread."""
     return Progress(
         TextColumn("[progress.description]{task.description}"),
         BarColumn(),
@@ -114,8 +109,6 @@ def progress_bar(counter: str, auto_refresh: bool = True) -> Progress:
 
 def print_summary(result: dict) -> None:
     """A run's result document as a status line, a task table and the metrics."""
-    from rich.table import Table
-
     from agv_mission.missions.report.summary import (
         LEG_COLUMNS,
         leg_rows,

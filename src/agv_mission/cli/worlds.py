@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+from rich.table import Table
 
 from agv_mission.cli.console import failure, out
 
@@ -55,8 +56,6 @@ def world(
     s = about.spawn
     out.print(f"spawn: x {s.x:.2f}, y {s.y:.2f}, yaw {s.yaw:.2f}", highlight=False)
     if about.rooms:
-        from rich.table import Table  # only here: every command's start-up would pay for it
-
         table = Table(show_header=True, header_style="bold", box=None)
         for column in ("room", "x", "y", "yaw", "point"):
             table.add_column(column, justify="left" if column in ("room", "point") else "right")

@@ -166,12 +166,9 @@ def optimize_pose_graph(
 
 def odometry_steps(odom: np.ndarray) -> np.ndarray:
     """The odometry's motion (n - 1, 3) between consecutive poses of ``odom`` (n, 3),
-    each in the frame of the first."""
-    rel = [
-        Pose2D(*b).relative_to(Pose2D(*a)).as_array()
-        for a, b in zip(odom[:-1], odom[1:], strict=True)
-    ]
-    return np.array(rel).reshape(-1, 3)
+    each in the frame of the first: the error of a zero edge between them."""
+    k = np.arange(len(odom) - 1)
+    return _edge_errors(np.asarray(odom, dtype=float), k, k + 1, np.zeros((len(k), 3)))[0]
 
 
 #: Bounds of a calibration (scale, rad per metre, rad per radian): a wheel radius off by

@@ -454,7 +454,7 @@ class GraphSlam(GridSlam):
             self.nodes = self.fusion.nodes
             self._ride_keyframes()
         new = smooth_trajectory(
-            np.array([row[1:] for row in self.trajectory]),
+            np.array([row[1:] for row in self.trajectory]) if self.fusion else poses,
             np.array(self._odom_at),
             noise,
             c.smoothing_sigma,

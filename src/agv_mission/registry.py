@@ -44,7 +44,7 @@ T = TypeVar("T", bound=type)
 class PluginConfig(BaseModel):
     """Base of every plugin's configuration block: unknown keys are errors."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", defer_build=True)
 
 
 class UnknownPluginError(KeyError):

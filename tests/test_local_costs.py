@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import distance_transform_edt
 
+from agv_mission import stored
 from agv_mission.geometry import Pose2D
 from agv_mission.maps import map_cache
 from agv_mission.maps.costmap import Costmap, ObstacleLayerConfig
@@ -92,7 +93,7 @@ def test_stored_tables_are_read_back_by_a_later_process(tmp_path, monkeypatch):
     """A fresh process (here: the memory cache cleared) reads the table from disk instead
     of building it; a damaged file, or a store that cannot be written, costs only a build."""
     store = tmp_path / "store"
-    monkeypatch.setenv(map_cache.STORE_ENV, str(store))
+    monkeypatch.setenv(stored.STORE_ENV, str(store))
     grid = room()
     blocked = grid.data != FREE
     builds = []
@@ -103,7 +104,7 @@ def test_stored_tables_are_read_back_by_a_later_process(tmp_path, monkeypatch):
 
     map_cache.clear()
     built = map_cache.stored_array_table("test_distance", blocked, 0.05, build)
-    [stored] = store.glob("test_distance-*.npy")
+    [table_file] = store.glob("test_distance-*.npy")
     map_cache.clear()
     read = map_cache.stored_array_table("test_distance", blocked, 0.05, build)
     assert len(builds) == 1 and read is not built
@@ -113,14 +114,14 @@ def test_stored_tables_are_read_back_by_a_later_process(tmp_path, monkeypatch):
     map_cache.stored_array_table("test_distance", blocked, 0.1, build)
     assert len(builds) == 2 and len(list(store.glob("test_distance-*.npy"))) == 2
 
-    stored.write_bytes(stored.read_bytes()[:100])  # cut short
+    table_file.write_bytes(table_file.read_bytes()[:100])  # cut short
     map_cache.clear()
     assert np.array_equal(
         map_cache.stored_array_table("test_distance", blocked, 0.05, build), built
     )
-    assert len(builds) == 3 and np.array_equal(np.load(stored), built)  # stored again, whole
+    assert len(builds) == 3 and np.array_equal(np.load(table_file), built)  # stored again, whole
 
-    monkeypatch.setenv(map_cache.STORE_ENV, str(stored / "below_a_file"))  # cannot be written
+    monkeypatch.setenv(stored.STORE_ENV, str(table_file / "below_a_file"))  # cannot be written
     map_cache.clear()
     assert np.array_equal(
         map_cache.stored_array_table("test_distance", blocked, 0.05, build), built
@@ -130,8 +131,8 @@ def test_stored_tables_are_read_back_by_a_later_process(tmp_path, monkeypatch):
 
 def test_stored_tables_are_bounded_least_recently_used_first(tmp_path, monkeypatch):
     store = tmp_path / "store"
-    monkeypatch.setenv(map_cache.STORE_ENV, str(store))
-    monkeypatch.setattr(map_cache, "MAX_STORED", 3)
+    monkeypatch.setenv(stored.STORE_ENV, str(store))
+    monkeypatch.setattr(stored, "MAX_STORED", 3)
     map_cache.clear()
     masks = [np.eye(4, k=k, dtype=bool) for k in range(4)]
     for mask in masks[:3]:

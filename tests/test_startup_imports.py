@@ -1,9 +1,9 @@
 """What a command imports before it answers (issue 16: start-up): ``--help`` needs no
 numerical library, bad input is reported before the world's machinery (scipy, Pillow,
 lxml) is imported, and validating a good file never imports the simulator, the
-controller, the plotting or the behaviour-tree runtime (nor scipy.ndimage once the maps'
-tables are stored). Each case runs the real commands
-in a fresh interpreter and lists the heavy packages it loaded; nothing is timed."""
+controller, the plotting or the behaviour-tree runtime (nor scipy.ndimage and OMPL once
+what they give is stored). Each case runs the real commands in a fresh interpreter and
+lists the heavy packages it loaded; nothing is timed."""
 
 from __future__ import annotations
 
@@ -109,13 +109,14 @@ def test_validate_without_people_imports_no_sparse_graphs(validated: dict) -> No
     assert "scipy.sparse" not in validated["loaded"]
 
 
-def test_validate_reads_the_stored_map_tables_instead_of_importing_scipy(tmp_path: Path) -> None:
-    """The worlds' free space and distance fields need scipy.ndimage (~0.5 s to import) to
-    build: the first process stores them, a later one validates without it."""
-    env = {**os.environ, "AGV_MISSION_MAP_CACHE": str(tmp_path / "maps")}
-    first = commands([["validate", *MISSIONS]], ["scipy.ndimage"], env)
-    assert first == {"codes": [0], "loaded": ["scipy.ndimage"]}
-    assert list((tmp_path / "maps").glob("spawn_region-*.npy"))
-    assert list((tmp_path / "maps").glob("obstacle_distance-*.npy"))
-    again = commands([["validate", *MISSIONS]], ["scipy.ndimage"], env)
+def test_validate_reads_stored_tables_instead_of_importing_scipy_or_ompl(tmp_path: Path) -> None:
+    """The worlds' free space and distance fields need scipy.ndimage to build, the list of
+    OMPL's planners OMPL's libraries (each ~0.1-0.5 s to import): the first process stores
+    them, a later one validates without either."""
+    env = {**os.environ, "AGV_MISSION_STORE": str(tmp_path / "stored")}
+    first = commands([["validate", *MISSIONS]], ["scipy.ndimage", "ompl"], env)
+    assert first == {"codes": [0], "loaded": ["ompl", "scipy.ndimage"]}
+    for kind in ("spawn_region-*.npy", "obstacle_distance-*.npy", "ompl_planners-*.json"):
+        assert list((tmp_path / "stored").glob(kind))
+    again = commands([["validate", *MISSIONS]], ["scipy.ndimage", "ompl"], env)
     assert again == {"codes": [0], "loaded": []}

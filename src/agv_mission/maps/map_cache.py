@@ -8,17 +8,16 @@ Keys are the map's content (a digest of its cells, resolution and origin), so a 
 twice, or copied, hits; an edited map misses. The tables are read-only.
 
 The tables every mission's check needs (a world's free space, the costmap's distance
-field) are also stored on disk for later processes (:func:`stored_array_table`): they are
-cheap to build, but building them needs ``scipy.ndimage``, whose import (~0.5 s) costs
-more than all the rest of ``agv-mission validate``.
+field) are also stored on disk for later processes (:func:`stored_array_table`, see
+:mod:`agv_mission.stored`): they are cheap to build, but building them needs
+``scipy.ndimage``, whose import (~0.5 s) costs more than all the rest of
+``agv-mission validate``.
 """
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import io
-import os
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
@@ -27,18 +26,13 @@ from typing import TypeVar
 
 import numpy as np
 
-from agv_mission.atomic import atomic_write_bytes
 from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.stored import read_stored, store, stored_path
 
 T = TypeVar("T")
 
 #: Tables kept (least recently used dropped first): a warehouse's take ~25 MB.
 MAX_ENTRIES = 12
-
-#: Tables kept on disk (the least recently used deleted first): a warehouse's ~2.4 MB.
-MAX_STORED = 64
-#: Where the stored tables live; without it ``$XDG_CACHE_HOME/agv-mission/maps``.
-STORE_ENV = "AGV_MISSION_MAP_CACHE"
 
 _lock = threading.Lock()
 _tables: OrderedDict[tuple[Hashable, ...], object] = OrderedDict()
@@ -76,11 +70,13 @@ def stored_array_table(
     key = (kind, array_key(data), params)
 
     def load_or_build() -> np.ndarray:
-        path = _stored_path(key)
-        table = _read_stored(path, data.shape)
+        path = stored_path(kind, key, ".npy")
+        table = _read_table(path, data.shape)
         if table is None:
             table = np.ascontiguousarray(build())
-            _store(path, table)
+            buffer = io.BytesIO()
+            np.save(buffer, table, allow_pickle=False)
+            store(path, buffer.getvalue())
         table.setflags(write=False)
         return table
 
@@ -108,44 +104,13 @@ def clear() -> None:
         _tables.clear()
 
 
-def store_dir() -> Path:
-    """The folder of the stored tables."""
-    given = os.environ.get(STORE_ENV)
-    if given:
-        return Path(given)
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "agv-mission" / "maps"
-
-
-def _stored_path(key: tuple[Hashable, ...]) -> Path:
-    digest = hashlib.blake2b(repr(key).encode(), digest_size=16).hexdigest()
-    return store_dir() / f"{key[0]}-{digest}.npy"
-
-
-def _read_stored(path: Path, shape: tuple[int, ...]) -> np.ndarray | None:
-    """The table stored at ``path`` (marked used), or None when there is none whole."""
+def _read_table(path: Path, shape: tuple[int, ...]) -> np.ndarray | None:
+    """The array stored at ``path`` when it is whole and of ``shape``, else None."""
+    data = read_stored(path)
+    if data is None:
+        return None
     try:
-        table = np.load(path, allow_pickle=False)
-        os.utime(path)
+        table = np.load(io.BytesIO(data), allow_pickle=False)
     except (OSError, ValueError, EOFError):
         return None
     return table if isinstance(table, np.ndarray) and table.shape == shape else None
-
-
-def _store(path: Path, table: np.ndarray) -> None:
-    """Write ``table`` to ``path`` atomically and drop the least recently used beyond
-    :data:`MAX_STORED`."""
-    buffer = io.BytesIO()
-    np.save(buffer, table, allow_pickle=False)
-    with contextlib.suppress(OSError):
-        atomic_write_bytes(path, buffer.getvalue())
-        stored = sorted(path.parent.glob("*.npy"), key=_used_at)
-        for old in stored[: max(len(stored) - MAX_STORED, 0)]:
-            old.unlink(missing_ok=True)
-
-
-def _used_at(path: Path) -> float:
-    try:
-        return path.stat().st_mtime
-    except OSError:
-        return 0.0

@@ -42,9 +42,10 @@ def read_stored(path: Path) -> bytes | None:
     """The bytes stored at ``path`` (marked used), or None."""
     try:
         data = path.read_bytes()
-        os.utime(path)
     except OSError:
         return None
+    with contextlib.suppress(OSError):  # a store another user owns is still read
+        os.utime(path)
     return data
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 import subprocess
 import sys
@@ -12,7 +11,6 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from agv_mission import stored
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap, CostmapConfig
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
@@ -256,31 +254,6 @@ def test_every_bound_planner_is_selectable() -> None:
     page = (Path(__file__).resolve().parents[1] / "docs" / "global-planning.md").read_text()
     for name in available_planners():
         assert f"`{name}`" in page, f"docs/global-planning.md does not list {name}"
-
-
-def test_planner_names_are_asked_of_ompl_once_per_build_and_stored(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """A later process reads the list instead of loading OMPL's libraries; a damaged file
-    is asked of OMPL again."""
-    from ompl import geometric as og
-
-    monkeypatch.setenv(stored.STORE_ENV, str(tmp_path))
-    available_planners.cache_clear()
-    try:
-        names = available_planners()
-        assert "RRTConnect" in names and all(hasattr(og, n) for n in names)
-        [listed] = tmp_path.glob("ompl_planners-*.json")
-        assert json.loads(listed.read_text()) == list(names)
-        listed.write_text('["RRTConnect"]')
-        available_planners.cache_clear()
-        assert available_planners() == ("RRTConnect",)  # read, not asked
-        listed.write_text('["RRT')
-        available_planners.cache_clear()
-        assert available_planners() == names
-        assert json.loads(listed.read_text()) == list(names)
-    finally:
-        available_planners.cache_clear()
 
 
 def test_ompl_plans_are_ompls_not_the_grid_search(room: Costmap) -> None:

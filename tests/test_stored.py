@@ -106,3 +106,17 @@ def test_planner_names_are_asked_of_ompl_once_per_build_and_stored(
         assert json.loads(listed.read_text()) == list(names)
     finally:
         available_planners.cache_clear()
+
+
+def test_without_a_home_nothing_is_stored_and_everything_is_computed(monkeypatch):
+    def no_home() -> Path:
+        raise RuntimeError("Could not determine home directory.")
+
+    monkeypatch.delenv(stored.STORE_ENV, raising=False)
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+    monkeypatch.setattr(Path, "home", no_home)
+    assert stored.store_dir() is None
+    map_cache.clear()
+    mask = np.eye(5, dtype=bool)
+    table = map_cache.stored_array_table("test_no_home", mask, None, lambda: ~mask)
+    assert np.array_equal(table, ~mask)

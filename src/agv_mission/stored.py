@@ -23,23 +23,31 @@ MAX_STORED = 64
 STORE_ENV = "AGV_MISSION_STORE"
 
 
-def store_dir() -> Path:
-    """The folder of the stored values."""
+def store_dir() -> Path | None:
+    """The folder of the stored values (None: no home to keep them in)."""
     given = os.environ.get(STORE_ENV)
     if given:
         return Path(given)
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    try:
+        base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    except RuntimeError:  # no home directory: nothing is stored
+        return None
     return Path(base) / "agv-mission" / "stored"
 
 
-def stored_path(kind: str, key: Hashable, suffix: str) -> Path:
+def stored_path(kind: str, key: Hashable, suffix: str) -> Path | None:
     """Where the value ``kind`` of ``key`` (its ``repr`` names it exactly) is kept."""
+    folder = store_dir()
+    if folder is None:
+        return None
     digest = hashlib.blake2b(repr(key).encode(), digest_size=16).hexdigest()
-    return store_dir() / f"{kind}-{digest}{suffix}"
+    return folder / f"{kind}-{digest}{suffix}"
 
 
-def read_stored(path: Path) -> bytes | None:
+def read_stored(path: Path | None) -> bytes | None:
     """The bytes stored at ``path`` (marked used), or None."""
+    if path is None:
+        return None
     try:
         data = path.read_bytes()
     except OSError:
@@ -49,9 +57,11 @@ def read_stored(path: Path) -> bytes | None:
     return data
 
 
-def store(path: Path, data: bytes) -> None:
+def store(path: Path | None, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically; drop the least recently used files beyond
     :data:`MAX_STORED`."""
+    if path is None:
+        return
     with contextlib.suppress(OSError):
         atomic_write_bytes(path, data)
         kept = sorted(

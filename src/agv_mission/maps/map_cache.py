@@ -104,7 +104,7 @@ def clear() -> None:
         _tables.clear()
 
 
-def _read_table(path: Path, shape: tuple[int, ...]) -> np.ndarray | None:
+def _read_table(path: Path | None, shape: tuple[int, ...]) -> np.ndarray | None:
     """The array stored at ``path`` when it is whole and of ``shape``, else None."""
     data = read_stored(path)
     if data is None:

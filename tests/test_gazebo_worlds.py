@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import math
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -45,17 +43,6 @@ def write(tmp_path: Path, text: str, name: str = "w.world") -> Path:
     path = tmp_path / name
     path.write_text(text)
     return path
-
-
-def agv(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    """The program in a process of its own (the ``world`` cases call it in this one)."""
-    return subprocess.run(
-        [sys.executable, "-m", "agv_mission.cli", *args],
-        cwd=cwd,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
 
 
 def test_a_barn_world_is_its_state_poses_cylinders(tmp_path):
@@ -197,7 +184,7 @@ def test_skip_unsupported_runs_the_rest_and_lists_the_skipped(tmp_path):
         + 1
     )
     assert len(loaded.world.cylinders) == 1
-    done = agv("run", "m.yaml", "--no-bag", "--output", "runs", cwd=tmp_path)
+    done = agv_here("run", "m.yaml", "--no-bag", "--output", "runs", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     (result,) = (tmp_path / "runs").glob("*/result.json")
     doc = yaml.safe_load(result.read_text())

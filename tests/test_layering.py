@@ -37,6 +37,7 @@ FLOORS = {
     "geometry": 0,
     "registry": 0,
     "atomic": 0,
+    "stored": 0,
     "job_pool": 0,
     "sensor_msgs": 0,
     "json_values": 0,

@@ -111,13 +111,27 @@ def test_run(runs: Runs, kind: str) -> None:
 
 def test_regress_runs_every_kind(tmp_path: Path) -> None:
     """One suite of every kind: one test case per mission file, each passing; the XML tree
-    file beside its YAML is said to be skipped, not run twice."""
+    file beside its YAML, and a rooms file and a robot file in another folder, are said to
+    be skipped, not run."""
+    beside = tmp_path / "beside"
+    beside.mkdir()
+    (beside / "rooms.yaml").write_text("rooms: {k: {polygon: [[0, 0], [1, 0], [1, 1]]}}\n")
+    (beside / "robot.yaml").write_text("name: r\nwheel_radius: 0.03\nwheel_separation: 0.2\n")
     junit = tmp_path / "junit.xml"
-    proc = agv("regress", MATRIX, "--output", tmp_path / "runs", "--junit", junit, "-j", "2")
+    proc = agv(
+        "regress", MATRIX, beside, "--output", tmp_path / "runs", "--junit", junit, "-j", "2"
+    )  # fmt: skip
     assert proc.returncode == 0, said(proc)
-    cases = ET.parse(junit).getroot().iter("testcase")
+    assert f"{len(KINDS)}/{len(KINDS)} passed" in proc.stdout, said(proc)
+    assert "rooms.yaml: a rooms file" in proc.stderr and "robot.yaml: a robot file" in proc.stderr
+    assert "xml_tree.xml: a behaviour tree (XML): it runs through xml_tree.yaml" in proc.stderr
+    root = ET.parse(junit).getroot()
+    assert root.get("tests") == str(len(KINDS))
+    cases = list(root.iter("testcase"))
+    assert sorted(c.get("file", "").rsplit("/", 1)[-1] for c in cases) == sorted(
+        f"{kind}.yaml" for kind in KINDS
+    )
     names = sorted(c.get("name", "") for c in cases)
-    assert len(names) == len(KINDS), names
     for kind in KINDS:
         assert any(f"matrix-{kind.replace('_', '-')}" in n or kind in n for n in names), names
 

@@ -7,7 +7,6 @@ the long ones (``tests/scenarios/slow/``) run under ``-m slow`` and ``make regre
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -25,7 +24,6 @@ REPO = Path(__file__).resolve().parents[1]
 SCENARIOS = REPO / "tests" / "scenarios"
 FAST = sorted(SCENARIOS.glob("*.yaml"))
 SLOW = SCENARIOS / "slow"
-EXE = [sys.executable, "-m", "agv_mission.cli"]
 
 # Short scenarios for the backend comparisons: one per localiser / controller kind.
 SHORT = [SCENARIOS / "go_to_tb3.yaml", SCENARIOS / "wander_tb3_odometry.yaml"]
@@ -219,49 +217,6 @@ def test_the_scenario_suite_is_one_run_per_mission_file() -> None:
     assert {p.suffix for p, _ in found.skipped} == {".xml"}
 
 
-SHORT_GO_TO = "{type: go_to, pose: {x: -1.4, y: -0.5, yaw: 0.0}}"
-
-
-def test_cli_runs_a_task_list_a_tree_and_a_fleet(tmp_path: Path) -> None:
-    """Three kinds of mission, three test cases; a rooms file and a robot file skipped,
-    saying so."""
-    from mission_texts import GROUND_TRUTH, tb3_mission
-
-    suite = tmp_path / "suite"
-    suite.mkdir()
-    (suite / "list.yaml").write_text(tb3_mission(SHORT_GO_TO, limits="{time: 20.0}"))
-    (suite / "tree.yaml").write_text(
-        "world: turtlebot3_world\nrobot: burger\nstart: {x: -2.0, y: -0.5, yaw: 0.0}\n"
-        f"stack: {GROUND_TRUTH}\n"
-        "tree: {type: sequence, children: [" + SHORT_GO_TO + ", {type: wait, seconds: 1}]}\n"
-        "limits: {time: 20.0}\n"
-    )
-    (suite / "fleet.yaml").write_text(
-        f"world: turtlebot3_world\nstack: {GROUND_TRUTH}\nrobots:\n"
-        "  - {name: a, robot: burger, start: {x: -2.0, y: -0.5, yaw: 0.0}}\n"
-        "  - {name: b, robot: burger, start: {x: -2.0, y: 0.5, yaw: 0.0}}\n"
-        "tasks:\n  - {type: go_to, pose: {x: -1.4, y: 0.5, yaw: 0.0}, robot: b}\n"
-        "limits: {time: 20.0}\n"
-    )
-    (suite / "rooms.yaml").write_text("rooms: {k: {polygon: [[0, 0], [1, 0], [1, 1]]}}\n")
-    (suite / "robot.yaml").write_text("name: r\nwheel_radius: 0.03\nwheel_separation: 0.2\n")
-    junit = tmp_path / "j.xml"
-    r = cli(
-        "regress", str(suite), "--junit", str(junit), "--output", str(tmp_path / "runs"),
-        "--workers", "2",
-    )  # fmt: skip
-    assert r.returncode == 0, r.stdout + r.stderr
-    assert "3/3 passed" in r.stdout
-    assert "rooms.yaml: a rooms file" in r.stderr and "robot.yaml: a robot file" in r.stderr
-    root = ET.parse(junit).getroot()
-    assert root.get("tests") == "3"
-    assert sorted(c.get("file").rsplit("/", 1)[-1] for c in root.iter("testcase")) == [
-        "fleet.yaml",
-        "list.yaml",
-        "tree.yaml",
-    ]
-
-
 def test_scenario_suite_is_valid_and_covers_the_stack() -> None:
     from agv_mission.missions.load.loader import load_mission
 
@@ -448,17 +403,13 @@ def test_worker_errors_become_error_results(tmp_path: Path) -> None:
 # ------------------------------------------------------------------------------- CLI
 
 
-def cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([*EXE, *args], capture_output=True, text=True, timeout=600)
-
-
 def test_cli_broken_expectation_exits_1_naming_the_metric(tmp_path: Path) -> None:
     text = (SCENARIOS / "go_to_tb3.yaml").read_text()
     broken = tmp_path / "broken.yaml"
     broken.write_text(text.replace("sim_time_max: 15.0", "sim_time_max: 2.0"))
     assert broken.read_text() != text
     junit, summary = tmp_path / "out.xml", tmp_path / "sum.json"
-    r = cli(
+    r = agv(
         "regress",
         str(broken),
         str(SCENARIOS / "record_room_house.yaml"),
@@ -492,7 +443,8 @@ def test_cli_broken_expectation_exits_1_naming_the_metric(tmp_path: Path) -> Non
 
 
 def test_cli_invalid_input_exits_2(tmp_path: Path) -> None:
-    """Each answer called in this process; the cases above start the program."""
+    """Each answer called in this process, as all of this file's (the program started as a
+    process runs a suite in test_mission_matrix.py::test_regress_runs_every_kind)."""
     bad = tmp_path / "bad.yaml"
     bad.write_text("tasks:\n  - {type: wander, duration: 1}\nexpect:\n  sim_time: 3\n")
     r = agv("regress", str(bad), "--output", str(tmp_path))
@@ -509,7 +461,7 @@ def test_run_ignores_expect(tmp_path: Path) -> None:
     text = (SCENARIOS / "record_room_house.yaml").read_text()
     scenario = tmp_path / "s.yaml"
     scenario.write_text(text.replace("sim_time_max: 20.0", "sim_time_max: 0.0"))
-    r = cli("run", str(scenario), "--output", str(tmp_path / "runs"))
+    r = agv("run", str(scenario), "--output", str(tmp_path / "runs"))
     assert r.returncode == 0, r.stdout + r.stderr
 
 

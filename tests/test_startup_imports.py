@@ -1,12 +1,14 @@
 """What a command imports before it answers (issue 16: start-up): ``--help`` needs no
 numerical library, bad input is reported before the world's machinery (scipy, Pillow,
 lxml) is imported, and validating a good file never imports the simulator, the
-controller, the plotting or the behaviour-tree runtime. Each case runs the real commands
-in a fresh interpreter and lists the heavy packages it loaded; nothing is timed."""
+controller, the plotting or the behaviour-tree runtime (nor scipy.ndimage and OMPL once
+what they give is stored). Each case runs the real commands in a fresh interpreter and
+lists the heavy packages it loaded; nothing is timed."""
 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -41,13 +43,14 @@ WORLD = ["scipy", "PIL", "lxml", "contourpy", "ompl", *SIMULATION]
 NUMERICAL = ["numpy", "pydantic", "shapely", *WORLD]
 
 
-def commands(runs: list[list[str]], watched: list[str]) -> dict:
+def commands(runs: list[list[str]], watched: list[str], env: dict | None = None) -> dict:
     proc = subprocess.run(
         [sys.executable, "-c", PROGRAM, json.dumps(runs), json.dumps(watched)],
         capture_output=True,
         text=True,
         timeout=300,
         cwd=ROOT,
+        env=env,
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
     [line] = [x for x in proc.stdout.splitlines() if x.startswith("RESULT ")]
@@ -104,3 +107,16 @@ def test_validate_without_people_imports_no_sparse_graphs(validated: dict) -> No
     assert not any("people:" in Path(m).read_text() for m in MISSIONS)
     assert validated["codes"] == [0]
     assert "scipy.sparse" not in validated["loaded"]
+
+
+def test_validate_reads_stored_tables_instead_of_importing_scipy_or_ompl(tmp_path: Path) -> None:
+    """The worlds' free space and distance fields need scipy.ndimage to build, the list of
+    OMPL's planners OMPL's libraries (each ~0.1-0.5 s to import): the first process stores
+    them, a later one validates without either."""
+    env = {**os.environ, "AGV_MISSION_STORE": str(tmp_path / "stored")}
+    first = commands([["validate", *MISSIONS]], ["scipy.ndimage", "ompl"], env)
+    assert first == {"codes": [0], "loaded": ["ompl", "scipy.ndimage"]}
+    for kind in ("spawn_region-*.npy", "obstacle_distance-*.npy", "ompl_planners-*.json"):
+        assert list((tmp_path / "stored").glob(kind))
+    again = commands([["validate", *MISSIONS]], ["scipy.ndimage", "ompl"], env)
+    assert again == {"codes": [0], "loaded": []}

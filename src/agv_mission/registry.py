@@ -42,9 +42,10 @@ T = TypeVar("T", bound=type)
 
 
 class PluginConfig(BaseModel):
-    """Base of every plugin's configuration block: unknown keys are errors."""
+    """Base of every plugin's configuration block: unknown keys are errors; its validator
+    is built when first used (a mission names few of the plugins the schema lists)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", defer_build=True)
 
 
 class UnknownPluginError(KeyError):

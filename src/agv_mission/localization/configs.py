@@ -17,7 +17,7 @@ from agv_mission.registry import PluginConfig
 class InitialPose(BaseModel):
     """amcl's ``initial_pose_x / _y / _a``."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", defer_build=True)
 
     x: float
     y: float

@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt
 
 from agv_mission.maps.costmap_config import CostmapConfig, ObstacleLayerConfig
 from agv_mission.maps.distance import obstacle_distance
@@ -77,6 +76,8 @@ class Costmap:
         """
         if not marks.any():
             return self
+        from scipy.ndimage import distance_transform_edt  # ~0.5 s: a run's, not a check's
+
         rows, cols = np.nonzero(marks)
         pad = int(
             np.ceil((self.robot_radius + self.config.inflation_radius + 0.5) / self.resolution)

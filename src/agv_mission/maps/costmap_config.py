@@ -12,7 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field
 class ObstacleLayerConfig(BaseModel):
     """Marking and clearing (the mission's ``stack.costmap.obstacles`` block)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", defer_build=True)
 
     enabled: bool = True
     max_range: float = Field(2.5, gt=0, description="returns farther than this do not mark, m")
@@ -25,7 +25,7 @@ class ObstacleLayerConfig(BaseModel):
 class CostmapConfig(BaseModel):
     """Costmap parameters (the mission's ``stack.costmap`` block)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", defer_build=True)
 
     resolution: float | None = Field(
         None,

@@ -24,7 +24,7 @@ STAGING_DISTANCE = 0.7
 class DockModel(BaseModel):
     """One dock as a file writes it."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, defer_build=True)
 
     x: float
     y: float

@@ -6,19 +6,28 @@ Building them costs tens of milliseconds on turtlebot3_world and over a second o
 process (a sweep, the service running many missions), would otherwise build them again.
 Keys are the map's content (a digest of its cells, resolution and origin), so a map loaded
 twice, or copied, hits; an edited map misses. The tables are read-only.
+
+The tables every mission's check needs (a world's free space, the costmap's distance
+field) are also stored on disk for later processes (:func:`stored_array_table`, see
+:mod:`agv_mission.stored`): they are cheap to build, but building them needs
+``scipy.ndimage``, whose import (~0.5 s) costs more than all the rest of
+``agv-mission validate``.
 """
 
 from __future__ import annotations
 
 import hashlib
+import io
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
+from pathlib import Path
 from typing import TypeVar
 
 import numpy as np
 
 from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.stored import read_stored, store, stored_path
 
 T = TypeVar("T")
 
@@ -52,6 +61,28 @@ def array_table(kind: str, data: np.ndarray, params: Hashable, build: Callable[[
     return cached_table((kind, array_key(data), params), build)
 
 
+def stored_array_table(
+    kind: str, data: np.ndarray, params: Hashable, build: Callable[[], np.ndarray]
+) -> np.ndarray:
+    """:func:`array_table` of an array the shape of ``data``, also kept on disk for later
+    processes: read from there on a miss in memory, else built by ``build()`` and stored.
+    A store that cannot be read or written costs only the build."""
+    key = (kind, array_key(data), params)
+
+    def load_or_build() -> np.ndarray:
+        path = stored_path(kind, key, ".npy")
+        table = _read_table(path, data.shape)
+        if table is None:
+            table = np.ascontiguousarray(build())
+            buffer = io.BytesIO()
+            np.save(buffer, table, allow_pickle=False)
+            store(path, buffer.getvalue())
+        table.setflags(write=False)
+        return table
+
+    return cached_table(key, load_or_build)
+
+
 def cached_table(key: tuple[Hashable, ...], build: Callable[[], T]) -> T:
     """The table under ``key``, built by ``build()`` on a miss; old tables are dropped."""
     with _lock:
@@ -71,3 +102,15 @@ def clear() -> None:
     """Forget every table (tests; memory)."""
     with _lock:
         _tables.clear()
+
+
+def _read_table(path: Path | None, shape: tuple[int, ...]) -> np.ndarray | None:
+    """The array stored at ``path`` when it is whole and of ``shape``, else None."""
+    data = read_stored(path)
+    if data is None:
+        return None
+    try:
+        table = np.load(io.BytesIO(data), allow_pickle=False)
+    except (OSError, ValueError, EOFError):
+        return None
+    return table if isinstance(table, np.ndarray) and table.shape == shape else None

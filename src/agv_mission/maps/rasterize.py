@@ -14,10 +14,10 @@ import math
 from collections.abc import Iterable, Sequence
 
 import numpy as np
-from scipy import ndimage
 
 from agv_mission.geometry import Bounds, Pose2D
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
+from agv_mission.maps.map_cache import stored_array_table
 from agv_mission.maps.worlds import Box, Cylinder
 
 _EPS = 1e-7  # metres: overlaps thinner than this do not count as touching
@@ -77,12 +77,23 @@ def rasterize(
     if occupied[row, col]:
         raise ValueError(f"spawn ({sx:.3f}, {sy:.3f}) lies inside an obstacle")
 
-    labels, _ = ndimage.label(~occupied)  # default structure: 4-connectivity
-    reachable = labels == labels[row, col]
     data = np.full(shape, UNKNOWN, dtype=np.int8)
-    data[reachable] = FREE
+    data[spawn_region(occupied, row, col)] = FREE
     data[occupied] = OCCUPIED
     return OccupancyGrid(data=data, resolution=float(resolution), origin=origin)
+
+
+def spawn_region(occupied: np.ndarray, row: int, col: int) -> np.ndarray:
+    """The cells (H, W bool, read-only) that cell (row, col) reaches through cells not
+    ``occupied``, 4-connected; stored for later processes, as the world is the same."""
+
+    def build() -> np.ndarray:
+        from scipy import ndimage  # ~0.5 s: only when not stored
+
+        labels, _ = ndimage.label(~occupied)  # default structure: 4-connectivity
+        return labels == labels[row, col]
+
+    return stored_array_table("spawn_region", occupied, (row, col), build)
 
 
 # --------------------------------------------------------------------------- helpers

@@ -6,7 +6,6 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt, label
 from shapely import Polygon
 from shapely.ops import polylabel
 
@@ -103,6 +102,8 @@ def room_at(rooms: dict[str, Room], x: float, y: float) -> str | None:
 
 def reachable_cells(costmap: Costmap, start: Pose2D, margin: float = 0.0) -> np.ndarray:
     """Cells where the robot fits (with ``margin``) and that connect to ``start``."""
+    from scipy.ndimage import label  # ~0.5 s: only missions that ask import it
+
     free = costmap.distance > costmap.robot_radius + margin
     labels, _ = label(free, structure=np.ones((3, 3), dtype=bool))
     rows, cols = costmap.grid.world_to_cell(np.array([start.x, start.y]))
@@ -137,6 +138,8 @@ def visit_point(room: Room, costmap: Costmap, allowed: np.ndarray) -> Pose2D | N
     candidates = inside & allowed
     if not candidates.any():
         return None
+    from scipy.ndimage import distance_transform_edt
+
     to_outline = distance_transform_edt(inside) * grid.resolution
     score = np.where(candidates, np.minimum(costmap.distance, to_outline), -np.inf)
     r, c = np.unravel_index(int(np.argmax(score)), score.shape)

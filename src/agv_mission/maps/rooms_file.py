@@ -48,7 +48,7 @@ class RoomsFileError(ValueError):
 
 
 class AnchorModel(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", defer_build=True)
 
     x: float = Field(..., allow_inf_nan=False)
     y: float = Field(..., allow_inf_nan=False)
@@ -63,7 +63,7 @@ class RoomModel(BaseModel):
     relies on beyond the shape (a simple polygon of some area, the anchor inside it) is
     checked by :func:`room_problems`."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", defer_build=True)
 
     polygon: Annotated[
         list[tuple[Annotated[float, Field(allow_inf_nan=False)], ...]],
@@ -73,7 +73,7 @@ class RoomModel(BaseModel):
 
 
 class RoomsModel(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", defer_build=True)
 
     rooms: dict[str, RoomModel] = Field(default_factory=dict)
     docks: dict[str, DockModel] = Field(default_factory=dict)

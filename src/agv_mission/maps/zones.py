@@ -18,7 +18,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
-from scipy.ndimage import binary_erosion, distance_transform_edt
 
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.costmap import Costmap
@@ -73,6 +72,8 @@ class ZoneFilters:
         self.keepout = keepout
         self.speed = speed
         self.costmap = base.with_obstacles(keepout) if keepout.any() else base
+        from scipy.ndimage import distance_transform_edt  # ~0.5 s: missions with zones only
+
         res = self.grid.resolution
         # metres from each cell centre to the nearest keepout cell centre (0 inside)
         self.keepout_distance = (
@@ -170,6 +171,8 @@ class ZoneFilters:
     def boundary_points(self) -> np.ndarray:
         """(N, 2) map-frame centres of keepout cells on a zone's edge: what the local
         controller treats as obstacles."""
+        from scipy.ndimage import binary_erosion
+
         edge = self.keepout & ~binary_erosion(self.keepout, border_value=1)
         rows, cols = np.nonzero(edge)
         return self.grid.cell_to_world(rows, cols).reshape(-1, 2)

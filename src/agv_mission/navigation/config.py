@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field
 class NavigationConfig(BaseModel):
     """How a goal is pursued (the mission's ``stack.navigation`` block)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", defer_build=True)
 
     xy_goal_tolerance: float = Field(0.05, gt=0, description="metres")
     yaw_goal_tolerance: float = Field(0.05, gt=0, description="radians")

@@ -31,7 +31,7 @@ ACTIONS = ("none", "approach", "slowdown", "stop")
 class CollisionZone(BaseModel):
     """One zone of the monitor, in the robot's frame (x forward, y left, metres)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", defer_build=True)
 
     name: str = Field(min_length=1, max_length=100)
     type: Literal["stop", "slowdown", "approach"]
@@ -66,7 +66,7 @@ class CollisionZone(BaseModel):
 class CollisionMonitorConfig(BaseModel):
     """The mission's ``stack.collision_monitor`` block (people-and-zones.md)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", defer_build=True)
 
     enabled: bool = True
     zones: list[CollisionZone] | None = Field(

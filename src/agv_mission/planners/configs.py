@@ -8,27 +8,56 @@ path (``plugin``), loaded only when a run builds it.
 
 from __future__ import annotations
 
+import json
 from functools import lru_cache
+from importlib.util import find_spec
+from pathlib import Path
 from typing import ClassVar, Literal
 
 from pydantic import Field, field_validator
 
 from agv_mission.registry import PluginConfig
+from agv_mission.stored import read_stored, store, stored_path
 
 
 @lru_cache(maxsize=1)
 def available_planners() -> tuple[str, ...]:
-    """Names of the geometric planner classes this OMPL build provides."""
+    """Names of the geometric planner classes this OMPL build provides: asked of OMPL once
+    per build of its libraries and stored (loading them costs a ``validate`` ~0.1 s)."""
+    build = _ompl_build()
+    path = stored_path("ompl_planners", build, ".json")
+    data = read_stored(path) if build else None
+    try:
+        names = json.loads(data) if data is not None else None
+    except ValueError:
+        names = None
+    if isinstance(names, list) and names and all(isinstance(n, str) for n in names):
+        return tuple(names)
     from ompl import base as ob
     from ompl import geometric as og
 
-    return tuple(
-        sorted(
-            name
-            for name in dir(og)
-            if isinstance(getattr(og, name), type) and issubclass(getattr(og, name), ob.Planner)
-        )
+    found = sorted(
+        name
+        for name in dir(og)
+        if isinstance(getattr(og, name), type) and issubclass(getattr(og, name), ob.Planner)
     )
+    if build:
+        store(path, json.dumps(found).encode())
+    return tuple(found)
+
+
+def _ompl_build() -> tuple[object, ...]:
+    """What names this OMPL build: its shared libraries' paths, sizes and times (found
+    without loading them); empty when there are none to name it (nothing is stored)."""
+    spec = find_spec("ompl")
+    if spec is None or not spec.submodule_search_locations:
+        return ()
+    files = []
+    for folder in spec.submodule_search_locations:
+        for lib in sorted(Path(folder).glob("*.so")):
+            info = lib.stat()
+            files.append((str(lib), info.st_size, info.st_mtime_ns))
+    return tuple(files)
 
 
 class OmplPlannerConfig(PluginConfig):

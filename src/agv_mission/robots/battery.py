@@ -27,7 +27,7 @@ WH = 3600.0  # joules per watt-hour
 class BatterySpec(BaseModel):
     """A robot's battery and the power its drive and electronics draw from it."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, defer_build=True)
 
     capacity: float = Field(..., gt=0, le=1e6, description="usable energy, Wh")
     initial_level: float = Field(1.0, ge=0, le=1, description="state of charge at the start")

@@ -30,7 +30,7 @@ def _outline(points: tuple[tuple[float, float], ...] | None, radius: float) -> F
 class LidarMount(BaseModel):
     """Where the scan's frame sits on the robot (TF ``base_link -> laser``), planar."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, defer_build=True)
 
     x: float = Field(0.0, ge=-5.0, le=5.0, description="metres ahead of the robot's origin")
     y: float = Field(0.0, ge=-5.0, le=5.0, description="metres to the left")
@@ -41,7 +41,7 @@ class LidarSpec(BaseModel):
     """A planar laser scanner (``sensor_msgs/LaserScan`` conventions): a full turn unless
     ``angle_min`` / ``angle_max`` say otherwise."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, defer_build=True)
 
     beams: int = Field(
         360,
@@ -105,7 +105,7 @@ class LidarSpec(BaseModel):
 class EncoderSpec(BaseModel):
     """Incremental wheel encoders, read as integer ticks."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, defer_build=True)
 
     ticks_per_meter: float = Field(
         ..., gt=0, description="ticks per metre of wheel travel (diff_tf's ticks_meter)"
@@ -128,7 +128,7 @@ class ImuSpec(BaseModel):
     """A MEMS IMU on the robot's base: the gyro's z rate and the accelerometer's x, y,
     published as ``sensor_msgs/Imu`` (noise densities as datasheets give them)."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, defer_build=True)
 
     rate: float = Field(100.0, gt=0, le=1000.0, description="samples per second, Hz")
     gyro_noise_density: float = Field(
@@ -145,7 +145,7 @@ class ImuSpec(BaseModel):
 class RobotDescription(BaseModel):
     """A differential-drive robot: geometry, limits and sensors."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, defer_build=True)
 
     name: str
     wheel_radius: float = Field(..., gt=0, description="metres")

@@ -17,7 +17,7 @@ class SimConfig(BaseModel):
     their ticks, a noise-free lidar that never drops a beam).
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", defer_build=True)
 
     physics_dt: float = Field(0.01, gt=0, le=0.02, description="physics time step, s")
     ideal: bool = Field(

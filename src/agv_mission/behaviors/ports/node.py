@@ -31,7 +31,7 @@ def entry_port(description: str, default: Any = ...) -> Any:
 class NodePorts(PluginConfig):
     """The ports of one node type (a plugin config of the ``behavior`` slot)."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, defer_build=True)
 
     plugin: ClassVar[str]
     kind: ClassVar[NodeKind] = "action"

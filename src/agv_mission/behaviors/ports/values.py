@@ -43,7 +43,9 @@ def blackboard_key(value: Any) -> str | None:
 
 
 class StrictModel(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    # defer_build: a model's validator is built when first used, not on import (the models
+    # of input files do so throughout): a process builds those of what it reads, once each.
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, defer_build=True)
 
 
 class Position(StrictModel):

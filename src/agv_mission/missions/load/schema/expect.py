@@ -19,7 +19,7 @@ TaskStatus = Literal["succeeded", "partial", "skipped", "failed", "aborted", "no
 class Expectations(BaseModel):
     """Bounds on one run's result; every key optional, unknown keys are invalid."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", defer_build=True)
 
     status: RunStatus | None = Field(None, description="final status of the mission")
     reason_contains: str | None = Field(

@@ -137,11 +137,7 @@ def real_logs() -> dict[str, float]:
         for name in (*LOGS, sparse):
             log = thinned if name == sparse else _log_file(logs, name)
             work = Path(tmp) / name
-            subprocess.run(
-                [sys.executable, str(tool), str(log), str(work)], check=True, capture_output=True
-            )
-            truth = read_bag(work / "bag").truth
-            reference = load_ros_map(work / "reference.yaml")
+            truth, reference = _convert(tool, log, work)
             for label, overrides in (("", []), ("before.", BEFORE)):
                 figures = _map_log(work / "bag", overrides, truth, reference)
                 out |= {f"slam.real_logs.{name}.{label}{k}": v for k, v in figures.items()}
@@ -170,17 +166,24 @@ def held_out_logs() -> dict[str, float]:
             if name in LOGS:
                 continue
             work = Path(tmp) / name
-            done = subprocess.run(
-                [sys.executable, str(tool), str(log), str(work)], capture_output=True, text=True
-            )
-            if done.returncode != 0:
-                reason = (done.stderr.strip().splitlines() or ["no message"])[-1]
+            try:
+                truth, reference = _convert(tool, log, work)
+            except subprocess.CalledProcessError as failed:
+                reason = (failed.stderr.strip().splitlines() or ["no message"])[-1]
                 print(f"bench_slam: {log.name} not converted ({reason}): left out")
                 continue
-            truth = read_bag(work / "bag").truth
-            figures = _map_log(work / "bag", [], truth, load_ros_map(work / "reference.yaml"))
+            figures = _map_log(work / "bag", [], truth, reference)
             out |= {f"slam.held_out.{name}.{k}": v for k, v in figures.items()}
     return out
+
+
+def _convert(tool: Path, log: Path, work: Path) -> tuple[np.ndarray, OccupancyGrid]:
+    """``log`` turned into a bag and a reference map in ``work`` by the converter, as a user
+    runs it: the bag's ground truth and the reference (CalledProcessError: it failed)."""
+    subprocess.run(
+        [sys.executable, str(tool), str(log), str(work)], check=True, capture_output=True, text=True
+    )
+    return read_bag(work / "bag").truth, load_ros_map(work / "reference.yaml")
 
 
 def _log_file(logs: Path, name: str) -> Path:

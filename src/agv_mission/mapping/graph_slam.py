@@ -311,9 +311,9 @@ class GraphSlam(GridSlam):
         if len(members) > cap:
             members = members[np.linspace(0, len(members) - 1, cap).round().astype(int)]
         chosen = [int(m) for m in members]
-        margin = radius + 1.0
-        coarse_field = self._submap_field(chosen, 2.0 * self.resolution, margin)
-        coarse = CorrelativeMatcher(
+        points, guess = self.keyframes[j].points, self.nodes[j]
+        coarse_res = 2.0 * self.resolution
+        matcher = CorrelativeMatcher(
             linear_window=radius,
             angular_window=c.loop_wide_angular_window,
             coarse_block=8,
@@ -321,15 +321,28 @@ class GraphSlam(GridSlam):
             rotation_weight=0.0,
             refinement="none",
             search_max_range=c.search_max_range,
-        ).match(coarse_field, self.keyframes[j].points, self.nodes[j], None)
-        field = self._submap_field(chosen, self.resolution, margin)
-        return self.loop_refiner.match(field, self.keyframes[j].points, coarse.pose, None)
+        )
+        # The search reads the field no further than this from the guess (the near points'
+        # reach, the window, its blocks): the submap beyond it is not needed.
+        half = (
+            matcher.search_reach(points, coarse_res)
+            + radius
+            + (matcher.coarse_block + 5) * coarse_res
+        )
+        coarse_field = self._submap_field(chosen, coarse_res, (guess[0], guess[1], half))
+        coarse = matcher.match(coarse_field, points, guess, None)
+        field = self._submap_field(chosen, self.resolution)
+        return self.loop_refiner.match(field, points, coarse.pose, None)
 
     def _submap_field(
-        self, members: list[int], res: float | None = None, margin: float | None = None
+        self,
+        members: list[int],
+        res: float | None = None,
+        around: tuple[float, float, float] | None = None,
     ) -> LikelihoodField:
         """A likelihood field of the keyframes ``members``' scans at their graph poses
-        (cells of ``res``, the map's by default)."""
+        (cells of ``res``, the map's by default; ``around``: see
+        :meth:`LikelihoodField.from_points`)."""
         res = self.resolution if res is None else res
         pts = []
         for m in members:
@@ -341,25 +354,8 @@ class GraphSlam(GridSlam):
                     [p[0] + c * q[:, 0] - s * q[:, 1], p[1] + s * q[:, 0] + c * q[:, 1]], axis=1
                 )
             )
-        xy = np.vstack(pts)
-        if margin is None:
-            margin = self.config.loop_linear_window + 1.0
-        ox = math.floor((xy[:, 0].min() - margin) / res) * res
-        oy = math.floor((xy[:, 1].min() - margin) / res) * res
-        w = int(math.ceil((xy[:, 0].max() + margin - ox) / res))
-        h = int(math.ceil((xy[:, 1].max() + margin - oy) / res))
-        cols = np.floor((xy[:, 0] - ox) / res).astype(int)
-        rows = np.floor((xy[:, 1] - oy) / res).astype(int)
-        flat = rows * w + cols
-        count = np.bincount(flat, minlength=h * w)
-        occupied = (count > 0).reshape(h, w)
-        # Anchors: where in its cell the points fell (sub-cell walls, as the front end).
-        safe = np.maximum(count, 1)
-        ax = np.bincount(flat, xy[:, 0] - (ox + (cols + 0.5) * res), h * w) / safe
-        ay = np.bincount(flat, xy[:, 1] - (oy + (rows + 0.5) * res), h * w) / safe
-        anchor = (ax.reshape(h, w).astype(np.float32), ay.reshape(h, w).astype(np.float32))
         sigma = self.config.likelihood_sigma * res / self.resolution
-        return LikelihoodField.from_occupied(occupied, res, (ox, oy), sigma, anchor=anchor)
+        return LikelihoodField.from_points(np.vstack(pts), res, sigma, around)
 
     def _optimize(self) -> Pose2D:
         """Optimise the graph, correct trajectory and map; the new current pose."""
@@ -421,6 +417,7 @@ class GraphSlam(GridSlam):
     def _render(self, poses: list[Pose2D]) -> None:
         """A new map of every integrated scan, each at its pose in ``poses``."""
         self._allocate(poses[0] if poses else Pose2D(*self.nodes[0]))
+        self.map.reserve([scan for scan, *_ in self._integrated], poses)
         integrations, timed = self.integrations, len(self.integrate_times)
         for (scan, *_), pose in zip(self._integrated, poses, strict=True):
             self._integrate(scan, pose, refresh=False)  # the field once at the end

@@ -8,6 +8,7 @@ gradient (:func:`bicubic`).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,6 +51,42 @@ class LikelihoodField:
             anchor = (zero, zero)
         values, nearest = field_values(occupied, resolution, sigma, anchor, return_nearest=True)
         return cls(values, float(resolution), origin, nearest, anchor)
+
+    @classmethod
+    def from_points(
+        cls,
+        xy: np.ndarray,
+        resolution: float,
+        sigma: float,
+        around: tuple[float, float, float] | None = None,
+    ) -> LikelihoodField:
+        """The field of map-frame obstacle points ``xy`` (N, 2), each cell's anchor where
+        its points fell (sub-cell walls, as a scan-built map has them); of the points
+        within the square ``around`` (x, y, half side) when given. The grid reaches as far
+        past the points as the field is not zero: a matched point landing beyond reads
+        zero either way, and a wider grid only costs the distance transform."""
+        res = float(resolution)
+        margin = 4.0 * sigma + 3.0 * res
+        if around is not None:
+            x, y, half = around
+            reach = half + margin
+            xy = xy[(np.abs(xy[:, 0] - x) <= reach) & (np.abs(xy[:, 1] - y) <= reach)]
+            if not len(xy):
+                return cls.from_occupied(np.zeros((1, 1), bool), res, (x, y), sigma)
+        ox = math.floor((xy[:, 0].min() - margin) / res) * res
+        oy = math.floor((xy[:, 1].min() - margin) / res) * res
+        w = int(math.ceil((xy[:, 0].max() + margin - ox) / res))
+        h = int(math.ceil((xy[:, 1].max() + margin - oy) / res))
+        cols = np.floor((xy[:, 0] - ox) / res).astype(int)
+        rows = np.floor((xy[:, 1] - oy) / res).astype(int)
+        flat = rows * w + cols
+        count = np.bincount(flat, minlength=h * w)
+        occupied = (count > 0).reshape(h, w)
+        safe = np.maximum(count, 1)
+        ax = np.bincount(flat, xy[:, 0] - (ox + (cols + 0.5) * res), h * w) / safe
+        ay = np.bincount(flat, xy[:, 1] - (oy + (rows + 0.5) * res), h * w) / safe
+        anchor = (ax.reshape(h, w).astype(np.float32), ay.reshape(h, w).astype(np.float32))
+        return cls.from_occupied(occupied, res, (ox, oy), sigma, anchor=anchor)
 
 
 def field_values(

@@ -178,27 +178,11 @@ class LogOddsMap:
         ``refresh`` the likelihood field is left stale (a rebuild refreshes it once, with
         :meth:`refresh_all`, after all its scans)."""
         c, res = self.config, self.resolution
-        r = scan.ranges.astype(np.float64)
-        max_range = min(scan.range_max, c.max_range) if c.max_range else scan.range_max
-        finite = np.isfinite(r)
-        hit = finite & (r >= scan.range_min) & (r <= max_range)
-        clear = min(c.missing_data_ray_length, max(max_range - 2.0 * res, 0.0))
-        # +inf is "no return" (clears); nan is an invalid reading (clears nothing).
-        no_return = np.where(np.isposinf(r), clear, 0.0)
-        length = np.where(hit, r, np.where(finite & (r > max_range), max_range, no_return))
-        keep = length > 0.0
-        if not keep.any():
+        beams = self._beams(scan, pose)
+        if beams is None:
             return False
-        a = scan.angles[keep] + pose.yaw
-        length, hit = length[keep], hit[keep]
-        ca, sa = np.cos(a), np.sin(a)
-        ex, ey = pose.x + length * ca, pose.y + length * sa
-        self.ensure_contains(
-            min(ex.min(), pose.x),
-            max(ex.max(), pose.x),
-            min(ey.min(), pose.y),
-            max(ey.max(), pose.y),
-        )
+        length, hit, ca, sa, ex, ey = beams
+        self.ensure_contains(*_box(ex, ey, pose))
         ox, oy = self.ox, self.oy
         h, w = self.logodds.shape
         cols_e = np.floor((ex - ox) / res).astype(np.int64)
@@ -246,6 +230,41 @@ class LogOddsMap:
         if refresh:
             self._refresh_cells(np.concatenate(changed))
         return True
+
+    def _beams(self, scan: LaserScan, pose: Pose2D) -> tuple[np.ndarray, ...] | None:
+        """The beams of ``scan`` from ``pose`` that add something: ``length, hit, cos,
+        sin, end x, end y`` (None when there are none). A return within range is a hit;
+        one past ``max_range`` clears up to it; +inf ("no return") clears
+        ``missing_data_ray_length``; nan (an invalid reading) clears nothing."""
+        c, res = self.config, self.resolution
+        r = scan.ranges.astype(np.float64)
+        max_range = min(scan.range_max, c.max_range) if c.max_range else scan.range_max
+        finite = np.isfinite(r)
+        hit = finite & (r >= scan.range_min) & (r <= max_range)
+        clear = min(c.missing_data_ray_length, max(max_range - 2.0 * res, 0.0))
+        no_return = np.where(np.isposinf(r), clear, 0.0)
+        length = np.where(hit, r, np.where(finite & (r > max_range), max_range, no_return))
+        keep = length > 0.0
+        if not keep.any():
+            return None
+        a = scan.angles[keep] + pose.yaw
+        length, hit = length[keep], hit[keep]
+        ca, sa = np.cos(a), np.sin(a)
+        return length, hit, ca, sa, pose.x + length * ca, pose.y + length * sa
+
+    def reserve(self, scans: list[LaserScan], poses: list[Pose2D]) -> None:
+        """Grow the map once to hold every beam of ``scans`` seen from ``poses``: a map
+        rendered again from many scans would otherwise grow (and copy its tables) chunk
+        by chunk as they reach past its edge."""
+        boxes = [
+            _box(b[4], b[5], pose)
+            for scan, pose in zip(scans, poses, strict=True)
+            if (b := self._beams(scan, pose)) is not None
+        ]
+        if boxes:
+            lo = np.min(boxes, axis=0)
+            hi = np.max(boxes, axis=0)
+            self.ensure_contains(float(lo[0]), float(hi[1]), float(lo[2]), float(hi[3]))
 
     def _update_anchors(
         self,
@@ -332,3 +351,13 @@ class LogOddsMap:
         valid = nr >= 0
         self.near_r[ar0:ar1, ac0:ac1] = np.where(valid, nr + br0, -1)
         self.near_c[ar0:ar1, ac0:ac1] = np.where(valid, nc + bc0, -1)
+
+
+def _box(ex: np.ndarray, ey: np.ndarray, pose: Pose2D) -> tuple[float, float, float, float]:
+    """``xmin, xmax, ymin, ymax`` of the beam ends ``ex``, ``ey`` and the scanner at ``pose``."""
+    return (
+        min(ex.min(), pose.x),
+        max(ex.max(), pose.x),
+        min(ey.min(), pose.y),
+        max(ey.max(), pose.y),
+    )

@@ -211,6 +211,13 @@ class CorrelativeMatcher:
             return None
         return MatchResult(pose, score, guess.copy(), True, 0, cov)
 
+    def search_reach(self, points: np.ndarray, res: float) -> float:
+        """How far (m) from the robot the correlative search scores ``points`` on a
+        field of cells ``res``: with the linear window and its blocks, the part of a
+        field the search can read."""
+        search = self._search_points(np.asarray(points, dtype=np.float64).reshape(-1, 2), res)
+        return float(np.sqrt((search**2).sum(axis=1)).max()) if len(search) else 0.0
+
     def _search_points(self, points: np.ndarray, res: float) -> np.ndarray:
         """The points the correlative search scores: those within ``search_max_range``
         (all of them when fewer than 50 are), one per cell. Far points of a real

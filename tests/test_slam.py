@@ -224,6 +224,39 @@ def test_matcher_search_equals_exhaustive_search(tb3: World) -> None:
     assert result.candidates < 19 * 81  # it did not have to score them all
 
 
+def test_a_field_cut_to_what_the_search_reads_finds_the_same_optimum() -> None:
+    """A loop's wide search reads its submap only near the guess: the field of the submap's
+    points cut to that square is smaller and gives the very same coarse optimum."""
+    house = small_house()
+    slam = GridSlam(GridSlamConfig())
+    xy = []
+    for pose in (Pose2D(-6.0, -1.0, 0.3), Pose2D(-3.0, 2.0, 1.2), Pose2D(5.0, 1.0, -2.0)):
+        q = slam._scan_points(scans_at(house, pose, 1)[-1])
+        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+        xy.append(
+            np.stack([pose.x + c * q[:, 0] - s * q[:, 1], pose.y + s * q[:, 0] + c * q[:, 1]], 1)
+        )
+    xy = np.vstack(xy)
+    truth = Pose2D(-5.5, -0.5, 0.1)
+    points = slam._scan_points(scans_at(house, truth, 1)[-1])
+    guess = truth.as_array() + [0.3, -0.25, 0.15]
+    matcher = CorrelativeMatcher(
+        linear_window=0.5,
+        angular_window=0.4,
+        coarse_block=8,
+        refinement="none",
+        search_max_range=2.0,
+    )
+    res = 0.1
+    half = matcher.search_reach(points, res) + 0.5 + (8 + 5) * res
+    full = LikelihoodField.from_points(xy, res, 0.1)
+    cut = LikelihoodField.from_points(xy, res, 0.1, (guess[0], guess[1], half))
+    assert cut.values.size < full.values.size / 2
+    found = matcher.match(cut, points, guess).coarse_pose
+    assert np.array_equal(found, matcher.match(full, points, guess).coarse_pose)
+    assert np.hypot(*(found[:2] - truth.as_array()[:2])) < 0.15
+
+
 def test_the_far_face_of_a_thin_wall_is_no_partner() -> None:
     """The livingroom face of the 10 cm bedroom wall is mapped; from the bedroom the
     robot sees the wall's other face for the first time. Paired with the mapped face, the

@@ -463,7 +463,9 @@ class GraphSlam(GridSlam):
             for row, p in zip(self.trajectory, new, strict=True)
         ]
         idx = [i for *_, i in self._integrated]
-        if float(np.hypot(*(new[idx, :2] - poses[idx, :2]).T).mean()) > c.rebuild_threshold:
+        moved = float(np.hypot(*(new[idx, :2] - poses[idx, :2]).T).mean())
+        # A map lagging the graph is rendered now, from the poses the recording reports.
+        if moved > c.rebuild_threshold or self._stale:
             self._stale = False
             self._render([Pose2D(*new[i]) for i in idx])
         self._pose = Pose2D(*new[-1])

@@ -102,12 +102,13 @@ def icp(
     nx_all, ny_all = nrm[:, 0].copy(), nrm[:, 1].copy()
     x = start.astype(np.float64).copy()
     hess = None
+    find = Partners(field)
     for _ in range(iterations):
         c, s = math.cos(x[2]), math.sin(x[2])
         wx = x[0] + c * px_all - s * py_all
         wy = x[1] + s * px_all + c * py_all
         side = (c * nx_all - s * ny_all, s * nx_all + c * ny_all)
-        qx, qy, has = partners(field, wx, wy, side)
+        qx, qy, has = find(wx, wy, side)
         idx = np.flatnonzero(has)
         if len(idx) < 10:
             return None, None
@@ -224,6 +225,91 @@ def gauss_newton(
 _NEIGHBOURS = np.array([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)])
 
 
+class Partners:
+    """:func:`partners` for the iterations of one refinement against one field.
+
+    What a point's candidates are (the ten cells, which hold an obstacle, their anchors'
+    map-frame points and view sides) depends on its cell alone, and between two
+    Gauss-Newton iterations only about one point in ten changes cell: those are looked
+    up again, the rest keep theirs, so that an iteration costs the side test and the
+    distances only (the matcher's hottest loop). The numbers are those a fresh lookup
+    gives, element by element."""
+
+    def __init__(self, field: LikelihoodField) -> None:
+        assert field.nearest is not None and field.anchor is not None
+        self.near_r, self.near_c = (a.reshape(-1) for a in field.nearest)
+        self.h, self.w = h, w = field.nearest[0].shape
+        self.res, (self.ox, self.oy) = field.resolution, field.origin
+        self.anchor = tuple(a.reshape(-1) for a in field.anchor)
+        self.view = None if field.view is None else tuple(v.reshape(-1) for v in field.view)
+        # Cell centres by column and by row: ``ox + (col + 0.5) res`` as a table.
+        self.centre_x = self.ox + (np.arange(w) + 0.5) * self.res
+        self.centre_y = self.oy + (np.arange(h) + 0.5) * self.res
+        self.offsets = _NEIGHBOURS[:, 0] * w + _NEIGHBOURS[:, 1]
+        self.key: tuple[np.ndarray, np.ndarray] | None = None  # the cells looked up
+
+    def __call__(
+        self, wx: np.ndarray, wy: np.ndarray, side: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What :func:`partners` returns for these map-frame points."""
+        cols = np.floor((wx - self.ox) / self.res).astype(np.int64)
+        rows = np.floor((wy - self.oy) / self.res).astype(np.int64)
+        n = len(wx)
+        if self.key is None or len(self.key[0]) != n:
+            self.occ0, self.qx, self.qy, self.vx, self.vy = self._lookup(rows, cols)
+            self.stride = np.arange(0, 10 * n, 10)
+        else:
+            moved = np.flatnonzero((rows != self.key[0]) | (cols != self.key[1]))
+            if len(moved):
+                for table, new in zip(
+                    (self.occ0, self.qx, self.qy, self.vx, self.vy),
+                    self._lookup(rows[moved], cols[moved]),
+                    strict=True,
+                ):
+                    if table is not None:
+                        table[moved] = new
+        self.key = (rows, cols)
+        occ = self.occ0
+        if side is not None and self.vx is not None:
+            occ = occ & (self.vx * side[0][:, None] + self.vy * side[1][:, None] >= 0.0)
+        dx = self.qx - wx[:, None]
+        dx **= 2
+        dy = self.qy - wy[:, None]
+        dy **= 2
+        dx += dy
+        best = np.argmin(np.where(occ, dx, np.inf), axis=1) + self.stride
+        return self.qx.reshape(-1).take(best), self.qy.reshape(-1).take(best), occ.any(axis=1)
+
+    def _lookup(self, rows: np.ndarray, cols: np.ndarray) -> tuple:
+        """Per point of cell (``rows``, ``cols``): which of its ten candidate cells hold
+        an obstacle, their anchors' map-frame x and y, their view sides (None without
+        views); (N, 10) each."""
+        h, w = self.h, self.w
+        inside = (rows >= 1) & (rows < h - 1) & (cols >= 1) & (cols < w - 1)
+        rows, cols = np.where(inside, rows, 1), np.where(inside, cols, 1)
+        n = len(rows)
+        cr = np.empty((n, 10), np.int64)
+        cc = np.empty((n, 10), np.int64)
+        np.add(rows[:, None], _NEIGHBOURS[None, :, 0], out=cr[:, :9])
+        np.add(cols[:, None], _NEIGHBOURS[None, :, 1], out=cc[:, :9])
+        own = rows * w + cols
+        cells = np.empty((n, 10), np.int64)
+        np.add(own[:, None], self.offsets[None, :], out=cells[:, :9])
+        occ = np.empty((n, 10), bool)
+        np.equal(self.near_r.take(cells[:, :9]), cr[:, :9], out=occ[:, :9])
+        occ[:, :9] &= self.near_c.take(cells[:, :9]) == cc[:, :9]
+        nr, nc = self.near_r.take(own), self.near_c.take(own)
+        occ[:, 9] = nr >= 0
+        cr[:, 9], cc[:, 9] = np.maximum(nr, 0), np.maximum(nc, 0)
+        cells[:, 9] = cr[:, 9] * w + cc[:, 9]
+        occ &= inside[:, None]
+        qx = self.centre_x.take(cc) + self.anchor[0].take(cells)
+        qy = self.centre_y.take(cr) + self.anchor[1].take(cells)
+        if self.view is None:
+            return occ, qx, qy, None, None
+        return occ, qx, qy, self.view[0].take(cells), self.view[1].take(cells)
+
+
 def partners(
     field: LikelihoodField,
     wx: np.ndarray,
@@ -242,39 +328,9 @@ def partners(
     much (and the map with it).
 
     The tables are read by flat index (``take``): the matcher's hottest loop, and
-    numpy's two-index gathers cost several times more."""
-    assert field.nearest is not None and field.anchor is not None
-    near_r, near_c = (a.reshape(-1) for a in field.nearest)
-    h, w = field.nearest[0].shape
-    res, (ox, oy) = field.resolution, field.origin
-    cols = np.floor((wx - ox) / res).astype(np.int64)
-    rows = np.floor((wy - oy) / res).astype(np.int64)
-    inside = (rows >= 1) & (rows < h - 1) & (cols >= 1) & (cols < w - 1)
-    rows, cols = np.where(inside, rows, 1), np.where(inside, cols, 1)
-    n = len(wx)
-    cr = np.empty((n, 10), np.int64)
-    cc = np.empty((n, 10), np.int64)
-    np.add(rows[:, None], _NEIGHBOURS[None, :, 0], out=cr[:, :9])
-    np.add(cols[:, None], _NEIGHBOURS[None, :, 1], out=cc[:, :9])
-    flat = cr[:, :9] * w + cc[:, :9]
-    occ = np.empty((n, 10), bool)
-    np.equal(near_r.take(flat), cr[:, :9], out=occ[:, :9])
-    occ[:, :9] &= near_c.take(flat) == cc[:, :9]
-    own = rows * w + cols
-    nr, nc = near_r.take(own), near_c.take(own)
-    occ[:, 9] = nr >= 0
-    cr[:, 9], cc[:, 9] = np.maximum(nr, 0), np.maximum(nc, 0)
-    occ &= inside[:, None]
-    cells = cr * w + cc
-    if side is not None and field.view is not None:
-        vx, vy = (v.reshape(-1).take(cells) for v in field.view)
-        occ &= vx * side[0][:, None] + vy * side[1][:, None] >= 0.0
-    ax, ay = (a.reshape(-1).take(cells) for a in field.anchor)
-    qx = ox + (cc + 0.5) * res + ax
-    qy = oy + (cr + 0.5) * res + ay
-    d2 = np.where(occ, (qx - wx[:, None]) ** 2 + (qy - wy[:, None]) ** 2, np.inf)
-    best = np.argmin(d2, axis=1) + np.arange(0, 10 * n, 10)
-    return qx.reshape(-1).take(best), qy.reshape(-1).take(best), occ.any(axis=1)
+    numpy's two-index gathers cost several times more. A refinement's iterations use
+    one :class:`Partners`, which looks up again only the points that changed cell."""
+    return Partners(field)(wx, wy, side)
 
 
 def transform_points(points: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -40,6 +40,34 @@ REFRESH_TILE = 64
 ANCHOR_REFRESH = 0.1
 
 
+def _floor_cells(
+    direction: np.ndarray, t: np.ndarray, start: float, res: float, size: int
+) -> np.ndarray:
+    """``clip(floor((start + direction t) / res), 0, size - 1)`` as int64, computed in
+    ``direction``'s memory (the same arithmetic, without a temporary per operation)."""
+    direction *= t
+    direction += start
+    direction /= res
+    np.floor(direction, out=direction)
+    cells = direction.astype(np.int64)
+    np.clip(cells, 0, size - 1, out=cells)
+    return cells
+
+
+def _unique(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(values, return_inverse=True)`` of a 1-D int array by the same stable
+    sort, without the generic function's overhead (several times the work on a scan's
+    few hundred end points)."""
+    order = np.argsort(values, kind="stable")
+    ordered = values[order]
+    first = np.empty(len(values), bool)
+    first[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=first[1:])
+    inverse = np.empty(len(values), np.intp)
+    inverse[order] = np.cumsum(first) - 1
+    return ordered[first], inverse
+
+
 def _logit(p: float) -> float:
     return math.log(p / (1.0 - p))
 
@@ -189,25 +217,27 @@ class LogOddsMap:
         rows_e = np.floor((ey - oy) / res).astype(np.int64)
 
         # Free cells: every half cell along each beam, short of its end point; only the
-        # samples each beam needs (a few long beams do not inflate the short ones).
+        # samples each beam needs (a few long beams do not inflate the short ones). The
+        # arithmetic in place: these arrays hold every sample of the scan.
         step = 0.5 * res
         counts = np.ceil(length / step).astype(np.int64)
-        beam = np.repeat(np.arange(len(length)), counts)
         first = np.cumsum(counts) - counts
         t = (np.arange(int(counts.sum())) - np.repeat(first, counts)) * step
-        fc = np.floor(((pose.x - ox) + ca[beam] * t) / res).astype(np.int64)
-        fr = np.floor(((pose.y - oy) + sa[beam] * t) / res).astype(np.int64)
-        np.clip(fc, 0, w - 1, out=fc)
-        np.clip(fr, 0, h - 1, out=fr)
-        free_idx = fr * w + fc
+        fc = _floor_cells(np.repeat(ca, counts), t, pose.x - ox, res, w)
+        free_idx = _floor_cells(np.repeat(sa, counts), t, pose.y - oy, res, h)
+        free_idx *= w
+        free_idx += fc
         hit_idx = rows_e[hit] * w + cols_e[hit]
         # A cell hit by this scan is not also cleared by it (a scratch mask of the map's
-        # size, cleared after use: allocating it per scan cost more than using it).
+        # size, cleared after use: allocating it per scan cost more than using it). A
+        # beam's consecutive samples in one cell are one update (about half of them).
         if self._mark.size != h * w:
             self._mark = np.zeros(h * w, bool)
         mark = self._mark
         mark[hit_idx] = True
-        free_idx = free_idx[~mark[free_idx]]
+        fresh = ~mark[free_idx]
+        fresh[1:] &= free_idx[1:] != free_idx[:-1]
+        free_idx = free_idx[fresh]
         mark[hit_idx] = False
 
         # Each touched cell once: fancy-index updates with repeated indices apply once.
@@ -282,7 +312,7 @@ class LogOddsMap:
         which side each cell was seen from; the cells whose anchor moved enough to refresh
         their likelihood field."""
         c, res, ox, oy = self.config, self.resolution, self.ox, self.oy
-        cells, inverse = np.unique(hit_idx, return_inverse=True)
+        cells, inverse = _unique(hit_idx)
         offx = ex - (ox + (cols + 0.5) * res)
         offy = ey - (oy + (rows + 0.5) * res)
         k = len(cells)

@@ -119,15 +119,26 @@ def field_values(
     else:
         # The nearest cells alone (scipy's distances would be a second pass, unused).
         ri, ci = distance_transform_edt(~occupied, return_distances=False, return_indices=True)
-        dx = (ci - np.arange(shape[1])[None, :]).astype(np.float32) * res
-        dy = (ri - np.arange(shape[0])[:, None]).astype(np.float32) * res
+        # In place where a temporary per operation would be made (the map refreshes
+        # its field around every scan): the same float32 arithmetic.
+        dx = (ci - np.arange(shape[1])[None, :]).astype(np.float32)
+        dx *= res
+        dy = (ri - np.arange(shape[0])[:, None]).astype(np.float32)
+        dy *= res
         if anchor is not None:
             nearest = ri * np.int64(shape[1]) + ci
             dx += np.ascontiguousarray(anchor[0]).reshape(-1).take(nearest)
             dy += np.ascontiguousarray(anchor[1]).reshape(-1).take(nearest)
-        d = np.sqrt(dx * dx + dy * dy)
+        dx *= dx
+        dy *= dy
+        dx += dy
+        d = np.sqrt(dx, out=dx)
     far = d > cutoff
-    values = np.exp(-0.5 * (d / np.float32(sigma)) ** 2).astype(np.float32, copy=False)
+    # d (float32, a new array) becomes the values: exp(-0.5 (d / sigma)^2).
+    values = np.divide(d, np.float32(sigma), out=d)
+    values *= values
+    values *= -0.5
+    np.exp(values, out=values)
     values[far] = 0.0
     if not return_nearest:
         return values

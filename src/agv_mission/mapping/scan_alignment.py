@@ -62,11 +62,11 @@ def scan_normals(
     idx = (np.arange(n)[None, :] + np.arange(-half_window, half_window + 1)[:, None]) % n
     nb = points[idx]  # (K, N, 2)
     spread_ok = (np.hypot(*(nb - points[None]).transpose(2, 0, 1)) <= max_spread).all(axis=0)
-    mean = nb.mean(axis=0)
-    d = nb - mean[None]
-    sxx = (d[..., 0] ** 2).mean(axis=0)
-    syy = (d[..., 1] ** 2).mean(axis=0)
-    sxy = (d[..., 0] * d[..., 1]).mean(axis=0)
+    k = 2 * half_window + 1
+    d = nb - _mean0(nb, k)[None]
+    sxx = _mean0(d[..., 0] ** 2, k)
+    syy = _mean0(d[..., 1] ** 2, k)
+    sxy = _mean0(d[..., 0] * d[..., 1], k)
     half_tr = 0.5 * (sxx + syy)
     root = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy**2)
     lmax, lmin = half_tr + root, half_tr - root
@@ -74,6 +74,14 @@ def scan_normals(
     normals[:, 0], normals[:, 1] = -np.sin(phi), np.cos(phi)
     ok = spread_ok & (lmin <= max_ratio * np.maximum(lmax, 1e-12)) & (lmax > 0)
     return normals, ok
+
+
+def _mean0(values: np.ndarray, count: int) -> np.ndarray:
+    """``values.mean(axis=0)`` of ``count`` rows, the same sum and division without the
+    method's generic wrapper (called per refinement, it cost as much as the sums)."""
+    total = np.add.reduce(values, axis=0)
+    total /= count
+    return total
 
 
 def icp(
@@ -125,7 +133,9 @@ def icp(
         a = np.abs(r)
         weight = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-12))
         weight /= point_sigma**2
-        jac = np.stack([nx, ny, nx * (-s * px - c * py) + ny * (c * px - s * py)], axis=1)
+        jac = np.empty((len(idx), 3))  # what np.stack(..., axis=1) makes, at less cost
+        jac[:, 0], jac[:, 1] = nx, ny
+        jac[:, 2] = nx * (-s * px - c * py) + ny * (c * px - s * py)
         e = prior.error(x)
         hess = (jac * weight[:, None]).T @ jac + info
         g = jac.T @ (weight * r) + info @ e

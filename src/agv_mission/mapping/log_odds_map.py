@@ -377,10 +377,13 @@ class LogOddsMap:
         )
         inner = (slice(ar0 - br0, ar1 - br0), slice(ac0 - bc0, ac1 - bc0))
         self.field[ar0:ar1, ac0:ac1] = values[inner]
+        # To map indices in place (field_values' fresh arrays): -1 (none) stays.
         nr, nc = nr[inner], nc[inner]
         valid = nr >= 0
-        self.near_r[ar0:ar1, ac0:ac1] = np.where(valid, nr + br0, -1)
-        self.near_c[ar0:ar1, ac0:ac1] = np.where(valid, nc + bc0, -1)
+        np.add(nr, br0, out=nr, where=valid)
+        np.add(nc, bc0, out=nc, where=valid)
+        self.near_r[ar0:ar1, ac0:ac1] = nr
+        self.near_c[ar0:ar1, ac0:ac1] = nc
 
 
 def _box(ex: np.ndarray, ey: np.ndarray, pose: Pose2D) -> tuple[float, float, float, float]:

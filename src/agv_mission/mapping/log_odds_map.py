@@ -240,15 +240,19 @@ class LogOddsMap:
         free_idx = free_idx[fresh]
         mark[hit_idx] = False
 
-        # Each touched cell once: fancy-index updates with repeated indices apply once.
+        # Each touched cell once: the values are read once, updated and written back, and
+        # a cell listed twice (a free cell crossed by two beams) gets the same value
+        # twice; free and hit cells are disjoint.
         flat = self.logodds.reshape(-1)
         threshold = c.field_threshold
         touched = np.concatenate([free_idx, hit_idx])
-        was = flat[touched] > threshold
-        flat[free_idx] += np.float32(c.log_odds_free)
-        flat[hit_idx] += np.float32(c.log_odds_occupied)
-        flat[touched] = np.clip(flat[touched], c.log_odds_min, c.log_odds_max)
-        changed = [touched[was != (flat[touched] > threshold)]]
+        values = flat[touched]
+        was = values > threshold
+        values[: len(free_idx)] += np.float32(c.log_odds_free)
+        values[len(free_idx) :] += np.float32(c.log_odds_occupied)
+        np.clip(values, c.log_odds_min, c.log_odds_max, out=values)
+        flat[touched] = values
+        changed = [touched[was != (values > threshold)]]
 
         if len(hit_idx):
             changed.append(

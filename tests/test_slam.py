@@ -248,7 +248,7 @@ def test_a_field_cut_to_what_the_search_reads_finds_the_same_optimum() -> None:
         search_max_range=2.0,
     )
     res = 0.1
-    half = matcher.search_reach(points, res) + 0.5 + (8 + 5) * res
+    half = matcher.read_radius(points, res)
     full = LikelihoodField.from_points(xy, res, 0.1)
     cut = LikelihoodField.from_points(xy, res, 0.1, (guess[0], guess[1], half))
     assert cut.values.size < full.values.size / 2

@@ -322,13 +322,8 @@ class GraphSlam(GridSlam):
             refinement="none",
             search_max_range=c.search_max_range,
         )
-        # The search reads the field no further than this from the guess (the near points'
-        # reach, the window, its blocks): the submap beyond it is not needed.
-        half = (
-            matcher.search_reach(points, coarse_res)
-            + radius
-            + (matcher.coarse_block + 5) * coarse_res
-        )
+        # The coarse search reads the field no further than this: the rest is not needed.
+        half = matcher.read_radius(points, coarse_res)
         coarse_field = self._submap_field(chosen, coarse_res, (guess[0], guess[1], half))
         coarse = matcher.match(coarse_field, points, guess, None)
         field = self._submap_field(chosen, self.resolution)

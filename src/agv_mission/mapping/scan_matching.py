@@ -211,12 +211,19 @@ class CorrelativeMatcher:
             return None
         return MatchResult(pose, score, guess.copy(), True, 0, cov)
 
-    def search_reach(self, points: np.ndarray, res: float) -> float:
-        """How far (m) from the robot the correlative search scores ``points`` on a
-        field of cells ``res``: with the linear window and its blocks, the part of a
-        field the search can read."""
+    def read_radius(self, points: np.ndarray, res: float) -> float:
+        """How far (m) from the guess the correlative search reads a field of cells
+        ``res`` to match ``points``: the scored points' reach, the linear window and its
+        blocks (the crop :meth:`_search` takes). A field needs nothing beyond it for the
+        search, which is all a coarse, unrefined match reads."""
         search = self._search_points(np.asarray(points, dtype=np.float64).reshape(-1, 2), res)
-        return float(np.sqrt((search**2).sum(axis=1)).max()) if len(search) else 0.0
+        reach = float(np.sqrt((search**2).sum(axis=1)).max()) if len(search) else 0.0
+        return (self._crop_half(reach, res) + 1) * res
+
+    def _crop_half(self, reach: float, res: float) -> int:
+        """Half the side (cells) of :meth:`_search`'s crop round the guess's cell."""
+        n_lin = max(int(round(self.linear_window / res)), 0)
+        return int(math.ceil(reach / res)) + n_lin + self.coarse_block + 2
 
     def _search_points(self, points: np.ndarray, res: float) -> np.ndarray:
         """The points the correlative search scores: those within ``search_max_range``
@@ -251,7 +258,7 @@ class CorrelativeMatcher:
         block = self.coarse_block
 
         # A zero-padded crop of the field centred on the guess that holds every candidate.
-        half = int(math.ceil(reach / res)) + n_lin + block + 2
+        half = self._crop_half(reach, res)
         gr = int(math.floor((guess[1] - field.origin[1]) / res))
         gc = int(math.floor((guess[0] - field.origin[0]) / res))
         size = 2 * half + 1

@@ -4,7 +4,7 @@ given (:class:`PosePrior`).
 
 * :func:`icp`: point-to-line Gauss-Newton against the map's obstacle points (anchors),
   each scan point paired along its local normal (:func:`scan_normals`) with the closest
-  anchor seen from the same side (:func:`partners`), with Huber weights.
+  anchor seen from the same side (:class:`Partners`), with Huber weights.
 * :func:`gauss_newton`: hector mapping's objective ``mean (1 - M(T p))^2`` on the
   bicubic interpolated likelihood field (:func:`field_cost`).
 """
@@ -236,14 +236,24 @@ _NEIGHBOURS = np.array([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)])
 
 
 class Partners:
-    """:func:`partners` for the iterations of one refinement against one field.
+    """Each map-frame point's partner for :func:`icp`: the map obstacle point (anchor)
+    closest to it among the occupied cells of its 3 x 3 neighbourhood and its nearest
+    occupied cell. Looking at the neighbourhood matters at thin walls: the nearest cell
+    by centre distance may hold the far face of the wall.
 
-    What a point's candidates are (the ten cells, which hold an obstacle, their anchors'
-    map-frame points and view sides) depends on its cell alone, and between two
-    Gauss-Newton iterations only about one point in ten changes cell: those are looked
-    up again, the rest keep theirs, so that an iteration costs the side test and the
-    distances only (the matcher's hottest loop). The numbers are those a fresh lookup
-    gives, element by element."""
+    With the points' ``side`` (map-frame normals, facing the scanner) and the field's
+    ``view``, cells whose surface was seen from the other side are no partners: the
+    first time a thin wall is seen from its second side only its first face is in the
+    map, a wall's thickness away, and pairing with it would shift the pose by that
+    much (and the map with it).
+
+    One per refinement against one field: what a point's candidates are (the ten cells,
+    which hold an obstacle, their anchors' map-frame points and view sides) depends on
+    its cell alone, and between two Gauss-Newton iterations only about one point in ten
+    changes cell: those are looked up again, the rest keep theirs, so that an iteration
+    costs the side test and the distances only (the matcher's hottest loop). The tables
+    are read by flat index (``take``): numpy's two-index gathers cost several times
+    more."""
 
     def __init__(self, field: LikelihoodField) -> None:
         assert field.nearest is not None and field.anchor is not None
@@ -256,41 +266,42 @@ class Partners:
         self.centre_x = self.ox + (np.arange(w) + 0.5) * self.res
         self.centre_y = self.oy + (np.arange(h) + 0.5) * self.res
         self.offsets = _NEIGHBOURS[:, 0] * w + _NEIGHBOURS[:, 1]
-        self.key: tuple[np.ndarray, np.ndarray] | None = None  # the cells looked up
+        self._key: tuple[np.ndarray, np.ndarray] | None = None  # the points' cells
+        # Per point (N, 10): candidate holds an obstacle, its x, y, view x, y (see _lookup).
+        self._found: tuple[np.ndarray | None, ...] = ()
+        self._stride = np.zeros(0, np.int64)  # each point's first flat index in (N, 10)
 
     def __call__(
         self, wx: np.ndarray, wy: np.ndarray, side: tuple[np.ndarray, np.ndarray] | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """What :func:`partners` returns for these map-frame points."""
+        """The partners' x and y of these map-frame points, and whether each has one."""
         cols = np.floor((wx - self.ox) / self.res).astype(np.int64)
         rows = np.floor((wy - self.oy) / self.res).astype(np.int64)
         n = len(wx)
-        if self.key is None or len(self.key[0]) != n:
-            self.occ0, self.qx, self.qy, self.vx, self.vy = self._lookup(rows, cols)
-            self.stride = np.arange(0, 10 * n, 10)
+        if self._key is None or len(self._key[0]) != n:
+            self._found = self._lookup(rows, cols)
+            self._stride = np.arange(0, 10 * n, 10)
         else:
-            moved = np.flatnonzero((rows != self.key[0]) | (cols != self.key[1]))
+            moved = np.flatnonzero((rows != self._key[0]) | (cols != self._key[1]))
             if len(moved):
                 for table, new in zip(
-                    (self.occ0, self.qx, self.qy, self.vx, self.vy),
-                    self._lookup(rows[moved], cols[moved]),
-                    strict=True,
+                    self._found, self._lookup(rows[moved], cols[moved]), strict=True
                 ):
                     if table is not None:
                         table[moved] = new
-        self.key = (rows, cols)
-        occ = self.occ0
-        if side is not None and self.vx is not None:
-            occ = occ & (self.vx * side[0][:, None] + self.vy * side[1][:, None] >= 0.0)
-        dx = self.qx - wx[:, None]
+        self._key = (rows, cols)
+        occ, qx, qy, vx, vy = self._found
+        if side is not None and vx is not None:
+            occ = occ & (vx * side[0][:, None] + vy * side[1][:, None] >= 0.0)
+        dx = qx - wx[:, None]
         dx **= 2
-        dy = self.qy - wy[:, None]
+        dy = qy - wy[:, None]
         dy **= 2
         dx += dy
-        best = np.argmin(np.where(occ, dx, np.inf), axis=1) + self.stride
-        return self.qx.reshape(-1).take(best), self.qy.reshape(-1).take(best), occ.any(axis=1)
+        best = np.argmin(np.where(occ, dx, np.inf), axis=1) + self._stride
+        return qx.reshape(-1).take(best), qy.reshape(-1).take(best), occ.any(axis=1)
 
-    def _lookup(self, rows: np.ndarray, cols: np.ndarray) -> tuple:
+    def _lookup(self, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray | None, ...]:
         """Per point of cell (``rows``, ``cols``): which of its ten candidate cells hold
         an obstacle, their anchors' map-frame x and y, their view sides (None without
         views); (N, 10) each."""
@@ -318,29 +329,6 @@ class Partners:
         if self.view is None:
             return occ, qx, qy, None, None
         return occ, qx, qy, self.view[0].take(cells), self.view[1].take(cells)
-
-
-def partners(
-    field: LikelihoodField,
-    wx: np.ndarray,
-    wy: np.ndarray,
-    side: tuple[np.ndarray, np.ndarray] | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The map obstacle point (anchor) closest to each map-frame point among the
-    occupied cells of its 3 x 3 neighbourhood and its nearest occupied cell, and whether
-    one exists. Looking at the neighbourhood matters at thin walls: the nearest cell by
-    centre distance may hold the far face of the wall.
-
-    With ``side`` (map-frame normals of the points, facing the scanner) and the field's
-    ``view``, cells whose surface was seen from the other side are no partners: the
-    first time a thin wall is seen from its second side only its first face is in the
-    map, a wall's thickness away, and pairing with it would shift the pose by that
-    much (and the map with it).
-
-    The tables are read by flat index (``take``): the matcher's hottest loop, and
-    numpy's two-index gathers cost several times more. A refinement's iterations use
-    one :class:`Partners`, which looks up again only the points that changed cell."""
-    return Partners(field)(wx, wy, side)
 
 
 def transform_points(points: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -160,7 +160,7 @@ class CorrelativeMatcher:
             if fast is not None:
                 return fast
         search = self._search_points(points, res)
-        reach = float(np.sqrt((search**2).sum(axis=1)).max())
+        reach = _farthest(search)
         step = self.angular_step
         if step is None:
             step = math.acos(max(-1.0, 1.0 - res * res / (2.0 * max(reach, res) ** 2)))
@@ -217,8 +217,7 @@ class CorrelativeMatcher:
         blocks (the crop :meth:`_search` takes). A field needs nothing beyond it for the
         search, which is all a coarse, unrefined match reads."""
         search = self._search_points(np.asarray(points, dtype=np.float64).reshape(-1, 2), res)
-        reach = float(np.sqrt((search**2).sum(axis=1)).max()) if len(search) else 0.0
-        return (self._crop_half(reach, res) + 1) * res
+        return (self._crop_half(_farthest(search), res) + 1) * res
 
     def _crop_half(self, reach: float, res: float) -> int:
         """Half the side (cells) of :meth:`_search`'s crop round the guess's cell."""
@@ -458,6 +457,11 @@ class CorrelativeMatcher:
     def _penalty(self, translation: np.ndarray, rotation: np.ndarray) -> np.ndarray:
         cost = self.translation_weight * translation + self.rotation_weight * np.abs(rotation)
         return np.exp(-(cost**2))
+
+
+def _farthest(points: np.ndarray) -> float:
+    """The largest distance (m) of robot-frame ``points`` from the robot (0 without any)."""
+    return float(np.sqrt((points**2).sum(axis=1)).max()) if len(points) else 0.0
 
 
 def fuse(

@@ -225,7 +225,15 @@ def _map_log(
     near = reference_agreement(result.grid, reference, wall_tolerance=0.1)
     loose = reference_agreement(result.grid, reference, wall_tolerance=0.15)
     found = reference_coverage(result.grid, reference, wall_tolerance=0.1)
-    duration = result.report["bag_duration"]
+    duration = result.report["bag_duration"]  # None: the log's stamps tell no time
+    speed = (
+        {}
+        if duration is None
+        else {
+            "x_log_duration": duration / wall,
+            "x_log_duration_cpu": duration / cpu,
+        }
+    )
     return {
         "rpe_m": rpe["translation_mean"],
         "rpe_deg": float(np.degrees(rpe["rotation_mean"])),
@@ -235,6 +243,5 @@ def _map_log(
         "reference_walls_found": found["walls_found"],
         "reference_free_found": found["free_found"],
         "seconds": wall,
-        "x_log_duration": duration / wall,
-        "x_log_duration_cpu": duration / cpu,
+        **speed,
     }

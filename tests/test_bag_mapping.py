@@ -153,6 +153,8 @@ def test_scans_sharing_coarse_stamps_meet_their_own_odometry(tmp_path, drive):
     assert np.all(np.diff(times) > 0) and np.array_equal(times, data.odom[:, 0])
     result = map_bag(bag, slam_config([]))
     assert result.report["input"]["stamps_spread"] == data.notes["stamps_spread"]
+    # the span of stamps spread apart is no duration: no speed "x its duration" either
+    assert result.report["bag_duration"] is None is result.report["speed_vs_real_time"]
     assert result.report["relative_pose_error"]["translation_m"] < 0.03
     assert wall_precision(result.grid, drive.world) > 0.9
 

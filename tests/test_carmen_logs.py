@@ -4,6 +4,7 @@ pose error (Kümmerle et al. 2009)."""
 from __future__ import annotations
 
 import gzip
+import json
 import math
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from agv_mission.mapping.crop import crop_to_known
 from agv_mission.mapping.log_odds_map import LogOddsMap
 from agv_mission.mapping.quality import relative_pose_error
 from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
+from agv_mission.maps.ros_map import load_ros_map
 from agv_mission.sensor_msgs import LaserScan
 from bagtools import ray_march, simulated_drive, wall_precision
 
@@ -146,6 +148,67 @@ def test_carmen_log_without_scans_or_with_a_huge_line(tmp_path, run_cli):
     assert code == 2 and "no FLASER" in output
     code, output = run_cli(["map", str(empty), "--scan-topic", "/scan"])
     assert code == 2 and "a CARMEN log has FLASER, ROBOTLASER1" in output
+
+
+def test_a_log_whose_stamps_tell_no_time_reports_no_duration(tmp_path, run_cli):
+    """A log stamping every scan alike (orebro's; the MIT corridor's wrapped past 2**32) is
+    mapped in its order, and its report gives no duration and no speed rather than the
+    span of the stamps it had to spread 1 ms apart; a log with stamps gives both."""
+    timed = _carmen_log(tmp_path / "timed.log", "FLASER")
+    flat = tmp_path / "flat.log"
+    flat.write_text(
+        "\n".join(
+            " ".join([*f[:-3], "4294967295.0", "host", "4294967295.0"])
+            if f[0] in ("ODOM", "FLASER")
+            else line
+            for line in timed.read_text().splitlines()
+            for f in [line.split()]
+        )
+        + "\n"
+    )
+    code, text = run_cli(["map", str(timed), "--save-map", str(tmp_path / "timed")])
+    report = json.loads((tmp_path / "timed_report.json").read_text())
+    assert code == 0 and report["bag_duration"] > 20.0 and report["speed_vs_real_time"] > 0
+    code, text = run_cli(["map", str(flat), "--save-map", str(tmp_path / "flat")])
+    report = json.loads((tmp_path / "flat_report.json").read_text())
+    assert code == 0, text
+    assert report["input"]["stamps_spread"] == report["scans"]["total"] - 1
+    assert report["bag_duration"] is None and report["speed_vs_real_time"] is None
+    assert "tell no duration" in " ".join(text.split())
+    assert wall_precision(load_ros_map(tmp_path / "flat.yaml"), simulated_drive(30.0).world) > 0.9
+
+
+@pytest.mark.parametrize("where", ["mount", "odometry", "range"])
+def test_a_log_reaching_kilometres_is_exit_2_not_terabytes(tmp_path, run_cli, where):
+    """A lidar mounted 1e9 m ahead, a pose 1e12 m away, a range of 1e7 m under a claimed
+    maximum of 1e8 m: exit 2 naming the scan, its pose and the map it would need, before
+    anything that large is allocated."""
+    kind = "FLASER" if where == "mount" else "ROBOTLASER1"
+    lines = _carmen_log(tmp_path / "log.log", kind).read_text().splitlines()
+    if where == "mount":
+        lines = [
+            ln.replace("robot_frontlaser_offset 0.0", "robot_frontlaser_offset 1e9") for ln in lines
+        ]
+    else:
+        # from the 41st scan on (a scan is integrated once the robot moved 0.3 m)
+        for k in [i for i, line in enumerate(lines) if line.startswith(kind)][40:]:
+            f = lines[k].split()
+            n = int(f[8])
+            if where == "odometry":
+                f[10 + n] = f[13 + n] = "1e12"  # laser_x and robot_x
+            else:
+                f[5], f[9] = "1e8", "1e7"  # maximum_range, the first range
+            lines[k] = " ".join(f)
+    log = tmp_path / "hostile.log"
+    log.write_text("\n".join(lines) + "\n")
+    # the long-range defaults integrate 30 m at most: lifted, the range counts
+    lifted = ["--set", "max_range=1e9"] if where == "range" else []
+    code, text = run_cli(["map", str(log), "--save-map", str(tmp_path / "m"), *lifted])
+    text = " ".join(text.split())
+    assert code == 2 and "Traceback" not in text, text
+    assert "hostile.log: scan" in text and "the map would span" in text, text
+    assert ("lidar 1e+09 m ahead" if where == "mount" else "of 151 (t = ") in text, text
+    assert not (tmp_path / "m.pgm").exists()
 
 
 @pytest.fixture

@@ -24,10 +24,12 @@ from typing import Any
 import numpy as np
 
 from agv_mission.bags.reader import BagData, interpolate_poses, read_bag, upright
+from agv_mission.bags.recording import BagError
 from agv_mission.geometry import Pose2D
 from agv_mission.json_values import finite
 from agv_mission.mapping.base import Slam
 from agv_mission.mapping.crop import crop_to_known
+from agv_mission.mapping.log_odds_map import MapTooLarge
 from agv_mission.mapping.quality import relative_pose_error
 from agv_mission.maps.grid import OccupancyGrid
 from agv_mission.maps.ros_map import save_ros_map
@@ -75,7 +77,7 @@ def map_bag(
         slam_config = slam_config(max(s.range_max for s in data.scans))
     slam: Slam = registry.create("slam", slam_config, bounds=None, rng=None)
     slam.reset(start.compose(mount), _pose(odom_at[first]).compose(mount))
-    slam_s = _replay(slam, data, odom_at, times, used)
+    slam_s = _replay(path, slam, data, odom_at, times, used)
     base = _base_trajectory(slam, inv_mount)
     fit = _map_frame_fit(data, base)
     # the finished poses moved, the map rendered from them (no new SLAM run); or not
@@ -86,6 +88,7 @@ def map_bag(
     grid = crop_to_known(canvas)
     wall = time.perf_counter() - t_read
     duration = float(times[used].max() - times[used].min()) if len(used) > 1 else 0.0
+    known = data.timed and duration > 0.0
     report: dict[str, Any] = {
         "bag": str(path),
         **({"input": data.notes} if data.notes else {}),
@@ -112,12 +115,12 @@ def map_bag(
         },
         "odometry_messages": len(data.odom),
         "trajectory_poses": len(base),
-        "bag_duration": round(duration, 3),
+        "bag_duration": round(duration, 3) if known else None,
         "wall_time": round(wall, 3),
         "read_time": round(read_s, 3),
         "slam_time": round(slam_s, 3),
         "scans_per_second": round(len(used) / slam_s, 1) if slam_s > 0 else None,
-        "speed_vs_real_time": round(duration / wall, 2) if wall > 0 else None,
+        "speed_vs_real_time": round(duration / wall, 2) if known and wall > 0 else None,
         "map": {
             "width": grid.width,
             "height": grid.height,
@@ -213,7 +216,7 @@ def _covered_scans(
 
 
 def _replay(
-    slam: Slam, data: Any, odom_at: np.ndarray, times: np.ndarray, used: np.ndarray
+    path: Path, slam: Slam, data: Any, odom_at: np.ndarray, times: np.ndarray, used: np.ndarray
 ) -> float:
     """Feed SLAM the used scans (upright, with the odometry at each, at the lidar's
     mount) and its final pass; the seconds it took."""
@@ -221,7 +224,15 @@ def _replay(
     t0 = time.perf_counter()
     for i in used:
         scan = upright(data.scans[i], data.flipped)
-        slam.update(_pose(odom_at[i]).compose(mount), scan, _ORIGIN, float(times[i]))
+        odom = _pose(odom_at[i])
+        try:
+            slam.update(odom.compose(mount), scan, _ORIGIN, float(times[i]))
+        except MapTooLarge as exc:
+            raise BagError(
+                f"{path}: scan {i + 1} of {len(data.scans)} (t = {times[i]:.3f} s, odometry "
+                f"at x {odom.x:.4g} y {odom.y:.4g}, lidar {mount.x:.4g} m ahead, ranges to "
+                f"{data.scans[i].range_max:.4g} m): {exc}"
+            ) from None
     slam.finish()  # the whole recording seen: a final pass (the protocol's: none)
     return time.perf_counter() - t0
 
@@ -310,10 +321,15 @@ def report_lines(result: OfflineMap, paths: dict[str, Path]) -> list[str]:
     and the files written."""
     r = result.report
     scans = r["scans"]
+    if r["bag_duration"] is None:
+        span = f"the stamps of {scans['total']} scans tell no duration"
+        speed = f"{r['scans_per_second']} scans a second"
+    else:
+        span = f"{r['bag_duration']:.1f} s of bag"
+        speed = f"{r['speed_vs_real_time']}x real time"
     lines = [
         f"mapped {scans['used']}/{scans['total']} scans of {r['scan_topic']} "
-        f"({r['bag_duration']:.1f} s of bag) in {r['wall_time']:.1f} s "
-        f"({r['speed_vs_real_time']}x real time); odometry from {r['odometry']}"
+        f"({span}) in {r['wall_time']:.1f} s ({speed}); odometry from {r['odometry']}"
     ]
     if r.get("rmse"):
         lines.append(

@@ -36,3 +36,11 @@ class BagData:
     robot: str | None = None  # the robot's namespace, when its topics have one
     duration: float = 0.0
     notes: dict[str, Any] = field(default_factory=dict)  # what the report should say
+
+    @property
+    def timed(self) -> bool:
+        """Whether the scans' stamps tell the recording's time: not when most had to be
+        spread apart (:mod:`~agv_mission.bags.carmen`: a log printing its stamps to six
+        digits, all one stamp, or wrapped past 2**32), where their span is a rounding's
+        and a speed "x the duration" would mean nothing."""
+        return 2 * int(self.notes.get("stamps_spread", 0)) <= len(self.scans)

@@ -322,7 +322,7 @@ def report_lines(result: OfflineMap, paths: dict[str, Path]) -> list[str]:
     r = result.report
     scans = r["scans"]
     if r["bag_duration"] is None:
-        span = f"the stamps of {scans['total']} scans tell no duration"
+        span = "its stamps tell no duration" if scans["used"] > 1 else "one scan: no duration"
         speed = f"{r['scans_per_second']} scans a second"
     else:
         span = f"{r['bag_duration']:.1f} s of bag"

@@ -101,6 +101,26 @@ def test_malformed_query_answers_the_problem_list(client: httpx.Client) -> None:
         assert problem["field"] in ("limit", "status") and problem["message"]
 
 
+def test_hostile_submissions_answer_422_and_leave_the_service_up(client: httpx.Client) -> None:
+    """A body nested past the JSON parser's depth, a seed past 63 bits (the registry's
+    integers), a pace whose waits overflow the clock: each a 422 naming the field, none a
+    500 or a run that dies of it; the service answers on."""
+    mission = (Path(__file__).parents[1] / "missions" / "patrol.yaml").read_text()
+    cases = [
+        ("[" * 100_000 + "]" * 100_000, ""),
+        (json.dumps({"mission": mission, "seed": 2**200}), "seed"),
+        (json.dumps({"mission": mission, "pace": 1e-300}), "pace"),
+        (json.dumps({"mission": mission, "pace": 1e308}), "pace"),
+    ]
+    for body, field in cases:
+        answer = client.post(
+            "/api/runs", content=body.encode(), headers={"Content-Type": "application/json"}
+        )
+        assert answer.status_code == 422, (field, answer.text[:200])
+        assert answer.json()["errors"][0]["field"] == field
+    assert client.get("/api/health").json()["status"] == "ok"
+
+
 # --------------------------------------------------------------------------- own files
 
 

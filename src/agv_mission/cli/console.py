@@ -14,6 +14,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.run.pacing import PACE_RANGE
 
 EXIT_CODES = {"succeeded": 0, "failed": 1, "error": 3, "aborted": 130, "interrupted": 1}
 
@@ -23,7 +24,8 @@ Seed = Annotated[Optional[int], typer.Option(help="override the mission's seed")
 Pace = Annotated[
     Optional[float],  # noqa: UP007, UP045
     typer.Option(
-        min=0.001,
+        min=PACE_RANGE[0],
+        max=PACE_RANGE[1],
         help="simulated seconds per wall second, to watch the run (1.0: real time); "
         "default: as fast as it goes",
     ),

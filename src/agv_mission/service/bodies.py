@@ -12,6 +12,7 @@ from typing import Any
 from fastapi import Request
 
 from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.schema.mission import MAX_SEED
 from agv_mission.service.context import ApiError, Service
 
 MAX_BODY = 1_000_000  # bytes of a request body
@@ -118,6 +119,9 @@ def parse_json_submission(body: bytes) -> tuple[str, list[str], int | None, floa
         doc = json.loads(body)
     except ValueError as exc:
         raise ApiError(422, {"errors": [problem(None, "", f"invalid JSON body: {exc}")]}) from None
+    except RecursionError:
+        message = "invalid JSON body: nested deeper than the parser follows"
+        raise ApiError(422, {"errors": [problem(None, "", message)]}) from None
     if not isinstance(doc, dict) or not isinstance(doc.get("mission"), str):
         raise ApiError(
             422, {"errors": [problem(None, "mission", "the body needs 'mission': the YAML text")]}
@@ -130,8 +134,11 @@ def parse_json_submission(body: bytes) -> tuple[str, list[str], int | None, floa
     if not isinstance(sets, list) or not all(isinstance(s, str) for s in sets):
         raise ApiError(422, {"errors": [problem(None, "set", "a list of KEY=VALUE strings")]})
     seed = doc.get("seed")
-    if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool) or seed < 0):
-        raise ApiError(422, {"errors": [problem(None, "seed", "a non-negative integer")]})
+    if seed is not None and (
+        not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed <= MAX_SEED
+    ):
+        message = f"an integer in 0..{MAX_SEED} (63 bits)"
+        raise ApiError(422, {"errors": [problem(None, "seed", message)]})
     return doc["mission"], sets, seed, pace_of(doc.get("pace"))
 
 

@@ -12,20 +12,29 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+#: The paces a run keeps (simulated seconds per wall second): a thousandth of real time
+#: (a second of the run in 17 minutes) to a million times it (beyond, a step of the slowest
+#: runs already takes longer than the pace leaves it). Outside, a wait overflows the clock.
+PACE_RANGE = (1e-3, 1e6)
 #: wall seconds a paced run may fall behind its pace before it stops catching up (a slow
 #: stretch, a pause) and keeps the pace from where it is
 CATCH_UP = 0.5
 
 
 def check_pace(pace: float | None) -> float | None:
-    """``pace`` when it is a positive, finite number of simulated seconds per wall second
-    (None: as fast as it goes); ValueError otherwise."""
+    """``pace`` when it is a number of simulated seconds per wall second in
+    :data:`PACE_RANGE` (None: as fast as it goes); ValueError otherwise."""
     if pace is None:
         return None
     if isinstance(pace, bool) or not isinstance(pace, int | float):
         raise ValueError("pace is a number: simulated seconds per wall second")
     if not math.isfinite(pace) or pace <= 0:
         raise ValueError("pace is a positive number of simulated seconds per wall second")
+    lo, hi = PACE_RANGE
+    if not lo <= pace <= hi:
+        raise ValueError(
+            f"pace {pace:g} is outside {lo:g}..{hi:g} simulated seconds per wall second"
+        )
     return float(pace)
 
 

@@ -45,6 +45,8 @@ class WorldImport(StrictModel):
 
 #: ``map: none``: the robot is given no map (robots-and-worlds.md).
 NO_MAP = "none"
+#: Largest seed: SQLite's (the service's run registry) and most JSON readers' integers.
+MAX_SEED = 2**63 - 1
 
 
 class OutputConfig(StrictModel):
@@ -101,7 +103,13 @@ class Setup(StrictModel):
     start: StartSpec | None = Field(
         None, description="a pose or a room label; default: the world's spawn pose"
     )
-    seed: int = Field(0, ge=0, description="every random draw of the run derives from it")
+    seed: int = Field(
+        0,
+        ge=0,
+        le=MAX_SEED,
+        description="every random draw of the run derives from it (a 63-bit integer, as "
+        "the run registry and result.json keep it)",
+    )
     stack: Stack = Field(default_factory=Stack)
     simulation: SimConfig = Field(default_factory=SimConfig)
     limits: Limits = Field(default_factory=Limits)

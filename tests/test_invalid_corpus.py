@@ -129,6 +129,7 @@ def test_missing_and_unreadable_files(tmp_path: Path) -> None:
         ("wheels=4", "wheels", "unknown key"),
         ("tasks=", "tasks", "valid list"),
         ("start.x.y=1", "start.x", "valid number"),
+        ("stack=" + "[" * 50_000 + "]" * 50_000, "stack=" + "[" * 74 + "...", "nests too deeply"),
     ],
 )
 def test_bad_set_is_blamed_on_the_override(item: str, field: str, message: str) -> None:
@@ -147,3 +148,7 @@ def test_bad_seed_option_is_blamed_on_the_option() -> None:
     [p] = info.value.problems
     assert (p.line, p.field) == (None, "seed")
     assert p.message.endswith("(from --seed -3)")
+    with pytest.raises(MissionError) as info:  # past what result.json and the registry keep
+        load_mission(DEMO, seed=2**63)
+    [p] = info.value.problems
+    assert p.field == "seed" and "9223372036854775807" in p.message, p.message

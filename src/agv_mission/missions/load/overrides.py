@@ -85,7 +85,11 @@ def parse_override(override: str | Override) -> tuple[FieldPath, Any]:
         raise override_error(
             o.item, "expected KEY=VALUE, e.g. stack.global_planner.planner=RRTstar", o.option
         )
-    value = override_value(raw)
+    try:
+        value = override_value(raw)
+    except RecursionError:  # [[[[...]]]]: YAML's parser recurses per level
+        item = o.item if len(o.item) <= 80 else o.item[:80] + "..."
+        raise override_error(item, "the VALUE nests too deeply", o.option) from None
     parts: list[str | int] = [
         int(p) if p.isascii() and p.isdigit() else p for p in dotted_key(key.strip()).split(".")
     ]  # not int("²"): str.isdigit() takes superscripts

@@ -375,6 +375,19 @@ def test_vehicle_theta_is_within_bounds_and_angle_bounds_are_kept(rig) -> None:
     assert s["orderId"] != "o-theta"
 
 
+def test_init_position_off_the_map_fails_and_the_vehicle_stays_put(rig) -> None:
+    """initPosition at x = 1e300 (finite, on no map): FAILED with an initPositionError, and
+    the vehicle still reports where it stands, not a belief 1e300 m away."""
+    master, _vehicle = rig
+    x, y = here(master)
+    t0 = time.monotonic()
+    far = action("ip-far", "initPosition", "NONE", x=1e300, y=y, theta=0.0, mapId=MAP)
+    master.send(SERIAL, "instantActions", actions=[far])
+    s = master.wait(SERIAL, "state", lambda s: statuses([s], "ip-far") == [("FAILED",)], 10, t0)
+    assert any("1e+300" in e["errorDescription"] for e in errors_of(s, "initPositionError"))
+    assert math.hypot(s["agvPosition"]["x"] - x, s["agvPosition"]["y"] - y) < 0.5
+
+
 # ------------------------------------------------------------- our master, our vehicle
 
 

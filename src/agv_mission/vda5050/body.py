@@ -65,6 +65,7 @@ class VehicleBody(Protocol):
 
     map_id: str
     robot_name: str
+    extent: tuple[float, float, float, float]  # the map's (xmin, xmax, ymin, ymax), metres
 
     def snapshot(self) -> BodySnapshot: ...
 
@@ -169,6 +170,7 @@ class SimulatedBody:
     def __init__(self, loaded: LoadedMission, setup: RobotSetup) -> None:
         self.loaded = loaded
         self.map_id = loaded.world.name
+        self.extent = loaded.world.map.extent
         self.robot_name = setup.name
         self.robot = setup.robot
         self.on_change: Callable[[], None] | None = None

@@ -232,7 +232,9 @@ class VehicleActions:
             )
             return
         map_id = a.param("mapId", self.body.map_id)
-        if map_id != self.body.map_id or not all(map(math.isfinite, (x, y, theta))):
+        x0, x1, y0, y1 = self.body.extent
+        on_map = all(map(math.isfinite, (x, y, theta))) and x0 <= x <= x1 and y0 <= y <= y1
+        if map_id != self.body.map_id or not on_map:
             run.status, run.result = "FAILED", f"not a pose on map {self.body.map_id}"
             self._error(
                 "initPositionError",

@@ -272,6 +272,22 @@ def test_sweeps_are_cartesian_and_yaml_aware() -> None:
             planning.expand_variants(bad)
 
 
+def test_a_plan_past_a_million_runs_or_63_bit_seeds_is_refused(tmp_path: Path) -> None:
+    """Sweeps whose product, or seeds whose count, would plan more than MAX_JOBS runs are
+    refused before anything is expanded; seeds that would pass MAX_SEED are the scenario's
+    problem, blamed on its seed."""
+    scenario = SCENARIOS / "go_to_tb3.yaml"
+    values = ",".join(str(k) for k in range(1001))
+    with pytest.raises(planning.RegressError, match="variants, more than 1,000,000 runs"):
+        planning.expand_variants([f"seed={values}", f"limits.time={values}"])
+    with pytest.raises(planning.RegressError, match="more than 1,000,000 runs"):
+        planning.plan_jobs([scenario], seeds=planning.MAX_JOBS + 1, output_root=tmp_path)
+    late = tmp_path / "late.yaml"
+    late.write_text(scenario.read_text().replace("seed: 1\n", "seed: 9223372036854775800\n", 1))
+    plan = planning.plan_jobs([late], seeds=10, output_root=tmp_path)
+    assert not plan.jobs and [p.field for p in plan.problems] == ["seed"], plan.problems
+
+
 def test_plan_seeds_follow_the_mission_seed(tmp_path: Path) -> None:
     plan = planning.plan_jobs(
         [SCENARIOS / "go_to_tb3.yaml"],

@@ -34,6 +34,7 @@ over the succeeded runs only).
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -44,6 +45,7 @@ import yaml
 
 from agv_mission.missions.load.errors import MissionError, Problem
 from agv_mission.missions.load.overrides import Override
+from agv_mission.missions.load.schema.mission import MAX_SEED
 
 # Result keys that come from the wall clock: they differ between any two runs.
 WALL_CLOCK_METRICS = (
@@ -85,6 +87,9 @@ MISSION_ONLY_KEYS = (
     "seed",
 )
 SCENARIO_SUFFIXES = (".yaml", ".yml")
+#: Most runs one regress plans (scenarios x variants x seeds): a sweep of a million is
+#: days of CPU on a cluster, and its plan alone (a dict a run) would fill the memory first.
+MAX_JOBS = 1_000_000
 
 
 @dataclass
@@ -260,6 +265,9 @@ def expand_variants(sweeps: Sequence[str]) -> list[Variant]:
     keys = [k for k, _ in parsed]
     if len(set(keys)) != len(keys):
         raise RegressError(f"--sweep: a key is swept twice ({', '.join(keys)})")
+    count = math.prod(len(values) for _, values in parsed)
+    if count > MAX_JOBS:
+        raise RegressError(f"--sweep: {count:.3g} variants, more than {MAX_JOBS:,} runs")
     short = [k.rsplit(".", 1)[-1] for k in keys]
     names = short if len(set(short)) == len(short) else keys
     variants = []
@@ -300,9 +308,17 @@ def plan_jobs(
 
     if seeds < 1:
         raise RegressError("--seeds must be at least 1")
+    if seeds > MAX_JOBS:
+        raise RegressError(f"--seeds {seeds}: more than {MAX_JOBS:,} runs")
     found = survey(paths)
     scenarios = found.missions
     variants = expand_variants(sweeps)
+    runs = len(scenarios) * len(variants) * seeds
+    if runs > MAX_JOBS:
+        raise RegressError(
+            f"{len(scenarios)} scenario(s) x {len(variants)} variant(s) x {seeds} seed(s): "
+            f"{runs:,} runs, more than {MAX_JOBS:,}"
+        )
     if output_root is None:
         stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
         output_root = Path("runs") / f"regress-{stamp}"
@@ -317,6 +333,10 @@ def plan_jobs(
                 problems += exc.problems
                 continue
             base = loaded.mission.seed
+            if base + seeds - 1 > MAX_SEED:
+                last = f"seed {base} and {seeds} seeds after it pass {MAX_SEED}"
+                problems.append(Problem(str(path), None, "seed", f"{last} (from --seeds)"))
+                continue
             for i in range(seeds):
                 seed = base + i
                 run_name = loaded.name

@@ -254,3 +254,62 @@ def test_save_map_is_the_cut_at_the_scan_height_with_2_m_around(tmp_path):
     rows, cols = grid.world_to_cell(np.array([[1.0, 1.0], [1.28, 1.0], [1.4, 1.0], [-1.0, -1.0]]))
     assert [int(v) for v in grid.data[rows, cols]] == [OCCUPIED, OCCUPIED, 0, 0]
     assert int((grid.data == OCCUPIED).sum()) == pytest.approx(math.pi * 0.3**2 / 0.05**2, rel=0.2)
+
+
+BOX = "<box><size>{}</size></box>"
+
+
+@pytest.mark.parametrize(
+    ("body", "expect"),
+    [
+        # a body 10^9 m long, a cylinder 10^12 m wide, two posts 2000 km apart: the map
+        # would be terabytes (a MemoryError traceback before); refused at their lines
+        (model("long", BOX.format("1e9 1 1"), pose="0 0 0.5 0 0 0"), [":5: <size>: model 'long'"]),
+        (model("wide", cylinder(1e12), pose="0 0 0.5 0 0 0"), [":5: <cylinder>: model 'wide'"]),
+        (
+            model("east", BOX.format("1 1 1"), pose="1e6 0 0.5 0 0 0")
+            + model("west", BOX.format("1 1 1"), pose="-1e6 0 0.5 0 0 0"),
+            [":5: <size>: model 'east'", ":7: <size>: model 'west'"],
+        ),
+    ],
+)
+def test_a_world_too_large_to_rasterise_names_the_bodies_that_stretch_it(tmp_path, body, expect):
+    path = write(tmp_path, sdf(body))
+    done = agv_here("world", str(path), "--save-map", str(tmp_path / "m"), cwd=tmp_path)
+    flat = " ".join(done.stdout.split() + done.stderr.split())
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "the world's map is too large" in flat and "at most 1e+08" in flat
+    for where in expect:
+        assert f"{path}{where}" in flat, flat
+    assert not (tmp_path / "m.pgm").exists()
+
+
+@pytest.mark.parametrize("where", ["model", "state"])
+def test_a_pose_1e300_m_away_is_refused_at_its_line(tmp_path, where):
+    """Not "empty bounds (1e+300, 1e+300, ...)" without a line (the box vanished in the
+    rounding of its own bounds)."""
+    far = "1e300 0 0.5 0 0 0"
+    body = model("a", BOX.format("1 1 1"), pose=far if where == "model" else "0 0 0.5 0 0 0")
+    if where == "state":
+        body += (
+            f'<state world_name="default">\n<model name="a"><pose>{far}</pose></model></state>\n'
+        )
+    with pytest.raises(WorldError) as err:
+        load_world(str(write(tmp_path, sdf(body))))
+    line = 4 if where == "model" else 7
+    assert f":{line}: <pose>: model 'a': <pose>: x 1e+300 m is farther" in err.value.problems[0]
+
+
+def test_a_world_file_too_large_to_rasterise_is_invalid_input(tmp_path):
+    path = write(
+        tmp_path,
+        yaml.safe_dump(
+            {
+                "spawn": {"x": 0.0, "y": 0.0, "yaw": 0.0},
+                "boxes": [{"x": 2e6, "y": 0.0, "half_x": 1e6, "half_y": 1e6}],
+            }
+        ),
+        "big.yaml",
+    )
+    with pytest.raises(WorldError, match=r"big.yaml: a grid of .* cells .*at most 1e\+08"):
+        load_world(str(path))

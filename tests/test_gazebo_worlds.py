@@ -313,3 +313,14 @@ def test_a_world_file_too_large_to_rasterise_is_invalid_input(tmp_path):
     )
     with pytest.raises(WorldError, match=r"big.yaml: a grid of .* cells .*at most 1e\+08"):
         load_world(str(path))
+
+
+def test_a_quaternion_of_huge_components_is_its_rotation(tmp_path):
+    """(0, 0, 1e300, 1e300) is a quarter turn: its length overflowed to inf, the
+    quaternion divided by it to zero and the box stood unturned."""
+    pose = '<pose rotation_format="quat_xyzw">0 0 0.5 0 0 1e300 1e300</pose>'
+    body = model("a", BOX.format("2 1 1")).replace("<pose>0 0 0 0 0 0</pose>", pose)
+    world = load_world(str(write(tmp_path, sdf(body))))
+    (box,) = world.boxes
+    assert (box.half_x, box.half_y) == (1.0, 0.5)
+    assert box.yaw == pytest.approx(math.pi / 2)

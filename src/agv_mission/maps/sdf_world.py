@@ -233,7 +233,7 @@ class _Reader:
         if far:
             raise _Refused(el, f"<pose>: {far[0]} is farther than {MAX_COORDINATE:.0e} m")
         if quat:
-            if math.sqrt(sum(q * q for q in v[3:])) < 1e-9:
+            if math.hypot(*v[3:]) < 1e-9:
                 raise _Refused(el, "<pose>: a zero quaternion")
             rotation = rotation_quaternion(*v[3:])
         else:

@@ -77,6 +77,16 @@ CASES = {
         {"odom": {"q": (0, 0, 0, 0)}},
         "/odom message 6: pose.pose.orientation: a quaternion of zero length",
     ),
+    "odom_quaternion_1e300": (
+        "mcap",
+        {"odom": {"q": (0, 0, 1e300, 1e300)}},
+        "pose.pose.orientation: not a unit quaternion (length 1.414e+300",
+    ),
+    "mount_quaternion_long": (
+        "ros1",
+        {"mount": (0.1, 0, 0, 0, 0, 3, 4)},
+        "transforms[0].transform.rotation: not a unit quaternion (length 5",
+    ),
     "odom_quaternion_nan": (
         "ros1",
         {"odom": {"q": (0, 0, NAN, 1)}},

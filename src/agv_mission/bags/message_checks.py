@@ -26,6 +26,9 @@ MAX_COORDINATE = 1e7
 #: Shortest quaternion (its norm) that still names a rotation: ``(0, 0, 0, 0)``, an
 #: unset orientation, names none (tf2 refuses it too).
 MIN_QUATERNION_NORM = 1e-6
+#: How far a quaternion's squared length may be from 1 (tf2's ``setTransform`` refuses a
+#: "denormalized quaternion" beyond this).
+QUATERNION_TOLERANCE = 0.01
 
 
 class Where:
@@ -56,10 +59,15 @@ def check_position(where: Where, field: str, p: Any) -> None:
 
 
 def check_quaternion(where: Where, field: str, q: Any) -> None:
-    """A quaternion (``.x`` .. ``.w``): finite and not of zero length."""
+    """A quaternion (``.x`` .. ``.w``): finite and of unit length, as tf2 takes it (its
+    squared length within :data:`QUATERNION_TOLERANCE` of 1: ``(0, 0, 0, 0)``, an unset
+    orientation, names no rotation, and 1e300's overflow every product of them)."""
     values = [_finite(where, f"{field}.{a}", getattr(q, a)) for a in ("x", "y", "z", "w")]
-    if math.sqrt(sum(v * v for v in values)) < MIN_QUATERNION_NORM:
+    norm = math.hypot(*values)
+    if norm < MIN_QUATERNION_NORM:
         raise where.error(field, "a quaternion of zero length names no rotation")
+    if abs(norm * norm - 1.0) > QUATERNION_TOLERANCE:
+        raise where.error(field, f"not a unit quaternion (length {norm:.4g}; tf2 refuses it too)")
 
 
 def check_pose(where: Where, field: str, pose: Any) -> None:

@@ -262,10 +262,10 @@ BOX = "<box><size>{}</size></box>"
 @pytest.mark.parametrize(
     ("body", "expect"),
     [
-        # a body 10^9 m long, a cylinder 10^12 m wide, two posts 2000 km apart: the map
+        # a body 1000 km long, a cylinder 200 km wide, two posts 2000 km apart: the map
         # would be terabytes (a MemoryError traceback before); refused at their lines
-        (model("long", BOX.format("1e9 1 1"), pose="0 0 0.5 0 0 0"), [":5: <size>: model 'long'"]),
-        (model("wide", cylinder(1e12), pose="0 0 0.5 0 0 0"), [":5: <cylinder>: model 'wide'"]),
+        (model("long", BOX.format("1e6 1 1"), pose="0 0 0.5 0 0 0"), [":5: <size>: model 'long'"]),
+        (model("wide", cylinder(1e5), pose="0 0 0.5 0 0 0"), [":5: <cylinder>: model 'wide'"]),
         (
             model("east", BOX.format("1 1 1"), pose="1e6 0 0.5 0 0 0")
             + model("west", BOX.format("1 1 1"), pose="-1e6 0 0.5 0 0 0"),
@@ -300,13 +300,14 @@ def test_a_pose_1e300_m_away_is_refused_at_its_line(tmp_path, where):
     assert f":{line}: <pose>: model 'a': <pose>: x 1e+300 m is farther" in err.value.problems[0]
 
 
-def test_a_world_file_too_large_to_rasterise_is_invalid_input(tmp_path):
+@pytest.mark.parametrize(("x", "half"), [(2e6, 1e6), (1e308, 1.7e308)])  # 1e308: inf bounds
+def test_a_world_file_too_large_to_rasterise_is_invalid_input(tmp_path, x, half):
     path = write(
         tmp_path,
         yaml.safe_dump(
             {
                 "spawn": {"x": 0.0, "y": 0.0, "yaw": 0.0},
-                "boxes": [{"x": 2e6, "y": 0.0, "half_x": 1e6, "half_y": 1e6}],
+                "boxes": [{"x": x, "y": 0.0, "half_x": half, "half_y": 1.0}],
             }
         ),
         "big.yaml",
@@ -324,3 +325,19 @@ def test_a_quaternion_of_huge_components_is_its_rotation(tmp_path):
     (box,) = world.boxes
     assert (box.half_x, box.half_y) == (1.0, 0.5)
     assert box.yaw == pytest.approx(math.pi / 2)
+
+
+@pytest.mark.parametrize(
+    ("geometry", "expect"),
+    [
+        # their bounds overflowed to inf: an OverflowError traceback before
+        (BOX.format("1.79e308 1 1"), "<size>: model 'a' link 'link' collision 'c': <size> is more"),
+        (cylinder(1.7e308), "<radius>: model 'a' link 'link' collision 'c': <radius> must be"),
+        ("<sphere><radius>1e200</radius></sphere>", "<radius> must be positive and at most 1e+07"),
+    ],
+)
+def test_a_body_of_1e308_m_is_refused_at_its_line(tmp_path, geometry, expect):
+    path = write(tmp_path, sdf(model("a", geometry)))
+    done = agv_here("world", str(path), "--save-map", str(tmp_path / "m"), cwd=tmp_path)
+    flat = " ".join(done.stdout.split() + done.stderr.split())
+    assert done.returncode == 2 and f"{path}:5: " in flat and expect in flat, flat

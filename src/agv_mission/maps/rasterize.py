@@ -38,13 +38,14 @@ def grid_shape(bounds: Bounds, resolution: float) -> tuple[int, int]:
         raise ValueError(f"empty bounds {bounds}: need xmax > xmin and ymax > ymin")
     if resolution <= 0:
         raise ValueError(f"resolution must be > 0, got {resolution}")
-    width = math.ceil((xmax - xmin) / resolution - 1e-9)
-    height = math.ceil((ymax - ymin) / resolution - 1e-9)
-    if width * height > MAX_WORLD_CELLS:
+    cols, rows = (xmax - xmin) / resolution, (ymax - ymin) / resolution  # inf: 1e308 m
+    if not cols * rows <= MAX_WORLD_CELLS:
         raise WorldTooLarge(
-            f"a grid of {xmax - xmin:.4g} x {ymax - ymin:.4g} m is {width * height:.3g} cells "
+            f"a grid of {xmax - xmin:.4g} x {ymax - ymin:.4g} m is {cols * rows:.3g} cells "
             f"of {resolution:g} m (at most {MAX_WORLD_CELLS:.0e})"
         )
+    width = math.ceil(cols - 1e-9)
+    height = math.ceil(rows - 1e-9)
     return height, width
 
 

@@ -54,7 +54,8 @@ MAX_PROBLEMS = 50  # refusals named before the rest are counted
 FLOOR_MODELS = ("ground_plane",)  # model:// names that are the floor
 IGNORED_MODELS = ("sun",)  # model:// names without geometry (Gazebo's light)
 UNSUPPORTED_GEOMETRY = ("mesh", "heightmap", "capsule", "ellipsoid", "polyline", "image")
-#: Farthest (m) a <pose> may place anything from its frame: 10 000 km; 1e300 m is no place.
+#: Farthest (m) a <pose> may place anything from its frame, and the largest size, radius or
+#: length of a body: 10 000 km; 1e300 m is no place (and its square overflows).
 MAX_COORDINATE = 1e7
 
 
@@ -214,8 +215,10 @@ class _Reader:
                 raise _Refused(parent, f"<{tag}> is missing")
             return default
         (value,) = self.number_list(el, (1,), f"<{tag}>")
-        if value <= 0:
-            raise _Refused(el, f"<{tag}> must be positive, got {value:g}")
+        if not 0 < value <= MAX_COORDINATE:
+            raise _Refused(
+                el, f"<{tag}> must be positive and at most {MAX_COORDINATE:.0e} m, got {value:g}"
+            )
         return value
 
     def pose(self, el: Any | None, relative_ok: tuple[str, ...] = ("", "world")) -> Transform:
@@ -440,6 +443,10 @@ class _Reader:
             size = self.number_list(size_el, (3,), "<size>")
             if min(size) <= 0:
                 raise _Refused(size_el, f"<size> must be positive, got {size_el.text!r}")
+            if max(size) > MAX_COORDINATE:
+                raise _Refused(
+                    size_el, f"<size> is more than {MAX_COORDINATE:.0e} m: {max(size):g}"
+                )
             up = [k for k in range(3) if abs(rotation[2, k]) >= UPRIGHT]
             if not up:
                 raise _Refused(el, "a tilted box (no axis upright) is not read")

@@ -192,3 +192,17 @@ def test_garbled_message_is_exit_2_naming_it(tmp_path, run_cli):
     flat = " ".join(text.split())
     assert code == 2 and "/scan message 1: not a sensor_msgs/msg/LaserScan" in flat, text
     assert "Traceback" not in text
+
+
+def test_a_recording_without_one_valid_range_maps_nothing_quietly(tmp_path):
+    """range_min 1e30: every return invalid, no scan integrated: an empty map, not a
+    "Mean of empty slice" RuntimeWarning from the final smoothing."""
+    import warnings
+
+    from agv_mission.bags.offline import map_bag, slam_config
+
+    bag = write_small_bag(tmp_path / "blind", "ros2", scan={"range_min": 1e30, "range_max": INF})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        result = map_bag(bag, slam_config([]))
+    assert result.report["scans"]["used"] == 20

@@ -206,3 +206,13 @@ def test_a_recording_without_one_valid_range_maps_nothing_quietly(tmp_path):
         warnings.simplefilter("error")
         result = map_bag(bag, slam_config([]))
     assert result.report["scans"]["used"] == 20
+
+
+def test_a_resolution_whose_first_map_is_too_large_is_exit_2(tmp_path, run_cli):
+    """--set resolution=1e-6: the first map of a 2 m scan would be 10^13 cells (a
+    MapTooLarge traceback from SLAM's reset before)."""
+    bag = write_small_bag(tmp_path / "fine", "ros2")
+    code, text = run_cli(["map", str(bag), "--set", "resolution=1e-6"])
+    flat = " ".join(text.split())
+    assert code == 2 and "stack.slam (--set): a first map of" in flat, text
+    assert "Traceback" not in text

@@ -326,12 +326,14 @@ def write_small_bag(
     odom: dict | None = None,
     truth: dict | None = None,
     mount: tuple[float, ...] = (0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0),
+    scan_nanosec: int | None = None,
 ) -> Path:
     """A two-second bag of a robot creeping ahead in a round room (360 beams of 2 m):
     ``scans`` LaserScans on /scan, /odom at 20 Hz, the lidar's ``mount`` (x y z qx qy qz
     qw) on /tf_static; ``scan`` fields replace every scan's, ``odom`` / ``truth``
     (``x``, ``y``, ``q``: a quaternion tuple) replace the sixth odometry message's (and a
-    /ground_truth topic is written when ``truth`` is given). Returns what to hand ``map``."""
+    /ground_truth topic is written when ``truth`` is given); ``scan_nanosec``: every
+    scan's ``header.stamp.nanosec``. Returns what to hand ``map``."""
     ros1 = fmt == "ros1"
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     if "tf2_msgs/msg/TFMessage" not in store.types:
@@ -344,8 +346,9 @@ def write_small_bag(
         )
     types = store.types
 
-    def header(t: float, frame: str):
-        stamp = types["builtin_interfaces/msg/Time"](sec=int(t), nanosec=int(round(t % 1 * 1e9)))
+    def header(t: float, frame: str, nanosec: int | None = None):
+        nanosec = int(round(t % 1 * 1e9)) if nanosec is None else nanosec
+        stamp = types["builtin_interfaces/msg/Time"](sec=int(t), nanosec=nanosec)
         if ros1:
             return types["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=frame)
         return types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
@@ -408,7 +411,7 @@ def write_small_bag(
             "intensities": np.zeros(0, np.float32),
             **(scan or {}),
         }
-        msg = types["sensor_msgs/msg/LaserScan"](header=header(t, "laser"), **fields)
+        msg = types["sensor_msgs/msg/LaserScan"](header=header(t, "laser", scan_nanosec), **fields)
         messages.append((t, "/scan", "sensor_msgs/msg/LaserScan", msg))
     messages.sort(key=lambda m: m[0])
     if ros1:

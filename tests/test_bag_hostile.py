@@ -107,6 +107,16 @@ CASES = {
         {"mount": (0.1, 0, 0, 0, 0, 0, 0)},
         "transforms[0].transform.rotation: a quaternion of zero length",
     ),
+    "stamp_nanosec_4e9": (
+        "ros2",
+        {"scan_nanosec": 4_000_000_000},
+        "/scan message 1: header.stamp.nanosec: 4000000000 is not below 10^9",
+    ),
+    "stamp_nsecs_4e9_ros1": (
+        "ros1",
+        {"scan_nanosec": 4_000_000_000},
+        "/scan message 1: header.stamp.nanosec: 4000000000 is not below 10^9",
+    ),
     "truth_nan": (
         "ros2",
         {"truth": {"x": NAN}},

@@ -48,6 +48,15 @@ def _finite(where: Where, field: str, value: Any) -> float:
     return v
 
 
+def check_stamp(where: Where, field: str, stamp: Any) -> None:
+    """A ``builtin_interfaces/Time``: its nanoseconds below 10^9 (4e9 would move the
+    message four seconds on, out of its order)."""
+    nanosec = getattr(stamp, "nanosec", None)
+    nanosec = stamp.nsecs if nanosec is None else nanosec  # ROS 1 genpy-style names
+    if not 0 <= int(nanosec) < 1_000_000_000:
+        raise where.error(f"{field}.nanosec", f"{int(nanosec)} is not below 10^9")
+
+
 def check_position(where: Where, field: str, p: Any) -> None:
     """A position (``.x``, ``.y``, ``.z``): finite and within :data:`MAX_COORDINATE`."""
     for axis in ("x", "y", "z"):

@@ -35,6 +35,7 @@ from agv_mission.bags.message_checks import (
     Where,
     check_pose,
     check_scan,
+    check_stamp,
     check_transform,
 )
 from agv_mission.bags.recording import BagData, BagError
@@ -316,6 +317,8 @@ def _collect(
     for conn, msg in _messages(reader, path, conns, seen):
         topic = conn.topic
         where = Where(path, topic, seen[topic])
+        if hasattr(msg, "header"):
+            check_stamp(where, "header.stamp", msg.header.stamp)
         if topic == scan_topic:
             check_scan(where, msg)
             scan_frame = scan_frame or _strip(msg.header.frame_id)
@@ -337,6 +340,7 @@ def _collect(
         elif conn.msgtype == TF_TYPE:
             is_static = topic.strip("/") == "tf_static"
             for k, tr in enumerate(msg.transforms):
+                check_stamp(where, f"transforms[{k}].header.stamp", tr.header.stamp)
                 check_transform(where, f"transforms[{k}].transform", tr.transform)
                 parent, child = _strip(tr.header.frame_id), _strip(tr.child_frame_id)
                 if is_static:

@@ -316,3 +316,121 @@ def wall_precision(built: OccupancyGrid, world: OccupancyGrid, tolerance: float 
     d = np.full(len(rows), np.inf)
     d[inside] = dist[wr[inside], wc[inside]]
     return float(np.mean(d <= tolerance))
+
+
+def write_small_bag(
+    path: Path,
+    fmt: str = "ros2",
+    scans: int = 20,
+    scan: dict | None = None,
+    odom: dict | None = None,
+    truth: dict | None = None,
+    mount: tuple[float, ...] = (0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0),
+    scan_nanosec: int | None = None,
+) -> Path:
+    """A two-second bag of a robot creeping ahead in a round room (360 beams of 2 m):
+    ``scans`` LaserScans on /scan, /odom at 20 Hz, the lidar's ``mount`` (x y z qx qy qz
+    qw) on /tf_static; ``scan`` fields replace every scan's, ``odom`` / ``truth``
+    (``x``, ``y``, ``q``: a quaternion tuple) replace the sixth odometry message's (and a
+    /ground_truth topic is written when ``truth`` is given); ``scan_nanosec``: every
+    scan's ``header.stamp.nanosec``. Returns what to hand ``map``."""
+    ros1 = fmt == "ros1"
+    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    if "tf2_msgs/msg/TFMessage" not in store.types:
+        from rosbags.typesys import get_types_from_msg
+
+        store.register(
+            get_types_from_msg(
+                "geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"
+            )
+        )
+    types = store.types
+
+    def header(t: float, frame: str, nanosec: int | None = None):
+        nanosec = int(round(t % 1 * 1e9)) if nanosec is None else nanosec
+        stamp = types["builtin_interfaces/msg/Time"](sec=int(t), nanosec=nanosec)
+        if ros1:
+            return types["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=frame)
+        return types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
+
+    def vec(x, y, z=0.0):
+        return types["geometry_msgs/msg/Vector3"](x=float(x), y=float(y), z=float(z))
+
+    def quat(x, y, z, w):
+        return types["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w)
+
+    def odometry(t: float, frame: str, x: float, y: float, q: tuple):
+        cov = np.zeros(36)
+        return types["nav_msgs/msg/Odometry"](
+            header=header(t, frame),
+            child_frame_id="base_footprint",
+            pose=types["geometry_msgs/msg/PoseWithCovariance"](
+                pose=types["geometry_msgs/msg/Pose"](
+                    position=types["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=0.0),
+                    orientation=quat(*(float(v) for v in q)),
+                ),
+                covariance=cov,
+            ),
+            twist=types["geometry_msgs/msg/TwistWithCovariance"](
+                twist=types["geometry_msgs/msg/Twist"](linear=vec(0, 0), angular=vec(0, 0)),
+                covariance=cov,
+            ),
+        )
+
+    tx, ty, tz, *q = (float(v) for v in mount)
+    static = types["geometry_msgs/msg/TransformStamped"](
+        header=header(0.0, "base_footprint"),
+        child_frame_id="laser",
+        transform=types["geometry_msgs/msg/Transform"](
+            translation=vec(tx, ty, tz), rotation=quat(*q)
+        ),
+    )
+    tf_type = "tf2_msgs/msg/TFMessage"
+    messages = [(0.0, "/tf_static", tf_type, types[tf_type](transforms=[static]))]
+    for k in range(2 * scans + 2):
+        t, pose = 0.05 * k, {"x": 0.02 * k, "y": 0.0, "q": (0.0, 0.0, 0.0, 1.0)}
+        here = {**pose, **(odom or {})} if k == 5 else pose
+        messages.append((t, "/odom", "nav_msgs/msg/Odometry", odometry(t, "odom", **here)))
+        if truth is not None:
+            here = {**pose, **truth} if k == 5 else pose
+            messages.append(
+                (t, "/ground_truth", "nav_msgs/msg/Odometry", odometry(t, "map", **here))
+            )
+    n = 360
+    for k in range(scans):
+        t = 0.1 * k + 0.05
+        fields = {
+            "angle_min": -math.pi,
+            "angle_max": math.pi - 2 * math.pi / n,
+            "angle_increment": 2 * math.pi / n,
+            "time_increment": 0.0,
+            "scan_time": 0.1,
+            "range_min": 0.1,
+            "range_max": 5.0,
+            "ranges": np.full(n, 2.0, np.float32),
+            "intensities": np.zeros(0, np.float32),
+            **(scan or {}),
+        }
+        msg = types["sensor_msgs/msg/LaserScan"](header=header(t, "laser", scan_nanosec), **fields)
+        messages.append((t, "/scan", "sensor_msgs/msg/LaserScan", msg))
+    messages.sort(key=lambda m: m[0])
+    if ros1:
+        from rosbags.rosbag1 import Writer as Writer1
+
+        target = path.with_suffix(".bag")
+        with Writer1(target) as writer:
+            conns = {}
+            for s, topic, msgtype, msg in messages:
+                if topic not in conns:
+                    conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
+                writer.write(conns[topic], int(s * 1e9) + 1, store.serialize_ros1(msg, msgtype))
+        return target
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conns = {}
+        for s, topic, msgtype, msg in messages:
+            if topic not in conns:
+                conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
+            writer.write(conns[topic], int(s * 1e9) + 1, store.serialize_cdr(msg, msgtype))
+    return next(path.glob("*.mcap")) if fmt == "mcap" else path

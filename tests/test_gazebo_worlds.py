@@ -254,3 +254,90 @@ def test_save_map_is_the_cut_at_the_scan_height_with_2_m_around(tmp_path):
     rows, cols = grid.world_to_cell(np.array([[1.0, 1.0], [1.28, 1.0], [1.4, 1.0], [-1.0, -1.0]]))
     assert [int(v) for v in grid.data[rows, cols]] == [OCCUPIED, OCCUPIED, 0, 0]
     assert int((grid.data == OCCUPIED).sum()) == pytest.approx(math.pi * 0.3**2 / 0.05**2, rel=0.2)
+
+
+BOX = "<box><size>{}</size></box>"
+
+
+@pytest.mark.parametrize(
+    ("body", "expect"),
+    [
+        # a body 1000 km long, a cylinder 200 km wide, two posts 2000 km apart: the map
+        # would be terabytes (a MemoryError traceback before); refused at their lines
+        (model("long", BOX.format("1e6 1 1"), pose="0 0 0.5 0 0 0"), [":5: <size>: model 'long'"]),
+        (model("wide", cylinder(1e5), pose="0 0 0.5 0 0 0"), [":5: <cylinder>: model 'wide'"]),
+        (
+            model("east", BOX.format("1 1 1"), pose="1e6 0 0.5 0 0 0")
+            + model("west", BOX.format("1 1 1"), pose="-1e6 0 0.5 0 0 0"),
+            [":5: <size>: model 'east'", ":7: <size>: model 'west'"],
+        ),
+    ],
+)
+def test_a_world_too_large_to_rasterise_names_the_bodies_that_stretch_it(tmp_path, body, expect):
+    path = write(tmp_path, sdf(body))
+    done = agv_here("world", str(path), "--save-map", str(tmp_path / "m"), cwd=tmp_path)
+    flat = " ".join(done.stdout.split() + done.stderr.split())
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "the world's map is too large" in flat and "at most 1e+08" in flat
+    for where in expect:
+        assert f"{path}{where}" in flat, flat
+    assert not (tmp_path / "m.pgm").exists()
+
+
+@pytest.mark.parametrize("where", ["model", "state"])
+def test_a_pose_1e300_m_away_is_refused_at_its_line(tmp_path, where):
+    """Not "empty bounds (1e+300, 1e+300, ...)" without a line (the box vanished in the
+    rounding of its own bounds)."""
+    far = "1e300 0 0.5 0 0 0"
+    body = model("a", BOX.format("1 1 1"), pose=far if where == "model" else "0 0 0.5 0 0 0")
+    if where == "state":
+        body += (
+            f'<state world_name="default">\n<model name="a"><pose>{far}</pose></model></state>\n'
+        )
+    with pytest.raises(WorldError) as err:
+        load_world(str(write(tmp_path, sdf(body))))
+    line = 4 if where == "model" else 7
+    assert f":{line}: <pose>: model 'a': <pose>: x 1e+300 m is farther" in err.value.problems[0]
+
+
+@pytest.mark.parametrize(("x", "half"), [(2e6, 1e6), (1e308, 1.7e308)])  # 1e308: inf bounds
+def test_a_world_file_too_large_to_rasterise_is_invalid_input(tmp_path, x, half):
+    path = write(
+        tmp_path,
+        yaml.safe_dump(
+            {
+                "spawn": {"x": 0.0, "y": 0.0, "yaw": 0.0},
+                "boxes": [{"x": x, "y": 0.0, "half_x": half, "half_y": 1.0}],
+            }
+        ),
+        "big.yaml",
+    )
+    with pytest.raises(WorldError, match=r"big.yaml: a grid of .* cells .*at most 1e\+08"):
+        load_world(str(path))
+
+
+def test_a_quaternion_of_huge_components_is_its_rotation(tmp_path):
+    """(0, 0, 1e300, 1e300) is a quarter turn: its length overflowed to inf, the
+    quaternion divided by it to zero and the box stood unturned."""
+    pose = '<pose rotation_format="quat_xyzw">0 0 0.5 0 0 1e300 1e300</pose>'
+    body = model("a", BOX.format("2 1 1")).replace("<pose>0 0 0 0 0 0</pose>", pose)
+    world = load_world(str(write(tmp_path, sdf(body))))
+    (box,) = world.boxes
+    assert (box.half_x, box.half_y) == (1.0, 0.5)
+    assert box.yaw == pytest.approx(math.pi / 2)
+
+
+@pytest.mark.parametrize(
+    ("geometry", "expect"),
+    [
+        # their bounds overflowed to inf: an OverflowError traceback before
+        (BOX.format("1.79e308 1 1"), "<size>: model 'a' link 'link' collision 'c': <size> is more"),
+        (cylinder(1.7e308), "<radius>: model 'a' link 'link' collision 'c': <radius> must be"),
+        ("<sphere><radius>1e200</radius></sphere>", "<radius> must be positive and at most 1e+07"),
+    ],
+)
+def test_a_body_of_1e308_m_is_refused_at_its_line(tmp_path, geometry, expect):
+    path = write(tmp_path, sdf(model("a", geometry)))
+    done = agv_here("world", str(path), "--save-map", str(tmp_path / "m"), cwd=tmp_path)
+    flat = " ".join(done.stdout.split() + done.stderr.split())
+    assert done.returncode == 2 and f"{path}:5: " in flat and expect in flat, flat

@@ -229,3 +229,26 @@ def test_missing_yaml_and_unreadable_image(tmp_path: Path) -> None:
     (tmp_path / "map.yaml").write_text("image: map.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n")
     with pytest.raises(MapLoadError, match="cannot read image"):
         load_ros_map(tmp_path / "map.yaml")
+
+
+@pytest.mark.parametrize(
+    ("size", "expected"),
+    [
+        # PIL refuses past 179 M pixels (a DecompressionBombError traceback before)
+        ("100000 100000", "map.pgm: more than 1e+08 pixels"),
+        # PIL only warns below that and decodes: gigabytes of float tables
+        ("12000 9000", "map.pgm: 12000 x 9000 pixels, more than 1e+08"),
+    ],
+)
+def test_an_image_claiming_too_many_pixels_is_refused(tmp_path, size, expected) -> None:
+    """A PGM header is a few bytes whatever size it claims: refused before decoding."""
+    import warnings
+
+    (tmp_path / "map.pgm").write_bytes(f"P5\n{size}\n255\n".encode() + bytes(1000))
+    (tmp_path / "map.yaml").write_text("image: map.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # and no DecompressionBombWarning either
+        with pytest.raises(MapLoadError) as info:
+            load_ros_map(tmp_path / "map.yaml")
+    assert str(info.value).startswith(f"{tmp_path / 'map.yaml'}: image ")
+    assert expected in str(info.value)

@@ -31,6 +31,13 @@ from typing import Any
 import numpy as np
 
 from agv_mission.bags.carmen import is_carmen_log, read_carmen
+from agv_mission.bags.message_checks import (
+    Where,
+    check_pose,
+    check_scan,
+    check_stamp,
+    check_transform,
+)
 from agv_mission.bags.recording import BagData, BagError
 from agv_mission.bags.tf_frames import Transform, scan_mount, static_chain, tf_links
 from agv_mission.sensor_msgs import LaserScan
@@ -166,7 +173,7 @@ def _read(
     robot, scan_topic, odom_topic, truth_topic = _choose_topics(
         path, topics, counts, scan_topic, odom_topic, truth_topic, robot
     )
-    got = _collect(reader, scan_topic, odom_topic, truth_topic)
+    got = _collect(reader, path, scan_topic, odom_topic, truth_topic)
     scans, scan_frame, odom_child = got.scans, got.scan_frame, got.odom_child
     odom_rows, truth_rows, static = got.odom_rows, got.truth_rows, got.static
     if not scans:
@@ -288,9 +295,10 @@ class _Messages:
 
 
 def _collect(
-    reader: Any, scan_topic: str, odom_topic: str | None, truth_topic: str | None
+    reader: Any, path: Path, scan_topic: str, odom_topic: str | None, truth_topic: str | None
 ) -> _Messages:
-    """Read the chosen topics' messages (and /tf's) in one pass."""
+    """Read the chosen topics' messages (and /tf's) in one pass, each checked
+    (:mod:`~agv_mission.bags.message_checks`): bad values are a BagError naming it."""
     wanted = {scan_topic, "/tf", "/tf_static", "tf", "tf_static"}
     if odom_topic:
         wanted.add(odom_topic)
@@ -305,26 +313,35 @@ def _collect(
     truth_rows: list[tuple[float, float, float, float]] = []
     static: dict[str, tuple[str, Transform]] = {}  # child -> (parent, transform)
     dynamic: dict[tuple[str, str], list[tuple[float, np.ndarray]]] = {}
-    for conn, _log_time, raw in reader.messages(connections=conns):
-        msg = reader.deserialize(raw, conn.msgtype)
+    seen: dict[str, int] = {}
+    for conn, msg in _messages(reader, path, conns, seen):
         topic = conn.topic
+        where = Where(path, topic, seen[topic])
+        if hasattr(msg, "header"):
+            check_stamp(where, "header.stamp", msg.header.stamp)
         if topic == scan_topic:
+            check_scan(where, msg)
             scan_frame = scan_frame or _strip(msg.header.frame_id)
             scans.append(_scan(msg))
         elif topic == odom_topic and conn.msgtype == ODOM_TYPE:
             odom_child = odom_child or _strip(msg.child_frame_id)
             p = msg.pose.pose
+            check_pose(where, "pose.pose", p)
             odom_rows.append(
                 (_time(msg.header.stamp), p.position.x, p.position.y, _yaw(p.orientation))
             )
         elif topic == truth_topic:
-            p = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
+            nested = hasattr(msg.pose, "pose")
+            p = msg.pose.pose if nested else msg.pose
+            check_pose(where, "pose.pose" if nested else "pose", p)
             truth_rows.append(
                 (_time(msg.header.stamp), p.position.x, p.position.y, _yaw(p.orientation))
             )
         elif conn.msgtype == TF_TYPE:
             is_static = topic.strip("/") == "tf_static"
-            for tr in msg.transforms:
+            for k, tr in enumerate(msg.transforms):
+                check_stamp(where, f"transforms[{k}].header.stamp", tr.header.stamp)
+                check_transform(where, f"transforms[{k}].transform", tr.transform)
                 parent, child = _strip(tr.header.frame_id), _strip(tr.child_frame_id)
                 if is_static:
                     static[child] = (parent, Transform.from_msg(tr.transform))
@@ -334,6 +351,28 @@ def _collect(
                         (_time(tr.header.stamp), np.array([t.x, t.y, t.z, q.x, q.y, q.z, q.w]))
                     )
     return _Messages(scans, scan_frame, odom_rows, odom_child, truth_rows, static, dynamic)
+
+
+def _messages(reader: Any, path: Path, conns: list[Any], seen: dict[str, int]) -> Any:
+    """The messages of ``conns``, deserialised, counting each topic's in ``seen``
+    (1-based); a message or chunk that does not decode is a BagError naming it."""
+    it = reader.messages(connections=conns)
+    while True:
+        try:
+            conn, _log_time, raw = next(it)
+        except StopIteration:
+            return
+        except Exception as exc:  # rosbags raises several reader errors
+            raise BagError(f"{path}: cannot read the bag's messages ({exc})") from None
+        seen[conn.topic] = seen.get(conn.topic, 0) + 1
+        try:
+            msg = reader.deserialize(raw, conn.msgtype)
+        except Exception as exc:  # a truncated or garbled message: any decoder error
+            raise BagError(
+                f"{path}: {conn.topic} message {seen[conn.topic]}: "
+                f"not a {conn.msgtype} ({type(exc).__name__}: {exc})"
+            ) from None
+        yield conn, msg
 
 
 def _spread_shared_stamps(

@@ -458,7 +458,8 @@ class GraphSlam(GridSlam):
             for row, p in zip(self.trajectory, new, strict=True)
         ]
         idx = [i for *_, i in self._integrated]
-        moved = float(np.hypot(*(new[idx, :2] - poses[idx, :2]).T).mean())
+        # (no scan integrated, a recording without one valid range: nothing moved)
+        moved = float(np.hypot(*(new[idx, :2] - poses[idx, :2]).T).mean()) if idx else 0.0
         # A map lagging the graph is rendered now, from the poses the recording reports.
         if moved > c.rebuild_threshold or self._stale:
             self._stale = False

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -50,6 +51,9 @@ PGM_OCCUPIED = 0
 PGM_UNKNOWN = 205
 SAVER_THRESHOLD_FREE = 25
 SAVER_THRESHOLD_OCCUPIED = 65
+#: Most pixels a map image may hold: 10^8 (a 500 m square at 5 cm; the grid and the float
+#: tables reading it take a few GB); a PGM header is a few bytes whatever it claims.
+MAX_MAP_PIXELS = 100_000_000
 
 
 class MapLoadError(ValueError):
@@ -228,13 +232,30 @@ def _read_image(yaml_path: Path, image_path: Path, mode: str):
         raise MapLoadError(f"{yaml_path}: image file {image_path} not found")
     from PIL import Image, UnidentifiedImageError  # a built-in world has no image to read
 
+    cannot = f"{yaml_path}: cannot read image {image_path}"
     try:
-        with Image.open(image_path) as img:
+        with warnings.catch_warnings():  # PIL warns past 89 M pixels; ours is the bound
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            img = Image.open(image_path)
+    except Image.DecompressionBombError as exc:  # PIL's refusal past 179 M pixels
+        raise MapLoadError(
+            f"{yaml_path}: image {image_path}: more than {MAX_MAP_PIXELS:.0e} pixels ({exc})"
+        ) from None
+    except (OSError, UnidentifiedImageError, ValueError) as exc:
+        raise MapLoadError(f"{cannot}: {exc}") from exc
+    with img:
+        width, height = img.size
+        if width * height > MAX_MAP_PIXELS:
+            raise MapLoadError(
+                f"{yaml_path}: image {image_path}: {width} x {height} pixels, more than "
+                f"{MAX_MAP_PIXELS:.0e}"
+            )
+        try:
             img.load()
             img = _normalise_mode(img)
             arr = np.asarray(img)
-    except (OSError, UnidentifiedImageError, ValueError) as exc:
-        raise MapLoadError(f"{yaml_path}: cannot read image {image_path}: {exc}") from exc
+        except (OSError, ValueError) as exc:
+            raise MapLoadError(f"{cannot}: {exc}") from exc
     if arr.ndim == 2:
         return arr.astype(np.float64), np.full(arr.shape, 255.0)
     n = arr.shape[2]

@@ -30,7 +30,7 @@ def rotation_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
 
 
 def rotation_quaternion(x: float, y: float, z: float, w: float) -> np.ndarray:
-    n = math.sqrt(x * x + y * y + z * z + w * w)
+    n = math.hypot(x, y, z, w)  # no overflow: 1e300 components are a direction too
     x, y, z, w = x / n, y / n, z / n, w / n
     return np.array(
         [

@@ -54,6 +54,9 @@ MAX_PROBLEMS = 50  # refusals named before the rest are counted
 FLOOR_MODELS = ("ground_plane",)  # model:// names that are the floor
 IGNORED_MODELS = ("sun",)  # model:// names without geometry (Gazebo's light)
 UNSUPPORTED_GEOMETRY = ("mesh", "heightmap", "capsule", "ellipsoid", "polyline", "image")
+#: Farthest (m) a <pose> may place anything from its frame, and the largest size, radius or
+#: length of a body: 10 000 km; 1e300 m is no place (and its square overflows).
+MAX_COORDINATE = 1e7
 
 
 class SdfError(ValueError):
@@ -74,6 +77,9 @@ class SdfWorld:
     cylinders: list[Cylinder] = field(default_factory=list)
     skipped: list[dict[str, Any]] = field(default_factory=list)  # refused, then skipped
     not_cut: list[dict[str, Any]] = field(default_factory=list)  # above or under the scan
+    #: where each body was read (``file:line: <box>: model 'a' ...``), boxes then cylinders
+    box_sources: list[str] = field(default_factory=list)
+    cylinder_sources: list[str] = field(default_factory=list)
 
 
 def is_sdf_path(path: Path) -> bool:
@@ -209,8 +215,10 @@ class _Reader:
                 raise _Refused(parent, f"<{tag}> is missing")
             return default
         (value,) = self.number_list(el, (1,), f"<{tag}>")
-        if value <= 0:
-            raise _Refused(el, f"<{tag}> must be positive, got {value:g}")
+        if not 0 < value <= MAX_COORDINATE:
+            raise _Refused(
+                el, f"<{tag}> must be positive and at most {MAX_COORDINATE:.0e} m, got {value:g}"
+            )
         return value
 
     def pose(self, el: Any | None, relative_ok: tuple[str, ...] = ("", "world")) -> Transform:
@@ -222,8 +230,13 @@ class _Reader:
             raise _Refused(el, f"a pose relative to the frame {frame!r} is not read")
         quat = el.get("rotation_format", "euler_rpy").strip() == "quat_xyzw"
         v = self.number_list(el, (7,) if quat else (6,), "<pose>")
+        far = [
+            f"{a} {c:.4g} m" for a, c in zip("xyz", v[:3], strict=False) if abs(c) > MAX_COORDINATE
+        ]
+        if far:
+            raise _Refused(el, f"<pose>: {far[0]} is farther than {MAX_COORDINATE:.0e} m")
         if quat:
-            if math.sqrt(sum(q * q for q in v[3:])) < 1e-9:
+            if math.hypot(*v[3:]) < 1e-9:
                 raise _Refused(el, "<pose>: a zero quaternion")
             rotation = rotation_quaternion(*v[3:])
         else:
@@ -232,6 +245,10 @@ class _Reader:
                 angles = [math.radians(a) for a in angles]
             rotation = rotation_rpy(*angles)
         return rotation, np.array(v[:3])
+
+    def source(self, el: Any, where: str) -> str:
+        """``file:line: <tag>: where``: a body's origin, for errors about it."""
+        return f"{self.path}:{el.sourceline}: <{el.tag}>: {where}"
 
     # ---------------------------------------------------------------- the document
     def read(self, root: Any) -> SdfWorld:
@@ -426,6 +443,10 @@ class _Reader:
             size = self.number_list(size_el, (3,), "<size>")
             if min(size) <= 0:
                 raise _Refused(size_el, f"<size> must be positive, got {size_el.text!r}")
+            if max(size) > MAX_COORDINATE:
+                raise _Refused(
+                    size_el, f"<size> is more than {MAX_COORDINATE:.0e} m: {max(size):g}"
+                )
             up = [k for k in range(3) if abs(rotation[2, k]) >= UPRIGHT]
             if not up:
                 raise _Refused(el, "a tilted box (no axis upright) is not read")
@@ -436,6 +457,7 @@ class _Reader:
                 return
             yaw = math.atan2(rotation[1, i], rotation[0, i])
             self.world.boxes.append(Box(float(x), float(y), size[i] / 2.0, size[j] / 2.0, yaw))
+            self.world.box_sources.append(self.source(size_el, where))
             return
         if tag == "cylinder":
             radius = self.positive(el, "radius")
@@ -444,12 +466,14 @@ class _Reader:
                 raise _Refused(el, "a tilted cylinder (its axis not upright) is not read")
             if self.cut(z - length / 2.0, z + length / 2.0, where, el):
                 self.world.cylinders.append(Cylinder(float(x), float(y), radius))
+                self.world.cylinder_sources.append(self.source(el, where))
             return
         if tag == "sphere":
             radius = self.positive(el, "radius")
             if self.cut(z - radius, z + radius, where, el):
                 cut = math.sqrt(max(radius * radius - (self.h - z) ** 2, 0.0))
                 self.world.cylinders.append(Cylinder(float(x), float(y), cut))
+                self.world.cylinder_sources.append(self.source(el, where))
             return
         raise _Refused(el, f"unknown geometry <{tag}>")
 

@@ -58,7 +58,7 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
 from agv_mission.maps.docks import Dock, DockModel, dock_problem
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
-from agv_mission.maps.rasterize import grid_shape, occupancy_mask, rasterize
+from agv_mission.maps.rasterize import WorldTooLarge, grid_shape, occupancy_mask, rasterize
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.rooms_file import (
     RoomsFileError,
@@ -150,16 +150,44 @@ def world_from_sdf(path: Path, scan_height: float, skip_unsupported: bool = Fals
         imported["skipped"] = sdf.skipped
     if sdf.not_cut:
         imported["not_cut"] = sdf.not_cut
+    try:
+        grid = open_floor_map(sdf.boxes, sdf.cylinders)
+    except WorldTooLarge as exc:
+        raise _too_large(path, sdf, exc) from None
     return World(
         name=sdf.name,
         boxes=sdf.boxes,
         cylinders=sdf.cylinders,
-        map=open_floor_map(sdf.boxes, sdf.cylinders),
+        map=grid,
         spawn=Pose2D(0.0, 0.0, 0.0),
         rooms={},
         wall_height=max(scan_height + 0.3, 0.5),
         imported=imported,
     )
+
+
+def _too_large(path: Path, sdf: Any, exc: WorldTooLarge) -> WorldError:
+    """The bodies that stretch a Gazebo world's map past the cells it may hold: those
+    reaching farthest west, east, south and north, each at its line."""
+    bodies = [(*_reach(b), src) for b, src in zip(sdf.boxes, sdf.box_sources, strict=True)] + [
+        (c.x - c.radius, c.x + c.radius, c.y - c.radius, c.y + c.radius, src)
+        for c, src in zip(sdf.cylinders, sdf.cylinder_sources, strict=True)
+    ]
+    ends = [min(bodies, key=lambda b: b[0]), max(bodies, key=lambda b: b[1])]
+    ends += [min(bodies, key=lambda b: b[2]), max(bodies, key=lambda b: b[3])]
+    problems = [
+        f"{src}: reaches x {x0:.4g}..{x1:.4g} m, y {y0:.4g}..{y1:.4g} m"
+        for x0, x1, y0, y1, src in dict.fromkeys(ends)
+    ]
+    message = f"{path}: the world's map is too large: {exc}; the bodies that stretch it:"
+    return WorldError(message + "".join(f"\n  {p}" for p in problems), problems)
+
+
+def _reach(b: Box) -> tuple[float, float, float, float]:
+    """xmin, xmax, ymin, ymax of a (rotated) box."""
+    c, s = abs(math.cos(b.yaw)), abs(math.sin(b.yaw))
+    ex, ey = c * b.half_x + s * b.half_y, s * b.half_x + c * b.half_y
+    return b.x - ex, b.x + ex, b.y - ey, b.y + ey
 
 
 def open_floor_map(

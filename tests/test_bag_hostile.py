@@ -219,10 +219,30 @@ def test_a_recording_without_one_valid_range_maps_nothing_quietly(tmp_path):
 
 
 def test_a_resolution_whose_first_map_is_too_large_is_exit_2(tmp_path, run_cli):
-    """--set resolution=1e-6: the first map of a 2 m scan would be 10^13 cells (a
+    """--set resolution=0.001 initial_size=1000: the first map would be 10^12 cells (a
     MapTooLarge traceback from SLAM's reset before)."""
     bag = write_small_bag(tmp_path / "fine", "ros2")
-    code, text = run_cli(["map", str(bag), "--set", "resolution=1e-6"])
+    sets = ["--set", "resolution=0.001", "--set", "initial_size=1000"]
+    code, text = run_cli(["map", str(bag), *sets])
     flat = " ".join(text.split())
     assert code == 2 and "stack.slam (--set): a first map of" in flat, text
     assert "Traceback" not in text
+
+
+@pytest.mark.parametrize(
+    ("item", "message"),
+    [
+        ("resolution=1e300", "less than or equal to 1"),  # IndexError deep in matching
+        ("point_sigma=1e300", "less than or equal to 1"),  # OverflowError
+        ("odom_translation_noise=1e300", "less than or equal to 1"),  # singular matrix
+        ("odom_scale_std=1e-300", "greater than or equal to 0.0001"),  # OverflowError
+        ("free_threshold=0.9", "free_threshold must be below occupied_threshold"),
+    ],
+)
+def test_a_slam_setting_no_map_could_use_is_exit_2_naming_it(tmp_path, run_cli, item, message):
+    """SLAM settings that validated and then failed deep in the run (tracebacks, exit 1):
+    bounds a recording's map can use, checked with the settings."""
+    bag = write_small_bag(tmp_path / "fine", "ros2")
+    code, text = run_cli(["map", str(bag), "--set", item])
+    flat = " ".join(text.split())
+    assert code == 2 and message in flat and "Traceback" not in flat, text

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from typing import ClassVar, Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from agv_mission.registry import PluginConfig
 
@@ -19,12 +19,18 @@ class GridSlamConfig(PluginConfig):
     type: Literal["grid"] = "grid"
 
     # Map
-    resolution: float = Field(0.05, gt=0, description="metres per cell")
-    map_margin: float = Field(1.0, ge=0, description="metres allocated around the bounds")
-    initial_size: float = Field(
-        20.0, gt=0, description="side (m) of the square map allocated around the start"
+    resolution: float = Field(
+        0.05, ge=0.001, le=1.0, description="metres per cell (a millimetre to a metre)"
     )
-    grow_step: float = Field(2.0, gt=0, description="metres added when a scan leaves the map")
+    map_margin: float = Field(
+        1.0, ge=0, le=1000.0, description="metres allocated around the bounds"
+    )
+    initial_size: float = Field(
+        20.0, gt=0, le=1000.0, description="side (m) of the square map allocated around the start"
+    )
+    grow_step: float = Field(
+        2.0, gt=0, le=1000.0, description="metres added when a scan leaves the map"
+    )
     log_odds_occupied: float = Field(0.85, gt=0, description="added per hit (p = 0.7)")
     log_odds_free: float = Field(-0.4, lt=0, description="added per pass-through (p = 0.4)")
     log_odds_min: float = Field(-2.0, lt=0)
@@ -90,7 +96,7 @@ class GridSlamConfig(PluginConfig):
     coarse_block: int = Field(4, ge=1, description="cells per coarse block (power of two)")
     translation_delta_cost_weight: float = Field(1.0, ge=0, description="1/m, search ties")
     rotation_delta_cost_weight: float = Field(1.0, ge=0, description="1/rad, search ties")
-    likelihood_sigma: float = Field(0.05, gt=0, description="metres, field width")
+    likelihood_sigma: float = Field(0.05, gt=0, le=1.0, description="metres, field width")
     field_threshold: float = Field(
         0.0, description="log-odds above which a cell attracts scan points"
     )
@@ -98,23 +104,29 @@ class GridSlamConfig(PluginConfig):
         "icp", description="point-to-line (icp), bicubic field (hector) or none"
     )
     refine_iterations: int = Field(6, ge=0)
-    point_sigma: float = Field(0.03, gt=0, description="m, std of a point-to-line residual")
-    scan_sigma: float = Field(0.1, gt=0, description="std of a field residual (field mode)")
+    point_sigma: float = Field(0.03, gt=0, le=1.0, description="m, std of a point-to-line residual")
+    scan_sigma: float = Field(
+        0.1, gt=0, le=10.0, description="std of a field residual (field mode)"
+    )
     odom_prior: bool = Field(
         True, description="fuse the odometry prediction in the refinement (MAP estimate)"
     )
     odom_translation_noise: float = Field(
-        0.05, ge=0, description="odometry prior: std (m) of the translation per metre driven"
+        0.05,
+        ge=0,
+        le=1.0,
+        description="odometry prior: std (m) of the translation per metre driven",
     )
     odom_rotation_noise: float = Field(
-        0.1, ge=0, description="odometry prior: std (rad) of the rotation per radian turned"
+        0.1, ge=0, le=1.0, description="odometry prior: std (rad) of the rotation per radian turned"
     )
     odom_rotation_per_metre: float = Field(
-        0.2, ge=0, description="odometry prior: std (rad) of the rotation per metre driven"
+        0.2, ge=0, le=1.0, description="odometry prior: std (rad) of the rotation per metre driven"
     )
     odom_rotation_floor: float = Field(
         1e-3,
         ge=0,
+        le=1.0,
         description="odometry prior: least std (rad) of the rotation between two matched "
         "scans (a gyro's is a tenth of the wheels': the runner sets it with the IMU on)",
     )
@@ -147,7 +159,8 @@ class GridSlamConfig(PluginConfig):
     )
     odom_scale_std: float | None = Field(
         None,
-        gt=0,
+        ge=1e-4,
+        le=0.5,
         description="std of the odometry's scale error (a wheel radius off by a percent or "
         "two, Borenstein and Feng's UMBmark): learnt from the matches where the scan sees "
         "the motion, and the odometry's distances corrected by it; None: taken as exact",
@@ -163,6 +176,15 @@ class GridSlamConfig(PluginConfig):
     min_score: float = Field(
         0.1, ge=0, le=1, description="matches scoring below this are rejected (odometry only)"
     )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> GridSlamConfig:
+        """A cell cannot be both FREE and OCCUPIED; the coarse search halves its blocks."""
+        if self.free_threshold >= self.occupied_threshold:
+            raise ValueError("free_threshold must be below occupied_threshold")
+        if self.coarse_block & (self.coarse_block - 1):
+            raise ValueError("coarse_block must be a power of two")
+        return self
 
 
 class GraphSlamConfig(GridSlamConfig):

@@ -73,10 +73,6 @@ class GridSlam(Slam):
         rng: np.random.Generator | None = None,
     ) -> None:
         c = config
-        if c.free_threshold >= c.occupied_threshold:
-            raise ValueError("slam: free_threshold must be below occupied_threshold")
-        if c.coarse_block & (c.coarse_block - 1):
-            raise ValueError("slam: coarse_block must be a power of two")
         if bounds is not None and (
             len(bounds) != 4 or not (bounds[1] > bounds[0] and bounds[3] > bounds[2])
         ):

@@ -116,6 +116,19 @@ CASES = [
          "as YAML flow text",
          XML_HEAD + '  <BehaviorTree ID="Main">\n    <NavigateToPose goal="{x: 1.0"/>\n'
          "  </BehaviorTree>\n</root>\n", in_xml=True),
+    Case("xml integer of 5000 digits", "tree: tree.xml\n", 3, "BehaviorTree.Main.num_cycles",
+         "a number of more than 4300 digits",
+         XML_HEAD + '  <BehaviorTree ID="Main">\n    <Repeat num_cycles="' + "9" * 5000
+         + '">\n      <Stop/>\n    </Repeat>\n  </BehaviorTree>\n</root>\n', in_xml=True),
+    Case("xml alias bomb in flow text", "tree: tree.xml\n", 3, "BehaviorTree.Main.goal",
+         "aliases expand to more than",
+         XML_HEAD + '  <BehaviorTree ID="Main">\n    <NavigateToPose goal="[&amp;a [1,1,1,1,1,1,1,1,1,1]'
+         + "".join(f", &amp;{chr(98 + i)} [{', '.join(['*' + chr(97 + i)] * 10)}]" for i in range(6))
+         + ']"/>\n  </BehaviorTree>\n</root>\n', in_xml=True),
+    Case("yaml alias bomb in subtrees", "trees:\n  a: &a {type: sequence, children: [{type: stop}]}\n"
+         + "".join(f"  {chr(98 + i)}: &{chr(98 + i)} {{type: sequence, children: "
+                   f"[{', '.join(['*' + chr(97 + i)] * 10)}]}}\n" for i in range(7))
+         + "tree: *h\n", 12, "trees.h.children", "aliases expand to more than 2,000,000 values"),
     Case("xml unknown subtree", "tree: tree.xml\n", 4, "BehaviorTree.Main.0.id",
          "unknown subtree id 'Nope'",
          XML_HEAD + '  <BehaviorTree ID="Main">\n    <Sequence>\n      <SubTree ID="Nope"/>\n'

@@ -9,6 +9,12 @@ import yaml
 
 FieldPath = tuple[str | int, ...]
 
+#: Values a document may hold once its aliases are expanded: far above any real mission
+#: (a 4 MB file of plain values holds about two million), far below what would exhaust
+#: memory once an alias of an alias of ... (a "billion laughs") is copied out by the
+#: checks and the tree assembly.
+MAX_EXPANDED_VALUES = 2_000_000
+
 
 class DocumentError(yaml.MarkedYAMLError):
     """Well-formed YAML that is still not a usable document (a duplicate key, a lone
@@ -35,6 +41,7 @@ def load_with_lines(text: str) -> tuple[Any, dict[FieldPath, int]]:
             lines[()] = node.start_mark.line + 1  # where the document itself starts
             try:  # before the data is built: a merge key (<<) rewrites its mapping's node
                 _walk(node, (), lines, set())
+                _check_expansion(node)
             except (DocumentError, RecursionError) as exc:
                 walked = exc  # the data's own errors are told first
         data = loader.construct_document(node) if node is not None else None
@@ -75,6 +82,40 @@ def _walk(node: yaml.Node, path: FieldPath, lines: dict[FieldPath, int], seen: s
             child = (*path, i)
             lines[child] = item.start_mark.line + 1
             _walk(item, child, lines, seen)
+
+
+def _check_expansion(root: yaml.Node) -> None:
+    """Refuse a document whose aliases expand to more than :data:`MAX_EXPANDED_VALUES`
+    values, naming the outermost key whose value does (counted without expanding it)."""
+    sizes: dict[int, int] = {}
+
+    def size(node: yaml.Node) -> int:
+        known = sizes.get(id(node))
+        if known is not None:
+            return known
+        sizes[id(node)] = 1  # a node that contains itself counts once (told elsewhere)
+        total = 1
+        if isinstance(node, yaml.MappingNode):
+            total += sum(size(key) + size(value) for key, value in node.value)
+        elif isinstance(node, yaml.SequenceNode):
+            total += sum(size(item) for item in node.value)
+        sizes[id(node)] = total
+        return total
+
+    if size(root) <= MAX_EXPANDED_VALUES:
+        return
+    node, path, mark = root, (), root.start_mark
+    while isinstance(node, yaml.MappingNode):  # down to the key whose value is too large
+        big = [(k, v) for k, v in node.value if isinstance(k, yaml.ScalarNode)]
+        key, value = max(big, key=lambda kv: sizes[id(kv[1])], default=(None, None))
+        if key is None or sizes[id(value)] <= MAX_EXPANDED_VALUES:
+            break
+        node, path, mark = value, (*path, key.value), key.start_mark
+    raise DocumentError(
+        f"its aliases expand to more than {MAX_EXPANDED_VALUES:,} values (an alias bomb?)",
+        mark,
+        path,
+    )
 
 
 def _check_text(node: yaml.ScalarNode, path: FieldPath) -> None:

@@ -117,7 +117,7 @@ CASES = [
          XML_HEAD + '  <BehaviorTree ID="Main">\n    <NavigateToPose goal="{x: 1.0"/>\n'
          "  </BehaviorTree>\n</root>\n", in_xml=True),
     Case("xml integer of 5000 digits", "tree: tree.xml\n", 3, "BehaviorTree.Main.num_cycles",
-         "a number of more than 4300 digits",
+         "a number of 5000 digits (at most 4300)",
          XML_HEAD + '  <BehaviorTree ID="Main">\n    <Repeat num_cycles="' + "9" * 5000
          + '">\n      <Stop/>\n    </Repeat>\n  </BehaviorTree>\n</root>\n', in_xml=True),
     Case("xml alias bomb in flow text", "tree: tree.xml\n", 3, "BehaviorTree.Main.goal",

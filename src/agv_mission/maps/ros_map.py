@@ -36,6 +36,7 @@ import yaml
 from agv_mission.atomic import atomic_write_bytes, input_path
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.yaml_safe import safe_load
 
 if TYPE_CHECKING:
     from PIL import Image
@@ -150,7 +151,7 @@ def _read_yaml(yaml_path: Path) -> dict:
     if not yaml_path.is_file():
         raise MapLoadError(f"{yaml_path}: map YAML file not found")
     try:
-        meta = yaml.safe_load(yaml_path.read_text(encoding="utf-8"))
+        meta = safe_load(yaml_path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise MapLoadError(f"{yaml_path}: cannot read map YAML: {exc}") from exc
     if not isinstance(meta, dict):

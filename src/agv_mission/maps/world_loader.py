@@ -71,6 +71,7 @@ from agv_mission.maps.ros_map import MapLoadError, is_ros_map_yaml, load_ros_map
 from agv_mission.maps.sdf_world import SdfError, is_sdf_path, read_sdf_world
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.suggest import unknown_key
+from agv_mission.yaml_safe import safe_load
 
 SPAWN_CLEARANCE = 0.3  # metres of free space the spawn of a ROS map must have around it
 DEFAULT_RESOLUTION = 0.05
@@ -120,7 +121,7 @@ def load_world(
         return world_from_sdf(path, scan_height, skip_unsupported)
     try:
         text = read_input_text(path)
-        doc = yaml.safe_load(text)
+        doc = safe_load(text)
     except InputFileError as exc:
         raise WorldError(f"{path}: world file: {exc}") from None
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
@@ -355,7 +356,7 @@ def world_from_file(
     YAML node tree, gives each problem its line)."""
     if doc is None:
         try:
-            doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+            doc = safe_load(path.read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
             raise WorldError(f"{path}: cannot read world file: {exc}") from exc
     try:

@@ -7,6 +7,8 @@ from typing import Any
 
 import yaml
 
+from agv_mission.yaml_safe import INT_TAG, MAX_INT_DIGITS, SafeLoader
+
 FieldPath = tuple[str | int, ...]
 
 #: Values a document may hold once its aliases are expanded: far above any real mission
@@ -32,7 +34,7 @@ def load_with_lines(text: str) -> tuple[Any, dict[FieldPath, int]]:
     :class:`DocumentError` on a key given twice in one mapping or a string that is
     not valid Unicode (a lone surrogate from a ``\\ud800`` escape).
     """
-    loader = yaml.SafeLoader(text)  # parsed once: the lines from its nodes, then the data
+    loader = SafeLoader(text)  # parsed once: the lines from its nodes, then the data
     try:
         node = loader.get_single_node()
         lines: dict[FieldPath, int] = {}
@@ -44,7 +46,12 @@ def load_with_lines(text: str) -> tuple[Any, dict[FieldPath, int]]:
                 _check_expansion(node)
             except (DocumentError, RecursionError) as exc:
                 walked = exc  # the data's own errors are told first
-        data = loader.construct_document(node) if node is not None else None
+        try:
+            data = loader.construct_document(node) if node is not None else None
+        except yaml.constructor.ConstructorError:
+            if isinstance(walked, DocumentError):  # e.g. a number too long: told with its field
+                raise walked from None
+            raise
     finally:
         loader.dispose()
     if walked is not None:
@@ -59,6 +66,11 @@ def _walk(node: yaml.Node, path: FieldPath, lines: dict[FieldPath, int], seen: s
     seen.add(id(node))
     if isinstance(node, yaml.ScalarNode):
         _check_text(node, path)
+        digits = sum(c.isdigit() for c in node.value)
+        if node.tag == INT_TAG and digits > MAX_INT_DIGITS:
+            raise DocumentError(
+                f"a number of {digits} digits (at most {MAX_INT_DIGITS})", node.start_mark, path
+            )
     elif isinstance(node, yaml.MappingNode):
         first: dict[tuple[str, str], int] = {}
         for key, value in node.value:

@@ -138,6 +138,11 @@ CASES = [
          XML_HEAD + '  <BehaviorTree ID="Main">\n    <SubTree ID="Loop"/>\n  </BehaviorTree>\n'
          '  <BehaviorTree ID="Loop">\n    <Sequence>\n      <SubTree ID="Loop"/>\n'
          "    </Sequence>\n  </BehaviorTree>\n</root>\n", in_xml=True),
+    Case("xml main tree calls itself", "tree: tree.xml\n", 7, "BehaviorTree.Loop.0.id",
+         "subtree 'Main' contains itself (Main -> Loop -> Main)",
+         XML_HEAD + '  <BehaviorTree ID="Main">\n    <SubTree ID="Loop"/>\n  </BehaviorTree>\n'
+         '  <BehaviorTree ID="Loop">\n    <Sequence>\n      <SubTree ID="Main"/>\n'
+         "    </Sequence>\n  </BehaviorTree>\n</root>\n", in_xml=True),
     Case("xml decorator with two children", "tree: tree.xml\n", 3, "BehaviorTree.Main.child",
          "exactly one `child`, got 2",
          XML_HEAD + '  <BehaviorTree ID="Main">\n    <Inverter>\n      <Stop/>\n      <Stop/>\n'

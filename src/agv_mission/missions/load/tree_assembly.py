@@ -320,6 +320,11 @@ class _Assembly:
             self.problems.append(spec.where.problem("a subtree needs an `id` (a string)", "id"))
             return None
         body = self.source.trees.get(tree_id)
+        if body is None and spec.from_xml and tree_id == self.source.main_id:
+            chain = " -> ".join([tree_id, *self.expanding, tree_id])  # back to the main tree
+            self.problems.append(spec.where.problem(f"subtree {tree_id!r} contains itself "
+                                                    f"({chain})", "id"))  # fmt: skip
+            return None
         if body is None:
             known = ", ".join(sorted(self.source.trees)) or "none"
             self.problems.append(

@@ -76,6 +76,9 @@ from agv_mission.yaml_safe import safe_load
 SPAWN_CLEARANCE = 0.3  # metres of free space the spawn of a ROS map must have around it
 DEFAULT_RESOLUTION = 0.05
 DEFAULT_MARGIN = 0.5
+#: A world file's map at most: 10^8 cells (a 500 m square at 5 cm, about 0.7 GB while it
+#: is drawn); bounds of a million metres or a resolution of a nanometre ask for far more.
+MAX_WORLD_CELLS = 100_000_000
 SDF_MAP_MARGIN = 2.0  # m around a Gazebo world's bodies (robots-and-worlds.md)
 #: The scan plane a Gazebo world is cut at when no robot says (LidarSpec's default height).
 DEFAULT_SCAN_HEIGHT = 0.17
@@ -383,6 +386,7 @@ def world_from_file(
         bounds = (b.xmin, b.xmax, b.ymin, b.ymax)
     else:
         bounds = _geometry_bounds(boxes, cylinders, spawn, DEFAULT_MARGIN)
+    _check_size(path, bounds, model.resolution, model.bounds is not None, root)
     try:
         grid = rasterize(boxes, cylinders, bounds, model.resolution, spawn)
     except ValueError as exc:
@@ -405,6 +409,33 @@ def world_from_file(
         wall_height=model.wall_height,
         docks=docks,
     )
+
+
+def _check_size(
+    path: Path,
+    bounds: tuple[float, float, float, float],
+    resolution: float,
+    given: bool,
+    root: yaml.Node | None,
+) -> None:
+    """Refuse a map of more than :data:`MAX_WORLD_CELLS` cells before it is allocated,
+    at the line of ``bounds`` (or of ``resolution`` when the bounds come from the
+    geometry)."""
+    try:
+        height, width = grid_shape(bounds, resolution)
+    except ValueError:  # empty bounds: rasterize says so
+        return
+    if height * width <= MAX_WORLD_CELLS:
+        return
+    field = "bounds" if given else "resolution"
+    line = node_line(root, (field,)) if root is not None else None
+    message = (
+        f"{field}: {bounds[1] - bounds[0]:.3g} m x {bounds[3] - bounds[2]:.3g} m at "
+        f"{resolution:.3g} m cells is a map of {height * width:.3g} cells; at most "
+        f"{MAX_WORLD_CELLS:.3g} (smaller bounds or a coarser resolution)"
+    )
+    where = f"{path}:{line}" if line else str(path)
+    raise WorldError(f"{where}: {message}", [f"{where}: {message}"])
 
 
 def _world_file_message(err: Any) -> str:

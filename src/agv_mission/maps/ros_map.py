@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -51,6 +52,9 @@ PGM_OCCUPIED = 0
 PGM_UNKNOWN = 205
 SAVER_THRESHOLD_FREE = 25
 SAVER_THRESHOLD_OCCUPIED = 65
+#: A map image at most: 10^8 pixels (a 10 000 x 10 000 map; read as float64 planes, about
+#: 2 GB); a header may claim billions in a few bytes.
+MAX_MAP_PIXELS = 100_000_000
 
 
 class MapLoadError(ValueError):
@@ -230,10 +234,23 @@ def _read_image(yaml_path: Path, image_path: Path, mode: str):
     from PIL import Image, UnidentifiedImageError  # a built-in world has no image to read
 
     try:
-        with Image.open(image_path) as img:
+        with warnings.catch_warnings():  # its size is checked here, not by Pillow's warning
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            opened = Image.open(image_path)
+        with opened as img:
+            width, height = img.size
+            if width * height > MAX_MAP_PIXELS:  # told before its pixels are read
+                raise MapLoadError(
+                    f"{yaml_path}: image {image_path} is {width} x {height} pixels; "
+                    f"at most {MAX_MAP_PIXELS:.3g}"
+                )
             img.load()
             img = _normalise_mode(img)
             arr = np.asarray(img)
+    except Image.DecompressionBombError as exc:  # a header claiming billions of pixels
+        raise MapLoadError(f"{yaml_path}: cannot read image {image_path}: {exc}") from None
+    except MapLoadError:
+        raise
     except (OSError, UnidentifiedImageError, ValueError) as exc:
         raise MapLoadError(f"{yaml_path}: cannot read image {image_path}: {exc}") from exc
     if arr.ndim == 2:

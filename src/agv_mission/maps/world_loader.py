@@ -154,11 +154,15 @@ def world_from_sdf(path: Path, scan_height: float, skip_unsupported: bool = Fals
         imported["skipped"] = sdf.skipped
     if sdf.not_cut:
         imported["not_cut"] = sdf.not_cut
+    try:
+        grid = open_floor_map(sdf.boxes, sdf.cylinders)
+    except ValueError as exc:  # bodies a million metres apart
+        raise WorldError(f"{path}: {exc}") from None
     return World(
         name=sdf.name,
         boxes=sdf.boxes,
         cylinders=sdf.cylinders,
-        map=open_floor_map(sdf.boxes, sdf.cylinders),
+        map=grid,
         spawn=Pose2D(0.0, 0.0, 0.0),
         rooms={},
         wall_height=max(scan_height + 0.3, 0.5),
@@ -177,6 +181,12 @@ def open_floor_map(
     else:
         bounds = (-margin, margin, -margin, margin)
     shape = grid_shape(bounds, DEFAULT_RESOLUTION)
+    if shape[0] * shape[1] > MAX_WORLD_CELLS:
+        raise ValueError(
+            f"its bodies span {bounds[1] - bounds[0]:.3g} m x {bounds[3] - bounds[2]:.3g} m, "
+            f"a map of {shape[0] * shape[1]:.3g} cells at {DEFAULT_RESOLUTION} m; at most "
+            f"{MAX_WORLD_CELLS:.3g}"
+        )
     origin = Pose2D(float(bounds[0]), float(bounds[2]), 0.0)
     occupied = occupancy_mask(boxes, cylinders, shape, DEFAULT_RESOLUTION, origin)
     return OccupancyGrid(

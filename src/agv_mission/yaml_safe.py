@@ -28,6 +28,15 @@ def _construct_int(loader: yaml.SafeLoader, node: yaml.ScalarNode) -> Any:
 
 SafeLoader.add_constructor(INT_TAG, _construct_int)
 
+_C_LOADER: type = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+class FastSafeLoader(_C_LOADER):  # type: ignore[misc, valid-type]
+    """:class:`SafeLoader`'s check on libyaml's parser (PyYAML's C one where installed)."""
+
+
+FastSafeLoader.add_constructor(INT_TAG, _construct_int)
+
 
 def safe_load(text: str) -> Any:
     """``yaml.safe_load(text)`` with :class:`SafeLoader`."""

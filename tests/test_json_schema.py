@@ -73,6 +73,7 @@ BEYOND_THE_SCHEMA = {
     "world_file_too_large": "another file",
     "sdf_world_too_large": "another file",
     "recorder_integer_too_long": "another file",
+    "robot_footprint_radius_too_large": "another file",
     "rooms_dock_outside_map": "another file",
     "world_dock_in_wall": "another file",
     "rooms_anchor_outside": "another file",

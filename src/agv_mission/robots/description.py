@@ -161,8 +161,10 @@ class RobotDescription(BaseModel):
     footprint_radius: float = Field(
         None,
         gt=0,
-        description="radius of a circular footprint, m; with a footprint polygon: the "
-        "circle round the polygon (derived)",
+        le=10.0,
+        description="radius of a circular footprint, m, at most 10 (as a footprint polygon's "
+        "reach: a radius of 1e6 m overflows the costmap's inflation); with a footprint "
+        "polygon: the circle round the polygon (derived)",
     )
     footprint: list[tuple[float, float]] | None = Field(
         None,

@@ -229,8 +229,9 @@ def _parse_meta(yaml_path: Path, meta: dict):
 
 def _read_image(yaml_path: Path, image_path: Path, mode: str):
     """(channel average, alpha 0..255) of every pixel as float64, top row first."""
-    if not image_path.is_file():
-        raise MapLoadError(f"{yaml_path}: image file {image_path} not found")
+    if not image_path.is_file():  # a directory or a FIFO (which would block a read) too
+        what = "is not a regular file" if image_path.exists() else "not found"
+        raise MapLoadError(f"{yaml_path}: image file {image_path} {what}")
     from PIL import Image, UnidentifiedImageError  # a built-in world has no image to read
 
     try:

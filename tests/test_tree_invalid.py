@@ -138,6 +138,10 @@ CASES = [
          XML_HEAD + '  <BehaviorTree ID="Main">\n    <SubTree ID="Loop"/>\n  </BehaviorTree>\n'
          '  <BehaviorTree ID="Loop">\n    <Sequence>\n      <SubTree ID="Loop"/>\n'
          "    </Sequence>\n  </BehaviorTree>\n</root>\n", in_xml=True),
+    Case("xml not UTF-8", "tree: tree.xml\n", 3, "",
+         "not a UTF-8 text file (byte 0xff at column 20)",
+         XML_HEAD + '  <BehaviorTree ID="Main">\n    <Wait name="caf\udcff" wait_duration="1"/>\n'
+         "  </BehaviorTree>\n</root>\n", in_xml=True),
     Case("xml main tree calls itself", "tree: tree.xml\n", 7, "BehaviorTree.Loop.0.id",
          "subtree 'Main' contains itself (Main -> Loop -> Main)",
          XML_HEAD + '  <BehaviorTree ID="Main">\n    <SubTree ID="Loop"/>\n  </BehaviorTree>\n'
@@ -200,7 +204,7 @@ def _write(tmp_path: Path, case: Case) -> Path:
     path = tmp_path / "m.yaml"
     path.write_text(HEAD + case.mission)
     if case.xml is not None:
-        (tmp_path / "tree.xml").write_text(case.xml)
+        (tmp_path / "tree.xml").write_text(case.xml, errors="surrogateescape")  # \udcff: 0xff
     return path
 
 

@@ -252,3 +252,20 @@ def test_an_image_claiming_too_many_pixels_is_refused(tmp_path, size, expected) 
             load_ros_map(tmp_path / "map.yaml")
     assert str(info.value).startswith(f"{tmp_path / 'map.yaml'}: image ")
     assert expected in str(info.value)
+
+
+@pytest.mark.parametrize("kind", ["directory", "fifo"])
+def test_an_image_that_is_no_regular_file_is_named_so(tmp_path: Path, kind: str) -> None:
+    """A map YAML whose image is a directory or a FIFO (open() on it would block) is
+    refused as such, not reported 'not found'."""
+    image = tmp_path / "map.pgm"
+    if kind == "directory":
+        image.mkdir()
+    else:
+        import os
+
+        os.mkfifo(image)
+    meta = tmp_path / "map.yaml"
+    meta.write_text("image: map.pgm\nresolution: 0.05\norigin: [0.0, 0.0, 0.0]\n")
+    with pytest.raises(MapLoadError, match="is not a regular file"):
+        load_ros_map(meta)

@@ -116,6 +116,19 @@ CASES = [
          "as YAML flow text",
          XML_HEAD + '  <BehaviorTree ID="Main">\n    <NavigateToPose goal="{x: 1.0"/>\n'
          "  </BehaviorTree>\n</root>\n", in_xml=True),
+    Case("xml integer of 5000 digits", "tree: tree.xml\n", 3, "BehaviorTree.Main.num_cycles",
+         "a number of 5000 digits (at most 4300)",
+         XML_HEAD + '  <BehaviorTree ID="Main">\n    <Repeat num_cycles="' + "9" * 5000
+         + '">\n      <Stop/>\n    </Repeat>\n  </BehaviorTree>\n</root>\n', in_xml=True),
+    Case("xml alias bomb in flow text", "tree: tree.xml\n", 3, "BehaviorTree.Main.goal",
+         "aliases expand to more than",
+         XML_HEAD + '  <BehaviorTree ID="Main">\n    <NavigateToPose goal="[&amp;a [1,1,1,1,1,1,1,1,1,1]'
+         + "".join(f", &amp;{chr(98 + i)} [{', '.join(['*' + chr(97 + i)] * 10)}]" for i in range(6))
+         + ']"/>\n  </BehaviorTree>\n</root>\n', in_xml=True),
+    Case("yaml alias bomb in subtrees", "trees:\n  a: &a {type: sequence, children: [{type: stop}]}\n"
+         + "".join(f"  {chr(98 + i)}: &{chr(98 + i)} {{type: sequence, children: "
+                   f"[{', '.join(['*' + chr(97 + i)] * 10)}]}}\n" for i in range(7))
+         + "tree: *h\n", 12, "trees.h.children", "aliases expand to more than 2,000,000 values"),
     Case("xml unknown subtree", "tree: tree.xml\n", 4, "BehaviorTree.Main.0.id",
          "unknown subtree id 'Nope'",
          XML_HEAD + '  <BehaviorTree ID="Main">\n    <Sequence>\n      <SubTree ID="Nope"/>\n'
@@ -124,6 +137,15 @@ CASES = [
          "contains itself",
          XML_HEAD + '  <BehaviorTree ID="Main">\n    <SubTree ID="Loop"/>\n  </BehaviorTree>\n'
          '  <BehaviorTree ID="Loop">\n    <Sequence>\n      <SubTree ID="Loop"/>\n'
+         "    </Sequence>\n  </BehaviorTree>\n</root>\n", in_xml=True),
+    Case("xml not UTF-8", "tree: tree.xml\n", 3, "",
+         "not a UTF-8 text file (byte 0xff at column 20)",
+         XML_HEAD + '  <BehaviorTree ID="Main">\n    <Wait name="caf\udcff" wait_duration="1"/>\n'
+         "  </BehaviorTree>\n</root>\n", in_xml=True),
+    Case("xml main tree calls itself", "tree: tree.xml\n", 7, "BehaviorTree.Loop.0.id",
+         "subtree 'Main' contains itself (Main -> Loop -> Main)",
+         XML_HEAD + '  <BehaviorTree ID="Main">\n    <SubTree ID="Loop"/>\n  </BehaviorTree>\n'
+         '  <BehaviorTree ID="Loop">\n    <Sequence>\n      <SubTree ID="Main"/>\n'
          "    </Sequence>\n  </BehaviorTree>\n</root>\n", in_xml=True),
     Case("xml decorator with two children", "tree: tree.xml\n", 3, "BehaviorTree.Main.child",
          "exactly one `child`, got 2",
@@ -182,7 +204,7 @@ def _write(tmp_path: Path, case: Case) -> Path:
     path = tmp_path / "m.yaml"
     path.write_text(HEAD + case.mission)
     if case.xml is not None:
-        (tmp_path / "tree.xml").write_text(case.xml)
+        (tmp_path / "tree.xml").write_text(case.xml, errors="surrogateescape")  # \udcff: 0xff
     return path
 
 

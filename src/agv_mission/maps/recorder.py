@@ -41,6 +41,7 @@ from filelock import FileLock, Timeout
 
 from agv_mission.atomic import InputFileError, atomic_write_text, read_input_text, write_target
 from agv_mission.geometry import Pose2D, quaternion_from_yaw, yaw_from_quaternion
+from agv_mission.yaml_safe import FastSafeLoader
 
 RECORDER_FILENAME = "location_recorder.yaml"
 
@@ -55,7 +56,7 @@ ORIENTATION_KEYS = ("x", "y", "z", "w")
 
 # libyaml's emitter when present (same text, several times faster than pure Python)
 _DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
-_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+_LOADER = FastSafeLoader  # libyaml where installed; a 5000-digit number is a YAML error
 
 Entry = dict[str, dict[str, float]]  # {"position": {x, y, z}, "orientation": {x, y, z, w}}
 

@@ -27,6 +27,7 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.docks import Dock, DockModel
 from agv_mission.maps.rooms import Room
 from agv_mission.suggest import unknown_key
+from agv_mission.yaml_safe import safe_load
 
 
 class RoomsFileError(ValueError):
@@ -254,7 +255,7 @@ def load_rooms_file(path: str | os.PathLike[str]) -> tuple[dict[str, Room], dict
     except (OSError, UnicodeDecodeError) as exc:
         raise RoomsFileError(path, [(None, None, f"cannot read rooms file: {exc}")]) from exc
     try:
-        doc = yaml.safe_load(text)
+        doc = safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = mark.line + 1 if mark is not None else None

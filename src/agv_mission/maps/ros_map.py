@@ -37,6 +37,7 @@ import yaml
 from agv_mission.atomic import atomic_write_bytes, input_path
 from agv_mission.geometry import Pose2D
 from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.yaml_safe import safe_load
 
 if TYPE_CHECKING:
     from PIL import Image
@@ -154,7 +155,7 @@ def _read_yaml(yaml_path: Path) -> dict:
     if not yaml_path.is_file():
         raise MapLoadError(f"{yaml_path}: map YAML file not found")
     try:
-        meta = yaml.safe_load(yaml_path.read_text(encoding="utf-8"))
+        meta = safe_load(yaml_path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise MapLoadError(f"{yaml_path}: cannot read map YAML: {exc}") from exc
     if not isinstance(meta, dict):
@@ -228,8 +229,9 @@ def _parse_meta(yaml_path: Path, meta: dict):
 
 def _read_image(yaml_path: Path, image_path: Path, mode: str):
     """(channel average, alpha 0..255) of every pixel as float64, top row first."""
-    if not image_path.is_file():
-        raise MapLoadError(f"{yaml_path}: image file {image_path} not found")
+    if not image_path.is_file():  # a directory or a FIFO (which would block a read) too
+        what = "is not a regular file" if image_path.exists() else "not found"
+        raise MapLoadError(f"{yaml_path}: image file {image_path} {what}")
     from PIL import Image, UnidentifiedImageError  # a built-in world has no image to read
 
     cannot = f"{yaml_path}: cannot read image {image_path}"

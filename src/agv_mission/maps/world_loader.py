@@ -58,7 +58,12 @@ from agv_mission.geometry import Pose2D
 from agv_mission.maps.builtin_worlds import BUILTIN_WORLDS
 from agv_mission.maps.docks import Dock, DockModel, dock_problem
 from agv_mission.maps.grid import FREE, OCCUPIED, OccupancyGrid
-from agv_mission.maps.rasterize import WorldTooLarge, grid_shape, occupancy_mask, rasterize
+from agv_mission.maps.rasterize import (
+    WorldTooLarge,
+    grid_shape,
+    occupancy_mask,
+    rasterize,
+)
 from agv_mission.maps.rooms import Room
 from agv_mission.maps.rooms_file import (
     RoomsFileError,
@@ -71,6 +76,7 @@ from agv_mission.maps.ros_map import MapLoadError, is_ros_map_yaml, load_ros_map
 from agv_mission.maps.sdf_world import SdfError, is_sdf_path, read_sdf_world
 from agv_mission.maps.worlds import Box, Cylinder, World
 from agv_mission.suggest import unknown_key
+from agv_mission.yaml_safe import safe_load
 
 SPAWN_CLEARANCE = 0.3  # metres of free space the spawn of a ROS map must have around it
 DEFAULT_RESOLUTION = 0.05
@@ -120,7 +126,7 @@ def load_world(
         return world_from_sdf(path, scan_height, skip_unsupported)
     try:
         text = read_input_text(path)
-        doc = yaml.safe_load(text)
+        doc = safe_load(text)
     except InputFileError as exc:
         raise WorldError(f"{path}: world file: {exc}") from None
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
@@ -383,7 +389,7 @@ def world_from_file(
     YAML node tree, gives each problem its line)."""
     if doc is None:
         try:
-            doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+            doc = safe_load(path.read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
             raise WorldError(f"{path}: cannot read world file: {exc}") from exc
     try:
@@ -410,6 +416,7 @@ def world_from_file(
         bounds = (b.xmin, b.xmax, b.ymin, b.ymax)
     else:
         bounds = _geometry_bounds(boxes, cylinders, spawn, DEFAULT_MARGIN)
+    _check_size(path, bounds, model.resolution, model.bounds is not None, root)
     try:
         grid = rasterize(boxes, cylinders, bounds, model.resolution, spawn)
     except ValueError as exc:
@@ -469,3 +476,18 @@ def _geometry_bounds(
         xs += [cyl.x - cyl.radius, cyl.x + cyl.radius]
         ys += [cyl.y - cyl.radius, cyl.y + cyl.radius]
     return (min(xs) - margin, max(xs) + margin, min(ys) - margin, max(ys) + margin)
+
+
+def _check_size(path: Path, bounds: Any, resolution: float, given: bool, root: Any) -> None:
+    """Refuse a map of more than ``MAX_WORLD_CELLS`` cells before it is allocated, at the
+    line of ``bounds`` (or of ``resolution`` when the bounds come from the geometry)."""
+    try:
+        grid_shape(bounds, resolution)
+    except WorldTooLarge as exc:
+        field = "bounds" if given else "resolution"
+        line = node_line(root, (field,)) if root is not None else None
+        where = f"{path}:{line}" if line else str(path)
+        message = f"{where}: {field}: {exc} (smaller bounds or a coarser resolution)"
+        raise WorldError(message, [message]) from None
+    except ValueError:  # empty bounds: rasterize says so
+        return

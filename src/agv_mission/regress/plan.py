@@ -165,7 +165,7 @@ def not_a_mission(path: Path) -> str | None:
     that cannot be read or parsed is the loader's to report)."""
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, ValueError):
         return None
     if data is None:
         return "empty"
@@ -197,7 +197,7 @@ def _trees_named(missions: Sequence[Path]) -> dict[Path, list[Path]]:
     for m in missions:
         try:
             data = yaml.safe_load(m.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        except (OSError, UnicodeDecodeError, yaml.YAMLError, ValueError):
             continue
         tree = data.get("tree") if isinstance(data, dict) else None
         if isinstance(tree, str) and tree.lower().endswith(".xml"):

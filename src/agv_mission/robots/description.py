@@ -82,6 +82,8 @@ class LidarSpec(BaseModel):
             raise ValueError("angle_min and angle_max go together (neither: a full turn)")
         if self.angle_min is not None and not self.angle_min < self.angle_max:
             raise ValueError(f"angle_min {self.angle_min} is not below angle_max {self.angle_max}")
+        if not self.range_min < self.range_max:  # a lidar that could never return anything
+            raise ValueError(f"range_min {self.range_min} is not below range_max {self.range_max}")
         return self
 
     @property
@@ -148,13 +150,21 @@ class RobotDescription(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, defer_build=True)
 
     name: str
-    wheel_radius: float = Field(..., gt=0, description="metres")
+    wheel_radius: float = Field(
+        ...,
+        ge=0.005,
+        le=2.0,
+        description="metres, 5 mm to 2 m (a wheel of 1e-12 m has no mass the physics "
+        "engine can move)",
+    )
     wheel_separation: float = Field(..., gt=0, description="distance between wheel contacts, m")
     footprint_radius: float = Field(
         None,
         gt=0,
-        description="radius of a circular footprint, m; with a footprint polygon: the "
-        "circle round the polygon (derived)",
+        le=10.0,
+        description="radius of a circular footprint, m, at most 10 (as a footprint polygon's "
+        "reach: a radius of 1e6 m overflows the costmap's inflation); with a footprint "
+        "polygon: the circle round the polygon (derived)",
     )
     footprint: list[tuple[float, float]] | None = Field(
         None,

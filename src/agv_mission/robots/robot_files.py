@@ -17,6 +17,7 @@ from agv_mission.atomic import InputFileError, input_path, read_input_text
 from agv_mission.robots.builtin_robots import BUILTIN_ROBOTS
 from agv_mission.robots.description import RobotDescription
 from agv_mission.suggest import unknown_key
+from agv_mission.yaml_safe import safe_load
 
 
 class RobotFileError(ValueError):
@@ -58,7 +59,7 @@ def load_robot(spec: str, base_dir: Path | None = None) -> RobotDescription:
     except UnicodeDecodeError:
         raise RobotFileError(path, None, "", "not a UTF-8 text file") from None
     try:
-        doc = yaml.safe_load(text)
+        doc = safe_load(text)
         root = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)

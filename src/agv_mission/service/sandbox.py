@@ -60,7 +60,7 @@ def nested_files(world: Path) -> dict[str, Path]:
         if not world.is_file() or world.stat().st_size > MAX_NESTED_FILE:
             return {}  # the loader reports a missing file; a huge one is no world
         doc = yaml.safe_load(world.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, ValueError):
         return {}
     if not isinstance(doc, dict):
         return {}

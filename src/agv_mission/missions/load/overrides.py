@@ -23,6 +23,7 @@ from agv_mission.missions.load.errors import MissionError, Problem
 from agv_mission.missions.load.problems import kind_of
 from agv_mission.missions.load.schema import with_default_plugin_types
 from agv_mission.missions.load.yaml_lines import FieldPath
+from agv_mission.yaml_safe import safe_load
 
 
 @dataclass(frozen=True)
@@ -73,7 +74,7 @@ def override_value(raw: str) -> Any:
     """The VALUE of ``KEY=VALUE`` as YAML reads it (empty: null); text YAML cannot read
     stays text."""
     try:
-        return yaml.safe_load(raw) if raw.strip() else None
+        return safe_load(raw) if raw.strip() else None
     except yaml.YAMLError:
         return raw
 

@@ -164,7 +164,8 @@ def error_message(err: dict, data: Any = None, model: type[Setup] = Mission) -> 
         and kind not in ("union_tag_invalid",)
         and not isinstance(err["input"], (dict, list))
     ):
-        msg = f"{msg} (got {err['input']!r})"
+        got = repr(err["input"])  # a 3 MB string is shown by its start, not in full
+        msg = f"{msg} (got {got if len(got) <= 80 else got[:76] + '...'})"
     return msg
 
 

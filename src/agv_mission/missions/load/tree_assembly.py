@@ -36,6 +36,7 @@ from agv_mission.missions.load.tree_spec import (
     Where,
     tasks_spec,
 )
+from agv_mission.missions.load.yaml_lines import load_with_lines
 from agv_mission.registry import UnknownPluginError, registry
 
 #: Nodes nested deeper than this are refused (building and ticking recurse per level).
@@ -264,9 +265,15 @@ class _Assembly:
             if spec.from_xml and isinstance(raw, str):
                 try:
                     raw = _xml_value(raw, fields[port].annotation)
-                except yaml.YAMLError:
+                except (yaml.YAMLError, ValueError, RecursionError) as exc:
+                    why = getattr(exc, "problem", None) or "nests too deeply"
+                    if isinstance(exc, ValueError) and not isinstance(exc, yaml.YAMLError):
+                        why = "a number of more than 4300 digits"
+                    shown = repr(raw) if len(raw) <= 60 else repr(raw[:60]) + "..."
                     self.problems.append(
-                        spec.where.problem(f"cannot read {raw!r} as YAML flow text", port, line)
+                        spec.where.problem(
+                            f"cannot read {shown} as YAML flow text ({why[:200]})", port, line
+                        )
                     )
                     ok = False
                     continue
@@ -313,6 +320,11 @@ class _Assembly:
             self.problems.append(spec.where.problem("a subtree needs an `id` (a string)", "id"))
             return None
         body = self.source.trees.get(tree_id)
+        if body is None and spec.from_xml and tree_id == self.source.main_id:
+            chain = " -> ".join([tree_id, *self.expanding, tree_id])  # back to the main tree
+            self.problems.append(spec.where.problem(f"subtree {tree_id!r} contains itself "
+                                                    f"({chain})", "id"))  # fmt: skip
+            return None
         if body is None:
             known = ", ".join(sorted(self.source.trees)) or "none"
             self.problems.append(
@@ -362,7 +374,7 @@ def _xml_value(raw: str, annotation: Any) -> Any:
     """An XML attribute's value: a string port keeps it; others read it as YAML flow text."""
     if annotation is str:
         return raw
-    return yaml.safe_load(raw)
+    return load_with_lines(raw)[0]  # its aliases bounded, as a mission file's
 
 
 def assemble(source: TreeSource) -> TreeSpec:

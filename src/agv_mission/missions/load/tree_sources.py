@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from agv_mission.atomic import InputFileError, input_path, read_input_bytes
-from agv_mission.missions.load.errors import MissionError
+from agv_mission.missions.load.errors import MissionError, Problem
 from agv_mission.missions.load.problems import (
     ProblemLog,
     os_message,
@@ -60,15 +60,15 @@ def tree_loader(base_dir: Path, path_guard: PathGuard | None) -> Callable[[str, 
         if refused:
             raise MissionError([where.problem(refused, "behavior_tree")])
         try:
-            text = read_input_bytes(xml_path).decode("utf-8")
+            raw = read_input_bytes(xml_path)
         except InputFileError as exc:
             raise MissionError(
                 [where.problem(f"cannot read {name!r}: {exc}", "behavior_tree")]
             ) from None
-        except (OSError, UnicodeDecodeError) as exc:
+        except OSError as exc:
             message = f"cannot read {name!r}: {os_message(exc)}"
             raise MissionError([where.problem(message, "behavior_tree")]) from None
-        return parse_xml(text, str(xml_path))
+        return parse_xml(_utf8(raw, str(xml_path)), str(xml_path))
 
     return load
 
@@ -87,14 +87,25 @@ def xml_source(
         log.add(field_path, refused)
         log.raise_if_any()
     try:
-        text = read_input_bytes(xml_path).decode("utf-8")
+        raw = read_input_bytes(xml_path)
     except InputFileError as exc:
         log.add(field_path, f"cannot read {name!r}: {exc}")
         raise MissionError(log.problems) from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except OSError as exc:
         log.add(field_path, f"cannot read {name!r}: {os_message(exc)}")
         raise MissionError(log.problems) from None
-    return parse_xml(text, str(xml_path))
+    return parse_xml(_utf8(raw, str(xml_path)), str(xml_path))
+
+
+def _utf8(raw: bytes, file: str) -> str:
+    """``raw`` as UTF-8 text; else a problem at the XML file's own line and column."""
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
+        message = f"not a UTF-8 text file (byte 0x{raw[exc.start]:02x} at column {column})"
+        raise MissionError([Problem(file, line, "", message)]) from None
 
 
 def node_checks(tree: TreeSpec | None, log: ProblemLog) -> list[Any]:

@@ -7,7 +7,15 @@ from typing import Any
 
 import yaml
 
+from agv_mission.yaml_safe import INT_TAG, MAX_INT_DIGITS, SafeLoader
+
 FieldPath = tuple[str | int, ...]
+
+#: Values a document may hold once its aliases are expanded: far above any real mission
+#: (a 4 MB file of plain values holds about two million), far below what would exhaust
+#: memory once an alias of an alias of ... (a "billion laughs") is copied out by the
+#: checks and the tree assembly.
+MAX_EXPANDED_VALUES = 2_000_000
 
 
 class DocumentError(yaml.MarkedYAMLError):
@@ -26,7 +34,7 @@ def load_with_lines(text: str) -> tuple[Any, dict[FieldPath, int]]:
     :class:`DocumentError` on a key given twice in one mapping or a string that is
     not valid Unicode (a lone surrogate from a ``\\ud800`` escape).
     """
-    loader = yaml.SafeLoader(text)  # parsed once: the lines from its nodes, then the data
+    loader = SafeLoader(text)  # parsed once: the lines from its nodes, then the data
     try:
         node = loader.get_single_node()
         lines: dict[FieldPath, int] = {}
@@ -35,9 +43,15 @@ def load_with_lines(text: str) -> tuple[Any, dict[FieldPath, int]]:
             lines[()] = node.start_mark.line + 1  # where the document itself starts
             try:  # before the data is built: a merge key (<<) rewrites its mapping's node
                 _walk(node, (), lines, set())
+                _check_expansion(node)
             except (DocumentError, RecursionError) as exc:
                 walked = exc  # the data's own errors are told first
-        data = loader.construct_document(node) if node is not None else None
+        try:
+            data = loader.construct_document(node) if node is not None else None
+        except yaml.constructor.ConstructorError:
+            if isinstance(walked, DocumentError):  # e.g. a number too long: told with its field
+                raise walked from None
+            raise
     finally:
         loader.dispose()
     if walked is not None:
@@ -52,6 +66,11 @@ def _walk(node: yaml.Node, path: FieldPath, lines: dict[FieldPath, int], seen: s
     seen.add(id(node))
     if isinstance(node, yaml.ScalarNode):
         _check_text(node, path)
+        digits = sum(c.isdigit() for c in node.value)
+        if node.tag == INT_TAG and digits > MAX_INT_DIGITS:
+            raise DocumentError(
+                f"a number of {digits} digits (at most {MAX_INT_DIGITS})", node.start_mark, path
+            )
     elif isinstance(node, yaml.MappingNode):
         first: dict[tuple[str, str], int] = {}
         for key, value in node.value:
@@ -75,6 +94,40 @@ def _walk(node: yaml.Node, path: FieldPath, lines: dict[FieldPath, int], seen: s
             child = (*path, i)
             lines[child] = item.start_mark.line + 1
             _walk(item, child, lines, seen)
+
+
+def _check_expansion(root: yaml.Node) -> None:
+    """Refuse a document whose aliases expand to more than :data:`MAX_EXPANDED_VALUES`
+    values, naming the outermost key whose value does (counted without expanding it)."""
+    sizes: dict[int, int] = {}
+
+    def size(node: yaml.Node) -> int:
+        known = sizes.get(id(node))
+        if known is not None:
+            return known
+        sizes[id(node)] = 1  # a node that contains itself counts once (told elsewhere)
+        total = 1
+        if isinstance(node, yaml.MappingNode):
+            total += sum(size(key) + size(value) for key, value in node.value)
+        elif isinstance(node, yaml.SequenceNode):
+            total += sum(size(item) for item in node.value)
+        sizes[id(node)] = total
+        return total
+
+    if size(root) <= MAX_EXPANDED_VALUES:
+        return
+    node, path, mark = root, (), root.start_mark
+    while isinstance(node, yaml.MappingNode):  # down to the key whose value is too large
+        big = [(k, v) for k, v in node.value if isinstance(k, yaml.ScalarNode)]
+        key, value = max(big, key=lambda kv: sizes[id(kv[1])], default=(None, None))
+        if key is None or sizes[id(value)] <= MAX_EXPANDED_VALUES:
+            break
+        node, path, mark = value, (*path, key.value), key.start_mark
+    raise DocumentError(
+        f"its aliases expand to more than {MAX_EXPANDED_VALUES:,} values (an alias bomb?)",
+        mark,
+        path,
+    )
 
 
 def _check_text(node: yaml.ScalarNode, path: FieldPath) -> None:

@@ -145,6 +145,12 @@ def test_the_watch_page_in_chromium(rig: dict[str, Any]) -> None:
             page.wait_for_function(
                 "() => view.scene.map !== null && view.mapId === 'turtlebot3_world'"
             )
+            # the cell is drawn at the first message, the battery at the first state with one
+            page.wait_for_function(
+                """() => document.querySelector('.agv[data-serial="agv1"] .battery')
+                    .textContent.includes('%')""",
+                timeout=20000,
+            )
             battery = page.inner_text('.agv[data-serial="agv1"] .battery')
             assert "%" in battery and "V" in battery
             assert "acme" in page.inner_text('.agv[data-serial="forklift1"]').lower()

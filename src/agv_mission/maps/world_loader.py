@@ -416,7 +416,8 @@ def world_from_file(
         bounds = (b.xmin, b.xmax, b.ymin, b.ymax)
     else:
         bounds = _geometry_bounds(boxes, cylinders, spawn, DEFAULT_MARGIN)
-    _check_size(path, bounds, model.resolution, model.bounds is not None, root)
+    if model.bounds is not None:  # else a body stretches the map: rasterize names the span
+        _check_size(path, bounds, model.resolution, root)
     try:
         grid = rasterize(boxes, cylinders, bounds, model.resolution, spawn)
     except ValueError as exc:
@@ -478,16 +479,15 @@ def _geometry_bounds(
     return (min(xs) - margin, max(xs) + margin, min(ys) - margin, max(ys) + margin)
 
 
-def _check_size(path: Path, bounds: Any, resolution: float, given: bool, root: Any) -> None:
+def _check_size(path: Path, bounds: Any, resolution: float, root: Any) -> None:
     """Refuse a map of more than ``MAX_WORLD_CELLS`` cells before it is allocated, at the
-    line of ``bounds`` (or of ``resolution`` when the bounds come from the geometry)."""
+    line of the file's ``bounds``."""
     try:
         grid_shape(bounds, resolution)
     except WorldTooLarge as exc:
-        field = "bounds" if given else "resolution"
-        line = node_line(root, (field,)) if root is not None else None
+        line = node_line(root, ("bounds",)) if root is not None else None
         where = f"{path}:{line}" if line else str(path)
-        message = f"{where}: {field}: {exc} (smaller bounds or a coarser resolution)"
+        message = f"{where}: bounds: {exc} (smaller bounds or a coarser resolution)"
         raise WorldError(message, [message]) from None
     except ValueError:  # empty bounds: rasterize says so
         return

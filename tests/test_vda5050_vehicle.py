@@ -453,7 +453,8 @@ def test_charging_at_the_dock_with_the_robots_battery(rig) -> None:
     battery = vehicle.body.robot.battery
     assert battery is not None and battery.voltage is not None
     s0 = master.of(SERIAL, "state")[-1]["batteryState"]
-    assert s0["charging"] is False and 0.0 < s0["batteryCharge"] < 60.0  # started at 60 %
+    # started at 60 % (how far it drained depends on how long the tests before it took)
+    assert s0["charging"] is False and 0.0 < s0["batteryCharge"] <= 60.0
     assert s0["batteryVoltage"] == battery.voltage
     dock = vehicle.body.loaded.world.docks["charger"].pose
     x, y = here(master)

@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
@@ -247,28 +248,10 @@ def write_quirk_bag(path: Path, drive: Drive, q: Quirks) -> Path:
 
     messages = [(coarse(m[0]), *m[1:]) for m in messages]
     messages.sort(key=lambda m: m[0])
-    if ros1:
-        from rosbags.rosbag1 import Writer as Writer1
-
-        target = path.with_suffix(".bag")
-        with Writer1(target) as writer:
-            conns = {}
-            for s, topic, msgtype, msg in messages:
-                if topic not in conns:
-                    conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
-                writer.write(conns[topic], int(s * 1e9) + 1, store.serialize_ros1(msg, msgtype))
-        return target
-    from rosbags.rosbag2 import StoragePlugin, Writer
-
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        conns = {}
-        for s, topic, msgtype, msg in messages:
-            if topic not in conns:
-                conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
-            writer.write(conns[topic], int(s * 1e9) + 1, store.serialize_cdr(msg, msgtype))
+    written = _write_messages(path, messages, store, ros1)
     if q.fmt == "mcap":
         return next(path.glob("*.mcap"))
-    return path
+    return written
 
 
 #: Seconds a localiser's start error takes to vanish (``Quirks.localiser_start_error``).
@@ -414,6 +397,13 @@ def write_small_bag(
         msg = types["sensor_msgs/msg/LaserScan"](header=header(t, "laser", scan_nanosec), **fields)
         messages.append((t, "/scan", "sensor_msgs/msg/LaserScan", msg))
     messages.sort(key=lambda m: m[0])
+    written = _write_messages(path, messages, store, ros1)
+    return next(path.glob("*.mcap")) if fmt == "mcap" else written
+
+
+def _write_messages(path: Path, messages: list, store: Any, ros1: bool) -> Path:
+    """``messages`` (seconds, topic, type, message; in order) as a ROS 1 bag beside
+    ``path`` or a ROS 2 MCAP bag at ``path``: the bag written."""
     if ros1:
         from rosbags.rosbag1 import Writer as Writer1
 
@@ -433,4 +423,4 @@ def write_small_bag(
             if topic not in conns:
                 conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
             writer.write(conns[topic], int(s * 1e9) + 1, store.serialize_cdr(msg, msgtype))
-    return next(path.glob("*.mcap")) if fmt == "mcap" else path
+    return path

@@ -14,6 +14,21 @@ ROS_MAPS = Path(__file__).resolve().parent / "data" / "ros_maps"
 
 
 @pytest.fixture
+def run_cli():
+    """The real command in this process (Typer's runner): exit code and all output."""
+    from typer.testing import CliRunner
+
+    from agv_mission.cli import app
+
+    def run(args: list[str]) -> tuple[int, str]:
+        r = CliRunner().invoke(app, args)
+        assert r.exception is None or isinstance(r.exception, SystemExit), r.exception
+        return r.exit_code, r.output
+
+    return run
+
+
+@pytest.fixture
 def ros_maps() -> Path:
     """The folder holding the real ROS maps (``turtlebot3_world/``, ``aws_small_house/``)."""
     return ROS_MAPS

@@ -130,21 +130,6 @@ CASES = {
 }
 
 
-@pytest.fixture
-def run_cli():
-    """The real command in this process (Typer's runner): exit code and all output."""
-    from typer.testing import CliRunner
-
-    from agv_mission.cli import app
-
-    def run(args: list[str]) -> tuple[int, str]:
-        r = CliRunner().invoke(app, args)
-        assert r.exception is None or isinstance(r.exception, SystemExit), r.exception
-        return r.exit_code, r.output
-
-    return run
-
-
 @pytest.mark.parametrize("name", list(CASES))
 def test_hostile_message_is_exit_2_naming_topic_message_and_field(tmp_path, run_cli, name):
     fmt, args, expected = CASES[name]

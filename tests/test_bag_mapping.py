@@ -19,21 +19,6 @@ def drive():
     return simulated_drive(30.0)
 
 
-@pytest.fixture
-def run_cli():
-    """The real command in this process (Typer's runner): exit code and all output."""
-    from typer.testing import CliRunner
-
-    from agv_mission.cli import app
-
-    def run(args: list[str]) -> tuple[int, str]:
-        r = CliRunner().invoke(app, args)
-        assert r.exception is None or isinstance(r.exception, SystemExit), r.exception
-        return r.exit_code, r.output
-
-    return run
-
-
 CASES = {
     "ros2_plain": Quirks(),
     "ros1_offcentre_rotated": Quirks(fmt="ros1", mount=Pose2D(0.12, -0.05, math.pi / 2)),

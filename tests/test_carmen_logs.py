@@ -211,20 +211,6 @@ def test_a_log_reaching_kilometres_is_exit_2_not_terabytes(tmp_path, run_cli, wh
     assert not (tmp_path / "m.pgm").exists()
 
 
-@pytest.fixture
-def run_cli():
-    from typer.testing import CliRunner
-
-    from agv_mission.cli import app
-
-    def run(args: list[str]) -> tuple[int, str]:
-        r = CliRunner().invoke(app, args)
-        assert r.exception is None or isinstance(r.exception, SystemExit), r.exception
-        return r.exit_code, r.output
-
-    return run
-
-
 @pytest.mark.parametrize("length", [5.0, 2.0, 0.0])
 def test_no_return_clears_only_the_configured_length(length):
     config = GridSlamConfig(missing_data_ray_length=length, initial_size=40.0)

@@ -20,7 +20,7 @@ import yaml
 from pydantic import ValidationError
 
 from agv_mission.atomic import InputFileError, read_input_bytes
-from agv_mission.missions.load.errors import MissionError, Problem
+from agv_mission.missions.load.errors import MissionError, Problem, utf8_text
 from agv_mission.missions.load.layout import default_to_odometry, fleet_layout
 from agv_mission.missions.load.overrides import Override, apply_overrides
 from agv_mission.missions.load.problems import (
@@ -216,13 +216,7 @@ def _read_text(path: Path, file: str) -> str:
         raw = read_input_bytes(path)
     except InputFileError as exc:
         raise MissionError([Problem(file, None, "", str(exc))]) from None
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = raw[: exc.start].count(b"\n") + 1
-        column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
-        message = f"not a UTF-8 text file (byte 0x{raw[exc.start]:02x} at column {column})"
-        raise MissionError([Problem(file, line, "", message)]) from None
+    return utf8_text(raw, file)
 
 
 def remote_controlled(loaded: LoadedMission, time_limit: float = MAX_SIM_SECONDS) -> LoadedMission:

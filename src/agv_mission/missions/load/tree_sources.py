@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from agv_mission.atomic import InputFileError, input_path, read_input_bytes
-from agv_mission.missions.load.errors import MissionError, Problem
+from agv_mission.missions.load.errors import MissionError, utf8_text
 from agv_mission.missions.load.problems import (
     ProblemLog,
     os_message,
@@ -68,7 +68,7 @@ def tree_loader(base_dir: Path, path_guard: PathGuard | None) -> Callable[[str, 
         except OSError as exc:
             message = f"cannot read {name!r}: {os_message(exc)}"
             raise MissionError([where.problem(message, "behavior_tree")]) from None
-        return parse_xml(_utf8(raw, str(xml_path)), str(xml_path))
+        return parse_xml(utf8_text(raw, str(xml_path)), str(xml_path))
 
     return load
 
@@ -94,18 +94,7 @@ def xml_source(
     except OSError as exc:
         log.add(field_path, f"cannot read {name!r}: {os_message(exc)}")
         raise MissionError(log.problems) from None
-    return parse_xml(_utf8(raw, str(xml_path)), str(xml_path))
-
-
-def _utf8(raw: bytes, file: str) -> str:
-    """``raw`` as UTF-8 text; else a problem at the XML file's own line and column."""
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = raw[: exc.start].count(b"\n") + 1
-        column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
-        message = f"not a UTF-8 text file (byte 0x{raw[exc.start]:02x} at column {column})"
-        raise MissionError([Problem(file, line, "", message)]) from None
+    return parse_xml(utf8_text(raw, str(xml_path)), str(xml_path))
 
 
 def node_checks(tree: TreeSpec | None, log: ProblemLog) -> list[Any]:

@@ -113,6 +113,10 @@ class Pose2D:
 #: Disc covers are refined until they overshoot the footprint's width by at most this
 #: much (m) on each side, or reach :data:`MAX_DISCS` discs.
 COVER_OVERSHOOT = 0.02
+#: Farthest (m) a pose, a body or a size may lie from its frame's origin in any input: 10 000
+#: km holds any robot's odometry, even a UTM one; beyond it a float64 no longer resolves a
+#: millimetre, and 1e300 m is a broken input, not a place (its square overflows).
+MAX_COORDINATE = 1e7
 MAX_DISCS = 4
 CIRCLE_SIDES = 16  # a round footprint drawn or checked as a polygon
 

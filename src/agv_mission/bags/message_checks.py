@@ -18,11 +18,8 @@ from typing import Any
 
 from agv_mission.bags.carmen import MAX_BEAMS
 from agv_mission.bags.recording import BagError
+from agv_mission.geometry import MAX_COORDINATE
 
-#: Farthest (m) a pose may lie from its frame's origin: 10 000 km holds any robot's
-#: odometry, even a UTM one; beyond it a float64 no longer resolves a millimetre, and
-#: 1e300 m is a broken message, not a place.
-MAX_COORDINATE = 1e7
 #: Shortest quaternion (its norm) that still names a rotation: ``(0, 0, 0, 0)``, an
 #: unset orientation, names none (tf2 refuses it too).
 MIN_QUATERNION_NORM = 1e-6

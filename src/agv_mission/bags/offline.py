@@ -75,8 +75,11 @@ def map_bag(
     start = _start_pose(data, times[first], _pose(odom_at[first]))
     if callable(slam_config):
         slam_config = slam_config(max(s.range_max for s in data.scans))
-    slam: Slam = registry.create("slam", slam_config, bounds=None, rng=None)
-    slam.reset(start.compose(mount), _pose(odom_at[first]).compose(mount))
+    try:
+        slam: Slam = registry.create("slam", slam_config, bounds=None, rng=None)
+        slam.reset(start.compose(mount), _pose(odom_at[first]).compose(mount))
+    except MapTooLarge as exc:  # the first map: the settings' size (scans': _replay)
+        raise BagError(f"{path}: stack.slam (--set): {exc}") from None
     slam_s = _replay(path, slam, data, odom_at, times, used)
     base = _base_trajectory(slam, inv_mount)
     fit = _map_frame_fit(data, base)
@@ -228,11 +231,9 @@ def _replay(
         try:
             slam.update(odom.compose(mount), scan, _ORIGIN, float(times[i]))
         except MapTooLarge as exc:
-            raise BagError(
-                f"{path}: scan {i + 1} of {len(data.scans)} (t = {times[i]:.3f} s, odometry "
-                f"at x {odom.x:.4g} y {odom.y:.4g}, lidar {mount.x:.4g} m ahead, ranges to "
-                f"{data.scans[i].range_max:.4g} m): {exc}"
-            ) from None
+            where = f"scan {i + 1} of {len(data.scans)} (t = {times[i]:.3f} s, odometry at x "
+            where += f"{odom.x:.4g} y {odom.y:.4g}, lidar {mount.x:.4g} m ahead, ranges to "
+            raise BagError(f"{path}: {where}{data.scans[i].range_max:.4g} m): {exc}") from None
     slam.finish()  # the whole recording seen: a final pass (the protocol's: none)
     return time.perf_counter() - t0
 

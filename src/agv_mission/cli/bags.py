@@ -62,7 +62,6 @@ def map_(
         save_outputs,
     )
     from agv_mission.bags.reader import BagError
-    from agv_mission.mapping.log_odds_map import MapTooLarge
 
     try:
         config = default_slam(set_)
@@ -71,8 +70,6 @@ def map_(
         raise invalid(exc) from None
     except BagError as exc:
         raise failure("invalid input", str(exc)) from None
-    except MapTooLarge as exc:  # a first map too large: --set resolution (scans': BagError)
-        raise failure("invalid input", f"{bag}: stack.slam (--set): {exc}") from None
     except MappingFailed as exc:
         raise failure("mapping failed", str(exc), 1) from None
     for line in report_lines(result, save_outputs(result, save_map)):

@@ -30,13 +30,9 @@ import numpy as np
 from agv_mission.geometry import Bounds, Pose2D
 from agv_mission.mapping.configs import GridSlamConfig
 from agv_mission.mapping.likelihood_field import LikelihoodField, field_values
-from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
+from agv_mission.maps.grid import FREE, MAX_GRID_CELLS, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.sensor_msgs import LaserScan
 
-#: Most cells a map may hold: its thirteen tables take ~52 bytes a cell, so 5 GiB (a
-#: 500 m square at 5 cm; Freiburg's 1.7 km campus log needs about a third). A recording
-#: whose odometry or ranges jump kilometres would otherwise ask for terabytes.
-MAX_CELLS = 100_000_000
 #: Side (cells) of the tiles the field is refreshed in after a scan.
 REFRESH_TILE = 64
 #: An anchor that moved less than this (cells) since the field was built around it does
@@ -78,7 +74,7 @@ def _logit(p: float) -> float:
 
 class MapTooLarge(ValueError):
     """A scan reaches so far from the map (a pose or a range kilometres off) that holding
-    it would take more than :data:`MAX_CELLS` cells."""
+    it would take more than :data:`MAX_GRID_CELLS` cells."""
 
 
 class LogOddsMap:
@@ -103,10 +99,10 @@ class LogOddsMap:
         self.oy = math.floor(ymin / res + 1e-9) * res
         w = max(int(math.ceil((xmax - self.ox) / res - 1e-9)), 1)
         h = max(int(math.ceil((ymax - self.oy) / res - 1e-9)), 1)
-        if h * w > MAX_CELLS:
+        if h * w > MAX_GRID_CELLS:
             raise MapTooLarge(
                 f"a first map of {w * res:.4g} x {h * res:.4g} m is more than "
-                f"{MAX_CELLS:.0e} cells of {res:g} m"
+                f"{MAX_GRID_CELLS:.0e} cells of {res:g} m"
             )
         shape = (h, w)
         self.logodds = np.zeros(shape, np.float32)  # log-odds
@@ -206,10 +202,10 @@ class LogOddsMap:
         if not (left or right or down or up):
             return
         rows, cols = h + down + up, w + left + right
-        if rows * cols > MAX_CELLS:
+        if rows * cols > MAX_GRID_CELLS:
             raise MapTooLarge(
                 f"the map would span {cols * res:.4g} x {rows * res:.4g} m "
-                f"({rows * cols:.3g} cells of {res:g} m; at most {MAX_CELLS:.0e})"
+                f"({rows * cols:.3g} cells of {res:g} m; at most {MAX_GRID_CELLS:.0e})"
             )
         pad = ((down, up), (left, right))
         for name in ("logodds", "field", "hx", "hy", "hn", "ax", "ay", "fax", "fay", "vx", "vy"):

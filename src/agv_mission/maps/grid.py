@@ -11,6 +11,11 @@ from agv_mission.geometry import Pose2D
 FREE = 0
 OCCUPIED = 100
 UNKNOWN = -1
+#: Most cells a grid may hold, whatever draws it (a world rasterised, a map image read,
+#: SLAM's map grown): 10^8, a 500 m square at 5 cm (SLAM's thirteen tables take ~52 bytes a
+#: cell: 5 GiB; Freiburg's 1.7 km campus log needs about a third). A body 10^9 m long, a PGM
+#: header claiming billions of pixels or a pose kilometres off would ask for terabytes.
+MAX_GRID_CELLS = 100_000_000
 _UNKNOWN_RANK = 50.5  # worse than any free-ish value (<= 50), better than occupied (> 50)
 
 

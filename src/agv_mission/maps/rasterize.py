@@ -16,19 +16,15 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from agv_mission.geometry import Bounds, Pose2D
-from agv_mission.maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
+from agv_mission.maps.grid import FREE, MAX_GRID_CELLS, OCCUPIED, UNKNOWN, OccupancyGrid
 from agv_mission.maps.map_cache import stored_array_table
 from agv_mission.maps.worlds import Box, Cylinder
 
 _EPS = 1e-7  # metres: overlaps thinner than this do not count as touching
-#: Most cells a world's grid may hold: 10^8 (a 500 m square at 5 cm, a few hundred MB for
-#: the grid and the masks rasterising it takes); a body 10^9 m long or two 2000 km apart
-#: would otherwise ask for terabytes.
-MAX_WORLD_CELLS = 100_000_000
 
 
 class WorldTooLarge(ValueError):
-    """Bounds whose grid would hold more than :data:`MAX_WORLD_CELLS` cells."""
+    """Bounds whose grid would hold more than :data:`MAX_GRID_CELLS` cells."""
 
 
 def grid_shape(bounds: Bounds, resolution: float) -> tuple[int, int]:
@@ -39,10 +35,10 @@ def grid_shape(bounds: Bounds, resolution: float) -> tuple[int, int]:
     if resolution <= 0:
         raise ValueError(f"resolution must be > 0, got {resolution}")
     cols, rows = (xmax - xmin) / resolution, (ymax - ymin) / resolution  # inf: 1e308 m
-    if not cols * rows <= MAX_WORLD_CELLS:
+    if not cols * rows <= MAX_GRID_CELLS:
         raise WorldTooLarge(
             f"a grid of {xmax - xmin:.4g} x {ymax - ymin:.4g} m is {cols * rows:.3g} cells "
-            f"of {resolution:g} m (at most {MAX_WORLD_CELLS:.0e})"
+            f"of {resolution:g} m (at most {MAX_GRID_CELLS:.0e})"
         )
     width = math.ceil(cols - 1e-9)
     height = math.ceil(rows - 1e-9)

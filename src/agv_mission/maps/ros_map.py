@@ -36,7 +36,7 @@ import yaml
 
 from agv_mission.atomic import atomic_write_bytes, input_path
 from agv_mission.geometry import Pose2D
-from agv_mission.maps.grid import OccupancyGrid
+from agv_mission.maps.grid import MAX_GRID_CELLS, OccupancyGrid
 from agv_mission.yaml_safe import safe_load
 
 if TYPE_CHECKING:
@@ -52,9 +52,6 @@ PGM_OCCUPIED = 0
 PGM_UNKNOWN = 205
 SAVER_THRESHOLD_FREE = 25
 SAVER_THRESHOLD_OCCUPIED = 65
-#: Most pixels a map image may hold: 10^8 (a 500 m square at 5 cm; the grid and the float
-#: tables reading it take a few GB); a PGM header is a few bytes whatever it claims.
-MAX_MAP_PIXELS = 100_000_000
 
 
 class MapLoadError(ValueError):
@@ -241,16 +238,16 @@ def _read_image(yaml_path: Path, image_path: Path, mode: str):
             img = Image.open(image_path)
     except Image.DecompressionBombError as exc:  # PIL's refusal past 179 M pixels
         raise MapLoadError(
-            f"{yaml_path}: image {image_path}: more than {MAX_MAP_PIXELS:.0e} pixels ({exc})"
+            f"{yaml_path}: image {image_path}: more than {MAX_GRID_CELLS:.0e} pixels ({exc})"
         ) from None
     except (OSError, UnidentifiedImageError, ValueError) as exc:
         raise MapLoadError(f"{cannot}: {exc}") from exc
     with img:
         width, height = img.size
-        if width * height > MAX_MAP_PIXELS:
+        if width * height > MAX_GRID_CELLS:
             raise MapLoadError(
                 f"{yaml_path}: image {image_path}: {width} x {height} pixels, more than "
-                f"{MAX_MAP_PIXELS:.0e}"
+                f"{MAX_GRID_CELLS:.0e}"
             )
         try:
             img.load()

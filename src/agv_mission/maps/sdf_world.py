@@ -37,6 +37,7 @@ from defusedxml import DefusedXmlException
 from defusedxml import ElementTree as DefusedTree
 
 from agv_mission.atomic import InputFileError, read_input_bytes
+from agv_mission.geometry import MAX_COORDINATE
 from agv_mission.maps.sdf_pose import (
     IDENTITY,
     Transform,
@@ -54,9 +55,6 @@ MAX_PROBLEMS = 50  # refusals named before the rest are counted
 FLOOR_MODELS = ("ground_plane",)  # model:// names that are the floor
 IGNORED_MODELS = ("sun",)  # model:// names without geometry (Gazebo's light)
 UNSUPPORTED_GEOMETRY = ("mesh", "heightmap", "capsule", "ellipsoid", "polyline", "image")
-#: Farthest (m) a <pose> may place anything from its frame, and the largest size, radius or
-#: length of a body: 10 000 km; 1e300 m is no place (and its square overflows).
-MAX_COORDINATE = 1e7
 
 
 class SdfError(ValueError):

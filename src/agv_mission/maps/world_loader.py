@@ -416,10 +416,14 @@ def world_from_file(
         bounds = (b.xmin, b.xmax, b.ymin, b.ymax)
     else:
         bounds = _geometry_bounds(boxes, cylinders, spawn, DEFAULT_MARGIN)
-    if model.bounds is not None:  # else a body stretches the map: rasterize names the span
-        _check_size(path, bounds, model.resolution, root)
     try:
         grid = rasterize(boxes, cylinders, bounds, model.resolution, spawn)
+    except WorldTooLarge as exc:  # refused before a cell is allocated
+        line = node_line(root, ("bounds",)) if root is not None and model.bounds else None
+        if line is None:  # the bodies stretch the map
+            raise WorldError(f"{path}: {exc}") from None
+        message = f"{path}:{line}: bounds: {exc} (smaller bounds or a coarser resolution)"
+        raise WorldError(message, [message]) from None
     except ValueError as exc:
         raise WorldError(f"{path}: {exc}") from exc
     rooms, docks = _rooms_of(path, model.rooms, root)
@@ -477,17 +481,3 @@ def _geometry_bounds(
         xs += [cyl.x - cyl.radius, cyl.x + cyl.radius]
         ys += [cyl.y - cyl.radius, cyl.y + cyl.radius]
     return (min(xs) - margin, max(xs) + margin, min(ys) - margin, max(ys) + margin)
-
-
-def _check_size(path: Path, bounds: Any, resolution: float, root: Any) -> None:
-    """Refuse a map of more than ``MAX_WORLD_CELLS`` cells before it is allocated, at the
-    line of the file's ``bounds``."""
-    try:
-        grid_shape(bounds, resolution)
-    except WorldTooLarge as exc:
-        line = node_line(root, ("bounds",)) if root is not None else None
-        where = f"{path}:{line}" if line else str(path)
-        message = f"{where}: bounds: {exc} (smaller bounds or a coarser resolution)"
-        raise WorldError(message, [message]) from None
-    except ValueError:  # empty bounds: rasterize says so
-        return

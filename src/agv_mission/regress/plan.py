@@ -46,6 +46,7 @@ import yaml
 from agv_mission.missions.load.errors import MissionError, Problem
 from agv_mission.missions.load.overrides import Override
 from agv_mission.missions.load.schema.mission import MAX_SEED
+from agv_mission.yaml_safe import safe_load
 
 # Result keys that come from the wall clock: they differ between any two runs.
 WALL_CLOCK_METRICS = (
@@ -164,8 +165,8 @@ def not_a_mission(path: Path) -> str | None:
     """Why ``path`` is not a mission file, or None when it is one (or may be one: a file
     that cannot be read or parsed is the loader's to report)."""
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, ValueError):
+        data = safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
         return None
     if data is None:
         return "empty"
@@ -196,8 +197,8 @@ def _trees_named(missions: Sequence[Path]) -> dict[Path, list[Path]]:
     out: dict[Path, list[Path]] = {}
     for m in missions:
         try:
-            data = yaml.safe_load(m.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, yaml.YAMLError, ValueError):
+            data = safe_load(m.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, yaml.YAMLError):
             continue
         tree = data.get("tree") if isinstance(data, dict) else None
         if isinstance(tree, str) and tree.lower().endswith(".xml"):
@@ -308,16 +309,14 @@ def plan_jobs(
 
     if seeds < 1:
         raise RegressError("--seeds must be at least 1")
-    if seeds > MAX_JOBS:
-        raise RegressError(f"--seeds {seeds}: more than {MAX_JOBS:,} runs")
     found = survey(paths)
     scenarios = found.missions
     variants = expand_variants(sweeps)
     runs = len(scenarios) * len(variants) * seeds
     if runs > MAX_JOBS:
         raise RegressError(
-            f"{len(scenarios)} scenario(s) x {len(variants)} variant(s) x {seeds} seed(s): "
-            f"{runs:,} runs, more than {MAX_JOBS:,}"
+            f"{len(scenarios)} scenario(s) x {len(variants)} variant(s) x {seeds} seed(s) = "
+            f"{runs:,}: more than {MAX_JOBS:,} runs"
         )
     if output_root is None:
         stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")

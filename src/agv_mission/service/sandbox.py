@@ -13,6 +13,7 @@ from pathlib import Path
 import yaml
 
 from agv_mission.atomic import input_path
+from agv_mission.yaml_safe import safe_load
 
 MAX_NESTED_FILE = 1_000_000  # bytes of a world YAML read to look for nested paths
 
@@ -59,8 +60,8 @@ def nested_files(world: Path) -> dict[str, Path]:
     try:
         if not world.is_file() or world.stat().st_size > MAX_NESTED_FILE:
             return {}  # the loader reports a missing file; a huge one is no world
-        doc = yaml.safe_load(world.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, ValueError):
+        doc = safe_load(world.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
         return {}
     if not isinstance(doc, dict):
         return {}

@@ -265,10 +265,8 @@ class _Assembly:
             if spec.from_xml and isinstance(raw, str):
                 try:
                     raw = _xml_value(raw, fields[port].annotation)
-                except (yaml.YAMLError, ValueError, RecursionError) as exc:
+                except (yaml.YAMLError, RecursionError) as exc:
                     why = getattr(exc, "problem", None) or "nests too deeply"
-                    if isinstance(exc, ValueError) and not isinstance(exc, yaml.YAMLError):
-                        why = "a number of more than 4300 digits"
                     shown = repr(raw) if len(raw) <= 60 else repr(raw[:60]) + "..."
                     self.problems.append(
                         spec.where.problem(

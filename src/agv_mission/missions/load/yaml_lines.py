@@ -66,11 +66,11 @@ def _walk(node: yaml.Node, path: FieldPath, lines: dict[FieldPath, int], seen: s
     seen.add(id(node))
     if isinstance(node, yaml.ScalarNode):
         _check_text(node, path)
-        digits = sum(c.isdigit() for c in node.value)
-        if node.tag == INT_TAG and digits > MAX_INT_DIGITS:
-            raise DocumentError(
-                f"a number of {digits} digits (at most {MAX_INT_DIGITS})", node.start_mark, path
-            )
+        if node.tag == INT_TAG and len(node.value) > MAX_INT_DIGITS:  # digits, signs, _
+            digits = sum(c.isdigit() for c in node.value)
+            if digits > MAX_INT_DIGITS:
+                message = f"a number of {digits} digits (at most {MAX_INT_DIGITS})"
+                raise DocumentError(message, node.start_mark, path)
     elif isinstance(node, yaml.MappingNode):
         first: dict[tuple[str, str], int] = {}
         for key, value in node.value:

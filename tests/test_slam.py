@@ -11,7 +11,7 @@ from scipy import ndimage
 
 from agv_mission.geometry import Pose2D, wrap_angle, wrap_angles
 from agv_mission.mapping.frontiers import find_frontiers, frontier_mask
-from agv_mission.mapping.likelihood_field import LikelihoodField, sliding_max
+from agv_mission.mapping.likelihood_field import LikelihoodField, block_maxima
 from agv_mission.mapping.quality import map_quality
 from agv_mission.mapping.scan_matching import CorrelativeMatcher
 from agv_mission.mapping.slam import GridSlam, GridSlamConfig, trajectory_rmse
@@ -149,15 +149,18 @@ def test_reset_starts_a_new_map(tb3: World) -> None:
 # --------------------------------------------------------------------------- matching
 
 
-def test_sliding_max_bounds_every_cell_of_its_block() -> None:
+def test_block_maxima_bound_every_cell_of_their_blocks() -> None:
     rng = np.random.default_rng(0)
     values = rng.random((23, 17)).astype(np.float32)
-    out = sliding_max(values, 4)
-    for r in range(23):
-        for c in range(17):
-            assert out[r, c] == values[r : r + 4, c : c + 4].max()
+    levels = block_maxima(values, 8)
+    assert sorted(levels) == [1, 2, 4, 8]
+    for b, flat in levels.items():
+        out = flat.reshape(values.shape)
+        for r in range(23):
+            for c in range(17):
+                assert out[r, c] == values[r : r + b, c : c + b].max()
     with pytest.raises(ValueError):
-        sliding_max(values, 3)
+        block_maxima(values, 3)
 
 
 @pytest.mark.parametrize("refinement", ["icp", "field"])
@@ -199,14 +202,15 @@ def test_the_search_is_skipped_only_for_a_small_turn(tb3: World) -> None:
         assert abs(wrap_angle(result.pose[2] - pose.yaw)) < 0.005
 
 
-def test_matcher_search_equals_exhaustive_search(tb3: World) -> None:
+@pytest.mark.parametrize("coarse_block", [2, 4, 8])
+def test_matcher_search_equals_exhaustive_search(tb3: World, coarse_block: int) -> None:
     """Branch and bound returns the same cell-level optimum as scoring every candidate."""
     pose = Pose2D(0.55, -0.55, -0.7)
     slam = static_map(tb3, pose)
     field = LikelihoodField(slam.map.field, 0.05, slam.origin)
     points = slam._scan_points(scans_at(tb3, pose, 2)[-1])
     guess = pose.as_array() + [0.08, -0.06, 0.05]
-    fast = CorrelativeMatcher(refinement="none", angular_step=0.02)
+    fast = CorrelativeMatcher(refinement="none", angular_step=0.02, coarse_block=coarse_block)
     result = fast.match(field, points, guess)
     best, best_pose = -1.0, None
     for a in np.arange(-9, 10) * 0.02:
@@ -224,21 +228,56 @@ def test_matcher_search_equals_exhaustive_search(tb3: World) -> None:
     assert result.candidates < 19 * 81  # it did not have to score them all
 
 
-def test_a_field_cut_to_what_the_search_reads_finds_the_same_optimum() -> None:
-    """A loop's wide search reads its submap only near the guess: the field of the submap's
-    points cut to that square is smaller and gives the very same coarse optimum."""
-    house = small_house()
-    slam = GridSlam(GridSlamConfig())
-    xy = []
+def house_submap(slam: GridSlam) -> np.ndarray:
+    """Map-frame scan points of the small house seen from three poses: a loop's submap."""
+    house, xy = small_house(), []
     for pose in (Pose2D(-6.0, -1.0, 0.3), Pose2D(-3.0, 2.0, 1.2), Pose2D(5.0, 1.0, -2.0)):
         q = slam._scan_points(scans_at(house, pose, 1)[-1])
         c, s = math.cos(pose.yaw), math.sin(pose.yaw)
         xy.append(
             np.stack([pose.x + c * q[:, 0] - s * q[:, 1], pose.y + s * q[:, 0] + c * q[:, 1]], 1)
         )
-    xy = np.vstack(xy)
+    return np.vstack(xy)
+
+
+@pytest.mark.parametrize("weights", [(0.0, 0.0), (1.0, 1.0)])
+def test_a_wide_search_over_many_levels_finds_the_exhaustive_optimum(weights) -> None:
+    """A loop's wide search (+-2 m, +-0.4 rad on 10 cm cells, blocks from 32 cells down):
+    the very optimum of scoring every candidate (a top block of one cell)."""
+    slam = GridSlam(GridSlamConfig())
+    field = LikelihoodField.from_points(house_submap(slam), 0.1, 0.1)
     truth = Pose2D(-5.5, -0.5, 0.1)
-    points = slam._scan_points(scans_at(house, truth, 1)[-1])
+    points = slam._scan_points(scans_at(small_house(), truth, 1)[-1])
+    guess = truth.as_array() + [1.3, -0.9, 0.25]
+    wt, wr = weights
+    found = {}
+    for block in (1, 4, 32):
+        matcher = CorrelativeMatcher(
+            linear_window=2.0,
+            angular_window=0.4,
+            coarse_block=block,
+            translation_weight=wt,
+            rotation_weight=wr,
+            refinement="none",
+        )
+        result = matcher.match(field, points, guess)
+        found[block] = (result.coarse_pose, result.candidates)
+    assert found[1][1] % (41 * 41) == 0  # one cell blocks: every cell at every angle
+    for block in (4, 32):
+        assert np.array_equal(found[block][0], found[1][0])
+        assert found[block][1] < found[1][1] / 20
+    if wt == 0.0:
+        assert np.hypot(*(found[1][0][:2] - truth.as_array()[:2])) < 0.15
+
+
+def test_a_field_cut_to_what_the_search_reads_finds_the_same_optimum() -> None:
+    """A loop's searches read its submap only near the guess: the field of the submap's
+    points cut to each one's box is smaller and gives the very same optimum, coarse (the
+    wide search's square) and refined (where every point of the scan may land)."""
+    slam = GridSlam(GridSlamConfig())
+    xy = house_submap(slam)
+    truth = Pose2D(-5.5, -0.5, 0.1)
+    points = slam._scan_points(scans_at(small_house(), truth, 1)[-1])
     guess = truth.as_array() + [0.3, -0.25, 0.15]
     matcher = CorrelativeMatcher(
         linear_window=0.5,
@@ -248,13 +287,22 @@ def test_a_field_cut_to_what_the_search_reads_finds_the_same_optimum() -> None:
         search_max_range=2.0,
     )
     res = 0.1
-    half = matcher.read_radius(points, res)
     full = LikelihoodField.from_points(xy, res, 0.1)
-    cut = LikelihoodField.from_points(xy, res, 0.1, (guess[0], guess[1], half))
+    cut = LikelihoodField.from_points(xy, res, 0.1, matcher.read_box(points, guess, res))
     assert cut.values.size < full.values.size / 2
     found = matcher.match(cut, points, guess).coarse_pose
     assert np.array_equal(found, matcher.match(full, points, guess).coarse_pose)
     assert np.hypot(*(found[:2] - truth.as_array()[:2])) < 0.15
+
+    refiner = CorrelativeMatcher(linear_window=0.3, angular_window=0.05, search_max_range=2.0)
+    res = 0.05
+    full = LikelihoodField.from_points(xy, res, 0.05)
+    cut = LikelihoodField.from_points(xy, res, 0.05, refiner.read_box(points, found, res))
+    assert cut.values.size < full.values.size * 0.8
+    refined = refiner.match(cut, points, found)
+    assert refined.refined
+    assert np.array_equal(refined.pose, refiner.match(full, points, found).pose)
+    assert np.hypot(*(refined.pose[:2] - truth.as_array()[:2])) < 0.03
 
 
 def test_the_far_face_of_a_thin_wall_is_no_partner() -> None:

@@ -235,7 +235,8 @@ class GraphSlam(GridSlam):
             lo, hi = max(i - c.loop_submap_keyframes, 0), i + c.loop_submap_keyframes + 1
             allowed = set(old.tolist())
             members = [m for m in range(lo, min(hi, len(self.keyframes))) if m in allowed]
-            field = self._submap_field(members)
+            box = self.loop_matcher.read_box(kf.points, self.nodes[j], self.resolution)
+            field = self._submap_field(members, around=box)
             result = self.loop_matcher.match(field, kf.points, self.nodes[j], None)
         self.loop_times.append(perf_counter() - t0)
         if result.score < c.loop_min_score:
@@ -316,24 +317,24 @@ class GraphSlam(GridSlam):
         matcher = CorrelativeMatcher(
             linear_window=radius,
             angular_window=c.loop_wide_angular_window,
-            coarse_block=8,
+            coarse_block=32,
             translation_weight=0.0,  # no pull toward the drifted guess
             rotation_weight=0.0,
             refinement="none",
             search_max_range=c.search_max_range,
         )
-        # The coarse search reads the field no further than this: the rest is not needed.
-        half = matcher.read_radius(points, coarse_res)
-        coarse_field = self._submap_field(chosen, coarse_res, (guess[0], guess[1], half))
-        coarse = matcher.match(coarse_field, points, guess, None)
-        field = self._submap_field(chosen, self.resolution)
+        # Each search reads the field no further than its box: the rest is not needed.
+        box = matcher.read_box(points, guess, coarse_res)
+        coarse = matcher.match(self._submap_field(chosen, coarse_res, box), points, guess, None)
+        box = self.loop_refiner.read_box(points, coarse.pose, self.resolution)
+        field = self._submap_field(chosen, self.resolution, box)
         return self.loop_refiner.match(field, points, coarse.pose, None)
 
     def _submap_field(
         self,
         members: list[int],
         res: float | None = None,
-        around: tuple[float, float, float] | None = None,
+        around: tuple[float, float, float, float] | None = None,
     ) -> LikelihoodField:
         """A likelihood field of the keyframes ``members``' scans at their graph poses
         (cells of ``res``, the map's by default; ``around``: see

@@ -1,8 +1,8 @@
 """The likelihood field scans are matched against, and how to read it.
 
 ``exp(-d^2 / (2 sigma^2))`` of the distance ``d`` to the nearest occupied cell's obstacle
-point, truncated at ``4 sigma`` (:func:`field_values`); an upper bound of it over blocks
-of cells (:func:`sliding_max`, for branch and bound) and its Catmull-Rom bicubic value and
+point, truncated at ``4 sigma`` (:func:`field_values`); its maxima over blocks
+of cells (:func:`block_maxima`, for branch and bound) and its Catmull-Rom bicubic value and
 gradient (:func:`bicubic`).
 """
 
@@ -58,21 +58,23 @@ class LikelihoodField:
         xy: np.ndarray,
         resolution: float,
         sigma: float,
-        around: tuple[float, float, float] | None = None,
+        around: tuple[float, float, float, float] | None = None,
     ) -> LikelihoodField:
         """The field of map-frame obstacle points ``xy`` (N, 2), each cell's anchor where
-        its points fell (sub-cell walls, as a scan-built map has them); of the points
-        within the square ``around`` (x, y, half side) when given. The grid reaches as far
-        past the points as the field is not zero: a matched point landing beyond reads
-        zero either way, and a wider grid only costs the distance transform."""
+        its points fell (sub-cell walls, as a scan-built map has them); with ``around``
+        (x0, y0, x1, y1), the field a lookup inside that box reads: of the points within
+        the field's reach of it. The grid reaches as far past the points as the field is
+        not zero: a matched point landing beyond reads zero either way, and a wider grid
+        only costs the distance transform."""
         res = float(resolution)
         margin = 4.0 * sigma + 3.0 * res
         if around is not None:
-            x, y, half = around
-            reach = half + margin
-            xy = xy[(np.abs(xy[:, 0] - x) <= reach) & (np.abs(xy[:, 1] - y) <= reach)]
+            x0, y0, x1, y1 = around
+            keep = (xy[:, 0] >= x0 - margin) & (xy[:, 0] <= x1 + margin)
+            keep &= (xy[:, 1] >= y0 - margin) & (xy[:, 1] <= y1 + margin)
+            xy = xy[keep]
             if not len(xy):
-                return cls.from_occupied(np.zeros((1, 1), bool), res, (x, y), sigma)
+                return cls.from_occupied(np.zeros((1, 1), bool), res, (x0, y0), sigma)
         ox = math.floor((xy[:, 0].min() - margin) / res) * res
         oy = math.floor((xy[:, 1].min() - margin) / res) * res
         w = int(math.ceil((xy[:, 0].max() + margin - ox) / res))
@@ -147,14 +149,14 @@ def field_values(
     return values, (ri, ci)
 
 
-def sliding_max(values: np.ndarray, block: int) -> np.ndarray:
-    """``out[r, c] = max(values[r : r + block, c : c + block])`` (zero past the edges).
-
-    ``block`` must be a power of two; computed by repeated doubling, exact.
-    """
+def block_maxima(values: np.ndarray, block: int) -> dict[int, np.ndarray]:
+    """For each power of two ``b`` up to ``block``, ``out[b][r * W + c] = max(values[r : r
+    + b, c : c + b])`` (zero past the edges), flattened: the bounds of a branch and bound
+    over translation blocks. Computed by repeated doubling, exact."""
     if block & (block - 1) or block < 1:
         raise ValueError(f"block must be a power of two, got {block}")
     out = values
+    levels = {1: out.ravel()}
     width = 1
     while width < block:
         shifted = np.zeros_like(out)
@@ -164,7 +166,8 @@ def sliding_max(values: np.ndarray, block: int) -> np.ndarray:
         shifted[:, :-width] = out[:, width:]
         out = np.maximum(out, shifted)
         width *= 2
-    return out
+        levels[width] = out.ravel()
+    return levels
 
 
 def crop_window(values: np.ndarray, r0: int, c0: int, h: int, w: int) -> np.ndarray:

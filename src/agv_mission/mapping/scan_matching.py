@@ -7,8 +7,9 @@ followed by the ``CeresScanMatcher2D``):
    (default +-0.2 m, +-10 deg) exhaustively but cheaply: every rotation is scored on a
    coarse grid of translation blocks whose score is an upper bound (a sliding-window
    maximum of the likelihood field, Olson 2009 / Hess et al. 2016), and only the blocks
-   whose bound beats the best exact score found so far are expanded to single cells
-   (branch and bound over two levels). The result is the global optimum of the window at
+   whose bound beats the best exact score found so far are split, into blocks of half
+   the side down to single cells (branch and bound over the levels from
+   ``coarse_block`` down, depth first, best bound first). The result is the global optimum of the window at
    cell / angular-step resolution, so an odometry error of centimetres and degrees per
    scan (a turn in place with slipping wheels) never traps it in a local minimum, the
    weakness of pure gradient matching (hector mapping).
@@ -53,8 +54,8 @@ from agv_mission.geometry import wrap_angle
 from agv_mission.mapping.likelihood_field import (
     LikelihoodField,
     bicubic,
+    block_maxima,
     crop_window,
-    sliding_max,
 )
 from agv_mission.mapping.scan_alignment import (
     PosePrior,
@@ -68,6 +69,9 @@ Refinement = Literal["icp", "field", "none"]
 #: Candidates scoring within this of the best count in the score surface's spread
 #: (Karto's ComputePositionalCovariance uses 0.1 of its response, also in 0..1).
 SURFACE_DROP = 0.1
+#: Radians past the angular window a refinement's point may swing (its steps overshoot,
+#: an angular step): the slack of :meth:`CorrelativeMatcher.read_box`.
+_LEVER_SLACK = 0.05
 
 
 @dataclass
@@ -211,13 +215,30 @@ class CorrelativeMatcher:
             return None
         return MatchResult(pose, score, guess.copy(), True, 0, cov)
 
-    def read_radius(self, points: np.ndarray, res: float) -> float:
-        """How far (m) from the guess the correlative search reads a field of cells
-        ``res`` to match ``points``: the scored points' reach, the linear window and its
-        blocks (the crop :meth:`_search` takes). A field needs nothing beyond it for the
-        search, which is all a coarse, unrefined match reads."""
-        search = self._search_points(np.asarray(points, dtype=np.float64).reshape(-1, 2), res)
-        return (self._crop_half(_farthest(search), res) + 1) * res
+    def read_box(
+        self, points: np.ndarray, guess: np.ndarray, res: float
+    ) -> tuple[float, float, float, float]:
+        """The map-frame box (x0, y0, x1, y1) a match of ``points`` from ``guess`` reads
+        of a field of cells ``res``: the correlative search's crop round the guess (the
+        scored points' reach, the linear window and its blocks) and, when it refines,
+        where every point lands from any pose of the window (its lever over the angular
+        window) plus a correspondence and half a metre for the refinement's steps. A
+        field cut to it (:meth:`LikelihoodField.from_points`) matches as the whole one."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        search = self._search_points(points, res)
+        half = (self._crop_half(_farthest(search), res) + 1) * res
+        x0, y0, x1, y1 = guess[0] - half, guess[1] - half, guess[0] + half, guess[1] + half
+        if self.refinement == "none" or self.iterations <= 0 or not len(points):
+            return x0, y0, x1, y1
+        wx, wy = transform_points(points, guess)
+        lever = self.angular_window + _LEVER_SLACK
+        reach = self.linear_window + self.max_correspondence + 0.5 + lever * np.hypot(*points.T)
+        return (
+            min(x0, float((wx - reach).min())),
+            min(y0, float((wy - reach).min())),
+            max(x1, float((wx + reach).max())),
+            max(y1, float((wy + reach).max())),
+        )
 
     def _crop_half(self, reach: float, res: float) -> int:
         """Half the side (cells) of :meth:`_search`'s crop round the guess's cell."""
@@ -248,7 +269,7 @@ class CorrelativeMatcher:
         step: float,
     ) -> tuple[np.ndarray, bool, int, np.ndarray]:
         """The correlative optimum of the window round ``guess`` (branch and bound over
-        two levels, see the module), whether it lies within a cell and an angular
+        levels, see the module), whether it lies within a cell and an angular
         ``step`` of ``guess``, how many cell-level candidates were scored and the
         optimum's covariance from its score surface."""
         res = field.resolution
@@ -276,23 +297,8 @@ class CorrelativeMatcher:
         cols = np.clip(np.floor((wx - cox) / res).astype(np.int64), n_lin, size - n_lin - block)
         rows = np.clip(np.floor((wy - coy) / res).astype(np.int64), n_lin, size - n_lin - block)
         base = rows * size + cols  # (A, N)
-        n_pts = float(len(points))
-
-        # Level 1: translation blocks scored with the sliding max (an upper bound).
-        starts = np.arange(-n_lin, n_lin + 1, block)
-        sy, sx = np.meshgrid(starts, starts, indexing="ij")
-        sy, sx = sy.ravel(), sx.ravel()
-        coarse = sliding_max(crop, block).ravel()
-        offsets = sy * size + sx  # (K,)
-        bound = coarse[base[:, None, :] + offsets[None, :, None]].sum(axis=2) / n_pts  # (A, K)
-        # Smallest |offset| per axis within each block, for the penalty bound.
-        ends = np.minimum(starts + block - 1, n_lin)
-        nearest = np.where((starts <= 0) & (ends >= 0), 0, np.minimum(abs(starts), abs(ends)))
-        ny, nx = np.meshgrid(nearest, nearest, indexing="ij")
-        t_min = np.hypot(ny.ravel(), nx.ravel()) * res  # (K,)
-        bound = bound * self._penalty(t_min[None, :], dyaw[:, None])
-        best, evaluated = self._expand_blocks(
-            flat, base, bound, (sy, sx, block, n_lin, size), res, dyaw, n_pts
+        best, evaluated = self._branch_and_bound(
+            block_maxima(crop, block), base, (n_lin, size), res, dyaw
         )
 
         _, ai, dy, dx = best
@@ -338,49 +344,41 @@ class CorrelativeMatcher:
         cov[2, 2] = float(wa @ (dyaw - dyaw[ai]) ** 2) + step * step / 12.0 + 1e-12
         return cov
 
-    def _expand_blocks(
+    def _branch_and_bound(
         self,
-        flat: np.ndarray,
+        maxima: dict[int, np.ndarray],
         base: np.ndarray,
-        bound: np.ndarray,
-        layout: tuple[np.ndarray, np.ndarray, int, int, int],
+        layout: tuple[int, int],
         res: float,
         dyaw: np.ndarray,
-        n_pts: float,
     ) -> tuple[tuple[float, int, int, int], int]:
-        """Level 0 of the search: expand the translation blocks (``layout``: their start
-        rows and columns, their size, the window's half width and the crop's side) in
-        order of their ``bound`` until none can beat the best cell; the best (score,
-        angle index, dy, dx) and how many cells were scored."""
-        sy, sx, block, n_lin, size = layout
-        order = np.argsort(bound, axis=None)[::-1]
-        bound_sorted = bound.ravel()[order]
-        inner = np.arange(block)
-        iy, ix = np.meshgrid(inner, inner, indexing="ij")
-        iy, ix = iy.ravel(), ix.ravel()
-        best = (-1.0, 0, 0, 0)  # score, angle index, dy, dx
-        evaluated = 0
-        pos, batch = 0, 4
-        while pos < len(order) and bound_sorted[pos] > best[0]:
-            chunk = order[pos : pos + batch]
-            chunk = chunk[bound.ravel()[chunk] > best[0]]
-            pos += batch
-            if len(chunk) == 0:
-                break
-            a_idx, k_idx = np.divmod(chunk, len(sy))
-            dy = sy[k_idx][:, None] + iy[None, :]  # (C, B*B)
-            dx = sx[k_idx][:, None] + ix[None, :]
-            valid = (dy <= n_lin) & (dx <= n_lin)
-            off = dy * size + dx
-            scores = flat[base[a_idx][:, None, :] + off[:, :, None]].sum(axis=2) / n_pts
-            scores = scores * self._penalty(np.hypot(dy, dx) * res, dyaw[a_idx][:, None])
-            scores[~valid] = -1.0
-            evaluated += int(valid.sum())
-            i = int(np.argmax(scores))
-            ci, bi = divmod(i, scores.shape[1])
-            if scores[ci, bi] > best[0]:
-                best = (float(scores[ci, bi]), int(a_idx[ci]), int(dy[ci, bi]), int(dx[ci, bi]))
-        return best, evaluated
+        """The window's best cell: (score, angle index, dy, dx), and how many cells were
+        scored. Over translation blocks (``maxima[b]``: the field's maximum over each
+        ``b`` x ``b`` block, flattened) from ``coarse_block`` halving down to single
+        cells: a block's bound is the sum of its points' block maxima, times the penalty
+        of its offset nearest the guess; a block is split only while it beats the best
+        cell scored so far (Hess et al. 2016). That best starts as the cell the best
+        blocks lead to, and every level is split at once (a few numpy calls, not one
+        per block): the coarse levels are cheap where a wide window holds hundreds of
+        blocks per angle, the fine ones prune a block's cells before they are scored."""
+        n_lin, size = layout
+        top = self.coarse_block
+        starts = np.arange(-n_lin, n_lin + 1, top)
+        sy, sx = (g.ravel() for g in np.meshgrid(starts, starts, indexing="ij"))
+        n_ang = base.shape[0]
+        a = np.repeat(np.arange(n_ang), len(sy))
+        sy, sx = np.tile(sy, n_ang), np.tile(sx, n_ang)
+        blocks = _Blocks(self, maxima, base, n_lin, size, res, dyaw)
+        bound = blocks.bound(top, a, sy, sx)
+        b = top
+        while b > 1:
+            blocks.descend(b, a, sy, sx, bound)
+            live = bound > blocks.best[0]
+            a, sy, sx = blocks.split(b, a[live], sy[live], sx[live])
+            b //= 2
+            bound = blocks.bound(b, a, sy, sx)
+        blocks.take(a, sy, sx, bound)
+        return blocks.best, blocks.evaluated
 
     def _refine(
         self,
@@ -462,6 +460,80 @@ class CorrelativeMatcher:
 def _farthest(points: np.ndarray) -> float:
     """The largest distance (m) of robot-frame ``points`` from the robot (0 without any)."""
     return float(np.sqrt((points**2).sum(axis=1)).max()) if len(points) else 0.0
+
+
+class _Blocks:
+    """The translation blocks of one :meth:`CorrelativeMatcher._branch_and_bound`: their
+    bounds, their split into quarters, the best cell so far and the count of cells
+    scored."""
+
+    def __init__(
+        self,
+        matcher: CorrelativeMatcher,
+        maxima: dict[int, np.ndarray],
+        base: np.ndarray,
+        n_lin: int,
+        size: int,
+        res: float,
+        dyaw: np.ndarray,
+    ) -> None:
+        self.matcher, self.maxima, self.base = matcher, maxima, base
+        self.n_lin, self.size, self.res, self.dyaw = n_lin, size, res, dyaw
+        self.n_pts = float(base.shape[1])
+        self.best = (-1.0, 0, 0, 0)  # score, angle index, dy, dx
+        self.evaluated = 0
+
+    def bound(self, b: int, a: np.ndarray, sy: np.ndarray, sx: np.ndarray) -> np.ndarray:
+        """Each block's bound (of ``b`` cells from rows ``sy``, columns ``sx``, at angle
+        index ``a``); a single cell's (``b`` = 1) is its exact score."""
+        values = self.maxima[b]
+        score = values[self.base[a] + (sy * self.size + sx)[:, None]].sum(axis=1) / self.n_pts
+        if b == 1:
+            t_min = np.hypot(sy, sx) * self.res
+        else:
+            # The block's offset nearest the guess, per axis (blocks end at the window).
+            ey, ex = np.minimum(sy + b - 1, self.n_lin), np.minimum(sx + b - 1, self.n_lin)
+            ny = np.where((sy <= 0) & (ey >= 0), 0, np.minimum(abs(sy), abs(ey)))
+            nx = np.where((sx <= 0) & (ex >= 0), 0, np.minimum(abs(sx), abs(ex)))
+            t_min = np.hypot(ny, nx) * self.res
+        return score * self.matcher._penalty(t_min, self.dyaw[a])
+
+    def split(
+        self, b: int, a: np.ndarray, sy: np.ndarray, sx: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The quarters (of ``b // 2`` cells) of blocks of ``b`` cells that lie in the window."""
+        h = b // 2
+        ka = np.repeat(a, 4)
+        ky = (sy[:, None] + np.array([0, 0, h, h])).ravel()
+        kx = (sx[:, None] + np.array([0, h, 0, h])).ravel()
+        inside = (ky <= self.n_lin) & (kx <= self.n_lin)
+        return ka[inside], ky[inside], kx[inside]
+
+    def descend(
+        self, b: int, a: np.ndarray, sy: np.ndarray, sx: np.ndarray, bound: np.ndarray
+    ) -> None:
+        """From the best-bounded block of ``b`` cells, the best-bounded quarter down to a
+        cell: a good cell early, whose score prunes the level's other blocks."""
+        i = int(np.argmax(bound))
+        if bound[i] <= self.best[0]:
+            return
+        a, sy, sx = a[i : i + 1], sy[i : i + 1], sx[i : i + 1]
+        while b > 1:
+            a, sy, sx = self.split(b, a, sy, sx)
+            b //= 2
+            bound = self.bound(b, a, sy, sx)
+            i = int(np.argmax(bound))
+            a, sy, sx, bound = a[i : i + 1], sy[i : i + 1], sx[i : i + 1], bound[i : i + 1]
+        self.take(a, sy, sx, bound)
+
+    def take(self, a: np.ndarray, sy: np.ndarray, sx: np.ndarray, score: np.ndarray) -> None:
+        """The best of single cells and their ``score``s, if it beats the best so far."""
+        self.evaluated += len(score)
+        if not len(score):
+            return
+        i = int(np.argmax(score))
+        if score[i] > self.best[0]:
+            self.best = (float(score[i]), int(a[i]), int(sy[i]), int(sx[i]))
 
 
 def fuse(

@@ -514,6 +514,8 @@ class _Blocks:
     ) -> None:
         """From the best-bounded block of ``b`` cells, the best-bounded quarter down to a
         cell: a good cell early, whose score prunes the level's other blocks."""
+        if not len(bound):
+            return
         i = int(np.argmax(bound))
         if bound[i] <= self.best[0]:
             return

@@ -51,6 +51,7 @@ from typing import Literal
 import numpy as np
 
 from agv_mission.geometry import wrap_angle
+from agv_mission.mapping.branch_and_bound import best_cell
 from agv_mission.mapping.likelihood_field import (
     LikelihoodField,
     bicubic,
@@ -297,8 +298,8 @@ class CorrelativeMatcher:
         cols = np.clip(np.floor((wx - cox) / res).astype(np.int64), n_lin, size - n_lin - block)
         rows = np.clip(np.floor((wy - coy) / res).astype(np.int64), n_lin, size - n_lin - block)
         base = rows * size + cols  # (A, N)
-        best, evaluated = self._branch_and_bound(
-            block_maxima(crop, block), base, (n_lin, size), res, dyaw
+        best, evaluated = best_cell(
+            block_maxima(crop, block), base, (n_lin, size, block), res, dyaw, self._penalty
         )
 
         _, ai, dy, dx = best
@@ -343,42 +344,6 @@ class CorrelativeMatcher:
         step = float(dyaw[1] - dyaw[0]) if len(dyaw) > 1 else 0.0
         cov[2, 2] = float(wa @ (dyaw - dyaw[ai]) ** 2) + step * step / 12.0 + 1e-12
         return cov
-
-    def _branch_and_bound(
-        self,
-        maxima: dict[int, np.ndarray],
-        base: np.ndarray,
-        layout: tuple[int, int],
-        res: float,
-        dyaw: np.ndarray,
-    ) -> tuple[tuple[float, int, int, int], int]:
-        """The window's best cell: (score, angle index, dy, dx), and how many cells were
-        scored. Over translation blocks (``maxima[b]``: the field's maximum over each
-        ``b`` x ``b`` block, flattened) from ``coarse_block`` halving down to single
-        cells: a block's bound is the sum of its points' block maxima, times the penalty
-        of its offset nearest the guess; a block is split only while it beats the best
-        cell scored so far (Hess et al. 2016). That best starts as the cell the best
-        blocks lead to, and every level is split at once (a few numpy calls, not one
-        per block): the coarse levels are cheap where a wide window holds hundreds of
-        blocks per angle, the fine ones prune a block's cells before they are scored."""
-        n_lin, size = layout
-        top = self.coarse_block
-        starts = np.arange(-n_lin, n_lin + 1, top)
-        sy, sx = (g.ravel() for g in np.meshgrid(starts, starts, indexing="ij"))
-        n_ang = base.shape[0]
-        a = np.repeat(np.arange(n_ang), len(sy))
-        sy, sx = np.tile(sy, n_ang), np.tile(sx, n_ang)
-        blocks = _Blocks(self, maxima, base, n_lin, size, res, dyaw)
-        bound = blocks.bound(top, a, sy, sx)
-        b = top
-        while b > 1:
-            blocks.descend(b, a, sy, sx, bound)
-            live = bound > blocks.best[0]
-            a, sy, sx = blocks.split(b, a[live], sy[live], sx[live])
-            b //= 2
-            bound = blocks.bound(b, a, sy, sx)
-        blocks.take(a, sy, sx, bound)
-        return blocks.best, blocks.evaluated
 
     def _refine(
         self,
@@ -460,82 +425,6 @@ class CorrelativeMatcher:
 def _farthest(points: np.ndarray) -> float:
     """The largest distance (m) of robot-frame ``points`` from the robot (0 without any)."""
     return float(np.sqrt((points**2).sum(axis=1)).max()) if len(points) else 0.0
-
-
-class _Blocks:
-    """The translation blocks of one :meth:`CorrelativeMatcher._branch_and_bound`: their
-    bounds, their split into quarters, the best cell so far and the count of cells
-    scored."""
-
-    def __init__(
-        self,
-        matcher: CorrelativeMatcher,
-        maxima: dict[int, np.ndarray],
-        base: np.ndarray,
-        n_lin: int,
-        size: int,
-        res: float,
-        dyaw: np.ndarray,
-    ) -> None:
-        self.matcher, self.maxima, self.base = matcher, maxima, base
-        self.n_lin, self.size, self.res, self.dyaw = n_lin, size, res, dyaw
-        self.n_pts = float(base.shape[1])
-        self.best = (-1.0, 0, 0, 0)  # score, angle index, dy, dx
-        self.evaluated = 0
-
-    def bound(self, b: int, a: np.ndarray, sy: np.ndarray, sx: np.ndarray) -> np.ndarray:
-        """Each block's bound (of ``b`` cells from rows ``sy``, columns ``sx``, at angle
-        index ``a``); a single cell's (``b`` = 1) is its exact score."""
-        values = self.maxima[b]
-        score = values[self.base[a] + (sy * self.size + sx)[:, None]].sum(axis=1) / self.n_pts
-        if b == 1:
-            t_min = np.hypot(sy, sx) * self.res
-        else:
-            # The block's offset nearest the guess, per axis (blocks end at the window).
-            ey, ex = np.minimum(sy + b - 1, self.n_lin), np.minimum(sx + b - 1, self.n_lin)
-            ny = np.where((sy <= 0) & (ey >= 0), 0, np.minimum(abs(sy), abs(ey)))
-            nx = np.where((sx <= 0) & (ex >= 0), 0, np.minimum(abs(sx), abs(ex)))
-            t_min = np.hypot(ny, nx) * self.res
-        return score * self.matcher._penalty(t_min, self.dyaw[a])
-
-    def split(
-        self, b: int, a: np.ndarray, sy: np.ndarray, sx: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The quarters (of ``b // 2`` cells) of blocks of ``b`` cells that lie in the window."""
-        h = b // 2
-        ka = np.repeat(a, 4)
-        ky = (sy[:, None] + np.array([0, 0, h, h])).ravel()
-        kx = (sx[:, None] + np.array([0, h, 0, h])).ravel()
-        inside = (ky <= self.n_lin) & (kx <= self.n_lin)
-        return ka[inside], ky[inside], kx[inside]
-
-    def descend(
-        self, b: int, a: np.ndarray, sy: np.ndarray, sx: np.ndarray, bound: np.ndarray
-    ) -> None:
-        """From the best-bounded block of ``b`` cells, the best-bounded quarter down to a
-        cell: a good cell early, whose score prunes the level's other blocks."""
-        if not len(bound):
-            return
-        i = int(np.argmax(bound))
-        if bound[i] <= self.best[0]:
-            return
-        a, sy, sx = a[i : i + 1], sy[i : i + 1], sx[i : i + 1]
-        while b > 1:
-            a, sy, sx = self.split(b, a, sy, sx)
-            b //= 2
-            bound = self.bound(b, a, sy, sx)
-            i = int(np.argmax(bound))
-            a, sy, sx, bound = a[i : i + 1], sy[i : i + 1], sx[i : i + 1], bound[i : i + 1]
-        self.take(a, sy, sx, bound)
-
-    def take(self, a: np.ndarray, sy: np.ndarray, sx: np.ndarray, score: np.ndarray) -> None:
-        """The best of single cells and their ``score``s, if it beats the best so far."""
-        self.evaluated += len(score)
-        if not len(score):
-            return
-        i = int(np.argmax(score))
-        if score[i] > self.best[0]:
-            self.best = (float(score[i]), int(a[i]), int(sy[i]), int(sx[i]))
 
 
 def fuse(

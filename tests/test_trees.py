@@ -159,6 +159,36 @@ children:
     assert tree.root.status is Status.SUCCESS
 
 
+def test_retry_with_minus_one_attempts_tries_until_it_succeeds() -> None:
+    """BT.CPP's ``RetryUntilSuccessful num_attempts="-1"``: tries for as long as it takes
+    (py_trees' own Retry would fail at the first failure)."""
+    ctx = sample_context()
+    tree = _tree(
+        """
+type: sequence
+children:
+  - type: retry
+    num_attempts: -1
+    child:
+      type: sequence
+      children:
+        - {type: wait, name: pause, seconds: 0.2}
+        - {type: check_blackboard, name: c, key: k, equals: 2}
+  - {type: log, name: done, message: done}
+""",
+        ctx,
+        {"k": 1},
+    )
+    _tick(tree, ctx, 60)
+    report = {n["name"]: n for n in tree.report()}
+    assert report["c"]["started"] >= 10 and report["c"]["status"] == "failed"
+    assert tree.root.status is Status.RUNNING
+    ctx.blackboard["k"] = 2
+    _tick(tree, ctx, 6)
+    assert tree.root.status is Status.SUCCESS
+    assert {n["name"]: n for n in tree.report()}["done"]["started"] == 1
+
+
 def test_parallel_pipeline_round_robin_and_recovery() -> None:
     ctx = sample_context()
     tree = _tree(

@@ -42,7 +42,9 @@ class Retry(py_trees.decorators.Retry):
     """Runs its child again after a failure, ``num_attempts`` tries in all (-1: forever)."""
 
     def __init__(self, name: str, child: Behaviour, num_attempts: int):
-        super().__init__(name=name, child=child, num_failures=num_attempts)
+        # py_trees' Retry fails at its first failure given -1 (BT.CPP's "retry forever")
+        tries = math.inf if num_attempts < 0 else num_attempts
+        super().__init__(name=name, child=child, num_failures=tries)  # type: ignore[arg-type]
 
     def update(self) -> Status:
         status = super().update()

@@ -7,7 +7,7 @@ from typing import Any
 
 import yaml
 
-from agv_mission.yaml_safe import INT_TAG, MAX_INT_DIGITS, SafeLoader
+from agv_mission.yaml_safe import INT_TAG, MAX_INT_DIGITS, FastSafeLoader, SafeLoader
 
 FieldPath = tuple[str | int, ...]
 
@@ -33,8 +33,21 @@ def load_with_lines(text: str) -> tuple[Any, dict[FieldPath, int]]:
     Raises ``yaml.YAMLError`` (with a ``problem_mark``) on syntax errors, and
     :class:`DocumentError` on a key given twice in one mapping or a string that is
     not valid Unicode (a lone surrogate from a ``\\ud800`` escape).
+
+    Parsed by libyaml (four times faster: a 3 MB polygon took 25 s in pure Python); a
+    syntax error is told by PyYAML's own parser, whose messages say what it found where
+    libyaml's only say what it did not ("expected ',' or '}', but got ':'").
     """
-    loader = SafeLoader(text)  # parsed once: the lines from its nodes, then the data
+    try:
+        return _load(text, FastSafeLoader)
+    except DocumentError:
+        raise
+    except yaml.YAMLError:
+        return _load(text, SafeLoader)
+
+
+def _load(text: str, loader_class: type) -> tuple[Any, dict[FieldPath, int]]:
+    loader = loader_class(text)  # parsed once: the lines from its nodes, then the data
     try:
         node = loader.get_single_node()
         lines: dict[FieldPath, int] = {}

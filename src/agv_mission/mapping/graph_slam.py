@@ -325,10 +325,10 @@ class GraphSlam(GridSlam):
         )
         # Each search reads the field no further than its box: the rest is not needed.
         box = matcher.read_box(points, guess, coarse_res)
-        coarse = matcher.match(self._submap_field(chosen, coarse_res, box), points, guess, None)
-        box = self.loop_refiner.read_box(points, coarse.pose, self.resolution)
+        coarse = matcher.optimum(self._submap_field(chosen, coarse_res, box), points, guess)
+        box = self.loop_refiner.read_box(points, coarse, self.resolution)
         field = self._submap_field(chosen, self.resolution, box)
-        return self.loop_refiner.match(field, points, coarse.pose, None)
+        return self.loop_refiner.match(field, points, coarse, None)
 
     def _submap_field(
         self,

@@ -7,8 +7,8 @@ For each angle of the search, the window's translations are tiled by blocks of
 offset nearest the guess: no cell of the block can score more. A block is split into
 quarters only while its bound beats the best cell scored so far, down to single cells,
 whose bound is their score (Olson 2009; Hess et al. 2016, Cartographer's
-``FastCorrelativeScanMatcher2D``). The best cell starts as the one the best-bounded
-blocks lead to, and each level is split at once, in a few numpy calls rather than one per
+``FastCorrelativeScanMatcher2D``). Before each level is split, the best-bounded block's
+way down to a cell gives a good best cell early; each level is split at once, in a few numpy calls rather than one per
 block: the coarse levels are cheap where a wide window holds hundreds of blocks per
 angle, the fine ones prune a block's cells before they are scored.
 """

@@ -7,12 +7,12 @@ followed by the ``CeresScanMatcher2D``):
    (default +-0.2 m, +-10 deg) exhaustively but cheaply: every rotation is scored on a
    coarse grid of translation blocks whose score is an upper bound (a sliding-window
    maximum of the likelihood field, Olson 2009 / Hess et al. 2016), and only the blocks
-   whose bound beats the best exact score found so far are split, into blocks of half
-   the side down to single cells (branch and bound over the levels from
-   ``coarse_block`` down, depth first, best bound first). The result is the global optimum of the window at
-   cell / angular-step resolution, so an odometry error of centimetres and degrees per
-   scan (a turn in place with slipping wheels) never traps it in a local minimum, the
-   weakness of pure gradient matching (hector mapping).
+   whose bound beats the best exact score found so far are split into blocks of half
+   the side, level by level down to single cells (:mod:`branch_and_bound`). The result
+   is the global optimum of the window at cell / angular-step resolution, so an
+   odometry error of centimetres and degrees per scan (a turn in place with slipping
+   wheels) never traps it in a local minimum, the weakness of pure gradient matching
+   (hector mapping).
 2. A sub-cell refinement from that optimum (:mod:`scan_alignment`), a maximum a
    posteriori estimate when the odometry prior's covariance is given:
 

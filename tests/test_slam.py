@@ -262,6 +262,7 @@ def test_a_wide_search_over_many_levels_finds_the_exhaustive_optimum(weights) ->
         )
         result = matcher.match(field, points, guess)
         found[block] = (result.coarse_pose, result.candidates)
+        assert np.array_equal(matcher.optimum(field, points, guess), result.pose)
     assert found[1][1] % (41 * 41) == 0  # one cell blocks: every cell at every angle
     for block in (4, 32):
         assert np.array_equal(found[block][0], found[1][0])

@@ -231,9 +231,12 @@ def _replay(
         try:
             slam.update(odom.compose(mount), scan, _ORIGIN, float(times[i]))
         except MapTooLarge as exc:
-            where = f"scan {i + 1} of {len(data.scans)} (t = {times[i]:.3f} s, odometry at x "
-            where += f"{odom.x:.4g} y {odom.y:.4g}, lidar {mount.x:.4g} m ahead, ranges to "
-            raise BagError(f"{path}: {where}{data.scans[i].range_max:.4g} m): {exc}") from None
+            scan_at = (
+                f"scan {i + 1} of {len(data.scans)} (t = {times[i]:.3f} s, odometry at x "
+                f"{odom.x:.4g} y {odom.y:.4g}, lidar {mount.x:.4g} m ahead, ranges to "
+                f"{data.scans[i].range_max:.4g} m)"
+            )
+            raise BagError(f"{path}: {scan_at}: {exc}") from None
     slam.finish()  # the whole recording seen: a final pass (the protocol's: none)
     return time.perf_counter() - t0
 

@@ -236,7 +236,7 @@ class GraphSlam(GridSlam):
             allowed = set(old.tolist())
             members = [m for m in range(lo, min(hi, len(self.keyframes))) if m in allowed]
             box = self.loop_matcher.read_box(kf.points, self.nodes[j], self.resolution)
-            field = self._submap_field(members, around=box)
+            field = self._submap_field(members, box=box)
             result = self.loop_matcher.match(field, kf.points, self.nodes[j], None)
         self.loop_times.append(perf_counter() - t0)
         if result.score < c.loop_min_score:
@@ -336,10 +336,10 @@ class GraphSlam(GridSlam):
         self,
         members: list[int],
         res: float | None = None,
-        around: tuple[float, float, float, float] | None = None,
+        box: tuple[float, float, float, float] | None = None,
     ) -> LikelihoodField:
         """A likelihood field of the keyframes ``members``' scans at their graph poses
-        (cells of ``res``, the map's by default; ``around``: see
+        (cells of ``res``, the map's by default; ``box``: see
         :meth:`LikelihoodField.from_points`)."""
         res = self.resolution if res is None else res
         pts = []
@@ -353,7 +353,7 @@ class GraphSlam(GridSlam):
                 )
             )
         sigma = self.config.likelihood_sigma * res / self.resolution
-        return LikelihoodField.from_points(np.vstack(pts), res, sigma, around)
+        return LikelihoodField.from_points(np.vstack(pts), res, sigma, box)
 
     def _optimize(self) -> Pose2D:
         """Optimise the graph, correct trajectory and map; the new current pose."""

@@ -58,18 +58,18 @@ class LikelihoodField:
         xy: np.ndarray,
         resolution: float,
         sigma: float,
-        around: tuple[float, float, float, float] | None = None,
+        box: tuple[float, float, float, float] | None = None,
     ) -> LikelihoodField:
         """The field of map-frame obstacle points ``xy`` (N, 2), each cell's anchor where
-        its points fell (sub-cell walls, as a scan-built map has them); with ``around``
+        its points fell (sub-cell walls, as a scan-built map has them); with ``box``
         (x0, y0, x1, y1), the field a lookup inside that box reads: of the points within
         the field's reach of it. The grid reaches as far past the points as the field is
         not zero: a matched point landing beyond reads zero either way, and a wider grid
         only costs the distance transform."""
         res = float(resolution)
         margin = 4.0 * sigma + 3.0 * res
-        if around is not None:
-            x0, y0, x1, y1 = around
+        if box is not None:
+            x0, y0, x1, y1 = box
             keep = (xy[:, 0] >= x0 - margin) & (xy[:, 0] <= x1 + margin)
             keep &= (xy[:, 1] >= y0 - margin) & (xy[:, 1] <= y1 + margin)
             xy = xy[keep]
